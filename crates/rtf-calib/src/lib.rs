@@ -1,0 +1,1 @@
+//! rtf-calib: targetless RGB-thermal calibration.

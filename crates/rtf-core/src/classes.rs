@@ -1,0 +1,121 @@
+//! Class sets: ids, names and palettes of the datasets rtf knows.
+
+use serde::{Deserialize, Serialize};
+
+/// One semantic class.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ClassInfo {
+    pub id: u8,
+    pub name: String,
+    /// Palette colour, RGB.
+    pub color: [u8; 3],
+}
+
+/// An ordered set of classes (id = index), plus an optional label id that means "ignore".
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ClassSet {
+    pub name: String,
+    pub classes: Vec<ClassInfo>,
+    /// Label id excluded from training and metrics (Freiburg: 13); None for MF.
+    pub ignore_id: Option<u8>,
+}
+
+const MF: [(&str, [u8; 3]); 9] = [
+    ("unlabeled", [0, 0, 0]),
+    ("car", [64, 0, 128]),
+    ("person", [64, 64, 0]),
+    ("bike", [0, 128, 192]),
+    ("curve", [0, 0, 192]),
+    ("car_stop", [128, 128, 0]),
+    ("guardrail", [64, 64, 128]),
+    ("color_cone", [192, 128, 128]),
+    ("bump", [192, 64, 0]),
+];
+
+const FREIBURG: [(&str, [u8; 3]); 13] = [
+    ("road", [128, 64, 128]),
+    ("sidewalk", [244, 35, 232]),
+    ("building", [70, 70, 70]),
+    ("curb", [196, 196, 196]),
+    ("fence", [190, 153, 153]),
+    ("pole_sign", [220, 220, 0]),
+    ("vegetation", [107, 142, 35]),
+    ("terrain", [152, 251, 152]),
+    ("sky", [70, 130, 180]),
+    ("person", [220, 20, 60]),
+    ("car", [0, 0, 142]),
+    ("bicycle", [119, 11, 32]),
+    ("background", [0, 0, 0]),
+];
+
+impl ClassSet {
+    fn from_table(name: &str, table: &[(&str, [u8; 3])], ignore_id: Option<u8>) -> Self {
+        let classes = table
+            .iter()
+            .enumerate()
+            .map(|(id, (n, c))| ClassInfo { id: id as u8, name: n.to_string(), color: *c })
+            .collect();
+        Self { name: name.to_string(), classes, ignore_id }
+    }
+
+    /// The MF dataset's 9 classes (MFNet paper; spec §1).
+    pub fn mf() -> Self {
+        Self::from_table("mf", &MF, None)
+    }
+
+    /// Freiburg Thermal's 13 classes, 13 = ignore (HeatNet; spec §5).
+    pub fn freiburg() -> Self {
+        Self::from_table("freiburg", &FREIBURG, Some(13))
+    }
+
+    pub fn len(&self) -> usize {
+        self.classes.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.classes.is_empty()
+    }
+
+    pub fn names(&self) -> Vec<&str> {
+        self.classes.iter().map(|c| c.name.as_str()).collect()
+    }
+
+    /// Palette colour of a label id; ids outside the set (e.g. ignore) are drawn white.
+    pub fn color(&self, id: u8) -> [u8; 3] {
+        self.classes.get(id as usize).map_or([255, 255, 255], |c| c.color)
+    }
+
+    /// Colourises a label map (row-major ids) into packed RGB bytes.
+    pub fn colorize(&self, ids: &[u8]) -> Vec<u8> {
+        ids.iter().flat_map(|&id| self.color(id)).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mf_set_matches_the_paper() {
+        let mf = ClassSet::mf();
+        assert_eq!(mf.len(), 9);
+        assert_eq!(mf.classes[2].name, "person");
+        assert_eq!(mf.color(1), [64, 0, 128]);
+        assert_eq!(mf.color(8), [192, 64, 0]);
+        assert_eq!(mf.ignore_id, None);
+    }
+
+    #[test]
+    fn freiburg_set_has_ignore() {
+        let fr = ClassSet::freiburg();
+        assert_eq!(fr.len(), 13);
+        assert_eq!(fr.ignore_id, Some(13));
+        assert_eq!(fr.color(13), [255, 255, 255]);
+    }
+
+    #[test]
+    fn colorize_packs_rgb() {
+        let mf = ClassSet::mf();
+        assert_eq!(mf.colorize(&[0, 1]), vec![0, 0, 0, 64, 0, 128]);
+    }
+}

@@ -1,0 +1,31 @@
+//! Shared vocabulary of rtf: class sets and palettes, day/night, input conventions, and the
+//! atomic-write helper every crate uses for outputs. No libtorch here.
+
+pub mod classes;
+pub mod fsutil;
+pub mod input;
+
+pub use classes::{ClassInfo, ClassSet};
+pub use fsutil::{write_atomic, write_bytes_atomic, AtomicWriteError};
+pub use input::InputConvention;
+
+use serde::{Deserialize, Serialize};
+
+/// Time of day of a frame; MF names end in `D` or `N`, Freiburg paths contain `night`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Daytime {
+    Day,
+    Night,
+}
+
+impl Daytime {
+    /// MF convention: the frame name's last character, `D` or `N`.
+    pub fn from_mf_name(name: &str) -> Option<Self> {
+        match name.chars().last()? {
+            'D' | 'd' => Some(Self::Day),
+            'N' | 'n' => Some(Self::Night),
+            _ => None,
+        }
+    }
+}

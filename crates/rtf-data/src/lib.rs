@@ -1,0 +1,1 @@
+//! rtf-data: datasets, synthetic generator, augmentation, input pipeline.

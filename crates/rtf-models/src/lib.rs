@@ -1,0 +1,1 @@
+//! rtf-models: networks on tch.
