@@ -1,1 +1,163 @@
-//! rtf-models: networks on tch.
+//! rtf-models: the networks of MFNet, RTFNet and HeatNet on tch, with the reference
+//! implementations' parameter names, and their weights in and out as safetensors.
+//!
+//! Every network takes `[B, 4, H, W]` = R, G, B, T already scaled by its
+//! [`Network::input_convention`]; networks that use fewer channels select them inside forward.
+//! Output: logits `[B, num_classes, H, W]`.
+
+pub mod error;
+pub mod layers;
+pub mod mfnet;
+pub mod weights;
+
+use serde::{Deserialize, Serialize};
+use tch::nn;
+
+pub use error::{ModelError, ShapeMismatch};
+
+/// What every segmentation network offers beyond its forward pass.
+pub trait Network: nn::ModuleT {
+    /// How the input must be scaled (MFNet/RTFNet: pixel / 255).
+    fn input_convention(&self) -> rtf_core::InputConvention;
+    fn num_classes(&self) -> i64;
+    /// Input H and W must be multiples of this.
+    fn size_multiple(&self) -> i64;
+    /// Canonical model name (as accepted by [`ModelConfig::from_name`]).
+    fn name(&self) -> String;
+
+    /// Checks an input shape before forward (which panics inside libtorch on bad shapes).
+    fn check_input(&self, shape: &[i64]) -> Result<(), ModelError> {
+        let bad = |reason: String| ModelError::InvalidInput {
+            network: self.name(),
+            shape: shape.to_vec(),
+            reason,
+        };
+        if shape.len() != 4 {
+            return Err(bad("expected [B, 4, H, W]".into()));
+        }
+        if shape[1] != 4 {
+            return Err(bad(format!(
+                "expected 4 channels (R, G, B, T), got {}",
+                shape[1]
+            )));
+        }
+        let m = self.size_multiple();
+        if shape[0] < 1 || shape[2] < m || shape[3] < m || shape[2] % m != 0 || shape[3] % m != 0 {
+            return Err(bad(format!("H and W must be positive multiples of {m}")));
+        }
+        Ok(())
+    }
+}
+
+/// Which network to build, with its options; nested in training configs as
+/// `{"network": "mfnet", "num_classes": 9, ...}`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(tag = "network", rename_all = "snake_case")]
+pub enum ModelConfig {
+    Mfnet(mfnet::Config),
+}
+
+impl ModelConfig {
+    /// The configuration of a named model (see [`model_names`]).
+    pub fn from_name(name: &str, num_classes: i64) -> Result<Self, ModelError> {
+        let cfg = match name {
+            "mfnet" => Self::Mfnet(mfnet::Config::reference(num_classes)),
+            "mfnet-paper" => Self::Mfnet(mfnet::Config::paper(num_classes)),
+            _ => {
+                return Err(ModelError::UnknownModel {
+                    name: name.to_string(),
+                    known: model_names().join(", "),
+                })
+            }
+        };
+        Ok(cfg)
+    }
+
+    /// Canonical name; `from_name(cfg.name())` gives back `cfg` for named configurations.
+    pub fn name(&self) -> String {
+        match self {
+            Self::Mfnet(c) if *c == mfnet::Config::paper(c.num_classes) => "mfnet-paper".into(),
+            Self::Mfnet(_) => "mfnet".into(),
+        }
+    }
+
+    pub fn num_classes(&self) -> i64 {
+        match self {
+            Self::Mfnet(c) => c.num_classes,
+        }
+    }
+
+    pub fn input_convention(&self) -> rtf_core::InputConvention {
+        match self {
+            Self::Mfnet(c) => c.input,
+        }
+    }
+}
+
+/// Builds the network described by `cfg` under `p` (parameter paths = reference names).
+pub fn build(p: &nn::Path, cfg: &ModelConfig) -> Result<Box<dyn Network>, ModelError> {
+    Ok(match cfg {
+        ModelConfig::Mfnet(c) => Box::new(mfnet::MfNet::new(p.clone(), c)?) as Box<dyn Network>,
+    })
+}
+
+/// Every name [`ModelConfig::from_name`] accepts.
+pub fn model_names() -> Vec<&'static str> {
+    vec!["mfnet", "mfnet-paper"]
+}
+
+#[cfg(test)]
+mod test_util;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::{nn::VarStore, Device};
+
+    #[test]
+    fn every_name_builds_and_round_trips() {
+        for name in model_names() {
+            let cfg = ModelConfig::from_name(name, 9).unwrap();
+            assert_eq!(cfg.name(), name);
+            assert_eq!(cfg.num_classes(), 9);
+            let json = serde_json::to_string(&cfg).unwrap();
+            assert_eq!(
+                serde_json::from_str::<ModelConfig>(&json).unwrap(),
+                cfg,
+                "{json}"
+            );
+        }
+    }
+
+    #[test]
+    fn config_json_is_tagged_by_network() {
+        let cfg: ModelConfig =
+            serde_json::from_str(r#"{"network": "mfnet", "num_classes": 4}"#).unwrap();
+        assert_eq!(cfg, ModelConfig::from_name("mfnet", 4).unwrap());
+    }
+
+    #[test]
+    fn unknown_name_lists_known_ones() {
+        let err = ModelConfig::from_name("mfnett", 9).unwrap_err().to_string();
+        assert!(
+            err.contains("mfnett") && err.contains("mfnet-paper"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn check_input_rejects_bad_shapes() {
+        let vs = VarStore::new(Device::Cpu);
+        let net = build(&vs.root(), &ModelConfig::from_name("mfnet", 9).unwrap()).unwrap();
+        assert!(net.check_input(&[1, 4, 480, 640]).is_ok());
+        for bad in [
+            &[1, 3, 64, 64][..],
+            &[1, 4, 60, 64],
+            &[4, 64, 64],
+            &[1, 4, 0, 64],
+        ] {
+            let err = net.check_input(bad).unwrap_err().to_string();
+            assert!(err.contains("mfnet"), "{err}");
+        }
+    }
+}

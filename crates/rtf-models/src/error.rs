@@ -1,0 +1,82 @@
+//! Typed errors of rtf-models; every message names the file or the network it is about.
+
+use std::path::PathBuf;
+
+/// A tensor whose shape in a weights file differs from the network's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShapeMismatch {
+    pub name: String,
+    pub expected: Vec<i64>,
+    pub found: Vec<i64>,
+}
+
+impl std::fmt::Display for ShapeMismatch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} (network {:?}, file {:?})",
+            self.name, self.expected, self.found
+        )
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("unknown model {name:?}; known models: {known}")]
+    UnknownModel { name: String, known: String },
+    #[error("invalid {network} configuration: {reason}")]
+    InvalidConfig { network: String, reason: String },
+    #[error("{network}: input of shape {shape:?} is invalid: {reason}")]
+    InvalidInput {
+        network: String,
+        shape: Vec<i64>,
+        reason: String,
+    },
+    #[error("{}: cannot read weights: {message}", path.display())]
+    Read { path: PathBuf, message: String },
+    #[error("{}: cannot write weights: {message}", path.display())]
+    Write { path: PathBuf, message: String },
+    #[error("{}: weights do not match the network:{}", path.display(), describe_mismatch(missing, unexpected, mismatched))]
+    Mismatch {
+        path: PathBuf,
+        missing: Vec<String>,
+        unexpected: Vec<String>,
+        mismatched: Vec<ShapeMismatch>,
+    },
+    #[error("{context}: {source}")]
+    Torch {
+        context: String,
+        source: tch::TchError,
+    },
+}
+
+fn describe_mismatch(
+    missing: &[String],
+    unexpected: &[String],
+    mismatched: &[ShapeMismatch],
+) -> String {
+    let mut out = String::new();
+    if !missing.is_empty() {
+        out.push_str(&format!(
+            "\n  missing ({}): {}",
+            missing.len(),
+            missing.join(", ")
+        ));
+    }
+    if !unexpected.is_empty() {
+        out.push_str(&format!(
+            "\n  unexpected ({}): {}",
+            unexpected.len(),
+            unexpected.join(", ")
+        ));
+    }
+    if !mismatched.is_empty() {
+        let list: Vec<String> = mismatched.iter().map(|m| m.to_string()).collect();
+        out.push_str(&format!(
+            "\n  shape mismatch ({}): {}",
+            mismatched.len(),
+            list.join(", ")
+        ));
+    }
+    out
+}
