@@ -26,6 +26,14 @@ impl InputConvention {
             Self::MeanStd { mean, std } => (unit - mean) / std,
         }
     }
+
+    /// Inverse of [`apply`](Self::apply): network input back to [0, 1] (for drawing).
+    pub fn invert(&self, value: f32) -> f32 {
+        match *self {
+            Self::UnitRange => value,
+            Self::MeanStd { mean, std } => value * std + mean,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -37,6 +45,7 @@ mod tests {
         let c = InputConvention::MeanStd { mean: 0.5, std: 0.5 };
         assert_eq!(c.apply(0.0), -1.0);
         assert_eq!(c.apply(1.0), 1.0);
+        assert!((c.invert(c.apply(0.3)) - 0.3).abs() < 1e-6);
         assert_eq!(InputConvention::UnitRange.apply(0.25), 0.25);
     }
 

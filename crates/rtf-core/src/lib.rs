@@ -4,6 +4,7 @@
 pub mod classes;
 pub mod fsutil;
 pub mod input;
+pub mod npy;
 
 pub use classes::{ClassInfo, ClassSet};
 pub use fsutil::{write_atomic, write_bytes_atomic, AtomicWriteError};
