@@ -55,12 +55,38 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
     run(root, "cargo", &args)
 }
 
+/// The demo's dataset and schedule: sized to train in a few minutes on 2 CPU cores.
+const DEMO_FRAMES: &str = "160";
+const DEMO_SIZE: &str = "160x128";
+const DEMO_EPOCHS: &str = "30";
+
 fn demo(root: &Path, extra: &[String]) -> Result<()> {
     setup::ensure_libtorch(root)?;
     run(root, "cargo", &["build", "--release", "-p", "rtf-cli"])?;
-    let rtf = root.join("target/release/rtf");
-    let rtf = rtf.to_str().context("non-UTF-8 path")?;
-    let mut args = vec!["demo", "--out", "demo"];
-    args.extend(extra.iter().map(String::as_str));
-    run(root, rtf, &args)
+    let rtf_path = root.join("target/release/rtf");
+    let rtf = rtf_path.to_str().context("non-UTF-8 path")?;
+    let out = root.join("demo");
+    if out.exists() {
+        println!("demo: replacing the previous demo/ folder");
+        std::fs::remove_dir_all(&out).with_context(|| format!("cannot remove {}", out.display()))?;
+    }
+    let step = |args: &[&str]| -> Result<()> {
+        println!("\n$ rtf {}", args.join(" "));
+        run(root, rtf, args)
+    };
+    step(&["synth", "--out", "demo/data", "--count", DEMO_FRAMES, "--seed", "0", "--size", DEMO_SIZE])?;
+    let mut train = vec!["train", "--model", "mfnet", "--data", "demo/data", "--out", "demo/run"];
+    train.extend(["--epochs", DEMO_EPOCHS, "--batch-size", "6", "--lr-decay", "0.94"]);
+    train.extend(extra.iter().map(String::as_str));
+    step(&train)?;
+    let weights = "demo/run/final.safetensors";
+    step(&["eval", "--model", "mfnet", "--weights", weights, "--data", "demo/data", "--split", "test",
+        "--json", "demo/eval_test.json", "--figure", "demo/predictions.png", "--figure-frames", "6"])?;
+    let split = std::fs::read_to_string(out.join("data/test.txt")).context("reading demo/data/test.txt")?;
+    let images: Vec<String> = split.lines().take(4).map(|n| format!("demo/data/images/{}.png", n.trim())).collect();
+    let mut predict = vec!["predict", "--model", "mfnet", "--weights", weights, "--out", "demo/predict"];
+    predict.extend(images.iter().map(String::as_str));
+    step(&predict)?;
+    println!("\ndemo: scores in demo/eval_test.json, prediction grid in demo/predictions.png, run in demo/run");
+    Ok(())
 }
