@@ -1,11 +1,21 @@
-//! Small building blocks shared by the networks.
+//! Building blocks shared by the networks: convolution (+ BatchNorm) (+ activation) units that
+//! can fold their BatchNorm for inference, and the activations.
+//!
+//! A [`ConvBnAct`] owns its variables under the reference names (`<conv>.weight`,
+//! `<bn>.running_mean`, …). [`Fuse::fuse`] precomputes, once, the convolution weight and bias
+//! with an eval-mode BatchNorm folded in, laid out channels-last and cast to the inference
+//! precision; eval-mode forwards then run one convolution and an in-place activation per unit.
+//! Training-mode forwards always use the original variables.
 
-use tch::nn;
-use tch::Tensor;
+use tch::{nn, Kind, Tensor};
+
+/// BatchNorm epsilon of every reference network (PyTorch's default).
+pub const BN_EPS: f64 = 1e-5;
 
 /// BatchNorm2d initialised as PyTorch's (weight 1, bias 0; tch's default weight is U(0, 1)).
 pub fn bn2d(p: nn::Path, c: i64) -> nn::BatchNorm {
     let cfg = nn::BatchNormConfig {
+        eps: BN_EPS,
         ws_init: nn::Init::Const(1.0),
         bs_init: nn::Init::Const(0.0),
         ..Default::default()
@@ -14,7 +24,413 @@ pub fn bn2d(p: nn::Path, c: i64) -> nn::BatchNorm {
 }
 
 /// LeakyReLU with a given slope (tch's `leaky_relu` fixes it at 0.01). For 0 < slope < 1,
-/// max(x, slope·x) equals the piecewise definition.
+/// max(x, slope·x) equals the piecewise definition, and autograd handles it.
 pub fn leaky_relu(xs: &Tensor, slope: f64) -> Tensor {
     xs.maximum(&(xs * slope))
+}
+
+/// LeakyReLU in one pass for inference: `leaky_relu_backward(grad = x, x)` is
+/// `x > 0 ? x : slope·x`, which is exactly the activation (libtorch exposes no slope
+/// argument on the forward op through tch).
+pub fn leaky_relu_inference(xs: &Tensor, slope: f64) -> Tensor {
+    xs.leaky_relu_backward(xs, slope, false)
+}
+
+/// Re-lays a 4-D tensor out channels-last (NHWC in memory, NCHW logical shape); libtorch's
+/// CPU convolutions, pools and pointwise ops keep that layout.
+pub fn to_channels_last(xs: &Tensor) -> Tensor {
+    if xs.dim() != 4 {
+        return xs.shallow_clone();
+    }
+    xs.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
+}
+
+/// Whether a 4-D tensor is laid out channels-last.
+pub fn is_channels_last(xs: &Tensor) -> bool {
+    let (size, stride) = (xs.size(), xs.stride());
+    size.len() == 4 && (size[1] == 1 || stride[1] == 1) && stride[0] == size[1] * size[2] * size[3]
+}
+
+/// Activation after a unit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Act {
+    Identity,
+    Relu,
+    LeakyRelu(f64),
+}
+
+impl Act {
+    /// Autograd-friendly activation (training and the plain path).
+    pub fn apply(self, xs: Tensor) -> Tensor {
+        match self {
+            Act::Identity => xs,
+            Act::Relu => xs.relu(),
+            Act::LeakyRelu(slope) => leaky_relu(&xs, slope),
+        }
+    }
+
+    /// Inference activation: in place where libtorch allows.
+    pub fn apply_inference(self, mut xs: Tensor) -> Tensor {
+        match self {
+            Act::Identity => xs,
+            Act::Relu => {
+                let _ = xs.relu_();
+                xs
+            }
+            Act::LeakyRelu(slope) => leaky_relu_inference(&xs, slope),
+        }
+    }
+}
+
+/// How a convolution's weight is initialised when no weights are loaded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum WeightInit {
+    /// PyTorch's `Conv2d` default: U(±1/√fan_in) (kaiming_uniform with a = √5).
+    TorchDefault,
+    /// torchvision ResNet: kaiming_normal, fan_out, ReLU gain.
+    KaimingNormalFanOut,
+    /// Xavier/Glorot uniform (RTFNet decoder).
+    XavierUniform,
+    /// N(0, std) (HeatNet).
+    Normal(f64),
+}
+
+/// Shape and options of a 2-D (possibly transposed) convolution.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConvSpec {
+    pub kernel: i64,
+    pub stride: i64,
+    pub padding: i64,
+    pub dilation: i64,
+    pub groups: i64,
+    pub bias: bool,
+    pub transposed: bool,
+    pub init: WeightInit,
+}
+
+impl ConvSpec {
+    /// k×k, stride 1, "same" padding for odd k, no bias, PyTorch's default init.
+    pub fn new(kernel: i64) -> Self {
+        Self {
+            kernel,
+            stride: 1,
+            padding: kernel / 2,
+            dilation: 1,
+            groups: 1,
+            bias: false,
+            transposed: false,
+            init: WeightInit::TorchDefault,
+        }
+    }
+    pub fn stride(self, stride: i64) -> Self {
+        Self { stride, ..self }
+    }
+    pub fn padding(self, padding: i64) -> Self {
+        Self { padding, ..self }
+    }
+    /// Dilation d with padding d·(k−1)/2, keeping the size for stride 1.
+    pub fn dilation(self, dilation: i64) -> Self {
+        Self {
+            dilation,
+            padding: dilation * (self.kernel - 1) / 2,
+            ..self
+        }
+    }
+    pub fn bias(self, bias: bool) -> Self {
+        Self { bias, ..self }
+    }
+    pub fn init(self, init: WeightInit) -> Self {
+        Self { init, ..self }
+    }
+    /// Transposed convolution (padding 0 unless set after).
+    pub fn transposed(self) -> Self {
+        Self {
+            transposed: true,
+            padding: 0,
+            ..self
+        }
+    }
+
+    fn weight_dims(&self, c_in: i64, c_out: i64) -> Vec<i64> {
+        let k = self.kernel;
+        if self.transposed {
+            vec![c_in, c_out / self.groups, k, k]
+        } else {
+            vec![c_out, c_in / self.groups, k, k]
+        }
+    }
+}
+
+fn weight_init(init: WeightInit, dims: &[i64]) -> nn::Init {
+    let receptive: i64 = dims[2..].iter().product();
+    // PyTorch computes fans from the weight tensor as stored (dim 1 = fan-in side).
+    let fan_in = (dims[1] * receptive) as f64;
+    let fan_out = (dims[0] * receptive) as f64;
+    match init {
+        WeightInit::TorchDefault => {
+            let bound = 1.0 / fan_in.sqrt();
+            nn::Init::Uniform {
+                lo: -bound,
+                up: bound,
+            }
+        }
+        WeightInit::KaimingNormalFanOut => nn::Init::Randn {
+            mean: 0.0,
+            stdev: (2.0 / fan_out).sqrt(),
+        },
+        WeightInit::XavierUniform => {
+            let bound = (6.0 / (fan_in + fan_out)).sqrt();
+            nn::Init::Uniform {
+                lo: -bound,
+                up: bound,
+            }
+        }
+        WeightInit::Normal(stdev) => nn::Init::Randn { mean: 0.0, stdev },
+    }
+}
+
+/// Folded, inference-ready weights of a unit.
+#[derive(Debug)]
+struct Fused {
+    weight: Tensor,
+    bias: Option<Tensor>,
+}
+
+/// Convolution → optional BatchNorm → activation.
+#[derive(Debug)]
+pub struct ConvBnAct {
+    weight: Tensor,
+    bias: Option<Tensor>,
+    spec: ConvSpec,
+    bn: Option<nn::BatchNorm>,
+    act: Act,
+    fused: Option<Fused>,
+}
+
+/// Units and blocks that can prepare folded inference weights.
+pub trait Fuse {
+    /// Folds eval-mode BatchNorm into the preceding convolution, lays weights out
+    /// channels-last and casts them to `kind` (Float or BFloat16). Call again after the
+    /// weights change (e.g. after loading) to refresh.
+    fn fuse(&mut self, kind: Kind);
+}
+
+impl<T: Fuse> Fuse for Vec<T> {
+    fn fuse(&mut self, kind: Kind) {
+        self.iter_mut().for_each(|u| u.fuse(kind))
+    }
+}
+
+impl<T: Fuse> Fuse for Option<T> {
+    fn fuse(&mut self, kind: Kind) {
+        if let Some(u) = self {
+            u.fuse(kind)
+        }
+    }
+}
+
+impl ConvBnAct {
+    /// Convolution variables under `conv` (`weight`, `bias`), BatchNorm under `bn` if given.
+    /// [B, c_in, H, W] -> [B, c_out, H', W']
+    pub fn new(
+        conv: nn::Path,
+        bn: Option<nn::Path>,
+        c_in: i64,
+        c_out: i64,
+        spec: ConvSpec,
+        act: Act,
+    ) -> Self {
+        let dims = spec.weight_dims(c_in, c_out);
+        let weight = conv.var("weight", &dims, weight_init(spec.init, &dims));
+        let bias = spec.bias.then(|| {
+            let bound = 1.0 / ((dims[1] * dims[2] * dims[3]) as f64).sqrt();
+            conv.var(
+                "bias",
+                &[c_out],
+                nn::Init::Uniform {
+                    lo: -bound,
+                    up: bound,
+                },
+            )
+        });
+        let bn = bn.map(|p| bn2d(p, c_out));
+        Self {
+            weight,
+            bias,
+            spec,
+            bn,
+            act,
+            fused: None,
+        }
+    }
+
+    pub fn out_channels(&self) -> i64 {
+        if self.spec.transposed {
+            self.weight.size()[1] * self.spec.groups
+        } else {
+            self.weight.size()[0]
+        }
+    }
+
+    fn conv(&self, xs: &Tensor, weight: &Tensor, bias: Option<&Tensor>) -> Tensor {
+        let s = &self.spec;
+        if s.transposed {
+            xs.conv_transpose2d(
+                weight,
+                bias,
+                [s.stride],
+                [s.padding],
+                [0],
+                s.groups,
+                [s.dilation],
+            )
+        } else {
+            xs.conv2d(
+                weight,
+                bias,
+                [s.stride],
+                [s.padding],
+                [s.dilation],
+                s.groups,
+            )
+        }
+    }
+
+    /// Convolution and BatchNorm, no activation.
+    fn conv_bn(&self, xs: &Tensor, train: bool) -> Tensor {
+        match (&self.fused, train) {
+            (Some(f), false) => self.conv(xs, &f.weight, f.bias.as_ref()),
+            _ => {
+                let ys = self.conv(xs, &self.weight, self.bias.as_ref());
+                match &self.bn {
+                    Some(bn) => ys.apply_t(bn, train),
+                    None => ys,
+                }
+            }
+        }
+    }
+
+    fn activate(&self, ys: Tensor, train: bool) -> Tensor {
+        if self.fused.is_some() && !train {
+            self.act.apply_inference(ys)
+        } else {
+            self.act.apply(ys)
+        }
+    }
+
+    /// conv → bn → (+ residual) → act, the residual add in place on the inference path.
+    pub fn forward_add(&self, xs: &Tensor, residual: &Tensor, train: bool) -> Tensor {
+        let mut ys = self.conv_bn(xs, train);
+        if self.fused.is_some() && !train {
+            let _ = ys.g_add_(residual);
+        } else {
+            ys = ys + residual;
+        }
+        self.activate(ys, train)
+    }
+}
+
+impl nn::ModuleT for ConvBnAct {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let ys = self.conv_bn(xs, train);
+        self.activate(ys, train)
+    }
+}
+
+impl Fuse for ConvBnAct {
+    fn fuse(&mut self, kind: Kind) {
+        let _guard = tch::no_grad_guard();
+        let weight = self.weight.to_kind(Kind::Float);
+        let bias = self.bias.as_ref().map(|b| b.to_kind(Kind::Float));
+        let (weight, bias) = match &self.bn {
+            None => (weight, bias),
+            Some(bn) => {
+                let var = bn.running_var.to_kind(Kind::Float);
+                let mean = bn.running_mean.to_kind(Kind::Float);
+                let gamma = bn
+                    .ws
+                    .as_ref()
+                    .map_or_else(|| var.ones_like(), |w| w.to_kind(Kind::Float));
+                let beta = bn
+                    .bs
+                    .as_ref()
+                    .map_or_else(|| var.zeros_like(), |b| b.to_kind(Kind::Float));
+                let scale = &gamma / (var + BN_EPS).sqrt();
+                // Output channels are dim 0 of a convolution weight, dim 1 of a transposed one.
+                let per_channel = if self.spec.transposed {
+                    scale.view([1, -1, 1, 1])
+                } else {
+                    scale.view([-1, 1, 1, 1])
+                };
+                let folded_bias = match &bias {
+                    Some(b) => (b - &mean) * &scale + beta,
+                    None => -mean * &scale + beta,
+                };
+                (weight * per_channel, Some(folded_bias))
+            }
+        };
+        self.fused = Some(Fused {
+            weight: to_channels_last(&weight.to_kind(kind)),
+            bias: bias.map(|b| b.to_kind(kind)),
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nn::ModuleT;
+    use tch::Device;
+
+    fn randomise_bn(vs: &nn::VarStore) {
+        tch::no_grad(|| {
+            for (name, mut t) in vs.variables() {
+                if name.contains("running_var") {
+                    let _ = t.uniform_(0.5, 2.0);
+                } else if name.contains("bn") {
+                    let _ = t.uniform_(-0.5, 0.5);
+                }
+            }
+        });
+    }
+
+    #[test]
+    fn folding_matches_conv_bn_for_plain_and_transposed() {
+        for (spec, act) in [
+            (ConvSpec::new(3).bias(true), Act::LeakyRelu(0.2)),
+            (ConvSpec::new(3).dilation(2), Act::Relu),
+            (ConvSpec::new(3).stride(2), Act::Identity),
+            (ConvSpec::new(2).stride(2).transposed(), Act::Relu),
+        ] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let mut unit =
+                ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
+            randomise_bn(&vs);
+            let x = Tensor::randn([2, 6, 12, 16], (Kind::Float, Device::Cpu));
+            let plain = tch::no_grad(|| unit.forward_t(&x, false));
+            unit.fuse(Kind::Float);
+            let fused = tch::no_grad(|| unit.forward_t(&to_channels_last(&x), false));
+            assert_eq!(plain.size(), fused.size());
+            assert!(plain.allclose(&fused, 1e-4, 1e-5, false), "{spec:?}");
+            // Training forwards never use the folded weights.
+            let train = unit.forward_t(&x, true);
+            assert!(train.requires_grad());
+        }
+    }
+
+    #[test]
+    fn inference_leaky_relu_equals_definition() {
+        let x = Tensor::randn([1000], (Kind::Float, Device::Cpu));
+        let expected = x.where_self(&x.gt(0.0), &(&x * 0.2));
+        assert!(leaky_relu(&x, 0.2).equal(&expected));
+        assert!(leaky_relu_inference(&x, 0.2).equal(&expected));
+    }
+
+    #[test]
+    fn channels_last_keeps_values_and_is_detected() {
+        let x = Tensor::randn([2, 3, 4, 5], (Kind::Float, Device::Cpu));
+        let cl = to_channels_last(&x);
+        assert!(cl.equal(&x));
+        assert!(is_channels_last(&cl) && !is_channels_last(&x));
+    }
 }

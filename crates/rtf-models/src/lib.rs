@@ -6,6 +6,7 @@
 //! Output: logits `[B, num_classes, H, W]`.
 
 pub mod error;
+pub mod fast;
 pub mod layers;
 pub mod mfnet;
 pub mod weights;
@@ -24,6 +25,15 @@ pub trait Network: nn::ModuleT {
     fn size_multiple(&self) -> i64;
     /// Canonical model name (as accepted by [`ModelConfig::from_name`]).
     fn name(&self) -> String;
+
+    /// Prepares the fast inference path (see [`fast`]): folds BatchNorm into convolutions,
+    /// lays weights out channels-last and casts them to `kind`. Eval-mode forwards use them
+    /// from then on; training-mode forwards keep using the original variables. Returns false
+    /// for networks without a fused path (their eval forward is then the plain one).
+    fn fuse_for_inference(&mut self, kind: tch::Kind) -> bool {
+        let _ = kind;
+        false
+    }
 
     /// Checks an input shape before forward (which panics inside libtorch on bad shapes).
     fn check_input(&self, shape: &[i64]) -> Result<(), ModelError> {

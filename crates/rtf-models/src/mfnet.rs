@@ -6,10 +6,10 @@
 
 use serde::{Deserialize, Serialize};
 use tch::nn::{self, ModuleT};
-use tch::Tensor;
+use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
-use crate::layers::{bn2d, leaky_relu};
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse};
 use crate::Network;
 
 /// LeakyReLU slope of every MFNet block.
@@ -102,22 +102,28 @@ impl Config {
 
 /// Conv 3×3 (bias, padding = dilation) → BatchNorm → LeakyReLU(0.2); `ConvBnLeakyRelu2d`.
 /// [B, c_in, H, W] -> [B, c_out, H, W]
-fn conv_bn_leaky(p: nn::Path, c_in: i64, c_out: i64, dilation: i64) -> nn::FuncT<'static> {
-    let cfg = nn::ConvConfig {
-        padding: dilation,
-        dilation,
-        ..Default::default()
-    };
-    let conv = nn::conv2d(&p / "conv", c_in, c_out, 3, cfg);
-    let bn = bn2d(&p / "bn", c_out);
-    nn::func_t(move |xs, train| leaky_relu(&xs.apply(&conv).apply_t(&bn, train), NEGATIVE_SLOPE))
+fn conv_bn_leaky(p: nn::Path, c_in: i64, c_out: i64, dilation: i64) -> ConvBnAct {
+    let spec = ConvSpec::new(3).dilation(dilation).bias(true);
+    ConvBnAct::new(
+        &p / "conv",
+        Some(&p / "bn"),
+        c_in,
+        c_out,
+        spec,
+        Act::LeakyRelu(NEGATIVE_SLOPE),
+    )
 }
 
 /// Mini-inception: three stages, each the concatenation of a 3×3 block and a dilation-2 3×3
 /// block of c_out/2 channels. [B, c_in, H, W] -> [B, c_out, H, W]
-fn mini_inception(p: nn::Path, c_in: i64, c_out: i64) -> nn::FuncT<'static> {
+#[derive(Debug)]
+struct MiniInception {
+    stages: Vec<(ConvBnAct, ConvBnAct)>,
+}
+
+fn mini_inception(p: nn::Path, c_in: i64, c_out: i64) -> MiniInception {
     let half = c_out / 2;
-    let stages: Vec<(_, _)> = (1..=3)
+    let stages = (1..=3)
         .map(|i| {
             let stage_in = if i == 1 { c_in } else { c_out };
             (
@@ -126,23 +132,38 @@ fn mini_inception(p: nn::Path, c_in: i64, c_out: i64) -> nn::FuncT<'static> {
             )
         })
         .collect();
-    nn::func_t(move |xs, train| {
-        stages.iter().fold(xs.shallow_clone(), |x, (left, right)| {
-            Tensor::cat(&[x.apply_t(left, train), x.apply_t(right, train)], 1)
-        })
-    })
+    MiniInception { stages }
+}
+
+impl ModuleT for MiniInception {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        self.stages
+            .iter()
+            .fold(xs.shallow_clone(), |x, (left, right)| {
+                Tensor::cat(&[x.apply_t(left, train), x.apply_t(right, train)], 1)
+            })
+    }
+}
+
+impl Fuse for MiniInception {
+    fn fuse(&mut self, kind: Kind) {
+        for (left, right) in &mut self.stages {
+            left.fuse(kind);
+            right.fuse(kind);
+        }
+    }
 }
 
 /// One modality's encoder; keeps the skips at 1/2, 1/4 and 1/8.
 #[derive(Debug)]
 struct Encoder {
-    conv1: nn::FuncT<'static>,
-    conv2_1: nn::FuncT<'static>,
-    conv2_2: nn::FuncT<'static>,
-    conv3_1: nn::FuncT<'static>,
-    conv3_2: nn::FuncT<'static>,
-    conv4: nn::FuncT<'static>,
-    conv5: nn::FuncT<'static>,
+    conv1: ConvBnAct,
+    conv2_1: ConvBnAct,
+    conv2_2: ConvBnAct,
+    conv3_1: ConvBnAct,
+    conv3_2: ConvBnAct,
+    conv4: MiniInception,
+    conv5: MiniInception,
 }
 
 /// Encoder output: the 1/16 features and the skips at 1/2, 1/4, 1/8.
@@ -188,10 +209,38 @@ impl Encoder {
     }
 }
 
+impl Fuse for Encoder {
+    fn fuse(&mut self, kind: Kind) {
+        for unit in [
+            &mut self.conv1,
+            &mut self.conv2_1,
+            &mut self.conv2_2,
+            &mut self.conv3_1,
+            &mut self.conv3_2,
+        ] {
+            unit.fuse(kind);
+        }
+        self.conv4.fuse(kind);
+        self.conv5.fuse(kind);
+    }
+}
+
 /// Nearest-neighbour ×2 upsampling. [B, C, H, W] -> [B, C, 2H, 2W]
 fn upsample2(xs: &Tensor) -> Tensor {
     let (h, w) = (xs.size()[2], xs.size()[3]);
     xs.upsample_nearest2d([2 * h, 2 * w], 2.0, 2.0)
+}
+
+/// `x + cat(a, b)` along channels, the decoder's skip merge; in place when not training.
+fn add_skips(x: Tensor, a: &Tensor, b: &Tensor, train: bool) -> Tensor {
+    let skips = Tensor::cat(&[a, b], 1);
+    if train {
+        x + skips
+    } else {
+        let mut x = x;
+        let _ = x.g_add_(&skips);
+        x
+    }
 }
 
 #[derive(Debug)]
@@ -199,10 +248,10 @@ pub struct MfNet {
     config: Config,
     rgb: Encoder,
     thermal: Encoder,
-    decode4: nn::FuncT<'static>,
-    decode3: nn::FuncT<'static>,
-    decode2: nn::FuncT<'static>,
-    decode1: nn::FuncT<'static>,
+    decode4: ConvBnAct,
+    decode3: ConvBnAct,
+    decode2: ConvBnAct,
+    decode1: ConvBnAct,
 }
 
 impl MfNet {
@@ -212,14 +261,15 @@ impl MfNet {
         let fused = r[4] + t[4];
         let d4 = r[2] + t[2];
         let d3 = r[1] + t[1];
+        let d2 = cfg.decode2_channels;
         Ok(Self {
             config: cfg.clone(),
             rgb: Encoder::new(&p, "rgb", 3, r),
             thermal: Encoder::new(&p, "inf", 1, t),
             decode4: conv_bn_leaky(&p / "decode4", fused, d4, 1),
             decode3: conv_bn_leaky(&p / "decode3", d4, d3, 1),
-            decode2: conv_bn_leaky(&p / "decode2", d3, cfg.decode2_channels, 1),
-            decode1: conv_bn_leaky(&p / "decode1", cfg.decode2_channels, cfg.num_classes, 1),
+            decode2: conv_bn_leaky(&p / "decode2", d3, d2, 1),
+            decode1: conv_bn_leaky(&p / "decode1", d2, cfg.num_classes, 1),
         })
     }
 
@@ -236,16 +286,28 @@ impl ModuleT for MfNet {
         // [B, r4 + t4, H/16, W/16] -> [B, r4 + t4, H/8, W/8]
         let x = upsample2(&Tensor::cat(&[&rgb.x5, &thermal.x5], 1));
         // -> [B, r2 + t2, H/8, W/8] -> [B, r2 + t2, H/4, W/4]
-        let x =
-            upsample2(&(x + Tensor::cat(&[&rgb.s4, &thermal.s4], 1)).apply_t(&self.decode4, train));
+        let x = add_skips(x, &rgb.s4, &thermal.s4, train).apply_t(&self.decode4, train);
         // -> [B, r1 + t1, H/4, W/4] -> [B, r1 + t1, H/2, W/2]
-        let x =
-            upsample2(&(x + Tensor::cat(&[&rgb.s3, &thermal.s3], 1)).apply_t(&self.decode3, train));
+        let x = add_skips(upsample2(&x), &rgb.s3, &thermal.s3, train).apply_t(&self.decode3, train);
         // -> [B, d2, H/2, W/2] -> [B, d2, H, W]
-        let x =
-            upsample2(&(x + Tensor::cat(&[&rgb.s2, &thermal.s2], 1)).apply_t(&self.decode2, train));
+        let x = add_skips(upsample2(&x), &rgb.s2, &thermal.s2, train).apply_t(&self.decode2, train);
         // decode1 is a full block in the reference: logits pass BN and LeakyReLU.
-        x.apply_t(&self.decode1, train)
+        upsample2(&x).apply_t(&self.decode1, train)
+    }
+}
+
+impl Fuse for MfNet {
+    fn fuse(&mut self, kind: Kind) {
+        self.rgb.fuse(kind);
+        self.thermal.fuse(kind);
+        for unit in [
+            &mut self.decode4,
+            &mut self.decode3,
+            &mut self.decode2,
+            &mut self.decode1,
+        ] {
+            unit.fuse(kind);
+        }
     }
 }
 
@@ -261,6 +323,10 @@ impl Network for MfNet {
     }
     fn name(&self) -> String {
         "mfnet".into()
+    }
+    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
+        self.fuse(kind);
+        true
     }
 }
 
@@ -338,5 +404,33 @@ mod tests {
         assert_eq!(serde_json::from_str::<Config>(&json).unwrap(), cfg);
         let minimal: Config = serde_json::from_str(r#"{"num_classes": 9}"#).unwrap();
         assert_eq!(minimal, cfg);
+    }
+
+    #[test]
+    fn fused_inference_agrees_with_plain_path() {
+        use crate::fast::{argmax_agreement, InferenceNet, Precision};
+        tch::manual_seed(3);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let cfg = crate::ModelConfig::from_name("mfnet", 9).unwrap();
+        let net = crate::build(&vs.root(), &cfg).unwrap();
+        // Training-mode passes give the BN layers non-trivial running statistics.
+        for _ in 0..3 {
+            let _ = net.forward_t(
+                &Tensor::rand([2, 4, 64, 80], (Kind::Float, Device::Cpu)),
+                true,
+            );
+        }
+        let x = Tensor::rand([2, 4, 64, 80], (Kind::Float, Device::Cpu));
+        let plain = tch::no_grad(|| net.forward_t(&x, false));
+        let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
+        assert!(fast.is_fused());
+        let fused = fast.forward(&x).unwrap();
+        assert_eq!(fused.size(), plain.size());
+        let agreement = argmax_agreement(&plain, &fused);
+        assert!(agreement >= 0.999, "fp32 agreement {agreement}");
+        let max_diff = (&plain - &fused).abs().max().double_value(&[]);
+        assert!(max_diff < 1e-3, "max |diff| {max_diff}");
+        let err = fast.forward(&Tensor::rand([1, 4, 60, 80], (Kind::Float, Device::Cpu)));
+        assert!(err.is_err(), "sizes must be multiples of 16");
     }
 }

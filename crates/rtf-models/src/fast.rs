@@ -1,0 +1,119 @@
+//! The fast inference path: no autograd, BatchNorm folded into the convolutions, channels-last
+//! activations, in-place activations and residual adds, optional bfloat16.
+
+use serde::{Deserialize, Serialize};
+use tch::{Kind, Tensor};
+
+use crate::error::ModelError;
+use crate::layers::to_channels_last;
+use crate::Network;
+
+/// Arithmetic precision of inference.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    #[default]
+    Fp32,
+    Bf16,
+}
+
+impl Precision {
+    pub fn kind(self) -> Kind {
+        match self {
+            Precision::Fp32 => Kind::Float,
+            Precision::Bf16 => Kind::BFloat16,
+        }
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Precision::Fp32 => "fp32",
+            Precision::Bf16 => "bf16",
+        }
+    }
+}
+
+impl std::str::FromStr for Precision {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "fp32" | "float32" => Ok(Precision::Fp32),
+            "bf16" | "bfloat16" => Ok(Precision::Bf16),
+            other => Err(format!(
+                "unknown precision {other:?} (expected fp32 or bf16)"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A network prepared for inference. Build the network, load its weights, then wrap it.
+#[derive(Debug)]
+pub struct InferenceNet {
+    net: Box<dyn Network>,
+    precision: Precision,
+    fused: bool,
+}
+
+impl InferenceNet {
+    /// Fuses `net` for `precision`. Networks without a fused path run their plain eval
+    /// forward (still without autograd) in fp32 only.
+    pub fn new(mut net: Box<dyn Network>, precision: Precision) -> Result<Self, ModelError> {
+        let fused = net.fuse_for_inference(precision.kind());
+        if !fused && precision != Precision::Fp32 {
+            return Err(ModelError::InvalidConfig {
+                network: net.name(),
+                reason: format!("no fused inference path, so no {precision} inference"),
+            });
+        }
+        Ok(Self {
+            net,
+            precision,
+            fused,
+        })
+    }
+
+    pub fn network(&self) -> &dyn Network {
+        &*self.net
+    }
+
+    pub fn precision(&self) -> Precision {
+        self.precision
+    }
+
+    /// Whether the folded/channels-last path is in use.
+    pub fn is_fused(&self) -> bool {
+        self.fused
+    }
+
+    /// [B, 4, H, W] float input (already scaled) -> float logits [B, classes, H, W].
+    pub fn forward(&self, xs: &Tensor) -> Result<Tensor, ModelError> {
+        self.net.check_input(&xs.size())?;
+        let _guard = tch::no_grad_guard();
+        let xs = xs
+            .f_to_kind(self.precision.kind())
+            .map_err(|source| ModelError::Torch {
+                context: format!("{}: input conversion", self.net.name()),
+                source,
+            })?;
+        let xs = if self.fused {
+            to_channels_last(&xs)
+        } else {
+            xs
+        };
+        let logits = self.net.forward_t(&xs, false);
+        Ok(logits.to_kind(Kind::Float).contiguous())
+    }
+}
+
+/// Fraction of pixels whose arg-max class agrees between two logits tensors [B, C, H, W].
+pub fn argmax_agreement(a: &Tensor, b: &Tensor) -> f64 {
+    let same = a.argmax(1, false).eq_tensor(&b.argmax(1, false));
+    same.to_kind(Kind::Double)
+        .mean(Kind::Double)
+        .double_value(&[])
+}
