@@ -1,1 +1,15 @@
-//! rtf-calib: targetless RGB-thermal calibration.
+//! rtf-calib: targetless RGB-thermal calibration by edge-gradient alignment (HeatNet §IV-A).
+//!
+//! Conventions (spec §6): pixel centres at integer coordinates; X_T = R·X_RGB + t; T stored as
+//! R and t with se(3) coordinates its exact logarithm.
+
+pub mod calibfile;
+pub mod camera;
+pub mod error;
+pub mod imageio;
+pub mod model;
+pub mod rig;
+pub mod se3;
+pub mod synth_rig;
+
+pub use error::{CalibError, Result};
