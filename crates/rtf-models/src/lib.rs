@@ -9,6 +9,8 @@ pub mod error;
 pub mod fast;
 pub mod layers;
 pub mod mfnet;
+pub mod resnet;
+pub mod rtfnet;
 pub mod weights;
 
 use serde::{Deserialize, Serialize};
@@ -65,6 +67,7 @@ pub trait Network: nn::ModuleT {
 #[serde(tag = "network", rename_all = "snake_case")]
 pub enum ModelConfig {
     Mfnet(mfnet::Config),
+    Rtfnet(rtfnet::Config),
 }
 
 impl ModelConfig {
@@ -73,6 +76,10 @@ impl ModelConfig {
         let cfg = match name {
             "mfnet" => Self::Mfnet(mfnet::Config::reference(num_classes)),
             "mfnet-paper" => Self::Mfnet(mfnet::Config::paper(num_classes)),
+            _ if parse_rtfnet(name).is_some() => {
+                let (depth, variant) = parse_rtfnet(name).unwrap();
+                Self::Rtfnet(rtfnet::Config::new(depth, num_classes, variant))
+            }
             _ => {
                 return Err(ModelError::UnknownModel {
                     name: name.to_string(),
@@ -88,18 +95,21 @@ impl ModelConfig {
         match self {
             Self::Mfnet(c) if *c == mfnet::Config::paper(c.num_classes) => "mfnet-paper".into(),
             Self::Mfnet(_) => "mfnet".into(),
+            Self::Rtfnet(c) => c.name(),
         }
     }
 
     pub fn num_classes(&self) -> i64 {
         match self {
             Self::Mfnet(c) => c.num_classes,
+            Self::Rtfnet(c) => c.num_classes,
         }
     }
 
     pub fn input_convention(&self) -> rtf_core::InputConvention {
         match self {
             Self::Mfnet(c) => c.input,
+            Self::Rtfnet(c) => c.input,
         }
     }
 }
@@ -108,12 +118,34 @@ impl ModelConfig {
 pub fn build(p: &nn::Path, cfg: &ModelConfig) -> Result<Box<dyn Network>, ModelError> {
     Ok(match cfg {
         ModelConfig::Mfnet(c) => Box::new(mfnet::MfNet::new(p.clone(), c)?) as Box<dyn Network>,
+        ModelConfig::Rtfnet(c) => Box::new(rtfnet::RtfNet::new(p.clone(), c)?),
     })
 }
 
 /// Every name [`ModelConfig::from_name`] accepts.
-pub fn model_names() -> Vec<&'static str> {
-    vec!["mfnet", "mfnet-paper"]
+pub fn model_names() -> Vec<String> {
+    let mut names = vec!["mfnet".to_string(), "mfnet-paper".to_string()];
+    for depth in resnet::DEPTHS {
+        for variant in rtfnet::Variant::ALL {
+            names.push(format!("rtfnet{depth}{}", variant.suffix()));
+        }
+    }
+    names
+}
+
+/// `rtfnet50-nre` -> (50, Nre).
+fn parse_rtfnet(name: &str) -> Option<(i64, rtfnet::Variant)> {
+    let rest = name.strip_prefix("rtfnet")?;
+    let (depth, suffix) = match rest.find('-') {
+        Some(i) => rest.split_at(i),
+        None => (rest, ""),
+    };
+    let depth: i64 = depth.parse().ok()?;
+    resnet::layout(depth)?;
+    let variant = rtfnet::Variant::ALL
+        .into_iter()
+        .find(|v| v.suffix() == suffix)?;
+    Some((depth, variant))
 }
 
 #[cfg(test)]
@@ -127,7 +159,7 @@ mod tests {
     #[test]
     fn every_name_builds_and_round_trips() {
         for name in model_names() {
-            let cfg = ModelConfig::from_name(name, 9).unwrap();
+            let cfg = ModelConfig::from_name(&name, 9).unwrap();
             assert_eq!(cfg.name(), name);
             assert_eq!(cfg.num_classes(), 9);
             let json = serde_json::to_string(&cfg).unwrap();
