@@ -14,9 +14,14 @@ pub const BN_EPS: f64 = 1e-5;
 
 /// BatchNorm2d initialised as PyTorch's (weight 1, bias 0; tch's default weight is U(0, 1)).
 pub fn bn2d(p: nn::Path, c: i64) -> nn::BatchNorm {
+    bn2d_init(p, c, nn::Init::Const(1.0))
+}
+
+/// BatchNorm2d with a given weight initialisation and bias 0.
+pub fn bn2d_init(p: nn::Path, c: i64, weight: nn::Init) -> nn::BatchNorm {
     let cfg = nn::BatchNormConfig {
         eps: BN_EPS,
-        ws_init: nn::Init::Const(1.0),
+        ws_init: weight,
         bs_init: nn::Init::Const(0.0),
         ..Default::default()
     };
@@ -95,8 +100,31 @@ pub enum WeightInit {
     Normal(f64),
 }
 
+/// Initialisation of a convolution and its BatchNorm, as one network's reference applies it.
+#[derive(Debug, Clone, Copy)]
+pub struct InitScheme {
+    pub conv: WeightInit,
+    pub bn_weight: nn::Init,
+}
+
+impl InitScheme {
+    /// torchvision ResNet: kaiming-normal fan-out convolutions, BN weight 1.
+    pub const TORCHVISION: InitScheme = InitScheme {
+        conv: WeightInit::KaimingNormalFanOut,
+        bn_weight: nn::Init::Const(1.0),
+    };
+    /// HeatNet's `weights_init_normal`: conv N(0, 0.02), BN weight N(1, 0.02).
+    pub const NORMAL_002: InitScheme = InitScheme {
+        conv: WeightInit::Normal(0.02),
+        bn_weight: nn::Init::Randn {
+            mean: 1.0,
+            stdev: 0.02,
+        },
+    };
+}
+
 /// Shape and options of a 2-D (possibly transposed) convolution.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy)]
 pub struct ConvSpec {
     pub kernel: i64,
     pub stride: i64,
@@ -106,6 +134,8 @@ pub struct ConvSpec {
     pub bias: bool,
     pub transposed: bool,
     pub init: WeightInit,
+    /// Initialisation of the following BatchNorm's weight (PyTorch: 1).
+    pub bn_weight_init: nn::Init,
 }
 
 impl ConvSpec {
@@ -120,6 +150,20 @@ impl ConvSpec {
             bias: false,
             transposed: false,
             init: WeightInit::TorchDefault,
+            bn_weight_init: nn::Init::Const(1.0),
+        }
+    }
+    pub fn bn_weight_init(self, bn_weight_init: nn::Init) -> Self {
+        Self {
+            bn_weight_init,
+            ..self
+        }
+    }
+    pub fn scheme(self, scheme: InitScheme) -> Self {
+        Self {
+            init: scheme.conv,
+            bn_weight_init: scheme.bn_weight,
+            ..self
         }
     }
     pub fn stride(self, stride: i64) -> Self {
@@ -253,7 +297,7 @@ impl ConvBnAct {
                 },
             )
         });
-        let bn = bn.map(|p| bn2d(p, c_out));
+        let bn = bn.map(|p| bn2d_init(p, c_out, spec.bn_weight_init));
         Self {
             weight,
             bias,

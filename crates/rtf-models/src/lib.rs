@@ -7,6 +7,7 @@
 
 pub mod error;
 pub mod fast;
+pub mod heatnet;
 pub mod layers;
 pub mod mfnet;
 pub mod resnet;
@@ -68,6 +69,8 @@ pub trait Network: nn::ModuleT {
 pub enum ModelConfig {
     Mfnet(mfnet::Config),
     Rtfnet(rtfnet::Config),
+    Heatnet(heatnet::Config),
+    HeatnetCritic(heatnet::CriticConfig),
 }
 
 impl ModelConfig {
@@ -76,6 +79,13 @@ impl ModelConfig {
         let cfg = match name {
             "mfnet" => Self::Mfnet(mfnet::Config::reference(num_classes)),
             "mfnet-paper" => Self::Mfnet(mfnet::Config::paper(num_classes)),
+            "heatnet-critic" => Self::HeatnetCritic(heatnet::CriticConfig {
+                in_channels: num_classes,
+            }),
+            _ if heatnet_inputs(name).is_some() => Self::Heatnet(heatnet::Config::new(
+                heatnet_inputs(name).unwrap(),
+                num_classes,
+            )),
             _ if parse_rtfnet(name).is_some() => {
                 let (depth, variant) = parse_rtfnet(name).unwrap();
                 Self::Rtfnet(rtfnet::Config::new(depth, num_classes, variant))
@@ -96,6 +106,8 @@ impl ModelConfig {
             Self::Mfnet(c) if *c == mfnet::Config::paper(c.num_classes) => "mfnet-paper".into(),
             Self::Mfnet(_) => "mfnet".into(),
             Self::Rtfnet(c) => c.name(),
+            Self::Heatnet(c) => c.name(),
+            Self::HeatnetCritic(_) => "heatnet-critic".into(),
         }
     }
 
@@ -103,6 +115,9 @@ impl ModelConfig {
         match self {
             Self::Mfnet(c) => c.num_classes,
             Self::Rtfnet(c) => c.num_classes,
+            Self::Heatnet(c) => c.num_classes,
+            // The critic reads `in_channels` logits and writes one map.
+            Self::HeatnetCritic(c) => c.in_channels,
         }
     }
 
@@ -110,6 +125,8 @@ impl ModelConfig {
         match self {
             Self::Mfnet(c) => c.input,
             Self::Rtfnet(c) => c.input,
+            Self::Heatnet(c) => c.input,
+            Self::HeatnetCritic(_) => rtf_core::InputConvention::UnitRange,
         }
     }
 }
@@ -119,6 +136,8 @@ pub fn build(p: &nn::Path, cfg: &ModelConfig) -> Result<Box<dyn Network>, ModelE
     Ok(match cfg {
         ModelConfig::Mfnet(c) => Box::new(mfnet::MfNet::new(p.clone(), c)?) as Box<dyn Network>,
         ModelConfig::Rtfnet(c) => Box::new(rtfnet::RtfNet::new(p.clone(), c)?),
+        ModelConfig::Heatnet(c) => Box::new(heatnet::HeatNet::new(p.clone(), c)?),
+        ModelConfig::HeatnetCritic(c) => Box::new(heatnet::Critic::new(p.clone(), c)?),
     })
 }
 
@@ -130,7 +149,19 @@ pub fn model_names() -> Vec<String> {
             names.push(format!("rtfnet{depth}{}", variant.suffix()));
         }
     }
+    for inputs in heatnet::Inputs::ALL {
+        names.push(format!("heatnet{}", inputs.suffix()));
+    }
+    names.push("heatnet-critic".into());
     names
+}
+
+/// `heatnet-early` -> Early.
+fn heatnet_inputs(name: &str) -> Option<heatnet::Inputs> {
+    let suffix = name.strip_prefix("heatnet")?;
+    heatnet::Inputs::ALL
+        .into_iter()
+        .find(|i| i.suffix() == suffix)
 }
 
 /// `rtfnet50-nre` -> (50, Nre).

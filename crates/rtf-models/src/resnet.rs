@@ -5,7 +5,7 @@
 use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
-use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, WeightInit};
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, InitScheme};
 
 /// Residual block type of a ResNet depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -74,9 +74,9 @@ pub fn basic_block(
     c_in: i64,
     planes: i64,
     g: BlockGeometry,
-    init: WeightInit,
+    init: InitScheme,
 ) -> ResBlock {
-    let k3 = ConvSpec::new(3).dilation(g.dilation).init(init);
+    let k3 = ConvSpec::new(3).dilation(g.dilation).scheme(init);
     ResBlock {
         conv1: conv_bn(
             &p,
@@ -100,13 +100,13 @@ pub fn bottleneck(
     c_in: i64,
     planes: i64,
     g: BlockGeometry,
-    init: WeightInit,
+    init: InitScheme,
 ) -> ResBlock {
-    let k1 = ConvSpec::new(1).init(init);
+    let k1 = ConvSpec::new(1).scheme(init);
     let k3 = ConvSpec::new(3)
         .dilation(g.dilation)
         .stride(g.stride)
-        .init(init);
+        .scheme(init);
     let c_out = planes * BlockKind::Bottleneck.expansion();
     ResBlock {
         conv1: conv_bn(&p, "conv1", "bn1", c_in, planes, k1, Act::Relu),
@@ -122,10 +122,10 @@ fn downsample(
     c_in: i64,
     c_out: i64,
     stride: i64,
-    init: WeightInit,
+    init: InitScheme,
 ) -> Option<ConvBnAct> {
     (stride != 1 || c_in != c_out).then(|| {
-        let spec = ConvSpec::new(1).stride(stride).init(init);
+        let spec = ConvSpec::new(1).stride(stride).scheme(init);
         conv_bn(
             &(p / "downsample"),
             "0",
@@ -191,7 +191,7 @@ pub fn layer(
     kind: BlockKind,
     c_in: i64,
     spec: LayerSpec,
-    init: WeightInit,
+    init: InitScheme,
 ) -> ResLayer {
     let c_out = spec.planes * kind.expansion();
     let blocks = (0..spec.blocks)
@@ -241,8 +241,8 @@ impl Fuse for ResLayer {
 
 /// The stem convolution: 7×7 stride 2 pad 3 (no bias) → BN → ReLU, at `conv` / `bn`.
 /// [B, c_in, H, W] -> [B, 64, H/2, W/2]
-pub fn stem(conv: nn::Path, bn: nn::Path, c_in: i64, init: WeightInit) -> ConvBnAct {
-    let spec = ConvSpec::new(7).stride(2).init(init);
+pub fn stem(conv: nn::Path, bn: nn::Path, c_in: i64, init: InitScheme) -> ConvBnAct {
+    let spec = ConvSpec::new(7).stride(2).scheme(init);
     ConvBnAct::new(conv, Some(bn), c_in, 64, spec, Act::Relu)
 }
 
@@ -266,7 +266,7 @@ impl ResNetEncoder {
         prefix: &str,
         c_in: i64,
         depth: i64,
-        init: WeightInit,
+        init: InitScheme,
     ) -> Option<Self> {
         let (kind, blocks) = layout(depth)?;
         let stem = stem(

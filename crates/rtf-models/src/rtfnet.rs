@@ -11,7 +11,7 @@ use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
-use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, WeightInit};
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, InitScheme, WeightInit};
 use crate::resnet::{self, ResNetEncoder};
 use crate::Network;
 
@@ -261,7 +261,7 @@ fn fuse_add(a: Tensor, b: &Tensor, train: bool) -> Tensor {
 impl RtfNet {
     pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
         cfg.validate()?;
-        let init = WeightInit::KaimingNormalFanOut;
+        let init = InitScheme::TORCHVISION;
         let encoder = |prefix: &str, c_in: i64| {
             ResNetEncoder::new(&p, prefix, c_in, cfg.depth, init).expect("depth validated")
         };

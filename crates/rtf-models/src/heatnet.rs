@@ -1,0 +1,607 @@
+//! HeatNet (Vertens et al., IROS 2020) networks (spec §5): PSPNet on a dilated ResNet-50
+//! (output stride 8) with late fusion, early fusion, RGB-only or IR-only input, and the
+//! fully-convolutional critic.
+//!
+//! Names follow the published `models/pspnet.py` (`psp.stages.i.1`, `psp.bottleneck`,
+//! `up_1.conv.{0,1,2}`, `final.0`); its extractor module is not published, so the backbone
+//! is named torchvision-style under `feats.` (late fusion: `feats.rgb.*` and `feats.ir.*` for
+//! the replicated stem, layer1 and layer2, then the shared `feats.layer3`, `feats.layer4`).
+
+use serde::{Deserialize, Serialize};
+use tch::nn::{self, ModuleT};
+use tch::{Kind, Tensor};
+
+use crate::error::ModelError;
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, InitScheme};
+use crate::resnet::{self, BlockKind, LayerSpec, ResLayer};
+use crate::Network;
+
+/// Which inputs the segmentation network takes.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Inputs {
+    /// Separate RGB and IR stem + layer1 + layer2, concatenated into a shared layer3.
+    #[default]
+    Late,
+    /// One backbone on the 4-channel RGB-T image.
+    Early,
+    Rgb,
+    Ir,
+}
+
+impl Inputs {
+    pub const ALL: [Inputs; 4] = [Inputs::Late, Inputs::Early, Inputs::Rgb, Inputs::Ir];
+
+    pub fn suffix(self) -> &'static str {
+        match self {
+            Inputs::Late => "",
+            Inputs::Early => "-early",
+            Inputs::Rgb => "-rgb",
+            Inputs::Ir => "-ir",
+        }
+    }
+}
+
+/// The reference preprocessing: both modalities in [0, 1], then (x − 0.5) / 0.5.
+pub fn freiburg_input() -> rtf_core::InputConvention {
+    rtf_core::InputConvention::MeanStd {
+        mean: 0.5,
+        std: 0.5,
+    }
+}
+
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    pub num_classes: i64,
+    #[serde(default)]
+    pub inputs: Inputs,
+    #[serde(default = "freiburg_input")]
+    pub input: rtf_core::InputConvention,
+}
+
+impl Config {
+    pub fn new(inputs: Inputs, num_classes: i64) -> Self {
+        Self {
+            num_classes,
+            inputs,
+            input: freiburg_input(),
+        }
+    }
+
+    pub fn name(&self) -> String {
+        format!("heatnet{}", self.inputs.suffix())
+    }
+}
+
+/// Dropout probabilities of the reference head.
+const DROP_PSP: f64 = 0.3;
+const DROP_UP: f64 = 0.15;
+/// Pyramid bins of the PSP module.
+const BINS: [i64; 4] = [1, 2, 3, 6];
+
+/// Stem + layer1 + layer2 of a ResNet-50 (stride 8 overall).
+/// [B, c_in, H, W] -> [B, 512, H/8, W/8]
+#[derive(Debug)]
+struct Front {
+    stem: ConvBnAct,
+    layer1: ResLayer,
+    layer2: ResLayer,
+}
+
+fn front(p: nn::Path, c_in: i64) -> Front {
+    let init = InitScheme::NORMAL_002;
+    let spec = |planes, blocks, stride| LayerSpec {
+        planes,
+        blocks,
+        stride,
+        dilation_first: 1,
+        dilation_rest: 1,
+    };
+    Front {
+        stem: resnet::stem(&p / "conv1", &p / "bn1", c_in, init),
+        layer1: resnet::layer(
+            &p / "layer1",
+            BlockKind::Bottleneck,
+            64,
+            spec(64, 3, 1),
+            init,
+        ),
+        layer2: resnet::layer(
+            &p / "layer2",
+            BlockKind::Bottleneck,
+            256,
+            spec(128, 4, 2),
+            init,
+        ),
+    }
+}
+
+impl ModuleT for Front {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        resnet::stem_pool(&xs.apply_t(&self.stem, train))
+            .apply_t(&self.layer1, train)
+            .apply_t(&self.layer2, train)
+    }
+}
+
+impl Fuse for Front {
+    fn fuse(&mut self, kind: Kind) {
+        self.stem.fuse(kind);
+        self.layer1.fuse(kind);
+        self.layer2.fuse(kind);
+    }
+}
+
+/// Dilated layer3 (dilation 2) and layer4 (dilation 4), no striding; the first block of each
+/// keeps dilation 1. [B, c_in, H/8, W/8] -> [B, 2048, H/8, W/8]
+fn back(p: &nn::Path, c_in: i64) -> (ResLayer, ResLayer) {
+    let init = InitScheme::NORMAL_002;
+    let l3 = LayerSpec {
+        planes: 256,
+        blocks: 6,
+        stride: 1,
+        dilation_first: 1,
+        dilation_rest: 2,
+    };
+    let l4 = LayerSpec {
+        planes: 512,
+        blocks: 3,
+        stride: 1,
+        dilation_first: 1,
+        dilation_rest: 4,
+    };
+    (
+        resnet::layer(p / "layer3", BlockKind::Bottleneck, c_in, l3, init),
+        resnet::layer(p / "layer4", BlockKind::Bottleneck, 1024, l4, init),
+    )
+}
+
+/// Pyramid pooling: per bin adaptive average pool → 1×1 conv (no bias) → bilinear up;
+/// concat with the input → 1×1 conv → ReLU. [B, 2048, h, w] -> [B, 1024, h, w]
+#[derive(Debug)]
+struct PspModule {
+    stages: Vec<ConvBnAct>,
+    bottleneck: ConvBnAct,
+}
+
+fn psp_module(p: nn::Path, features: i64, out: i64) -> PspModule {
+    let spec = ConvSpec::new(1).scheme(InitScheme::NORMAL_002);
+    let stages = (0..BINS.len())
+        .map(|i| {
+            ConvBnAct::new(
+                &p / "stages" / i / 1,
+                None,
+                features,
+                features,
+                spec,
+                Act::Identity,
+            )
+        })
+        .collect();
+    let c_cat = features * (BINS.len() as i64 + 1);
+    let bottleneck = ConvBnAct::new(
+        &p / "bottleneck",
+        None,
+        c_cat,
+        out,
+        spec.bias(true),
+        Act::Relu,
+    );
+    PspModule { stages, bottleneck }
+}
+
+fn bilinear(xs: &Tensor, h: i64, w: i64) -> Tensor {
+    xs.upsample_bilinear2d([h, w], false, None, None)
+}
+
+impl ModuleT for PspModule {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let (h, w) = (xs.size()[2], xs.size()[3]);
+        let mut priors: Vec<Tensor> = BINS
+            .iter()
+            .zip(&self.stages)
+            .map(|(&bin, conv)| {
+                bilinear(
+                    &xs.adaptive_avg_pool2d([bin, bin]).apply_t(conv, train),
+                    h,
+                    w,
+                )
+            })
+            .collect();
+        priors.push(xs.shallow_clone());
+        Tensor::cat(&priors, 1).apply_t(&self.bottleneck, train)
+    }
+}
+
+/// Bilinear ×2 → 3×3 conv (bias) → BN → PReLU (`up_N.conv.{0,1,2}`).
+/// [B, c_in, H, W] -> [B, c_out, 2H, 2W]
+#[derive(Debug)]
+struct PspUpsample {
+    conv: ConvBnAct,
+    prelu: Tensor,
+    prelu_fused: Option<Tensor>,
+}
+
+fn psp_upsample(p: nn::Path, c_in: i64, c_out: i64) -> PspUpsample {
+    let spec = ConvSpec::new(3).bias(true).scheme(InitScheme::NORMAL_002);
+    let conv = ConvBnAct::new(
+        &p / "conv" / 0,
+        Some(&p / "conv" / 1),
+        c_in,
+        c_out,
+        spec,
+        Act::Identity,
+    );
+    // nn.PReLU(): one slope, 0.25.
+    let prelu = (&p / "conv" / 2).var("weight", &[1], nn::Init::Const(0.25));
+    PspUpsample {
+        conv,
+        prelu,
+        prelu_fused: None,
+    }
+}
+
+impl ModuleT for PspUpsample {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let (h, w) = (xs.size()[2], xs.size()[3]);
+        let ys = bilinear(xs, 2 * h, 2 * w).apply_t(&self.conv, train);
+        match (&self.prelu_fused, train) {
+            (Some(slope), false) => ys.prelu(slope),
+            _ => ys.prelu(&self.prelu),
+        }
+    }
+}
+
+impl Fuse for PspUpsample {
+    fn fuse(&mut self, kind: Kind) {
+        self.conv.fuse(kind);
+        self.prelu_fused = Some(tch::no_grad(|| self.prelu.to_kind(kind)));
+    }
+}
+
+#[derive(Debug)]
+enum Backbone {
+    Late { rgb: Front, ir: Front },
+    Single(Front),
+}
+
+#[derive(Debug)]
+pub struct HeatNet {
+    config: Config,
+    backbone: Backbone,
+    layer3: ResLayer,
+    layer4: ResLayer,
+    psp: PspModule,
+    up: Vec<PspUpsample>,
+    last: ConvBnAct,
+}
+
+impl HeatNet {
+    pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
+        if cfg.num_classes < 1 {
+            return Err(ModelError::InvalidConfig {
+                network: cfg.name(),
+                reason: format!("num_classes must be ≥ 1, got {}", cfg.num_classes),
+            });
+        }
+        let feats = &p / "feats";
+        let (backbone, c_mid) = match cfg.inputs {
+            Inputs::Late => (
+                Backbone::Late {
+                    rgb: front(&feats / "rgb", 3),
+                    ir: front(&feats / "ir", 1),
+                },
+                1024,
+            ),
+            Inputs::Early => (Backbone::Single(front(feats.clone(), 4)), 512),
+            Inputs::Rgb => (Backbone::Single(front(feats.clone(), 3)), 512),
+            Inputs::Ir => (Backbone::Single(front(feats.clone(), 1)), 512),
+        };
+        let (layer3, layer4) = back(&feats, c_mid);
+        let up = [(1024, 256), (256, 64), (64, 64)]
+            .iter()
+            .enumerate()
+            .map(|(i, &(c_in, c_out))| psp_upsample(&p / format!("up_{}", i + 1), c_in, c_out))
+            .collect();
+        let final_spec = ConvSpec::new(1).bias(true).scheme(InitScheme::NORMAL_002);
+        let last = ConvBnAct::new(
+            &p / "final" / 0,
+            None,
+            64,
+            cfg.num_classes,
+            final_spec,
+            Act::Identity,
+        );
+        Ok(Self {
+            config: cfg.clone(),
+            backbone,
+            layer3,
+            layer4,
+            psp: psp_module(&p / "psp", 2048, 1024),
+            up,
+            last,
+        })
+    }
+
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+}
+
+impl ModuleT for HeatNet {
+    /// [B, 4, H, W] (R, G, B, T normalised to [−1, 1]) -> logits [B, classes, H, W]
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        // -> [B, 512 | 1024, H/8, W/8]
+        let mid = match (&self.backbone, self.config.inputs) {
+            (Backbone::Late { rgb, ir }, _) => Tensor::cat(
+                &[
+                    xs.narrow(1, 0, 3).apply_t(rgb, train),
+                    xs.narrow(1, 3, 1).apply_t(ir, train),
+                ],
+                1,
+            ),
+            (Backbone::Single(f), Inputs::Rgb) => xs.narrow(1, 0, 3).apply_t(f, train),
+            (Backbone::Single(f), Inputs::Ir) => xs.narrow(1, 3, 1).apply_t(f, train),
+            (Backbone::Single(f), _) => xs.apply_t(f, train),
+        };
+        // -> [B, 2048, H/8, W/8] -> [B, 1024, H/8, W/8]
+        let p = mid
+            .apply_t(&self.layer3, train)
+            .apply_t(&self.layer4, train)
+            .apply_t(&self.psp, train);
+        // Channel dropouts (Dropout2d); each up block doubles H and W: -> [B, 64, H, W]
+        let p = p.feature_dropout(DROP_PSP, train);
+        let p = self.up.iter().fold(p, |p, up| {
+            p.apply_t(up, train).feature_dropout(DROP_UP, train)
+        });
+        // -> [B, classes, H, W]
+        p.apply_t(&self.last, train)
+    }
+}
+
+impl Fuse for HeatNet {
+    fn fuse(&mut self, kind: Kind) {
+        match &mut self.backbone {
+            Backbone::Late { rgb, ir } => {
+                rgb.fuse(kind);
+                ir.fuse(kind);
+            }
+            Backbone::Single(f) => f.fuse(kind),
+        }
+        self.layer3.fuse(kind);
+        self.layer4.fuse(kind);
+        self.psp.stages.fuse(kind);
+        self.psp.bottleneck.fuse(kind);
+        self.up.fuse(kind);
+        self.last.fuse(kind);
+    }
+}
+
+impl Network for HeatNet {
+    fn input_convention(&self) -> rtf_core::InputConvention {
+        self.config.input
+    }
+    fn num_classes(&self) -> i64 {
+        self.config.num_classes
+    }
+    fn size_multiple(&self) -> i64 {
+        8
+    }
+    fn name(&self) -> String {
+        self.config.name()
+    }
+    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
+        self.fuse(kind);
+        true
+    }
+}
+
+/// The critic's options: it reads the segmentation logits.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CriticConfig {
+    pub in_channels: i64,
+}
+
+/// HeatNet's critic (`FCDiscriminator`): five 4×4 stride-2 convolutions (bias)
+/// in→64→128→256→512→1, LeakyReLU(0.2) after the first four, no normalisation, no sigmoid,
+/// bilinear ×32 back to the input size. [B, in, H, W] -> [B, 1, H, W]
+#[derive(Debug)]
+pub struct Critic {
+    config: CriticConfig,
+    convs: Vec<ConvBnAct>,
+}
+
+/// Critic LeakyReLU slope.
+const CRITIC_SLOPE: f64 = 0.2;
+
+impl Critic {
+    pub fn new(p: nn::Path, cfg: &CriticConfig) -> Result<Self, ModelError> {
+        if cfg.in_channels < 1 {
+            return Err(ModelError::InvalidConfig {
+                network: "heatnet-critic".into(),
+                reason: format!("in_channels must be ≥ 1, got {}", cfg.in_channels),
+            });
+        }
+        let widths = [cfg.in_channels, 64, 128, 256, 512, 1];
+        let names = ["conv1", "conv2", "conv3", "conv4", "classifier"];
+        let spec = ConvSpec::new(4).stride(2).padding(1).bias(true);
+        let convs = (0..5)
+            .map(|i| {
+                let act = if i < 4 {
+                    Act::LeakyRelu(CRITIC_SLOPE)
+                } else {
+                    Act::Identity
+                };
+                ConvBnAct::new(&p / names[i], None, widths[i], widths[i + 1], spec, act)
+            })
+            .collect();
+        Ok(Self {
+            config: cfg.clone(),
+            convs,
+        })
+    }
+}
+
+impl ModuleT for Critic {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        // [B, in, H, W] -> [B, 1, H/32, W/32] -> [B, 1, H, W]
+        let ys = self
+            .convs
+            .iter()
+            .fold(xs.shallow_clone(), |x, c| x.apply_t(c, train));
+        let (h, w) = (ys.size()[2], ys.size()[3]);
+        bilinear(&ys, 32 * h, 32 * w)
+    }
+}
+
+impl Network for Critic {
+    fn input_convention(&self) -> rtf_core::InputConvention {
+        rtf_core::InputConvention::UnitRange
+    }
+    /// One output map (the day/night score).
+    fn num_classes(&self) -> i64 {
+        1
+    }
+    fn size_multiple(&self) -> i64 {
+        32
+    }
+    fn name(&self) -> String {
+        "heatnet-critic".into()
+    }
+    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
+        self.convs.fuse(kind);
+        true
+    }
+    fn check_input(&self, shape: &[i64]) -> Result<(), ModelError> {
+        let m = self.size_multiple();
+        let ok = shape.len() == 4
+            && shape[1] == self.config.in_channels
+            && shape[0] >= 1
+            && shape[2] >= m
+            && shape[3] >= m
+            && shape[2] % m == 0
+            && shape[3] % m == 0;
+        if ok {
+            Ok(())
+        } else {
+            Err(ModelError::InvalidInput {
+                network: self.name(),
+                shape: shape.to_vec(),
+                reason: format!(
+                    "expected [B, {}, H, W] with H and W positive multiples of {m}",
+                    self.config.in_channels
+                ),
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::forward_shape;
+    use crate::weights;
+    use tch::Device;
+
+    fn count(inputs: Inputs) -> (nn::VarStore, HeatNet) {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = HeatNet::new(vs.root(), &Config::new(inputs, 13)).unwrap();
+        (vs, net)
+    }
+
+    #[test]
+    fn late_fusion_count_and_shape() {
+        let (vs, net) = count(Inputs::Late);
+        assert_eq!(weights::count_trainable(&vs), 54_361_040);
+        assert_eq!(forward_shape(&net, [1, 4, 64, 96]), vec![1, 13, 64, 96]);
+        let names = vs.variables();
+        // The shared layer3 takes the 1024 concatenated channels without a downsample branch.
+        assert_eq!(
+            names["feats.layer3.0.conv1.weight"].size(),
+            vec![256, 1024, 1, 1]
+        );
+        assert!(!names.contains_key("feats.layer3.0.downsample.0.weight"));
+        assert_eq!(names["feats.ir.conv1.weight"].size(), vec![64, 1, 7, 7]);
+        assert_eq!(
+            names["psp.bottleneck.weight"].size(),
+            vec![1024, 10240, 1, 1]
+        );
+        assert_eq!(names["up_1.conv.2.weight"].size(), vec![1]);
+    }
+
+    #[test]
+    fn early_fusion_and_ir_only_counts() {
+        let (vs, _) = count(Inputs::Early);
+        assert_eq!(weights::count_trainable(&vs), 53_320_784);
+        let (vs, _) = count(Inputs::Ir);
+        assert_eq!(weights::count_trainable(&vs), 53_311_376);
+    }
+
+    #[test]
+    fn single_input_variants_run() {
+        for inputs in [Inputs::Early, Inputs::Rgb, Inputs::Ir] {
+            let (_vs, net) = count(inputs);
+            assert_eq!(
+                forward_shape(&net, [2, 4, 48, 64]),
+                vec![2, 13, 48, 64],
+                "{inputs:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn rgb_only_ignores_thermal_and_ir_only_ignores_rgb() {
+        let x = Tensor::rand([1, 4, 32, 32], (Kind::Float, Device::Cpu));
+        let other_t = x.copy();
+        let _ = other_t.narrow(1, 3, 1).fill_(0.0);
+        let other_rgb = x.copy();
+        let _ = other_rgb.narrow(1, 0, 3).fill_(0.0);
+        let (_a, rgb) = count(Inputs::Rgb);
+        let (_b, ir) = count(Inputs::Ir);
+        tch::no_grad(|| {
+            assert!(rgb
+                .forward_t(&x, false)
+                .equal(&rgb.forward_t(&other_t, false)));
+            assert!(!rgb
+                .forward_t(&x, false)
+                .equal(&rgb.forward_t(&other_rgb, false)));
+            assert!(ir
+                .forward_t(&x, false)
+                .equal(&ir.forward_t(&other_rgb, false)));
+        });
+    }
+
+    #[test]
+    fn critic_count_and_shape() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let critic = Critic::new(vs.root(), &CriticConfig { in_channels: 13 }).unwrap();
+        assert_eq!(weights::count_trainable(&vs), 2_774_977);
+        let _guard = tch::no_grad_guard();
+        let out = critic.forward_t(
+            &Tensor::rand([2, 13, 64, 96], (Kind::Float, Device::Cpu)),
+            false,
+        );
+        assert_eq!(out.size(), vec![2, 1, 64, 96]);
+        assert!(critic.check_input(&[2, 13, 64, 96]).is_ok());
+        assert!(critic.check_input(&[2, 4, 64, 96]).is_err());
+    }
+
+    #[test]
+    fn fused_inference_agrees_with_plain_path() {
+        use crate::fast::{argmax_agreement, InferenceNet, Precision};
+        tch::manual_seed(7);
+        let (_vs, net) = count(Inputs::Late);
+        let net: Box<dyn Network> = Box::new(net);
+        let _ = net.forward_t(
+            &Tensor::rand([2, 4, 32, 32], (Kind::Float, Device::Cpu)),
+            true,
+        );
+        let x = Tensor::rand([1, 4, 32, 48], (Kind::Float, Device::Cpu)) * 2.0 - 1.0;
+        let plain = tch::no_grad(|| net.forward_t(&x, false));
+        let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
+        let agreement = argmax_agreement(&plain, &fast.forward(&x).unwrap());
+        assert!(agreement >= 0.999, "fp32 agreement {agreement}");
+    }
+}
