@@ -1,1 +1,22 @@
 //! rtf-data: datasets, synthetic generator, augmentation, input pipeline.
+//!
+//! - [`MfDataset`] reads the MF layout (spec §1); every split implements [`FrameSource`].
+//! - [`Loader`] turns a frame source into shuffled, augmented `tch` batches.
+//! - [`synth`] writes synthetic datasets in the real layouts.
+
+pub mod augment;
+pub mod error;
+pub mod frame;
+pub mod loader;
+pub mod mf;
+pub mod pngio;
+pub mod synth;
+
+pub use augment::{resize_frame, AugmentConfig};
+pub use error::DataError;
+pub use frame::{Frame, FrameSource, MemorySource};
+pub use loader::{Batch, Loader, LoaderConfig};
+pub use mf::{MfDataset, MfSplit};
+
+#[cfg(test)]
+pub(crate) mod testutil;

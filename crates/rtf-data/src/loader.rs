@@ -1,0 +1,705 @@
+//! Batched loading: shuffling, decoding and augmentation in worker threads with bounded
+//! prefetch. A batch depends only on (seed, epoch, batch index): each frame's augmentation RNG
+//! is derived from its position in the epoch, never from thread timing.
+
+use crate::augment::{self, AugmentConfig, Filter, Planar, Window};
+use crate::{DataError, Frame, FrameSource};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rtf_core::{Daytime, InputConvention};
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+#[derive(Serialize, Deserialize, Clone, Debug)]
+pub struct LoaderConfig {
+    pub batch_size: usize,
+    pub shuffle: bool,
+    pub drop_last: bool,
+    pub seed: u64,
+    /// Decode/augment threads; 0 = everything on the consumer's thread, no prefetch.
+    pub workers: usize,
+    /// Finished batches queued ahead of the consumer (bounded).
+    pub prefetch: usize,
+    pub augment: AugmentConfig,
+    /// (width, height) of every batch: image resampled (bilinear, bicubic when cropping),
+    /// label nearest. None = native size (all frames must then share it).
+    pub resize: Option<(usize, usize)>,
+}
+
+impl Default for LoaderConfig {
+    fn default() -> Self {
+        Self {
+            batch_size: 8,
+            shuffle: true,
+            drop_last: false,
+            seed: 0,
+            workers: 2,
+            prefetch: 2,
+            augment: AugmentConfig::default(),
+            resize: None,
+        }
+    }
+}
+
+/// One batch, ready for the network.
+#[derive(Debug)]
+pub struct Batch {
+    /// [B, 4, H, W] f32: R, G, B, T in [0, 1] mapped by the input convention.
+    pub input: tch::Tensor,
+    /// [B, H, W] i64 class ids (unlabelled frames: the ignore id).
+    pub target: tch::Tensor,
+    pub names: Vec<String>,
+    pub daytimes: Vec<Option<Daytime>>,
+    /// How long the consumer waited for this batch (0 when it was already prefetched).
+    pub wait: Duration,
+}
+
+pub struct Loader {
+    source: Arc<dyn FrameSource>,
+    cfg: LoaderConfig,
+    input: InputConvention,
+    pool: Option<Arc<rayon::ThreadPool>>,
+}
+
+impl Loader {
+    pub fn new(source: Arc<dyn FrameSource>, cfg: LoaderConfig, input: InputConvention) -> Self {
+        // A pool that cannot be built (resource exhaustion) degrades to the synchronous path.
+        let pool = (cfg.workers > 0)
+            .then(|| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(cfg.workers)
+                    .thread_name(|i| format!("rtf-data-{i}"))
+                    .build()
+                    .ok()
+            })
+            .flatten()
+            .map(Arc::new);
+        Self {
+            source,
+            cfg,
+            input,
+            pool,
+        }
+    }
+
+    pub fn config(&self) -> &LoaderConfig {
+        &self.cfg
+    }
+
+    pub fn source(&self) -> &Arc<dyn FrameSource> {
+        &self.source
+    }
+
+    pub fn num_batches(&self) -> usize {
+        let (n, b) = (self.source.len(), self.cfg.batch_size);
+        match (b, self.cfg.drop_last) {
+            (0, _) => 0,
+            (_, true) => n / b,
+            (_, false) => n.div_ceil(b),
+        }
+    }
+
+    /// Frame indices of one epoch, in order.
+    pub fn epoch_order(&self, epoch: u64) -> Vec<usize> {
+        let mut order: Vec<usize> = (0..self.source.len()).collect();
+        if self.cfg.shuffle {
+            order.shuffle(&mut ChaCha8Rng::seed_from_u64(mix(
+                self.cfg.seed,
+                epoch,
+                u64::MAX,
+            )));
+        }
+        order
+    }
+
+    /// Batches of one epoch; order and augmentation depend only on (seed, epoch), so a resumed
+    /// run sees exactly the batches it would have seen.
+    pub fn epoch(&self, epoch: u64) -> impl Iterator<Item = Result<Batch, DataError>> + '_ {
+        let job = Arc::new(EpochJob {
+            source: self.source.clone(),
+            cfg: self.cfg.clone(),
+            input: self.input,
+            order: self.epoch_order(epoch),
+            epoch,
+            num_batches: self.num_batches(),
+        });
+        let mode = if self.cfg.batch_size == 0 {
+            Mode::Failed(Some(DataError::Config(
+                "batch_size must be at least 1".into(),
+            )))
+        } else {
+            match &self.pool {
+                None => Mode::Inline { next: 0 },
+                Some(pool) => {
+                    let (tx, rx) = crossbeam_channel::bounded(self.cfg.prefetch);
+                    let (job2, pool) = (job.clone(), pool.clone());
+                    let handle = std::thread::Builder::new()
+                        .name("rtf-data-batches".into())
+                        .spawn(move || {
+                            for b in 0..job2.num_batches {
+                                let batch = pool.install(|| job2.batch(b, true));
+                                let failed = batch.is_err();
+                                if tx.send(batch).is_err() || failed {
+                                    break;
+                                }
+                            }
+                        });
+                    match handle {
+                        Ok(h) => Mode::Threaded {
+                            rx: Some(rx),
+                            handle: Some(h),
+                        },
+                        Err(_) => Mode::Inline { next: 0 },
+                    }
+                }
+            }
+        };
+        EpochIter {
+            job,
+            mode,
+            done: false,
+        }
+    }
+}
+
+struct EpochJob {
+    source: Arc<dyn FrameSource>,
+    cfg: LoaderConfig,
+    input: InputConvention,
+    order: Vec<usize>,
+    epoch: u64,
+    num_batches: usize,
+}
+
+impl EpochJob {
+    fn batch(&self, b: usize, parallel: bool) -> Result<Batch, DataError> {
+        let bs = self.cfg.batch_size;
+        let positions: Vec<usize> = (b * bs..((b + 1) * bs).min(self.order.len())).collect();
+        let prepare = |&pos: &usize| -> Result<Prepared, DataError> {
+            let frame = self.source.load(self.order[pos])?;
+            let mut rng = ChaCha8Rng::seed_from_u64(mix(self.cfg.seed, self.epoch, pos as u64));
+            prepare_frame(
+                frame,
+                &self.cfg,
+                self.source.class_set().ignore_id,
+                &mut rng,
+            )
+        };
+        let prepared: Vec<Prepared> = if parallel {
+            use rayon::prelude::*;
+            positions
+                .par_iter()
+                .map(prepare)
+                .collect::<Result<_, _>>()?
+        } else {
+            positions.iter().map(prepare).collect::<Result<_, _>>()?
+        };
+        assemble(prepared, self.input)
+    }
+}
+
+/// A frame after geometry and photometry, before the input convention.
+pub struct Prepared {
+    pub name: String,
+    pub daytime: Option<Daytime>,
+    pub image: Planar,
+    pub label: Vec<u8>,
+}
+
+/// Turns one decoded frame into the network's geometry: crop, rotation, resize, flip, photometry.
+pub fn prepare_frame(
+    frame: Frame,
+    cfg: &LoaderConfig,
+    ignore: Option<u8>,
+    rng: &mut impl Rng,
+) -> Result<Prepared, DataError> {
+    frame.validate()?;
+    let (w, h) = (frame.width, frame.height);
+    let n = w * h;
+    let label = match frame.label {
+        Some(l) => l,
+        None => match ignore {
+            Some(id) => vec![id; n],
+            None => {
+                return Err(DataError::Frame {
+                    name: frame.name,
+                    message: "frame has no label and the class set has no ignore id".into(),
+                })
+            }
+        },
+    };
+    let mut data = vec![0.0f32; 4 * n];
+    let (rgb_planes, t_plane) = data.split_at_mut(3 * n);
+    for (i, px) in frame.rgb.chunks_exact(3).enumerate() {
+        rgb_planes[i] = px[0] as f32 / 255.0;
+        rgb_planes[n + i] = px[1] as f32 / 255.0;
+        rgb_planes[2 * n + i] = px[2] as f32 / 255.0;
+    }
+    t_plane.copy_from_slice(&frame.thermal);
+    let mut image = Planar {
+        channels: 4,
+        width: w,
+        height: h,
+        data,
+    };
+    let mut label = label;
+    let aug = &cfg.augment;
+    // Random draws happen in a fixed order whether or not an augmentation changes anything.
+    let window = match aug.crop {
+        Some(f) if f > 0.0 => Window::random_crop(w, h, f, rng),
+        _ => Window::full(w, h),
+    };
+    let angle = aug
+        .rotation_deg
+        .map(|d| rng.random_range(-d.abs()..=d.abs()));
+    let flip = aug.hflip && rng.random::<bool>();
+    let (out_w, out_h) = cfg.resize.unwrap_or((w, h));
+    if out_w == 0 || out_h == 0 {
+        return Err(DataError::Config(format!("resize to {out_w}x{out_h}")));
+    }
+    let filter = if aug.crop.is_some() {
+        Filter::Bicubic
+    } else {
+        Filter::Bilinear
+    };
+    image = augment::resample(&image, window, out_w, out_h, filter);
+    label = augment::resample_nearest(&label, w, h, window, out_w, out_h);
+    if let Some(deg) = angle {
+        let (img, lab) = augment::rotate(&image, Some(&label), deg, ignore.unwrap_or(0));
+        image = img;
+        label = lab.unwrap_or_default();
+    }
+    if flip {
+        augment::hflip_planar(&mut image);
+        augment::hflip_label(&mut label, out_w);
+    }
+    augment::photometric(&mut image, aug, rng);
+    Ok(Prepared {
+        name: frame.name,
+        daytime: frame.daytime,
+        image,
+        label,
+    })
+}
+
+fn assemble(frames: Vec<Prepared>, input: InputConvention) -> Result<Batch, DataError> {
+    let first = frames
+        .first()
+        .ok_or_else(|| DataError::Config("empty batch".into()))?;
+    let (w, h) = (first.image.width, first.image.height);
+    if let Some(odd) = frames
+        .iter()
+        .find(|f| (f.image.width, f.image.height) != (w, h))
+    {
+        return Err(DataError::Frame {
+            name: odd.name.clone(),
+            message: format!(
+                "is {}x{} but '{}' is {w}x{h}; set a resize to batch frames of different sizes",
+                odd.image.width, odd.image.height, first.name
+            ),
+        });
+    }
+    let b = frames.len();
+    let mut inputs = Vec::with_capacity(b * 4 * w * h);
+    let mut targets = Vec::with_capacity(b * w * h);
+    let (mut names, mut daytimes) = (Vec::with_capacity(b), Vec::with_capacity(b));
+    for f in frames {
+        match input {
+            InputConvention::UnitRange => inputs.extend_from_slice(&f.image.data),
+            conv => inputs.extend(f.image.data.iter().map(|&v| conv.apply(v))),
+        }
+        targets.extend(f.label.iter().map(|&id| id as i64));
+        names.push(f.name);
+        daytimes.push(f.daytime);
+    }
+    let dims = [b as i64, 4, h as i64, w as i64];
+    let input = tch::Tensor::f_from_slice(&inputs)?.f_view(dims)?;
+    let target = tch::Tensor::f_from_slice(&targets)?.f_view([b as i64, h as i64, w as i64])?;
+    Ok(Batch {
+        input,
+        target,
+        names,
+        daytimes,
+        wait: Duration::ZERO,
+    })
+}
+
+enum Mode {
+    Inline {
+        next: usize,
+    },
+    Threaded {
+        rx: Option<crossbeam_channel::Receiver<Result<Batch, DataError>>>,
+        handle: Option<std::thread::JoinHandle<()>>,
+    },
+    Failed(Option<DataError>),
+}
+
+struct EpochIter {
+    job: Arc<EpochJob>,
+    mode: Mode,
+    done: bool,
+}
+
+impl Iterator for EpochIter {
+    type Item = Result<Batch, DataError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let start = Instant::now();
+        let item = match &mut self.mode {
+            Mode::Failed(err) => err.take().map(Err),
+            Mode::Inline { next } => {
+                if *next >= self.job.num_batches {
+                    None
+                } else {
+                    *next += 1;
+                    Some(self.job.batch(*next - 1, false))
+                }
+            }
+            Mode::Threaded { rx, .. } => match rx.as_ref().map(|r| r.recv()) {
+                Some(Ok(item)) => Some(item),
+                // Channel closed: the producer finished (or died; a panic there must not pass
+                // silently as a short epoch).
+                _ => {
+                    if let Mode::Threaded { handle, .. } = &mut self.mode {
+                        if let Some(h) = handle.take() {
+                            if h.join().is_err() {
+                                self.done = true;
+                                return Some(Err(DataError::WorkerGone));
+                            }
+                        }
+                    }
+                    None
+                }
+            },
+        };
+        match item {
+            Some(Ok(mut batch)) => {
+                batch.wait = start.elapsed();
+                Some(Ok(batch))
+            }
+            Some(Err(e)) => {
+                self.done = true;
+                Some(Err(e))
+            }
+            None => {
+                self.done = true;
+                None
+            }
+        }
+    }
+}
+
+impl Drop for EpochIter {
+    fn drop(&mut self) {
+        if let Mode::Threaded { rx, handle } = &mut self.mode {
+            // Closing the channel makes the producer's next send fail, so it stops.
+            drop(rx.take());
+            if let Some(h) = handle.take() {
+                let _ = h.join();
+            }
+        }
+    }
+}
+
+/// SplitMix64-style mixing of three words into one seed.
+pub fn mix(a: u64, b: u64, c: u64) -> u64 {
+    let mut z = a ^ b.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ c.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    for _ in 0..2 {
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+    }
+    z
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::MemorySource;
+    use rtf_core::ClassSet;
+
+    /// Frames whose pixels encode (frame, x, y) so any geometric change is visible.
+    fn source(n: usize, w: usize, h: usize) -> Arc<dyn FrameSource> {
+        let frames = (0..n)
+            .map(|k| Frame {
+                name: format!("{:05}{}", k, if k % 2 == 0 { 'D' } else { 'N' }),
+                daytime: Some(if k % 2 == 0 {
+                    Daytime::Day
+                } else {
+                    Daytime::Night
+                }),
+                width: w,
+                height: h,
+                rgb: (0..w * h)
+                    .flat_map(|i| [(i % w * 9) as u8, (i / w * 9) as u8, k as u8 * 10])
+                    .collect(),
+                thermal: (0..w * h).map(|i| (i % w) as f32 / w as f32).collect(),
+                label: Some((0..w * h).map(|i| (i % w % 9) as u8).collect()),
+            })
+            .collect();
+        Arc::new(MemorySource {
+            frames,
+            class_set: ClassSet::mf(),
+        })
+    }
+
+    fn cfg(workers: usize) -> LoaderConfig {
+        LoaderConfig {
+            batch_size: 3,
+            workers,
+            prefetch: 2,
+            seed: 11,
+            ..LoaderConfig::default()
+        }
+    }
+
+    fn collect(loader: &Loader, epoch: u64) -> Vec<(Vec<f32>, Vec<i64>, Vec<String>)> {
+        loader
+            .epoch(epoch)
+            .map(|b| {
+                let b = b.unwrap();
+                (
+                    Vec::<f32>::try_from(b.input.flatten(0, -1)).unwrap(),
+                    Vec::<i64>::try_from(b.target.flatten(0, -1)).unwrap(),
+                    b.names,
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn shapes_counts_and_scaling() {
+        let loader = Loader::new(
+            source(7, 8, 6),
+            cfg(2),
+            InputConvention::MeanStd {
+                mean: 0.5,
+                std: 0.5,
+            },
+        );
+        assert_eq!(loader.num_batches(), 3);
+        let batches: Vec<Batch> = loader.epoch(0).map(|b| b.unwrap()).collect();
+        assert_eq!(batches.len(), 3);
+        assert_eq!(batches[0].input.size(), [3, 4, 6, 8]);
+        assert_eq!(batches[0].target.size(), [3, 6, 8]);
+        assert_eq!(batches[0].target.kind(), tch::Kind::Int64);
+        assert_eq!(batches[2].input.size()[0], 1, "last partial batch kept");
+        let min = batches[0].input.min().double_value(&[]);
+        assert!(min >= -1.0 && min < -0.9, "MeanStd maps 0 to -1, got {min}");
+        let mut names: Vec<String> = batches.iter().flat_map(|b| b.names.clone()).collect();
+        names.sort();
+        assert_eq!(names.len(), 7);
+        names.dedup();
+        assert_eq!(names.len(), 7, "each frame once per epoch");
+        let dropping = Loader::new(
+            source(7, 8, 6),
+            LoaderConfig {
+                drop_last: true,
+                ..cfg(0)
+            },
+            InputConvention::UnitRange,
+        );
+        assert_eq!(dropping.num_batches(), 2);
+        assert_eq!(dropping.epoch(0).count(), 2);
+    }
+
+    #[test]
+    fn same_seed_and_epoch_give_identical_batches_whatever_the_workers() {
+        let mut c = cfg(2);
+        c.augment = AugmentConfig {
+            hflip: true,
+            crop: Some(0.1),
+            rotation_deg: Some(20.0),
+            modality_dropout: Some(0.5),
+            ir_scale: Some((0.1, 1.0)),
+            brightness: Some(0.2),
+            noise_std: Some(0.02),
+        };
+        c.resize = Some((12, 8));
+        let a = Loader::new(source(7, 16, 12), c.clone(), InputConvention::UnitRange);
+        let b = Loader::new(
+            source(7, 16, 12),
+            LoaderConfig {
+                workers: 0,
+                ..c.clone()
+            },
+            InputConvention::UnitRange,
+        );
+        let e3 = collect(&a, 3);
+        assert_eq!(e3, collect(&a, 3));
+        assert_eq!(e3, collect(&b, 3), "threads must not change the result");
+        assert_ne!(
+            e3,
+            collect(&a, 4),
+            "another epoch shuffles and augments differently"
+        );
+        let other_seed = Loader::new(
+            source(7, 16, 12),
+            LoaderConfig { seed: 12, ..c },
+            InputConvention::UnitRange,
+        );
+        assert_ne!(e3, collect(&other_seed, 3));
+    }
+
+    #[test]
+    fn hflip_flips_image_and_label_together() {
+        let (w, h) = (8, 4);
+        let src = source(1, w, h);
+        let plain = collect(
+            &Loader::new(
+                src.clone(),
+                LoaderConfig {
+                    batch_size: 1,
+                    ..cfg(0)
+                },
+                InputConvention::UnitRange,
+            ),
+            0,
+        );
+        let (img0, lab0, _) = &plain[0];
+        let mirror_f = |v: &[f32], planes: usize| -> Vec<f32> {
+            v.chunks(w)
+                .take(planes * h)
+                .flat_map(|r| r.iter().rev().copied().collect::<Vec<_>>())
+                .collect()
+        };
+        let mirror_i = |v: &[i64]| -> Vec<i64> {
+            v.chunks(w)
+                .flat_map(|r| r.iter().rev().copied().collect::<Vec<_>>())
+                .collect()
+        };
+        let flipping = Loader::new(
+            src,
+            LoaderConfig {
+                batch_size: 1,
+                augment: AugmentConfig {
+                    hflip: true,
+                    ..Default::default()
+                },
+                ..cfg(2)
+            },
+            InputConvention::UnitRange,
+        );
+        let (mut flipped, mut kept) = (0, 0);
+        for epoch in 0..16 {
+            let (img, lab, _) = &collect(&flipping, epoch)[0];
+            if img == img0 {
+                assert_eq!(lab, lab0, "image kept but label flipped (epoch {epoch})");
+                kept += 1;
+            } else {
+                assert_eq!(img, &mirror_f(img0, 4), "epoch {epoch}");
+                assert_eq!(
+                    lab,
+                    &mirror_i(lab0),
+                    "image flipped but label not (epoch {epoch})"
+                );
+                flipped += 1;
+            }
+        }
+        assert!(flipped > 0 && kept > 0, "flipped {flipped}, kept {kept}");
+    }
+
+    #[test]
+    fn resize_uses_nearest_labels_and_frame_size_mismatch_is_an_error() {
+        let c = LoaderConfig {
+            batch_size: 2,
+            resize: Some((4, 3)),
+            ..cfg(0)
+        };
+        let batch = Loader::new(source(2, 8, 6), c, InputConvention::UnitRange)
+            .epoch(0)
+            .next()
+            .unwrap()
+            .unwrap();
+        assert_eq!(batch.input.size(), [2, 4, 3, 4]);
+        let labels = Vec::<i64>::try_from(batch.target.flatten(0, -1)).unwrap();
+        // Nearest picks source columns 1, 3, 5, 7 whose ids are x % 9.
+        assert_eq!(&labels[..4], &[1, 3, 5, 7]);
+        let mut frames = vec![
+            source(1, 8, 6).load(0).unwrap(),
+            source(1, 6, 6).load(0).unwrap(),
+        ];
+        frames[1].name = "odd".into();
+        let mixed: Arc<dyn FrameSource> = Arc::new(MemorySource {
+            frames,
+            class_set: ClassSet::mf(),
+        });
+        let err = Loader::new(
+            mixed,
+            LoaderConfig {
+                batch_size: 2,
+                ..cfg(0)
+            },
+            InputConvention::UnitRange,
+        )
+        .epoch(0)
+        .next()
+        .unwrap()
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("set a resize"), "{err}");
+    }
+
+    #[test]
+    fn errors_stop_the_epoch_and_zero_batch_size_is_reported() {
+        let mut frames = vec![source(1, 8, 6).load(0).unwrap(); 4];
+        frames[2].rgb.truncate(5);
+        let bad: Arc<dyn FrameSource> = Arc::new(MemorySource {
+            frames,
+            class_set: ClassSet::mf(),
+        });
+        let items: Vec<_> = Loader::new(
+            bad,
+            LoaderConfig {
+                batch_size: 1,
+                shuffle: false,
+                ..cfg(2)
+            },
+            InputConvention::UnitRange,
+        )
+        .epoch(0)
+        .collect();
+        assert_eq!(
+            items.len(),
+            3,
+            "two good batches, then the error, then nothing"
+        );
+        assert!(items[2]
+            .as_ref()
+            .unwrap_err()
+            .to_string()
+            .contains("rgb has 5 bytes"));
+        let zero = Loader::new(
+            source(2, 4, 4),
+            LoaderConfig {
+                batch_size: 0,
+                ..cfg(0)
+            },
+            InputConvention::UnitRange,
+        );
+        assert!(zero.epoch(0).next().unwrap().is_err());
+    }
+
+    #[test]
+    fn dropping_an_epoch_midway_stops_the_worker() {
+        let loader = Loader::new(
+            source(30, 8, 6),
+            LoaderConfig {
+                batch_size: 1,
+                prefetch: 1,
+                ..cfg(2)
+            },
+            InputConvention::UnitRange,
+        );
+        let mut it = loader.epoch(0);
+        assert!(it.next().unwrap().is_ok());
+        drop(it); // must return (joins the producer) instead of hanging
+        assert_eq!(loader.epoch(1).count(), 30);
+    }
+}
