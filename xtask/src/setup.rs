@@ -28,8 +28,14 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
             Some(v) => println!("setup: torch {v} found, installing {TORCH_VERSION} (needed by tch 0.26)"),
             None => println!("setup: installing torch=={TORCH_VERSION} into .venv (about 1 minute)"),
         }
+        // A torch that pip knows but Python cannot import is broken: reinstall it.
+        let repair = installed.is_none() && pip_knows_torch(&python);
+        if repair {
+            println!("setup: torch in .venv cannot be imported; reinstalling");
+        }
         let status = Command::new(&python)
             .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"])
+            .args(repair.then_some("--force-reinstall"))
             .arg(format!("torch=={TORCH_VERSION}"))
             .status()
             .context("cannot run pip in .venv")?;
@@ -70,6 +76,13 @@ fn find_host_python() -> Result<String> {
 fn torch_version(python: &Path) -> Option<String> {
     let out = Command::new(python).args(["-c", "import torch; print(torch.__version__)"]).output().ok()?;
     out.status.success().then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+}
+
+fn pip_knows_torch(python: &Path) -> bool {
+    Command::new(python)
+        .args(["-m", "pip", "show", "--quiet", "torch"])
+        .output()
+        .is_ok_and(|o| o.status.success())
 }
 
 fn torch_package_dir(python: &Path) -> Result<PathBuf> {
