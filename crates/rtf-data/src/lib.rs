@@ -7,14 +7,17 @@
 pub mod augment;
 pub mod error;
 pub mod frame;
+pub mod freiburg;
 pub mod loader;
 pub mod mf;
+pub mod npy;
 pub mod pngio;
 pub mod synth;
 
 pub use augment::{resize_frame, AugmentConfig};
 pub use error::DataError;
 pub use frame::{Frame, FrameSource, MemorySource};
+pub use freiburg::{FreiburgPreprocess, FreiburgSplit};
 pub use loader::{Batch, Loader, LoaderConfig};
 pub use mf::{MfDataset, MfSplit};
 

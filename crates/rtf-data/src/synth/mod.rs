@@ -249,9 +249,7 @@ pub fn generate(out: &Path, cfg: &SynthConfig) -> Result<SynthSummary, DataError
     let splits = assign_splits(cfg.count)?;
     match cfg.format {
         SynthFormat::Mf => write_mf(out, cfg, &splits),
-        SynthFormat::Freiburg => Err(DataError::Config(
-            "the Freiburg layout writer is not implemented yet".into(),
-        )),
+        SynthFormat::Freiburg => crate::freiburg::write_synthetic(out, cfg, &splits),
     }
 }
 

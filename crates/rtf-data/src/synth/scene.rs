@@ -248,7 +248,7 @@ impl Scene {
         }
         if rng.random::<f32>() < 0.3 {
             let z0 = rng.random_range(5.0..14.0);
-            scene.bump = Some((z0, z0 + 0.6));
+            scene.bump = Some((z0, z0 + rng.random_range(1.2..3.0)));
         }
         scene.populate(rng);
         scene
@@ -629,7 +629,7 @@ impl Scene {
                 } else {
                     block.albedo.map(|v| v * (0.85 + 0.3 * g))
                 };
-                let emission = if lit { rgb(0.9, 0.7, 0.4) } else { [0.0; 3] };
+                let emission = if lit { rgb(0.3, 0.22, 0.12) } else { [0.0; 3] };
                 // Windows reflect the cold sky (low emissivity glass at grazing angles).
                 let (temp, emissivity) = if window {
                     (self.ambient + 1.0, 0.75)
@@ -699,7 +699,7 @@ impl Scene {
     fn sky(&self, v: f32) -> Surface {
         let elev = ((self.horizon - v) / self.height as f32).clamp(0.0, 1.0);
         let albedo = if self.night {
-            rgb(0.010, 0.012, 0.02).map(|c| c * (1.0 + 2.0 * (1.0 - elev)))
+            rgb(0.002, 0.003, 0.006).map(|c| c * (1.0 + 3.0 * (1.0 - elev)))
         } else {
             rgb(0.55 - 0.3 * elev, 0.70 - 0.25 * elev, 0.95)
         };
@@ -889,7 +889,7 @@ impl Scene {
                         0.9,
                     );
                     if self.night && ly > 0.12 {
-                        sf.emission = o.colors[1].map(|v| v * 60.0);
+                        sf.emission = o.colors[1].map(|v| v * 15.0);
                     }
                     Some(sf)
                 } else if pole {
@@ -1112,12 +1112,12 @@ impl Scene {
             return [l, l * 0.98, l * 0.95];
         }
         // Night: faint sky glow plus sodium-ish street lamps falling off with distance².
-        let mut l = [0.012, 0.013, 0.018];
+        let mut l = [0.004, 0.0045, 0.006];
         for lamp in &self.lamps {
             let d2 = (lamp[0] - s.pos[0]).powi(2)
                 + (lamp[1] - s.pos[1]).powi(2)
                 + (lamp[2] - s.pos[2]).powi(2);
-            let e = 6.0 / (d2 + 4.0);
+            let e = 1.0 / (d2 + 4.0);
             l[0] += e;
             l[1] += e * 0.8;
             l[2] += e * 0.5;
@@ -1152,8 +1152,8 @@ impl Scene {
                 *l += 0.8 * e;
             }
         }
-        let read = if self.night { 0.004 * gain } else { 0.002 };
-        let shot = if self.night { 0.01 * gain } else { 0.004 };
+        let read = if self.night { 0.006 * gain } else { 0.002 };
+        let shot = if self.night { 0.02 * gain } else { 0.004 };
         lin.iter()
             .map(|&v| {
                 let v = v.max(0.0);

@@ -1,0 +1,765 @@
+//! Freiburg Thermal (HeatNet; spec §5).
+//!
+//! Training tree: `<root>/<run>/<seq>/fl_rgb/*.png` (8-bit RGB), `fl_ir_aligned/*.png` (16-bit
+//! IR, aligned to RGB), `fl_rgb_labels/*.png` (8-bit ids, day only); any path containing
+//! `night` is a night frame. Test layout: `<dir>/ImagesRGB/*_rgb.png`, `ImagesIR/*_ir.png`,
+//! `SegmentationClass/*.npy`, one `<dir>` per day/night. Both can sit under one root.
+//! 13 classes, id 13 = ignore.
+
+use crate::augment::{resample, resample_nearest, Filter, Planar, Window};
+use crate::frame::check_label_ids;
+use crate::npy::decode_label_npy;
+use crate::pngio::{decode_png, Samples};
+use crate::{DataError, Frame, FrameSource};
+use rtf_core::{ClassSet, Daytime};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The reference preprocessing (HeatNet code), each step configurable.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FreiburgPreprocess {
+    /// Raw IR counts clipped to [lo, hi] and scaled to [0, 1]. Reference: (21800, 25000).
+    pub ir_clip: (u16, u16),
+    /// (width, height) both modalities are resized to (RGB/IR bilinear, labels nearest).
+    /// Reference: (960, 320).
+    pub resize: Option<(usize, usize)>,
+    /// Columns kept after resizing, [start, end). Reference: 150..850 for training (then a
+    /// random 320×640 window, see `AugmentConfig::window`), 148..852 for testing.
+    pub columns: Option<(usize, usize)>,
+}
+
+impl FreiburgPreprocess {
+    pub fn reference_train() -> Self {
+        Self {
+            ir_clip: (21800, 25000),
+            resize: Some((960, 320)),
+            columns: Some((150, 850)),
+        }
+    }
+    pub fn reference_test() -> Self {
+        Self {
+            columns: Some((148, 852)),
+            ..Self::reference_train()
+        }
+    }
+    /// Native size, only the IR clip.
+    pub fn native() -> Self {
+        Self {
+            ir_clip: (21800, 25000),
+            resize: None,
+            columns: None,
+        }
+    }
+}
+
+impl Default for FreiburgPreprocess {
+    fn default() -> Self {
+        Self::reference_test()
+    }
+}
+
+#[derive(Debug, Clone)]
+enum LabelFile {
+    Png(PathBuf),
+    Npy(PathBuf),
+}
+
+#[derive(Debug, Clone)]
+struct Entry {
+    name: String,
+    rgb: PathBuf,
+    ir: PathBuf,
+    label: Option<LabelFile>,
+    daytime: Daytime,
+}
+
+/// Frames of a Freiburg Thermal root (training tree and/or test layout).
+#[derive(Debug, Clone)]
+pub struct FreiburgSplit {
+    root: PathBuf,
+    entries: Vec<Entry>,
+    preprocess: FreiburgPreprocess,
+    class_set: ClassSet,
+}
+
+fn daytime_of(path: &Path) -> Daytime {
+    if path.to_string_lossy().to_lowercase().contains("night") {
+        Daytime::Night
+    } else {
+        Daytime::Day
+    }
+}
+
+fn list_pngs(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, DataError> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).map_err(|e| DataError::io(dir, e))? {
+        let p = e.map_err(|e| DataError::io(dir, e))?.path();
+        if p.is_file() && p.extension().is_some_and(|x| x.eq_ignore_ascii_case(ext)) {
+            out.push(p);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Directories under `root` (inclusive, up to `depth` levels) named `name`.
+fn find_dirs(
+    root: &Path,
+    name: &str,
+    depth: usize,
+    out: &mut Vec<PathBuf>,
+) -> Result<(), DataError> {
+    let entries = std::fs::read_dir(root).map_err(|e| DataError::io(root, e))?;
+    let mut dirs: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    for d in dirs {
+        if d.file_name().is_some_and(|n| n == name) {
+            out.push(d);
+        } else if depth > 0 {
+            find_dirs(&d, name, depth - 1, out)?;
+        }
+    }
+    Ok(())
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+impl FreiburgSplit {
+    /// Finds every frame under `root`. Every RGB image needs its IR partner; labels are
+    /// optional (night training frames have none).
+    pub fn open(root: impl AsRef<Path>, preprocess: FreiburgPreprocess) -> Result<Self, DataError> {
+        let root = root.as_ref().to_path_buf();
+        if !root.is_dir() {
+            return Err(DataError::Layout {
+                root,
+                message: "not a directory".into(),
+            });
+        }
+        let mut entries = Vec::new();
+        let mut train_dirs = Vec::new();
+        find_dirs(&root, "fl_rgb", 6, &mut train_dirs)?;
+        for rgb_dir in train_dirs {
+            let seq = rgb_dir.parent().unwrap_or(&root).to_path_buf();
+            for rgb in list_pngs(&rgb_dir, "png")? {
+                let fname = file_name(&rgb);
+                let stamp = fname.strip_prefix("fl_rgb_").unwrap_or(&fname).to_string();
+                let ir_candidates = [
+                    seq.join("fl_ir_aligned")
+                        .join(format!("fl_ir_aligned_{stamp}")),
+                    seq.join("fl_ir_aligned").join(&fname),
+                ];
+                let ir = ir_candidates
+                    .iter()
+                    .find(|p| p.is_file())
+                    .cloned()
+                    .ok_or_else(|| DataError::Format {
+                        path: rgb.clone(),
+                        message: format!(
+                            "no aligned IR image (looked for {})",
+                            ir_candidates[0].display()
+                        ),
+                    })?;
+                let label = [
+                    seq.join("fl_rgb_labels").join(&fname),
+                    seq.join("fl_rgb_labels")
+                        .join(format!("fl_rgb_labels_{stamp}")),
+                ]
+                .into_iter()
+                .find(|p| p.is_file())
+                .map(LabelFile::Png);
+                let name = rgb
+                    .strip_prefix(&root)
+                    .unwrap_or(&rgb)
+                    .with_extension("")
+                    .to_string_lossy()
+                    .into_owned();
+                entries.push(Entry {
+                    name,
+                    daytime: daytime_of(&rgb),
+                    rgb,
+                    ir,
+                    label,
+                });
+            }
+        }
+        let mut test_dirs = Vec::new();
+        find_dirs(&root, "ImagesRGB", 4, &mut test_dirs)?;
+        for rgb_dir in test_dirs {
+            let dir = rgb_dir.parent().unwrap_or(&root).to_path_buf();
+            for rgb in list_pngs(&rgb_dir, "png")? {
+                let fname = file_name(&rgb);
+                let stem = fname
+                    .strip_suffix("_rgb.png")
+                    .unwrap_or(fname.trim_end_matches(".png"))
+                    .to_string();
+                let ir = dir.join("ImagesIR").join(format!("{stem}_ir.png"));
+                if !ir.is_file() {
+                    return Err(DataError::Format {
+                        path: rgb.clone(),
+                        message: format!("no IR image {}", ir.display()),
+                    });
+                }
+                let label = [
+                    dir.join("SegmentationClass").join(format!("{stem}.npy")),
+                    dir.join("SegmentationClass")
+                        .join(format!("{stem}_rgb.npy")),
+                ]
+                .into_iter()
+                .find(|p| p.is_file())
+                .map(LabelFile::Npy);
+                let name = dir
+                    .strip_prefix(&root)
+                    .unwrap_or(&dir)
+                    .join(&stem)
+                    .to_string_lossy()
+                    .into_owned();
+                entries.push(Entry {
+                    name,
+                    daytime: daytime_of(&rgb),
+                    rgb,
+                    ir,
+                    label,
+                });
+            }
+        }
+        if entries.is_empty() {
+            return Err(DataError::Layout {
+                root,
+                message:
+                    "no Freiburg Thermal frames (expected */fl_rgb/*.png or */ImagesRGB/*_rgb.png)"
+                        .into(),
+            });
+        }
+        Ok(Self {
+            root,
+            entries,
+            preprocess,
+            class_set: ClassSet::freiburg(),
+        })
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// Keeps only frames matching `keep` (e.g. labelled day frames, or night).
+    pub fn filter(mut self, keep: impl Fn(&str, Daytime, bool) -> bool) -> Self {
+        self.entries
+            .retain(|e| keep(&e.name, e.daytime, e.label.is_some()));
+        self
+    }
+
+    pub fn is_labelled(&self, index: usize) -> bool {
+        self.entries[index].label.is_some()
+    }
+
+    /// The files of frame `index` (rgb, ir, label).
+    pub fn files(&self, index: usize) -> (PathBuf, PathBuf, Option<PathBuf>) {
+        let e = &self.entries[index];
+        let label = e.label.as_ref().map(|l| match l {
+            LabelFile::Png(p) | LabelFile::Npy(p) => p.clone(),
+        });
+        (e.rgb.clone(), e.ir.clone(), label)
+    }
+
+    /// Decodes a frame without preprocessing: RGB bytes, raw IR counts, label ids.
+    pub fn load_raw(&self, index: usize) -> Result<RawFreiburgFrame, DataError> {
+        let e = self.entries.get(index).ok_or_else(|| DataError::Frame {
+            name: format!("#{index}"),
+            message: "index out of range".into(),
+        })?;
+        let rgb_bytes = std::fs::read(&e.rgb).map_err(|err| DataError::io(&e.rgb, err))?;
+        let ir_bytes = std::fs::read(&e.ir).map_err(|err| DataError::io(&e.ir, err))?;
+        let label = match &e.label {
+            None => None,
+            Some(LabelFile::Png(p)) => Some((
+                std::fs::read(p).map_err(|err| DataError::io(p, err))?,
+                p.clone(),
+                false,
+            )),
+            Some(LabelFile::Npy(p)) => Some((
+                std::fs::read(p).map_err(|err| DataError::io(p, err))?,
+                p.clone(),
+                true,
+            )),
+        };
+        decode_raw(
+            &e.name,
+            e.daytime,
+            &rgb_bytes,
+            &e.rgb,
+            &ir_bytes,
+            &e.ir,
+            label
+                .as_ref()
+                .map(|(b, p, npy)| (b.as_slice(), p.as_path(), *npy)),
+            &self.class_set,
+        )
+    }
+}
+
+/// A Freiburg frame as stored.
+#[derive(Debug, Clone)]
+pub struct RawFreiburgFrame {
+    pub name: String,
+    pub daytime: Daytime,
+    pub width: usize,
+    pub height: usize,
+    pub rgb: Vec<u8>,
+    pub ir: Vec<u16>,
+    pub label: Option<Vec<u8>>,
+}
+
+/// Decodes RGB (8-bit, 3 channels), IR (16-bit, 1 channel) and an optional label (8-bit PNG or
+/// `.npy`); the fuzzed entry point of this format.
+#[allow(clippy::too_many_arguments)]
+pub fn decode_raw(
+    name: &str,
+    daytime: Daytime,
+    rgb_bytes: &[u8],
+    rgb_path: &Path,
+    ir_bytes: &[u8],
+    ir_path: &Path,
+    label: Option<(&[u8], &Path, bool)>,
+    classes: &ClassSet,
+) -> Result<RawFreiburgFrame, DataError> {
+    let rgb = crate::pngio::decode_u8(rgb_bytes, rgb_path, 3, "RGB image")?;
+    let ir = decode_png(ir_bytes, ir_path)?;
+    crate::pngio::check_channels(&ir, ir_path, 1, "IR image")?;
+    let Samples::U16(ir_counts) = ir.samples else {
+        return Err(DataError::BitDepth {
+            path: ir_path.to_path_buf(),
+            expected: "16".into(),
+            found: ir.bit_depth(),
+        });
+    };
+    if (ir.width, ir.height) != (rgb.width, rgb.height) {
+        return Err(DataError::SizeMismatch {
+            image: rgb_path.to_path_buf(),
+            label: ir_path.to_path_buf(),
+            image_w: rgb.width,
+            image_h: rgb.height,
+            label_w: ir.width,
+            label_h: ir.height,
+        });
+    }
+    let label = match label {
+        None => None,
+        Some((bytes, path, npy)) => {
+            let (w, h, ids) = if npy {
+                let (w, h, ids) = decode_label_npy(bytes, path)?;
+                let pos = ids.iter().position(|&v| v > u8::MAX as u16);
+                if let Some(pos) = pos {
+                    return Err(DataError::LabelOutOfRange {
+                        path: path.to_path_buf(),
+                        id: ids[pos],
+                        x: pos % w,
+                        y: pos / w,
+                        class_set: classes.name.clone(),
+                        classes: classes.len(),
+                        ignore: classes
+                            .ignore_id
+                            .map(|i| format!(", ignore id {i}"))
+                            .unwrap_or_default(),
+                    });
+                }
+                (w, h, ids.into_iter().map(|v| v as u8).collect::<Vec<u8>>())
+            } else {
+                let img = crate::pngio::decode_u8(bytes, path, 1, "label of class ids")?;
+                let Samples::U8(ids) = img.samples else {
+                    unreachable!("8-bit checked")
+                };
+                (img.width, img.height, ids)
+            };
+            if (w, h) != (rgb.width, rgb.height) {
+                return Err(DataError::SizeMismatch {
+                    image: rgb_path.to_path_buf(),
+                    label: path.to_path_buf(),
+                    image_w: rgb.width,
+                    image_h: rgb.height,
+                    label_w: w,
+                    label_h: h,
+                });
+            }
+            check_label_ids(&ids, w, classes, path)?;
+            Some(ids)
+        }
+    };
+    let Samples::U8(rgb_bytes) = rgb.samples else {
+        unreachable!("8-bit checked")
+    };
+    Ok(RawFreiburgFrame {
+        name: name.to_string(),
+        daytime,
+        width: rgb.width,
+        height: rgb.height,
+        rgb: rgb_bytes,
+        ir: ir_counts,
+        label,
+    })
+}
+
+/// Applies the preprocessing: IR clip/scale, resize, column crop.
+pub fn preprocess(raw: RawFreiburgFrame, pre: &FreiburgPreprocess) -> Result<Frame, DataError> {
+    let (lo, hi) = pre.ir_clip;
+    if hi <= lo {
+        return Err(DataError::Config(format!("IR clip [{lo}, {hi}] is empty")));
+    }
+    let span = (hi - lo) as f32;
+    let thermal: Vec<f32> = raw
+        .ir
+        .iter()
+        .map(|&v| (v.clamp(lo, hi) - lo) as f32 / span)
+        .collect();
+    let (mut w, mut h) = (raw.width, raw.height);
+    let mut rgb = raw.rgb;
+    let mut thermal = thermal;
+    let mut label = raw.label;
+    if let Some((rw, rh)) = pre.resize.filter(|&s| s != (w, h)) {
+        let n = w * h;
+        let mut data = vec![0.0f32; 4 * n];
+        for (i, px) in rgb.chunks_exact(3).enumerate() {
+            for c in 0..3 {
+                data[c * n + i] = px[c] as f32;
+            }
+        }
+        data[3 * n..].copy_from_slice(&thermal);
+        let out = resample(
+            &Planar {
+                channels: 4,
+                width: w,
+                height: h,
+                data,
+            },
+            Window::full(w, h),
+            rw,
+            rh,
+            Filter::Bilinear,
+        );
+        let m = rw * rh;
+        rgb = (0..m)
+            .flat_map(|i| (0..3).map(move |c| (i, c)))
+            .map(|(i, c)| out.data[c * m + i].round().clamp(0.0, 255.0) as u8)
+            .collect();
+        thermal = out.data[3 * m..].to_vec();
+        label = label.map(|l| resample_nearest(&l, w, h, Window::full(w, h), rw, rh));
+        (w, h) = (rw, rh);
+    }
+    if let Some((c0, c1)) = pre.columns {
+        if c0 >= c1 || c1 > w {
+            return Err(DataError::Frame {
+                name: raw.name,
+                message: format!("column crop {c0}..{c1} does not fit width {w}"),
+            });
+        }
+        let cw = c1 - c0;
+        rgb = (0..h)
+            .flat_map(|y| rgb[3 * (y * w + c0)..3 * (y * w + c1)].to_vec())
+            .collect();
+        thermal = (0..h)
+            .flat_map(|y| thermal[y * w + c0..y * w + c1].to_vec())
+            .collect();
+        label = label.map(|l| {
+            (0..h)
+                .flat_map(|y| l[y * w + c0..y * w + c1].to_vec())
+                .collect()
+        });
+        w = cw;
+    }
+    Ok(Frame {
+        name: raw.name,
+        daytime: Some(raw.daytime),
+        width: w,
+        height: h,
+        rgb,
+        thermal,
+        label,
+    })
+}
+
+impl FrameSource for FreiburgSplit {
+    fn len(&self) -> usize {
+        self.entries.len()
+    }
+    fn frame_name(&self, index: usize) -> &str {
+        &self.entries[index].name
+    }
+    fn daytime(&self, index: usize) -> Option<Daytime> {
+        Some(self.entries[index].daytime)
+    }
+    fn class_set(&self) -> &ClassSet {
+        &self.class_set
+    }
+    fn load(&self, index: usize) -> Result<Frame, DataError> {
+        preprocess(self.load_raw(index)?, &self.preprocess)
+    }
+}
+
+/// Writes the synthetic Freiburg layout: train+val frames as a training tree (day labelled,
+/// night unlabelled as in the real data), test frames as `test/day` and `test/night` with
+/// `.npy` labels.
+pub(crate) fn write_synthetic(
+    out: &Path,
+    cfg: &crate::synth::SynthConfig,
+    splits: &[(&'static str, Vec<usize>)],
+) -> Result<crate::synth::SynthSummary, DataError> {
+    use crate::pngio::{write_png_u16, write_png_u8};
+    use rayon::prelude::*;
+    let get = |name: &str| {
+        splits
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, v)| v.clone())
+            .unwrap_or_default()
+    };
+    let mut jobs: Vec<(usize, bool)> = get("train")
+        .into_iter()
+        .chain(get("val"))
+        .map(|i| (i, true))
+        .collect();
+    jobs.extend(get("test").into_iter().map(|i| (i, false)));
+    jobs.par_iter().try_for_each(|&(i, train)| {
+        let f = crate::synth::render_frame(cfg, i);
+        let (w, h) = (f.width, f.height);
+        let ir = f.thermal_u16();
+        let label = f.freiburg_label();
+        if train {
+            let seq = out
+                .join("train")
+                .join(if f.night {
+                    "seq_01_night"
+                } else {
+                    "seq_00_day"
+                })
+                .join("00");
+            write_png_u8(
+                &seq.join("fl_rgb").join(format!("fl_rgb_{}.png", f.name)),
+                w,
+                h,
+                3,
+                &f.rgb,
+            )?;
+            write_png_u16(
+                &seq.join("fl_ir_aligned")
+                    .join(format!("fl_ir_aligned_{}.png", f.name)),
+                w,
+                h,
+                1,
+                &ir,
+            )?;
+            if !f.night {
+                write_png_u8(
+                    &seq.join("fl_rgb_labels")
+                        .join(format!("fl_rgb_labels_{}.png", f.name)),
+                    w,
+                    h,
+                    1,
+                    &label,
+                )?;
+            }
+        } else {
+            let dir = out.join("test").join(if f.night { "night" } else { "day" });
+            write_png_u8(
+                &dir.join("ImagesRGB").join(format!("{}_rgb.png", f.name)),
+                w,
+                h,
+                3,
+                &f.rgb,
+            )?;
+            write_png_u16(
+                &dir.join("ImagesIR").join(format!("{}_ir.png", f.name)),
+                w,
+                h,
+                1,
+                &ir,
+            )?;
+            rtf_core::write_bytes_atomic(
+                &dir.join("SegmentationClass")
+                    .join(format!("{}.npy", f.name)),
+                &crate::npy::encode_u8(w, h, &label),
+            )?;
+        }
+        Ok::<(), DataError>(())
+    })?;
+    crate::synth::write_provenance(out, cfg)?;
+    let n_train = get("train").len() + get("val").len();
+    Ok(crate::synth::SynthSummary {
+        frames: cfg.count,
+        splits: vec![
+            ("train".into(), n_train),
+            ("test/day".into(), get("test_day").len()),
+            ("test/night".into(), get("test_night").len()),
+        ],
+    })
+}
+
+/// Freiburg id → MF id (spec §5): curb → curve, person, car, bicycle → bike, all else (and
+/// ignore) → unlabeled.
+pub fn freiburg_to_mf(id: u8) -> u8 {
+    match id {
+        3 => 4,
+        9 => 2,
+        10 => 1,
+        11 => 3,
+        _ => 0,
+    }
+}
+
+/// MF id → Freiburg id: the shared classes map back; MF unlabeled is unknown in Freiburg
+/// terms (→ ignore 13); car stops and cones → background; guardrail → fence; bump → road.
+pub fn mf_to_freiburg(id: u8) -> u8 {
+    match id {
+        1 => 10,
+        2 => 9,
+        3 => 11,
+        4 => 3,
+        5 | 7 => 12,
+        6 => 4,
+        8 => 0,
+        _ => 13,
+    }
+}
+
+/// A frame source whose labels are mapped into another class set (e.g. Freiburg frames
+/// evaluated with MF classes).
+pub struct ClassMapped<S> {
+    pub inner: S,
+    pub map: fn(u8) -> u8,
+    pub class_set: ClassSet,
+}
+
+impl<S: FrameSource> FrameSource for ClassMapped<S> {
+    fn len(&self) -> usize {
+        self.inner.len()
+    }
+    fn frame_name(&self, index: usize) -> &str {
+        self.inner.frame_name(index)
+    }
+    fn daytime(&self, index: usize) -> Option<Daytime> {
+        self.inner.daytime(index)
+    }
+    fn class_set(&self) -> &ClassSet {
+        &self.class_set
+    }
+    fn load(&self, index: usize) -> Result<Frame, DataError> {
+        let mut f = self.inner.load(index)?;
+        if let Some(l) = f.label.as_mut() {
+            l.iter_mut().for_each(|v| *v = (self.map)(*v));
+        }
+        Ok(f)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{generate, SynthConfig, SynthFormat};
+    use crate::testutil::*;
+
+    #[test]
+    fn synthetic_freiburg_layout_reads_back_with_reference_preprocessing() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = SynthConfig {
+            count: 8,
+            seed: 2,
+            width: 96,
+            height: 64,
+            format: SynthFormat::Freiburg,
+            misalignment: None,
+        };
+        generate(dir.path(), &cfg).unwrap();
+        let all = FreiburgSplit::open(dir.path(), FreiburgPreprocess::native()).unwrap();
+        assert_eq!(all.len(), 8);
+        let night_train_labelled = (0..all.len())
+            .filter(|&i| {
+                all.frame_name(i).starts_with("train")
+                    && all.daytime(i) == Some(Daytime::Night)
+                    && all.is_labelled(i)
+            })
+            .count();
+        assert_eq!(
+            night_train_labelled, 0,
+            "night training frames are unlabelled, as in the real data"
+        );
+        let test = FreiburgSplit::open(
+            dir.path().join("test"),
+            FreiburgPreprocess {
+                resize: Some((120, 40)),
+                columns: Some((10, 110)),
+                ..FreiburgPreprocess::native()
+            },
+        )
+        .unwrap();
+        assert_eq!(test.len(), 2);
+        let f = test.load(0).unwrap();
+        assert_eq!((f.width, f.height), (100, 40));
+        assert!(f.label.as_ref().unwrap().iter().all(|&id| id < 13));
+        assert!(f.thermal.iter().all(|t| (0.0..=1.0).contains(t)));
+        // Sky is colder than −10 °C apparent: clipped to 0 by the reference clip.
+        assert!(f.thermal.iter().any(|&t| t == 0.0));
+        let mut days: Vec<_> = (0..test.len()).map(|i| test.daytime(i).unwrap()).collect();
+        days.sort_by_key(|d| *d == Daytime::Night);
+        assert_eq!(days, [Daytime::Day, Daytime::Night]);
+    }
+
+    #[test]
+    fn eight_bit_ir_and_missing_partner_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let seq = dir.path().join("run/seq_day/00");
+        write(&seq.join("fl_rgb/fl_rgb_1.png"), &png_u8(4, 3, 3, &[9; 36]));
+        let err = FreiburgSplit::open(dir.path(), FreiburgPreprocess::native())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("fl_rgb_1.png") && err.contains("no aligned IR"),
+            "{err}"
+        );
+        write(
+            &seq.join("fl_ir_aligned/fl_ir_aligned_1.png"),
+            &png_u8(4, 3, 1, &[9; 12]),
+        );
+        let split = FreiburgSplit::open(dir.path(), FreiburgPreprocess::native()).unwrap();
+        let err = split.load(0).unwrap_err().to_string();
+        assert!(
+            err.contains("fl_ir_aligned_1.png") && err.contains("expected 16-bit"),
+            "{err}"
+        );
+        write(
+            &seq.join("fl_ir_aligned/fl_ir_aligned_1.png"),
+            &png_u16(4, 3, 1, &[22000; 12]),
+        );
+        write(
+            &seq.join("fl_rgb_labels/fl_rgb_labels_1.png"),
+            &png_u8(4, 3, 1, &[14; 12]),
+        );
+        let split = FreiburgSplit::open(dir.path(), FreiburgPreprocess::native()).unwrap();
+        let err = split.load(0).unwrap_err().to_string();
+        assert!(
+            err.contains("label id 14") && err.contains("ignore id 13"),
+            "{err}"
+        );
+        write(
+            &seq.join("fl_rgb_labels/fl_rgb_labels_1.png"),
+            &png_u8(4, 3, 1, &[13; 12]),
+        );
+        let split = FreiburgSplit::open(dir.path(), FreiburgPreprocess::native()).unwrap();
+        let f = split.load(0).unwrap();
+        assert_eq!(f.thermal[0], 200.0 / 3200.0);
+    }
+
+    #[test]
+    fn class_maps_follow_the_spec() {
+        let to_mf: Vec<u8> = (0..14).map(freiburg_to_mf).collect();
+        assert_eq!(to_mf, [0, 0, 0, 4, 0, 0, 0, 0, 0, 2, 1, 3, 0, 0]);
+        for shared in [1, 2, 3, 4] {
+            assert_eq!(freiburg_to_mf(mf_to_freiburg(shared)), shared);
+        }
+    }
+}

@@ -1,0 +1,157 @@
+//! `.npy` label maps (Freiburg test set): integer (or integral float) 2-D arrays in C order.
+
+use crate::DataError;
+use std::path::Path;
+
+/// Decodes a 2-D `.npy` of class ids into (width, height, ids). Accepts u1/i1/u2/i2/u4/i4/u8/i8
+/// and f4/f8 holding whole numbers; a leading or trailing singleton axis is allowed.
+pub fn decode_label_npy(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<u16>), DataError> {
+    let bad = |message: String| DataError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err(bad("not an .npy file (bad magic)".into()));
+    }
+    let (header_len, start) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10usize),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
+        v => return Err(bad(format!("unsupported .npy version {v}"))),
+    };
+    let header = bytes
+        .get(start..start.saturating_add(header_len))
+        .ok_or_else(|| bad("truncated .npy header".into()))?;
+    let header = std::str::from_utf8(header).map_err(|_| bad(".npy header is not text".into()))?;
+    if header.contains("'fortran_order': True") {
+        return Err(bad("Fortran-order arrays are not supported".into()));
+    }
+    let descr = header
+        .split("'descr':")
+        .nth(1)
+        .and_then(|s| s.split('\'').nth(1))
+        .ok_or_else(|| bad("no dtype in .npy header".into()))?;
+    let shape_text = header
+        .split("'shape':")
+        .nth(1)
+        .and_then(|s| s.split(['(', ')']).nth(1))
+        .ok_or_else(|| bad("no shape in .npy header".into()))?;
+    let mut shape = shape_text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|_| bad(format!("bad shape entry `{s}`")))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    while shape.len() > 2 && shape[0] == 1 {
+        shape.remove(0);
+    }
+    while shape.len() > 2 && shape[shape.len() - 1] == 1 {
+        shape.pop();
+    }
+    let [h, w] = shape[..] else {
+        return Err(bad(format!(
+            "expected a 2-D label array, shape is ({shape_text})"
+        )));
+    };
+    let n = h
+        .checked_mul(w)
+        .filter(|&n| n > 0 && n <= 1 << 28)
+        .ok_or_else(|| bad(format!("bad label shape {h}x{w}")))?;
+    let body = &bytes[start + header_len..];
+    let (size, big_endian) = match descr.as_bytes() {
+        [e, _, s @ ..] => {
+            let size: usize = std::str::from_utf8(s)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(0);
+            (size, *e == b'>')
+        }
+        _ => (0, false),
+    };
+    let kind = descr.as_bytes().get(1).copied().unwrap_or(0);
+    if size == 0 || !matches!((kind, size), (b'u' | b'i', 1 | 2 | 4 | 8) | (b'f', 4 | 8)) {
+        return Err(bad(format!("unsupported label dtype '{descr}'")));
+    }
+    if body.len() != n * size {
+        return Err(bad(format!(
+            "expected {} data bytes for {h}x{w} '{descr}', found {}",
+            n * size,
+            body.len()
+        )));
+    }
+    let mut ids = Vec::with_capacity(n);
+    for (i, c) in body.chunks_exact(size).enumerate() {
+        let mut b = [0u8; 8];
+        if big_endian {
+            b[..size].copy_from_slice(c);
+            b[..size].reverse();
+        } else {
+            b[..size].copy_from_slice(c);
+        }
+        let v: f64 = match (kind, size) {
+            (b'u', _) => u64::from_le_bytes(b) as f64,
+            (b'i', _) => {
+                let shift = 64 - 8 * size as u32;
+                ((i64::from_le_bytes(b) << shift) >> shift) as f64
+            }
+            (b'f', 4) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+            _ => f64::from_le_bytes(b),
+        };
+        if !(0.0..=65535.0).contains(&v) || v.fract() != 0.0 {
+            return Err(bad(format!(
+                "label value {v} at (x {}, y {}) is not a class id",
+                i % w,
+                i / w
+            )));
+        }
+        ids.push(v as u16);
+    }
+    Ok((w, h, ids))
+}
+
+/// Encodes a 2-D uint8 array (used by the synthetic Freiburg writer).
+pub fn encode_u8(width: usize, height: usize, data: &[u8]) -> Vec<u8> {
+    let mut header =
+        format!("{{'descr': '|u1', 'fortran_order': False, 'shape': ({height}, {width}), }}");
+    let unpadded = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + data.len());
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    out.extend_from_slice(data);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn u8_round_trip_and_int64_float_labels() {
+        let p = Path::new("l.npy");
+        let ids: Vec<u8> = (0..12).collect();
+        let (w, h, back) = decode_label_npy(&encode_u8(4, 3, &ids), p).unwrap();
+        assert_eq!((w, h), (4, 3));
+        assert_eq!(back, ids.iter().map(|&v| v as u16).collect::<Vec<_>>());
+        // int64 as NumPy writes it by default.
+        let mut bytes = encode_u8(2, 1, &[0, 0]);
+        let at = bytes.windows(4).position(|w| w == b"|u1'").unwrap();
+        bytes[at..at + 3].copy_from_slice(b"<i8");
+        bytes.truncate(bytes.len() - 2);
+        bytes.extend_from_slice(&13i64.to_le_bytes());
+        bytes.extend_from_slice(&2i64.to_le_bytes());
+        assert_eq!(decode_label_npy(&bytes, p).unwrap().2, vec![13, 2]);
+        let bad = &bytes[..bytes.len() - 3];
+        assert!(decode_label_npy(bad, p)
+            .unwrap_err()
+            .to_string()
+            .contains("l.npy"));
+    }
+}
