@@ -93,6 +93,11 @@ impl InferenceNet {
     /// [B, 4, H, W] float input (already scaled) -> float logits [B, classes, H, W].
     pub fn forward(&self, xs: &Tensor) -> Result<Tensor, ModelError> {
         self.net.check_input(&xs.size())?;
+        self.forward_unchecked(xs)
+    }
+
+    /// [`forward`](Self::forward) without the shape check (for inputs already checked).
+    pub fn forward_unchecked(&self, xs: &Tensor) -> Result<Tensor, ModelError> {
         let _guard = tch::no_grad_guard();
         let xs = xs
             .f_to_kind(self.precision.kind())

@@ -234,7 +234,7 @@ fn psp_upsample(p: nn::Path, c_in: i64, c_out: i64) -> PspUpsample {
         Act::Identity,
     );
     // nn.PReLU(): one slope, 0.25.
-    let prelu = (&p / "conv" / 2).var("weight", &[1], nn::Init::Const(0.25));
+    let prelu = crate::layers::new_var(&(&p / "conv" / 2), "weight", &[1], nn::Init::Const(0.25));
     PspUpsample {
         conv,
         prelu,

@@ -21,7 +21,7 @@ pub fn bn2d(p: nn::Path, c: i64) -> nn::BatchNorm {
 pub fn bn2d_init(p: nn::Path, c: i64, weight: nn::Init) -> nn::BatchNorm {
     let cfg = nn::BatchNormConfig {
         eps: BN_EPS,
-        ws_init: weight,
+        ws_init: effective_init(weight),
         bs_init: nn::Init::Const(0.0),
         ..Default::default()
     };
@@ -205,6 +205,39 @@ impl ConvSpec {
     }
 }
 
+thread_local! {
+    /// Set while counting parameters: every variable starts as zeros (lazily allocated), so
+    /// building even RTFNet-152 costs next to nothing.
+    static ZERO_INIT: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs `f` with variable initialisation skipped (for counting parameters).
+pub fn with_zero_init<T>(f: impl FnOnce() -> T) -> T {
+    let previous = ZERO_INIT.with(|z| z.replace(true));
+    let out = f();
+    ZERO_INIT.with(|z| z.set(previous));
+    out
+}
+
+/// A trainable variable; inside [`with_zero_init`] an uninitialised one (never touched, so
+/// the operating system does not even commit its memory).
+pub fn new_var(p: &nn::Path, name: &str, dims: &[i64], init: nn::Init) -> Tensor {
+    if ZERO_INIT.with(|z| z.get()) {
+        p.add(name, Tensor::empty(dims, (p.kind(), p.device())), true)
+    } else {
+        p.var(name, dims, init)
+    }
+}
+
+/// `init`, or zeros inside [`with_zero_init`].
+pub fn effective_init(init: nn::Init) -> nn::Init {
+    if ZERO_INIT.with(|z| z.get()) {
+        nn::Init::Const(0.0)
+    } else {
+        init
+    }
+}
+
 fn weight_init(init: WeightInit, dims: &[i64]) -> nn::Init {
     let receptive: i64 = dims[2..].iter().product();
     // PyTorch computes fans from the weight tensor as stored (dim 1 = fan-in side).
@@ -285,10 +318,11 @@ impl ConvBnAct {
         act: Act,
     ) -> Self {
         let dims = spec.weight_dims(c_in, c_out);
-        let weight = conv.var("weight", &dims, weight_init(spec.init, &dims));
+        let weight = new_var(&conv, "weight", &dims, weight_init(spec.init, &dims));
         let bias = spec.bias.then(|| {
             let bound = 1.0 / ((dims[1] * dims[2] * dims[3]) as f64).sqrt();
-            conv.var(
+            new_var(
+                &conv,
                 "bias",
                 &[c_out],
                 nn::Init::Uniform {

@@ -141,6 +141,51 @@ pub fn build(p: &nn::Path, cfg: &ModelConfig) -> Result<Box<dyn Network>, ModelE
     })
 }
 
+/// Trainable parameter count of a configuration, without initialising any weights.
+pub fn count_parameters(cfg: &ModelConfig) -> Result<i64, ModelError> {
+    layers::with_zero_init(|| {
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        build(&vs.root(), cfg)?;
+        Ok(weights::count_trainable(&vs))
+    })
+}
+
+/// The class count a named model is usually built with: Freiburg's 13 for HeatNet, MF's 9
+/// otherwise.
+pub fn default_num_classes(name: &str) -> i64 {
+    if name.starts_with("heatnet") {
+        rtf_core::ClassSet::freiburg().len() as i64
+    } else {
+        rtf_core::ClassSet::mf().len() as i64
+    }
+}
+
+/// One row of `rtf models`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct ModelInfo {
+    pub name: String,
+    /// Trainable parameters with [`default_num_classes`] classes.
+    pub params: i64,
+    /// float32 parameter bytes / 2^20.
+    pub megabytes: f64,
+}
+
+/// Every named model with its parameter count and size.
+pub fn model_infos() -> Result<Vec<ModelInfo>, ModelError> {
+    model_names()
+        .into_iter()
+        .map(|name| {
+            let cfg = ModelConfig::from_name(&name, default_num_classes(&name))?;
+            let params = count_parameters(&cfg)?;
+            Ok(ModelInfo {
+                name,
+                params,
+                megabytes: params as f64 * 4.0 / (1u64 << 20) as f64,
+            })
+        })
+        .collect()
+}
+
 /// Every name [`ModelConfig::from_name`] accepts.
 pub fn model_names() -> Vec<String> {
     let mut names = vec!["mfnet".to_string(), "mfnet-paper".to_string()];
@@ -207,6 +252,39 @@ mod tests {
         let cfg: ModelConfig =
             serde_json::from_str(r#"{"network": "mfnet", "num_classes": 4}"#).unwrap();
         assert_eq!(cfg, ModelConfig::from_name("mfnet", 4).unwrap());
+    }
+
+    #[test]
+    fn counting_without_init_matches_a_real_build() {
+        for name in ["mfnet", "rtfnet18-nub", "heatnet-critic"] {
+            let cfg = ModelConfig::from_name(name, default_num_classes(name)).unwrap();
+            let vs = VarStore::new(Device::Cpu);
+            build(&vs.root(), &cfg).unwrap();
+            assert_eq!(
+                count_parameters(&cfg).unwrap(),
+                weights::count_trainable(&vs),
+                "{name}"
+            );
+        }
+    }
+
+    #[test]
+    fn model_infos_cover_every_name_with_reference_counts() {
+        let infos = model_infos().unwrap();
+        assert_eq!(infos.len(), model_names().len());
+        let params = |name: &str| infos.iter().find(|i| i.name == name).unwrap().params;
+        // Reference counts (spec §3–5).
+        assert_eq!(params("mfnet"), 736_275);
+        assert_eq!(params("rtfnet152"), 254_510_053);
+        assert_eq!(params("heatnet"), 54_361_040);
+        assert_eq!(params("heatnet-critic"), 2_774_977);
+        let mf = infos.iter().find(|i| i.name == "mfnet").unwrap();
+        assert!((mf.megabytes - 736_275.0 * 4.0 / 1048576.0).abs() < 1e-9);
+        // Counting does not leave zero-initialised builds behind.
+        let vs = VarStore::new(Device::Cpu);
+        build(&vs.root(), &ModelConfig::from_name("mfnet", 9).unwrap()).unwrap();
+        let w = &vs.variables()["decode1.conv.weight"];
+        assert!(w.abs().sum(tch::Kind::Float).double_value(&[]) > 0.0);
     }
 
     #[test]
