@@ -6,10 +6,13 @@
 pub mod calibfile;
 pub mod camera;
 pub mod error;
+pub mod frames;
 pub mod imageio;
 pub mod model;
+pub mod optimize;
 pub mod rig;
 pub mod se3;
+pub mod stereo;
 pub mod synth_rig;
 
 pub use error::{CalibError, Result};

@@ -1,0 +1,157 @@
+//! Loading a rig's frames: RGB as grey, thermal normalised per frame, depth given or from the
+//! stereo matcher. Corrupt, mismatched or featureless frames are skipped with a warning that
+//! names them; too few usable frames is an error.
+
+use crate::error::{CalibError, Result};
+use crate::imageio::{normalise_robust, read_depth, read_gray, read_thermal_raw, Plane};
+use crate::rig::{FrameSpec, Rig};
+use std::path::Path;
+
+/// Fewest usable frames a calibration accepts (one view leaves depth/intrinsics ambiguous).
+pub const MIN_USABLE_FRAMES: usize = 2;
+
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// The RGB file, for messages and overlay names.
+    pub name: String,
+    pub rgb: Plane,
+    /// Thermal in [0, 1] after robust normalisation.
+    pub thermal: Plane,
+    /// z-depth in metres, 0 = unknown.
+    pub depth: Plane,
+    pub depth_from_stereo: bool,
+}
+
+fn bad(path: &Path, message: impl Into<String>) -> CalibError {
+    CalibError::BadFrame {
+        path: path.into(),
+        message: message.into(),
+    }
+}
+
+/// Share of pixels with a noticeable gradient; a frame below ~0.5 % has nothing to align.
+fn edge_share(p: &Plane) -> f64 {
+    let mut strong = 0usize;
+    for y in 0..p.height.saturating_sub(1) {
+        for x in 0..p.width.saturating_sub(1) {
+            let gx = p.at(x + 1, y) - p.at(x, y);
+            let gy = p.at(x, y + 1) - p.at(x, y);
+            if gx.abs() + gy.abs() > 0.02 {
+                strong += 1;
+            }
+        }
+    }
+    strong as f64 / (p.width * p.height).max(1) as f64
+}
+
+fn load_one(rig: &Rig, spec: &FrameSpec) -> Result<Frame> {
+    let rgb = read_gray(&spec.rgb)?;
+    if (rgb.width, rgb.height) != (rig.rgb.width, rig.rgb.height) {
+        return Err(bad(
+            &spec.rgb,
+            format!(
+                "is {}×{}, rig.yaml says rgb {}×{}",
+                rgb.width, rgb.height, rig.rgb.width, rig.rgb.height
+            ),
+        ));
+    }
+    let raw = read_thermal_raw(&spec.thermal)?;
+    if (raw.width, raw.height) != (rig.thermal.width, rig.thermal.height) {
+        return Err(bad(
+            &spec.thermal,
+            format!(
+                "is {}×{}, rig.yaml says thermal {}×{}",
+                raw.width, raw.height, rig.thermal.width, rig.thermal.height
+            ),
+        ));
+    }
+    let thermal = normalise_robust(&raw)
+        .ok_or_else(|| bad(&spec.thermal, "thermal image is flat (featureless)"))?;
+    let (depth, from_stereo) = match (&spec.depth, &spec.rgb_right) {
+        (Some(path), _) => {
+            let d = read_depth(path)?;
+            if (d.width, d.height) != (rgb.width, rgb.height) {
+                return Err(bad(
+                    path,
+                    format!(
+                        "depth is {}×{}, the RGB frame {}×{}",
+                        d.width, d.height, rgb.width, rgb.height
+                    ),
+                ));
+            }
+            (d, false)
+        }
+        (None, Some(path)) => {
+            let right = read_gray(path)?;
+            if (right.width, right.height) != (rgb.width, rgb.height) {
+                return Err(bad(
+                    path,
+                    format!(
+                        "right image is {}×{}, the left {}×{}",
+                        right.width, right.height, rgb.width, rgb.height
+                    ),
+                ));
+            }
+            let baseline = rig.stereo.map(|s| s.baseline_m).unwrap_or(0.0);
+            (
+                crate::stereo::depth_from_stereo(
+                    &rgb,
+                    &right,
+                    rig.rgb.fx,
+                    baseline,
+                    &Default::default(),
+                ),
+                true,
+            )
+        }
+        (None, None) => return Err(bad(&spec.rgb, "frame has neither depth nor rgb_right")),
+    };
+    let with_depth =
+        depth.data.iter().filter(|&&d| d > 0.0).count() as f64 / depth.data.len() as f64;
+    if with_depth < 0.05 {
+        return Err(bad(
+            &spec.rgb,
+            format!("only {:.1} % of pixels have depth", 100.0 * with_depth),
+        ));
+    }
+    if edge_share(&rgb) < 0.005 {
+        return Err(bad(&spec.rgb, "RGB image is featureless"));
+    }
+    if edge_share(&thermal) < 0.005 {
+        return Err(bad(&spec.thermal, "thermal image is featureless"));
+    }
+    Ok(Frame {
+        name: spec.rgb.display().to_string(),
+        rgb,
+        thermal,
+        depth,
+        depth_from_stereo: from_stereo,
+    })
+}
+
+/// Loads every frame of `rig`, calling `warn` for each skipped one.
+pub fn load_frames(rig: &Rig, warn: &mut dyn FnMut(String)) -> Result<Vec<Frame>> {
+    let mut frames = Vec::new();
+    let mut skipped = Vec::new();
+    for spec in &rig.frames {
+        match load_one(rig, spec) {
+            Ok(frame) => frames.push(frame),
+            Err(err) => {
+                warn(format!("skipping frame: {err}"));
+                skipped.push(spec.rgb.display().to_string());
+            }
+        }
+    }
+    if frames.len() < MIN_USABLE_FRAMES {
+        return Err(CalibError::TooFewFrames {
+            usable: frames.len(),
+            minimum: MIN_USABLE_FRAMES,
+            skipped: if skipped.is_empty() {
+                "none".into()
+            } else {
+                skipped.join(", ")
+            },
+        });
+    }
+    Ok(frames)
+}
