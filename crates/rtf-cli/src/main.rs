@@ -15,12 +15,19 @@ struct Cli {
 enum Command {
     /// Write a synthetic dataset (MF or Freiburg layout) or calibration rig.
     Synth(cmd::synth::Args),
+    /// List every network with its parameter count and size.
+    Models(cmd::models::Args),
+    /// Benchmarks (`rtf bench model --model NAME`).
+    #[command(subcommand)]
+    Bench(cmd::bench_model::Bench),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Synth(args) => cmd::synth::run(args),
+        Command::Models(args) => cmd::models::run(args),
+        Command::Bench(bench) => cmd::bench_model::run_bench(bench),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

@@ -1,1 +1,3 @@
 //! rtf-eval
+
+pub mod speed;

@@ -1,0 +1,110 @@
+//! `rtf bench model --model NAME [--batch B] [--precision fp32|bf16] [--json]`: inference speed
+//! at 480×640 (warm-up, then median and minimum ms per frame, FPS).
+
+use anyhow::Result;
+use rtf_eval::speed::{bench_model, BenchOptions, ForwardPath};
+use rtf_models::fast::Precision;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Network name (see `rtf models`).
+    #[arg(long)]
+    pub model: String,
+    /// Frames per forward pass.
+    #[arg(long, default_value_t = 1)]
+    pub batch: i64,
+    /// fp32 or bf16 (bf16 needs the fast path).
+    #[arg(long, default_value = "fp32")]
+    pub precision: Precision,
+    /// Time the plain eval forward (NCHW, unfolded BatchNorm) instead of the fast path.
+    #[arg(long)]
+    pub plain: bool,
+    /// Input size as WIDTHxHEIGHT.
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    pub size: (usize, usize),
+    /// Untimed passes first.
+    #[arg(long, default_value_t = 3)]
+    pub warmup: usize,
+    /// Timed passes.
+    #[arg(long, default_value_t = 10)]
+    pub iterations: usize,
+    /// libtorch threads (default: libtorch's choice, one per core).
+    #[arg(long)]
+    pub threads: Option<i32>,
+    /// Load these weights (random initialisation otherwise).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Print {model, batch, precision, median_ms, min_ms, fps, ...} as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `640x480` -> (640, 480).
+fn parse_size(text: &str) -> Result<(usize, usize), String> {
+    let parsed = text.split_once(['x', 'X']).and_then(|(w, h)| {
+        let w = w.trim().parse::<usize>().ok().filter(|&v| v > 0)?;
+        let h = h.trim().parse::<usize>().ok().filter(|&v| v > 0)?;
+        Some((w, h))
+    });
+    parsed.ok_or_else(|| {
+        format!("`{text}` is not WIDTHxHEIGHT with positive integers (e.g. 640x480)")
+    })
+}
+
+pub fn run(args: Args) -> Result<()> {
+    if let Some(threads) = args.threads {
+        anyhow::ensure!(threads >= 1, "--threads must be ≥ 1");
+        tch::set_num_threads(threads);
+    }
+    let opts = BenchOptions {
+        model: args.model,
+        batch: args.batch,
+        precision: args.precision,
+        path: if args.plain {
+            ForwardPath::Plain
+        } else {
+            ForwardPath::Fast
+        },
+        width: args.size.0 as i64,
+        height: args.size.1 as i64,
+        warmup: args.warmup,
+        iterations: args.iterations,
+        weights: args.weights,
+    };
+    let report = bench_model(&opts)?;
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "{} batch {} {} ({:?} path, {}x{}, {} threads): median {:.2} ms/frame, min {:.2} ms/frame, {:.2} FPS",
+            report.model,
+            report.batch,
+            report.precision,
+            report.path,
+            report.width,
+            report.height,
+            report.threads,
+            report.median_ms,
+            report.min_ms,
+            report.fps
+        );
+    }
+    Ok(())
+}
+
+/// `rtf bench …` subcommands.
+#[derive(clap::Subcommand)]
+pub enum Bench {
+    /// Inference speed of a network at 480×640: median/min ms per frame and FPS.
+    Model(Args),
+    /// Input-pipeline throughput: decode + flip + crop + tensor of MF frames, frames/s.
+    Data(super::bench_data::Args),
+}
+
+pub fn run_bench(bench: Bench) -> Result<()> {
+    match bench {
+        Bench::Model(args) => run(args),
+        Bench::Data(args) => super::bench_data::run(args),
+    }
+}

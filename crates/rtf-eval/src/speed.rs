@@ -1,0 +1,206 @@
+//! Inference speed of a network (`rtf bench model`): random weights and input of the given
+//! size, warm-up passes, then timed passes; median and minimum milliseconds per frame.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use tch::{nn, Device, Kind, Tensor};
+
+use rtf_models::fast::{InferenceNet, Precision};
+use rtf_models::{ModelConfig, ModelError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum SpeedError {
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error("invalid benchmark options: {0}")]
+    Options(String),
+}
+
+/// Which forward is timed.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ForwardPath {
+    /// Folded BatchNorm, channels-last, in-place activations ([`InferenceNet`]).
+    #[default]
+    Fast,
+    /// The training network's eval-mode forward under no_grad (NCHW, BatchNorm as is).
+    Plain,
+}
+
+#[derive(Clone, Debug)]
+pub struct BenchOptions {
+    pub model: String,
+    pub batch: i64,
+    pub precision: Precision,
+    pub path: ForwardPath,
+    pub height: i64,
+    pub width: i64,
+    pub warmup: usize,
+    pub iterations: usize,
+    /// Weights to load (random initialisation otherwise; speed does not depend on them).
+    pub weights: Option<PathBuf>,
+}
+
+impl Default for BenchOptions {
+    fn default() -> Self {
+        Self {
+            model: "mfnet".into(),
+            batch: 1,
+            precision: Precision::Fp32,
+            path: ForwardPath::Fast,
+            height: 480,
+            width: 640,
+            warmup: 3,
+            iterations: 10,
+            weights: None,
+        }
+    }
+}
+
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct BenchReport {
+    pub model: String,
+    pub batch: i64,
+    pub precision: Precision,
+    /// Median milliseconds per frame (one pass / batch).
+    pub median_ms: f64,
+    /// Fastest pass, milliseconds per frame.
+    pub min_ms: f64,
+    /// Frames per second at the median.
+    pub fps: f64,
+    pub path: ForwardPath,
+    pub height: i64,
+    pub width: i64,
+    pub iterations: usize,
+    /// libtorch intra-op threads.
+    pub threads: i32,
+}
+
+/// Median and minimum of a non-empty sample.
+pub fn median_min(samples: &[f64]) -> (f64, f64) {
+    let mut sorted = samples.to_vec();
+    sorted.sort_by(|a, b| a.total_cmp(b));
+    let n = sorted.len();
+    let median = if n % 2 == 1 {
+        sorted[n / 2]
+    } else {
+        (sorted[n / 2 - 1] + sorted[n / 2]) / 2.0
+    };
+    (median, sorted[0])
+}
+
+/// Builds the named network and times its forward on a random `[batch, 4, H, W]` input.
+pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
+    if opts.batch < 1 || opts.iterations < 1 {
+        return Err(SpeedError::Options(
+            "batch and iterations must be ≥ 1".into(),
+        ));
+    }
+    if opts.path == ForwardPath::Plain && opts.precision != Precision::Fp32 {
+        return Err(SpeedError::Options(
+            "the plain path runs in fp32 only".into(),
+        ));
+    }
+    let cfg = ModelConfig::from_name(&opts.model, rtf_models::default_num_classes(&opts.model))?;
+    let mut vs = nn::VarStore::new(Device::Cpu);
+    let net = rtf_models::build(&vs.root(), &cfg)?;
+    if let Some(path) = &opts.weights {
+        rtf_models::weights::load_safetensors(&mut vs, path)?;
+    }
+    let channels = match &cfg {
+        ModelConfig::HeatnetCritic(c) => c.in_channels,
+        _ => 4,
+    };
+    let shape = [opts.batch, channels, opts.height, opts.width];
+    net.check_input(&shape)?;
+    let input = Tensor::rand(shape, (Kind::Float, Device::Cpu));
+    let run: Box<dyn Fn() -> Result<Tensor, ModelError>> = match opts.path {
+        ForwardPath::Fast => {
+            let fast = InferenceNet::new(net, opts.precision)?;
+            Box::new(move || fast.forward_unchecked(&input))
+        }
+        ForwardPath::Plain => Box::new(move || Ok(tch::no_grad(|| net.forward_t(&input, false)))),
+    };
+    for _ in 0..opts.warmup {
+        let _ = run()?;
+    }
+    let mut per_frame_ms = Vec::with_capacity(opts.iterations);
+    for _ in 0..opts.iterations {
+        let start = Instant::now();
+        let out = run()?;
+        drop(out);
+        per_frame_ms.push(start.elapsed().as_secs_f64() * 1e3 / opts.batch as f64);
+    }
+    let (median_ms, min_ms) = median_min(&per_frame_ms);
+    Ok(BenchReport {
+        model: cfg.name(),
+        batch: opts.batch,
+        precision: opts.precision,
+        median_ms,
+        min_ms,
+        fps: 1e3 / median_ms,
+        path: opts.path,
+        height: opts.height,
+        width: opts.width,
+        iterations: opts.iterations,
+        threads: tch::get_num_threads(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_and_min() {
+        assert_eq!(median_min(&[3.0, 1.0, 2.0]), (2.0, 1.0));
+        assert_eq!(median_min(&[4.0, 1.0, 2.0, 3.0]), (2.5, 1.0));
+    }
+
+    #[test]
+    fn bench_reports_consistent_numbers_on_a_small_input() {
+        let opts = BenchOptions {
+            height: 32,
+            width: 48,
+            warmup: 1,
+            iterations: 3,
+            batch: 2,
+            ..Default::default()
+        };
+        let report = bench_model(&opts).unwrap();
+        assert_eq!(report.model, "mfnet");
+        assert!(report.min_ms > 0.0 && report.min_ms <= report.median_ms);
+        assert!((report.fps - 1e3 / report.median_ms).abs() < 1e-9);
+        let json = serde_json::to_value(&report).unwrap();
+        for key in ["model", "batch", "precision", "median_ms", "min_ms", "fps"] {
+            assert!(json.get(key).is_some(), "{key}");
+        }
+        assert_eq!(json["precision"], "fp32");
+    }
+
+    #[test]
+    fn bad_options_are_refused() {
+        let opts = BenchOptions {
+            height: 30,
+            width: 48,
+            ..Default::default()
+        };
+        assert!(bench_model(&opts)
+            .unwrap_err()
+            .to_string()
+            .contains("multiples of 16"));
+        let opts = BenchOptions {
+            model: "nope".into(),
+            ..Default::default()
+        };
+        assert!(bench_model(&opts).is_err());
+        let opts = BenchOptions {
+            path: ForwardPath::Plain,
+            precision: Precision::Bf16,
+            ..Default::default()
+        };
+        assert!(bench_model(&opts).is_err());
+    }
+}

@@ -1,0 +1,259 @@
+#!/usr/bin/env python3
+"""Peer comparison for `rtf bench model`: runs the same network in PyTorch eager (the project's
+.venv torch, same thread count) as NCHW fp32, channels_last fp32 and bf16 autocast, then runs
+`rtf bench model --json` for fp32 and bf16 and prints the speed ratios.
+
+Usage (from the repo root):
+    .venv/bin/python scripts/bench_torch.py --model mfnet [--threads 2] [--iterations 10]
+    .venv/bin/python scripts/bench_torch.py --model rtfnet50 --iterations 5
+
+The PyTorch networks below follow the published MFNet and RTFNet code (spec §3, §4); their
+parameter counts are printed and checked against the rtf model of the same name.
+"""
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+
+# ---------------------------------------------------------------- MFNet (reference layout)
+class ConvBnLeakyRelu2d(nn.Module):
+    def __init__(self, c_in, c_out, dilation=1):
+        super().__init__()
+        self.conv = nn.Conv2d(c_in, c_out, 3, padding=dilation, dilation=dilation)
+        self.bn = nn.BatchNorm2d(c_out)
+
+    def forward(self, x):
+        return F.leaky_relu(self.bn(self.conv(x)), negative_slope=0.2)
+
+
+class MiniInception(nn.Module):
+    def __init__(self, c_in, c_out):
+        super().__init__()
+        h = c_out // 2
+        self.conv1_left = ConvBnLeakyRelu2d(c_in, h)
+        self.conv1_right = ConvBnLeakyRelu2d(c_in, h, 2)
+        self.conv2_left = ConvBnLeakyRelu2d(c_out, h)
+        self.conv2_right = ConvBnLeakyRelu2d(c_out, h, 2)
+        self.conv3_left = ConvBnLeakyRelu2d(c_out, h)
+        self.conv3_right = ConvBnLeakyRelu2d(c_out, h, 2)
+
+    def forward(self, x):
+        x = torch.cat((self.conv1_left(x), self.conv1_right(x)), 1)
+        x = torch.cat((self.conv2_left(x), self.conv2_right(x)), 1)
+        return torch.cat((self.conv3_left(x), self.conv3_right(x)), 1)
+
+
+class MFNet(nn.Module):
+    def __init__(self, n_class=9):
+        super().__init__()
+        r, t = [16, 48, 48, 96, 96], [16, 16, 16, 36, 36]
+        for s, c_in, c in (("rgb", 3, r), ("inf", 1, t)):
+            setattr(self, f"conv1_{s}", ConvBnLeakyRelu2d(c_in, c[0]))
+            setattr(self, f"conv2_1_{s}", ConvBnLeakyRelu2d(c[0], c[1]))
+            setattr(self, f"conv2_2_{s}", ConvBnLeakyRelu2d(c[1], c[1]))
+            setattr(self, f"conv3_1_{s}", ConvBnLeakyRelu2d(c[1], c[2]))
+            setattr(self, f"conv3_2_{s}", ConvBnLeakyRelu2d(c[2], c[2]))
+            setattr(self, f"conv4_{s}", MiniInception(c[2], c[3]))
+            setattr(self, f"conv5_{s}", MiniInception(c[3], c[4]))
+        self.decode4 = ConvBnLeakyRelu2d(r[4] + t[4], r[2] + t[2])
+        self.decode3 = ConvBnLeakyRelu2d(r[2] + t[2], r[1] + t[1])
+        self.decode2 = ConvBnLeakyRelu2d(r[1] + t[1], 32)
+        self.decode1 = ConvBnLeakyRelu2d(32, n_class)
+
+    def encode(self, x, s):
+        m = lambda n: getattr(self, f"{n}_{s}")
+        x = F.max_pool2d(m("conv1")(x), 2)
+        p2 = m("conv2_2")(m("conv2_1")(x))
+        p3 = m("conv3_2")(m("conv3_1")(F.max_pool2d(p2, 2)))
+        p4 = m("conv4")(F.max_pool2d(p3, 2))
+        return m("conv5")(F.max_pool2d(p4, 2)), p2, p3, p4
+
+    def forward(self, x):
+        r5, r2, r3, r4 = self.encode(x[:, :3], "rgb")
+        t5, t2, t3, t4 = self.encode(x[:, 3:], "inf")
+        up = lambda y: F.interpolate(y, scale_factor=2, mode="nearest")
+        x = up(torch.cat((r5, t5), 1))
+        x = up(self.decode4(x + torch.cat((r4, t4), 1)))
+        x = up(self.decode3(x + torch.cat((r3, t3), 1)))
+        x = up(self.decode2(x + torch.cat((r2, t2), 1)))
+        return self.decode1(x)
+
+
+# ---------------------------------------------------------------- RTFNet (reference layout)
+class Bottleneck(nn.Module):
+    expansion = 4
+
+    def __init__(self, c_in, planes, stride=1):
+        super().__init__()
+        out = planes * 4
+        self.conv1 = nn.Conv2d(c_in, planes, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(planes)
+        self.conv2 = nn.Conv2d(planes, planes, 3, stride, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(planes)
+        self.conv3 = nn.Conv2d(planes, out, 1, bias=False)
+        self.bn3 = nn.BatchNorm2d(out)
+        self.relu = nn.ReLU(inplace=True)
+        self.downsample = None
+        if stride != 1 or c_in != out:
+            self.downsample = nn.Sequential(nn.Conv2d(c_in, out, 1, stride, bias=False), nn.BatchNorm2d(out))
+
+    def forward(self, x):
+        identity = x if self.downsample is None else self.downsample(x)
+        y = self.relu(self.bn1(self.conv1(x)))
+        y = self.relu(self.bn2(self.conv2(y)))
+        return self.relu(self.bn3(self.conv3(y)) + identity)
+
+
+class BasicBlock(nn.Module):
+    expansion = 1
+
+    def __init__(self, c_in, planes, stride=1):
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, planes, 3, stride, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(planes)
+        self.conv2 = nn.Conv2d(planes, planes, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(planes)
+        self.relu = nn.ReLU(inplace=True)
+        self.downsample = None
+        if stride != 1 or c_in != planes:
+            self.downsample = nn.Sequential(nn.Conv2d(c_in, planes, 1, stride, bias=False), nn.BatchNorm2d(planes))
+
+    def forward(self, x):
+        identity = x if self.downsample is None else self.downsample(x)
+        y = self.relu(self.bn1(self.conv1(x)))
+        return self.relu(self.bn2(self.conv2(y)) + identity)
+
+
+LAYOUTS = {18: (BasicBlock, [2, 2, 2, 2]), 34: (BasicBlock, [3, 4, 6, 3]), 50: (Bottleneck, [3, 4, 6, 3]),
+           101: (Bottleneck, [3, 4, 23, 3]), 152: (Bottleneck, [3, 8, 36, 3])}
+
+
+class ResNet(nn.Module):
+    def __init__(self, depth, c_in):
+        super().__init__()
+        block, blocks = LAYOUTS[depth]
+        self.conv1 = nn.Conv2d(c_in, 64, 7, 2, 3, bias=False)
+        self.bn1 = nn.BatchNorm2d(64)
+        self.relu = nn.ReLU(inplace=True)
+        self.maxpool = nn.MaxPool2d(3, 2, 1)
+        c = 64
+        for i, n in enumerate(blocks):
+            planes = 64 << i
+            layer = []
+            for j in range(n):
+                layer.append(block(c, planes, (1 if i == 0 else 2) if j == 0 else 1))
+                c = planes * block.expansion
+            setattr(self, f"layer{i + 1}", nn.Sequential(*layer))
+        self.out_channels = c
+
+
+class TransBottleneck(nn.Module):
+    def __init__(self, c_in, planes, up):
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, planes, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(planes)
+        self.conv2 = nn.Conv2d(planes, planes, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(planes)
+        if up:
+            self.conv3 = nn.ConvTranspose2d(planes, planes, 2, 2, 0, bias=False)
+            self.upsample = nn.Sequential(nn.ConvTranspose2d(c_in, planes, 2, 2, 0, bias=False), nn.BatchNorm2d(planes))
+        else:
+            self.conv3 = nn.Conv2d(planes, planes, 3, 1, 1, bias=False)
+            self.upsample = None
+        self.bn3 = nn.BatchNorm2d(planes)
+        self.relu = nn.ReLU(inplace=True)
+
+    def forward(self, x):
+        residual = x if self.upsample is None else self.upsample(x)
+        y = self.relu(self.bn1(self.conv1(x)))
+        y = self.relu(self.bn2(self.conv2(y)))
+        return self.relu(self.bn3(self.conv3(y)) + residual)
+
+
+class RTFNet(nn.Module):
+    def __init__(self, depth, n_class=9):
+        super().__init__()
+        self.rgb = ResNet(depth, 3)
+        self.thermal = ResNet(depth, 1)
+        c = self.rgb.out_channels
+        widths = [c, c // 2, c // 4, c // 8, c // 16, n_class]
+        self.decoder = nn.Sequential(*[nn.Sequential(TransBottleneck(widths[i], widths[i], False),
+                                                     TransBottleneck(widths[i], widths[i + 1], True)) for i in range(5)])
+
+    def forward(self, x):
+        r, t = self.rgb, self.thermal
+        rgb = r.relu(r.bn1(r.conv1(x[:, :3])))
+        th = t.relu(t.bn1(t.conv1(x[:, 3:])))
+        rgb = r.maxpool(rgb + th)
+        th = t.maxpool(th)
+        for i in range(1, 5):
+            rgb = getattr(r, f"layer{i}")(rgb)
+            th = getattr(t, f"layer{i}")(th)
+            rgb = rgb + th
+        return self.decoder(rgb)
+
+
+def build(name):
+    if name == "mfnet":
+        return MFNet()
+    if name.startswith("rtfnet") and name[6:].isdigit():
+        return RTFNet(int(name[6:]))
+    sys.exit(f"bench_torch.py: no PyTorch definition for {name!r} (mfnet, rtfnet18..152)")
+
+
+def time_torch(net, x, warmup, iterations, channels_last=False, bf16=False):
+    if channels_last:
+        net = net.to(memory_format=torch.channels_last)
+        x = x.contiguous(memory_format=torch.channels_last)
+    times = []
+    with torch.inference_mode(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+        for i in range(warmup + iterations):
+            start = time.perf_counter()
+            net(x)
+            if i >= warmup:
+                times.append((time.perf_counter() - start) * 1e3 / x.shape[0])
+    return statistics.median(times), min(times)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default="mfnet")
+    ap.add_argument("--batch", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=torch.get_num_threads())
+    ap.add_argument("--warmup", type=int, default=3)
+    ap.add_argument("--iterations", type=int, default=10)
+    ap.add_argument("--rtf", default="target/release/rtf", help="the rtf binary")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    net = build(args.model).eval()
+    params = sum(p.numel() for p in net.parameters())
+    x = torch.rand(args.batch, 4, 480, 640)
+    print(f"{args.model}: {params:,} parameters (PyTorch {torch.__version__}), batch {args.batch}, "
+          f"{args.threads} threads, 480x640, median of {args.iterations} after {args.warmup} warm-up")
+    rows = {}
+    for label, cl, bf in (("torch eager fp32 NCHW", False, False), ("torch channels_last fp32", True, False),
+                          ("torch bf16 autocast", True, True)):
+        rows[label] = time_torch(net, x, args.warmup, args.iterations, cl, bf)
+    for precision in ("fp32", "bf16"):
+        cmd = [args.rtf, "bench", "model", "--model", args.model, "--batch", str(args.batch), "--precision",
+               precision, "--threads", str(args.threads), "--warmup", str(args.warmup), "--iterations",
+               str(args.iterations), "--json"]
+        report = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
+        rows[f"rtf fast {precision}"] = (report["median_ms"], report["min_ms"])
+    base = rows["torch eager fp32 NCHW"][0]
+    cl = rows["torch channels_last fp32"][0]
+    print(f"{'':28} {'median ms':>10} {'min ms':>9} {'vs eager':>9} {'vs ch-last':>10}")
+    for label, (median, minimum) in rows.items():
+        print(f"{label:28} {median:10.1f} {minimum:9.1f} {base / median:8.2f}x {cl / median:9.2f}x")
+
+
+if __name__ == "__main__":
+    main()
