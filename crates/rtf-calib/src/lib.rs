@@ -10,6 +10,7 @@ pub mod frames;
 pub mod imageio;
 pub mod model;
 pub mod optimize;
+pub mod overlay;
 pub mod rig;
 pub mod se3;
 pub mod stereo;

@@ -57,6 +57,9 @@ impl Default for RigSynthConfig {
 #[derive(Debug, Clone)]
 pub struct SynthRig {
     pub rig_path: PathBuf,
+    /// A rig listing the rendered depth of every frame (= `rig_path` unless stereo-only), for
+    /// evaluating a calibration against the truth.
+    pub eval_rig_path: PathBuf,
     pub ground_truth_path: PathBuf,
     pub rig: Rig,
     pub truth: Calibration,
@@ -483,9 +486,9 @@ pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
         write_rgb8(&out.join(name("rgb")), rgb.width, rgb.height, image)?;
         let wants_depth = cfg.depth != DepthSource::Stereo;
         let wants_right = cfg.depth != DepthSource::Given;
-        if wants_depth {
-            write_gray16(&out.join(name("depth")), rgb.width, rgb.height, depth)?;
-        }
+        // The rendered depth is always written (stereo-only rigs list it in rig_depth.yaml
+        // for evaluation only).
+        write_gray16(&out.join(name("depth")), rgb.width, rgb.height, depth)?;
         if wants_right {
             let (right, _) = render_rgb(&scene, &rgb, [cfg.baseline_m, 0.0, 0.0], false);
             write_rgb8(&out.join(name("right")), rgb.width, rgb.height, right)?;
@@ -533,9 +536,21 @@ pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
     };
     let rig_path = out.join("rig.yaml");
     rig.save(&rig_path)?;
+    let eval_rig_path = if cfg.depth == DepthSource::Stereo {
+        let mut with_depth = rig.clone();
+        for (i, f) in with_depth.frames.iter_mut().enumerate() {
+            f.depth = Some(format!("f/{i:03}_depth.png").into());
+        }
+        let path = out.join("rig_depth.yaml");
+        with_depth.save(&path)?;
+        path
+    } else {
+        rig_path.clone()
+    };
     let ground_truth_path = out.join("ground_truth.yaml");
     CalibFile::from_calibration(&truth, None).save(&ground_truth_path)?;
     Ok(SynthRig {
+        eval_rig_path,
         rig_path,
         ground_truth_path,
         rig,

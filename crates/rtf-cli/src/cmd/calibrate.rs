@@ -1,0 +1,200 @@
+//! `rtf calibrate`: targetless RGB-thermal calibration (HeatNet §IV-A) of a rig described by
+//! rig.yaml; writes calib.yaml atomically, optionally overlays and a comparison with a known
+//! calibration.
+
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use rtf_calib::calibfile::{CalibFile, Quality};
+use rtf_calib::frames::load_frames;
+use rtf_calib::optimize::{self, Recipe, Settings};
+use rtf_calib::rig::{OptimizerOverrides, Rig};
+use rtf_calib::synth_rig::{self, DepthSource, RigSynthConfig};
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RecipeArg {
+    /// Coarse-to-fine pyramid, robust edge features, shift search, Levenberg-Marquardt.
+    Default,
+    /// The paper: full resolution, σ = 3 / 51 px gradient loss, Adam, 8000 iterations.
+    Paper,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum SynthDepth {
+    Given,
+    Stereo,
+    Both,
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The rig description (paths inside are relative to it).
+    #[arg(long, required_unless_present = "synthesize_rig")]
+    pub rig: Option<PathBuf>,
+    /// Where to write calib.yaml.
+    #[arg(long, required_unless_present = "synthesize_rig")]
+    pub out: Option<PathBuf>,
+    /// Write per-frame overlays (initial, final, residual) into this directory.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
+    /// Random seed (frame subsets and batches).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, value_enum, default_value_t = RecipeArg::Default)]
+    pub recipe: RecipeArg,
+    /// paper: Adam iterations; default: Levenberg-Marquardt iterations per pyramid level.
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// paper: pairs per step; default: frames used.
+    #[arg(long)]
+    pub batch_size: Option<usize>,
+    /// paper: initial Adam step (pixel-scaled units); default: step limit in pixels.
+    #[arg(long)]
+    pub learning_rate: Option<f64>,
+    /// libtorch CPU threads. The model's many small tensor operations run fastest on one
+    /// thread on a busy machine (measured 10x slower with 2 threads sharing 2 loaded cores).
+    #[arg(long, default_value_t = 1)]
+    pub threads: i32,
+    /// A known calibration (calib.yaml schema) to compare with: prints the mean RGB→thermal
+    /// pixel-map distance over pixels with depth, and the rotation/translation differences.
+    #[arg(long)]
+    pub ground_truth: Option<PathBuf>,
+    /// Rig whose depth is used for --ground-truth (default: --rig).
+    #[arg(long)]
+    pub eval_rig: Option<PathBuf>,
+    /// Write a synthetic rig with ground truth into this directory and exit (also `rtf synth
+    /// --format calibration-rig`).
+    #[arg(long, hide = true)]
+    pub synthesize_rig: Option<PathBuf>,
+    /// Synthetic rig: RGB width (height = 3/4 width).
+    #[arg(long, hide = true, default_value_t = 640)]
+    pub synth_width: usize,
+    /// Synthetic rig: number of frames.
+    #[arg(long, hide = true, default_value_t = 12)]
+    pub synth_frames: usize,
+    /// Synthetic rig: depth source listed in rig.yaml.
+    #[arg(long, hide = true, value_enum, default_value_t = SynthDepth::Both)]
+    pub synth_depth: SynthDepth,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    if let Some(dir) = &args.synthesize_rig {
+        let cfg = RigSynthConfig {
+            seed: args.seed,
+            width: args.synth_width,
+            height: args.synth_width * 3 / 4,
+            frames: args.synth_frames,
+            depth: match args.synth_depth {
+                SynthDepth::Given => DepthSource::Given,
+                SynthDepth::Stereo => DepthSource::Stereo,
+                SynthDepth::Both => DepthSource::Both,
+            },
+            ..Default::default()
+        };
+        let rig = synth_rig::write_rig(dir, &cfg)
+            .with_context(|| format!("writing a synthetic rig to {}", dir.display()))?;
+        println!(
+            "wrote {} ({} frames) and {}",
+            rig.rig_path.display(),
+            cfg.frames,
+            rig.ground_truth_path.display()
+        );
+        return Ok(());
+    }
+    let (rig_path, out) = (
+        args.rig.clone().context("--rig is required")?,
+        args.out.clone().context("--out is required")?,
+    );
+    tch::set_num_threads(args.threads.max(1));
+    let rig = Rig::load(&rig_path)?;
+    let recipe = match args.recipe {
+        RecipeArg::Default => Recipe::Default,
+        RecipeArg::Paper => Recipe::Paper,
+    };
+    let flags = OptimizerOverrides {
+        iterations: args.iterations,
+        batch_size: args.batch_size,
+        learning_rate: args.learning_rate,
+    };
+    let settings = Settings::resolve(recipe, flags, rig.optimizer, args.seed)?;
+    let frames = load_frames(&rig, &mut |w| eprintln!("warning: {w}"))?;
+    let stereo = frames.iter().filter(|f| f.depth_from_stereo).count();
+    eprintln!(
+        "{} usable frames ({} with stereo depth); recipe {:?}: iterations {}, batch size {}, learning rate {}",
+        frames.len(),
+        stereo,
+        recipe,
+        settings.iterations,
+        settings.batch_size,
+        settings.learning_rate
+    );
+    let bar = ProgressBar::new(1);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg} ETA {eta}",
+        )
+        .expect("valid template"),
+    );
+    let start = std::time::Instant::now();
+    let outcome = optimize::calibrate(&rig, &frames, &settings, &mut |p| {
+        bar.set_length(p.total as u64);
+        bar.set_position(p.step as u64);
+        bar.set_message(format!("{} loss {:.6}", p.stage, p.loss));
+    })?;
+    bar.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    if let Some(reason) = &outcome.stopped {
+        eprintln!("warning: stopped early: {reason}");
+    }
+    let quality = Quality {
+        loss: outcome.loss,
+        frames_used: outcome.frames_used,
+        iterations: outcome.iterations,
+    };
+    let file = CalibFile::from_calibration(&outcome.calibration, Some(quality));
+    file.save(&out)?;
+    let k = &file.thermal;
+    println!(
+        "wrote {}: fx {:.2} fy {:.2} cx {:.2} cy {:.2} distortion {:?}; t {:?} m; rotation {:.3}°; loss {:.6}; {} iterations in {:.1} s",
+        out.display(),
+        k.fx,
+        k.fy,
+        k.cx,
+        k.cy,
+        k.distortion,
+        file.extrinsic.translation,
+        outcome.calibration.extrinsic.angle().to_degrees(),
+        outcome.loss,
+        outcome.iterations,
+        seconds
+    );
+    if let Some(dir) = &args.overlay {
+        let written = rtf_calib::overlay::write_overlays(
+            dir,
+            &rig.rgb,
+            &frames,
+            &outcome.initial,
+            &outcome.calibration,
+        )?;
+        println!(
+            "wrote {} overlay images to {}",
+            written.len(),
+            dir.display()
+        );
+    }
+    if let Some(truth_path) = &args.ground_truth {
+        let truth = CalibFile::load(truth_path)?.calibration();
+        let eval_frames = match &args.eval_rig {
+            Some(path) => load_frames(&Rig::load(path)?, &mut |w| eprintln!("warning: {w}"))?,
+            None => frames,
+        };
+        let before = optimize::mean_map_error(&rig, &eval_frames, &outcome.initial, &truth);
+        let after = optimize::mean_map_error(&rig, &eval_frames, &outcome.calibration, &truth);
+        let (deg, metres) = outcome.calibration.extrinsic.difference(&truth.extrinsic);
+        println!(
+            "vs ground truth: pixel-map error {after:.4} px (initial {before:.3} px); rotation error {deg:.4} deg; translation error {:.3} cm; time {seconds:.1} s",
+            metres * 100.0
+        );
+    }
+    Ok(())
+}
