@@ -20,6 +20,8 @@ enum Command {
     /// Benchmarks (`rtf bench model --model NAME`).
     #[command(subcommand)]
     Bench(cmd::bench_model::Bench),
+    /// Targetless RGB-thermal calibration of a rig (rig.yaml → calib.yaml).
+    Calibrate(cmd::calibrate::Args),
 }
 
 fn main() {
@@ -28,6 +30,7 @@ fn main() {
         Command::Synth(args) => cmd::synth::run(args),
         Command::Models(args) => cmd::models::run(args),
         Command::Bench(bench) => cmd::bench_model::run_bench(bench),
+        Command::Calibrate(args) => cmd::calibrate::run(args),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
