@@ -15,11 +15,19 @@ struct Cli {
 enum Command {
     /// Write a synthetic dataset (MF or Freiburg layout) or calibration rig.
     Synth(cmd::synth::Args),
+    /// Check a dataset (every problem, exit 1) or print its statistics.
+    Data(cmd::data::Args),
     /// List every network with its parameter count and size.
     Models(cmd::models::Args),
     /// Benchmarks (`rtf bench model --model NAME`).
     #[command(subcommand)]
     Bench(cmd::bench_model::Bench),
+    /// Train a network (writes a run folder; --resume continues one).
+    Train(cmd::train::Args),
+    /// Evaluate weights on a split: per-class Acc/IoU, mAcc/mIoU, day and night.
+    Eval(cmd::eval::Args),
+    /// Segment RGB-T images: class-id PNG, colour PNG, optional logits .npy.
+    Predict(cmd::predict::Args),
     /// Targetless RGB-thermal calibration of a rig (rig.yaml → calib.yaml).
     Calibrate(cmd::calibrate::Args),
 }
@@ -28,8 +36,12 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Synth(args) => cmd::synth::run(args),
+        Command::Data(args) => cmd::data::run(args),
         Command::Models(args) => cmd::models::run(args),
         Command::Bench(bench) => cmd::bench_model::run_bench(bench),
+        Command::Train(args) => cmd::train::run(args),
+        Command::Eval(args) => cmd::eval::run(args),
+        Command::Predict(args) => cmd::predict::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),
     };
     if let Err(err) = result {

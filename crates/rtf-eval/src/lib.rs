@@ -1,3 +1,10 @@
-//! rtf-eval
+//! rtf-eval: metrics (confusion matrix, per-class Acc/IoU in the papers' conventions),
+//! evaluation of any network on a split, figures.
 
+pub mod evaluate;
+pub mod figure;
+pub mod metrics;
 pub mod speed;
+
+pub use evaluate::{evaluate, EvalError, EvalOptions, EvalReport};
+pub use metrics::{ClassScore, ConfusionMatrix, Scores};

@@ -1,6 +1,47 @@
 //! One module per subcommand: a clap `Args` struct and `run(args) -> anyhow::Result<()>`.
 
+pub mod eval;
+pub mod predict;
+pub mod bench_data;
 pub mod bench_model;
 pub mod calibrate;
+pub mod data;
 pub mod models;
 pub mod synth;
+pub mod train;
+
+/// Parses `WxH` (e.g. `640x480`) into (width, height).
+pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("`{text}` is not WxH (e.g. 640x480)"))?;
+    let parse = |s: &str| s.trim().parse::<usize>().ok().filter(|&v| v > 0);
+    match (parse(w), parse(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("`{text}` is not WxH with positive integers (e.g. 640x480)")),
+    }
+}
+
+/// Builds a network by name and loads weights (strict, reference names).
+pub fn load_network(
+    name: &str,
+    num_classes: i64,
+    weights: &std::path::Path,
+    device: tch::Device,
+) -> anyhow::Result<(tch::nn::VarStore, Box<dyn rtf_models::Network>)> {
+    let cfg = rtf_models::ModelConfig::from_name(name, num_classes)?;
+    let mut vs = tch::nn::VarStore::new(device);
+    let net = rtf_models::build(&vs.root(), &cfg)?;
+    rtf_models::weights::load_safetensors(&mut vs, weights)?;
+    Ok((vs, net))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse() {
+        assert_eq!(parse_size("640x480"), Ok((640, 480)));
+        assert!(parse_size("640").is_err());
+        assert!(parse_size("0x4").is_err());
+    }
+}

@@ -1,0 +1,113 @@
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use rtf_models::ModelConfig;
+use rtf_train::{config::parse_device, DatasetConfig, TrainConfig};
+
+use super::parse_size;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Network name (see `rtf models`).
+    #[arg(long, default_value = "mfnet")]
+    pub model: String,
+    /// Dataset root (MF layout).
+    #[arg(long, required_unless_present = "resume")]
+    pub data: Option<PathBuf>,
+    /// Run folder: config.json, log.jsonl, checkpoints, final.safetensors.
+    #[arg(long, required_unless_present = "resume")]
+    pub out: Option<PathBuf>,
+    /// Continue the run in this folder exactly where it stopped (its config.json is used;
+    /// --epochs may extend it).
+    #[arg(long, conflicts_with_all = ["data", "out"])]
+    pub resume: Option<PathBuf>,
+    /// Number of epochs (MFNet paper: 80).
+    #[arg(long)]
+    pub epochs: Option<usize>,
+    /// Batch size (MFNet paper: 6).
+    #[arg(long, default_value_t = 6)]
+    pub batch_size: usize,
+    /// Initial learning rate.
+    #[arg(long, default_value_t = 0.01)]
+    pub lr: f64,
+    /// Learning-rate factor per epoch (MFNet paper: 0.94).
+    #[arg(long, default_value_t = 0.94)]
+    pub lr_decay: f64,
+    #[arg(long, default_value_t = 0.9)]
+    pub momentum: f64,
+    #[arg(long, default_value_t = 5e-4)]
+    pub weight_decay: f64,
+    /// Disable horizontal-flip augmentation.
+    #[arg(long)]
+    pub no_flip: bool,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, default_value = "train")]
+    pub train_split: String,
+    /// Validation split evaluated after every epoch ("none" to skip).
+    #[arg(long, default_value = "val")]
+    pub val_split: String,
+    /// Resize frames to WxH (labels nearest) before the network.
+    #[arg(long, value_parser = parse_size)]
+    pub resize: Option<(usize, usize)>,
+    /// Stop each epoch after N steps (quick experiments).
+    #[arg(long)]
+    pub max_steps: Option<usize>,
+    /// Data-loading threads.
+    #[arg(long, default_value_t = 2)]
+    pub workers: usize,
+    /// cpu, cuda or cuda:N.
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let (cfg, run_dir, resume) = match &args.resume {
+        Some(run_dir) => {
+            let mut cfg = rtf_train::trainer::read_config(run_dir)?;
+            if let Some(epochs) = args.epochs {
+                cfg.epochs = epochs;
+            }
+            (cfg, run_dir.clone(), true)
+        }
+        None => {
+            let data = args.data.clone().context("--data is required")?;
+            let out = args.out.clone().context("--out is required")?;
+            parse_device(&args.device).map_err(anyhow::Error::msg)?;
+            let mut cfg = TrainConfig::mfnet_paper(data.clone());
+            cfg.model = ModelConfig::from_name(&args.model, 9)?;
+            cfg.dataset = DatasetConfig::Mf {
+                root: data,
+                train_split: args.train_split.clone(),
+                val_split: (args.val_split != "none").then(|| args.val_split.clone()),
+            };
+            cfg.epochs = args.epochs.unwrap_or(80);
+            cfg.batch_size = args.batch_size;
+            cfg.seed = args.seed;
+            cfg.optimizer.lr = args.lr;
+            cfg.optimizer.lr_decay = args.lr_decay;
+            cfg.optimizer.momentum = args.momentum;
+            cfg.optimizer.weight_decay = args.weight_decay;
+            cfg.augment.hflip = !args.no_flip;
+            cfg.resize = args.resize;
+            cfg.max_steps_per_epoch = args.max_steps;
+            cfg.workers = args.workers;
+            cfg.device = args.device.clone();
+            (cfg, out, false)
+        }
+    };
+    eprintln!("training {} for {} epochs into {}", cfg.model.name(), cfg.epochs, run_dir.display());
+    let outcome = rtf_train::train(&cfg, &run_dir, resume, &mut |r| {
+        let val = r.val_miou.map_or(String::new(), |m| format!("  val mIoU {:.1}", 100.0 * m));
+        eprintln!(
+            "epoch {:>3}  lr {:.5}  loss {:.4}  {:.1} img/s  data wait {:.0}%{val}",
+            r.epoch + 1,
+            r.lr,
+            r.train_loss,
+            r.images_per_s,
+            100.0 * r.data_wait_fraction
+        );
+    })?;
+    println!("{}", outcome.final_weights.display());
+    Ok(())
+}

@@ -1,0 +1,96 @@
+//! A run stopped after one epoch and resumed ends bit-identical to an uninterrupted run.
+
+use std::path::Path;
+use std::sync::Mutex;
+
+use rtf_train::{DatasetConfig, TrainConfig};
+
+/// A tiny MF-layout dataset: random RGBA frames whose label is "hot pixel = person".
+fn write_dataset(root: &Path) {
+    std::fs::create_dir_all(root.join("images")).unwrap();
+    std::fs::create_dir_all(root.join("labels")).unwrap();
+    let mut state = 12345u32;
+    let mut next = move || {
+        state = state.wrapping_mul(1664525).wrapping_add(1013904223);
+        (state >> 24) as u8
+    };
+    let names: Vec<String> = (0..6).map(|i| format!("{i:05}{}", if i % 2 == 0 { 'D' } else { 'N' })).collect();
+    for name in &names {
+        let mut image = image::RgbaImage::new(32, 32);
+        let mut label = image::GrayImage::new(32, 32);
+        for (x, y, p) in image.enumerate_pixels_mut() {
+            *p = image::Rgba([next(), next(), next(), next()]);
+            label.put_pixel(x, y, image::Luma([if p.0[3] > 128 { 2 } else { 0 }]));
+        }
+        image.save(root.join("images").join(format!("{name}.png"))).unwrap();
+        label.save(root.join("labels").join(format!("{name}.png"))).unwrap();
+    }
+    std::fs::write(root.join("train.txt"), names[..4].join("\n")).unwrap();
+    std::fs::write(root.join("val.txt"), names[4..].join("\n")).unwrap();
+}
+
+/// libtorch's random generator is process-global: tests that compare runs must not interleave.
+static TORCH_RNG: Mutex<()> = Mutex::new(());
+
+fn config(root: &Path, epochs: usize) -> TrainConfig {
+    let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
+    cfg.dataset = DatasetConfig::Mf { root: root.to_path_buf(), train_split: "train".into(), val_split: Some("val".into()) };
+    cfg.epochs = epochs;
+    cfg.batch_size = 2;
+    cfg.seed = 7;
+    cfg.workers = 1;
+    cfg
+}
+
+fn weights(path: &Path) -> Vec<(String, Vec<u8>)> {
+    let bytes = std::fs::read(path).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let mut named: Vec<_> = st.tensors().into_iter().map(|(n, v)| (n, v.data().to_vec())).collect();
+    named.sort_by(|a, b| a.0.cmp(&b.0));
+    named
+}
+
+#[test]
+fn resumed_run_equals_uninterrupted_run() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    write_dataset(&data);
+
+    let straight = tmp.path().join("straight");
+    let outcome = rtf_train::train(&config(&data, 2), &straight, false, &mut |_| {}).unwrap();
+    assert_eq!(outcome.records.len(), 2);
+    assert!(outcome.records.iter().all(|r| r.train_loss.is_finite() && r.val_miou.is_some()));
+
+    let split = tmp.path().join("split");
+    rtf_train::train(&config(&data, 1), &split, false, &mut |_| {}).unwrap();
+    let resumed = rtf_train::train(&config(&data, 2), &split, true, &mut |_| {}).unwrap();
+    assert_eq!(resumed.records.len(), 1, "only the missing epoch runs");
+    assert_eq!(resumed.state.epochs_done, 2);
+    assert_eq!(resumed.state.steps_done, outcome.state.steps_done);
+
+    let a = weights(&straight.join("final.safetensors"));
+    let b = weights(&split.join("final.safetensors"));
+    assert_eq!(a.len(), b.len());
+    for ((na, da), (nb, db)) in a.iter().zip(&b) {
+        assert_eq!(na, nb);
+        assert!(da == db, "`{na}` differs between the resumed and the uninterrupted run");
+    }
+    let log = std::fs::read_to_string(split.join("log.jsonl")).unwrap();
+    assert_eq!(log.lines().count(), 2);
+}
+
+#[test]
+fn training_lowers_the_loss() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    write_dataset(&data);
+    let mut cfg = config(&data, 20);
+    cfg.optimizer.lr = 0.05;
+    cfg.dataset = DatasetConfig::Mf { root: data.clone(), train_split: "train".into(), val_split: None };
+    let outcome = rtf_train::train(&cfg, &tmp.path().join("run"), false, &mut |_| {}).unwrap();
+    let first = outcome.records.first().unwrap().train_loss;
+    let last = outcome.records.last().unwrap().train_loss;
+    assert!(last < 0.5 * first, "loss {first} -> {last}");
+}
