@@ -48,6 +48,21 @@ impl Planar {
     }
 }
 
+/// Borrowed planar data with the same accessors as [`Planar`].
+struct PlanarMut<'a> {
+    channels: usize,
+    width: usize,
+    height: usize,
+    data: &'a mut [f32],
+}
+
+impl PlanarMut<'_> {
+    fn plane_mut(&mut self, c: usize) -> &mut [f32] {
+        let n = self.width * self.height;
+        &mut self.data[c * n..(c + 1) * n]
+    }
+}
+
 /// A crop window in source pixel-edge coordinates (x0, y0) .. (x1, y1).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Window {
@@ -181,6 +196,34 @@ pub fn resample(src: &Planar, win: Window, out_w: usize, out_h: usize, filter: F
     if win.is_full(src.width, src.height) && out_w == src.width && out_h == src.height {
         return src.clone();
     }
+    let mut out = Planar {
+        channels: src.channels,
+        width: out_w,
+        height: out_h,
+        data: vec![0.0; src.channels * out_w * out_h],
+    };
+    resample_into(src, win, out_w, out_h, filter, &mut out.data);
+    out
+}
+
+/// [`resample`] writing into `dst` (`channels * out_w * out_h` values, any prior content).
+pub fn resample_into(
+    src: &Planar,
+    win: Window,
+    out_w: usize,
+    out_h: usize,
+    filter: Filter,
+    dst_all: &mut [f32],
+) {
+    assert_eq!(
+        dst_all.len(),
+        src.channels * out_w * out_h,
+        "resample_into: destination size"
+    );
+    if win.is_full(src.width, src.height) && out_w == src.width && out_h == src.height {
+        dst_all.copy_from_slice(&src.data);
+        return;
+    }
     let (sw, sh) = (src.width, src.height);
     let tx = taps(sw, win.x0, win.x1, out_w, filter);
     let ty = taps(sh, win.y0, win.y1, out_h, filter);
@@ -193,12 +236,6 @@ pub fn resample(src: &Planar, win: Window, out_w: usize, out_h: usize, filter: F
         .max()
         .unwrap_or(0);
     let rows = row_hi - row_lo;
-    let mut out = Planar {
-        channels: src.channels,
-        width: out_w,
-        height: out_h,
-        data: vec![0.0; src.channels * out_w * out_h],
-    };
     let mut tmp = vec![0.0f32; rows * out_w];
     for c in 0..src.channels {
         let plane = src.plane(c);
@@ -218,7 +255,8 @@ pub fn resample(src: &Planar, win: Window, out_w: usize, out_h: usize, filter: F
             }
         }
         // Vertical pass: [rows, out_w] -> [out_h, out_w].
-        let dst_plane = out.plane_mut(c);
+        let dst_plane = &mut dst_all[c * out_w * out_h..(c + 1) * out_w * out_h];
+        dst_plane.fill(0.0);
         for j in 0..out_h {
             let s = ty.start[j];
             let w = &ty.weights[j * ty.len..(j + 1) * ty.len];
@@ -237,9 +275,8 @@ pub fn resample(src: &Planar, win: Window, out_w: usize, out_h: usize, filter: F
     }
     // Cubic overshoot must not leave the unit range.
     if filter == Filter::Bicubic {
-        out.data.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+        dst_all.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
     }
-    out
 }
 
 /// Nearest-neighbour resampling of a label window (labels are never interpolated).
@@ -330,6 +367,26 @@ pub fn rotate(img: &Planar, label: Option<&[u8]>, deg: f32, fill: u8) -> (Planar
 
 /// Photometric augmentations after the geometry (channels 0..3 RGB, 3 thermal).
 pub fn photometric(img: &mut Planar, cfg: &AugmentConfig, rng: &mut impl Rng) {
+    let (c, w, h) = (img.channels, img.width, img.height);
+    photometric_data(&mut img.data, c, w, h, cfg, rng);
+}
+
+/// [`photometric`] on raw planar data (`channels` planes of `width * height`).
+pub fn photometric_data(
+    data: &mut [f32],
+    channels: usize,
+    width: usize,
+    height: usize,
+    cfg: &AugmentConfig,
+    rng: &mut impl Rng,
+) {
+    let mut img = PlanarMut {
+        channels,
+        width,
+        height,
+        data,
+    };
+    let img = &mut img;
     let n = img.width * img.height;
     if let Some(b) = cfg.brightness {
         let f = 1.0 + rng.random_range(-b.abs()..=b.abs());

@@ -135,7 +135,21 @@ impl FreiburgSplit {
     /// Finds every frame under `root`. Every RGB image needs its IR partner; labels are
     /// optional (night training frames have none).
     pub fn open(root: impl AsRef<Path>, preprocess: FreiburgPreprocess) -> Result<Self, DataError> {
+        let (split, mut problems) = Self::scan(root, preprocess)?;
+        match problems.is_empty() {
+            true => Ok(split),
+            false => Err(problems.remove(0)),
+        }
+    }
+
+    /// Like `open`, but frames whose partner file is missing are returned as problems
+    /// (for `rtf data check`, which reports every problem) instead of failing the whole root.
+    pub fn scan(
+        root: impl AsRef<Path>,
+        preprocess: FreiburgPreprocess,
+    ) -> Result<(Self, Vec<DataError>), DataError> {
         let root = root.as_ref().to_path_buf();
+        let mut problems = Vec::new();
         if !root.is_dir() {
             return Err(DataError::Layout {
                 root,
@@ -155,17 +169,16 @@ impl FreiburgSplit {
                         .join(format!("fl_ir_aligned_{stamp}")),
                     seq.join("fl_ir_aligned").join(&fname),
                 ];
-                let ir = ir_candidates
-                    .iter()
-                    .find(|p| p.is_file())
-                    .cloned()
-                    .ok_or_else(|| DataError::Format {
+                let Some(ir) = ir_candidates.iter().find(|p| p.is_file()).cloned() else {
+                    problems.push(DataError::Format {
                         path: rgb.clone(),
                         message: format!(
                             "no aligned IR image (looked for {})",
                             ir_candidates[0].display()
                         ),
-                    })?;
+                    });
+                    continue;
+                };
                 let label = [
                     seq.join("fl_rgb_labels").join(&fname),
                     seq.join("fl_rgb_labels")
@@ -201,10 +214,11 @@ impl FreiburgSplit {
                     .to_string();
                 let ir = dir.join("ImagesIR").join(format!("{stem}_ir.png"));
                 if !ir.is_file() {
-                    return Err(DataError::Format {
+                    problems.push(DataError::Format {
                         path: rgb.clone(),
                         message: format!("no IR image {}", ir.display()),
                     });
+                    continue;
                 }
                 let label = [
                     dir.join("SegmentationClass").join(format!("{stem}.npy")),
@@ -229,7 +243,7 @@ impl FreiburgSplit {
                 });
             }
         }
-        if entries.is_empty() {
+        if entries.is_empty() && problems.is_empty() {
             return Err(DataError::Layout {
                 root,
                 message:
@@ -237,12 +251,13 @@ impl FreiburgSplit {
                         .into(),
             });
         }
-        Ok(Self {
+        let split = Self {
             root,
             entries,
             preprocess,
             class_set: ClassSet::freiburg(),
-        })
+        };
+        Ok((split, problems))
     }
 
     pub fn root(&self) -> &Path {

@@ -8,6 +8,7 @@ pub mod augment;
 pub mod error;
 pub mod frame;
 pub mod freiburg;
+pub mod inspect;
 pub mod loader;
 pub mod mf;
 pub mod npy;

@@ -175,32 +175,105 @@ struct EpochJob {
 
 impl EpochJob {
     fn batch(&self, b: usize, parallel: bool) -> Result<Batch, DataError> {
+        use rayon::prelude::*;
         let bs = self.cfg.batch_size;
         let positions: Vec<usize> = (b * bs..((b + 1) * bs).min(self.order.len())).collect();
-        let prepare = |&pos: &usize| -> Result<Prepared, DataError> {
+        let load = |&pos: &usize| -> Result<Frame, DataError> {
             let frame = self.source.load(self.order[pos])?;
-            let mut rng = ChaCha8Rng::seed_from_u64(mix(self.cfg.seed, self.epoch, pos as u64));
-            prepare_frame(
-                frame,
-                &self.cfg,
-                self.source.class_set().ignore_id,
-                &mut rng,
+            frame.validate()?;
+            Ok(frame)
+        };
+        let frames: Vec<Frame> = if parallel {
+            positions.par_iter().map(load).collect::<Result<_, _>>()?
+        } else {
+            positions.iter().map(load).collect::<Result<_, _>>()?
+        };
+        let first = frames
+            .first()
+            .ok_or_else(|| DataError::Config("empty batch".into()))?;
+        let (w, h) = self.cfg.resize.unwrap_or((first.width, first.height));
+        if w == 0 || h == 0 {
+            return Err(DataError::Config(format!("resize to {w}x{h}")));
+        }
+        if self.cfg.resize.is_none() {
+            if let Some(odd) = frames.iter().find(|f| (f.width, f.height) != (w, h)) {
+                return Err(DataError::Frame {
+                    name: odd.name.clone(),
+                    message: format!(
+                        "is {}x{} but '{}' is {w}x{h}; set a resize to batch frames of different sizes",
+                        odd.width, odd.height, first.name
+                    ),
+                });
+            }
+        }
+        let n = frames.len();
+        let input = tch::Tensor::f_empty(
+            [n as i64, 4, h as i64, w as i64],
+            (tch::Kind::Float, tch::Device::Cpu),
+        )?;
+        let target = tch::Tensor::f_empty(
+            [n as i64, h as i64, w as i64],
+            (tch::Kind::Int64, tch::Device::Cpu),
+        )?;
+        // SAFETY: both tensors were just allocated by libtorch as contiguous CPU tensors of
+        // exactly these element counts and kinds; nothing else references them until they
+        // are returned, and every element is written below before that.
+        let (input_data, target_data) = unsafe {
+            (
+                std::slice::from_raw_parts_mut(input.data_ptr() as *mut f32, n * 4 * w * h),
+                std::slice::from_raw_parts_mut(target.data_ptr() as *mut i64, n * w * h),
             )
         };
-        let prepared: Vec<Prepared> = if parallel {
-            use rayon::prelude::*;
-            positions
-                .par_iter()
-                .map(prepare)
+        let ignore = self.source.class_set().ignore_id;
+        let work =
+            |((frame, &pos), (dst, dst_label)): ((Frame, &usize), (&mut [f32], &mut [i64]))| {
+                let mut rng = ChaCha8Rng::seed_from_u64(mix(self.cfg.seed, self.epoch, pos as u64));
+                prepare_into(
+                    frame,
+                    &self.cfg,
+                    ignore,
+                    &mut rng,
+                    self.input,
+                    (w, h),
+                    dst,
+                    dst_label,
+                )
+            };
+        let meta: Vec<(String, Option<Daytime>)> = if parallel {
+            frames
+                .into_par_iter()
+                .zip(positions.par_iter())
+                .zip(
+                    input_data
+                        .par_chunks_mut(4 * w * h)
+                        .zip(target_data.par_chunks_mut(w * h)),
+                )
+                .map(work)
                 .collect::<Result<_, _>>()?
         } else {
-            positions.iter().map(prepare).collect::<Result<_, _>>()?
+            frames
+                .into_iter()
+                .zip(positions.iter())
+                .zip(
+                    input_data
+                        .chunks_mut(4 * w * h)
+                        .zip(target_data.chunks_mut(w * h)),
+                )
+                .map(work)
+                .collect::<Result<_, _>>()?
         };
-        assemble(prepared, self.input)
+        let (names, daytimes) = meta.into_iter().unzip();
+        Ok(Batch {
+            input,
+            target,
+            names,
+            daytimes,
+            wait: Duration::ZERO,
+        })
     }
 }
 
-/// A frame after geometry and photometry, before the input convention.
+/// A frame after geometry and photometry, in [0, 1] (no input convention applied).
 pub struct Prepared {
     pub name: String,
     pub daytime: Option<Daytime>,
@@ -208,13 +281,53 @@ pub struct Prepared {
     pub label: Vec<u8>,
 }
 
-/// Turns one decoded frame into the network's geometry: crop, rotation, resize, flip, photometry.
+/// [`prepare_into`] with its own buffers, output at `cfg.resize` or the native size.
 pub fn prepare_frame(
     frame: Frame,
     cfg: &LoaderConfig,
     ignore: Option<u8>,
     rng: &mut impl Rng,
 ) -> Result<Prepared, DataError> {
+    let (w, h) = cfg.resize.unwrap_or((frame.width, frame.height));
+    let mut image = Planar {
+        channels: 4,
+        width: w,
+        height: h,
+        data: vec![0.0; 4 * w * h],
+    };
+    let mut label = vec![0i64; w * h];
+    let (name, daytime) = prepare_into(
+        frame,
+        cfg,
+        ignore,
+        rng,
+        InputConvention::UnitRange,
+        (w, h),
+        &mut image.data,
+        &mut label,
+    )?;
+    Ok(Prepared {
+        name,
+        daytime,
+        image,
+        label: label.into_iter().map(|v| v as u8).collect(),
+    })
+}
+
+/// Turns one decoded frame into the network's input at `size` (width, height): crop,
+/// rotation, resize, flip, photometry, then the input convention, written into `dst`
+/// ([4, H, W]) and `dst_label` ([H, W]).
+#[allow(clippy::too_many_arguments)]
+pub fn prepare_into(
+    frame: Frame,
+    cfg: &LoaderConfig,
+    ignore: Option<u8>,
+    rng: &mut impl Rng,
+    input: InputConvention,
+    (out_w, out_h): (usize, usize),
+    dst: &mut [f32],
+    dst_label: &mut [i64],
+) -> Result<(String, Option<Daytime>), DataError> {
     frame.validate()?;
     let (w, h) = (frame.width, frame.height);
     let n = w * h;
@@ -230,6 +343,15 @@ pub fn prepare_frame(
             }
         },
     };
+    if out_w == 0
+        || out_h == 0
+        || dst.len() != 4 * out_w * out_h
+        || dst_label.len() != out_w * out_h
+    {
+        return Err(DataError::Config(format!(
+            "output size {out_w}x{out_h} does not match the buffers"
+        )));
+    }
     let mut data = vec![0.0f32; 4 * n];
     let (rgb_planes, t_plane) = data.split_at_mut(3 * n);
     for (i, px) in frame.rgb.chunks_exact(3).enumerate() {
@@ -238,13 +360,12 @@ pub fn prepare_frame(
         rgb_planes[2 * n + i] = px[2] as f32 / 255.0;
     }
     t_plane.copy_from_slice(&frame.thermal);
-    let mut image = Planar {
+    let image = Planar {
         channels: 4,
         width: w,
         height: h,
         data,
     };
-    let mut label = label;
     let aug = &cfg.augment;
     // Random draws happen in a fixed order whether or not an augmentation changes anything.
     let window = match aug.crop {
@@ -255,75 +376,36 @@ pub fn prepare_frame(
         .rotation_deg
         .map(|d| rng.random_range(-d.abs()..=d.abs()));
     let flip = aug.hflip && rng.random::<bool>();
-    let (out_w, out_h) = cfg.resize.unwrap_or((w, h));
-    if out_w == 0 || out_h == 0 {
-        return Err(DataError::Config(format!("resize to {out_w}x{out_h}")));
-    }
     let filter = if aug.crop.is_some() {
         Filter::Bicubic
     } else {
         Filter::Bilinear
     };
-    image = augment::resample(&image, window, out_w, out_h, filter);
-    label = augment::resample_nearest(&label, w, h, window, out_w, out_h);
+    let mut label = augment::resample_nearest(&label, w, h, window, out_w, out_h);
+    augment::resample_into(&image, window, out_w, out_h, filter, dst);
     if let Some(deg) = angle {
-        let (img, lab) = augment::rotate(&image, Some(&label), deg, ignore.unwrap_or(0));
-        image = img;
+        let resized = Planar {
+            channels: 4,
+            width: out_w,
+            height: out_h,
+            data: dst.to_vec(),
+        };
+        let (img, lab) = augment::rotate(&resized, Some(&label), deg, ignore.unwrap_or(0));
+        dst.copy_from_slice(&img.data);
         label = lab.unwrap_or_default();
     }
     if flip {
-        augment::hflip_planar(&mut image);
+        dst.chunks_exact_mut(out_w).for_each(|row| row.reverse());
         augment::hflip_label(&mut label, out_w);
     }
-    augment::photometric(&mut image, aug, rng);
-    Ok(Prepared {
-        name: frame.name,
-        daytime: frame.daytime,
-        image,
-        label,
-    })
-}
-
-fn assemble(frames: Vec<Prepared>, input: InputConvention) -> Result<Batch, DataError> {
-    let first = frames
-        .first()
-        .ok_or_else(|| DataError::Config("empty batch".into()))?;
-    let (w, h) = (first.image.width, first.image.height);
-    if let Some(odd) = frames
-        .iter()
-        .find(|f| (f.image.width, f.image.height) != (w, h))
-    {
-        return Err(DataError::Frame {
-            name: odd.name.clone(),
-            message: format!(
-                "is {}x{} but '{}' is {w}x{h}; set a resize to batch frames of different sizes",
-                odd.image.width, odd.image.height, first.name
-            ),
-        });
+    augment::photometric_data(dst, 4, out_w, out_h, aug, rng);
+    if input != InputConvention::UnitRange {
+        dst.iter_mut().for_each(|v| *v = input.apply(*v));
     }
-    let b = frames.len();
-    let mut inputs = Vec::with_capacity(b * 4 * w * h);
-    let mut targets = Vec::with_capacity(b * w * h);
-    let (mut names, mut daytimes) = (Vec::with_capacity(b), Vec::with_capacity(b));
-    for f in frames {
-        match input {
-            InputConvention::UnitRange => inputs.extend_from_slice(&f.image.data),
-            conv => inputs.extend(f.image.data.iter().map(|&v| conv.apply(v))),
-        }
-        targets.extend(f.label.iter().map(|&id| id as i64));
-        names.push(f.name);
-        daytimes.push(f.daytime);
+    for (d, &id) in dst_label.iter_mut().zip(&label) {
+        *d = id as i64;
     }
-    let dims = [b as i64, 4, h as i64, w as i64];
-    let input = tch::Tensor::f_from_slice(&inputs)?.f_view(dims)?;
-    let target = tch::Tensor::f_from_slice(&targets)?.f_view([b as i64, h as i64, w as i64])?;
-    Ok(Batch {
-        input,
-        target,
-        names,
-        daytimes,
-        wait: Duration::ZERO,
-    })
+    Ok((frame.name, frame.daytime))
 }
 
 enum Mode {

@@ -1,0 +1,108 @@
+//! `rtf bench data`: input-pipeline throughput (decode + flip + RTFNet crop + tensor) on MF
+//! frames at batch 8, the work `scripts/bench_data.py` does with PIL + NumPy.
+
+use anyhow::{bail, Context, Result};
+use rtf_data::{AugmentConfig, FrameSource, Loader, LoaderConfig, MfDataset};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// MF-layout dataset root.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Split to read (default: the first split file found, e.g. `test`).
+    #[arg(long)]
+    pub split: Option<String>,
+    #[arg(long, default_value_t = 8)]
+    pub batch: usize,
+    /// Decode/augment threads (0 = inline on the consumer thread).
+    #[arg(long, default_value_t = 2)]
+    pub workers: usize,
+    /// Frames to time at least (whole epochs are repeated until reached).
+    #[arg(long, default_value_t = 96)]
+    pub frames: usize,
+    /// Print `{frames_per_s, …}` as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let ds = MfDataset::open(&args.data)?;
+    let split_name = match &args.split {
+        Some(s) => s.clone(),
+        None => ds
+            .split_names()
+            .first()
+            .cloned()
+            .context("no split files")?,
+    };
+    let split = ds.split(&split_name)?;
+    let (w, h) = {
+        let f = split.load(0)?;
+        (f.width, f.height)
+    };
+    let source: Arc<dyn FrameSource> = Arc::new(split);
+    let cfg = LoaderConfig {
+        batch_size: args.batch,
+        shuffle: true,
+        drop_last: false,
+        seed: 0,
+        workers: args.workers,
+        prefetch: 2,
+        augment: AugmentConfig {
+            hflip: true,
+            crop: Some(0.1),
+            ..AugmentConfig::default()
+        },
+        resize: None,
+    };
+    let loader = Loader::new(source.clone(), cfg, rtf_core::InputConvention::UnitRange);
+    // Warm-up batch (page cache, thread start), not timed.
+    if let Some(b) = loader.epoch(u64::MAX).next() {
+        b?;
+    }
+    let (mut frames, mut waited, mut epoch) = (0usize, Duration::ZERO, 0u64);
+    let start = Instant::now();
+    while frames < args.frames {
+        for batch in loader.epoch(epoch) {
+            let batch = batch?;
+            waited += batch.wait;
+            frames += batch.names.len();
+            // Touch the data like a consumer would.
+            std::hint::black_box(batch.input.size());
+            if frames >= args.frames {
+                break;
+            }
+        }
+        epoch += 1;
+        if source.is_empty() {
+            bail!("empty split");
+        }
+    }
+    let secs = start.elapsed().as_secs_f64();
+    let fps = frames as f64 / secs;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "frames_per_s": fps,
+                "frames": frames,
+                "seconds": secs,
+                "batch": args.batch,
+                "workers": args.workers,
+                "width": w,
+                "height": h,
+                "split": split_name,
+            })
+        );
+    } else {
+        println!(
+            "{frames} frames ({w}x{h}, batch {}, {} workers, decode + flip + crop + tensor) in {secs:.2} s: {fps:.1} frames/s",
+            args.batch, args.workers
+        );
+        let _ = waited;
+    }
+    Ok(())
+}

@@ -1,0 +1,92 @@
+//! `rtf data check DIR` and `rtf data stats DIR [--json]`.
+
+use anyhow::{bail, Result};
+use rtf_data::inspect;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    pub command: DataCommand,
+}
+
+#[derive(clap::Subcommand)]
+pub enum DataCommand {
+    /// Validate a dataset completely; lists every problem, exit code 1 if there is any.
+    Check {
+        /// Dataset root (MF or Freiburg Thermal layout).
+        dir: PathBuf,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Frames per split and day/night, per-class pixel shares.
+    Stats {
+        /// Dataset root (MF or Freiburg Thermal layout).
+        dir: PathBuf,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+pub fn run(args: Args) -> Result<()> {
+    match args.command {
+        DataCommand::Check { dir, json } => {
+            let report = inspect::check(&dir);
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                for p in &report.problems {
+                    println!("{p}");
+                }
+                let format = report
+                    .format
+                    .map_or("unknown".to_string(), |f| format!("{f:?}"));
+                println!(
+                    "{}: {} layout, {} frames decoded, {} problem(s)",
+                    dir.display(),
+                    format,
+                    report.frames,
+                    report.problems.len()
+                );
+            }
+            if !report.is_ok() {
+                bail!("{} problem(s) in {}", report.problems.len(), dir.display());
+            }
+            Ok(())
+        }
+        DataCommand::Stats { dir, json } => {
+            let stats = inspect::stats(&dir)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&stats)?);
+                return Ok(());
+            }
+            println!("{} ({:?} layout)", dir.display(), stats.format);
+            println!(
+                "{:<16} {:>7} {:>7} {:>7}",
+                "split", "frames", "day", "night"
+            );
+            for s in &stats.splits {
+                println!("{:<16} {:>7} {:>7} {:>7}", s.name, s.frames, s.day, s.night);
+            }
+            println!(
+                "\nclass pixel share over {} labelled frames",
+                stats.labelled_frames
+            );
+            for c in &stats.classes {
+                println!(
+                    "{:>3} {:<12} {:>8.4} %  {:>12} px",
+                    c.id,
+                    c.name,
+                    100.0 * c.share,
+                    c.pixels
+                );
+            }
+            if stats.ignored_pixels > 0 {
+                println!("ignored (id 13): {} px", stats.ignored_pixels);
+            }
+            Ok(())
+        }
+    }
+}

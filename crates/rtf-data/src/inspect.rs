@@ -1,0 +1,559 @@
+//! Whole-dataset validation (`rtf data check`) and statistics (`rtf data stats`).
+//!
+//! `check` never stops at the first problem: it decodes every file (in parallel) and returns
+//! every problem with its file name.
+
+use crate::freiburg::{FreiburgPreprocess, FreiburgSplit};
+use crate::mf::parse_split;
+use crate::{DataError, FrameSource, MfDataset};
+use rayon::prelude::*;
+use rtf_core::{ClassSet, Daytime};
+use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DatasetFormat {
+    Mf,
+    Freiburg,
+}
+
+/// Recognises a dataset root by its layout.
+pub fn detect_format(root: &Path) -> Option<DatasetFormat> {
+    if root.join("images").is_dir() && root.join("labels").is_dir() {
+        return Some(DatasetFormat::Mf);
+    }
+    let mut found = Vec::new();
+    for name in ["fl_rgb", "ImagesRGB"] {
+        let _ = find_dir(root, name, 6, &mut found);
+    }
+    (!found.is_empty()).then_some(DatasetFormat::Freiburg)
+}
+
+fn find_dir(root: &Path, name: &str, depth: usize, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+    for e in std::fs::read_dir(root)? {
+        let p = e?.path();
+        if p.is_dir() {
+            if p.file_name().is_some_and(|n| n == name) {
+                out.push(p);
+                return Ok(());
+            } else if depth > 0 {
+                find_dir(&p, name, depth - 1, out)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Problem {
+    pub path: PathBuf,
+    pub message: String,
+}
+
+impl std::fmt::Display for Problem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}: {}", self.path.display(), self.message)
+    }
+}
+
+fn problem(path: impl Into<PathBuf>, message: impl Into<String>) -> Problem {
+    Problem {
+        path: path.into(),
+        message: message.into(),
+    }
+}
+
+/// A data error as a problem (its message already names the file).
+fn from_error(fallback: &Path, e: DataError) -> Problem {
+    let path = match &e {
+        DataError::Io { path, .. }
+        | DataError::Png { path, .. }
+        | DataError::Channels { path, .. }
+        | DataError::BitDepth { path, .. }
+        | DataError::LabelOutOfRange { path, .. }
+        | DataError::EmptySplit { path }
+        | DataError::Format { path, .. } => path.clone(),
+        DataError::SizeMismatch { label, .. } => label.clone(),
+        DataError::MissingFrame { split_file, .. } => split_file.clone(),
+        DataError::Layout { root, .. } | DataError::UnknownSplit { root, .. } => root.clone(),
+        _ => fallback.to_path_buf(),
+    };
+    let text = e.to_string();
+    let prefix = format!("{}: ", path.display());
+    Problem {
+        message: text.strip_prefix(&prefix).unwrap_or(&text).to_string(),
+        path,
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CheckReport {
+    pub root: PathBuf,
+    pub format: Option<DatasetFormat>,
+    /// Frames decoded and checked.
+    pub frames: usize,
+    pub problems: Vec<Problem>,
+}
+
+impl CheckReport {
+    pub fn is_ok(&self) -> bool {
+        self.problems.is_empty()
+    }
+}
+
+/// Validates a dataset completely; every problem is listed (sorted by path).
+pub fn check(root: &Path) -> CheckReport {
+    let format = detect_format(root);
+    let (frames, mut problems) = match format {
+        Some(DatasetFormat::Mf) => check_mf(root),
+        Some(DatasetFormat::Freiburg) => check_freiburg(root),
+        None => (
+            0,
+            vec![problem(
+                root,
+                "not a dataset root: expected images/ + labels/ (MF) or fl_rgb/ / ImagesRGB/ folders (Freiburg Thermal)",
+            )],
+        ),
+    };
+    problems.sort_by(|a, b| a.path.cmp(&b.path).then(a.message.cmp(&b.message)));
+    CheckReport {
+        root: root.to_path_buf(),
+        format,
+        frames,
+        problems,
+    }
+}
+
+fn stems(dir: &Path, problems: &mut Vec<Problem>) -> Vec<String> {
+    let mut out = Vec::new();
+    match std::fs::read_dir(dir) {
+        Err(e) => problems.push(problem(dir, e.to_string())),
+        Ok(entries) => {
+            for e in entries.flatten() {
+                let p = e.path();
+                if !p.is_file() {
+                    continue;
+                }
+                match (
+                    p.extension().and_then(|x| x.to_str()),
+                    p.file_stem().and_then(|s| s.to_str()),
+                ) {
+                    (Some("png"), Some(stem)) => out.push(stem.to_string()),
+                    _ => problems.push(problem(&p, "not a .png file (ignored by the reader)")),
+                }
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
+    let mut problems = Vec::new();
+    let images = stems(&root.join("images"), &mut problems);
+    let labels = stems(&root.join("labels"), &mut problems);
+    let label_set: std::collections::HashSet<&String> = labels.iter().collect();
+    let image_set: std::collections::HashSet<&String> = images.iter().collect();
+    for name in &images {
+        if !label_set.contains(name) {
+            problems.push(problem(
+                root.join("labels").join(format!("{name}.png")),
+                "missing (image has no label)",
+            ));
+        }
+    }
+    for name in &labels {
+        if !image_set.contains(name) {
+            problems.push(problem(
+                root.join("images").join(format!("{name}.png")),
+                "missing (label has no image)",
+            ));
+        }
+    }
+    // Split files: unreadable, duplicates, names without files.
+    let mut listed: HashMap<String, Vec<String>> = HashMap::new();
+    let mut split_files: Vec<PathBuf> = std::fs::read_dir(root)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "txt"))
+                .collect()
+        })
+        .unwrap_or_default();
+    split_files.sort();
+    if split_files.is_empty() {
+        problems.push(problem(
+            root,
+            "no split files (<split>.txt, e.g. train.txt)",
+        ));
+    }
+    for file in &split_files {
+        let split = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let text = match std::fs::read(file) {
+            Err(e) => {
+                problems.push(problem(file, e.to_string()));
+                continue;
+            }
+            Ok(b) => match String::from_utf8(b) {
+                Ok(t) => t,
+                Err(_) => {
+                    problems.push(problem(file, "not UTF-8 text"));
+                    continue;
+                }
+            },
+        };
+        let names = match parse_split(&text, file) {
+            Ok(n) => n,
+            Err(e) => {
+                problems.push(from_error(file, e));
+                continue;
+            }
+        };
+        if names.is_empty() {
+            problems.push(problem(file, "split is empty (no frame names)"));
+        }
+        let mut first_line: HashMap<&str, usize> = HashMap::new();
+        for (line, name) in &names {
+            if let Some(prev) = first_line.insert(name, *line) {
+                problems.push(problem(
+                    file,
+                    format!("line {line}: '{name}' duplicates line {prev}"),
+                ));
+            }
+            if !image_set.contains(name) {
+                problems.push(problem(
+                    file,
+                    format!("line {line}: frame '{name}' has no image images/{name}.png"),
+                ));
+            } else if !label_set.contains(name) {
+                problems.push(problem(
+                    file,
+                    format!("line {line}: frame '{name}' has no label labels/{name}.png"),
+                ));
+            }
+            listed.entry(name.clone()).or_default().push(split.clone());
+        }
+    }
+    for name in &images {
+        if !listed.contains_key(name) && !split_files.is_empty() {
+            problems.push(problem(
+                root.join("images").join(format!("{name}.png")),
+                "frame is in no split file",
+            ));
+        }
+        if Daytime::from_mf_name(name).is_none() {
+            problems.push(problem(
+                root.join("images").join(format!("{name}.png")),
+                "name does not end in D or N (day/night unknown)",
+            ));
+        }
+    }
+    // Decode every pair.
+    let classes = ClassSet::mf();
+    let pairs: Vec<&String> = images.iter().filter(|n| label_set.contains(n)).collect();
+    let decode_problems: Vec<Problem> = pairs
+        .par_iter()
+        .filter_map(|name| {
+            let img = root.join("images").join(format!("{name}.png"));
+            let lab = root.join("labels").join(format!("{name}.png"));
+            let read = |p: &Path| std::fs::read(p).map_err(|e| DataError::io(p, e));
+            let result = read(&img)
+                .and_then(|ib| read(&lab).map(|lb| (ib, lb)))
+                .and_then(|(ib, lb)| {
+                    crate::mf::decode_mf_frame(name, &ib, &img, &lb, &lab, &classes)
+                });
+            result.err().map(|e| from_error(&img, e))
+        })
+        .collect();
+    problems.extend(decode_problems);
+    (pairs.len(), problems)
+}
+
+fn check_freiburg(root: &Path) -> (usize, Vec<Problem>) {
+    let (split, errors) = match FreiburgSplit::scan(root, FreiburgPreprocess::native()) {
+        Ok(r) => r,
+        Err(e) => return (0, vec![from_error(root, e)]),
+    };
+    let mut problems: Vec<Problem> = errors.into_iter().map(|e| from_error(root, e)).collect();
+    let decode: Vec<Problem> = (0..split.len())
+        .into_par_iter()
+        .filter_map(|i| {
+            split
+                .load_raw(i)
+                .err()
+                .map(|e| from_error(&split.files(i).0, e))
+        })
+        .collect();
+    problems.extend(decode);
+    (split.len(), problems)
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct SplitStats {
+    pub name: String,
+    pub frames: usize,
+    pub day: usize,
+    pub night: usize,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ClassShare {
+    pub id: u8,
+    pub name: String,
+    pub pixels: u64,
+    /// Fraction of all labelled pixels (MFNet Fig. 4).
+    pub share: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Stats {
+    pub root: PathBuf,
+    pub format: DatasetFormat,
+    pub splits: Vec<SplitStats>,
+    /// Distinct frames with labels that were counted for the class shares.
+    pub labelled_frames: usize,
+    pub classes: Vec<ClassShare>,
+    /// Pixels with the ignore id (Freiburg), not part of the shares.
+    pub ignored_pixels: u64,
+}
+
+/// Frames per split and day/night, and per-class pixel shares over all distinct labelled frames.
+pub fn stats(root: &Path) -> Result<Stats, DataError> {
+    let format = detect_format(root).ok_or_else(|| DataError::Layout {
+        root: root.to_path_buf(),
+        message: "not a dataset root (MF: images/ + labels/; Freiburg: fl_rgb/ or ImagesRGB/)"
+            .into(),
+    })?;
+    let count_days = |src: &dyn FrameSource| {
+        let day = (0..src.len())
+            .filter(|&i| src.daytime(i) == Some(Daytime::Day))
+            .count();
+        let night = (0..src.len())
+            .filter(|&i| src.daytime(i) == Some(Daytime::Night))
+            .count();
+        (day, night)
+    };
+    let mut splits = Vec::new();
+    let (classes, counts, labelled, ignored) = match format {
+        DatasetFormat::Mf => {
+            let ds = MfDataset::open(root)?;
+            let mut frames: BTreeMap<String, ()> = BTreeMap::new();
+            for name in ds.split_names() {
+                let split = ds.split(name)?;
+                let (day, night) = count_days(&split);
+                splits.push(SplitStats {
+                    name: name.clone(),
+                    frames: split.len(),
+                    day,
+                    night,
+                });
+                for n in split.names() {
+                    frames.insert(n.clone(), ());
+                }
+            }
+            let names: Vec<String> = frames.into_keys().collect();
+            let classes = ds.class_set().clone();
+            let counts = count_pixels(&classes, names.len(), |i| {
+                ds.load_frame(&names[i]).map(|f| f.label)
+            })?;
+            (classes, counts, names.len(), 0)
+        }
+        DatasetFormat::Freiburg => {
+            let split = FreiburgSplit::open(root, FreiburgPreprocess::native())?;
+            let mut groups: BTreeMap<String, (usize, usize, usize)> = BTreeMap::new();
+            for i in 0..split.len() {
+                let name = split.frame_name(i);
+                // Group by the first path component (train / test/day …).
+                let group = Path::new(name)
+                    .parent()
+                    .and_then(|p| p.components().next())
+                    .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                let g = groups.entry(group).or_default();
+                g.0 += 1;
+                match split.daytime(i) {
+                    Some(Daytime::Day) => g.1 += 1,
+                    _ => g.2 += 1,
+                }
+            }
+            for (name, (frames, day, night)) in groups {
+                splits.push(SplitStats {
+                    name,
+                    frames,
+                    day,
+                    night,
+                });
+            }
+            let classes = split.class_set().clone();
+            let labelled: Vec<usize> = (0..split.len()).filter(|&i| split.is_labelled(i)).collect();
+            let counts = count_pixels(&classes, labelled.len(), |i| {
+                split.load_raw(labelled[i]).map(|f| f.label)
+            })?;
+            let ignored = classes
+                .ignore_id
+                .map_or(0, |id| counts.get(id as usize).copied().unwrap_or(0));
+            (classes, counts, labelled.len(), ignored)
+        }
+    };
+    let total: u64 = counts.iter().take(classes.len()).sum();
+    let classes = classes
+        .classes
+        .iter()
+        .map(|c| {
+            let pixels = counts[c.id as usize];
+            ClassShare {
+                id: c.id,
+                name: c.name.clone(),
+                pixels,
+                share: if total > 0 {
+                    pixels as f64 / total as f64
+                } else {
+                    0.0
+                },
+            }
+        })
+        .collect();
+    Ok(Stats {
+        root: root.to_path_buf(),
+        format,
+        splits,
+        labelled_frames: labelled,
+        classes,
+        ignored_pixels: ignored,
+    })
+}
+
+fn count_pixels(
+    classes: &ClassSet,
+    n: usize,
+    load: impl Fn(usize) -> Result<Option<Vec<u8>>, DataError> + Sync,
+) -> Result<Vec<u64>, DataError> {
+    let size = 256;
+    let _ = classes;
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut c = vec![0u64; size];
+            if let Some(l) = load(i)? {
+                for v in l {
+                    c[v as usize] += 1;
+                }
+            }
+            Ok(c)
+        })
+        .try_reduce(
+            || vec![0u64; size],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                Ok(a)
+            },
+        )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{generate, SynthConfig, SynthFormat};
+    use crate::testutil::*;
+
+    #[test]
+    fn clean_synthetic_datasets_pass() {
+        for format in [SynthFormat::Mf, SynthFormat::Freiburg] {
+            let dir = tempfile::tempdir().unwrap();
+            generate(
+                dir.path(),
+                &SynthConfig {
+                    count: 8,
+                    width: 64,
+                    height: 48,
+                    format,
+                    ..SynthConfig::default()
+                },
+            )
+            .unwrap();
+            let report = check(dir.path());
+            assert!(report.is_ok(), "{format:?}: {:?}", report.problems);
+            assert_eq!(report.frames, 8);
+        }
+    }
+
+    #[test]
+    fn check_reports_every_problem_with_file_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        mf_dataset(
+            root,
+            &["00001D", "00002N", "00003D", "00004N", "00005D"],
+            8,
+            6,
+        );
+        // 1: truncated image; 2: label with an id out of range; 3: RGB (3-channel) image;
+        // 4: label missing; 5: 16-bit label; plus a duplicate and a missing split entry and
+        // a frame in no split.
+        let img1 = std::fs::read(root.join("images/00001D.png")).unwrap();
+        write(&root.join("images/00001D.png"), &img1[..img1.len() / 2]);
+        write(&root.join("labels/00002N.png"), &png_u8(8, 6, 1, &[12; 48]));
+        write(&root.join("images/00003D.png"), &png_u8(8, 6, 3, &[1; 144]));
+        std::fs::remove_file(root.join("labels/00004N.png")).unwrap();
+        write(&root.join("labels/00005D.png"), &png_u16(8, 6, 1, &[1; 48]));
+        write(
+            &root.join("train.txt"),
+            b"00001D\n00002N\n00003D\n00004N\n00002N\n00009D\n",
+        );
+        write(&root.join("images/00006N.png"), &png_u8(8, 6, 4, &[1; 192]));
+        write(&root.join("labels/00006N.png"), &png_u8(8, 6, 1, &[1; 48]));
+        let report = check(root);
+        let text: Vec<String> = report.problems.iter().map(|p| p.to_string()).collect();
+        let has = |needle: &[&str]| text.iter().any(|t| needle.iter().all(|n| t.contains(n)));
+        assert!(
+            has(&["images/00001D.png", "not a readable PNG"]),
+            "{text:#?}"
+        );
+        assert!(has(&["labels/00002N.png", "label id 12"]), "{text:#?}");
+        assert!(
+            has(&["images/00003D.png", "expected 4 channel"]),
+            "{text:#?}"
+        );
+        assert!(has(&["labels/00004N.png", "missing"]), "{text:#?}");
+        assert!(has(&["labels/00005D.png", "16-bit"]), "{text:#?}");
+        assert!(
+            has(&["train.txt", "line 5", "duplicates line 2"]),
+            "{text:#?}"
+        );
+        assert!(has(&["train.txt", "line 6", "00009D"]), "{text:#?}");
+        assert!(has(&["images/00006N.png", "in no split"]), "{text:#?}");
+        assert_eq!(report.frames, 5, "every pair with both files was decoded");
+    }
+
+    #[test]
+    fn stats_count_frames_and_class_shares() {
+        let dir = tempfile::tempdir().unwrap();
+        generate(
+            dir.path(),
+            &SynthConfig {
+                count: 16,
+                width: 64,
+                height: 48,
+                ..SynthConfig::default()
+            },
+        )
+        .unwrap();
+        let s = stats(dir.path()).unwrap();
+        let train = s.splits.iter().find(|x| x.name == "train").unwrap();
+        assert_eq!((train.frames, train.day, train.night), (8, 4, 4));
+        assert_eq!(s.labelled_frames, 16);
+        let total: f64 = s.classes.iter().map(|c| c.share).sum();
+        assert!((total - 1.0).abs() < 1e-9);
+        let pixels: u64 = s.classes.iter().map(|c| c.pixels).sum();
+        assert_eq!(pixels, 16 * 64 * 48);
+        assert!(
+            s.classes[0].share > 0.5,
+            "unlabeled is the majority, as in MF"
+        );
+    }
+}

@@ -1,0 +1,76 @@
+#!/usr/bin/env python3
+"""Reference input pipeline for `rtf bench data`: PIL + NumPy doing the same work per frame
+(decode RGBA image + label PNG, random horizontal flip, RTFNet random crop resized back with
+bicubic image / nearest label, float32 [0, 1] CHW, batches of 8 stacked), single process as in
+the MFNet/RTFNet reference loaders with num_workers=0.
+
+Usage: .venv/bin/python scripts/bench_data.py --data DIR [--split test] [--frames 96] [--json]
+"""
+import argparse
+import json
+import os
+import random
+import time
+
+import numpy as np
+from PIL import Image
+
+
+def load(root, name, rng):
+    img = Image.open(os.path.join(root, "images", name + ".png"))
+    img.load()
+    lab = Image.open(os.path.join(root, "labels", name + ".png"))
+    lab.load()
+    w, h = img.size
+    if rng.random() < 0.5:
+        img = img.transpose(Image.FLIP_LEFT_RIGHT)
+        lab = lab.transpose(Image.FLIP_LEFT_RIGHT)
+    # RTFNet crop: each edge trimmed by up to 10 %, resized back.
+    x0 = rng.randrange(0, int(0.1 * w))
+    y0 = rng.randrange(0, int(0.1 * h))
+    x1 = rng.randrange(int(0.9 * w + 0.999), w + 1)
+    y1 = rng.randrange(int(0.9 * h + 0.999), h + 1)
+    img = img.crop((x0, y0, x1, y1)).resize((w, h), Image.BICUBIC)
+    lab = lab.crop((x0, y0, x1, y1)).resize((w, h), Image.NEAREST)
+    x = np.asarray(img, dtype=np.float32).transpose(2, 0, 1) / 255.0
+    y = np.asarray(lab, dtype=np.int64)
+    return x, y
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--split", default=None)
+    ap.add_argument("--batch", type=int, default=8)
+    ap.add_argument("--frames", type=int, default=96)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    split = args.split
+    if split is None:
+        split = sorted(f[:-4] for f in os.listdir(args.data) if f.endswith(".txt"))[0]
+    with open(os.path.join(args.data, split + ".txt")) as f:
+        names = [line.strip() for line in f if line.strip()]
+    rng = random.Random(0)
+    load(args.data, names[0], rng)  # warm-up, not timed
+    frames = 0
+    start = time.perf_counter()
+    while frames < args.frames:
+        order = names[:]
+        rng.shuffle(order)
+        for i in range(0, len(order), args.batch):
+            batch = [load(args.data, n, rng) for n in order[i:i + args.batch]]
+            xs = np.stack([b[0] for b in batch])
+            ys = np.stack([b[1] for b in batch])
+            frames += xs.shape[0]
+            if frames >= args.frames:
+                break
+    secs = time.perf_counter() - start
+    fps = frames / secs
+    if args.json:
+        print(json.dumps({"frames_per_s": fps, "frames": frames, "seconds": secs, "batch": args.batch}))
+    else:
+        print(f"{frames} frames (batch {args.batch}, PIL + NumPy) in {secs:.2f} s: {fps:.1f} frames/s")
+
+
+if __name__ == "__main__":
+    main()
