@@ -135,23 +135,19 @@ LAYOUTS = {18: (BasicBlock, [2, 2, 2, 2]), 34: (BasicBlock, [3, 4, 6, 3]), 50: (
            101: (Bottleneck, [3, 4, 23, 3]), 152: (Bottleneck, [3, 8, 36, 3])}
 
 
-class ResNet(nn.Module):
-    def __init__(self, depth, c_in):
-        super().__init__()
-        block, blocks = LAYOUTS[depth]
-        self.conv1 = nn.Conv2d(c_in, 64, 7, 2, 3, bias=False)
-        self.bn1 = nn.BatchNorm2d(64)
-        self.relu = nn.ReLU(inplace=True)
-        self.maxpool = nn.MaxPool2d(3, 2, 1)
-        c = 64
-        for i, n in enumerate(blocks):
-            planes = 64 << i
-            layer = []
-            for j in range(n):
-                layer.append(block(c, planes, (1 if i == 0 else 2) if j == 0 else 1))
-                c = planes * block.expansion
-            setattr(self, f"layer{i + 1}", nn.Sequential(*layer))
-        self.out_channels = c
+def resnet_parts(depth, c_in):
+    """torchvision ResNet pieces without avgpool/fc: conv1, bn1, layer1..4, and the width."""
+    block, blocks = LAYOUTS[depth]
+    parts = {"conv1": nn.Conv2d(c_in, 64, 7, 2, 3, bias=False), "bn1": nn.BatchNorm2d(64)}
+    c = 64
+    for i, n in enumerate(blocks):
+        planes = 64 << i
+        layer = []
+        for j in range(n):
+            layer.append(block(c, planes, (1 if i == 0 else 2) if j == 0 else 1))
+            c = planes * block.expansion
+        parts[f"layer{i + 1}"] = nn.Sequential(*layer)
+    return parts, c
 
 
 class TransBottleneck(nn.Module):
@@ -178,26 +174,33 @@ class TransBottleneck(nn.Module):
 
 
 class RTFNet(nn.Module):
+    """Attribute names as the published code, so state_dict keys equal keys/rtfnet*.txt."""
+
     def __init__(self, depth, n_class=9):
         super().__init__()
-        self.rgb = ResNet(depth, 3)
-        self.thermal = ResNet(depth, 1)
-        c = self.rgb.out_channels
+        for modality, c_in in (("thermal", 1), ("rgb", 3)):
+            parts, c = resnet_parts(depth, c_in)
+            for name, module in parts.items():
+                setattr(self, f"encoder_{modality}_{name}", module)
         widths = [c, c // 2, c // 4, c // 8, c // 16, n_class]
-        self.decoder = nn.Sequential(*[nn.Sequential(TransBottleneck(widths[i], widths[i], False),
-                                                     TransBottleneck(widths[i], widths[i + 1], True)) for i in range(5)])
+        for i in range(5):
+            setattr(self, f"deconv{i + 1}", nn.Sequential(TransBottleneck(widths[i], widths[i], False),
+                                                          TransBottleneck(widths[i], widths[i + 1], True)))
+        self.maxpool = nn.MaxPool2d(3, 2, 1)
 
     def forward(self, x):
-        r, t = self.rgb, self.thermal
-        rgb = r.relu(r.bn1(r.conv1(x[:, :3])))
-        th = t.relu(t.bn1(t.conv1(x[:, 3:])))
-        rgb = r.maxpool(rgb + th)
-        th = t.maxpool(th)
+        e = lambda m, n: getattr(self, f"encoder_{m}_{n}")
+        rgb = F.relu(e("rgb", "bn1")(e("rgb", "conv1")(x[:, :3])))
+        th = F.relu(e("thermal", "bn1")(e("thermal", "conv1")(x[:, 3:])))
+        rgb = self.maxpool(rgb + th)
+        th = self.maxpool(th)
         for i in range(1, 5):
-            rgb = getattr(r, f"layer{i}")(rgb)
-            th = getattr(t, f"layer{i}")(th)
+            rgb = e("rgb", f"layer{i}")(rgb)
+            th = e("thermal", f"layer{i}")(th)
             rgb = rgb + th
-        return self.decoder(rgb)
+        for i in range(1, 6):
+            rgb = getattr(self, f"deconv{i}")(rgb)
+        return rgb
 
 
 def build(name):
@@ -209,6 +212,7 @@ def build(name):
 
 
 def time_torch(net, x, warmup, iterations, channels_last=False, bf16=False):
+    """Milliseconds per frame of each timed pass."""
     if channels_last:
         net = net.to(memory_format=torch.channels_last)
         x = x.contiguous(memory_format=torch.channels_last)
@@ -219,7 +223,13 @@ def time_torch(net, x, warmup, iterations, channels_last=False, bf16=False):
             net(x)
             if i >= warmup:
                 times.append((time.perf_counter() - start) * 1e3 / x.shape[0])
-    return statistics.median(times), min(times)
+    return times
+
+
+def rtf_bench(args, precision, iterations):
+    cmd = [args.rtf, "bench", "model", "--model", args.model, "--batch", str(args.batch), "--precision", precision,
+           "--threads", str(args.threads), "--warmup", str(args.warmup), "--iterations", str(iterations), "--json"]
+    return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
 
 
 def main():
@@ -228,7 +238,10 @@ def main():
     ap.add_argument("--batch", type=int, default=1)
     ap.add_argument("--threads", type=int, default=torch.get_num_threads())
     ap.add_argument("--warmup", type=int, default=3)
-    ap.add_argument("--iterations", type=int, default=10)
+    ap.add_argument("--iterations", type=int, default=5, help="timed passes per configuration and round")
+    ap.add_argument("--rounds", type=int, default=3,
+                    help="configurations are interleaved round by round, so load from other processes "
+                         "hits them alike")
     ap.add_argument("--rtf", default="target/release/rtf", help="the rtf binary")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -237,22 +250,25 @@ def main():
     params = sum(p.numel() for p in net.parameters())
     x = torch.rand(args.batch, 4, 480, 640)
     print(f"{args.model}: {params:,} parameters (PyTorch {torch.__version__}), batch {args.batch}, "
-          f"{args.threads} threads, 480x640, median of {args.iterations} after {args.warmup} warm-up")
-    rows = {}
-    for label, cl, bf in (("torch eager fp32 NCHW", False, False), ("torch channels_last fp32", True, False),
-                          ("torch bf16 autocast", True, True)):
-        rows[label] = time_torch(net, x, args.warmup, args.iterations, cl, bf)
-    for precision in ("fp32", "bf16"):
-        cmd = [args.rtf, "bench", "model", "--model", args.model, "--batch", str(args.batch), "--precision",
-               precision, "--threads", str(args.threads), "--warmup", str(args.warmup), "--iterations",
-               str(args.iterations), "--json"]
-        report = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
-        rows[f"rtf fast {precision}"] = (report["median_ms"], report["min_ms"])
-    base = rows["torch eager fp32 NCHW"][0]
-    cl = rows["torch channels_last fp32"][0]
-    print(f"{'':28} {'median ms':>10} {'min ms':>9} {'vs eager':>9} {'vs ch-last':>10}")
+          f"{args.threads} threads, 480x640, {args.rounds} interleaved rounds of {args.iterations} timed passes "
+          f"after {args.warmup} warm-up")
+    torch_configs = (("torch eager fp32 NCHW", False, False), ("torch channels_last fp32", True, False),
+                     ("torch bf16 autocast", True, True))
+    samples = {}
+    for _ in range(args.rounds):
+        for label, cl, bf in torch_configs:
+            samples.setdefault(label, []).extend(time_torch(net, x, args.warmup, args.iterations, cl, bf))
+        for precision in ("fp32", "bf16"):
+            report = rtf_bench(args, precision, args.iterations)
+            # rtf reports only median and min per call; keep both as samples of that round.
+            samples.setdefault(f"rtf fast {precision}", []).extend([report["median_ms"], report["min_ms"]])
+    rows = {k: (statistics.median(v), min(v)) for k, v in samples.items()}
+    base, base_min = rows["torch eager fp32 NCHW"]
+    cl, cl_min = rows["torch channels_last fp32"]
+    print(f"{'':26} {'median ms':>9} {'min ms':>8} {'vs eager (median/min)':>22} {'vs ch-last (median/min)':>24}")
     for label, (median, minimum) in rows.items():
-        print(f"{label:28} {median:10.1f} {minimum:9.1f} {base / median:8.2f}x {cl / median:9.2f}x")
+        print(f"{label:26} {median:9.1f} {minimum:8.1f} {base / median:14.2f}x /{base_min / minimum:5.2f}x "
+              f"{cl / median:15.2f}x /{cl_min / minimum:5.2f}x")
 
 
 if __name__ == "__main__":

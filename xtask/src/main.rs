@@ -1,6 +1,7 @@
 //! Project tasks: `cargo xtask <task>`. A plain binary without libtorch, so it builds on a
 //! fresh machine and can install libtorch itself.
 
+mod convert;
 mod setup;
 
 use anyhow::{bail, Context, Result};
@@ -13,6 +14,7 @@ tasks:
   setup    install libtorch (PyPI torch==2.13.0) into .venv and link .libtorch (idempotent)
   test     setup, then run the whole test suite (release build)
   demo     setup, build, synthesise a small RGB-T dataset, train MFNet, evaluate, draw predictions
+  convert-pth IN.pth OUT.safetensors  convert a PyTorch checkpoint (published weights) for rtf
 ";
 
 fn main() -> Result<()> {
@@ -22,6 +24,7 @@ fn main() -> Result<()> {
         Some("setup") => setup::ensure_libtorch(&root).map(|_| ()),
         Some("test") => test(&root, &args[1..]),
         Some("demo") => demo(&root, &args[1..]),
+        Some("convert-pth") => convert::convert_pth(&root, &args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{USAGE}");
             Ok(())

@@ -231,16 +231,16 @@ fn upsample2(xs: &Tensor) -> Tensor {
     xs.upsample_nearest2d([2 * h, 2 * w], 2.0, 2.0)
 }
 
-/// `x + cat(a, b)` along channels, the decoder's skip merge; in place when not training.
+/// `x + cat(a, b)` along channels, the decoder's skip merge. Not training: added in place
+/// into the two channel ranges of `x`, without materialising the concatenation.
 fn add_skips(x: Tensor, a: &Tensor, b: &Tensor, train: bool) -> Tensor {
-    let skips = Tensor::cat(&[a, b], 1);
     if train {
-        x + skips
-    } else {
-        let mut x = x;
-        let _ = x.g_add_(&skips);
-        x
+        return x + Tensor::cat(&[a, b], 1);
     }
+    let ca = a.size()[1];
+    let _ = x.narrow(1, 0, ca).g_add_(a);
+    let _ = x.narrow(1, ca, b.size()[1]).g_add_(b);
+    x
 }
 
 #[derive(Debug)]
