@@ -107,3 +107,24 @@ fn bad_inputs_name_the_file() {
     let err = fails(&["train", "--model", "nosuchnet", "--data", s(&data), "--out", s(&tmp.path().join("r2"))]);
     assert!(err.contains("nosuchnet"), "{err}");
 }
+
+#[test]
+fn predict_takes_separate_rgb_and_16_bit_thermal() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let run = tmp.path().join("run");
+    ok(&["synth", "--out", s(&data), "--count", "6", "--seed", "2", "--size", "32x32"]);
+    ok(&["train", "--data", s(&data), "--out", s(&run), "--epochs", "1", "--batch-size", "2", "--max-steps", "1", "--val-split", "none"]);
+    let rgb = tmp.path().join("cam_rgb.png");
+    let thermal = tmp.path().join("cam_ir.png");
+    image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([x as u8 * 8, y as u8 * 8, 90])).save(&rgb).unwrap();
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(32, 32, |x, _| image::Luma([22000 + 80 * x as u16])).save(&thermal).unwrap();
+    let out = tmp.path().join("pred");
+    ok(&["predict", "--weights", s(&run.join("final.safetensors")), "--out", s(&out), "--rgb", s(&rgb), "--thermal", s(&thermal)]);
+    assert_eq!(image::open(out.join("cam_rgb.png")).unwrap().to_luma8().dimensions(), (32, 32));
+    // A thermal image of another size is refused, naming both files.
+    let small = tmp.path().join("small_ir.png");
+    image::GrayImage::new(16, 16).save(&small).unwrap();
+    let err = fails(&["predict", "--weights", s(&run.join("final.safetensors")), "--out", s(&out), "--rgb", s(&rgb), "--thermal", s(&small)]);
+    assert!(err.contains("small_ir.png") && err.contains("cam_rgb.png"), "{err}");
+}

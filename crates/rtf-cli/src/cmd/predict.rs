@@ -2,7 +2,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use rtf_core::ClassSet;
-use rtf_data::pngio::{read_png, Samples};
+use rtf_data::pngio::{read_png, PngImage, Samples};
+use rtf_data::Frame;
 use rtf_train::config::parse_device;
 use tch::Kind;
 
@@ -22,15 +23,40 @@ pub struct Args {
     /// Also write the logits as float32 .npy of shape [classes, H, W].
     #[arg(long)]
     pub logits: bool,
+    /// Class set of the weights: mf (9) or freiburg (13); default from the model (HeatNet: freiburg).
+    #[arg(long)]
+    pub classes: Option<String>,
+    /// RGB image of a pair given as separate files (with --thermal).
+    #[arg(long, requires = "thermal")]
+    pub rgb: Option<PathBuf>,
+    /// Thermal image (8- or 16-bit grey PNG) of a pair given as separate files (with --rgb).
+    #[arg(long, requires = "rgb")]
+    pub thermal: Option<PathBuf>,
+    /// 16-bit thermal: raw counts LO:HI mapped to [0, 1] (clipped). Default: HeatNet models use
+    /// the Freiburg reference 21800:25000, others each frame's own min:max.
+    #[arg(long, value_parser = parse_range)]
+    pub thermal_range: Option<(u16, u16)>,
     #[arg(long, default_value = "cpu")]
     pub device: String,
     /// RGBA PNGs, thermal in the alpha channel (MF layout).
-    #[arg(required = true)]
+    #[arg(required_unless_present = "rgb")]
     pub images: Vec<PathBuf>,
 }
 
+fn parse_range(text: &str) -> Result<(u16, u16), String> {
+    let parsed = text.split_once(':').and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)));
+    match parsed {
+        Some((lo, hi)) if lo < hi => Ok((lo, hi)),
+        _ => Err(format!("`{text}` is not LO:HI with 0 <= LO < HI <= 65535")),
+    }
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+}
+
 /// Reads an MF-style RGBA PNG into an unlabelled frame.
-fn read_rgbt(path: &Path) -> Result<rtf_data::Frame> {
+fn read_rgba(path: &Path) -> Result<Frame> {
     let png = read_png(path)?;
     let Samples::U8(rgba) = png.samples else {
         bail!("{}: 16-bit PNG, expected 8-bit RGBA with thermal in alpha", path.display());
@@ -40,19 +66,79 @@ fn read_rgbt(path: &Path) -> Result<rtf_data::Frame> {
     }
     let rgb = rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
     let thermal = rgba.chunks_exact(4).map(|p| p[3] as f32 / 255.0).collect();
-    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    Ok(rtf_data::Frame { daytime: rtf_core::Daytime::from_mf_name(&name), name, width: png.width, height: png.height, rgb, thermal, label: None })
+    let name = stem(path);
+    Ok(Frame { daytime: rtf_core::Daytime::from_mf_name(&name), name, width: png.width, height: png.height, rgb, thermal, label: None })
+}
+
+/// Reads an RGB PNG and a grey thermal PNG (8- or 16-bit) of the same size into a frame.
+fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) -> Result<Frame> {
+    let rgb_png = read_png(rgb_path)?;
+    let rgb = match (&rgb_png.samples, rgb_png.channels, rgb_png.indexed) {
+        (Samples::U8(v), 3, false) => v.clone(),
+        (Samples::U8(v), 4, false) => v.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        _ => bail!(
+            "{}: {}-bit with {} channel(s), expected 8-bit RGB",
+            rgb_path.display(),
+            rgb_png.bit_depth(),
+            rgb_png.channels
+        ),
+    };
+    let thermal_png = read_png(thermal_path)?;
+    if (thermal_png.width, thermal_png.height) != (rgb_png.width, rgb_png.height) {
+        bail!(
+            "{} is {}x{} but {} is {}x{}: the pair must be registered at the same size",
+            thermal_path.display(),
+            thermal_png.width,
+            thermal_png.height,
+            rgb_path.display(),
+            rgb_png.width,
+            rgb_png.height
+        );
+    }
+    let thermal = thermal_unit(&thermal_png, thermal_path, range)?;
+    let name = stem(rgb_path);
+    Ok(Frame { daytime: None, name, width: rgb_png.width, height: rgb_png.height, rgb, thermal, label: None })
+}
+
+/// Thermal samples in [0, 1]: 8-bit / 255; 16-bit clipped to `range` (or the frame's min:max).
+fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Result<Vec<f32>> {
+    if png.channels != 1 || png.indexed {
+        bail!("{}: {} channel(s), expected a single grey thermal channel", path.display(), png.channels);
+    }
+    Ok(match &png.samples {
+        Samples::U8(v) => v.iter().map(|&x| x as f32 / 255.0).collect(),
+        Samples::U16(v) => {
+            let (lo, hi) = range.unwrap_or_else(|| {
+                (v.iter().copied().min().unwrap_or(0), v.iter().copied().max().unwrap_or(1))
+            });
+            let span = (hi.saturating_sub(lo)).max(1) as f32;
+            v.iter().map(|&x| (x.clamp(lo, hi) - lo) as f32 / span).collect()
+        }
+    })
 }
 
 pub fn run(args: Args) -> Result<()> {
     let device = parse_device(&args.device).map_err(anyhow::Error::msg)?;
-    let classes = ClassSet::mf();
+    let heatnet = args.model.starts_with("heatnet");
+    let classes = match args.classes.as_deref() {
+        Some("mf") => ClassSet::mf(),
+        Some("freiburg") => ClassSet::freiburg(),
+        Some(other) => bail!("unknown class set `{other}` (expected mf or freiburg)"),
+        None if heatnet => ClassSet::freiburg(),
+        None => ClassSet::mf(),
+    };
     let (_vs, network) = load_network(&args.model, classes.len() as i64, &args.weights, device)?;
     // Read every input first: a bad file stops the run before anything is written.
-    let frames = args.images.iter().map(|p| read_rgbt(p)).collect::<Result<Vec<_>>>()?;
+    let mut frames = args.images.iter().map(|p| read_rgba(p)).collect::<Result<Vec<_>>>()?;
+    let mut sources: Vec<PathBuf> = args.images.clone();
+    if let (Some(rgb), Some(thermal)) = (&args.rgb, &args.thermal) {
+        let range = args.thermal_range.or(heatnet.then_some((21800, 25000)));
+        frames.push(read_pair(rgb, thermal, range)?);
+        sources.push(rgb.clone());
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let _guard = tch::no_grad_guard();
-    for (frame, path) in frames.iter().zip(&args.images) {
+    for (frame, path) in frames.iter().zip(&sources) {
         let input = rtf_eval::figure::frame_input(frame, network.input_convention()).to_device(device);
         let logits = rtf_eval::evaluate::logits(network.as_ref(), &input)?.get(0).to_kind(Kind::Float).to_device(tch::Device::Cpu);
         let ids = Vec::<u8>::try_from(logits.argmax(0, false).to_kind(Kind::Uint8).flatten(0, -1))?;
@@ -76,4 +162,18 @@ pub fn run(args: Args) -> Result<()> {
 fn save_png(path: &Path, image: image::DynamicImage) -> Result<()> {
     rtf_core::write_atomic(path, |tmp| image.save_with_format(tmp, image::ImageFormat::Png))
         .with_context(|| format!("writing {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn thermal_ranges() {
+        assert_eq!(parse_range("21800:25000"), Ok((21800, 25000)));
+        assert!(parse_range("5:5").is_err());
+        let png = PngImage { width: 3, height: 1, channels: 1, indexed: false, samples: Samples::U16(vec![100, 200, 300]) };
+        assert_eq!(thermal_unit(&png, Path::new("t.png"), None).unwrap(), vec![0.0, 0.5, 1.0]);
+        assert_eq!(thermal_unit(&png, Path::new("t.png"), Some((200, 250))).unwrap(), vec![0.0, 0.0, 1.0]);
+    }
 }
