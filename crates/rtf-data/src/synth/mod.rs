@@ -396,4 +396,122 @@ mod tests {
         let err = generate(dir.path(), &small(4, 0)).unwrap_err().to_string();
         assert!(err.contains("at least 6"), "{err}");
     }
+
+    /// Mean |inside − ring| of a class against the unlabelled pixels within `r` px of it, for
+    /// RGB luminance and thermal, averaged over the frames where the class appears.
+    fn contrast(frames: &[crate::Frame], class: u8, r: usize) -> (f64, f64, usize) {
+        let (mut rgb_sum, mut t_sum, mut count) = (0.0, 0.0, 0);
+        for f in frames {
+            let (w, h) = (f.width, f.height);
+            let label = f.label.as_ref().unwrap();
+            let inside: Vec<bool> = label.iter().map(|&l| l == class).collect();
+            if inside.iter().filter(|&&v| v).count() < 20 {
+                continue;
+            }
+            // Box dilation of the class mask.
+            let mut near = vec![false; w * h];
+            for y in 0..h {
+                for x in 0..w {
+                    if inside[y * w + x] {
+                        for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                            for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                                near[yy * w + xx] = true;
+                            }
+                        }
+                    }
+                }
+            }
+            let lum = |i: usize| {
+                (f.rgb[3 * i] as f64 + f.rgb[3 * i + 1] as f64 + f.rgb[3 * i + 2] as f64) / 765.0
+            };
+            let mean = |sel: &dyn Fn(usize) -> bool, v: &dyn Fn(usize) -> f64| {
+                let (s, n) = (0..w * h)
+                    .filter(|&i| sel(i))
+                    .fold((0.0, 0usize), |(s, n), i| (s + v(i), n + 1));
+                (n > 0).then(|| s / n as f64)
+            };
+            let is_in = |i: usize| inside[i];
+            let is_ring = |i: usize| near[i] && !inside[i] && label[i] == 0;
+            let thermal = |i: usize| f.thermal[i] as f64;
+            if let (Some(a), Some(b), Some(c), Some(d)) = (
+                mean(&is_in, &lum),
+                mean(&is_ring, &lum),
+                mean(&is_in, &thermal),
+                mean(&is_ring, &thermal),
+            ) {
+                rgb_sum += (a - b).abs();
+                t_sum += (c - d).abs();
+                count += 1;
+            }
+        }
+        (
+            rgb_sum / count.max(1) as f64,
+            t_sum / count.max(1) as f64,
+            count,
+        )
+    }
+
+    #[test]
+    fn the_papers_effects_are_in_the_data_itself() {
+        let dir = tempfile::tempdir().unwrap();
+        generate(
+            dir.path(),
+            &SynthConfig {
+                count: 64,
+                seed: 9,
+                width: 160,
+                height: 120,
+                ..SynthConfig::default()
+            },
+        )
+        .unwrap();
+        let ds = MfDataset::open(dir.path()).unwrap();
+        let load = |split: &str| {
+            let s = ds.split(split).unwrap();
+            (0..s.len()).map(|i| s.load(i).unwrap()).collect::<Vec<_>>()
+        };
+        let all = [load("train"), load("val"), load("test")].concat();
+        let (day, night): (Vec<_>, Vec<_>) = all
+            .into_iter()
+            .partition(|f| f.daytime == Some(rtf_core::Daytime::Day));
+        let (person_rgb_day, person_t_day, n_day) = contrast(&day, 2, 3);
+        let (person_rgb_night, person_t_night, n_night) = contrast(&night, 2, 3);
+        assert!(
+            n_day >= 10 && n_night >= 10,
+            "people in {n_day} day / {n_night} night frames"
+        );
+        let (cone_rgb_day, cone_t_day, n_cone) = contrast(&day, 7, 2);
+        eprintln!(
+            "person contrast RGB day {person_rgb_day:.3} night {person_rgb_night:.3}; thermal day {person_t_day:.3} night {person_t_night:.3}; cone (day, {n_cone} frames) RGB {cone_rgb_day:.3} thermal {cone_t_day:.3}"
+        );
+        // Night RGB hides people; thermal shows them about equally well by day and night.
+        assert!(
+            person_rgb_night < 0.5 * person_rgb_day,
+            "RGB person contrast day {person_rgb_day:.3} night {person_rgb_night:.3}"
+        );
+        let ratio = person_t_night / person_t_day;
+        assert!(
+            person_t_day > 0.04 && (0.5..1.75).contains(&ratio),
+            "thermal person contrast day {person_t_day:.3} night {person_t_night:.3}"
+        );
+        // Painted cones: obvious in daylight RGB, invisible in thermal.
+        assert!(n_cone >= 2, "cones in {n_cone} day frames");
+        assert!(
+            cone_rgb_day > 0.1 && cone_t_day < 0.25 * person_t_day,
+            "cone contrast RGB {cone_rgb_day:.3} thermal {cone_t_day:.3}"
+        );
+        // Night frames are dark overall and noisier.
+        let mean_lum = |fs: &[crate::Frame]| {
+            fs.iter()
+                .map(|f| f.rgb.iter().map(|&v| v as f64).sum::<f64>() / f.rgb.len() as f64)
+                .sum::<f64>()
+                / fs.len() as f64
+        };
+        assert!(
+            mean_lum(&night) < 0.4 * mean_lum(&day),
+            "mean brightness day {:.1} night {:.1}",
+            mean_lum(&day),
+            mean_lum(&night)
+        );
+    }
 }

@@ -502,9 +502,10 @@ impl Scene {
         self.ambient + heat
     }
 
-    /// Clothing surface between skin (34 °C) and air; a little sun by day.
+    /// Clothing surface between skin (34 °C) and air (warmer coats by night); sun adds by day.
     fn clothing_temp(&self) -> f32 {
-        self.ambient + 0.55 * (34.0 - self.ambient) + if self.night { 0.0 } else { 2.0 }
+        let insulation = if self.night { 0.45 } else { 0.55 };
+        self.ambient + insulation * (34.0 - self.ambient) + if self.night { 0.0 } else { 3.0 }
     }
 
     // ---- background ----------------------------------------------------------------------
@@ -1117,7 +1118,7 @@ impl Scene {
             let d2 = (lamp[0] - s.pos[0]).powi(2)
                 + (lamp[1] - s.pos[1]).powi(2)
                 + (lamp[2] - s.pos[2]).powi(2);
-            let e = 1.0 / (d2 + 4.0);
+            let e = 0.5 / (d2 + 4.0);
             l[0] += e;
             l[1] += e * 0.8;
             l[2] += e * 0.5;
