@@ -80,6 +80,9 @@ impl ModelConfig {
         let cfg = match name {
             "mfnet" => Self::Mfnet(mfnet::Config::reference(num_classes)),
             "mfnet-paper" => Self::Mfnet(mfnet::Config::paper(num_classes)),
+            _ if mfnet_letter(name).is_some() => Self::Mfnet(
+                mfnet::Config::variant(mfnet_letter(name).unwrap(), num_classes).unwrap(),
+            ),
             "heatnet-critic" => Self::HeatnetCritic(heatnet::CriticConfig {
                 in_channels: num_classes,
             }),
@@ -104,8 +107,7 @@ impl ModelConfig {
     /// Canonical name; `from_name(cfg.name())` gives back `cfg` for named configurations.
     pub fn name(&self) -> String {
         match self {
-            Self::Mfnet(c) if *c == mfnet::Config::paper(c.num_classes) => "mfnet-paper".into(),
-            Self::Mfnet(_) => "mfnet".into(),
+            Self::Mfnet(c) => c.name(),
             Self::Rtfnet(c) => c.name(),
             Self::Heatnet(c) => c.name(),
             Self::HeatnetCritic(_) => "heatnet-critic".into(),
@@ -190,6 +192,7 @@ pub fn model_infos() -> Result<Vec<ModelInfo>, ModelError> {
 /// Every name [`ModelConfig::from_name`] accepts.
 pub fn model_names() -> Vec<String> {
     let mut names = vec!["mfnet".to_string(), "mfnet-paper".to_string()];
+    names.extend(mfnet::VARIANT_LETTERS.iter().map(|l| format!("mfnet-{l}")));
     for depth in resnet::DEPTHS {
         for variant in rtfnet::Variant::ALL {
             names.push(format!("rtfnet{depth}{}", variant.suffix()));
@@ -208,6 +211,13 @@ fn heatnet_inputs(name: &str) -> Option<heatnet::Inputs> {
     heatnet::Inputs::ALL
         .into_iter()
         .find(|i| i.suffix() == suffix)
+}
+
+/// `mfnet-e` -> 'e' for the MFNet Tab. III letters.
+fn mfnet_letter(name: &str) -> Option<char> {
+    let mut rest = name.strip_prefix("mfnet-")?.chars();
+    let letter = rest.next()?;
+    (rest.next().is_none() && mfnet::VARIANT_LETTERS.contains(&letter)).then_some(letter)
 }
 
 /// `rtfnet50-nre` -> (50, Nre).

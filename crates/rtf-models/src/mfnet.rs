@@ -1,4 +1,5 @@
-//! MFNet (Ha et al., IROS 2017), as the authors' published code (spec §3).
+//! MFNet (Ha et al., IROS 2017), as the authors' published code (spec §3), and the paper's
+//! Tab. III variants as options.
 //!
 //! Two encoders (RGB, thermal) of conv-BN-LeakyReLU blocks and mini-inception modules, a
 //! decoder that adds the encoders' concatenated skips after each nearest-neighbour ×2
@@ -15,8 +16,60 @@ use crate::Network;
 /// LeakyReLU slope of every MFNet block.
 pub const NEGATIVE_SLOPE: f64 = 0.2;
 
-/// Channel widths of MFNet. Defaults are the published weights' (thermal conv4/conv5 = 36; the
-/// paper's table says 32, see [`Config::paper`]).
+/// Activation of every block.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Activation {
+    #[default]
+    LeakyRelu,
+    Relu,
+}
+
+/// What fills the conv4/conv5 stages (three blocks each).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Inception {
+    /// 3×3 ‖ 3×3 dilation 2, concatenated (the published network).
+    #[default]
+    Mini,
+    /// One plain 3×3 convolution per block (Tab. III, noInc1).
+    Conv3x3,
+    /// One 3×3 dilation-2 convolution per block (noInc2).
+    Dilated3x3,
+}
+
+/// A 1×1 convolution squeezing the channels before each mini-inception block (Tab. III sq*).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Squeeze {
+    Quarter,
+    Half,
+    Same,
+}
+
+impl Squeeze {
+    fn width(self, c_in: i64) -> i64 {
+        match self {
+            Squeeze::Quarter => (c_in / 4).max(1),
+            Squeeze::Half => (c_in / 2).max(1),
+            Squeeze::Same => c_in,
+        }
+    }
+}
+
+/// How the decoder upsamples.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Upsampling {
+    /// Nearest-neighbour ×2 (published).
+    #[default]
+    Nearest,
+    /// Max-unpooling with the encoders' pooling indices (Tab. III idUp).
+    Indices,
+}
+
+/// MFNet's options. Defaults are the published weights' (thermal conv4/conv5 = 36; the paper's
+/// table says 32, see [`Config::paper`]).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
@@ -24,12 +77,24 @@ pub struct Config {
     /// Output widths of conv1, conv2_x, conv3_x, conv4, conv5 of the RGB encoder.
     #[serde(default = "default_rgb_channels")]
     pub rgb_channels: [i64; 5],
-    /// Output widths of conv1, conv2_x, conv3_x, conv4, conv5 of the thermal encoder.
+    /// Output widths of conv1, conv2_x, conv3_x, conv4, conv5 of the thermal encoder; all
+    /// zero = no thermal encoder (RGB-only, Tab. III B).
     #[serde(default = "default_thermal_channels")]
     pub thermal_channels: [i64; 5],
     /// Output width of decode2 (decode4/decode3 widths follow from the skips).
     #[serde(default = "default_decode2_channels")]
     pub decode2_channels: i64,
+    #[serde(default)]
+    pub activation: Activation,
+    #[serde(default)]
+    pub inception: Inception,
+    #[serde(default)]
+    pub squeeze: Option<Squeeze>,
+    /// The decoder's shortcut blocks (adding the encoder skips).
+    #[serde(default = "yes")]
+    pub shortcuts: bool,
+    #[serde(default)]
+    pub upsampling: Upsampling,
     #[serde(default)]
     pub input: rtf_core::InputConvention,
 }
@@ -43,6 +108,15 @@ fn default_thermal_channels() -> [i64; 5] {
 fn default_decode2_channels() -> i64 {
     32
 }
+fn yes() -> bool {
+    true
+}
+
+/// MFNet paper Tab. III letters with the configuration each names (descriptions of Sec. V;
+/// see docs/src/models.md for where the paper's text letters differ from its table).
+pub const VARIANT_LETTERS: [char; 13] = [
+    'b', 'c', 'd', 'e', 'f', 'g', 'h', 'i', 'j', 'k', 'l', 'm', 'n',
+];
 
 impl Config {
     /// The published code and weights (736,275 parameters for 9 classes).
@@ -52,6 +126,11 @@ impl Config {
             rgb_channels: default_rgb_channels(),
             thermal_channels: default_thermal_channels(),
             decode2_channels: default_decode2_channels(),
+            activation: Activation::LeakyRelu,
+            inception: Inception::Mini,
+            squeeze: None,
+            shortcuts: true,
+            upsampling: Upsampling::Nearest,
             input: rtf_core::InputConvention::UnitRange,
         }
     }
@@ -62,6 +141,102 @@ impl Config {
             thermal_channels: [16, 16, 16, 32, 32],
             ..Self::reference(num_classes)
         }
+    }
+
+    /// Every width doubled (Tab. III "2x").
+    fn doubled(self) -> Self {
+        Self {
+            rgb_channels: self.rgb_channels.map(|c| 2 * c),
+            thermal_channels: self.thermal_channels.map(|c| 2 * c),
+            decode2_channels: 2 * self.decode2_channels,
+            ..self
+        }
+    }
+
+    /// MFNet paper Tab. III model `letter` (b–n), built on the published widths.
+    pub fn variant(letter: char, num_classes: i64) -> Option<Self> {
+        let base = Self::reference(num_classes);
+        Some(match letter {
+            // MFNet_RGB: no IR encoder, no fusion; the RGB skips are kept.
+            'b' => Self {
+                thermal_channels: [0; 5],
+                ..base
+            },
+            // MFNet_noInc1 / noInc2: mini-inception replaced by 3×3 / 3×3 dilation-2 convs.
+            'c' => Self {
+                inception: Inception::Conv3x3,
+                ..base
+            },
+            'd' => Self {
+                inception: Inception::Dilated3x3,
+                ..base
+            },
+            // MFNet_2x, MFNet_relu, MFNet_relu_2x.
+            'e' => base.doubled(),
+            'f' => Self {
+                activation: Activation::Relu,
+                ..base
+            },
+            'g' => Self {
+                activation: Activation::Relu,
+                ..base
+            }
+            .doubled(),
+            // MFNet_idUp(_2x): no shortcuts, max-unpooling with the pooling indices.
+            'h' => Self {
+                shortcuts: false,
+                upsampling: Upsampling::Indices,
+                ..base
+            },
+            'i' => Self {
+                shortcuts: false,
+                upsampling: Upsampling::Indices,
+                ..base
+            }
+            .doubled(),
+            // MFNet_noSc: no shortcut blocks.
+            'j' => Self {
+                shortcuts: false,
+                ..base
+            },
+            // MFNet_sqQuart, sqHalf, sqHalf_noSc, sqSame: 1×1 squeeze before each block.
+            'k' => Self {
+                squeeze: Some(Squeeze::Quarter),
+                ..base
+            },
+            'l' => Self {
+                squeeze: Some(Squeeze::Half),
+                ..base
+            },
+            'm' => Self {
+                squeeze: Some(Squeeze::Half),
+                shortcuts: false,
+                ..base
+            },
+            'n' => Self {
+                squeeze: Some(Squeeze::Same),
+                ..base
+            },
+            _ => return None,
+        })
+    }
+
+    /// `mfnet`, `mfnet-paper`, `mfnet-b` … `mfnet-n`, or `mfnet-custom`.
+    pub fn name(&self) -> String {
+        if *self == Self::reference(self.num_classes) {
+            return "mfnet".into();
+        }
+        if *self == Self::paper(self.num_classes) {
+            return "mfnet-paper".into();
+        }
+        VARIANT_LETTERS
+            .iter()
+            .find(|&&l| Self::variant(l, self.num_classes).as_ref() == Some(self))
+            .map_or_else(|| "mfnet-custom".into(), |l| format!("mfnet-{l}"))
+    }
+
+    fn has_thermal(&self) -> bool {
+        self.thermal_channels.iter().any(|&c| c > 0)
     }
 
     /// Checks that the skips' widths line up with the decoder (they are added, not concatenated).
@@ -77,79 +252,165 @@ impl Config {
                 self.num_classes
             )));
         }
-        if r.iter()
-            .chain(t.iter())
-            .chain([&self.decode2_channels])
-            .any(|&c| c < 1)
-        {
-            return Err(err("every channel width must be ≥ 1".into()));
+        let thermal_ok = t.iter().all(|&c| c >= 1) || t.iter().all(|&c| c == 0);
+        if r.iter().chain([&self.decode2_channels]).any(|&c| c < 1) || !thermal_ok {
+            return Err(err(
+                "channel widths must be ≥ 1 (thermal: all ≥ 1, or all 0 for none)".into(),
+            ));
         }
-        if r[3] % 2 != 0 || r[4] % 2 != 0 || t[3] % 2 != 0 || t[4] % 2 != 0 {
+        if self.inception == Inception::Mini && [r[3], r[4], t[3], t[4]].iter().any(|c| c % 2 != 0)
+        {
             return Err(err(
                 "mini-inception widths (conv4, conv5) must be even".into()
             ));
         }
-        if r[3] + t[3] != r[4] + t[4] {
+        if (self.shortcuts || self.upsampling == Upsampling::Indices) && r[3] + t[3] != r[4] + t[4]
+        {
             return Err(err(format!(
                 "conv4 skip width {} must equal the fused conv5 width {}",
                 r[3] + t[3],
                 r[4] + t[4]
             )));
         }
+        if self.upsampling == Upsampling::Indices && r[0] + t[0] != self.decode2_channels {
+            return Err(err(format!(
+                "unpooling with conv1's indices needs decode2 width {} = conv1 widths {}",
+                self.decode2_channels,
+                r[0] + t[0]
+            )));
+        }
         Ok(())
+    }
+
+    fn act(&self) -> Act {
+        match self.activation {
+            Activation::LeakyRelu => Act::LeakyRelu(NEGATIVE_SLOPE),
+            Activation::Relu => Act::Relu,
+        }
     }
 }
 
-/// Conv 3×3 (bias, padding = dilation) → BatchNorm → LeakyReLU(0.2); `ConvBnLeakyRelu2d`.
-/// [B, c_in, H, W] -> [B, c_out, H, W]
-fn conv_bn_leaky(p: nn::Path, c_in: i64, c_out: i64, dilation: i64) -> ConvBnAct {
-    let spec = ConvSpec::new(3).dilation(dilation).bias(true);
-    ConvBnAct::new(
-        &p / "conv",
-        Some(&p / "bn"),
-        c_in,
-        c_out,
-        spec,
-        Act::LeakyRelu(NEGATIVE_SLOPE),
-    )
+/// Conv k×k (bias, padding = dilation·(k−1)/2) → BatchNorm → LeakyReLU(0.2) (or ReLU);
+/// `ConvBnLeakyRelu2d`. [B, c_in, H, W] -> [B, c_out, H, W]
+fn conv_bn_act(
+    p: nn::Path,
+    c_in: i64,
+    c_out: i64,
+    kernel: i64,
+    dilation: i64,
+    act: Act,
+) -> ConvBnAct {
+    let spec = ConvSpec::new(kernel).dilation(dilation).bias(true);
+    ConvBnAct::new(&p / "conv", Some(&p / "bn"), c_in, c_out, spec, act)
 }
 
-/// Mini-inception: three stages, each the concatenation of a 3×3 block and a dilation-2 3×3
-/// block of c_out/2 channels. [B, c_in, H, W] -> [B, c_out, H, W]
+/// One block of a conv4/conv5 stage.
 #[derive(Debug)]
-struct MiniInception {
-    stages: Vec<(ConvBnAct, ConvBnAct)>,
+enum StageBlock {
+    /// Optional 1×1 squeeze, then 3×3 ‖ 3×3 dilation 2 of c_out/2 each, concatenated.
+    Mini {
+        squeeze: Option<ConvBnAct>,
+        left: ConvBnAct,
+        right: ConvBnAct,
+    },
+    Single(ConvBnAct),
 }
 
-fn mini_inception(p: nn::Path, c_in: i64, c_out: i64) -> MiniInception {
-    let half = c_out / 2;
-    let stages = (1..=3)
+/// The conv4/conv5 stage: three blocks (mini-inception in the published network).
+/// [B, c_in, H, W] -> [B, c_out, H, W]
+#[derive(Debug)]
+struct InceptionStage {
+    blocks: Vec<StageBlock>,
+}
+
+fn inception_stage(p: nn::Path, c_in: i64, c_out: i64, cfg: &Config) -> InceptionStage {
+    let act = cfg.act();
+    let blocks = (1..=3)
         .map(|i| {
-            let stage_in = if i == 1 { c_in } else { c_out };
-            (
-                conv_bn_leaky(&p / format!("conv{i}_left"), stage_in, half, 1),
-                conv_bn_leaky(&p / format!("conv{i}_right"), stage_in, half, 2),
-            )
+            let block_in = if i == 1 { c_in } else { c_out };
+            match cfg.inception {
+                Inception::Mini => {
+                    let (squeeze, c) = match cfg.squeeze {
+                        Some(sq) => {
+                            let c = sq.width(block_in);
+                            (
+                                Some(conv_bn_act(
+                                    &p / format!("conv{i}_squeeze"),
+                                    block_in,
+                                    c,
+                                    1,
+                                    1,
+                                    act,
+                                )),
+                                c,
+                            )
+                        }
+                        None => (None, block_in),
+                    };
+                    StageBlock::Mini {
+                        squeeze,
+                        left: conv_bn_act(&p / format!("conv{i}_left"), c, c_out / 2, 3, 1, act),
+                        right: conv_bn_act(&p / format!("conv{i}_right"), c, c_out / 2, 3, 2, act),
+                    }
+                }
+                Inception::Conv3x3 => StageBlock::Single(conv_bn_act(
+                    &p / format!("conv{i}"),
+                    block_in,
+                    c_out,
+                    3,
+                    1,
+                    act,
+                )),
+                Inception::Dilated3x3 => StageBlock::Single(conv_bn_act(
+                    &p / format!("conv{i}"),
+                    block_in,
+                    c_out,
+                    3,
+                    2,
+                    act,
+                )),
+            }
         })
         .collect();
-    MiniInception { stages }
+    InceptionStage { blocks }
 }
 
-impl ModuleT for MiniInception {
+impl ModuleT for InceptionStage {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
-        self.stages
+        self.blocks
             .iter()
-            .fold(xs.shallow_clone(), |x, (left, right)| {
-                Tensor::cat(&[x.apply_t(left, train), x.apply_t(right, train)], 1)
+            .fold(xs.shallow_clone(), |x, block| match block {
+                StageBlock::Mini {
+                    squeeze,
+                    left,
+                    right,
+                } => {
+                    let x = match squeeze {
+                        Some(sq) => x.apply_t(sq, train),
+                        None => x,
+                    };
+                    Tensor::cat(&[x.apply_t(left, train), x.apply_t(right, train)], 1)
+                }
+                StageBlock::Single(unit) => x.apply_t(unit, train),
             })
     }
 }
 
-impl Fuse for MiniInception {
+impl Fuse for InceptionStage {
     fn fuse(&mut self, kind: Kind) {
-        for (left, right) in &mut self.stages {
-            left.fuse(kind);
-            right.fuse(kind);
+        for block in &mut self.blocks {
+            match block {
+                StageBlock::Mini {
+                    squeeze,
+                    left,
+                    right,
+                } => {
+                    squeeze.fuse(kind);
+                    left.fuse(kind);
+                    right.fuse(kind);
+                }
+                StageBlock::Single(unit) => unit.fuse(kind),
+            }
         }
     }
 }
@@ -162,50 +423,72 @@ struct Encoder {
     conv2_2: ConvBnAct,
     conv3_1: ConvBnAct,
     conv3_2: ConvBnAct,
-    conv4: MiniInception,
-    conv5: MiniInception,
+    conv4: InceptionStage,
+    conv5: InceptionStage,
+    /// Keep max-pooling indices (for unpooling decoders).
+    with_indices: bool,
 }
 
-/// Encoder output: the 1/16 features and the skips at 1/2, 1/4, 1/8.
+/// Encoder output: the 1/16 features, the skips at 1/2, 1/4, 1/8 and, when asked for, the
+/// indices of the four 2×2 max-pools (full → 1/2, …, 1/8 → 1/16).
 struct Encoded {
     x5: Tensor,
     s2: Tensor,
     s3: Tensor,
     s4: Tensor,
+    indices: Vec<Tensor>,
 }
 
 impl Encoder {
     /// `suffix` is `rgb` or `inf`, as in the reference names (`conv2_1_rgb`, `conv4_inf`).
-    fn new(p: &nn::Path, suffix: &str, c_in: i64, c: [i64; 5]) -> Self {
+    fn new(p: &nn::Path, suffix: &str, c_in: i64, c: [i64; 5], cfg: &Config) -> Self {
         let path = |name: &str| p / format!("{name}_{suffix}");
+        let act = cfg.act();
         Self {
-            conv1: conv_bn_leaky(path("conv1"), c_in, c[0], 1),
-            conv2_1: conv_bn_leaky(path("conv2_1"), c[0], c[1], 1),
-            conv2_2: conv_bn_leaky(path("conv2_2"), c[1], c[1], 1),
-            conv3_1: conv_bn_leaky(path("conv3_1"), c[1], c[2], 1),
-            conv3_2: conv_bn_leaky(path("conv3_2"), c[2], c[2], 1),
-            conv4: mini_inception(path("conv4"), c[2], c[3]),
-            conv5: mini_inception(path("conv5"), c[3], c[4]),
+            conv1: conv_bn_act(path("conv1"), c_in, c[0], 3, 1, act),
+            conv2_1: conv_bn_act(path("conv2_1"), c[0], c[1], 3, 1, act),
+            conv2_2: conv_bn_act(path("conv2_2"), c[1], c[1], 3, 1, act),
+            conv3_1: conv_bn_act(path("conv3_1"), c[1], c[2], 3, 1, act),
+            conv3_2: conv_bn_act(path("conv3_2"), c[2], c[2], 3, 1, act),
+            conv4: inception_stage(path("conv4"), c[2], c[3], cfg),
+            conv5: inception_stage(path("conv5"), c[3], c[4], cfg),
+            with_indices: cfg.upsampling == Upsampling::Indices,
         }
     }
 
     fn forward_t(&self, xs: &Tensor, train: bool) -> Encoded {
+        let mut indices = Vec::new();
+        let mut pool = |x: &Tensor| {
+            if self.with_indices {
+                let (y, i) = x.max_pool2d_with_indices([2, 2], [2, 2], [0, 0], [1, 1], false);
+                indices.push(i);
+                y
+            } else {
+                x.max_pool2d_default(2)
+            }
+        };
         // [B, c_in, H, W] -> [B, c0, H/2, W/2]
-        let x = xs.apply_t(&self.conv1, train).max_pool2d_default(2);
+        let x = pool(&xs.apply_t(&self.conv1, train));
         // -> s2 [B, c1, H/2, W/2] -> [B, c1, H/4, W/4]
         let s2 = x
             .apply_t(&self.conv2_1, train)
             .apply_t(&self.conv2_2, train);
-        let x = s2.max_pool2d_default(2);
+        let x = pool(&s2);
         // -> s3 [B, c2, H/4, W/4] -> [B, c2, H/8, W/8]
         let s3 = x
             .apply_t(&self.conv3_1, train)
             .apply_t(&self.conv3_2, train);
-        let x = s3.max_pool2d_default(2);
+        let x = pool(&s3);
         // -> s4 [B, c3, H/8, W/8] -> [B, c3, H/16, W/16] -> [B, c4, H/16, W/16]
         let s4 = x.apply_t(&self.conv4, train);
-        let x5 = s4.max_pool2d_default(2).apply_t(&self.conv5, train);
-        Encoded { x5, s2, s3, s4 }
+        let x5 = pool(&s4).apply_t(&self.conv5, train);
+        Encoded {
+            x5,
+            s2,
+            s3,
+            s4,
+            indices,
+        }
     }
 }
 
@@ -233,7 +516,10 @@ fn upsample2(xs: &Tensor) -> Tensor {
 
 /// `x + cat(a, b)` along channels, the decoder's skip merge. Not training: added in place
 /// into the two channel ranges of `x`, without materialising the concatenation.
-fn add_skips(x: Tensor, a: &Tensor, b: &Tensor, train: bool) -> Tensor {
+fn add_skips(x: Tensor, a: &Tensor, b: Option<&Tensor>, train: bool) -> Tensor {
+    let Some(b) = b else {
+        return if train { x + a } else { fuse_add(x, a) };
+    };
     if train {
         return x + Tensor::cat(&[a, b], 1);
     }
@@ -243,11 +529,16 @@ fn add_skips(x: Tensor, a: &Tensor, b: &Tensor, train: bool) -> Tensor {
     x
 }
 
+fn fuse_add(mut x: Tensor, a: &Tensor) -> Tensor {
+    let _ = x.g_add_(a);
+    x
+}
+
 #[derive(Debug)]
 pub struct MfNet {
     config: Config,
     rgb: Encoder,
-    thermal: Encoder,
+    thermal: Option<Encoder>,
     decode4: ConvBnAct,
     decode3: ConvBnAct,
     decode2: ConvBnAct,
@@ -262,14 +553,17 @@ impl MfNet {
         let d4 = r[2] + t[2];
         let d3 = r[1] + t[1];
         let d2 = cfg.decode2_channels;
+        let act = cfg.act();
         Ok(Self {
             config: cfg.clone(),
-            rgb: Encoder::new(&p, "rgb", 3, r),
-            thermal: Encoder::new(&p, "inf", 1, t),
-            decode4: conv_bn_leaky(&p / "decode4", fused, d4, 1),
-            decode3: conv_bn_leaky(&p / "decode3", d4, d3, 1),
-            decode2: conv_bn_leaky(&p / "decode2", d3, d2, 1),
-            decode1: conv_bn_leaky(&p / "decode1", d2, cfg.num_classes, 1),
+            rgb: Encoder::new(&p, "rgb", 3, r, cfg),
+            thermal: cfg
+                .has_thermal()
+                .then(|| Encoder::new(&p, "inf", 1, t, cfg)),
+            decode4: conv_bn_act(&p / "decode4", fused, d4, 3, 1, act),
+            decode3: conv_bn_act(&p / "decode3", d4, d3, 3, 1, act),
+            decode2: conv_bn_act(&p / "decode2", d3, d2, 3, 1, act),
+            decode1: conv_bn_act(&p / "decode1", d2, cfg.num_classes, 3, 1, act),
         })
     }
 
@@ -278,21 +572,50 @@ impl MfNet {
     }
 }
 
+/// `cat(a, b)` along channels, or `a` alone when there is no thermal encoder.
+fn cat_opt(a: &Tensor, b: Option<&Tensor>) -> Tensor {
+    match b {
+        Some(b) => Tensor::cat(&[a, b], 1),
+        None => a.shallow_clone(),
+    }
+}
+
 impl ModuleT for MfNet {
     /// [B, 4, H, W] (R, G, B, T in [0, 1]) -> logits [B, classes, H, W]
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
         let rgb = self.rgb.forward_t(&xs.narrow(1, 0, 3), train);
-        let thermal = self.thermal.forward_t(&xs.narrow(1, 3, 1), train);
+        let thermal = self
+            .thermal
+            .as_ref()
+            .map(|e| e.forward_t(&xs.narrow(1, 3, 1), train));
+        let th = thermal.as_ref();
+        let shortcuts = self.config.shortcuts;
+        // ×2 by nearest neighbour, or by unpooling with pool `level`'s indices (3 = 1/8→1/16).
+        let up = |x: &Tensor, level: usize| match self.config.upsampling {
+            Upsampling::Nearest => upsample2(x),
+            Upsampling::Indices => {
+                let indices = cat_opt(&rgb.indices[level], th.map(|t| &t.indices[level]));
+                let (h, w) = (x.size()[2], x.size()[3]);
+                x.max_unpool2d(&indices, [2 * h, 2 * w])
+            }
+        };
+        let skip = |x: Tensor, a: &Tensor, b: Option<&Tensor>| {
+            if shortcuts {
+                add_skips(x, a, b, train)
+            } else {
+                x
+            }
+        };
         // [B, r4 + t4, H/16, W/16] -> [B, r4 + t4, H/8, W/8]
-        let x = upsample2(&Tensor::cat(&[&rgb.x5, &thermal.x5], 1));
+        let x = up(&cat_opt(&rgb.x5, th.map(|t| &t.x5)), 3);
         // -> [B, r2 + t2, H/8, W/8] -> [B, r2 + t2, H/4, W/4]
-        let x = add_skips(x, &rgb.s4, &thermal.s4, train).apply_t(&self.decode4, train);
+        let x = skip(x, &rgb.s4, th.map(|t| &t.s4)).apply_t(&self.decode4, train);
         // -> [B, r1 + t1, H/4, W/4] -> [B, r1 + t1, H/2, W/2]
-        let x = add_skips(upsample2(&x), &rgb.s3, &thermal.s3, train).apply_t(&self.decode3, train);
+        let x = skip(up(&x, 2), &rgb.s3, th.map(|t| &t.s3)).apply_t(&self.decode3, train);
         // -> [B, d2, H/2, W/2] -> [B, d2, H, W]
-        let x = add_skips(upsample2(&x), &rgb.s2, &thermal.s2, train).apply_t(&self.decode2, train);
+        let x = skip(up(&x, 1), &rgb.s2, th.map(|t| &t.s2)).apply_t(&self.decode2, train);
         // decode1 is a full block in the reference: logits pass BN and LeakyReLU.
-        upsample2(&x).apply_t(&self.decode1, train)
+        up(&x, 0).apply_t(&self.decode1, train)
     }
 }
 
@@ -322,7 +645,7 @@ impl Network for MfNet {
         16
     }
     fn name(&self) -> String {
-        "mfnet".into()
+        self.config.name()
     }
     fn fuse_for_inference(&mut self, kind: Kind) -> bool {
         self.fuse(kind);
@@ -432,5 +755,56 @@ mod tests {
         assert!(max_diff < 1e-3, "max |diff| {max_diff}");
         let err = fast.forward(&Tensor::rand([1, 4, 60, 80], (Kind::Float, Device::Cpu)));
         assert!(err.is_err(), "sizes must be multiples of 16");
+    }
+
+    #[test]
+    fn paper_table_iii_variants_build_run_and_name_themselves() {
+        let reference = {
+            let (vs, _) = build(&Config::reference(9));
+            weights::count_trainable(&vs)
+        };
+        for letter in VARIANT_LETTERS {
+            let cfg = Config::variant(letter, 9).unwrap();
+            assert_eq!(cfg.name(), format!("mfnet-{letter}"));
+            let (vs, net) = build(&cfg);
+            assert_eq!(
+                forward_shape(&net, [1, 4, 32, 48]),
+                vec![1, 9, 32, 48],
+                "mfnet-{letter}"
+            );
+            let count = weights::count_trainable(&vs);
+            let names = vs.variables();
+            match letter {
+                'b' => assert!(
+                    !names
+                        .keys()
+                        .any(|k| k.ends_with("_inf") || k.contains("_inf."))
+                        && count < reference
+                ),
+                // Doubling every width roughly quadruples the parameters.
+                'e' | 'g' | 'i' => assert!(count > 3 * reference, "mfnet-{letter}: {count}"),
+                // Same parameters as a mini-inception block (paper Sec. V-B).
+                'c' | 'd' => {
+                    assert!(names.contains_key("conv4_rgb.conv1.conv.weight") && count == reference)
+                }
+                'k' | 'l' | 'm' | 'n' => {
+                    assert!(names.contains_key("conv5_inf.conv2_squeeze.conv.weight"))
+                }
+                _ => assert_eq!(count, reference, "mfnet-{letter} only changes the wiring"),
+            }
+        }
+        assert!(Config::variant('a', 9).is_none() && Config::variant('o', 9).is_none());
+    }
+
+    #[test]
+    fn unpooling_variant_uses_pooling_indices_and_fuses() {
+        use crate::fast::{argmax_agreement, InferenceNet, Precision};
+        let cfg = Config::variant('h', 9).unwrap();
+        let (_vs, net) = build(&cfg);
+        let net: Box<dyn Network> = Box::new(net);
+        let x = Tensor::rand([1, 4, 32, 32], (Kind::Float, Device::Cpu));
+        let plain = tch::no_grad(|| net.forward_t(&x, false));
+        let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
+        assert!(argmax_agreement(&plain, &fast.forward(&x).unwrap()) >= 0.999);
     }
 }
