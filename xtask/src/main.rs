@@ -2,6 +2,7 @@
 //! fresh machine and can install libtorch itself.
 
 mod convert;
+mod calib_check;
 mod setup;
 
 use anyhow::{bail, Context, Result};
@@ -14,6 +15,7 @@ tasks:
   setup    install libtorch (PyPI torch==2.13.0) into .venv and link .libtorch (idempotent)
   test     setup, then run the whole test suite (release build)
   demo     setup, build, synthesise a small RGB-T dataset, train MFNet, evaluate, draw predictions
+  calib-check  full-size accuracy/timing run of `rtf calibrate` on synthetic rigs with ground truth
   convert-pth IN.pth OUT.safetensors  convert a PyTorch checkpoint (published weights) for rtf
 ";
 
@@ -24,6 +26,7 @@ fn main() -> Result<()> {
         Some("setup") => setup::ensure_libtorch(&root).map(|_| ()),
         Some("test") => test(&root, &args[1..]),
         Some("demo") => demo(&root, &args[1..]),
+        Some("calib-check") => calib_check::calib_check(&root, &args[1..]),
         Some("convert-pth") => convert::convert_pth(&root, &args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{USAGE}");

@@ -155,3 +155,49 @@ pub fn load_frames(rig: &Rig, warn: &mut dyn FnMut(String)) -> Result<Vec<Frame>
     }
     Ok(frames)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth_rig::{write_rig, DepthSource, RigSynthConfig};
+
+    #[test]
+    fn corrupt_mismatched_and_flat_frames_are_skipped_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let synth = write_rig(
+            dir.path(),
+            &RigSynthConfig {
+                width: 64,
+                height: 48,
+                frames: 5,
+                depth: DepthSource::Given,
+                seed: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let f = |name: &str| dir.path().join("f").join(name);
+        std::fs::write(f("000_thermal.png"), b"garbage").unwrap();
+        crate::imageio::write_gray16(&f("001_thermal.png"), 64, 64, vec![21000; 64 * 64]).unwrap(); // wrong size
+        crate::imageio::write_gray16(&f("002_thermal.png"), 64, 51, vec![21000; 64 * 51]).unwrap(); // flat
+        let mut warnings = Vec::new();
+        let frames = load_frames(&Rig::load(&synth.rig_path).unwrap(), &mut |w| {
+            warnings.push(w)
+        })
+        .unwrap();
+        assert_eq!(frames.len(), 2);
+        assert_eq!(warnings.len(), 3, "{warnings:?}");
+        assert!(warnings[0].contains("000_thermal.png"));
+        assert!(warnings[1].contains("001_thermal.png") && warnings[1].contains("64×64"));
+        assert!(warnings[2].contains("002_thermal.png") && warnings[2].contains("flat"));
+        // One more broken frame leaves fewer than the minimum: a clear error.
+        crate::imageio::write_gray8(&f("003_rgb.png"), 64, 48, vec![128; 64 * 48]).unwrap(); // featureless
+        let err = load_frames(&Rig::load(&synth.rig_path).unwrap(), &mut |_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("only 1 usable frame") && err.contains("003_rgb.png"),
+            "{err}"
+        );
+    }
+}

@@ -61,6 +61,7 @@ pub struct SynthRig {
     /// evaluating a calibration against the truth.
     pub eval_rig_path: PathBuf,
     pub ground_truth_path: PathBuf,
+    /// The rig as loaded from `rig_path` (frame paths resolved).
     pub rig: Rig,
     pub truth: Calibration,
 }
@@ -547,6 +548,8 @@ pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
     } else {
         rig_path.clone()
     };
+    // Hand back the rig as a reader sees it (paths resolved against `out`).
+    let rig = Rig::load(&rig_path)?;
     let ground_truth_path = out.join("ground_truth.yaml");
     CalibFile::from_calibration(&truth, None).save(&ground_truth_path)?;
     Ok(SynthRig {

@@ -1,0 +1,181 @@
+//! `cargo xtask calib-check`: the full-size (640×480) accuracy and timing run of `rtf
+//! calibrate` on synthetic rigs with ground truth. Runs the release `rtf` binary (xtask has no
+//! libtorch), prints one line per run and a Markdown table for docs/src/calibration.md.
+
+use anyhow::{bail, Context, Result};
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+struct Options {
+    seeds: Vec<u64>,
+    frames: usize,
+    width: usize,
+    paper_iterations: usize,
+    out: String,
+}
+
+fn parse(args: &[String]) -> Result<Options> {
+    let mut o = Options {
+        seeds: vec![1, 2, 3],
+        frames: 12,
+        width: 640,
+        paper_iterations: 40,
+        out: "target/calib-check".into(),
+    };
+    let mut it = args.iter();
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().with_context(|| format!("{flag} needs a value"));
+        match flag.as_str() {
+            "--seeds" => o.seeds = value()?.split(',').map(|s| s.trim().parse()).collect::<Result<_, _>>().context("--seeds: list like 1,2,3")?,
+            "--frames" => o.frames = value()?.parse().context("--frames: a number")?,
+            "--width" => o.width = value()?.parse().context("--width: a number")?,
+            "--paper-iterations" => o.paper_iterations = value()?.parse().context("--paper-iterations: a number")?,
+            "--out" => o.out = value()?.clone(),
+            other => bail!("calib-check: unknown option `{other}` (--seeds 1,2,3 --frames 12 --width 640 --paper-iterations 40 --out DIR)"),
+        }
+    }
+    Ok(o)
+}
+
+/// Runs `rtf` and returns its stdout, failing with its stderr.
+fn rtf(root: &Path, args: &[String]) -> Result<String> {
+    let output = Command::new(root.join("target/release/rtf"))
+        .args(args)
+        .current_dir(root)
+        .output()
+        .context("cannot start target/release/rtf")?;
+    if !output.status.success() {
+        bail!(
+            "`rtf {}` failed:\n{}",
+            args.join(" "),
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    Ok(String::from_utf8_lossy(&output.stdout).into_owned())
+}
+
+/// The "vs ground truth:" line of `rtf calibrate --ground-truth`.
+fn truth_line(stdout: &str) -> String {
+    stdout
+        .lines()
+        .find(|l| l.starts_with("vs ground truth:"))
+        .unwrap_or("(no comparison printed)")
+        .to_string()
+}
+
+fn s(v: &[&str]) -> Vec<String> {
+    v.iter().map(|x| x.to_string()).collect()
+}
+
+pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
+    let o = parse(extra)?;
+    crate::setup::ensure_libtorch(root)?;
+    crate::run(root, "cargo", &["build", "--release", "-p", "rtf-cli"])?;
+    let (width, frames) = (o.width.to_string(), o.frames.to_string());
+    let mut rows = Vec::new();
+    let synth = |seed: u64, depth: &str| -> Result<String> {
+        let dir = format!("{}/rig-{}-{}-{}", o.out, width, depth, seed);
+        let _ = std::fs::remove_dir_all(root.join(&dir));
+        rtf(
+            root,
+            &s(&[
+                "calibrate",
+                "--synthesize-rig",
+                &dir,
+                "--synth-width",
+                &width,
+                "--synth-frames",
+                &frames,
+                "--synth-depth",
+                depth,
+                "--seed",
+                &seed.to_string(),
+            ]),
+        )?;
+        Ok(dir)
+    };
+    for &seed in &o.seeds {
+        let dir = synth(seed, "given")?;
+        let start = Instant::now();
+        let out = rtf(
+            root,
+            &s(&[
+                "calibrate",
+                "--rig",
+                &format!("{dir}/rig.yaml"),
+                "--out",
+                &format!("{dir}/calib.yaml"),
+                "--ground-truth",
+                &format!("{dir}/ground_truth.yaml"),
+            ]),
+        )?;
+        let line = truth_line(&out);
+        println!(
+            "default, given depth, seed {seed}: {line} (wall {:.1} s)",
+            start.elapsed().as_secs_f64()
+        );
+        rows.push(format!(
+            "| default | given | {seed} | {line} | {:.1} |",
+            start.elapsed().as_secs_f64()
+        ));
+    }
+    let seed = o.seeds[0];
+    let dir = synth(seed, "stereo")?;
+    let start = Instant::now();
+    let out = rtf(
+        root,
+        &s(&[
+            "calibrate",
+            "--rig",
+            &format!("{dir}/rig.yaml"),
+            "--out",
+            &format!("{dir}/calib.yaml"),
+            "--ground-truth",
+            &format!("{dir}/ground_truth.yaml"),
+            "--eval-rig",
+            &format!("{dir}/rig_depth.yaml"),
+        ]),
+    )?;
+    let line = truth_line(&out);
+    println!(
+        "default, stereo (SGM) depth, seed {seed}: {line} (wall {:.1} s)",
+        start.elapsed().as_secs_f64()
+    );
+    rows.push(format!(
+        "| default | stereo (SGM) | {seed} | {line} | {:.1} |",
+        start.elapsed().as_secs_f64()
+    ));
+    // Paper recipe: a short run timed, extrapolated to the recipe's 8000 iterations.
+    let dir = format!("{}/rig-{}-given-{}", o.out, width, seed);
+    let start = Instant::now();
+    rtf(
+        root,
+        &s(&[
+            "calibrate",
+            "--recipe",
+            "paper",
+            "--iterations",
+            &o.paper_iterations.to_string(),
+            "--rig",
+            &format!("{dir}/rig.yaml"),
+            "--out",
+            &format!("{dir}/calib-paper-short.yaml"),
+        ]),
+    )?;
+    let secs = start.elapsed().as_secs_f64();
+    let per_iter = secs / o.paper_iterations as f64;
+    println!(
+        "paper recipe: {} iterations (batch 10, {}x{}) in {secs:.1} s = {:.2} s/iteration -> 8000 iterations ≈ {:.1} h (extrapolated)",
+        o.paper_iterations,
+        o.width,
+        o.width * 3 / 4,
+        per_iter,
+        per_iter * 8000.0 / 3600.0
+    );
+    println!("\n| recipe | depth | seed | result | wall s |\n|---|---|---|---|---|");
+    for r in rows {
+        println!("{r}");
+    }
+    Ok(())
+}
