@@ -7,6 +7,7 @@
 pub mod augment;
 pub mod error;
 pub mod frame;
+pub mod fuzzing;
 pub mod freiburg;
 pub mod inspect;
 pub mod loader;
