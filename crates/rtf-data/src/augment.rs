@@ -14,6 +14,10 @@ pub struct AugmentConfig {
     /// RTFNet's random crop: each edge trimmed independently by up to this fraction of the
     /// size (reference 0.1), then resized back (bicubic image, nearest label).
     pub crop: Option<f32>,
+    /// HeatNet's random window: a (width, height) region at a uniformly random whole-pixel
+    /// position (reference (640, 320) after the 150..850 column crop); the batch is that size
+    /// unless a resize is set. An alternative to `crop`.
+    pub window: Option<(usize, usize)>,
     /// HeatNet's rotation by U(-deg, +deg) (reference 20°), bilinear image, nearest label;
     /// uncovered pixels are 0 in the image and the ignore id (0 when the set has none) in the label.
     pub rotation_deg: Option<f32>,

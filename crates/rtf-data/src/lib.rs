@@ -7,8 +7,8 @@
 pub mod augment;
 pub mod error;
 pub mod frame;
-pub mod fuzzing;
 pub mod freiburg;
+pub mod fuzzing;
 pub mod inspect;
 pub mod loader;
 pub mod mf;

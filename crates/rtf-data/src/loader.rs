@@ -191,11 +191,15 @@ impl EpochJob {
         let first = frames
             .first()
             .ok_or_else(|| DataError::Config("empty batch".into()))?;
-        let (w, h) = self.cfg.resize.unwrap_or((first.width, first.height));
+        let (w, h) = self
+            .cfg
+            .resize
+            .or(self.cfg.augment.window)
+            .unwrap_or((first.width, first.height));
         if w == 0 || h == 0 {
             return Err(DataError::Config(format!("resize to {w}x{h}")));
         }
-        if self.cfg.resize.is_none() {
+        if self.cfg.resize.is_none() && self.cfg.augment.window.is_none() {
             if let Some(odd) = frames.iter().find(|f| (f.width, f.height) != (w, h)) {
                 return Err(DataError::Frame {
                     name: odd.name.clone(),
@@ -288,7 +292,10 @@ pub fn prepare_frame(
     ignore: Option<u8>,
     rng: &mut impl Rng,
 ) -> Result<Prepared, DataError> {
-    let (w, h) = cfg.resize.unwrap_or((frame.width, frame.height));
+    let (w, h) = cfg
+        .resize
+        .or(cfg.augment.window)
+        .unwrap_or((frame.width, frame.height));
     let mut image = Planar {
         channels: 4,
         width: w,
@@ -371,6 +378,30 @@ pub fn prepare_into(
     let window = match aug.crop {
         Some(f) if f > 0.0 => Window::random_crop(w, h, f, rng),
         _ => Window::full(w, h),
+    };
+    let window = match aug.window {
+        None => window,
+        Some(_) if aug.crop.is_some() => {
+            return Err(DataError::Config(
+                "augment.crop and augment.window are alternatives; set one".into(),
+            ))
+        }
+        Some((ww, wh)) if ww > w || wh > h || ww == 0 || wh == 0 => {
+            return Err(DataError::Frame {
+                name: frame.name,
+                message: format!("{w}x{h} is smaller than the {ww}x{wh} augmentation window"),
+            })
+        }
+        Some((ww, wh)) => {
+            let x0 = rng.random_range(0..=w - ww) as f32;
+            let y0 = rng.random_range(0..=h - wh) as f32;
+            Window {
+                x0,
+                y0,
+                x1: x0 + ww as f32,
+                y1: y0 + wh as f32,
+            }
+        }
     };
     let angle = aug
         .rotation_deg
@@ -597,6 +628,7 @@ mod tests {
         c.augment = AugmentConfig {
             hflip: true,
             crop: Some(0.1),
+            window: None,
             rotation_deg: Some(20.0),
             modality_dropout: Some(0.5),
             ir_scale: Some((0.1, 1.0)),
@@ -627,6 +659,44 @@ mod tests {
             InputConvention::UnitRange,
         );
         assert_ne!(e3, collect(&other_seed, 3));
+    }
+
+    #[test]
+    fn heatnet_window_cuts_a_whole_pixel_region_of_the_frame() {
+        let c = LoaderConfig {
+            batch_size: 2,
+            augment: AugmentConfig {
+                window: Some((5, 3)),
+                ..Default::default()
+            },
+            ..cfg(0)
+        };
+        let batch = Loader::new(source(2, 8, 6), c, InputConvention::UnitRange)
+            .epoch(0)
+            .next()
+            .unwrap()
+            .unwrap();
+        assert_eq!(batch.input.size(), [2, 4, 3, 5]);
+        let labels = Vec::<i64>::try_from(batch.target.flatten(0, -1)).unwrap();
+        // Labels are x % 9 of the source: consecutive columns of one window, unchanged values.
+        let x0 = labels[0];
+        assert_eq!(&labels[..5], &[x0, x0 + 1, x0 + 2, x0 + 3, x0 + 4]);
+        let both = LoaderConfig {
+            batch_size: 1,
+            augment: AugmentConfig {
+                window: Some((5, 3)),
+                crop: Some(0.1),
+                ..Default::default()
+            },
+            ..cfg(0)
+        };
+        assert!(
+            Loader::new(source(1, 8, 6), both, InputConvention::UnitRange)
+                .epoch(0)
+                .next()
+                .unwrap()
+                .is_err()
+        );
     }
 
     #[test]
