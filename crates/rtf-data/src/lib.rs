@@ -5,6 +5,7 @@
 //! - [`synth`] writes synthetic datasets in the real layouts.
 
 pub mod augment;
+pub mod bdd;
 pub mod error;
 pub mod frame;
 pub mod freiburg;
