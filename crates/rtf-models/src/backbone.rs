@@ -46,6 +46,17 @@ pub fn encoder_slots(cfg: &ModelConfig) -> Result<(Vec<EncoderSlot>, ThermalInit
             }
             Ok((slots, c.thermal_init))
         }
+        ModelConfig::Baseline(b)
+            if matches!(
+                b.arch,
+                crate::baselines::Arch::Pspnet | crate::baselines::Arch::Duchdc
+            ) =>
+        {
+            Ok((
+                vec![slot("backbone.", b.in_channels)],
+                ThermalInit::MeanOfRgb,
+            ))
+        }
         other => Err(ModelError::InvalidConfig {
             network: other.name(),
             reason: "has no torchvision ResNet encoder for --backbone-weights \

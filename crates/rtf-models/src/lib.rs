@@ -6,6 +6,7 @@
 //! Output: logits `[B, num_classes, H, W]`.
 
 pub mod backbone;
+pub mod baselines;
 pub mod error;
 pub mod fast;
 pub mod heatnet;
@@ -72,6 +73,7 @@ pub enum ModelConfig {
     Rtfnet(rtfnet::Config),
     Heatnet(heatnet::Config),
     HeatnetCritic(heatnet::CriticConfig),
+    Baseline(baselines::Config),
 }
 
 impl ModelConfig {
@@ -90,6 +92,10 @@ impl ModelConfig {
                 heatnet_inputs(name).unwrap(),
                 num_classes,
             )),
+            _ if parse_baseline(name).is_some() => {
+                let (arch, c) = parse_baseline(name).unwrap();
+                Self::Baseline(baselines::Config::new(arch, c, num_classes))
+            }
             _ if parse_rtfnet(name).is_some() => {
                 let (depth, variant) = parse_rtfnet(name).unwrap();
                 Self::Rtfnet(rtfnet::Config::new(depth, num_classes, variant))
@@ -111,6 +117,7 @@ impl ModelConfig {
             Self::Rtfnet(c) => c.name(),
             Self::Heatnet(c) => c.name(),
             Self::HeatnetCritic(_) => "heatnet-critic".into(),
+            Self::Baseline(c) => c.name(),
         }
     }
 
@@ -121,6 +128,7 @@ impl ModelConfig {
             Self::Heatnet(c) => c.num_classes,
             // The critic reads `in_channels` logits and writes one map.
             Self::HeatnetCritic(c) => c.in_channels,
+            Self::Baseline(c) => c.num_classes,
         }
     }
 
@@ -130,6 +138,7 @@ impl ModelConfig {
             Self::Rtfnet(c) => c.input,
             Self::Heatnet(c) => c.input,
             Self::HeatnetCritic(_) => rtf_core::InputConvention::UnitRange,
+            Self::Baseline(c) => c.input,
         }
     }
 }
@@ -141,6 +150,7 @@ pub fn build(p: &nn::Path, cfg: &ModelConfig) -> Result<Box<dyn Network>, ModelE
         ModelConfig::Rtfnet(c) => Box::new(rtfnet::RtfNet::new(p.clone(), c)?),
         ModelConfig::Heatnet(c) => Box::new(heatnet::HeatNet::new(p.clone(), c)?),
         ModelConfig::HeatnetCritic(c) => Box::new(heatnet::Critic::new(p.clone(), c)?),
+        ModelConfig::Baseline(c) => Box::new(baselines::Baseline::new(p.clone(), c)?),
     })
 }
 
@@ -202,7 +212,23 @@ pub fn model_names() -> Vec<String> {
         names.push(format!("heatnet{}", inputs.suffix()));
     }
     names.push("heatnet-critic".into());
+    for arch in baselines::Arch::ALL {
+        for &c in arch.channel_options() {
+            names.push(baselines::Config::new(arch, c, 9).name());
+        }
+    }
     names
+}
+
+/// `erfnet-3c` -> (Erfnet, 3); `fusenet` -> (Fusenet, 4).
+fn parse_baseline(name: &str) -> Option<(baselines::Arch, i64)> {
+    baselines::Arch::ALL.into_iter().find_map(|arch| {
+        let c = *arch
+            .channel_options()
+            .iter()
+            .find(|&&c| baselines::Config::new(arch, c, 1).name() == name)?;
+        Some((arch, c))
+    })
 }
 
 /// `heatnet-early` -> Early.

@@ -193,29 +193,42 @@ pub fn layer(
     spec: LayerSpec,
     init: InitScheme,
 ) -> ResLayer {
-    let c_out = spec.planes * kind.expansion();
-    let blocks = (0..spec.blocks)
+    let geometries: Vec<BlockGeometry> = (0..spec.blocks)
         .map(|i| {
-            let (block_in, g) = if i == 0 {
-                (
-                    c_in,
-                    BlockGeometry {
-                        stride: spec.stride,
-                        dilation: spec.dilation_first,
-                    },
-                )
+            if i == 0 {
+                BlockGeometry {
+                    stride: spec.stride,
+                    dilation: spec.dilation_first,
+                }
             } else {
-                (
-                    c_out,
-                    BlockGeometry {
-                        stride: 1,
-                        dilation: spec.dilation_rest,
-                    },
-                )
-            };
+                BlockGeometry {
+                    stride: 1,
+                    dilation: spec.dilation_rest,
+                }
+            }
+        })
+        .collect();
+    layer_with(p, kind, c_in, spec.planes, &geometries, init)
+}
+
+/// A layer with an explicit stride/dilation per block (e.g. hybrid dilated convolution).
+pub fn layer_with(
+    p: nn::Path,
+    kind: BlockKind,
+    c_in: i64,
+    planes: i64,
+    geometries: &[BlockGeometry],
+    init: InitScheme,
+) -> ResLayer {
+    let c_out = planes * kind.expansion();
+    let blocks = geometries
+        .iter()
+        .enumerate()
+        .map(|(i, &g)| {
+            let block_in = if i == 0 { c_in } else { c_out };
             match kind {
-                BlockKind::Basic => basic_block(&p / i, block_in, spec.planes, g, init),
-                BlockKind::Bottleneck => bottleneck(&p / i, block_in, spec.planes, g, init),
+                BlockKind::Basic => basic_block(&p / i, block_in, planes, g, init),
+                BlockKind::Bottleneck => bottleneck(&p / i, block_in, planes, g, init),
             }
         })
         .collect();

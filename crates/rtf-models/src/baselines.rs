@@ -1,0 +1,1215 @@
+//! The papers' baseline networks (RTFNet Tab. III, MFNet Tab. II/IV), each as in its original
+//! paper, with a 3-channel (RGB) and a 4-channel (RGB-T) input: SegNet, U-Net, PSPNet,
+//! DUC-HDC, ERFNet, ENet; and FuseNet, two-stream by design (RGB + thermal in place of depth).
+//! No reference weights exist for these in rtf, so their parameter names are ours
+//! (torchvision-style for the ResNet backbones, under `backbone.`).
+
+use serde::{Deserialize, Serialize};
+use tch::nn::{self, ModuleT};
+use tch::{Kind, Tensor};
+
+use crate::error::ModelError;
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, InitScheme};
+use crate::resnet::{self, BlockGeometry, BlockKind, ResLayer};
+use crate::Network;
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Arch {
+    Segnet,
+    Unet,
+    Pspnet,
+    Duchdc,
+    Erfnet,
+    Enet,
+    Fusenet,
+}
+
+impl Arch {
+    pub const ALL: [Arch; 7] = [
+        Arch::Erfnet,
+        Arch::Unet,
+        Arch::Pspnet,
+        Arch::Segnet,
+        Arch::Duchdc,
+        Arch::Fusenet,
+        Arch::Enet,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Arch::Segnet => "segnet",
+            Arch::Unet => "unet",
+            Arch::Pspnet => "pspnet",
+            Arch::Duchdc => "duchdc",
+            Arch::Erfnet => "erfnet",
+            Arch::Enet => "enet",
+            Arch::Fusenet => "fusenet",
+        }
+    }
+
+    /// Input channel counts offered (FuseNet: two streams, always RGB + thermal).
+    pub fn channel_options(self) -> &'static [i64] {
+        match self {
+            Arch::Fusenet => &[4],
+            _ => &[3, 4],
+        }
+    }
+
+    /// Input sides must be multiples of this.
+    pub fn size_multiple(self) -> i64 {
+        match self {
+            Arch::Pspnet | Arch::Duchdc => 8,
+            Arch::Enet | Arch::Erfnet => 8,
+            _ => 32,
+        }
+    }
+}
+
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    pub arch: Arch,
+    /// 3: RGB only; 4: RGB-T stacked as one input.
+    pub in_channels: i64,
+    pub num_classes: i64,
+    #[serde(default)]
+    pub input: rtf_core::InputConvention,
+}
+
+impl Config {
+    pub fn new(arch: Arch, in_channels: i64, num_classes: i64) -> Self {
+        Self {
+            arch,
+            in_channels,
+            num_classes,
+            input: rtf_core::InputConvention::UnitRange,
+        }
+    }
+
+    /// `erfnet-3c`, `unet-4c`, …, `fusenet`.
+    pub fn name(&self) -> String {
+        match self.arch {
+            Arch::Fusenet => "fusenet".into(),
+            a => format!("{}-{}c", a.as_str(), self.in_channels),
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let err = |reason: String| ModelError::InvalidConfig {
+            network: self.name(),
+            reason,
+        };
+        if !self.arch.channel_options().contains(&self.in_channels) {
+            return Err(err(format!(
+                "in_channels must be one of {:?}",
+                self.arch.channel_options()
+            )));
+        }
+        if self.num_classes < 1 {
+            return Err(err(format!(
+                "num_classes must be ≥ 1, got {}",
+                self.num_classes
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Conv 3×3 → BN → ReLU at `p.conv` / `p.bn`.
+fn cbr(p: nn::Path, c_in: i64, c_out: i64) -> ConvBnAct {
+    ConvBnAct::new(
+        &p / "conv",
+        Some(&p / "bn"),
+        c_in,
+        c_out,
+        ConvSpec::new(3).bias(true),
+        Act::Relu,
+    )
+}
+
+fn bilinear(xs: &Tensor, h: i64, w: i64) -> Tensor {
+    xs.upsample_bilinear2d([h, w], false, None, None)
+}
+
+// ------------------------------------------------------------------------------ SegNet
+
+/// VGG16-BN stages: (convs, width).
+const VGG16: [(usize, i64); 5] = [(2, 64), (2, 128), (3, 256), (3, 512), (3, 512)];
+
+/// A VGG16-BN encoder (13 conv-BN-ReLU, 2×2 max-pools with indices).
+#[derive(Debug)]
+struct VggEncoder {
+    stages: Vec<Vec<ConvBnAct>>,
+}
+
+fn vgg_encoder(p: nn::Path, c_in: i64) -> VggEncoder {
+    let mut c = c_in;
+    let stages = VGG16
+        .iter()
+        .enumerate()
+        .map(|(s, &(n, width))| {
+            (0..n)
+                .map(|i| {
+                    let unit = cbr(&p / s / i, c, width);
+                    c = width;
+                    unit
+                })
+                .collect()
+        })
+        .collect();
+    VggEncoder { stages }
+}
+
+/// SegNet's mirrored decoder: per stage unpool (indices), then conv-BN-ReLU; the last conv
+/// is a plain classifier. Stage widths mirror VGG16.
+#[derive(Debug)]
+struct SegnetDecoder {
+    stages: Vec<Vec<ConvBnAct>>,
+}
+
+fn segnet_decoder(p: nn::Path, num_classes: i64) -> SegnetDecoder {
+    // From the deepest stage up: (input width, output widths of its convs).
+    let plan: [(i64, Vec<i64>); 5] = [
+        (512, vec![512, 512, 512]),
+        (512, vec![512, 512, 256]),
+        (256, vec![256, 256, 128]),
+        (128, vec![128, 64]),
+        (64, vec![64, num_classes]),
+    ];
+    let stages = plan
+        .iter()
+        .enumerate()
+        .map(|(s, (c_in, widths))| {
+            let mut c = *c_in;
+            widths
+                .iter()
+                .enumerate()
+                .map(|(i, &w)| {
+                    let last = s == 4 && i == widths.len() - 1;
+                    let unit = if last {
+                        let spec = ConvSpec::new(3).bias(true);
+                        ConvBnAct::new(&p / s / i / "conv", None, c, w, spec, Act::Identity)
+                    } else {
+                        cbr(&p / s / i, c, w)
+                    };
+                    c = w;
+                    unit
+                })
+                .collect()
+        })
+        .collect();
+    SegnetDecoder { stages }
+}
+
+fn pool_with_indices(x: &Tensor) -> (Tensor, Tensor) {
+    x.max_pool2d_with_indices([2, 2], [2, 2], [0, 0], [1, 1], false)
+}
+
+impl SegnetDecoder {
+    /// `pooled` = per encoder stage (indices, size before pooling), shallow first.
+    fn forward_t(&self, x: Tensor, pooled: &[(Tensor, Vec<i64>)], train: bool) -> Tensor {
+        self.stages
+            .iter()
+            .zip(pooled.iter().rev())
+            .fold(x, |x, (stage, (indices, size))| {
+                // [B, C, h, w] -> [B, C, 2h, 2w]
+                let x = x.max_unpool2d(indices, [size[2], size[3]]);
+                stage.iter().fold(x, |x, unit| x.apply_t(unit, train))
+            })
+    }
+}
+
+/// SegNet (Badrinarayanan et al., TPAMI 2017): VGG16-BN encoder, decoder with pooling-index
+/// unpooling. [B, 3|4, H, W] -> [B, classes, H, W]
+#[derive(Debug)]
+struct Segnet {
+    encoder: VggEncoder,
+    decoder: SegnetDecoder,
+}
+
+impl Segnet {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let mut pooled = Vec::new();
+        let x = self
+            .encoder
+            .stages
+            .iter()
+            .fold(xs.shallow_clone(), |x, stage| {
+                let x = stage.iter().fold(x, |x, unit| x.apply_t(unit, train));
+                let (y, indices) = pool_with_indices(&x);
+                pooled.push((indices, x.size()));
+                y
+            });
+        self.decoder.forward_t(x, &pooled, train)
+    }
+}
+
+// ------------------------------------------------------------------------------ FuseNet
+
+/// FuseNet (Hazirbas et al., ACCV 2016): a VGG16-BN RGB encoder and one for the second
+/// modality (here thermal, 1 channel); after each stage the thermal features are added into
+/// the RGB path (the thermal path stays pure); SegNet decoder on the fused path. Dropout 0.4
+/// after the deeper pools, as the original.
+#[derive(Debug)]
+struct Fusenet {
+    rgb: VggEncoder,
+    thermal: VggEncoder,
+    decoder: SegnetDecoder,
+}
+
+const FUSENET_DROPOUT: f64 = 0.4;
+
+impl Fusenet {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let mut rgb = xs.narrow(1, 0, 3);
+        let mut th = xs.narrow(1, 3, 1);
+        let mut pooled = Vec::new();
+        for (s, (rs, ts)) in self.rgb.stages.iter().zip(&self.thermal.stages).enumerate() {
+            let t = ts.iter().fold(th, |x, u| x.apply_t(u, train));
+            let r = rs.iter().fold(rgb, |x, u| x.apply_t(u, train)) + &t;
+            let (r, indices) = pool_with_indices(&r);
+            pooled.push((indices, t.size()));
+            let t = t.max_pool2d_default(2);
+            let drop = |x: Tensor| {
+                if s >= 2 {
+                    x.dropout(FUSENET_DROPOUT, train)
+                } else {
+                    x
+                }
+            };
+            rgb = drop(r);
+            th = drop(t);
+        }
+        self.decoder.forward_t(rgb, &pooled, train)
+    }
+}
+
+// ------------------------------------------------------------------------------ U-Net
+
+/// U-Net (Ronneberger et al., MICCAI 2015) with padded 3×3 convolutions (the original's are
+/// unpadded and crop the skips; padding keeps the output at the input size).
+#[derive(Debug)]
+struct Unet {
+    down: Vec<(ConvBnAct, ConvBnAct)>,
+    up: Vec<(ConvBnAct, ConvBnAct, ConvBnAct)>,
+    out: ConvBnAct,
+}
+
+fn double_conv(p: &nn::Path, c_in: i64, c_out: i64) -> (ConvBnAct, ConvBnAct) {
+    let spec = ConvSpec::new(3).bias(true);
+    (
+        ConvBnAct::new(p / "conv1", None, c_in, c_out, spec, Act::Relu),
+        ConvBnAct::new(p / "conv2", None, c_out, c_out, spec, Act::Relu),
+    )
+}
+
+fn unet(p: nn::Path, c_in: i64, num_classes: i64) -> Unet {
+    let widths = [64, 128, 256, 512, 1024];
+    let down = (0..5)
+        .map(|i| {
+            double_conv(
+                &(&p / "down" / i),
+                if i == 0 { c_in } else { widths[i - 1] },
+                widths[i],
+            )
+        })
+        .collect();
+    let up = (0..4)
+        .map(|i| {
+            let (c, half) = (widths[4 - i], widths[3 - i]);
+            let sp = &p / "up" / i;
+            let spec = ConvSpec::new(2).stride(2).transposed().bias(true);
+            let upconv = ConvBnAct::new(&sp / "upconv", None, c, half, spec, Act::Identity);
+            let (a, b) = double_conv(&sp, c, half);
+            (upconv, a, b)
+        })
+        .collect();
+    let out = ConvBnAct::new(
+        &p / "out",
+        None,
+        64,
+        num_classes,
+        ConvSpec::new(1).bias(true),
+        Act::Identity,
+    );
+    Unet { down, up, out }
+}
+
+impl Unet {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let mut skips = Vec::new();
+        let mut x = xs.shallow_clone();
+        for (i, (a, b)) in self.down.iter().enumerate() {
+            if i > 0 {
+                x = x.max_pool2d_default(2);
+            }
+            x = x.apply_t(a, train).apply_t(b, train);
+            skips.push(x.shallow_clone());
+        }
+        // [B, 1024, H/16, W/16] -> … -> [B, 64, H, W]
+        for ((upconv, a, b), skip) in self.up.iter().zip(skips.iter().rev().skip(1)) {
+            x = Tensor::cat(&[skip, &x.apply_t(upconv, train)], 1)
+                .apply_t(a, train)
+                .apply_t(b, train);
+        }
+        x.apply_t(&self.out, train)
+    }
+}
+
+// ------------------------------------------------------------------------------ dilated ResNets
+
+/// A dilated ResNet trunk (output stride 8) under `backbone.` with torchvision names.
+#[derive(Debug)]
+struct DilatedResNet {
+    stem: ConvBnAct,
+    layers: Vec<ResLayer>,
+}
+
+/// layer3/layer4 dilations per block; layer1/2 are plain (stride 1, 2).
+fn dilated_resnet(
+    p: nn::Path,
+    c_in: i64,
+    blocks: [i64; 4],
+    l3: &[i64],
+    l4: &[i64],
+) -> DilatedResNet {
+    let init = InitScheme::TORCHVISION;
+    let stem = resnet::stem(&p / "conv1", &p / "bn1", c_in, init);
+    let plain = |n: i64, stride: i64| -> Vec<BlockGeometry> {
+        (0..n)
+            .map(|i| BlockGeometry {
+                stride: if i == 0 { stride } else { 1 },
+                dilation: 1,
+            })
+            .collect()
+    };
+    let dilated = |d: &[i64]| -> Vec<BlockGeometry> {
+        d.iter()
+            .map(|&dilation| BlockGeometry {
+                stride: 1,
+                dilation,
+            })
+            .collect()
+    };
+    let geometries = [
+        plain(blocks[0], 1),
+        plain(blocks[1], 2),
+        dilated(l3),
+        dilated(l4),
+    ];
+    let mut c = 64;
+    let layers = geometries
+        .iter()
+        .enumerate()
+        .map(|(i, g)| {
+            let l = resnet::layer_with(
+                &p / format!("layer{}", i + 1),
+                BlockKind::Bottleneck,
+                c,
+                64 << i,
+                g,
+                init,
+            );
+            c = l.out_channels;
+            l
+        })
+        .collect();
+    DilatedResNet { stem, layers }
+}
+
+impl DilatedResNet {
+    /// [B, c_in, H, W] -> [B, 2048, H/8, W/8]
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let x = resnet::stem_pool(&xs.apply_t(&self.stem, train));
+        self.layers.iter().fold(x, |x, l| x.apply_t(l, train))
+    }
+}
+
+impl Fuse for DilatedResNet {
+    fn fuse(&mut self, kind: Kind) {
+        self.stem.fuse(kind);
+        self.layers.fuse(kind);
+    }
+}
+
+/// PSPNet (Zhao et al., CVPR 2017) on a dilated ResNet-50: pyramid pooling (bins 1, 2, 3, 6;
+/// 1×1 conv 2048→512-BN-ReLU each), concat (4096) → 3×3 conv 512-BN-ReLU → dropout 0.1 →
+/// 1×1 classifier → bilinear ×8. The training-only auxiliary head is left out.
+#[derive(Debug)]
+struct Pspnet {
+    backbone: DilatedResNet,
+    ppm: Vec<ConvBnAct>,
+    head: ConvBnAct,
+    classifier: ConvBnAct,
+}
+
+const PSP_BINS: [i64; 4] = [1, 2, 3, 6];
+
+fn pspnet(p: nn::Path, c_in: i64, num_classes: i64) -> Pspnet {
+    // torchvision's replace_stride_with_dilation: first block keeps the previous dilation.
+    let backbone = dilated_resnet(
+        &p / "backbone",
+        c_in,
+        [3, 4, 6, 3],
+        &[1, 2, 2, 2, 2, 2],
+        &[2, 4, 4],
+    );
+    let k1 = ConvSpec::new(1);
+    let ppm = (0..PSP_BINS.len())
+        .map(|i| {
+            ConvBnAct::new(
+                &p / "ppm" / i / 1,
+                Some(&p / "ppm" / i / 2),
+                2048,
+                512,
+                k1,
+                Act::Relu,
+            )
+        })
+        .collect();
+    let head = ConvBnAct::new(
+        &p / "final" / 0,
+        Some(&p / "final" / 1),
+        4096,
+        512,
+        ConvSpec::new(3),
+        Act::Relu,
+    );
+    let classifier = ConvBnAct::new(
+        &p / "final" / 4,
+        None,
+        512,
+        num_classes,
+        k1.bias(true),
+        Act::Identity,
+    );
+    Pspnet {
+        backbone,
+        ppm,
+        head,
+        classifier,
+    }
+}
+
+impl Pspnet {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let (h, w) = (xs.size()[2], xs.size()[3]);
+        let f = self.backbone.forward_t(xs, train);
+        let (fh, fw) = (f.size()[2], f.size()[3]);
+        let mut parts = vec![f.shallow_clone()];
+        for (&bin, conv) in PSP_BINS.iter().zip(&self.ppm) {
+            parts.push(bilinear(
+                &f.adaptive_avg_pool2d([bin, bin]).apply_t(conv, train),
+                fh,
+                fw,
+            ));
+        }
+        let x = Tensor::cat(&parts, 1)
+            .apply_t(&self.head, train)
+            .dropout(0.1, train);
+        bilinear(&x.apply_t(&self.classifier, train), h, w)
+    }
+}
+
+/// DUC-HDC (Wang et al., WACV 2018) on ResNet-101: hybrid dilated convolution in layer3
+/// (rates 1, 2, 3 repeated) and layer4 (3, 4, 5), then dense upsampling convolution: a 3×3
+/// conv to classes·8² channels and a ×8 pixel shuffle.
+#[derive(Debug)]
+struct DucHdc {
+    backbone: DilatedResNet,
+    duc: ConvBnAct,
+}
+
+const DUC_FACTOR: i64 = 8;
+
+fn duchdc(p: nn::Path, c_in: i64, num_classes: i64) -> DucHdc {
+    let l3: Vec<i64> = (0..23).map(|i| [1, 2, 3][i % 3]).collect();
+    let backbone = dilated_resnet(&p / "backbone", c_in, [3, 4, 23, 3], &l3, &[3, 4, 5]);
+    let c = num_classes * DUC_FACTOR * DUC_FACTOR;
+    let duc = ConvBnAct::new(
+        &p / "duc" / "conv",
+        Some(&p / "duc" / "bn"),
+        2048,
+        c,
+        ConvSpec::new(3),
+        Act::Relu,
+    );
+    DucHdc { backbone, duc }
+}
+
+impl DucHdc {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        // [B, 2048, H/8, W/8] -> [B, classes·64, H/8, W/8] -> [B, classes, H, W]
+        self.backbone
+            .forward_t(xs, train)
+            .apply_t(&self.duc, train)
+            .pixel_shuffle(DUC_FACTOR)
+    }
+}
+
+// ------------------------------------------------------------------------------ ERFNet
+
+/// A 2-D convolution with separate kernel height/width (ERFNet, ENet's factorised convs).
+#[derive(Debug)]
+struct RectConv {
+    conv: nn::Conv2D,
+}
+
+fn rect_conv(
+    p: nn::Path,
+    c_in: i64,
+    c_out: i64,
+    k: [i64; 2],
+    dilation: [i64; 2],
+    bias: bool,
+) -> RectConv {
+    let padding = [dilation[0] * (k[0] - 1) / 2, dilation[1] * (k[1] - 1) / 2];
+    let cfg = nn::ConvConfigND::<[i64; 2]> {
+        padding,
+        dilation,
+        bias,
+        ..Default::default()
+    };
+    RectConv {
+        conv: nn::conv(p, c_in, c_out, k, cfg),
+    }
+}
+
+impl nn::Module for RectConv {
+    fn forward(&self, xs: &Tensor) -> Tensor {
+        xs.apply(&self.conv)
+    }
+}
+
+fn bn(p: nn::Path, c: i64) -> nn::BatchNorm {
+    crate::layers::bn2d_init(p, c, nn::Init::Const(1.0))
+}
+
+/// ERFNet / ENet downsampler: 3×3 s2 conv (c_out − c_in channels) ‖ 2×2 max-pool, concat,
+/// BN, ReLU. [B, c_in, H, W] -> [B, c_out, H/2, W/2]
+#[derive(Debug)]
+struct Downsampler {
+    conv: ConvBnAct,
+    bn: nn::BatchNorm,
+}
+
+fn downsampler(p: nn::Path, c_in: i64, c_out: i64) -> Downsampler {
+    let spec = ConvSpec::new(3).stride(2).bias(true);
+    Downsampler {
+        conv: ConvBnAct::new(&p / "conv", None, c_in, c_out - c_in, spec, Act::Identity),
+        bn: bn(&p / "bn", c_out),
+    }
+}
+
+impl ModuleT for Downsampler {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        Tensor::cat(
+            &[xs.apply_t(&self.conv, train), xs.max_pool2d_default(2)],
+            1,
+        )
+        .apply_t(&self.bn, train)
+        .relu()
+    }
+}
+
+/// ERFNet non-bottleneck-1D: 3×1, 1×3 (BN), 3×1 and 1×3 dilated (BN), dropout, + input.
+#[derive(Debug)]
+struct NonBottleneck1d {
+    convs: [RectConv; 4],
+    bn1: nn::BatchNorm,
+    bn2: nn::BatchNorm,
+    dropout: f64,
+}
+
+fn non_bottleneck_1d(p: nn::Path, c: i64, dropout: f64, d: i64) -> NonBottleneck1d {
+    NonBottleneck1d {
+        convs: [
+            rect_conv(&p / "conv3x1_1", c, c, [3, 1], [1, 1], true),
+            rect_conv(&p / "conv1x3_1", c, c, [1, 3], [1, 1], true),
+            rect_conv(&p / "conv3x1_2", c, c, [3, 1], [d, 1], true),
+            rect_conv(&p / "conv1x3_2", c, c, [1, 3], [1, d], true),
+        ],
+        bn1: bn(&p / "bn1", c),
+        bn2: bn(&p / "bn2", c),
+        dropout,
+    }
+}
+
+impl ModuleT for NonBottleneck1d {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let [a, b, c, d] = &self.convs;
+        let y = xs.apply(a).relu().apply(b).apply_t(&self.bn1, train).relu();
+        let y = y.apply(c).relu().apply(d).apply_t(&self.bn2, train);
+        let y = if self.dropout > 0.0 {
+            y.feature_dropout(self.dropout, train)
+        } else {
+            y
+        };
+        (y + xs).relu()
+    }
+}
+
+/// ERFNet upsampler: 3×3 s2 transposed conv (output padding 1) → BN → ReLU.
+#[derive(Debug)]
+struct Upsampler {
+    conv: nn::ConvTranspose2D,
+    bn: nn::BatchNorm,
+}
+
+fn upsampler(p: nn::Path, c_in: i64, c_out: i64) -> Upsampler {
+    let cfg = nn::ConvTransposeConfig {
+        stride: 2,
+        padding: 1,
+        output_padding: 1,
+        ..Default::default()
+    };
+    Upsampler {
+        conv: nn::conv_transpose2d(&p / "conv", c_in, c_out, 3, cfg),
+        bn: bn(&p / "bn", c_out),
+    }
+}
+
+impl ModuleT for Upsampler {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        xs.apply(&self.conv).apply_t(&self.bn, train).relu()
+    }
+}
+
+/// ERFNet (Romera et al., T-ITS 2018): downsamplers, non-bottleneck-1D blocks with dilations
+/// 2, 4, 8, 16, and a small upsampling decoder ending in a 2×2 s2 transposed conv.
+#[derive(Debug)]
+struct Erfnet {
+    encoder: Vec<Box<dyn ModuleT>>,
+    decoder: Vec<Box<dyn ModuleT>>,
+    output: nn::ConvTranspose2D,
+}
+
+fn erfnet(p: nn::Path, c_in: i64, num_classes: i64) -> Erfnet {
+    let e = &p / "encoder";
+    let mut encoder: Vec<Box<dyn ModuleT>> = vec![
+        Box::new(downsampler(&e / 0, c_in, 16)),
+        Box::new(downsampler(&e / 1, 16, 64)),
+    ];
+    for i in 0..5 {
+        encoder.push(Box::new(non_bottleneck_1d(&e / (2 + i), 64, 0.03, 1)));
+    }
+    encoder.push(Box::new(downsampler(&e / 7, 64, 128)));
+    for i in 0..8 {
+        let d = [2, 4, 8, 16][i % 4];
+        encoder.push(Box::new(non_bottleneck_1d(&e / (8 + i), 128, 0.3, d)));
+    }
+    let d = &p / "decoder";
+    let decoder: Vec<Box<dyn ModuleT>> = vec![
+        Box::new(upsampler(&d / 0, 128, 64)),
+        Box::new(non_bottleneck_1d(&d / 1, 64, 0.0, 1)),
+        Box::new(non_bottleneck_1d(&d / 2, 64, 0.0, 1)),
+        Box::new(upsampler(&d / 3, 64, 16)),
+        Box::new(non_bottleneck_1d(&d / 4, 16, 0.0, 1)),
+        Box::new(non_bottleneck_1d(&d / 5, 16, 0.0, 1)),
+    ];
+    let cfg = nn::ConvTransposeConfig {
+        stride: 2,
+        ..Default::default()
+    };
+    let output = nn::conv_transpose2d(&d / "output", 16, num_classes, 2, cfg);
+    Erfnet {
+        encoder,
+        decoder,
+        output,
+    }
+}
+
+impl Erfnet {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let x = self
+            .encoder
+            .iter()
+            .fold(xs.shallow_clone(), |x, m| m.forward_t(&x, train));
+        let x = self.decoder.iter().fold(x, |x, m| m.forward_t(&x, train));
+        x.apply(&self.output)
+    }
+}
+
+// ------------------------------------------------------------------------------ ENet
+
+/// ENet's activations: PReLU (one slope) in the encoder, ReLU in the decoder.
+#[derive(Debug)]
+enum EnetAct {
+    Prelu(Tensor),
+    Relu,
+}
+
+fn enet_act(p: &nn::Path, name: &str, prelu: bool) -> EnetAct {
+    if prelu {
+        EnetAct::Prelu(crate::layers::new_var(
+            &(p / name),
+            "weight",
+            &[1],
+            nn::Init::Const(0.25),
+        ))
+    } else {
+        EnetAct::Relu
+    }
+}
+
+impl EnetAct {
+    fn apply(&self, xs: &Tensor) -> Tensor {
+        match self {
+            EnetAct::Prelu(w) => xs.prelu(w),
+            EnetAct::Relu => xs.relu(),
+        }
+    }
+}
+
+/// conv (no bias) → BN → activation, with a rectangular kernel.
+#[derive(Debug)]
+struct EnetConv {
+    conv: Option<RectConv>,
+    strided: Option<ConvBnAct>,
+    bn: nn::BatchNorm,
+    act: Option<EnetAct>,
+}
+
+fn enet_conv(
+    p: &nn::Path,
+    c_in: i64,
+    c_out: i64,
+    k: [i64; 2],
+    d: i64,
+    act: Option<bool>,
+) -> EnetConv {
+    let dilation = [if k[0] > 1 { d } else { 1 }, if k[1] > 1 { d } else { 1 }];
+    EnetConv {
+        conv: Some(rect_conv(p / "conv", c_in, c_out, k, dilation, false)),
+        strided: None,
+        bn: bn(p / "bn", c_out),
+        act: act.map(|prelu| enet_act(p, "act", prelu)),
+    }
+}
+
+impl EnetConv {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let y = match (&self.conv, &self.strided) {
+            (Some(c), _) => xs.apply(c),
+            (None, Some(s)) => xs.apply_t(s, train),
+            _ => unreachable!(),
+        };
+        let y = y.apply_t(&self.bn, train);
+        match &self.act {
+            Some(a) => a.apply(&y),
+            None => y,
+        }
+    }
+}
+
+/// One ENet bottleneck (regular, dilated, asymmetric, downsampling or upsampling).
+#[derive(Debug)]
+enum EnetBlock {
+    Regular {
+        ext: Vec<EnetConv>,
+        out_act: EnetAct,
+        dropout: f64,
+    },
+    Down {
+        ext: Vec<EnetConv>,
+        out_act: EnetAct,
+        dropout: f64,
+        c_out: i64,
+    },
+    Up {
+        main: EnetConv,
+        ext1: EnetConv,
+        tconv: nn::ConvTranspose2D,
+        tbn: nn::BatchNorm,
+        tact: EnetAct,
+        ext2: EnetConv,
+        out_act: EnetAct,
+        dropout: f64,
+    },
+}
+
+/// Regular bottleneck: 1×1 (c→c/4), 3×3 (dilation d) or 5×1 + 1×5 (asymmetric), 1×1 back,
+/// Dropout2d, + input. [B, c, H, W] -> [B, c, H, W]
+fn enet_regular(
+    p: nn::Path,
+    c: i64,
+    d: i64,
+    asymmetric: bool,
+    dropout: f64,
+    prelu: bool,
+) -> EnetBlock {
+    let i = c / 4;
+    let mut ext = vec![enet_conv(&(&p / "ext_conv1"), c, i, [1, 1], 1, Some(prelu))];
+    if asymmetric {
+        ext.push(enet_conv(
+            &(&p / "ext_conv2a"),
+            i,
+            i,
+            [5, 1],
+            1,
+            Some(prelu),
+        ));
+        ext.push(enet_conv(
+            &(&p / "ext_conv2b"),
+            i,
+            i,
+            [1, 5],
+            1,
+            Some(prelu),
+        ));
+    } else {
+        ext.push(enet_conv(&(&p / "ext_conv2"), i, i, [3, 3], d, Some(prelu)));
+    }
+    ext.push(enet_conv(&(&p / "ext_conv3"), i, c, [1, 1], 1, Some(prelu)));
+    EnetBlock::Regular {
+        ext,
+        out_act: enet_act(&p, "out_act", prelu),
+        dropout,
+    }
+}
+
+/// Downsampling bottleneck: max-pool (indices kept) with zero-padded channels ‖ 2×2 s2 conv,
+/// 3×3, 1×1. [B, c_in, H, W] -> [B, c_out, H/2, W/2]
+fn enet_down(p: nn::Path, c_in: i64, c_out: i64, dropout: f64) -> EnetBlock {
+    let i = c_in / 4;
+    let strided = ConvSpec::new(2).stride(2).padding(0);
+    let first = EnetConv {
+        conv: None,
+        strided: Some(ConvBnAct::new(
+            &p / "ext_conv1" / "conv",
+            None,
+            c_in,
+            i,
+            strided,
+            Act::Identity,
+        )),
+        bn: bn(&p / "ext_conv1" / "bn", i),
+        act: Some(enet_act(&(&p / "ext_conv1"), "act", true)),
+    };
+    let ext = vec![
+        first,
+        enet_conv(&(&p / "ext_conv2"), i, i, [3, 3], 1, Some(true)),
+        enet_conv(&(&p / "ext_conv3"), i, c_out, [1, 1], 1, Some(true)),
+    ];
+    EnetBlock::Down {
+        ext,
+        out_act: enet_act(&p, "out_act", true),
+        dropout,
+        c_out,
+    }
+}
+
+/// Upsampling bottleneck: 1×1 conv + unpooling with the matching indices ‖ 1×1, 2×2 s2
+/// transposed conv, 1×1. [B, c_in, H, W] -> [B, c_out, 2H, 2W]
+fn enet_up(p: nn::Path, c_in: i64, c_out: i64, dropout: f64) -> EnetBlock {
+    let i = c_in / 4;
+    let cfg = nn::ConvTransposeConfig {
+        stride: 2,
+        bias: false,
+        ..Default::default()
+    };
+    EnetBlock::Up {
+        main: enet_conv(&(&p / "main_conv1"), c_in, c_out, [1, 1], 1, None),
+        ext1: enet_conv(&(&p / "ext_conv1"), c_in, i, [1, 1], 1, Some(false)),
+        tconv: nn::conv_transpose2d(&p / "ext_tconv1", i, i, 2, cfg),
+        tbn: bn(&p / "ext_tconv1_bn", i),
+        tact: EnetAct::Relu,
+        ext2: enet_conv(&(&p / "ext_conv2"), i, c_out, [1, 1], 1, None),
+        out_act: EnetAct::Relu,
+        dropout,
+    }
+}
+
+/// ENet (Paszke et al., 2016): initial block, bottleneck stages 1–3 (PReLU), upsampling
+/// stages 4–5 (ReLU), full transposed convolution.
+#[derive(Debug)]
+struct Enet {
+    initial_conv: ConvBnAct,
+    initial_bn: nn::BatchNorm,
+    initial_act: EnetAct,
+    blocks: Vec<EnetBlock>,
+    fullconv: nn::ConvTranspose2D,
+}
+
+fn enet(p: nn::Path, c_in: i64, num_classes: i64) -> Enet {
+    let spec = ConvSpec::new(3).stride(2);
+    let initial_conv = ConvBnAct::new(
+        &p / "initial" / "conv",
+        None,
+        c_in,
+        16 - c_in,
+        spec,
+        Act::Identity,
+    );
+    let mut blocks = vec![enet_down(&p / "down1_0", 16, 64, 0.01)];
+    for i in 1..=4 {
+        blocks.push(enet_regular(
+            &p / format!("regular1_{i}"),
+            64,
+            1,
+            false,
+            0.01,
+            true,
+        ));
+    }
+    blocks.push(enet_down(&p / "down2_0", 64, 128, 0.1));
+    for stage in [2, 3] {
+        // regular, dilated 2, asymmetric 5, dilated 4, regular, dilated 8, asymmetric, dilated 16
+        let plan = [
+            (1, false),
+            (2, false),
+            (1, true),
+            (4, false),
+            (1, false),
+            (8, false),
+            (1, true),
+            (16, false),
+        ];
+        for (i, (d, asym)) in plan.into_iter().enumerate() {
+            blocks.push(enet_regular(
+                &p / format!("block{stage}_{}", i + 1),
+                128,
+                d,
+                asym,
+                0.1,
+                true,
+            ));
+        }
+    }
+    blocks.push(enet_up(&p / "up4_0", 128, 64, 0.1));
+    blocks.push(enet_regular(&p / "regular4_1", 64, 1, false, 0.1, false));
+    blocks.push(enet_regular(&p / "regular4_2", 64, 1, false, 0.1, false));
+    blocks.push(enet_up(&p / "up5_0", 64, 16, 0.1));
+    blocks.push(enet_regular(&p / "regular5_1", 16, 1, false, 0.1, false));
+    let cfg = nn::ConvTransposeConfig {
+        stride: 2,
+        padding: 1,
+        output_padding: 1,
+        bias: false,
+        ..Default::default()
+    };
+    Enet {
+        initial_conv,
+        initial_bn: bn(&p / "initial" / "bn", 16),
+        initial_act: enet_act(&(&p / "initial"), "act", true),
+        blocks,
+        fullconv: nn::conv_transpose2d(&p / "fullconv", 16, num_classes, 3, cfg),
+    }
+}
+
+impl Enet {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        // [B, c_in, H, W] -> [B, 16, H/2, W/2]
+        let main = xs.apply_t(&self.initial_conv, train);
+        let pooled = xs.max_pool2d([3, 3], [2, 2], [1, 1], [1, 1], false);
+        let mut x = self
+            .initial_act
+            .apply(&Tensor::cat(&[main, pooled], 1).apply_t(&self.initial_bn, train));
+        // Pooling indices of the downsampling blocks, consumed by the upsampling ones.
+        let mut indices: Vec<(Tensor, Vec<i64>)> = Vec::new();
+        for block in &self.blocks {
+            x = match block {
+                EnetBlock::Regular {
+                    ext,
+                    out_act,
+                    dropout,
+                } => {
+                    let y = ext
+                        .iter()
+                        .fold(x.shallow_clone(), |y, c| c.forward_t(&y, train));
+                    out_act.apply(&(y.feature_dropout(*dropout, train) + &x))
+                }
+                EnetBlock::Down {
+                    ext,
+                    out_act,
+                    dropout,
+                    c_out,
+                } => {
+                    let (main, idx) = pool_with_indices(&x);
+                    indices.push((idx, x.size()));
+                    let s = main.size();
+                    let pad = Tensor::zeros(
+                        [s[0], c_out - s[1], s[2], s[3]],
+                        (main.kind(), main.device()),
+                    );
+                    let main = Tensor::cat(&[main, pad], 1);
+                    let y = ext
+                        .iter()
+                        .fold(x.shallow_clone(), |y, c| c.forward_t(&y, train));
+                    out_act.apply(&(y.feature_dropout(*dropout, train) + main))
+                }
+                EnetBlock::Up {
+                    main,
+                    ext1,
+                    tconv,
+                    tbn,
+                    tact,
+                    ext2,
+                    out_act,
+                    dropout,
+                } => {
+                    let (idx, size) = indices.pop().expect("one downsampling per upsampling");
+                    let m = main
+                        .forward_t(&x, train)
+                        .max_unpool2d(&idx, [size[2], size[3]]);
+                    let y = ext1.forward_t(&x, train).apply(tconv).apply_t(tbn, train);
+                    let y = ext2
+                        .forward_t(&tact.apply(&y), train)
+                        .feature_dropout(*dropout, train);
+                    out_act.apply(&(y + m))
+                }
+            };
+        }
+        // [B, 16, H/2, W/2] -> [B, classes, H, W]
+        x.apply(&self.fullconv)
+    }
+}
+
+// ------------------------------------------------------------------------------ the network
+
+#[derive(Debug)]
+enum Body {
+    Segnet(Segnet),
+    Fusenet(Fusenet),
+    Unet(Unet),
+    Pspnet(Pspnet),
+    Duchdc(DucHdc),
+    Erfnet(Erfnet),
+    Enet(Enet),
+}
+
+/// A baseline network; input always [B, 4, H, W] (R, G, B, T), of which 3-channel variants
+/// use the RGB channels.
+#[derive(Debug)]
+pub struct Baseline {
+    config: Config,
+    body: Body,
+}
+
+impl Baseline {
+    pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
+        cfg.validate()?;
+        let (c, n) = (cfg.in_channels, cfg.num_classes);
+        let body = match cfg.arch {
+            Arch::Segnet => Body::Segnet(Segnet {
+                encoder: vgg_encoder(&p / "encoder", c),
+                decoder: segnet_decoder(&p / "decoder", n),
+            }),
+            Arch::Fusenet => Body::Fusenet(Fusenet {
+                rgb: vgg_encoder(&p / "encoder_rgb", 3),
+                thermal: vgg_encoder(&p / "encoder_thermal", 1),
+                decoder: segnet_decoder(&p / "decoder", n),
+            }),
+            Arch::Unet => Body::Unet(unet(p, c, n)),
+            Arch::Pspnet => Body::Pspnet(pspnet(p, c, n)),
+            Arch::Duchdc => Body::Duchdc(duchdc(p, c, n)),
+            Arch::Erfnet => Body::Erfnet(erfnet(p, c, n)),
+            Arch::Enet => Body::Enet(enet(p, c, n)),
+        };
+        Ok(Self {
+            config: cfg.clone(),
+            body,
+        })
+    }
+}
+
+impl ModuleT for Baseline {
+    /// [B, 4, H, W] -> logits [B, classes, H, W]
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let x = if self.config.in_channels == 3 {
+            xs.narrow(1, 0, 3)
+        } else {
+            xs.shallow_clone()
+        };
+        match &self.body {
+            Body::Segnet(m) => m.forward_t(&x, train),
+            Body::Fusenet(m) => m.forward_t(&x, train),
+            Body::Unet(m) => m.forward_t(&x, train),
+            Body::Pspnet(m) => m.forward_t(&x, train),
+            Body::Duchdc(m) => m.forward_t(&x, train),
+            Body::Erfnet(m) => m.forward_t(&x, train),
+            Body::Enet(m) => m.forward_t(&x, train),
+        }
+    }
+}
+
+impl Network for Baseline {
+    fn input_convention(&self) -> rtf_core::InputConvention {
+        self.config.input
+    }
+    fn num_classes(&self) -> i64 {
+        self.config.num_classes
+    }
+    fn size_multiple(&self) -> i64 {
+        self.config.arch.size_multiple()
+    }
+    fn name(&self) -> String {
+        self.config.name()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::forward_shape;
+    use crate::weights;
+    use tch::Device;
+
+    #[test]
+    fn every_baseline_builds_and_keeps_the_input_size() {
+        for arch in Arch::ALL {
+            for &c in arch.channel_options() {
+                let cfg = Config::new(arch, c, 9);
+                let vs = nn::VarStore::new(Device::Cpu);
+                let net = Baseline::new(vs.root(), &cfg).unwrap();
+                let shape = forward_shape(&net, [1, 4, 64, 96]);
+                assert_eq!(shape, vec![1, 9, 64, 96], "{}", cfg.name());
+                let names = vs.variables();
+                let stem = names
+                    .iter()
+                    .find(|(n, t)| !n.contains("thermal") && t.dim() == 4 && t.size()[1] == c);
+                assert!(
+                    stem.is_some() || arch == Arch::Fusenet,
+                    "{}: a {c}-channel first layer",
+                    cfg.name()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn parameter_counts_are_those_of_the_original_architectures() {
+        let count = |arch, c| {
+            let vs = nn::VarStore::new(Device::Cpu);
+            crate::layers::with_zero_init(|| {
+                Baseline::new(vs.root(), &Config::new(arch, c, 9)).unwrap()
+            });
+            weights::count_trainable(&vs)
+        };
+        // The sizes the papers state (MFNet paper Tab. IV: SegNet 29.42M, ENet 0.37M; ERFNet
+        // paper ≈ 2.07M; U-Net ≈ 31.0M). ENet's stated size is rounded and implementations
+        // differ in biases, hence its wider band.
+        let near = |n: i64, paper: f64, tol: f64| ((n as f64 - paper) / paper).abs() < tol;
+        let segnet = count(Arch::Segnet, 3);
+        assert!(near(segnet, 29.42e6, 0.03), "segnet {segnet}");
+        let enet = count(Arch::Enet, 3);
+        assert!(near(enet, 0.37e6, 0.06), "enet {enet}");
+        let erfnet = count(Arch::Erfnet, 3);
+        assert!(near(erfnet, 2.07e6, 0.03), "erfnet {erfnet}");
+        let unet = count(Arch::Unet, 3);
+        assert!(near(unet, 31.04e6, 0.03), "unet {unet}");
+        // The 4-channel variant only widens the first layer.
+        assert!(count(Arch::Segnet, 4) - count(Arch::Segnet, 3) == 64 * 9);
+    }
+
+    #[test]
+    fn three_channel_variants_ignore_thermal() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = Baseline::new(vs.root(), &Config::new(Arch::Erfnet, 3, 9)).unwrap();
+        let x = Tensor::rand([1, 4, 32, 32], (Kind::Float, Device::Cpu));
+        let y = x.copy();
+        let _ = y.narrow(1, 3, 1).fill_(0.0);
+        tch::no_grad(|| assert!(net.forward_t(&x, false).equal(&net.forward_t(&y, false))));
+    }
+}
