@@ -126,6 +126,8 @@ pub fn render_frame(cfg: &SynthConfig, index: usize) -> SynthFrame {
     let mut rng = ChaCha8Rng::seed_from_u64(mix(cfg.seed, index as u64, 0x5EED));
     let scene = Scene::random(cfg.width, cfg.height, night, &mut rng);
     let mis = cfg.misalignment.map(|m| {
+        // Its own stream, so switching misalignment on leaves RGB and labels unchanged.
+        let mut rng = ChaCha8Rng::seed_from_u64(mix(cfg.seed, index as u64, 0x3A11));
         let scale = cfg.width as f32 / 640.0;
         (
             rng.random_range(-1.0..=1.0) * m.max_shift_px * scale,
@@ -388,6 +390,37 @@ mod tests {
         generate(c.path(), &small(6, 6)).unwrap();
         assert_eq!(files(a.path()), files(b.path()));
         assert_ne!(files(a.path()), files(c.path()));
+    }
+
+    #[test]
+    fn misalignment_moves_thermal_only() {
+        let base = SynthConfig {
+            count: 6,
+            seed: 3,
+            width: 96,
+            height: 72,
+            ..SynthConfig::default()
+        };
+        let shifted = SynthConfig {
+            misalignment: Some(Misalignment {
+                max_shift_px: 20.0,
+                ..Misalignment::default()
+            }),
+            ..base.clone()
+        };
+        let (a, b) = (render_frame(&base, 0), render_frame(&shifted, 0));
+        assert_eq!(a.sem, b.sem, "labels follow RGB");
+        assert_eq!(a.rgb, b.rgb, "RGB unchanged");
+        let diff = a
+            .temperature
+            .iter()
+            .zip(&b.temperature)
+            .filter(|(x, y)| (*x - *y).abs() > 1.0)
+            .count();
+        assert!(
+            diff > a.temperature.len() / 50,
+            "thermal moved ({diff} pixels differ by > 1 K)"
+        );
     }
 
     #[test]
