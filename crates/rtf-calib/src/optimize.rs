@@ -49,7 +49,7 @@ impl Settings {
             Recipe::Paper => OptimizerOverrides {
                 iterations: Some(8000),
                 batch_size: Some(10),
-                learning_rate: Some(0.5),
+                learning_rate: Some(0.1),
             },
             Recipe::Default => OptimizerOverrides {
                 iterations: Some(20),
@@ -561,7 +561,8 @@ fn calibrate_paper(
     pool.truncate(600);
     let used: Vec<&Frame> = pool.iter().map(|&i| &frames[i]).collect();
     let scaling = Scaling::new(&rig.rgb, p0, &used);
-    let level = Level::build(&rig.rgb, &used, 1, true, 3.0, 51);
+    // Tensors are built per batch: 600 full-resolution frames would not fit in memory.
+    let build = |frames: &[&Frame]| Level::build(&rig.rgb, frames, 1, true, 3.0, 51);
     let mut theta =
         Tensor::zeros([NUM_PARAMS as i64], (Kind::Float, Device::Cpu)).set_requires_grad(true);
     let p0_t = Tensor::from_slice(&p0.map(|x| x as f32));
@@ -580,7 +581,9 @@ fn calibrate_paper(
         let mut pick: Vec<i64> = (0..used.len() as i64).collect();
         pick.shuffle(rng);
         pick.truncate(batch);
-        let idx = Tensor::from_slice(&pick);
+        let batch_frames: Vec<&Frame> = pick.iter().map(|&i| used[i as usize]).collect();
+        let level = build(&batch_frames);
+        let idx = Tensor::arange(batch_frames.len() as i64, (Kind::Int64, Device::Cpu));
         let loss = tch::with_grad(|| {
             let p = &p0_t + &scale_t * &theta;
             let r = level.residual(&p, &idx);
@@ -639,8 +642,16 @@ fn calibrate_paper(
         let t: Vec<f32> = Vec::try_from(&theta.detach()).unwrap();
         std::array::from_fn(|i| t[i] as f64)
     };
-    let all: Vec<i64> = (0..used.len().min(64) as i64).collect();
-    let final_loss = cost(&level, &scaling, &final_theta, &Tensor::from_slice(&all));
+    // Final loss over (up to) the first 20 pairs, frame by frame.
+    let (mut sq, mut support) = (0.0, 0.0);
+    for frame in used.iter().take(20) {
+        let level = build(&[*frame]);
+        let idx = Tensor::from_slice(&[0i64]);
+        let n = level.support(&idx);
+        sq += cost(&level, &scaling, &final_theta, &idx) * n;
+        support += n;
+    }
+    let final_loss = sq / support.max(1.0);
     let _ = last;
     Ok(Outcome {
         initial: model::to_calibration(&p0),
@@ -778,7 +789,8 @@ mod tests {
             ..Default::default()
         };
         let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
-        run_rig(&cfg, &settings);
+        let (err, _, _, out) = run_rig(&cfg, &settings);
+        assert!(err.is_finite() && out.stopped.is_none());
     }
 
     #[test]
@@ -890,7 +902,7 @@ mod tests {
         let s = Settings::resolve(Recipe::Paper, flags, Some(file), 9).unwrap();
         assert_eq!(
             (s.iterations, s.batch_size, s.learning_rate, s.seed),
-            (5, 7, 0.5, 9)
+            (5, 7, 0.1, 9)
         );
         assert!(Settings::resolve(
             Recipe::Default,

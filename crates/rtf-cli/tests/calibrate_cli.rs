@@ -1,0 +1,116 @@
+//! `rtf calibrate` end to end: a tiny synthetic rig → calib.yaml (+ overlays, comparison with
+//! the ground truth); malformed rig.yaml → exit 1 naming the field.
+
+use std::path::Path;
+use std::process::Command;
+
+fn rtf(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args(args)
+        .output()
+        .expect("rtf runs")
+}
+
+fn text(out: &std::process::Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+#[test]
+fn calibrates_a_small_synthetic_rig_with_overlays() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig_dir = dir.path().join("rig");
+    let d = |p: &str| dir.path().join(p).to_str().unwrap().to_string();
+    let r = rtf(&[
+        "calibrate",
+        "--synthesize-rig",
+        &d("rig"),
+        "--synth-width",
+        "128",
+        "--synth-frames",
+        "4",
+        "--synth-depth",
+        "given",
+        "--seed",
+        "3",
+    ]);
+    assert!(r.status.success(), "{}", text(&r));
+    let r = rtf(&[
+        "calibrate",
+        "--rig",
+        &d("rig/rig.yaml"),
+        "--out",
+        &d("calib.yaml"),
+        "--overlay",
+        &d("overlay"),
+        "--ground-truth",
+        &d("rig/ground_truth.yaml"),
+        "--iterations",
+        "10",
+    ]);
+    let log = text(&r);
+    assert!(r.status.success(), "{log}");
+    let calib = std::fs::read_to_string(dir.path().join("calib.yaml")).unwrap();
+    for key in [
+        "fx:",
+        "distortion:",
+        "rotation:",
+        "translation:",
+        "se3:",
+        "frames_used: 4",
+    ] {
+        assert!(calib.contains(key), "calib.yaml lacks {key}:\n{calib}");
+    }
+    let overlays = std::fs::read_dir(dir.path().join("overlay"))
+        .unwrap()
+        .count();
+    assert_eq!(overlays, 4 * 3, "initial, final and residual per frame");
+    // The printed comparison: the final map error is below the initial one and sub-pixel.
+    let line = log
+        .lines()
+        .find(|l| l.starts_with("vs ground truth:"))
+        .expect("comparison line");
+    let number = |after: &str| -> f64 {
+        let rest = &line[line.find(after).unwrap() + after.len()..];
+        rest.trim_start()
+            .split(|c: char| c == ' ' || c == ')')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (fin, initial) = (number("pixel-map error"), number("(initial"));
+    assert!(fin < 0.5 && fin < initial / 5.0, "{line}");
+    assert!(Path::new(&rig_dir).join("ground_truth.yaml").exists());
+}
+
+#[test]
+fn malformed_rig_is_an_error_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = dir.path().join("rig.yaml");
+    std::fs::write(
+        &rig,
+        "rgb: { width: 64, height: 48, fx: 50.0, fy: 50.0, cx: 32.0, cy: 24.0 }\n\
+         thermal: { width: 64, height: 51, focal_length_mm: 0.0, pixel_pitch_mm: 0.017 }\n\
+         frames:\n  - { rgb: a.png, thermal: b.png, depth: c.png }\n",
+    )
+    .unwrap();
+    let out = dir.path().join("calib.yaml");
+    let r = rtf(&[
+        "calibrate",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!r.status.success());
+    let log = text(&r);
+    assert!(
+        log.contains("rig.yaml") && log.contains("thermal.focal_length_mm"),
+        "{log}"
+    );
+    assert!(!out.exists(), "no calib.yaml on error");
+}
