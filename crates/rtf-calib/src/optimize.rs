@@ -37,8 +37,9 @@ pub struct Settings {
     pub iterations: usize,
     /// paper: pairs per Adam step; default: frames used per level (a seeded random subset).
     pub batch_size: usize,
-    /// paper: initial Adam step (pixel-scaled units); default: largest step per iteration in
-    /// full-resolution pixels at the finest level (doubling per coarser level).
+    /// paper: initial Adam step (pixel-scaled units); default: sets the first
+    /// Levenberg-Marquardt damping λ₀ = 10⁻⁵ / learning_rate (λ adapts afterwards, so any
+    /// sensible value works, including a rig.yaml written for Adam).
     pub learning_rate: f64,
     pub seed: u64,
 }
@@ -54,7 +55,7 @@ impl Settings {
             Recipe::Default => OptimizerOverrides {
                 iterations: Some(20),
                 batch_size: Some(12),
-                learning_rate: Some(2.0),
+                learning_rate: Some(0.01),
             },
         }
     }
@@ -470,8 +471,9 @@ fn calibrate_default(
             1 => vec![0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13],
             _ => vec![0, 1, 2, 3, 13],
         };
-        let max_step = settings.learning_rate * factor as f64;
-        let mut lambda = 1e-3;
+        // Trust region: at most 2 full-resolution pixels per iteration and level factor.
+        let max_step = 2.0 * factor as f64;
+        let mut lambda = 1e-5 / settings.learning_rate;
         let mut current = f64::NAN;
         for _ in 0..settings.iterations {
             let (jtj, jtr, c) = normal_equations(&level, &scaling, &theta, &active, &all);
@@ -572,7 +574,6 @@ fn calibrate_paper(
     let mut v = m.zeros_like();
     let mut best: (f64, Vec<f32>) = (f64::INFINITY, vec![0.0; NUM_PARAMS]);
     let mut stopped = None;
-    let mut last = f64::NAN;
     let mut smoothed = f64::NAN;
     let mut iterations = 0;
     let batch = settings.batch_size.min(used.len());
@@ -628,7 +629,6 @@ fn calibrate_paper(
             let _ = theta.f_sub_(&update);
         });
         let _ = theta.grad().zero_();
-        last = loss;
         progress(&Progress {
             stage: "paper".into(),
             step: it + 1,
@@ -652,7 +652,6 @@ fn calibrate_paper(
         support += n;
     }
     let final_loss = sq / support.max(1.0);
-    let _ = last;
     Ok(Outcome {
         initial: model::to_calibration(&p0),
         calibration: model::to_calibration(&scaling.physical(&final_theta)),

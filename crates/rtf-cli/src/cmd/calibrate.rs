@@ -48,7 +48,7 @@ pub struct Args {
     /// paper: pairs per step; default: frames used.
     #[arg(long)]
     pub batch_size: Option<usize>,
-    /// paper: initial Adam step (pixel-scaled units); default: step limit in pixels.
+    /// paper: initial Adam step (pixel-scaled units); default: first LM damping = 1e-5 / LR.
     #[arg(long)]
     pub learning_rate: Option<f64>,
     /// libtorch CPU threads. The model's many small tensor operations run fastest on one
