@@ -7,7 +7,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use tch::{nn, Device, Kind, Tensor};
 
-use rtf_models::fast::{InferenceNet, Precision};
+use rtf_models::fast::{argmax_agreement, InferenceNet, Precision};
 use rtf_models::{ModelConfig, ModelError};
 
 #[derive(Debug, thiserror::Error)]
@@ -76,6 +76,9 @@ pub struct BenchReport {
     pub iterations: usize,
     /// libtorch intra-op threads.
     pub threads: i32,
+    /// Fast path only: fraction of pixels whose arg-max class equals the plain fp32 path's on
+    /// the benchmark input (random weights, BatchNorm statistics as initialised).
+    pub agreement_with_plain: Option<f64>,
 }
 
 /// Median and minimum of a non-empty sample.
@@ -116,9 +119,12 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     let shape = [opts.batch, channels, opts.height, opts.width];
     net.check_input(&shape)?;
     let input = Tensor::rand(shape, (Kind::Float, Device::Cpu));
+    let mut agreement_with_plain = None;
     let run: Box<dyn Fn() -> Result<Tensor, ModelError>> = match opts.path {
         ForwardPath::Fast => {
+            let plain = tch::no_grad(|| net.forward_t(&input, false));
             let fast = InferenceNet::new(net, opts.precision)?;
+            agreement_with_plain = Some(argmax_agreement(&plain, &fast.forward_unchecked(&input)?));
             Box::new(move || fast.forward_unchecked(&input))
         }
         ForwardPath::Plain => Box::new(move || Ok(tch::no_grad(|| net.forward_t(&input, false)))),
@@ -146,6 +152,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         width: opts.width,
         iterations: opts.iterations,
         threads: tch::get_num_threads(),
+        agreement_with_plain,
     })
 }
 
@@ -178,6 +185,7 @@ mod tests {
             assert!(json.get(key).is_some(), "{key}");
         }
         assert_eq!(json["precision"], "fp32");
+        assert!(report.agreement_with_plain.unwrap() >= 0.999);
     }
 
     #[test]

@@ -34,11 +34,11 @@ pub fn leaky_relu(xs: &Tensor, slope: f64) -> Tensor {
     xs.maximum(&(xs * slope))
 }
 
-/// LeakyReLU in one pass for inference: `leaky_relu_backward(grad = x, x)` is
-/// `x > 0 ? x : slope·x`, which is exactly the activation (libtorch exposes no slope
-/// argument on the forward op through tch).
-pub fn leaky_relu_inference(xs: &Tensor, slope: f64) -> Tensor {
-    xs.leaky_relu_backward(xs, slope, false)
+/// LeakyReLU in place, for inference: tch exposes no slope on the forward op, but
+/// `leaky_relu_backward(grad = x, x)` is `x > 0 ? x : slope·x`, exactly the activation, and its
+/// `grad_input` (out) variant writes it over `x` in one pass without allocating.
+pub fn leaky_relu_inference(xs: Tensor, slope: f64) -> Tensor {
+    xs.leaky_relu_backward_grad_input(&xs, &xs, slope, false)
 }
 
 /// Re-lays a 4-D tensor out channels-last (NHWC in memory, NCHW logical shape); libtorch's
@@ -82,7 +82,7 @@ impl Act {
                 let _ = xs.relu_();
                 xs
             }
-            Act::LeakyRelu(slope) => leaky_relu_inference(&xs, slope),
+            Act::LeakyRelu(slope) => leaky_relu_inference(xs, slope),
         }
     }
 }
@@ -501,7 +501,10 @@ mod tests {
         let x = Tensor::randn([1000], (Kind::Float, Device::Cpu));
         let expected = x.where_self(&x.gt(0.0), &(&x * 0.2));
         assert!(leaky_relu(&x, 0.2).equal(&expected));
-        assert!(leaky_relu_inference(&x, 0.2).equal(&expected));
+        let y = x.copy();
+        let out = leaky_relu_inference(y.shallow_clone(), 0.2);
+        assert!(out.equal(&expected));
+        assert!(y.equal(&expected), "computed in place");
     }
 
     #[test]

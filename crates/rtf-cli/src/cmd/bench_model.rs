@@ -89,6 +89,12 @@ pub fn run(args: Args) -> Result<()> {
             report.min_ms,
             report.fps
         );
+        if let Some(agreement) = report.agreement_with_plain {
+            println!(
+                "arg-max agreement with the plain fp32 path: {:.4} % of pixels",
+                100.0 * agreement
+            );
+        }
     }
     Ok(())
 }
