@@ -70,7 +70,7 @@ pub struct SynthRig {
 pub fn thermal_spec(width: usize) -> ThermalSpec {
     let scale = width as f64 / 640.0;
     ThermalSpec {
-        width: width,
+        width,
         height: (512.0 * scale).round() as usize,
         focal_length_mm: 9.0,
         pixel_pitch_mm: 0.017 / scale,
