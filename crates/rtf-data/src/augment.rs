@@ -185,7 +185,13 @@ fn taps(src: usize, lo: f32, hi: f32, out: usize, filter: Filter) -> Taps {
             start.push(((center.floor().max(0.0)) as usize).min(src - 1));
         } else {
             w.iter_mut().for_each(|v| *v /= total);
-            start.push(first);
+            // Keep every tap inside the source (the tail weights are zero), so the passes
+            // can read `len` values without bounds arithmetic.
+            let shift = (first + len).saturating_sub(src).min(first);
+            if shift > 0 {
+                w.rotate_right(shift);
+            }
+            start.push(first - shift);
         }
     }
     Taps {
@@ -240,13 +246,21 @@ pub fn resample_into(
         .max()
         .unwrap_or(0);
     let rows = row_hi - row_lo;
-    let mut tmp = vec![0.0f32; rows * out_w];
+    let mut tmp = take_scratch(rows * out_w);
     for c in 0..src.channels {
         let plane = src.plane(c);
         // Horizontal pass: [rows, sw] -> [rows, out_w].
         for r in 0..rows {
             let src_row = &plane[(row_lo + r) * sw..(row_lo + r + 1) * sw];
             let dst = &mut tmp[r * out_w..(r + 1) * out_w];
+            if sw >= tx.len {
+                match tx.len {
+                    3 => horizontal::<3>(src_row, dst, &tx),
+                    5 => horizontal::<5>(src_row, dst, &tx),
+                    _ => horizontal_any(src_row, dst, &tx),
+                }
+                continue;
+            }
             for (i, d) in dst.iter_mut().enumerate() {
                 let s = tx.start[i];
                 let w = &tx.weights[i * tx.len..(i + 1) * tx.len];
@@ -277,10 +291,66 @@ pub fn resample_into(
             }
         }
     }
+    put_scratch(tmp);
     // Cubic overshoot must not leave the unit range.
     if filter == Filter::Bicubic {
         dst_all.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
     }
+}
+
+/// Horizontal pass with a compile-time tap count (3: bilinear, 5: bicubic, when enlarging).
+fn horizontal<const L: usize>(src_row: &[f32], dst: &mut [f32], tx: &Taps) {
+    for ((d, &s), w) in dst
+        .iter_mut()
+        .zip(&tx.start)
+        .zip(tx.weights.chunks_exact(L))
+    {
+        let x: &[f32; L] = src_row[s..s + L].try_into().expect("taps inside the row");
+        let w: &[f32; L] = w.try_into().expect("L weights");
+        let mut acc = 0.0;
+        for k in 0..L {
+            acc += x[k] * w[k];
+        }
+        *d = acc;
+    }
+}
+
+fn horizontal_any(src_row: &[f32], dst: &mut [f32], tx: &Taps) {
+    for ((d, &s), w) in dst
+        .iter_mut()
+        .zip(&tx.start)
+        .zip(tx.weights.chunks_exact(tx.len))
+    {
+        *d = src_row[s..s + tx.len]
+            .iter()
+            .zip(w)
+            .map(|(a, b)| a * b)
+            .sum();
+    }
+}
+
+thread_local! {
+    /// Per-thread scratch memory: re-touching the same pages is much cheaper than faulting in
+    /// fresh ones for every frame.
+    static SCRATCH: std::cell::RefCell<Vec<Vec<f32>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// A zeroed buffer of `len` values from this thread's scratch pool.
+pub(crate) fn take_scratch(len: usize) -> Vec<f32> {
+    let mut v = SCRATCH.with(|s| s.borrow_mut().pop()).unwrap_or_default();
+    v.clear();
+    v.resize(len, 0.0);
+    v
+}
+
+/// Returns a buffer to this thread's scratch pool (at most a few are kept).
+pub(crate) fn put_scratch(v: Vec<f32>) {
+    SCRATCH.with(|s| {
+        let mut s = s.borrow_mut();
+        if s.len() < 4 {
+            s.push(v);
+        }
+    });
 }
 
 /// Nearest-neighbour resampling of a label window (labels are never interpolated).

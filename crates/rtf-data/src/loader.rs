@@ -359,7 +359,7 @@ pub fn prepare_into(
             "output size {out_w}x{out_h} does not match the buffers"
         )));
     }
-    let mut data = vec![0.0f32; 4 * n];
+    let mut data = augment::take_scratch(4 * n);
     let (rgb_planes, t_plane) = data.split_at_mut(3 * n);
     for (i, px) in frame.rgb.chunks_exact(3).enumerate() {
         rgb_planes[i] = px[0] as f32 / 255.0;
@@ -425,6 +425,7 @@ pub fn prepare_into(
         dst.copy_from_slice(&img.data);
         label = lab.unwrap_or_default();
     }
+    augment::put_scratch(image.data);
     if flip {
         dst.chunks_exact_mut(out_w).for_each(|row| row.reverse());
         augment::hflip_label(&mut label, out_w);
