@@ -517,6 +517,50 @@ pub fn gaussian(rng: &mut impl Rng) -> f32 {
     (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
 }
 
+/// Resizes a decoded frame: RGB and thermal bilinear (antialiased when shrinking), label
+/// nearest neighbour. Used where whole frames are shown or evaluated at another size.
+pub fn resize_frame(frame: &crate::Frame, width: usize, height: usize) -> crate::Frame {
+    let (w, h) = (frame.width, frame.height);
+    if (w, h) == (width, height) || w == 0 || h == 0 || width == 0 || height == 0 {
+        return frame.clone();
+    }
+    let n = w * h;
+    let mut data = vec![0.0f32; 4 * n];
+    for (i, px) in frame.rgb.chunks_exact(3).take(n).enumerate() {
+        for c in 0..3 {
+            data[c * n + i] = px[c] as f32 / 255.0;
+        }
+    }
+    data[3 * n..3 * n + frame.thermal.len().min(n)]
+        .copy_from_slice(&frame.thermal[..frame.thermal.len().min(n)]);
+    let img = Planar {
+        channels: 4,
+        width: w,
+        height: h,
+        data,
+    };
+    let out = resample(&img, Window::full(w, h), width, height, Filter::Bilinear);
+    let m = width * height;
+    let mut rgb = Vec::with_capacity(3 * m);
+    for i in 0..m {
+        for c in 0..3 {
+            rgb.push((out.data[c * m + i].clamp(0.0, 1.0) * 255.0).round() as u8);
+        }
+    }
+    crate::Frame {
+        name: frame.name.clone(),
+        daytime: frame.daytime,
+        width,
+        height,
+        rgb,
+        thermal: out.data[3 * m..].to_vec(),
+        label: frame
+            .label
+            .as_ref()
+            .map(|l| resample_nearest(l, w, h, Window::full(w, h), width, height)),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -602,49 +646,5 @@ mod tests {
         assert_eq!(same_ids.unwrap(), ids);
         let (_, rot_ids) = rotate(&img, Some(&ids), 20.0, 9);
         assert_eq!(rot_ids.unwrap()[0], 9, "corner uncovered after rotation");
-    }
-}
-
-/// Resizes a decoded frame: RGB and thermal bilinear (antialiased when shrinking), label
-/// nearest neighbour. Used where whole frames are shown or evaluated at another size.
-pub fn resize_frame(frame: &crate::Frame, width: usize, height: usize) -> crate::Frame {
-    let (w, h) = (frame.width, frame.height);
-    if (w, h) == (width, height) || w == 0 || h == 0 || width == 0 || height == 0 {
-        return frame.clone();
-    }
-    let n = w * h;
-    let mut data = vec![0.0f32; 4 * n];
-    for (i, px) in frame.rgb.chunks_exact(3).take(n).enumerate() {
-        for c in 0..3 {
-            data[c * n + i] = px[c] as f32 / 255.0;
-        }
-    }
-    data[3 * n..3 * n + frame.thermal.len().min(n)]
-        .copy_from_slice(&frame.thermal[..frame.thermal.len().min(n)]);
-    let img = Planar {
-        channels: 4,
-        width: w,
-        height: h,
-        data,
-    };
-    let out = resample(&img, Window::full(w, h), width, height, Filter::Bilinear);
-    let m = width * height;
-    let mut rgb = Vec::with_capacity(3 * m);
-    for i in 0..m {
-        for c in 0..3 {
-            rgb.push((out.data[c * m + i].clamp(0.0, 1.0) * 255.0).round() as u8);
-        }
-    }
-    crate::Frame {
-        name: frame.name.clone(),
-        daytime: frame.daytime,
-        width,
-        height,
-        rgb,
-        thermal: out.data[3 * m..].to_vec(),
-        label: frame
-            .label
-            .as_ref()
-            .map(|l| resample_nearest(l, w, h, Window::full(w, h), width, height)),
     }
 }

@@ -718,7 +718,7 @@ mod tests {
         assert!(f.label.as_ref().unwrap().iter().all(|&id| id < 13));
         assert!(f.thermal.iter().all(|t| (0.0..=1.0).contains(t)));
         // Sky is colder than −10 °C apparent: clipped to 0 by the reference clip.
-        assert!(f.thermal.iter().any(|&t| t == 0.0));
+        assert!(f.thermal.contains(&0.0));
         let mut days: Vec<_> = (0..test.len()).map(|i| test.daytime(i).unwrap()).collect();
         days.sort_by_key(|d| *d == Daytime::Night);
         assert_eq!(days, [Daytime::Day, Daytime::Night]);

@@ -229,20 +229,19 @@ impl EpochJob {
             )
         };
         let ignore = self.source.class_set().ignore_id;
-        let work =
-            |((frame, &pos), (dst, dst_label)): ((Frame, &usize), (&mut [f32], &mut [i64]))| {
-                let mut rng = ChaCha8Rng::seed_from_u64(mix(self.cfg.seed, self.epoch, pos as u64));
-                prepare_into(
-                    frame,
-                    &self.cfg,
-                    ignore,
-                    &mut rng,
-                    self.input,
-                    (w, h),
-                    dst,
-                    dst_label,
-                )
-            };
+        let work = |((frame, &pos), (dst, dst_label)): ((Frame, &usize), BatchSlot)| {
+            let mut rng = ChaCha8Rng::seed_from_u64(mix(self.cfg.seed, self.epoch, pos as u64));
+            prepare_into(
+                frame,
+                &self.cfg,
+                ignore,
+                &mut rng,
+                self.input,
+                (w, h),
+                dst,
+                dst_label,
+            )
+        };
         let meta: Vec<(String, Option<Daytime>)> = if parallel {
             frames
                 .into_par_iter()
@@ -440,6 +439,9 @@ pub fn prepare_into(
     Ok((frame.name, frame.daytime))
 }
 
+/// One frame's place in the batch tensors: input [4, H, W] and target [H, W].
+type BatchSlot<'a> = (&'a mut [f32], &'a mut [i64]);
+
 enum Mode {
     Inline {
         next: usize,
@@ -605,7 +607,10 @@ mod tests {
         assert_eq!(batches[0].target.kind(), tch::Kind::Int64);
         assert_eq!(batches[2].input.size()[0], 1, "last partial batch kept");
         let min = batches[0].input.min().double_value(&[]);
-        assert!(min >= -1.0 && min < -0.9, "MeanStd maps 0 to -1, got {min}");
+        assert!(
+            (-1.0..-0.9).contains(&min),
+            "MeanStd maps 0 to -1, got {min}"
+        );
         let mut names: Vec<String> = batches.iter().flat_map(|b| b.names.clone()).collect();
         names.sort();
         assert_eq!(names.len(), 7);

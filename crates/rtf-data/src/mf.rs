@@ -325,7 +325,7 @@ mod tests {
         let (dir, ds) = fixture();
         write(
             &dir.path().join("images/00001D.png"),
-            &png_u8(8, 6, 3, &vec![7; 8 * 6 * 3]),
+            &png_u8(8, 6, 3, &[7; 8 * 6 * 3]),
         );
         let err = load_err(&ds, "00001D");
         assert!(
@@ -341,7 +341,7 @@ mod tests {
         let (dir, ds) = fixture();
         write(
             &dir.path().join("labels/00001D.png"),
-            &png_u16(8, 6, 1, &vec![1; 48]),
+            &png_u16(8, 6, 1, &[1; 48]),
         );
         let err = load_err(&ds, "00001D");
         assert!(
@@ -357,7 +357,7 @@ mod tests {
         let (dir, ds) = fixture();
         write(
             &dir.path().join("labels/00001D.png"),
-            &png_u8(8, 6, 3, &vec![1; 144]),
+            &png_u8(8, 6, 3, &[1; 144]),
         );
         let err = load_err(&ds, "00001D");
         assert!(
@@ -371,7 +371,7 @@ mod tests {
         let (dir, ds) = fixture();
         write(
             &dir.path().join("labels/00001D.png"),
-            &png_u8(8, 5, 1, &vec![1; 40]),
+            &png_u8(8, 5, 1, &[1; 40]),
         );
         let err = load_err(&ds, "00001D");
         assert!(

@@ -43,8 +43,9 @@ pub fn decode_png(bytes: &[u8], path: &Path) -> Result<PngImage, DataError> {
         path: path.to_path_buf(),
         message: e.to_string(),
     };
-    let mut limits = png::Limits::default();
-    limits.bytes = MAX_DECODED_BYTES;
+    let limits = png::Limits {
+        bytes: MAX_DECODED_BYTES,
+    };
     let decoder = png::Decoder::new_with_limits(Cursor::new(bytes), limits);
     let mut reader = decoder.read_info().map_err(png_err)?;
     let info = reader.info();

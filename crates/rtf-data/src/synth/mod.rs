@@ -117,7 +117,8 @@ impl SynthFrame {
 
 /// Frame names: 1-based index, then `D` (even indices, day) or `N` (night).
 pub fn frame_name(index: usize) -> String {
-    format!("{:05}{}", index + 1, if index % 2 == 0 { 'D' } else { 'N' })
+    let day = index & 1 == 0;
+    format!("{:05}{}", index + 1, if day { 'D' } else { 'N' })
 }
 
 /// Renders frame `index` of a dataset (day for even, night for odd indices).

@@ -1087,9 +1087,7 @@ impl Scene {
         let mut sem = Vec::with_capacity(w * h);
         for s in &surfaces {
             let light = self.illumination(s);
-            for c in 0..3 {
-                radiance.push(s.albedo[c] * light[c] + s.emission[c]);
-            }
+            radiance.extend((0..3).map(|c| s.albedo[c] * light[c] + s.emission[c]));
             // Apparent temperature: emitted plus reflected sky (linearised radiometry).
             temp.push(
                 s.emissivity * s.temp
