@@ -135,34 +135,46 @@ pub fn decode_mf_frame(
     label_path: &Path,
     classes: &ClassSet,
 ) -> Result<Frame, DataError> {
-    let image = decode_u8(image_bytes, image_path, 4, "RGBA image, thermal in alpha")?;
+    // Fast path for the common case; anything unusual goes through the checked general path.
+    let (width, height, rgb, thermal) =
+        match crate::pngio::decode_rgba8_split(image_bytes, image_path) {
+            Some(decoded) => decoded?,
+            None => {
+                let image = decode_u8(image_bytes, image_path, 4, "RGBA image, thermal in alpha")?;
+                let Samples::U8(rgba) = image.samples else {
+                    unreachable!("decode_u8 checked 8-bit samples")
+                };
+                let rgb = rgba
+                    .chunks_exact(4)
+                    .flat_map(|px| [px[0], px[1], px[2]])
+                    .collect();
+                let thermal = rgba
+                    .chunks_exact(4)
+                    .map(|px| px[3] as f32 / 255.0)
+                    .collect();
+                (image.width, image.height, rgb, thermal)
+            }
+        };
     let label = decode_u8(label_bytes, label_path, 1, "label of class ids")?;
-    if (label.width, label.height) != (image.width, image.height) {
+    if (label.width, label.height) != (width, height) {
         return Err(DataError::SizeMismatch {
             image: image_path.to_path_buf(),
             label: label_path.to_path_buf(),
-            image_w: image.width,
-            image_h: image.height,
+            image_w: width,
+            image_h: height,
             label_w: label.width,
             label_h: label.height,
         });
     }
-    let (Samples::U8(rgba), Samples::U8(ids)) = (image.samples, label.samples) else {
+    let Samples::U8(ids) = label.samples else {
         unreachable!("decode_u8 checked 8-bit samples")
     };
     check_label_ids(&ids, label.width, classes, label_path)?;
-    let n = image.width * image.height;
-    let mut rgb = Vec::with_capacity(3 * n);
-    let mut thermal = Vec::with_capacity(n);
-    for px in rgba.chunks_exact(4) {
-        rgb.extend_from_slice(&px[..3]);
-        thermal.push(px[3] as f32 / 255.0);
-    }
     Ok(Frame {
         name: name.to_string(),
         daytime: Daytime::from_mf_name(name),
-        width: image.width,
-        height: image.height,
+        width,
+        height,
         rgb,
         thermal,
         label: Some(ids),

@@ -107,6 +107,66 @@ pub fn decode_png(bytes: &[u8], path: &Path) -> Result<PngImage, DataError> {
     })
 }
 
+/// An 8-bit RGBA image split row by row into interleaved RGB and alpha / 255 (the MF layout),
+/// without a full-size intermediate buffer. `None` when the image is not a non-interlaced
+/// 8-bit RGBA PNG; the caller then takes the general path, which reports what is wrong.
+pub fn decode_rgba8_split(
+    bytes: &[u8],
+    path: &Path,
+) -> Option<Result<(usize, usize, Vec<u8>, Vec<f32>), DataError>> {
+    let png_err = |e: png::DecodingError| DataError::Png {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let limits = png::Limits {
+        bytes: MAX_DECODED_BYTES,
+    };
+    let mut reader = png::Decoder::new_with_limits(Cursor::new(bytes), limits)
+        .read_info()
+        .ok()?;
+    let info = reader.info();
+    if info.color_type != png::ColorType::Rgba
+        || info.bit_depth != png::BitDepth::Eight
+        || info.interlaced
+    {
+        return None;
+    }
+    let (w, h) = (info.width as usize, info.height as usize);
+    let n = w
+        .checked_mul(h)
+        .filter(|&n| n.checked_mul(4).is_some_and(|b| b <= MAX_DECODED_BYTES))?;
+    let mut rgb = Vec::with_capacity(3 * n);
+    let mut alpha = Vec::with_capacity(n);
+    let mut rows = 0;
+    loop {
+        match reader.next_row() {
+            Ok(Some(row)) => {
+                let data = row.data();
+                if data.len() != 4 * w {
+                    return Some(Err(DataError::Png {
+                        path: path.to_path_buf(),
+                        message: "row length differs from header".into(),
+                    }));
+                }
+                for px in data.chunks_exact(4) {
+                    rgb.extend_from_slice(&px[..3]);
+                    alpha.push(px[3] as f32 / 255.0);
+                }
+                rows += 1;
+            }
+            Ok(None) => break,
+            Err(e) => return Some(Err(png_err(e))),
+        }
+    }
+    if rows != h {
+        return Some(Err(DataError::Png {
+            path: path.to_path_buf(),
+            message: format!("{rows} of {h} rows decoded"),
+        }));
+    }
+    Some(Ok((w, h, rgb, alpha)))
+}
+
 /// Reads and decodes a PNG file.
 pub fn read_png(path: &Path) -> Result<PngImage, DataError> {
     let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
@@ -244,6 +304,30 @@ mod tests {
         let data16: Vec<u16> = (0..6).map(|i| 20000 + i * 1000).collect();
         let img = decode_png(&encode_png_u16(3, 2, 1, &data16).unwrap(), p).unwrap();
         assert_eq!(img.samples, Samples::U16(data16));
+    }
+
+    #[test]
+    fn rgba_fast_path_matches_the_general_decoder() {
+        let data: Vec<u8> = (0..5 * 3 * 4).map(|i| (i * 37 % 256) as u8).collect();
+        let bytes = encode_png_u8(5, 3, 4, &data).unwrap();
+        let (w, h, rgb, alpha) = decode_rgba8_split(&bytes, Path::new("x.png"))
+            .unwrap()
+            .unwrap();
+        assert_eq!((w, h), (5, 3));
+        let expect_rgb: Vec<u8> = data.chunks(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+        assert_eq!(rgb, expect_rgb);
+        assert_eq!(alpha[1], data[7] as f32 / 255.0);
+        assert!(decode_rgba8_split(
+            &encode_png_u8(5, 3, 3, &data[..45]).unwrap(),
+            Path::new("x.png")
+        )
+        .is_none());
+        let truncated = decode_rgba8_split(&bytes[..bytes.len() - 20], Path::new("t.png"));
+        assert!(truncated
+            .unwrap()
+            .unwrap_err()
+            .to_string()
+            .contains("t.png"));
     }
 
     #[test]
