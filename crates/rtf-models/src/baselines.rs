@@ -1134,7 +1134,64 @@ impl ModuleT for Baseline {
     }
 }
 
+impl Fuse for VggEncoder {
+    fn fuse(&mut self, kind: Kind) {
+        self.stages.iter_mut().for_each(|s| s.fuse(kind));
+    }
+}
+
+impl Fuse for SegnetDecoder {
+    fn fuse(&mut self, kind: Kind) {
+        self.stages.iter_mut().for_each(|s| s.fuse(kind));
+    }
+}
+
+impl Baseline {
+    /// Folds BatchNorm etc. where the network is built from [`ConvBnAct`] units; ERFNet and
+    /// ENet (factorised kernels, PReLU) keep their plain forward.
+    fn fuse(&mut self, kind: Kind) -> bool {
+        match &mut self.body {
+            Body::Segnet(m) => {
+                m.encoder.fuse(kind);
+                m.decoder.fuse(kind);
+            }
+            Body::Fusenet(m) => {
+                m.rgb.fuse(kind);
+                m.thermal.fuse(kind);
+                m.decoder.fuse(kind);
+            }
+            Body::Unet(m) => {
+                for (a, b) in &mut m.down {
+                    a.fuse(kind);
+                    b.fuse(kind);
+                }
+                for (u, a, b) in &mut m.up {
+                    u.fuse(kind);
+                    a.fuse(kind);
+                    b.fuse(kind);
+                }
+                m.out.fuse(kind);
+            }
+            Body::Pspnet(m) => {
+                m.backbone.fuse(kind);
+                m.ppm.fuse(kind);
+                m.head.fuse(kind);
+                m.classifier.fuse(kind);
+            }
+            Body::Duchdc(m) => {
+                m.backbone.fuse(kind);
+                m.duc.fuse(kind);
+            }
+            Body::Erfnet(_) | Body::Enet(_) => return false,
+        }
+        true
+    }
+}
+
 impl Network for Baseline {
+    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
+        self.fuse(kind)
+    }
     fn input_convention(&self) -> rtf_core::InputConvention {
         self.config.input
     }
@@ -1201,6 +1258,29 @@ mod tests {
         assert!(near(unet, 31.04e6, 0.03), "unet {unet}");
         // The 4-channel variant only widens the first layer.
         assert!(count(Arch::Segnet, 4) - count(Arch::Segnet, 3) == 64 * 9);
+    }
+
+    #[test]
+    fn fused_baselines_agree_with_their_plain_path() {
+        use crate::fast::{argmax_agreement, InferenceNet, Precision};
+        for arch in [
+            Arch::Segnet,
+            Arch::Unet,
+            Arch::Pspnet,
+            Arch::Fusenet,
+            Arch::Erfnet,
+        ] {
+            tch::manual_seed(1);
+            let vs = nn::VarStore::new(Device::Cpu);
+            let net: Box<dyn Network> =
+                Box::new(Baseline::new(vs.root(), &Config::new(arch, 4, 9)).unwrap());
+            let x = Tensor::rand([1, 4, 32, 64], (Kind::Float, Device::Cpu));
+            let plain = tch::no_grad(|| net.forward_t(&x, false));
+            let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
+            assert_eq!(fast.is_fused(), arch != Arch::Erfnet);
+            let agreement = argmax_agreement(&plain, &fast.forward(&x).unwrap());
+            assert!(agreement >= 0.999, "{arch:?}: {agreement}");
+        }
     }
 
     #[test]
