@@ -89,6 +89,48 @@ impl BddSplit {
         })
     }
 
+    /// The listed frames that have both files, and a `MissingFrame` error for each that does
+    /// not (for `rtf data check`); native size.
+    pub fn scan(
+        root: &Path,
+        split: &str,
+        names: Vec<(usize, String)>,
+        list_file: &Path,
+    ) -> (Self, Vec<DataError>) {
+        let mut this = Self {
+            root: root.to_path_buf(),
+            split: split.to_string(),
+            names: Vec::new(),
+            resize: None,
+            class_set: ClassSet::freiburg(),
+        };
+        let mut problems = Vec::new();
+        for (line, name) in names {
+            let missing = if this.image_path(&name).is_none() {
+                Some(
+                    this.root
+                        .join("images")
+                        .join(split)
+                        .join(format!("{name}.jpg")),
+                )
+            } else if !this.label_path(&name).is_file() {
+                Some(this.label_path(&name))
+            } else {
+                None
+            };
+            match missing {
+                Some(missing) => problems.push(DataError::MissingFrame {
+                    split_file: list_file.to_path_buf(),
+                    line,
+                    name,
+                    missing,
+                }),
+                None => this.names.push(name),
+            }
+        }
+        (this, problems)
+    }
+
     fn image_path(&self, name: &str) -> Option<PathBuf> {
         let dir = self.root.join("images").join(&self.split);
         ["jpg", "jpeg", "png"]

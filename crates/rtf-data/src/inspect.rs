@@ -17,18 +17,118 @@ use std::path::{Path, PathBuf};
 pub enum DatasetFormat {
     Mf,
     Freiburg,
+    /// BDD100K night as HeatNet reads it: `<list>.txt`, `images/<split>/`, `labels/<split>/`.
+    Bdd,
 }
 
 /// Recognises a dataset root by its layout.
 pub fn detect_format(root: &Path) -> Option<DatasetFormat> {
     if root.join("images").is_dir() && root.join("labels").is_dir() {
-        return Some(DatasetFormat::Mf);
+        // BDD keeps its images in per-split folders; MF keeps PNGs directly in images/.
+        return Some(if bdd_splits(root).is_empty() {
+            DatasetFormat::Mf
+        } else {
+            DatasetFormat::Bdd
+        });
     }
     let mut found = Vec::new();
     for name in ["fl_rgb", "ImagesRGB"] {
         let _ = find_dir(root, name, 6, &mut found);
     }
     (!found.is_empty()).then_some(DatasetFormat::Freiburg)
+}
+
+/// Sub-folders of `images/` that have a matching `labels/` folder (BDD splits).
+fn bdd_splits(root: &Path) -> Vec<String> {
+    let mut out: Vec<String> = std::fs::read_dir(root.join("images"))
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_dir())
+                .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+                .filter(|n| root.join("labels").join(n).is_dir())
+                .collect()
+        })
+        .unwrap_or_default();
+    out.sort();
+    out
+}
+
+/// List files (`*.txt`) in a root, by stem.
+fn list_files(root: &Path) -> Vec<String> {
+    let mut out: Vec<String> = std::fs::read_dir(root)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "txt"))
+                .filter_map(|p| p.file_stem().map(|n| n.to_string_lossy().into_owned()))
+                .collect()
+        })
+        .unwrap_or_default();
+    out.sort();
+    out
+}
+
+/// The BDD split folder holding a list's first frame (HeatNet uses `val`).
+fn bdd_split_of(root: &Path, list: &str) -> Option<String> {
+    let names = crate::mf::read_split_file(&root.join(format!("{list}.txt"))).ok()?;
+    let first = &names.first()?.1;
+    bdd_splits(root).into_iter().find(|s| {
+        ["jpg", "jpeg", "png"].iter().any(|e| {
+            root.join("images")
+                .join(s)
+                .join(format!("{first}.{e}"))
+                .is_file()
+        })
+    })
+}
+
+fn check_bdd(root: &Path) -> (usize, Vec<Problem>) {
+    let mut problems = Vec::new();
+    let lists = list_files(root);
+    if lists.is_empty() {
+        problems.push(problem(
+            root,
+            "no list file (<list>.txt, e.g. bdd_night.txt)",
+        ));
+    }
+    let mut frames = 0;
+    for list in lists {
+        let file = root.join(format!("{list}.txt"));
+        let Some(split) = bdd_split_of(root, &list) else {
+            problems.push(problem(
+                &file,
+                "its first frame is in no images/<split>/ folder",
+            ));
+            continue;
+        };
+        // Per-line problems (missing files, duplicates) first, then decode what exists.
+        let names = match crate::mf::read_split_file(&file) {
+            Ok(n) => n,
+            Err(e) => {
+                problems.push(from_error(&file, e));
+                continue;
+            }
+        };
+        let mut seen: HashMap<&str, usize> = HashMap::new();
+        for (line, name) in &names {
+            if let Some(prev) = seen.insert(name, *line) {
+                problems.push(problem(
+                    &file,
+                    format!("line {line}: '{name}' duplicates line {prev}"),
+                ));
+            }
+        }
+        let (split_ok, missing) = crate::bdd::BddSplit::scan(root, &split, names, &file);
+        problems.extend(missing.into_iter().map(|e| from_error(&file, e)));
+        frames += split_ok.len();
+        let decoded: Vec<Problem> = (0..split_ok.len())
+            .into_par_iter()
+            .filter_map(|i| split_ok.load(i).err().map(|e| from_error(&file, e)))
+            .collect();
+        problems.extend(decoded);
+    }
+    (frames, problems)
 }
 
 fn find_dir(root: &Path, name: &str, depth: usize, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
@@ -109,6 +209,7 @@ pub fn check(root: &Path) -> CheckReport {
     let (frames, mut problems) = match format {
         Some(DatasetFormat::Mf) => check_mf(root),
         Some(DatasetFormat::Freiburg) => check_freiburg(root),
+        Some(DatasetFormat::Bdd) => check_bdd(root),
         None => (
             0,
             vec![problem(
@@ -399,6 +500,35 @@ pub fn stats(root: &Path) -> Result<Stats, DataError> {
                 .map_or(0, |id| counts.get(id as usize).copied().unwrap_or(0));
             (classes, counts, labelled.len(), ignored)
         }
+        DatasetFormat::Bdd => {
+            let classes = ClassSet::freiburg();
+            let mut counts = vec![0u64; 256];
+            let mut seen: BTreeMap<String, ()> = BTreeMap::new();
+            let mut labelled = 0;
+            for list in list_files(root) {
+                let split_name = bdd_split_of(root, &list).ok_or_else(|| DataError::Layout {
+                    root: root.to_path_buf(),
+                    message: format!("{list}.txt: its first frame is in no images/<split>/ folder"),
+                })?;
+                let split = crate::bdd::BddSplit::open(root, &list, &split_name, None)?;
+                splits.push(SplitStats {
+                    name: list.clone(),
+                    frames: split.len(),
+                    day: 0,
+                    night: split.len(),
+                });
+                let fresh: Vec<usize> = (0..split.len())
+                    .filter(|&i| seen.insert(split.frame_name(i).to_string(), ()).is_none())
+                    .collect();
+                let c = count_pixels(&classes, fresh.len(), |i| {
+                    split.load(fresh[i]).map(|f| f.label)
+                })?;
+                counts.iter_mut().zip(c).for_each(|(a, b)| *a += b);
+                labelled += fresh.len();
+            }
+            let ignored = counts[13];
+            (classes, counts, labelled, ignored)
+        }
     };
     let total: u64 = counts.iter().take(classes.len()).sum();
     let classes = classes
@@ -528,6 +658,43 @@ mod tests {
         assert!(has(&["train.txt", "line 6", "00009D"]), "{text:#?}");
         assert!(has(&["images/00006N.png", "in no split"]), "{text:#?}");
         assert_eq!(report.frames, 5, "every pair with both files was decoded");
+    }
+
+    #[test]
+    fn bdd_roots_are_recognised_checked_and_counted() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        write(&root.join("images/val/a.png"), &png_u8(4, 2, 3, &[50; 24]));
+        write(
+            &root.join("labels/val/a_train_id.png"),
+            &png_u8(4, 2, 1, &[0, 0, 11, 11, 13, 13, 255, 255]),
+        );
+        write(&root.join("bdd_night.txt"), b"a\n");
+        assert_eq!(detect_format(root), Some(DatasetFormat::Bdd));
+        assert!(check(root).is_ok(), "{:?}", check(root).problems);
+        let s = stats(root).unwrap();
+        assert_eq!((s.splits[0].frames, s.splits[0].night), (1, 1));
+        assert_eq!(
+            (
+                s.classes[0].pixels,
+                s.classes[9].pixels,
+                s.classes[10].pixels,
+                s.ignored_pixels
+            ),
+            (2, 2, 2, 2)
+        );
+        write(&root.join("bdd_night.txt"), b"a\nb\na\n");
+        let text: Vec<String> = check(root).problems.iter().map(|p| p.to_string()).collect();
+        assert!(
+            text.iter()
+                .any(|t| t.contains("line 2") && t.contains("'b'")),
+            "{text:?}"
+        );
+        assert!(
+            text.iter()
+                .any(|t| t.contains("line 3") && t.contains("duplicates line 1")),
+            "{text:?}"
+        );
     }
 
     #[test]

@@ -14,7 +14,7 @@ pub struct Args {
 pub enum DataCommand {
     /// Validate a dataset completely; lists every problem, exit code 1 if there is any.
     Check {
-        /// Dataset root (MF or Freiburg Thermal layout).
+        /// Dataset root (MF, Freiburg Thermal or BDD100K-night layout).
         dir: PathBuf,
         /// Print the report as JSON.
         #[arg(long)]
@@ -22,7 +22,7 @@ pub enum DataCommand {
     },
     /// Frames per split and day/night, per-class pixel shares.
     Stats {
-        /// Dataset root (MF or Freiburg Thermal layout).
+        /// Dataset root (MF, Freiburg Thermal or BDD100K-night layout).
         dir: PathBuf,
         /// Print JSON instead of a table.
         #[arg(long)]
