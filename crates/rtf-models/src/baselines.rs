@@ -804,6 +804,8 @@ impl EnetConv {
 }
 
 /// One ENet bottleneck (regular, dilated, asymmetric, downsampling or upsampling).
+// Built once per network and never moved in a hot loop: the size difference is harmless.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug)]
 enum EnetBlock {
     Regular {
@@ -1068,6 +1070,8 @@ impl Enet {
 
 // ------------------------------------------------------------------------------ the network
 
+// Built once per network and never moved in a hot loop: the size difference is harmless.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug)]
 enum Body {
     Segnet(Segnet),

@@ -398,12 +398,14 @@ impl ConvBnAct {
 
     /// conv → bn → (+ residual) → act, the residual add in place on the inference path.
     pub fn forward_add(&self, xs: &Tensor, residual: &Tensor, train: bool) -> Tensor {
-        let mut ys = self.conv_bn(xs, train);
-        if self.fused.is_some() && !train {
+        let ys = self.conv_bn(xs, train);
+        let ys = if self.fused.is_some() && !train {
+            let mut ys = ys;
             let _ = ys.g_add_(residual);
+            ys
         } else {
-            ys = ys + residual;
-        }
+            ys + residual
+        };
         self.activate(ys, train)
     }
 }

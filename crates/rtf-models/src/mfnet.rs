@@ -305,6 +305,8 @@ fn conv_bn_act(
 }
 
 /// One block of a conv4/conv5 stage.
+// Built once per network and never moved in a hot loop: the size difference is harmless.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug)]
 enum StageBlock {
     /// Optional 1×1 squeeze, then 3×3 ‖ 3×3 dilation 2 of c_out/2 each, concatenated.

@@ -206,6 +206,8 @@ impl ModuleT for UpceptionB {
 }
 
 /// One decoder stage `deconvN`: Upception A then B, or (NUB) a single ConvT → BN → ReLU.
+// Built once per network and never moved in a hot loop: the size difference is harmless.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug)]
 enum DecoderStage {
     Upception(UpceptionA, UpceptionB),
