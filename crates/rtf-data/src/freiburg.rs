@@ -725,6 +725,67 @@ mod tests {
     }
 
     #[test]
+    fn loader_batches_freiburg_with_window_and_ignore_for_unlabelled_nights() {
+        use crate::{AugmentConfig, Loader, LoaderConfig};
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = SynthConfig {
+            count: 8,
+            seed: 5,
+            width: 96,
+            height: 64,
+            format: SynthFormat::Freiburg,
+            misalignment: None,
+        };
+        generate(dir.path(), &cfg).unwrap();
+        let pre = FreiburgPreprocess {
+            resize: Some((120, 40)),
+            columns: Some((10, 110)),
+            ..FreiburgPreprocess::native()
+        };
+        let train = FreiburgSplit::open(dir.path().join("train"), pre).unwrap();
+        let source: std::sync::Arc<dyn FrameSource> = std::sync::Arc::new(train);
+        let loader_cfg = LoaderConfig {
+            batch_size: 6,
+            shuffle: false,
+            augment: AugmentConfig {
+                hflip: true,
+                window: Some((64, 32)),
+                ..Default::default()
+            },
+            ..LoaderConfig::default()
+        };
+        let loader = Loader::new(
+            source.clone(),
+            loader_cfg,
+            rtf_core::InputConvention::MeanStd {
+                mean: 0.5,
+                std: 0.5,
+            },
+        );
+        let batch = loader.epoch(0).next().unwrap().unwrap();
+        assert_eq!(batch.input.size(), [6, 4, 32, 64]);
+        let (lo, hi) = (
+            batch.input.min().double_value(&[]),
+            batch.input.max().double_value(&[]),
+        );
+        assert!(
+            lo >= -1.0 && hi <= 1.0 && lo < 0.0,
+            "[-1, 1] input, got {lo}..{hi}"
+        );
+        for (i, daytime) in batch.daytimes.iter().enumerate() {
+            let target = Vec::<i64>::try_from(batch.target.get(i as i64).flatten(0, -1)).unwrap();
+            if *daytime == Some(Daytime::Night) {
+                assert!(
+                    target.iter().all(|&t| t == 13),
+                    "unlabelled night frame -> ignore"
+                );
+            } else {
+                assert!(target.iter().all(|&t| t < 13), "labelled day frame");
+            }
+        }
+    }
+
+    #[test]
     fn eight_bit_ir_and_missing_partner_are_refused() {
         let dir = tempfile::tempdir().unwrap();
         let seq = dir.path().join("run/seq_day/00");
