@@ -128,3 +128,16 @@ fn predict_takes_separate_rgb_and_16_bit_thermal() {
     let err = fails(&["predict", "--weights", s(&run.join("final.safetensors")), "--out", s(&out), "--rgb", s(&rgb), "--thermal", s(&small)]);
     assert!(err.contains("small_ir.png") && err.contains("cam_rgb.png"), "{err}");
 }
+
+#[test]
+fn synth_writes_a_calibration_rig_with_ground_truth() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rig = tmp.path().join("rig");
+    ok(&["synth", "--format", "calibration-rig", "--out", s(&rig), "--count", "2", "--seed", "5", "--size", "160x120"]);
+    let yaml = std::fs::read_to_string(rig.join("rig.yaml")).unwrap();
+    assert!(yaml.contains("frames") && yaml.contains("focal_length_mm"), "{yaml}");
+    let truth = std::fs::read_to_string(rig.join("ground_truth.yaml")).unwrap();
+    for key in ["rotation", "translation", "se3", "distortion"] {
+        assert!(truth.contains(key), "{key} missing in ground_truth.yaml");
+    }
+}

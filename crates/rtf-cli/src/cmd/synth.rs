@@ -9,6 +9,9 @@ pub enum Format {
     Mf,
     /// Freiburg Thermal layout: 8-bit RGB, 16-bit IR, 13 classes.
     Freiburg,
+    /// A calibration rig for `rtf calibrate`: rig.yaml, RGB stereo pairs, depth, thermal
+    /// frames rendered through a known thermal camera, and ground_truth.yaml.
+    CalibrationRig,
 }
 
 #[derive(clap::Args)]
@@ -32,12 +35,16 @@ pub struct Args {
     /// ±50 ms of object motion, as between the real MF cameras. Off by default.
     #[arg(long)]
     pub misalign: Option<f32>,
+    /// Calibration rig: which depth source the frames list in rig.yaml.
+    #[arg(long, value_enum, default_value_t = super::calibrate::SynthDepth::Both)]
+    pub rig_depth: super::calibrate::SynthDepth,
 }
 
 pub fn run(args: Args) -> Result<()> {
     let format = match args.format {
         Format::Mf => SynthFormat::Mf,
         Format::Freiburg => SynthFormat::Freiburg,
+        Format::CalibrationRig => return calibration_rig(&args),
     };
     let cfg = SynthConfig {
         count: args.count,
@@ -66,5 +73,25 @@ pub fn run(args: Args) -> Result<()> {
         args.out.display(),
         splits.join(", ")
     );
+    Ok(())
+}
+
+fn calibration_rig(args: &Args) -> Result<()> {
+    use super::calibrate::SynthDepth;
+    use rtf_calib::synth_rig::{write_rig, DepthSource, RigSynthConfig};
+    let cfg = RigSynthConfig {
+        seed: args.seed,
+        width: args.size.0,
+        height: args.size.1,
+        frames: args.count,
+        depth: match args.rig_depth {
+            SynthDepth::Given => DepthSource::Given,
+            SynthDepth::Stereo => DepthSource::Stereo,
+            SynthDepth::Both => DepthSource::Both,
+        },
+        ..Default::default()
+    };
+    let rig = write_rig(&args.out, &cfg).with_context(|| format!("writing a synthetic rig to {}", args.out.display()))?;
+    println!("wrote {} ({} frames) and {}", rig.rig_path.display(), cfg.frames, rig.ground_truth_path.display());
     Ok(())
 }
