@@ -58,10 +58,31 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
             .with_context(|| format!("cannot link {} -> {}", link.display(), target.display()))?;
         println!("setup: linked .libtorch -> {}", target.display());
     }
+    ensure_script_packages(&python)?;
     if up_to_date && current.is_some() {
         println!("setup: libtorch {TORCH_VERSION} ready (.venv)");
     }
     Ok(python)
+}
+
+/// The Python peers of our benchmarks (`scripts/bench_*.py`) need NumPy and Pillow.
+fn ensure_script_packages(python: &Path) -> Result<()> {
+    let importable = Command::new(python)
+        .args(["-c", "import numpy, PIL"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if importable {
+        return Ok(());
+    }
+    println!("setup: installing numpy and pillow into .venv (benchmark scripts)");
+    let status = Command::new(python)
+        .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check", "numpy", "pillow"])
+        .status()
+        .context("cannot run pip in .venv")?;
+    if !status.success() {
+        bail!("pip install numpy pillow failed; is PyPI reachable?");
+    }
+    Ok(())
 }
 
 fn find_host_python() -> Result<String> {
