@@ -11,18 +11,16 @@ pub struct Args {
 
 /// `1234567` -> `1,234,567`.
 fn thousands(n: i64) -> String {
-    let digits = n.abs().to_string();
-    let mut out = String::new();
-    for (i, c) in digits.chars().enumerate() {
-        if i > 0 && (digits.len() - i) % 3 == 0 {
-            out.push(',');
-        }
-        out.push(c);
-    }
+    let reversed: Vec<char> = n.unsigned_abs().to_string().chars().rev().collect();
+    let groups: Vec<String> = reversed
+        .chunks(3)
+        .map(|g| g.iter().rev().collect())
+        .collect();
+    let digits = groups.into_iter().rev().collect::<Vec<_>>().join(",");
     if n < 0 {
-        format!("-{out}")
+        format!("-{digits}")
     } else {
-        out
+        digits
     }
 }
 
