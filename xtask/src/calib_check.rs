@@ -18,7 +18,7 @@ struct Options {
 fn parse(args: &[String]) -> Result<Options> {
     let mut o = Options {
         seeds: vec![1, 2, 3],
-        frames: 12,
+        frames: 20,
         width: 640,
         paper_iterations: 40,
         out: "target/calib-check".into(),
@@ -32,7 +32,7 @@ fn parse(args: &[String]) -> Result<Options> {
             "--width" => o.width = value()?.parse().context("--width: a number")?,
             "--paper-iterations" => o.paper_iterations = value()?.parse().context("--paper-iterations: a number")?,
             "--out" => o.out = value()?.clone(),
-            other => bail!("calib-check: unknown option `{other}` (--seeds 1,2,3 --frames 12 --width 640 --paper-iterations 40 --out DIR)"),
+            other => bail!("calib-check: unknown option `{other}` (--seeds 1,2,3 --frames 20 --width 640 --paper-iterations 40 --out DIR)"),
         }
     }
     Ok(o)

@@ -54,7 +54,7 @@ impl Settings {
             },
             Recipe::Default => OptimizerOverrides {
                 iterations: Some(20),
-                batch_size: Some(12),
+                batch_size: Some(20),
                 learning_rate: Some(0.01),
             },
         }
