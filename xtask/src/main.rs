@@ -1,8 +1,8 @@
 //! Project tasks: `cargo xtask <task>`. A plain binary without libtorch, so it builds on a
 //! fresh machine and can install libtorch itself.
 
-mod convert;
 mod calib_check;
+mod convert;
 mod setup;
 
 use anyhow::{bail, Context, Result};
@@ -15,8 +15,8 @@ tasks:
   setup    install libtorch (PyPI torch==2.13.0) into .venv and link .libtorch (idempotent)
   test     setup, then run the whole test suite (release build)
   demo     setup, build, synthesise a small RGB-T dataset, train MFNet, evaluate, draw predictions
-  calib-check  full-size accuracy/timing run of `rtf calibrate` on synthetic rigs with ground truth
   convert-pth IN.pth OUT.safetensors  convert a PyTorch checkpoint (published weights) for rtf
+  calib-check  full-size accuracy/timing run of `rtf calibrate` on synthetic rigs with ground truth
 ";
 
 fn main() -> Result<()> {
@@ -26,8 +26,8 @@ fn main() -> Result<()> {
         Some("setup") => setup::ensure_libtorch(&root).map(|_| ()),
         Some("test") => test(&root, &args[1..]),
         Some("demo") => demo(&root, &args[1..]),
-        Some("calib-check") => calib_check::calib_check(&root, &args[1..]),
         Some("convert-pth") => convert::convert_pth(&root, &args[1..]),
+        Some("calib-check") => calib_check::calib_check(&root, &args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{USAGE}");
             Ok(())

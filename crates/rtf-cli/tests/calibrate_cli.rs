@@ -25,14 +25,16 @@ fn calibrates_a_small_synthetic_rig_with_overlays() {
     let rig_dir = dir.path().join("rig");
     let d = |p: &str| dir.path().join(p).to_str().unwrap().to_string();
     let r = rtf(&[
-        "calibrate",
-        "--synthesize-rig",
+        "synth",
+        "--format",
+        "calibration-rig",
+        "--out",
         &d("rig"),
-        "--synth-width",
-        "128",
-        "--synth-frames",
+        "--size",
+        "128x96",
+        "--count",
         "4",
-        "--synth-depth",
+        "--rig-depth",
         "given",
         "--seed",
         "3",

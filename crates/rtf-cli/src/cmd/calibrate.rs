@@ -2,13 +2,12 @@
 //! rig.yaml; writes calib.yaml atomically, optionally overlays and a comparison with a known
 //! calibration.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use rtf_calib::calibfile::{CalibFile, Quality};
 use rtf_calib::frames::load_frames;
 use rtf_calib::optimize::{self, Recipe, Settings};
 use rtf_calib::rig::{OptimizerOverrides, Rig};
-use rtf_calib::synth_rig::{self, DepthSource, RigSynthConfig};
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -19,21 +18,15 @@ pub enum RecipeArg {
     Paper,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum SynthDepth {
-    Given,
-    Stereo,
-    Both,
-}
 
 #[derive(clap::Args)]
 pub struct Args {
     /// The rig description (paths inside are relative to it).
-    #[arg(long, required_unless_present = "synthesize_rig")]
-    pub rig: Option<PathBuf>,
+    #[arg(long)]
+    pub rig: PathBuf,
     /// Where to write calib.yaml.
-    #[arg(long, required_unless_present = "synthesize_rig")]
-    pub out: Option<PathBuf>,
+    #[arg(long)]
+    pub out: PathBuf,
     /// Write per-frame overlays (initial, final, residual) into this directory.
     #[arg(long)]
     pub overlay: Option<PathBuf>,
@@ -62,49 +55,10 @@ pub struct Args {
     /// Rig whose depth is used for --ground-truth (default: --rig).
     #[arg(long)]
     pub eval_rig: Option<PathBuf>,
-    /// Write a synthetic rig with ground truth into this directory and exit (also `rtf synth
-    /// --format calibration-rig`).
-    #[arg(long, hide = true)]
-    pub synthesize_rig: Option<PathBuf>,
-    /// Synthetic rig: RGB width (height = 3/4 width).
-    #[arg(long, hide = true, default_value_t = 640)]
-    pub synth_width: usize,
-    /// Synthetic rig: number of frames.
-    #[arg(long, hide = true, default_value_t = 12)]
-    pub synth_frames: usize,
-    /// Synthetic rig: depth source listed in rig.yaml.
-    #[arg(long, hide = true, value_enum, default_value_t = SynthDepth::Both)]
-    pub synth_depth: SynthDepth,
 }
 
 pub fn run(args: Args) -> Result<()> {
-    if let Some(dir) = &args.synthesize_rig {
-        let cfg = RigSynthConfig {
-            seed: args.seed,
-            width: args.synth_width,
-            height: args.synth_width * 3 / 4,
-            frames: args.synth_frames,
-            depth: match args.synth_depth {
-                SynthDepth::Given => DepthSource::Given,
-                SynthDepth::Stereo => DepthSource::Stereo,
-                SynthDepth::Both => DepthSource::Both,
-            },
-            ..Default::default()
-        };
-        let rig = synth_rig::write_rig(dir, &cfg)
-            .with_context(|| format!("writing a synthetic rig to {}", dir.display()))?;
-        println!(
-            "wrote {} ({} frames) and {}",
-            rig.rig_path.display(),
-            cfg.frames,
-            rig.ground_truth_path.display()
-        );
-        return Ok(());
-    }
-    let (rig_path, out) = (
-        args.rig.clone().context("--rig is required")?,
-        args.out.clone().context("--out is required")?,
-    );
+    let (rig_path, out) = (args.rig.clone(), args.out.clone());
     tch::set_num_threads(args.threads.max(1));
     let rig = Rig::load(&rig_path)?;
     let recipe = match args.recipe {

@@ -14,6 +14,17 @@ pub enum Format {
     CalibrationRig,
 }
 
+/// Depth source the frames of a synthetic calibration rig list in rig.yaml.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RigDepth {
+    /// 16-bit depth PNGs.
+    Given,
+    /// Only the right image of a stereo pair (depth from the built-in matcher).
+    Stereo,
+    /// Both (depth wins).
+    Both,
+}
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Output directory.
@@ -36,8 +47,8 @@ pub struct Args {
     #[arg(long)]
     pub misalign: Option<f32>,
     /// Calibration rig: which depth source the frames list in rig.yaml.
-    #[arg(long, value_enum, default_value_t = super::calibrate::SynthDepth::Both)]
-    pub rig_depth: super::calibrate::SynthDepth,
+    #[arg(long, value_enum, default_value_t = RigDepth::Both)]
+    pub rig_depth: RigDepth,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -77,7 +88,6 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 fn calibration_rig(args: &Args) -> Result<()> {
-    use super::calibrate::SynthDepth;
     use rtf_calib::synth_rig::{write_rig, DepthSource, RigSynthConfig};
     let cfg = RigSynthConfig {
         seed: args.seed,
@@ -85,9 +95,9 @@ fn calibration_rig(args: &Args) -> Result<()> {
         height: args.size.1,
         frames: args.count,
         depth: match args.rig_depth {
-            SynthDepth::Given => DepthSource::Given,
-            SynthDepth::Stereo => DepthSource::Stereo,
-            SynthDepth::Both => DepthSource::Both,
+            RigDepth::Given => DepthSource::Given,
+            RigDepth::Stereo => DepthSource::Stereo,
+            RigDepth::Both => DepthSource::Both,
         },
         ..Default::default()
     };
