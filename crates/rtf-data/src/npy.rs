@@ -10,43 +10,12 @@ pub fn decode_label_npy(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<
         path: path.to_path_buf(),
         message,
     };
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err(bad("not an .npy file (bad magic)".into()));
-    }
-    let (header_len, start) = match bytes[6] {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10usize),
-        2 | 3 if bytes.len() >= 12 => (
-            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
-            12,
-        ),
-        v => return Err(bad(format!("unsupported .npy version {v}"))),
-    };
-    let header = bytes
-        .get(start..start.saturating_add(header_len))
-        .ok_or_else(|| bad("truncated .npy header".into()))?;
-    let header = std::str::from_utf8(header).map_err(|_| bad(".npy header is not text".into()))?;
-    if header.contains("'fortran_order': True") {
+    let (header, body) = rtf_core::npy::parse(bytes).map_err(bad)?;
+    if header.fortran_order {
         return Err(bad("Fortran-order arrays are not supported".into()));
     }
-    let descr = header
-        .split("'descr':")
-        .nth(1)
-        .and_then(|s| s.split('\'').nth(1))
-        .ok_or_else(|| bad("no dtype in .npy header".into()))?;
-    let shape_text = header
-        .split("'shape':")
-        .nth(1)
-        .and_then(|s| s.split(['(', ')']).nth(1))
-        .ok_or_else(|| bad("no shape in .npy header".into()))?;
-    let mut shape = shape_text
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<usize>()
-                .map_err(|_| bad(format!("bad shape entry `{s}`")))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let descr = header.descr.as_str();
+    let mut shape = header.shape.clone();
     while shape.len() > 2 && shape[0] == 1 {
         shape.remove(0);
     }
@@ -55,14 +24,14 @@ pub fn decode_label_npy(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<
     }
     let [h, w] = shape[..] else {
         return Err(bad(format!(
-            "expected a 2-D label array, shape is ({shape_text})"
+            "expected a 2-D label array, shape is {:?}",
+            header.shape
         )));
     };
     let n = h
         .checked_mul(w)
         .filter(|&n| n > 0 && n <= 1 << 28)
         .ok_or_else(|| bad(format!("bad label shape {h}x{w}")))?;
-    let body = &bytes[start + header_len..];
     let (size, big_endian) = match descr.as_bytes() {
         [e, _, s @ ..] => {
             let size: usize = std::str::from_utf8(s)
@@ -116,17 +85,7 @@ pub fn decode_label_npy(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<
 
 /// Encodes a 2-D uint8 array (used by the synthetic Freiburg writer).
 pub fn encode_u8(width: usize, height: usize, data: &[u8]) -> Vec<u8> {
-    let mut header =
-        format!("{{'descr': '|u1', 'fortran_order': False, 'shape': ({height}, {width}), }}");
-    let unpadded = 10 + header.len() + 1;
-    header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
-    header.push('\n');
-    let mut out = Vec::with_capacity(10 + header.len() + data.len());
-    out.extend_from_slice(b"\x93NUMPY\x01\x00");
-    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    out.extend_from_slice(header.as_bytes());
-    out.extend_from_slice(data);
-    out
+    rtf_core::npy::encode("|u1", &[height, width], data)
 }
 
 #[cfg(test)]
