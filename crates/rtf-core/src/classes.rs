@@ -53,9 +53,17 @@ impl ClassSet {
         let classes = table
             .iter()
             .enumerate()
-            .map(|(id, (n, c))| ClassInfo { id: id as u8, name: n.to_string(), color: *c })
+            .map(|(id, (n, c))| ClassInfo {
+                id: id as u8,
+                name: n.to_string(),
+                color: *c,
+            })
             .collect();
-        Self { name: name.to_string(), classes, ignore_id }
+        Self {
+            name: name.to_string(),
+            classes,
+            ignore_id,
+        }
     }
 
     /// The MF dataset's 9 classes (MFNet paper; spec §1).
@@ -82,7 +90,9 @@ impl ClassSet {
 
     /// Palette colour of a label id; ids outside the set (e.g. ignore) are drawn white.
     pub fn color(&self, id: u8) -> [u8; 3] {
-        self.classes.get(id as usize).map_or([255, 255, 255], |c| c.color)
+        self.classes
+            .get(id as usize)
+            .map_or([255, 255, 255], |c| c.color)
     }
 
     /// Colourises a label map (row-major ids) into packed RGB bytes.

@@ -6,7 +6,10 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum AtomicWriteError<E: std::fmt::Display + std::fmt::Debug> {
     #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("{path}: {source}")]
     Write { path: PathBuf, source: E },
 }
@@ -19,28 +22,52 @@ where
     E: std::fmt::Display + std::fmt::Debug,
     F: FnOnce(&Path) -> Result<(), E>,
 {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir)
-        .map_err(|source| AtomicWriteError::Io { path: dir.to_path_buf(), source })?;
-    let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{}.tmp-{}.{}", file_name, std::process::id(), extension(path)));
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).map_err(|source| AtomicWriteError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let file_name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}.{}",
+        file_name,
+        std::process::id(),
+        extension(path)
+    ));
     if let Err(source) = write(&tmp) {
         let _ = std::fs::remove_file(&tmp);
-        return Err(AtomicWriteError::Write { path: path.to_path_buf(), source });
+        return Err(AtomicWriteError::Write {
+            path: path.to_path_buf(),
+            source,
+        });
     }
     std::fs::rename(&tmp, path).map_err(|source| {
         let _ = std::fs::remove_file(&tmp);
-        AtomicWriteError::Io { path: path.to_path_buf(), source }
+        AtomicWriteError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
     })
 }
 
 /// Convenience for byte contents.
-pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<(), AtomicWriteError<std::io::Error>> {
+pub fn write_bytes_atomic(
+    path: &Path,
+    bytes: &[u8],
+) -> Result<(), AtomicWriteError<std::io::Error>> {
     write_atomic(path, |tmp| std::fs::write(tmp, bytes))
 }
 
 fn extension(path: &Path) -> String {
-    path.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_else(|| "tmp".into())
+    path.extension()
+        .map(|e| e.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "tmp".into())
 }
 
 #[cfg(test)]
@@ -53,7 +80,11 @@ mod tests {
         let target = dir.path().join("out.json");
         write_bytes_atomic(&target, b"{}").unwrap();
         assert_eq!(std::fs::read(&target).unwrap(), b"{}");
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1, "no temp file left");
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            1,
+            "no temp file left"
+        );
     }
 
     #[test]

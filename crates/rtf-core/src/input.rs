@@ -42,7 +42,10 @@ mod tests {
 
     #[test]
     fn mean_std_maps_to_minus_one_one() {
-        let c = InputConvention::MeanStd { mean: 0.5, std: 0.5 };
+        let c = InputConvention::MeanStd {
+            mean: 0.5,
+            std: 0.5,
+        };
         assert_eq!(c.apply(0.0), -1.0);
         assert_eq!(c.apply(1.0), 1.0);
         assert!((c.invert(c.apply(0.3)) - 0.3).abs() < 1e-6);
@@ -51,7 +54,10 @@ mod tests {
 
     #[test]
     fn serde_round_trip() {
-        let c = InputConvention::MeanStd { mean: 0.5, std: 0.5 };
+        let c = InputConvention::MeanStd {
+            mean: 0.5,
+            std: 0.5,
+        };
         let s = serde_json::to_string(&c).unwrap();
         assert_eq!(serde_json::from_str::<InputConvention>(&s).unwrap(), c);
     }
