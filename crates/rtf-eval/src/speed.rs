@@ -7,7 +7,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use tch::{nn, Device, Kind, Tensor};
 
-use rtf_models::fast::{argmax_agreement, InferenceNet, Precision};
+use rtf_models::fast::{argmax_agreement, InferenceNet, Layout, Precision};
 use rtf_models::{ModelConfig, ModelError};
 
 #[derive(Debug, thiserror::Error)]
@@ -35,6 +35,8 @@ pub struct BenchOptions {
     pub batch: i64,
     pub precision: Precision,
     pub path: ForwardPath,
+    /// Activation layout of the fast path.
+    pub layout: Layout,
     pub height: i64,
     pub width: i64,
     pub warmup: usize,
@@ -50,6 +52,7 @@ impl Default for BenchOptions {
             batch: 1,
             precision: Precision::Fp32,
             path: ForwardPath::Fast,
+            layout: Layout::ChannelsLast,
             height: 480,
             width: 640,
             warmup: 3,
@@ -71,6 +74,7 @@ pub struct BenchReport {
     /// Frames per second at the median.
     pub fps: f64,
     pub path: ForwardPath,
+    pub layout: Layout,
     pub height: i64,
     pub width: i64,
     pub iterations: usize,
@@ -123,7 +127,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     let run: Box<dyn Fn() -> Result<Tensor, ModelError>> = match opts.path {
         ForwardPath::Fast => {
             let plain = tch::no_grad(|| net.forward_t(&input, false));
-            let fast = InferenceNet::new(net, opts.precision)?;
+            let fast = InferenceNet::with_layout(net, opts.precision, opts.layout)?;
             agreement_with_plain = Some(argmax_agreement(&plain, &fast.forward_unchecked(&input)?));
             Box::new(move || fast.forward_unchecked(&input))
         }
@@ -148,6 +152,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         min_ms,
         fps: 1e3 / median_ms,
         path: opts.path,
+        layout: opts.layout,
         height: opts.height,
         width: opts.width,
         iterations: opts.iterations,

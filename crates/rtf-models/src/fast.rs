@@ -51,19 +51,54 @@ impl std::fmt::Display for Precision {
     }
 }
 
+/// Memory layout of activations (and weights) on the fast path.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Layout {
+    /// NHWC in memory: no reorders around oneDNN convolutions (the default).
+    #[default]
+    ChannelsLast,
+    /// Plain NCHW, as PyTorch eager by default.
+    Nchw,
+}
+
+impl std::str::FromStr for Layout {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "nhwc" | "channels_last" | "channels-last" => Ok(Layout::ChannelsLast),
+            "nchw" => Ok(Layout::Nchw),
+            other => Err(format!("unknown layout {other:?} (expected nhwc or nchw)")),
+        }
+    }
+}
+
 /// A network prepared for inference. Build the network, load its weights, then wrap it.
 #[derive(Debug)]
 pub struct InferenceNet {
     net: Box<dyn Network>,
     precision: Precision,
     fused: bool,
+    layout: Layout,
 }
 
 impl InferenceNet {
     /// Fuses `net` for `precision`. Networks without a fused path run their plain eval
     /// forward (still without autograd) in fp32 only.
-    pub fn new(mut net: Box<dyn Network>, precision: Precision) -> Result<Self, ModelError> {
-        let fused = net.fuse_for_inference(precision.kind());
+    pub fn new(net: Box<dyn Network>, precision: Precision) -> Result<Self, ModelError> {
+        Self::with_layout(net, precision, Layout::ChannelsLast)
+    }
+
+    /// [`new`](Self::new) with a chosen activation layout.
+    pub fn with_layout(
+        mut net: Box<dyn Network>,
+        precision: Precision,
+        layout: Layout,
+    ) -> Result<Self, ModelError> {
+        let channels_last = layout == Layout::ChannelsLast;
+        let fused = crate::layers::with_fused_layout(channels_last, || {
+            net.fuse_for_inference(precision.kind())
+        });
         if !fused && precision != Precision::Fp32 {
             return Err(ModelError::InvalidConfig {
                 network: net.name(),
@@ -74,6 +109,7 @@ impl InferenceNet {
             net,
             precision,
             fused,
+            layout,
         })
     }
 
@@ -85,7 +121,11 @@ impl InferenceNet {
         self.precision
     }
 
-    /// Whether the folded/channels-last path is in use.
+    pub fn layout(&self) -> Layout {
+        self.layout
+    }
+
+    /// Whether the folded path is in use.
     pub fn is_fused(&self) -> bool {
         self.fused
     }

@@ -206,6 +206,20 @@ impl ConvSpec {
 }
 
 thread_local! {
+    /// Layout of the weights [`Fuse::fuse`] prepares (see [`with_fused_layout`]).
+    static FUSE_CHANNELS_LAST: std::cell::Cell<bool> = const { std::cell::Cell::new(true) };
+}
+
+/// Runs `f` (a fuse) preparing channels-last weights or, with `channels_last = false`,
+/// contiguous NCHW ones (libtorch picks a convolution's layout from its input *and* weight).
+pub fn with_fused_layout<T>(channels_last: bool, f: impl FnOnce() -> T) -> T {
+    let previous = FUSE_CHANNELS_LAST.with(|c| c.replace(channels_last));
+    let out = f();
+    FUSE_CHANNELS_LAST.with(|c| c.set(previous));
+    out
+}
+
+thread_local! {
     /// Set while counting parameters: every variable starts as zeros (lazily allocated), so
     /// building even RTFNet-152 costs next to nothing.
     static ZERO_INIT: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
@@ -449,8 +463,14 @@ impl Fuse for ConvBnAct {
                 (weight * per_channel, Some(folded_bias))
             }
         };
+        let weight = weight.to_kind(kind);
+        let channels_last = FUSE_CHANNELS_LAST.with(|c| c.get());
         self.fused = Some(Fused {
-            weight: to_channels_last(&weight.to_kind(kind)),
+            weight: if channels_last {
+                to_channels_last(&weight)
+            } else {
+                weight.contiguous()
+            },
             bias: bias.map(|b| b.to_kind(kind)),
         });
     }

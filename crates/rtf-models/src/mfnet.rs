@@ -755,6 +755,18 @@ mod tests {
         assert!(agreement >= 0.999, "fp32 agreement {agreement}");
         let max_diff = (&plain - &fused).abs().max().double_value(&[]);
         assert!(max_diff < 1e-3, "max |diff| {max_diff}");
+        // The NCHW layout gives the same result, in NCHW.
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("w.safetensors");
+        weights::save_safetensors(&vs, &file).unwrap();
+        let (mut vs2, net2) = build(&Config::reference(9));
+        weights::load_safetensors(&mut vs2, &file).unwrap();
+        let nchw =
+            InferenceNet::with_layout(Box::new(net2), Precision::Fp32, crate::fast::Layout::Nchw)
+                .unwrap();
+        let out = nchw.forward(&x).unwrap();
+        assert!(argmax_agreement(&plain, &out) >= 0.999);
+        assert!((&plain - &out).abs().max().double_value(&[]) < 1e-3);
         let err = fast.forward(&Tensor::rand([1, 4, 60, 80], (Kind::Float, Device::Cpu)));
         assert!(err.is_err(), "sizes must be multiples of 16");
     }

@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 use rtf_eval::speed::{bench_model, BenchOptions, ForwardPath};
-use rtf_models::fast::Precision;
+use rtf_models::fast::{Layout, Precision};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -20,6 +20,9 @@ pub struct Args {
     /// Time the plain eval forward (NCHW, unfolded BatchNorm) instead of the fast path.
     #[arg(long)]
     pub plain: bool,
+    /// Fast-path activation layout: nhwc (channels-last) or nchw.
+    #[arg(long, default_value = "nhwc")]
+    pub layout: Layout,
     /// Input size as WIDTHxHEIGHT.
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     pub size: (usize, usize),
@@ -66,6 +69,7 @@ pub fn run(args: Args) -> Result<()> {
         } else {
             ForwardPath::Fast
         },
+        layout: args.layout,
         width: args.size.0 as i64,
         height: args.size.1 as i64,
         warmup: args.warmup,
@@ -77,11 +81,12 @@ pub fn run(args: Args) -> Result<()> {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!(
-            "{} batch {} {} ({:?} path, {}x{}, {} threads): median {:.2} ms/frame, min {:.2} ms/frame, {:.2} FPS",
+            "{} batch {} {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, min {:.2} ms/frame, {:.2} FPS",
             report.model,
             report.batch,
             report.precision,
             report.path,
+            report.layout,
             report.width,
             report.height,
             report.threads,
