@@ -226,9 +226,10 @@ def time_torch(net, x, warmup, iterations, channels_last=False, bf16=False):
     return times
 
 
-def rtf_bench(args, precision, iterations):
+def rtf_bench(args, precision, iterations, layout="nhwc"):
     cmd = [args.rtf, "bench", "model", "--model", args.model, "--batch", str(args.batch), "--precision", precision,
-           "--threads", str(args.threads), "--warmup", str(args.warmup), "--iterations", str(iterations), "--json"]
+           "--layout", layout, "--threads", str(args.threads), "--warmup", str(args.warmup), "--iterations",
+           str(iterations), "--json"]
     return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
 
 
@@ -243,6 +244,7 @@ def main():
                     help="configurations are interleaved round by round, so load from other processes "
                          "hits them alike")
     ap.add_argument("--rtf", default="target/release/rtf", help="the rtf binary")
+    ap.add_argument("--nchw", action="store_true", help="also time rtf's fast path with NCHW activations")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -262,6 +264,9 @@ def main():
             report = rtf_bench(args, precision, args.iterations)
             # rtf reports only median and min per call; keep both as samples of that round.
             samples.setdefault(f"rtf fast {precision}", []).extend([report["median_ms"], report["min_ms"]])
+            if args.nchw:
+                report = rtf_bench(args, precision, args.iterations, "nchw")
+                samples.setdefault(f"rtf fast {precision} nchw", []).extend([report["median_ms"], report["min_ms"]])
     rows = {k: (statistics.median(v), min(v)) for k, v in samples.items()}
     base, base_min = rows["torch eager fp32 NCHW"]
     cl, cl_min = rows["torch channels_last fp32"]
