@@ -66,6 +66,13 @@ fn synth_train_resume_eval_predict() {
     let grid = image::open(&figure).unwrap();
     assert_eq!((grid.width(), grid.height()), (4 * 64 + 3 * 4, 2 * (48 + 4)), "2 rows of 4 panels");
 
+    // The fast inference path (BatchNorm folded, channels-last) scores (almost) the same.
+    let json_fast = tmp.path().join("scores_fast.json");
+    ok(&["eval", "--model", "mfnet", "--weights", s(&weights), "--data", s(&data), "--split", "test",
+        "--json", s(&json_fast), "--precision", "fp32"]);
+    let fast: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json_fast).unwrap()).unwrap();
+    assert!((fast["miou"].as_f64().unwrap() - scores["miou"].as_f64().unwrap()).abs() < 0.01);
+
     let test_names = std::fs::read_to_string(data.join("test.txt")).unwrap();
     let name = test_names.lines().next().unwrap().trim().to_string();
     let image = data.join("images").join(format!("{name}.png"));

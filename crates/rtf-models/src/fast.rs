@@ -155,6 +155,30 @@ impl InferenceNet {
     }
 }
 
+/// An inference net is a network too, so evaluation and prediction take either. Its forward
+/// is eval-only: the fused weights carry no gradients.
+impl tch::nn::ModuleT for InferenceNet {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        assert!(!train, "{}: the fast inference path cannot train", self.net.name());
+        self.forward_unchecked(xs).unwrap_or_else(|e| panic!("{e}"))
+    }
+}
+
+impl Network for InferenceNet {
+    fn input_convention(&self) -> rtf_core::InputConvention {
+        self.net.input_convention()
+    }
+    fn num_classes(&self) -> i64 {
+        self.net.num_classes()
+    }
+    fn size_multiple(&self) -> i64 {
+        self.net.size_multiple()
+    }
+    fn name(&self) -> String {
+        self.net.name()
+    }
+}
+
 /// Fraction of pixels whose arg-max class agrees between two logits tensors [B, C, H, W].
 pub fn argmax_agreement(a: &Tensor, b: &Tensor) -> f64 {
     let same = a.argmax(1, false).eq_tensor(&b.argmax(1, false));

@@ -24,6 +24,10 @@ pub struct TrainConfig {
     pub workers: usize,
     /// "cpu", "cuda" or "cuda:N".
     pub device: String,
+    /// ImageNet ResNet weights (torchvision names, safetensors) loaded into the encoders before
+    /// the first step (RTFNet and the ResNet-based baselines).
+    #[serde(default)]
+    pub backbone_weights: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -78,6 +82,7 @@ impl TrainConfig {
             max_steps_per_epoch: None,
             workers: 2,
             device: "cpu".into(),
+            backbone_weights: None,
         }
     }
 

@@ -140,6 +140,8 @@ pub fn train(
         let (momentum, saved) = checkpoint::load(&checkpoint_path, &mut vs)?;
         sgd.set_buffers(momentum);
         state = saved;
+    } else if let Some(path) = &cfg.backbone_weights {
+        rtf_models::backbone::load_backbone_weights(&mut vs, &cfg.model, path)?;
     }
     let loss_fn = cfg.loss.build(classes.ignore_id);
     let loader = Loader::new(

@@ -94,3 +94,43 @@ fn training_lowers_the_loss() {
     let last = outcome.records.last().unwrap().train_loss;
     assert!(last < 0.5 * first, "loss {first} -> {last}");
 }
+
+#[test]
+fn backbone_weights_are_loaded_before_the_first_step() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    write_dataset(&data);
+    // A torchvision-named ResNet-18 (tch's own resnet uses torchvision's names).
+    let imagenet = tch::nn::VarStore::new(tch::Device::Cpu);
+    let _ = tch::vision::resnet::resnet18_no_final_layer(&imagenet.root());
+    let backbone = tmp.path().join("resnet18.safetensors");
+    imagenet.save(&backbone).unwrap();
+
+    let mut cfg = config(&data, 1);
+    cfg.model = rtf_models::ModelConfig::from_name("rtfnet18", 9).unwrap();
+    cfg.dataset = DatasetConfig::Mf { root: data.clone(), train_split: "train".into(), val_split: None };
+    cfg.backbone_weights = Some(backbone.clone());
+    // No update: the written weights are the initial ones.
+    cfg.optimizer.lr = 0.0;
+    cfg.optimizer.weight_decay = 0.0;
+    cfg.max_steps_per_epoch = Some(1);
+    let run = tmp.path().join("run");
+    rtf_train::train(&cfg, &run, false, &mut |_| {}).unwrap();
+    let written = weights(&run.join("final.safetensors"));
+    let get = |name: &str| written.iter().find(|(n, _)| n == name).unwrap_or_else(|| panic!("{name}")).1.clone();
+    let source = imagenet.variables();
+    let bytes = |t: &tch::Tensor| {
+        let v = Vec::<f32>::try_from(t.flatten(0, -1)).unwrap();
+        v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>()
+    };
+    assert_eq!(get("encoder_rgb_layer1.0.conv1.weight"), bytes(&source["layer1.0.conv1.weight"]));
+    assert_eq!(get("encoder_thermal_layer4.1.conv2.weight"), bytes(&source["layer4.1.conv2.weight"]));
+    // Thermal stem: mean of the RGB stem over its input channels.
+    assert_eq!(get("encoder_thermal_conv1.weight"), bytes(&source["conv1.weight"].mean_dim(1, true, tch::Kind::Float)));
+
+    let mut missing = cfg.clone();
+    missing.backbone_weights = Some(tmp.path().join("nope.safetensors"));
+    let err = rtf_train::train(&missing, &tmp.path().join("run2"), false, &mut |_| {}).unwrap_err();
+    assert!(err.to_string().contains("nope.safetensors"), "{err}");
+}

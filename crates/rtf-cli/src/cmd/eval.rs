@@ -39,6 +39,10 @@ pub struct Args {
     pub batch_size: usize,
     #[arg(long, default_value = "cpu")]
     pub device: String,
+    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32 or bf16; default:
+    /// the plain path.
+    #[arg(long)]
+    pub precision: Option<rtf_models::fast::Precision>,
 }
 
 /// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside it.
@@ -60,7 +64,7 @@ pub fn run(args: Args) -> Result<()> {
     let dataset = MfDataset::open(&args.data)?;
     let split: Arc<dyn FrameSource> = Arc::new(dataset.split(&args.split)?);
     let classes = split.class_set().clone();
-    let (_vs, network) = load_network(&args.model, classes.len() as i64, &args.weights, device)?;
+    let (_vs, network) = load_network(&args.model, classes.len() as i64, &args.weights, device, args.precision)?;
     let options = EvalOptions { batch_size: args.batch_size, resize: args.resize, workers: 2 };
     let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
 

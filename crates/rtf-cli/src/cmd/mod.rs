@@ -20,17 +20,23 @@ pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
     }
 }
 
-/// Builds a network by name and loads weights (strict, reference names).
+/// Builds a network by name and loads weights (strict, reference names). With a precision,
+/// the network is wrapped in the fast inference path (BatchNorm folded, channels-last).
 pub fn load_network(
     name: &str,
     num_classes: i64,
     weights: &std::path::Path,
     device: tch::Device,
+    precision: Option<rtf_models::fast::Precision>,
 ) -> anyhow::Result<(tch::nn::VarStore, Box<dyn rtf_models::Network>)> {
     let cfg = rtf_models::ModelConfig::from_name(name, num_classes)?;
     let mut vs = tch::nn::VarStore::new(device);
     let net = rtf_models::build(&vs.root(), &cfg)?;
     rtf_models::weights::load_safetensors(&mut vs, weights)?;
+    let net = match precision {
+        Some(p) => Box::new(rtf_models::fast::InferenceNet::new(net, p)?) as Box<dyn rtf_models::Network>,
+        None => net,
+    };
     Ok((vs, net))
 }
 

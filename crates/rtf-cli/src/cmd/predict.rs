@@ -38,6 +38,10 @@ pub struct Args {
     pub thermal_range: Option<(u16, u16)>,
     #[arg(long, default_value = "cpu")]
     pub device: String,
+    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32 or bf16; default:
+    /// the plain path.
+    #[arg(long)]
+    pub precision: Option<rtf_models::fast::Precision>,
     /// RGBA PNGs, thermal in the alpha channel (MF layout).
     #[arg(required_unless_present = "rgb")]
     pub images: Vec<PathBuf>,
@@ -127,7 +131,7 @@ pub fn run(args: Args) -> Result<()> {
         None if heatnet => ClassSet::freiburg(),
         None => ClassSet::mf(),
     };
-    let (_vs, network) = load_network(&args.model, classes.len() as i64, &args.weights, device)?;
+    let (_vs, network) = load_network(&args.model, classes.len() as i64, &args.weights, device, args.precision)?;
     // Read every input first: a bad file stops the run before anything is written.
     let mut frames = args.images.iter().map(|p| read_rgba(p)).collect::<Result<Vec<_>>>()?;
     let mut sources: Vec<PathBuf> = args.images.clone();

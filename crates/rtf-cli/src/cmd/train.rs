@@ -59,6 +59,10 @@ pub struct Args {
     /// cpu, cuda or cuda:N.
     #[arg(long, default_value = "cpu")]
     pub device: String,
+    /// ImageNet ResNet weights (torchvision names, safetensors; see `cargo xtask convert-pth`)
+    /// for the encoders of RTFNet and the ResNet-based baselines.
+    #[arg(long)]
+    pub backbone_weights: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -93,6 +97,7 @@ pub fn run(args: Args) -> Result<()> {
             cfg.max_steps_per_epoch = args.max_steps;
             cfg.workers = args.workers;
             cfg.device = args.device.clone();
+            cfg.backbone_weights = args.backbone_weights.clone();
             (cfg, out, false)
         }
     };
