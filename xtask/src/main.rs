@@ -38,7 +38,10 @@ fn main() -> Result<()> {
 
 /// The repository root (xtask lives one level below it).
 fn project_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask has a parent").to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("xtask has a parent")
+        .to_path_buf()
 }
 
 /// Runs a command in the project root, failing with the command line if it fails.
@@ -74,23 +77,77 @@ fn demo(root: &Path, extra: &[String]) -> Result<()> {
     let out = root.join("demo");
     if out.exists() {
         println!("demo: replacing the previous demo/ folder");
-        std::fs::remove_dir_all(&out).with_context(|| format!("cannot remove {}", out.display()))?;
+        std::fs::remove_dir_all(&out)
+            .with_context(|| format!("cannot remove {}", out.display()))?;
     }
     let step = |args: &[&str]| -> Result<()> {
         println!("\n$ rtf {}", args.join(" "));
         run(root, rtf, args)
     };
-    step(&["synth", "--out", "demo/data", "--count", DEMO_FRAMES, "--seed", "0", "--size", DEMO_SIZE])?;
-    let mut train = vec!["train", "--model", "mfnet", "--data", "demo/data", "--out", "demo/run"];
-    train.extend(["--epochs", DEMO_EPOCHS, "--batch-size", "6", "--lr-decay", "0.94"]);
+    step(&[
+        "synth",
+        "--out",
+        "demo/data",
+        "--count",
+        DEMO_FRAMES,
+        "--seed",
+        "0",
+        "--size",
+        DEMO_SIZE,
+    ])?;
+    let mut train = vec![
+        "train",
+        "--model",
+        "mfnet",
+        "--data",
+        "demo/data",
+        "--out",
+        "demo/run",
+    ];
+    train.extend([
+        "--epochs",
+        DEMO_EPOCHS,
+        "--batch-size",
+        "6",
+        "--lr-decay",
+        "0.94",
+    ]);
     train.extend(extra.iter().map(String::as_str));
     step(&train)?;
     let weights = "demo/run/final.safetensors";
-    step(&["eval", "--model", "mfnet", "--weights", weights, "--data", "demo/data", "--split", "test",
-        "--json", "demo/eval_test.json", "--figure", "demo/predictions.png", "--figure-frames", "6"])?;
-    let split = std::fs::read_to_string(out.join("data/test.txt")).context("reading demo/data/test.txt")?;
-    let images: Vec<String> = split.lines().take(4).map(|n| format!("demo/data/images/{}.png", n.trim())).collect();
-    let mut predict = vec!["predict", "--model", "mfnet", "--weights", weights, "--out", "demo/predict"];
+    step(&[
+        "eval",
+        "--model",
+        "mfnet",
+        "--weights",
+        weights,
+        "--data",
+        "demo/data",
+        "--split",
+        "test",
+        "--json",
+        "demo/eval_test.json",
+        "--figure",
+        "demo/predictions.png",
+        "--figure-frames",
+        "6",
+    ])?;
+    let split =
+        std::fs::read_to_string(out.join("data/test.txt")).context("reading demo/data/test.txt")?;
+    let images: Vec<String> = split
+        .lines()
+        .take(4)
+        .map(|n| format!("demo/data/images/{}.png", n.trim()))
+        .collect();
+    let mut predict = vec![
+        "predict",
+        "--model",
+        "mfnet",
+        "--weights",
+        weights,
+        "--out",
+        "demo/predict",
+    ];
     predict.extend(images.iter().map(String::as_str));
     step(&predict)?;
     println!("\ndemo: scores in demo/eval_test.json, prediction grid in demo/predictions.png, run in demo/run");

@@ -16,17 +16,26 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
     if !python.exists() {
         println!("setup: creating {}", venv.display());
         let host_python = find_host_python()?;
-        let status = Command::new(&host_python).args(["-m", "venv"]).arg(&venv).status()?;
+        let status = Command::new(&host_python)
+            .args(["-m", "venv"])
+            .arg(&venv)
+            .status()?;
         if !status.success() {
             bail!("`{host_python} -m venv {}` failed", venv.display());
         }
     }
     let installed = torch_version(&python);
-    let up_to_date = installed.as_deref().is_some_and(|v| v.split('+').next() == Some(TORCH_VERSION));
+    let up_to_date = installed
+        .as_deref()
+        .is_some_and(|v| v.split('+').next() == Some(TORCH_VERSION));
     if !up_to_date {
         match &installed {
-            Some(v) => println!("setup: torch {v} found, installing {TORCH_VERSION} (needed by tch 0.26)"),
-            None => println!("setup: installing torch=={TORCH_VERSION} into .venv (about 1 minute)"),
+            Some(v) => {
+                println!("setup: torch {v} found, installing {TORCH_VERSION} (needed by tch 0.26)")
+            }
+            None => {
+                println!("setup: installing torch=={TORCH_VERSION} into .venv (about 1 minute)")
+            }
         }
         // A torch that pip knows but Python cannot import is broken: reinstall it.
         let repair = installed.is_none() && pip_knows_torch(&python);
@@ -34,7 +43,13 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
             println!("setup: torch in .venv cannot be imported; reinstalling");
         }
         let status = Command::new(&python)
-            .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"])
+            .args([
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--disable-pip-version-check",
+            ])
             .args(repair.then_some("--force-reinstall"))
             .arg(format!("torch=={TORCH_VERSION}"))
             .status()
@@ -43,16 +58,23 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
             bail!("pip install torch=={TORCH_VERSION} failed; is PyPI reachable?");
         }
         if torch_version(&python).is_none() {
-            bail!("torch installed but `import torch` fails in {}", python.display());
+            bail!(
+                "torch installed but `import torch` fails in {}",
+                python.display()
+            );
         }
     }
     let torch_dir = torch_package_dir(&python)?;
     let link = root.join(".libtorch");
-    let target = torch_dir.strip_prefix(root).map(Path::to_path_buf).unwrap_or(torch_dir.clone());
+    let target = torch_dir
+        .strip_prefix(root)
+        .map(Path::to_path_buf)
+        .unwrap_or(torch_dir.clone());
     let current = std::fs::read_link(&link).ok();
     if current.as_deref() != Some(target.as_path()) {
         if link.symlink_metadata().is_ok() {
-            std::fs::remove_file(&link).with_context(|| format!("cannot replace {}", link.display()))?;
+            std::fs::remove_file(&link)
+                .with_context(|| format!("cannot replace {}", link.display()))?;
         }
         std::os::unix::fs::symlink(&target, &link)
             .with_context(|| format!("cannot link {} -> {}", link.display(), target.display()))?;
@@ -76,7 +98,15 @@ fn ensure_script_packages(python: &Path) -> Result<()> {
     }
     println!("setup: installing numpy and pillow into .venv (benchmark scripts)");
     let status = Command::new(python)
-        .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check", "numpy", "pillow"])
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            "numpy",
+            "pillow",
+        ])
         .status()
         .context("cannot run pip in .venv")?;
     if !status.success() {
@@ -87,7 +117,11 @@ fn ensure_script_packages(python: &Path) -> Result<()> {
 
 fn find_host_python() -> Result<String> {
     for candidate in ["python3", "python"] {
-        if Command::new(candidate).arg("--version").output().is_ok_and(|o| o.status.success()) {
+        if Command::new(candidate)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+        {
             return Ok(candidate.to_string());
         }
     }
@@ -95,8 +129,13 @@ fn find_host_python() -> Result<String> {
 }
 
 fn torch_version(python: &Path) -> Option<String> {
-    let out = Command::new(python).args(["-c", "import torch; print(torch.__version__)"]).output().ok()?;
-    out.status.success().then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+    let out = Command::new(python)
+        .args(["-c", "import torch; print(torch.__version__)"])
+        .output()
+        .ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
 }
 
 fn pip_knows_torch(python: &Path) -> bool {
@@ -108,11 +147,17 @@ fn pip_knows_torch(python: &Path) -> bool {
 
 fn torch_package_dir(python: &Path) -> Result<PathBuf> {
     let out = Command::new(python)
-        .args(["-c", "import os, torch; print(os.path.dirname(torch.__file__))"])
+        .args([
+            "-c",
+            "import os, torch; print(os.path.dirname(torch.__file__))",
+        ])
         .output()
         .context("cannot ask torch for its location")?;
     if !out.status.success() {
-        bail!("cannot locate torch: {}", String::from_utf8_lossy(&out.stderr));
+        bail!(
+            "cannot locate torch: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
     Ok(PathBuf::from(String::from_utf8_lossy(&out.stdout).trim()))
 }

@@ -5,7 +5,11 @@ mod cmd;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "rtf", version, about = "RGB-thermal semantic segmentation toolkit")]
+#[command(
+    name = "rtf",
+    version,
+    about = "RGB-thermal semantic segmentation toolkit"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -5,12 +5,19 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 fn rtf(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rtf")).args(args).output().expect("rtf runs")
+    Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args(args)
+        .output()
+        .expect("rtf runs")
 }
 
 fn ok(args: &[&str]) -> String {
     let out = rtf(args);
-    assert!(out.status.success(), "rtf {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "rtf {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
@@ -29,63 +36,164 @@ fn synth_train_resume_eval_predict() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let run = tmp.path().join("run");
-    ok(&["synth", "--out", s(&data), "--count", "12", "--seed", "3", "--size", "64x48"]);
+    ok(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--count",
+        "12",
+        "--seed",
+        "3",
+        "--size",
+        "64x48",
+    ]);
     for split in ["train", "val", "test", "test_day", "test_night"] {
-        assert!(data.join(format!("{split}.txt")).exists(), "{split}.txt written");
+        assert!(
+            data.join(format!("{split}.txt")).exists(),
+            "{split}.txt written"
+        );
     }
 
-    let train = ["train", "--model", "mfnet", "--data", s(&data), "--out", s(&run), "--epochs", "1", "--batch-size", "2", "--max-steps", "2"];
+    let train = [
+        "train",
+        "--model",
+        "mfnet",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--epochs",
+        "1",
+        "--batch-size",
+        "2",
+        "--max-steps",
+        "2",
+    ];
     ok(&train);
-    let config: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    let config: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["model"]["network"], "mfnet");
     assert_eq!(config["seed"], 0);
     assert!(run.join("final.safetensors").exists() && run.join("checkpoint.safetensors").exists());
     let err = fails(&train);
-    assert!(err.contains("--resume"), "a second run into the same folder is refused: {err}");
+    assert!(
+        err.contains("--resume"),
+        "a second run into the same folder is refused: {err}"
+    );
 
     ok(&["train", "--resume", s(&run), "--epochs", "2"]);
     let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
-    let epochs: Vec<u64> = log.lines().map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"].as_u64().unwrap()).collect();
+    let epochs: Vec<u64> = log
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
     assert_eq!(epochs, vec![0, 1], "resume continued at the next epoch");
 
     let weights = run.join("final.safetensors");
     let json = tmp.path().join("scores.json");
     let figure = tmp.path().join("grid.png");
-    let table = ok(&["eval", "--model", "mfnet", "--weights", s(&weights), "--data", s(&data), "--split", "test",
-        "--json", s(&json), "--figure", s(&figure), "--figure-frames", "2"]);
-    assert!(table.contains("mIoU") && table.contains("person"), "{table}");
-    let scores: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let table = ok(&[
+        "eval",
+        "--model",
+        "mfnet",
+        "--weights",
+        s(&weights),
+        "--data",
+        s(&data),
+        "--split",
+        "test",
+        "--json",
+        s(&json),
+        "--figure",
+        s(&figure),
+        "--figure-frames",
+        "2",
+    ]);
+    assert!(
+        table.contains("mIoU") && table.contains("person"),
+        "{table}"
+    );
+    let scores: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     for key in ["miou", "macc", "miou_mfnet"] {
-        let v = scores[key].as_f64().unwrap_or_else(|| panic!("{key} missing"));
+        let v = scores[key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{key} missing"));
         assert!((0.0..=1.0).contains(&v), "{key} = {v}");
     }
     let per_class = scores["per_class"].as_array().unwrap();
     assert_eq!(per_class.len(), 9);
     assert_eq!(per_class[0]["name"], "unlabeled");
-    assert!(per_class.iter().all(|c| c["iou"].is_null() || c["iou"].as_f64().is_some()));
+    assert!(per_class
+        .iter()
+        .all(|c| c["iou"].is_null() || c["iou"].as_f64().is_some()));
     let grid = image::open(&figure).unwrap();
-    assert_eq!((grid.width(), grid.height()), (4 * 64 + 3 * 4, 2 * (48 + 4)), "2 rows of 4 panels");
+    assert_eq!(
+        (grid.width(), grid.height()),
+        (4 * 64 + 3 * 4, 2 * (48 + 4)),
+        "2 rows of 4 panels"
+    );
 
     // The fast inference path (BatchNorm folded, channels-last) scores (almost) the same.
     let json_fast = tmp.path().join("scores_fast.json");
-    ok(&["eval", "--model", "mfnet", "--weights", s(&weights), "--data", s(&data), "--split", "test",
-        "--json", s(&json_fast), "--precision", "fp32"]);
-    let fast: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json_fast).unwrap()).unwrap();
+    ok(&[
+        "eval",
+        "--model",
+        "mfnet",
+        "--weights",
+        s(&weights),
+        "--data",
+        s(&data),
+        "--split",
+        "test",
+        "--json",
+        s(&json_fast),
+        "--precision",
+        "fp32",
+    ]);
+    let fast: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json_fast).unwrap()).unwrap();
     assert!((fast["miou"].as_f64().unwrap() - scores["miou"].as_f64().unwrap()).abs() < 0.01);
 
     let test_names = std::fs::read_to_string(data.join("test.txt")).unwrap();
     let name = test_names.lines().next().unwrap().trim().to_string();
     let image = data.join("images").join(format!("{name}.png"));
     let pred = tmp.path().join("pred");
-    ok(&["predict", "--model", "mfnet", "--weights", s(&weights), "--out", s(&pred), "--logits", s(&image)]);
-    let ids = image::open(pred.join(format!("{name}.png"))).unwrap().to_luma8();
+    ok(&[
+        "predict",
+        "--model",
+        "mfnet",
+        "--weights",
+        s(&weights),
+        "--out",
+        s(&pred),
+        "--logits",
+        s(&image),
+    ]);
+    let ids = image::open(pred.join(format!("{name}.png")))
+        .unwrap()
+        .to_luma8();
     assert_eq!(ids.dimensions(), (64, 48));
     assert!(ids.pixels().all(|p| p.0[0] < 9));
-    assert_eq!(image::open(pred.join(format!("{name}_color.png"))).unwrap().to_rgb8().dimensions(), (64, 48));
-    let (shape, logits) = rtf_core::npy::decode_f32(&std::fs::read(pred.join(format!("{name}.npy"))).unwrap()).unwrap();
+    assert_eq!(
+        image::open(pred.join(format!("{name}_color.png")))
+            .unwrap()
+            .to_rgb8()
+            .dimensions(),
+        (64, 48)
+    );
+    let (shape, logits) =
+        rtf_core::npy::decode_f32(&std::fs::read(pred.join(format!("{name}.npy"))).unwrap())
+            .unwrap();
     assert_eq!(shape, vec![9, 48, 64]);
     // The class-id PNG is the argmax of the logits.
-    let argmax0 = (0..9).max_by(|&a, &b| logits[a * 48 * 64].total_cmp(&logits[b * 48 * 64])).unwrap();
+    let argmax0 = (0..9)
+        .max_by(|&a, &b| logits[a * 48 * 64].total_cmp(&logits[b * 48 * 64]))
+        .unwrap();
     assert_eq!(ids.get_pixel(0, 0).0[0] as usize, argmax0);
 }
 
@@ -96,22 +204,77 @@ fn bad_inputs_name_the_file() {
     let rgb = tmp.path().join("rgb.png");
     image::RgbImage::new(32, 32).save(&rgb).unwrap();
     // Missing weights.
-    let err = fails(&["predict", "--weights", s(&weights), "--out", s(&tmp.path().join("o")), s(&rgb)]);
+    let err = fails(&[
+        "predict",
+        "--weights",
+        s(&weights),
+        "--out",
+        s(&tmp.path().join("o")),
+        s(&rgb),
+    ]);
     assert!(err.contains("missing.safetensors"), "{err}");
     // Missing dataset.
-    let err = fails(&["eval", "--weights", s(&weights), "--data", s(&tmp.path().join("nodata"))]);
+    let err = fails(&[
+        "eval",
+        "--weights",
+        s(&weights),
+        "--data",
+        s(&tmp.path().join("nodata")),
+    ]);
     assert!(err.contains("nodata"), "{err}");
     // A 3-channel image where RGBA is expected, with valid weights.
     let data = tmp.path().join("data");
     let run = tmp.path().join("run");
-    ok(&["synth", "--out", s(&data), "--count", "8", "--seed", "1", "--size", "32x32"]);
-    ok(&["train", "--data", s(&data), "--out", s(&run), "--epochs", "1", "--batch-size", "2", "--max-steps", "1", "--val-split", "none"]);
+    ok(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--count",
+        "8",
+        "--seed",
+        "1",
+        "--size",
+        "32x32",
+    ]);
+    ok(&[
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--epochs",
+        "1",
+        "--batch-size",
+        "2",
+        "--max-steps",
+        "1",
+        "--val-split",
+        "none",
+    ]);
     let out_dir = tmp.path().join("pred");
-    let err = fails(&["predict", "--weights", s(&run.join("final.safetensors")), "--out", s(&out_dir), s(&rgb)]);
+    let err = fails(&[
+        "predict",
+        "--weights",
+        s(&run.join("final.safetensors")),
+        "--out",
+        s(&out_dir),
+        s(&rgb),
+    ]);
     assert!(err.contains("rgb.png") && err.contains("channel"), "{err}");
-    assert!(!out_dir.exists() || std::fs::read_dir(&out_dir).unwrap().count() == 0, "nothing written");
+    assert!(
+        !out_dir.exists() || std::fs::read_dir(&out_dir).unwrap().count() == 0,
+        "nothing written"
+    );
     // Unknown model name.
-    let err = fails(&["train", "--model", "nosuchnet", "--data", s(&data), "--out", s(&tmp.path().join("r2"))]);
+    let err = fails(&[
+        "train",
+        "--model",
+        "nosuchnet",
+        "--data",
+        s(&data),
+        "--out",
+        s(&tmp.path().join("r2")),
+    ]);
     assert!(err.contains("nosuchnet"), "{err}");
 }
 
@@ -120,29 +283,103 @@ fn predict_takes_separate_rgb_and_16_bit_thermal() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let run = tmp.path().join("run");
-    ok(&["synth", "--out", s(&data), "--count", "6", "--seed", "2", "--size", "32x32"]);
-    ok(&["train", "--data", s(&data), "--out", s(&run), "--epochs", "1", "--batch-size", "2", "--max-steps", "1", "--val-split", "none"]);
+    ok(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--count",
+        "6",
+        "--seed",
+        "2",
+        "--size",
+        "32x32",
+    ]);
+    ok(&[
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--epochs",
+        "1",
+        "--batch-size",
+        "2",
+        "--max-steps",
+        "1",
+        "--val-split",
+        "none",
+    ]);
     let rgb = tmp.path().join("cam_rgb.png");
     let thermal = tmp.path().join("cam_ir.png");
-    image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([x as u8 * 8, y as u8 * 8, 90])).save(&rgb).unwrap();
-    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(32, 32, |x, _| image::Luma([22000 + 80 * x as u16])).save(&thermal).unwrap();
+    image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([x as u8 * 8, y as u8 * 8, 90]))
+        .save(&rgb)
+        .unwrap();
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(32, 32, |x, _| {
+        image::Luma([22000 + 80 * x as u16])
+    })
+    .save(&thermal)
+    .unwrap();
     let out = tmp.path().join("pred");
-    ok(&["predict", "--weights", s(&run.join("final.safetensors")), "--out", s(&out), "--rgb", s(&rgb), "--thermal", s(&thermal)]);
-    assert_eq!(image::open(out.join("cam_rgb.png")).unwrap().to_luma8().dimensions(), (32, 32));
+    ok(&[
+        "predict",
+        "--weights",
+        s(&run.join("final.safetensors")),
+        "--out",
+        s(&out),
+        "--rgb",
+        s(&rgb),
+        "--thermal",
+        s(&thermal),
+    ]);
+    assert_eq!(
+        image::open(out.join("cam_rgb.png"))
+            .unwrap()
+            .to_luma8()
+            .dimensions(),
+        (32, 32)
+    );
     // A thermal image of another size is refused, naming both files.
     let small = tmp.path().join("small_ir.png");
     image::GrayImage::new(16, 16).save(&small).unwrap();
-    let err = fails(&["predict", "--weights", s(&run.join("final.safetensors")), "--out", s(&out), "--rgb", s(&rgb), "--thermal", s(&small)]);
-    assert!(err.contains("small_ir.png") && err.contains("cam_rgb.png"), "{err}");
+    let err = fails(&[
+        "predict",
+        "--weights",
+        s(&run.join("final.safetensors")),
+        "--out",
+        s(&out),
+        "--rgb",
+        s(&rgb),
+        "--thermal",
+        s(&small),
+    ]);
+    assert!(
+        err.contains("small_ir.png") && err.contains("cam_rgb.png"),
+        "{err}"
+    );
 }
 
 #[test]
 fn synth_writes_a_calibration_rig_with_ground_truth() {
     let tmp = tempfile::tempdir().unwrap();
     let rig = tmp.path().join("rig");
-    ok(&["synth", "--format", "calibration-rig", "--out", s(&rig), "--count", "2", "--seed", "5", "--size", "160x120"]);
+    ok(&[
+        "synth",
+        "--format",
+        "calibration-rig",
+        "--out",
+        s(&rig),
+        "--count",
+        "2",
+        "--seed",
+        "5",
+        "--size",
+        "160x120",
+    ]);
     let yaml = std::fs::read_to_string(rig.join("rig.yaml")).unwrap();
-    assert!(yaml.contains("frames") && yaml.contains("focal_length_mm"), "{yaml}");
+    assert!(
+        yaml.contains("frames") && yaml.contains("focal_length_mm"),
+        "{yaml}"
+    );
     let truth = std::fs::read_to_string(rig.join("ground_truth.yaml")).unwrap();
     for key in ["rotation", "translation", "se3", "distortion"] {
         assert!(truth.contains(key), "{key} missing in ground_truth.yaml");

@@ -31,7 +31,11 @@ pub struct EvalOptions {
 
 impl Default for EvalOptions {
     fn default() -> Self {
-        Self { batch_size: 4, resize: None, workers: 2 }
+        Self {
+            batch_size: 4,
+            resize: None,
+            workers: 2,
+        }
     }
 }
 
@@ -92,7 +96,13 @@ pub fn evaluate(
     all.merge(&night);
     all.merge(&unknown);
     let scores_if_any = |m: &ConfusionMatrix| (m.total() > 0).then(|| m.compute(&names));
-    Ok(EvalReport { frames, all: all.compute(&names), day: scores_if_any(&day), night: scores_if_any(&night), confusion: all })
+    Ok(EvalReport {
+        frames,
+        all: all.compute(&names),
+        day: scores_if_any(&day),
+        night: scores_if_any(&night),
+        confusion: all,
+    })
 }
 
 /// Class ids [B, H, W] for an input [B, C, H, W]: H and W are padded up to the network's size
@@ -105,11 +115,19 @@ pub fn predict_ids(network: &dyn Network, input: &Tensor) -> Result<Tensor, Eval
 pub fn logits(network: &dyn Network, input: &Tensor) -> Result<Tensor, EvalError> {
     let (h, w) = match input.size().as_slice() {
         [_, _, h, w] => (*h, *w),
-        other => return Err(EvalError::Shape(format!("expected input [B, C, H, W], got {other:?}"))),
+        other => {
+            return Err(EvalError::Shape(format!(
+                "expected input [B, C, H, W], got {other:?}"
+            )))
+        }
     };
     let m = network.size_multiple().max(1);
     let (ph, pw) = ((m - h % m) % m, (m - w % m) % m);
-    let padded = if ph > 0 || pw > 0 { input.f_pad(&[0, pw, 0, ph], "replicate", None)? } else { input.shallow_clone() };
+    let padded = if ph > 0 || pw > 0 {
+        input.f_pad(&[0, pw, 0, ph], "replicate", None)?
+    } else {
+        input.shallow_clone()
+    };
     let out = network.forward_t(&padded.to_kind(Kind::Float), false);
     Ok(out.narrow(2, 0, h).narrow(3, 0, w))
 }

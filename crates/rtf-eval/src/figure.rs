@@ -26,16 +26,29 @@ const GAP: u32 = 4;
 pub fn prediction_grid(rows: &[GridRow], classes: &ClassSet) -> RgbImage {
     let w = rows.iter().map(|r| r.width).max().unwrap_or(0) as u32;
     let h = rows.iter().map(|r| r.height).max().unwrap_or(0) as u32;
-    let mut out = RgbImage::from_pixel(4 * w + 3 * GAP, rows.len() as u32 * (h + GAP), Rgb([255, 255, 255]));
+    let mut out = RgbImage::from_pixel(
+        4 * w + 3 * GAP,
+        rows.len() as u32 * (h + GAP),
+        Rgb([255, 255, 255]),
+    );
     let to_byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
     for (r, row) in rows.iter().enumerate() {
         let y0 = r as u32 * (h + GAP);
         for y in 0..row.height {
             for x in 0..row.width {
                 let i = y * row.width + x;
-                let rgb = [to_byte(row.rgb[3 * i]), to_byte(row.rgb[3 * i + 1]), to_byte(row.rgb[3 * i + 2])];
+                let rgb = [
+                    to_byte(row.rgb[3 * i]),
+                    to_byte(row.rgb[3 * i + 1]),
+                    to_byte(row.rgb[3 * i + 2]),
+                ];
                 let t = to_byte(row.thermal[i]);
-                let panels = [rgb, [t, t, t], classes.color(row.truth[i]), classes.color(row.prediction[i])];
+                let panels = [
+                    rgb,
+                    [t, t, t],
+                    classes.color(row.truth[i]),
+                    classes.color(row.prediction[i]),
+                ];
                 for (p, color) in panels.into_iter().enumerate() {
                     out.put_pixel(p as u32 * (w + GAP) + x as u32, y0 + y as u32, Rgb(color));
                 }
@@ -68,9 +81,14 @@ pub fn rows_for(
     device: Device,
 ) -> Result<Vec<GridRow>, EvalError> {
     let by_time = |t: Option<Daytime>| (0..source.len()).filter(move |&i| source.daytime(i) == t);
-    let mut picked: Vec<usize> = by_time(Some(Daytime::Day)).take(count.div_ceil(2)).collect();
+    let mut picked: Vec<usize> = by_time(Some(Daytime::Day))
+        .take(count.div_ceil(2))
+        .collect();
     picked.extend(by_time(Some(Daytime::Night)).take(count - picked.len()));
-    let rest: Vec<usize> = (0..source.len()).filter(|i| !picked.contains(i)).take(count - picked.len()).collect();
+    let rest: Vec<usize> = (0..source.len())
+        .filter(|i| !picked.contains(i))
+        .take(count - picked.len())
+        .collect();
     picked.extend(rest);
     let _guard = tch::no_grad_guard();
     picked
@@ -81,13 +99,19 @@ pub fn rows_for(
                 frame = rtf_data::resize_frame(&frame, w, h);
             }
             let input = frame_input(&frame, network.input_convention()).to_device(device);
-            let ids = predict_ids(network, &input)?.get(0).to_kind(Kind::Uint8).to_device(Device::Cpu);
+            let ids = predict_ids(network, &input)?
+                .get(0)
+                .to_kind(Kind::Uint8)
+                .to_device(Device::Cpu);
             Ok(GridRow {
                 width: frame.width,
                 height: frame.height,
                 rgb: frame.rgb.iter().map(|&v| v as f32 / 255.0).collect(),
                 thermal: frame.thermal.clone(),
-                truth: frame.label.clone().unwrap_or_else(|| vec![0; frame.width * frame.height]),
+                truth: frame
+                    .label
+                    .clone()
+                    .unwrap_or_else(|| vec![0; frame.width * frame.height]),
                 prediction: Vec::<u8>::try_from(ids.flatten(0, -1))?,
             })
         })
@@ -95,8 +119,13 @@ pub fn rows_for(
 }
 
 /// Writes the grid as PNG, atomically.
-pub fn save_png(image: &RgbImage, path: &Path) -> Result<(), rtf_core::AtomicWriteError<image::ImageError>> {
-    rtf_core::write_atomic(path, |tmp| image.save_with_format(tmp, image::ImageFormat::Png))
+pub fn save_png(
+    image: &RgbImage,
+    path: &Path,
+) -> Result<(), rtf_core::AtomicWriteError<image::ImageError>> {
+    rtf_core::write_atomic(path, |tmp| {
+        image.save_with_format(tmp, image::ImageFormat::Png)
+    })
 }
 
 #[cfg(test)]

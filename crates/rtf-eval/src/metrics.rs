@@ -39,7 +39,11 @@ pub struct Scores {
 
 impl ConfusionMatrix {
     pub fn new(num_classes: usize, ignore_id: Option<u8>) -> Self {
-        Self { num_classes, ignore_id, counts: vec![0; num_classes * num_classes] }
+        Self {
+            num_classes,
+            ignore_id,
+            counts: vec![0; num_classes * num_classes],
+        }
     }
 
     pub fn num_classes(&self) -> usize {
@@ -54,7 +58,11 @@ impl ConfusionMatrix {
     /// Adds a batch: `truth` and `prediction` hold class ids of the same shape (any integer
     /// kind, any device).
     pub fn update(&mut self, truth: &Tensor, prediction: &Tensor) {
-        assert_eq!(truth.size(), prediction.size(), "truth and prediction shapes differ");
+        assert_eq!(
+            truth.size(),
+            prediction.size(),
+            "truth and prediction shapes differ"
+        );
         let n = self.num_classes as i64;
         let truth = truth.to_kind(Kind::Int64).flatten(0, -1);
         let prediction = prediction.to_kind(Kind::Int64).flatten(0, -1);
@@ -62,8 +70,9 @@ impl ConfusionMatrix {
         if let Some(ignore) = self.ignore_id {
             valid = valid.logical_and(&truth.ne(ignore as i64));
         }
-        let index = (truth.masked_select(&valid) * n + prediction.masked_select(&valid).clamp(0, n - 1))
-            .to_device(tch::Device::Cpu);
+        let index = (truth.masked_select(&valid) * n
+            + prediction.masked_select(&valid).clamp(0, n - 1))
+        .to_device(tch::Device::Cpu);
         let bins = index.bincount::<Tensor>(None, n * n);
         let bins = Vec::<i64>::try_from(&bins).expect("bincount is int64");
         for (c, b) in self.counts.iter_mut().zip(bins) {
@@ -73,7 +82,11 @@ impl ConfusionMatrix {
 
     /// Adds a label map given as bytes (row-major, same length).
     pub fn update_ids(&mut self, truth: &[u8], prediction: &[u8]) {
-        assert_eq!(truth.len(), prediction.len(), "truth and prediction lengths differ");
+        assert_eq!(
+            truth.len(),
+            prediction.len(),
+            "truth and prediction lengths differ"
+        );
         for (&t, &p) in truth.iter().zip(prediction) {
             if Some(t) == self.ignore_id || t as usize >= self.num_classes {
                 continue;
@@ -110,7 +123,9 @@ impl ConfusionMatrix {
                 let tp = self.get(c, c);
                 let (truth, predicted) = (row_sum(c, 0), col_sum(c, 0));
                 ClassScore {
-                    name: names.get(c).map_or_else(|| format!("class{c}"), |s| s.to_string()),
+                    name: names
+                        .get(c)
+                        .map_or_else(|| format!("class{c}"), |s| s.to_string()),
                     acc: ratio(tp, truth),
                     iou: ratio(tp, truth + predicted - tp),
                 }
@@ -145,7 +160,9 @@ impl ConfusionMatrix {
 impl Scores {
     /// Plain-text table: one row per class with Acc and IoU in percent, then the means.
     pub fn table(&self) -> String {
-        let pct = |v: Option<f64>| v.map_or_else(|| "    -".to_string(), |v| format!("{:5.1}", 100.0 * v));
+        let pct = |v: Option<f64>| {
+            v.map_or_else(|| "    -".to_string(), |v| format!("{:5.1}", 100.0 * v))
+        };
         let mut out = format!("{:<12} {:>6} {:>6}\n", "class", "Acc", "IoU");
         for s in &self.per_class {
             out += &format!("{:<12} {:>6} {:>6}\n", s.name, pct(s.acc), pct(s.iou));
@@ -200,7 +217,10 @@ mod tests {
         let pred: Vec<u8> = vec![0, 1, 1, 0, 2, 1, 0, 2];
         let mut a = ConfusionMatrix::new(3, Some(13));
         let mut b = ConfusionMatrix::new(3, Some(13));
-        a.update(&Tensor::from_slice(&truth).view([2, 4]), &Tensor::from_slice(&pred).view([2, 4]));
+        a.update(
+            &Tensor::from_slice(&truth).view([2, 4]),
+            &Tensor::from_slice(&pred).view([2, 4]),
+        );
         b.update_ids(&truth, &pred);
         assert_eq!(a, b);
         assert_eq!(a.total(), 7);

@@ -159,7 +159,11 @@ impl InferenceNet {
 /// is eval-only: the fused weights carry no gradients.
 impl tch::nn::ModuleT for InferenceNet {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
-        assert!(!train, "{}: the fast inference path cannot train", self.net.name());
+        assert!(
+            !train,
+            "{}: the fast inference path cannot train",
+            self.net.name()
+        );
         self.forward_unchecked(xs).unwrap_or_else(|e| panic!("{e}"))
     }
 }

@@ -14,7 +14,10 @@ pub enum CheckpointError {
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
     #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Where training stands after a completed epoch.
@@ -36,7 +39,12 @@ fn to_bytes(t: &Tensor) -> (Vec<usize>, Vec<u8>) {
 }
 
 /// Writes weights, momentum buffers and state to `path` (temp file + rename).
-pub fn save(path: &Path, vs: &VarStore, momentum: &BTreeMap<String, Tensor>, state: &TrainState) -> Result<(), CheckpointError> {
+pub fn save(
+    path: &Path,
+    vs: &VarStore,
+    momentum: &BTreeMap<String, Tensor>,
+    state: &TrainState,
+) -> Result<(), CheckpointError> {
     let mut named: Vec<(String, (Vec<usize>, Vec<u8>))> = Vec::new();
     for (name, t) in vs.variables() {
         named.push((format!("model/{name}"), to_bytes(&t)));
@@ -50,10 +58,19 @@ pub fn save(path: &Path, vs: &VarStore, momentum: &BTreeMap<String, Tensor>, sta
             TensorView::new(Dtype::F32, shape.clone(), bytes).map(|v| (n.clone(), v))
         })
         .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| CheckpointError::Invalid { path: path.into(), message: e.to_string() })?;
-    let metadata = HashMap::from([(STATE_KEY.to_string(), serde_json::to_string(state).expect("state serialises"))]);
-    let bytes = safetensors::serialize(views, Some(metadata))
-        .map_err(|e| CheckpointError::Invalid { path: path.into(), message: e.to_string() })?;
+        .map_err(|e| CheckpointError::Invalid {
+            path: path.into(),
+            message: e.to_string(),
+        })?;
+    let metadata = HashMap::from([(
+        STATE_KEY.to_string(),
+        serde_json::to_string(state).expect("state serialises"),
+    )]);
+    let bytes =
+        safetensors::serialize(views, Some(metadata)).map_err(|e| CheckpointError::Invalid {
+            path: path.into(),
+            message: e.to_string(),
+        })?;
     rtf_core::write_bytes_atomic(path, &bytes).map_err(|e| CheckpointError::Io {
         path: path.into(),
         source: std::io::Error::other(e.to_string()),
@@ -62,23 +79,44 @@ pub fn save(path: &Path, vs: &VarStore, momentum: &BTreeMap<String, Tensor>, sta
 
 /// Restores weights into `vs` (every variable must be present with its shape) and returns the
 /// momentum buffers and state.
-pub fn load(path: &Path, vs: &mut VarStore) -> Result<(BTreeMap<String, Tensor>, TrainState), CheckpointError> {
-    let invalid = |message: String| CheckpointError::Invalid { path: path.into(), message };
-    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io { path: path.into(), source })?;
-    let (_, metadata) = SafeTensors::read_metadata(&bytes).map_err(|e| invalid(format!("not a safetensors file: {e}")))?;
+pub fn load(
+    path: &Path,
+    vs: &mut VarStore,
+) -> Result<(BTreeMap<String, Tensor>, TrainState), CheckpointError> {
+    let invalid = |message: String| CheckpointError::Invalid {
+        path: path.into(),
+        message,
+    };
+    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io {
+        path: path.into(),
+        source,
+    })?;
+    let (_, metadata) = SafeTensors::read_metadata(&bytes)
+        .map_err(|e| invalid(format!("not a safetensors file: {e}")))?;
     let state: TrainState = metadata
         .metadata()
         .as_ref()
         .and_then(|m| m.get(STATE_KEY))
         .ok_or_else(|| invalid("no training state in metadata (not an rtf checkpoint)".into()))
-        .and_then(|s| serde_json::from_str(s).map_err(|e| invalid(format!("bad training state: {e}"))))?;
+        .and_then(|s| {
+            serde_json::from_str(s).map_err(|e| invalid(format!("bad training state: {e}")))
+        })?;
     let tensors = SafeTensors::deserialize(&bytes).map_err(|e| invalid(e.to_string()))?;
     let read = |name: &str| -> Result<Tensor, CheckpointError> {
-        let view = tensors.tensor(name).map_err(|_| invalid(format!("missing tensor `{name}`")))?;
+        let view = tensors
+            .tensor(name)
+            .map_err(|_| invalid(format!("missing tensor `{name}`")))?;
         if view.dtype() != Dtype::F32 {
-            return Err(invalid(format!("tensor `{name}` is {:?}, expected F32", view.dtype())));
+            return Err(invalid(format!(
+                "tensor `{name}` is {:?}, expected F32",
+                view.dtype()
+            )));
         }
-        let values: Vec<f32> = view.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        let values: Vec<f32> = view
+            .data()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
         let shape: Vec<i64> = view.shape().iter().map(|&d| d as i64).collect();
         Ok(Tensor::from_slice(&values).view(shape.as_slice()))
     };
@@ -89,7 +127,11 @@ pub fn load(path: &Path, vs: &mut VarStore) -> Result<(BTreeMap<String, Tensor>,
         for (name, mut var) in vars {
             let saved = read(&format!("model/{name}"))?;
             if saved.size() != var.size() {
-                return Err(invalid(format!("`{name}` has shape {:?}, the network expects {:?}", saved.size(), var.size())));
+                return Err(invalid(format!(
+                    "`{name}` has shape {:?}, the network expects {:?}",
+                    saved.size(),
+                    var.size()
+                )));
             }
             var.copy_(&saved.to_device(device));
         }
@@ -115,8 +157,15 @@ mod tests {
         let path = dir.path().join("checkpoint.safetensors");
         let vs = VarStore::new(Device::Cpu);
         let _ = nn::linear(vs.root() / "fc", 3, 2, Default::default());
-        let momentum = BTreeMap::from([("fc.weight".to_string(), Tensor::ones([2, 3], (Kind::Float, Device::Cpu)))]);
-        let state = TrainState { epochs_done: 3, steps_done: 42, best_val_miou: Some(0.5) };
+        let momentum = BTreeMap::from([(
+            "fc.weight".to_string(),
+            Tensor::ones([2, 3], (Kind::Float, Device::Cpu)),
+        )]);
+        let state = TrainState {
+            epochs_done: 3,
+            steps_done: 42,
+            best_val_miou: Some(0.5),
+        };
         save(&path, &vs, &momentum, &state).unwrap();
 
         let mut other = VarStore::new(Device::Cpu);
@@ -136,10 +185,23 @@ mod tests {
         let path = dir.path().join("c.safetensors");
         let vs = VarStore::new(Device::Cpu);
         let _ = nn::linear(vs.root() / "fc", 3, 2, Default::default());
-        save(&path, &vs, &BTreeMap::new(), &TrainState { epochs_done: 1, steps_done: 1, best_val_miou: None }).unwrap();
+        save(
+            &path,
+            &vs,
+            &BTreeMap::new(),
+            &TrainState {
+                epochs_done: 1,
+                steps_done: 1,
+                best_val_miou: None,
+            },
+        )
+        .unwrap();
         let mut other = VarStore::new(Device::Cpu);
         let _ = nn::linear(other.root() / "fc", 4, 2, Default::default());
         let err = load(&path, &mut other).unwrap_err().to_string();
-        assert!(err.contains("fc.weight") && err.contains("c.safetensors"), "{err}");
+        assert!(
+            err.contains("fc.weight") && err.contains("c.safetensors"),
+            "{err}"
+        );
     }
 }

@@ -34,7 +34,11 @@ pub struct TrainConfig {
 #[serde(tag = "format", rename_all = "snake_case")]
 pub enum DatasetConfig {
     /// MF layout (spec §1).
-    Mf { root: PathBuf, train_split: String, val_split: Option<String> },
+    Mf {
+        root: PathBuf,
+        train_split: String,
+        val_split: Option<String>,
+    },
 }
 
 /// SGD with momentum and weight decay, learning rate × `lr_decay` per epoch.
@@ -49,7 +53,12 @@ pub struct SgdConfig {
 impl SgdConfig {
     /// MFNet paper: lr 0.01, momentum 0.9, weight decay 5e-4, ×0.94 per epoch.
     pub fn mfnet_paper() -> Self {
-        Self { lr: 0.01, momentum: 0.9, weight_decay: 5e-4, lr_decay: 0.94 }
+        Self {
+            lr: 0.01,
+            momentum: 0.9,
+            weight_decay: 5e-4,
+            lr_decay: 0.94,
+        }
     }
 
     /// Learning rate of a (0-based) epoch.
@@ -71,13 +80,22 @@ impl TrainConfig {
     pub fn mfnet_paper(root: PathBuf) -> Self {
         Self {
             model: ModelConfig::from_name("mfnet", 9).expect("mfnet is a known network"),
-            dataset: DatasetConfig::Mf { root, train_split: "train".into(), val_split: Some("val".into()) },
+            dataset: DatasetConfig::Mf {
+                root,
+                train_split: "train".into(),
+                val_split: Some("val".into()),
+            },
             epochs: 80,
             batch_size: 6,
             seed: 0,
             optimizer: SgdConfig::mfnet_paper(),
-            loss: LossConfig::CrossEntropy { class_weights: None },
-            augment: AugmentConfig { hflip: true, ..Default::default() },
+            loss: LossConfig::CrossEntropy {
+                class_weights: None,
+            },
+            augment: AugmentConfig {
+                hflip: true,
+                ..Default::default()
+            },
             resize: None,
             max_steps_per_epoch: None,
             workers: 2,

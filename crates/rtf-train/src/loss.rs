@@ -17,8 +17,17 @@ pub struct CrossEntropy {
 
 impl Loss for CrossEntropy {
     fn compute(&self, logits: &Tensor, target: &Tensor) -> Tensor {
-        let weights = self.class_weights.as_ref().map(|w| w.to_device(logits.device()));
-        logits.to_kind(Kind::Float).cross_entropy_loss(target, weights.as_ref(), Reduction::Mean, self.ignore_index, 0.0)
+        let weights = self
+            .class_weights
+            .as_ref()
+            .map(|w| w.to_device(logits.device()));
+        logits.to_kind(Kind::Float).cross_entropy_loss(
+            target,
+            weights.as_ref(),
+            Reduction::Mean,
+            self.ignore_index,
+            0.0,
+        )
     }
 }
 
@@ -27,7 +36,9 @@ impl LossConfig {
     pub fn build(&self, ignore_id: Option<u8>) -> Box<dyn Loss> {
         match self {
             LossConfig::CrossEntropy { class_weights } => Box::new(CrossEntropy {
-                class_weights: class_weights.as_ref().map(|w| Tensor::from_slice(w).to_kind(Kind::Float)),
+                class_weights: class_weights
+                    .as_ref()
+                    .map(|w| Tensor::from_slice(w).to_kind(Kind::Float)),
                 // -100 is PyTorch's default: no label takes it.
                 ignore_index: ignore_id.map_or(-100, i64::from),
             }),
@@ -44,7 +55,10 @@ mod tests {
         // [1, 2, 1, 2] logits; pixel 0 class 0 (right), pixel 1 class 13 (ignored).
         let logits = Tensor::from_slice(&[10.0f32, 0.0, -10.0, 0.0]).view([1, 2, 1, 2]);
         let target = Tensor::from_slice(&[0i64, 13]).view([1, 1, 2]);
-        let loss = LossConfig::CrossEntropy { class_weights: None }.build(Some(13));
+        let loss = LossConfig::CrossEntropy {
+            class_weights: None,
+        }
+        .build(Some(13));
         let value = f64::try_from(loss.compute(&logits, &target)).unwrap();
         assert!((0.0..1e-3).contains(&value), "{value}");
         let wrong = Tensor::from_slice(&[1i64, 13]).view([1, 1, 2]);

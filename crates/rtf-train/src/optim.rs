@@ -15,7 +15,11 @@ pub struct Sgd {
 
 impl Sgd {
     pub fn new(momentum: f64, weight_decay: f64) -> Self {
-        Self { momentum, weight_decay, buffers: BTreeMap::new() }
+        Self {
+            momentum,
+            weight_decay,
+            buffers: BTreeMap::new(),
+        }
     }
 
     /// One update of every trainable variable of `vs` that has a gradient:
@@ -27,7 +31,11 @@ impl Sgd {
                 if !grad.defined() {
                     continue;
                 }
-                let grad = if self.weight_decay != 0.0 { grad + &param * self.weight_decay } else { grad };
+                let grad = if self.weight_decay != 0.0 {
+                    grad + &param * self.weight_decay
+                } else {
+                    grad
+                };
                 let update = if self.momentum != 0.0 {
                     match self.buffers.get_mut(&name) {
                         Some(buffer) => {
@@ -68,7 +76,11 @@ impl Sgd {
 
 /// Trainable variables sorted by name (BatchNorm running statistics excluded).
 pub fn trainable(vs: &VarStore) -> Vec<(String, Tensor)> {
-    let mut vars: Vec<_> = vs.variables().into_iter().filter(|(_, t)| t.requires_grad()).collect();
+    let mut vars: Vec<_> = vs
+        .variables()
+        .into_iter()
+        .filter(|(_, t)| t.requires_grad())
+        .collect();
     vars.sort_by(|a, b| a.0.cmp(&b.0));
     vars
 }
@@ -82,7 +94,9 @@ mod tests {
     #[test]
     fn matches_pytorch_update_rule() {
         let vs = VarStore::new(Device::Cpu);
-        let w = vs.root().var_copy("w", &Tensor::from_slice(&[1.0f32, -2.0]));
+        let w = vs
+            .root()
+            .var_copy("w", &Tensor::from_slice(&[1.0f32, -2.0]));
         let mut sgd = Sgd::new(0.9, 0.1);
         let mut expected = [1.0f64, -2.0];
         let mut buffer = [0.0f64; 2];
@@ -98,7 +112,10 @@ mod tests {
         }
         let got = Vec::<f32>::try_from(&w).unwrap();
         for i in 0..2 {
-            assert!((got[i] as f64 - expected[i]).abs() < 1e-5, "{got:?} vs {expected:?}");
+            assert!(
+                (got[i] as f64 - expected[i]).abs() < 1e-5,
+                "{got:?} vs {expected:?}"
+            );
         }
         assert_eq!(sgd.buffers().len(), 1);
     }

@@ -67,25 +67,36 @@ pub const BEST_FILE: &str = "best.safetensors";
 pub const FINAL_FILE: &str = "final.safetensors";
 
 fn run_error(path: &Path, message: impl Into<String>) -> TrainError {
-    TrainError::Run { path: path.to_path_buf(), message: message.into() }
+    TrainError::Run {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
 }
 
 /// Reads the configuration of an existing run (for `--resume`).
 pub fn read_config(run_dir: &Path) -> Result<TrainConfig, TrainError> {
     let path = run_dir.join(CONFIG_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|e| run_error(&path, format!("cannot read: {e}")))?;
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| run_error(&path, format!("cannot read: {e}")))?;
     serde_json::from_str(&text).map_err(|e| run_error(&path, format!("not a training config: {e}")))
 }
 
 fn write_config(run_dir: &Path, cfg: &TrainConfig) -> Result<(), TrainError> {
     let path = run_dir.join(CONFIG_FILE);
     let json = serde_json::to_string_pretty(cfg).expect("config serialises");
-    rtf_core::write_bytes_atomic(&path, json.as_bytes()).map_err(|e| run_error(&path, e.to_string()))
+    rtf_core::write_bytes_atomic(&path, json.as_bytes())
+        .map_err(|e| run_error(&path, e.to_string()))
 }
 
-fn open_split(dataset: &DatasetConfig) -> Result<(Arc<dyn FrameSource>, Option<Arc<dyn FrameSource>>), TrainError> {
+fn open_split(
+    dataset: &DatasetConfig,
+) -> Result<(Arc<dyn FrameSource>, Option<Arc<dyn FrameSource>>), TrainError> {
     match dataset {
-        DatasetConfig::Mf { root, train_split, val_split } => {
+        DatasetConfig::Mf {
+            root,
+            train_split,
+            val_split,
+        } => {
             let mf = MfDataset::open(root)?;
             let train: Arc<dyn FrameSource> = Arc::new(mf.split(train_split)?);
             let val = match val_split {
@@ -108,17 +119,23 @@ pub fn train(
     on_epoch: &mut dyn FnMut(&EpochRecord),
 ) -> Result<TrainOutcome, TrainError> {
     if cfg.batch_size == 0 || cfg.epochs == 0 {
-        return Err(TrainError::Config("batch size and epochs must be at least 1".into()));
+        return Err(TrainError::Config(
+            "batch size and epochs must be at least 1".into(),
+        ));
     }
     let device = cfg.device().map_err(TrainError::Config)?;
     let checkpoint_path = run_dir.join(CHECKPOINT_FILE);
     if !resume && checkpoint_path.exists() {
-        return Err(run_error(run_dir, "already holds a run; use --resume to continue it or choose another output folder"));
+        return Err(run_error(
+            run_dir,
+            "already holds a run; use --resume to continue it or choose another output folder",
+        ));
     }
     if resume && !checkpoint_path.exists() {
         return Err(run_error(&checkpoint_path, "no checkpoint to resume from"));
     }
-    std::fs::create_dir_all(run_dir).map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
+    std::fs::create_dir_all(run_dir)
+        .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
 
     let (train_source, val_source) = open_split(&cfg.dataset)?;
     let classes = train_source.class_set().clone();
@@ -135,7 +152,11 @@ pub fn train(
     let mut vs = VarStore::new(device);
     let network = rtf_models::build(&vs.root(), &cfg.model)?;
     let mut sgd = Sgd::new(cfg.optimizer.momentum, cfg.optimizer.weight_decay);
-    let mut state = TrainState { epochs_done: 0, steps_done: 0, best_val_miou: None };
+    let mut state = TrainState {
+        epochs_done: 0,
+        steps_done: 0,
+        best_val_miou: None,
+    };
     if resume {
         let (momentum, saved) = checkpoint::load(&checkpoint_path, &mut vs)?;
         sgd.set_buffers(momentum);
@@ -158,7 +179,9 @@ pub fn train(
         },
         network.input_convention(),
     );
-    let steps_per_epoch = cfg.max_steps_per_epoch.map_or(loader.num_batches(), |m| m.min(loader.num_batches()));
+    let steps_per_epoch = cfg
+        .max_steps_per_epoch
+        .map_or(loader.num_batches(), |m| m.min(loader.num_batches()));
     let mut records = Vec::new();
     for epoch in state.epochs_done..cfg.epochs {
         // Reseeded per epoch so a resumed run draws the same random numbers (dropout, ...).
@@ -179,20 +202,31 @@ pub fn train(
             sgd.step(&vs, lr);
             let value = f64::try_from(&loss).unwrap_or(f64::NAN);
             if !value.is_finite() {
-                return Err(TrainError::Diverged { epoch, step: state.steps_done, loss: value });
+                return Err(TrainError::Diverged {
+                    epoch,
+                    step: state.steps_done,
+                    loss: value,
+                });
             }
             state.steps_done += 1;
             loss_sum += value;
             images += batch.names.len();
             let rate = images as f64 / started.elapsed().as_secs_f64().max(1e-9);
-            bar.set_message(format!("loss {:.4} | {rate:.1} img/s", loss_sum / (step + 1) as f64));
+            bar.set_message(format!(
+                "loss {:.4} | {rate:.1} img/s",
+                loss_sum / (step + 1) as f64
+            ));
             bar.inc(1);
         }
         bar.finish_and_clear();
         let seconds = started.elapsed().as_secs_f64();
         let (val_miou, val_macc) = match &val_source {
             Some(val) => {
-                let options = EvalOptions { batch_size: cfg.batch_size, resize: cfg.resize, workers: cfg.workers };
+                let options = EvalOptions {
+                    batch_size: cfg.batch_size,
+                    resize: cfg.resize,
+                    workers: cfg.workers,
+                };
                 let report = rtf_eval::evaluate(network.as_ref(), val.clone(), &options, device)?;
                 (Some(report.all.miou), Some(report.all.macc))
             }
@@ -223,7 +257,12 @@ pub fn train(
     }
     let final_weights = run_dir.join(FINAL_FILE);
     rtf_models::weights::save_safetensors(&vs, &final_weights)?;
-    Ok(TrainOutcome { run_dir: run_dir.to_path_buf(), final_weights, records, state })
+    Ok(TrainOutcome {
+        run_dir: run_dir.to_path_buf(),
+        final_weights,
+        records,
+        state,
+    })
 }
 
 fn append_log(run_dir: &Path, record: &EpochRecord) -> Result<(), TrainError> {
@@ -239,9 +278,10 @@ fn append_log(run_dir: &Path, record: &EpochRecord) -> Result<(), TrainError> {
 
 fn progress_bar(steps: usize, epoch: usize, epochs: usize) -> ProgressBar {
     let bar = ProgressBar::new(steps as u64);
-    let style = ProgressStyle::with_template("epoch {prefix} [{bar:30}] {pos}/{len} {msg} ETA {eta}")
-        .expect("valid template")
-        .progress_chars("=> ");
+    let style =
+        ProgressStyle::with_template("epoch {prefix} [{bar:30}] {pos}/{len} {msg} ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> ");
     bar.set_style(style);
     bar.set_prefix(format!("{}/{}", epoch + 1, epochs));
     bar

@@ -14,7 +14,9 @@ fn write_dataset(root: &Path) {
         state = state.wrapping_mul(1664525).wrapping_add(1013904223);
         (state >> 24) as u8
     };
-    let names: Vec<String> = (0..6).map(|i| format!("{i:05}{}", if i % 2 == 0 { 'D' } else { 'N' })).collect();
+    let names: Vec<String> = (0..6)
+        .map(|i| format!("{i:05}{}", if i % 2 == 0 { 'D' } else { 'N' }))
+        .collect();
     for name in &names {
         let mut image = image::RgbaImage::new(32, 32);
         let mut label = image::GrayImage::new(32, 32);
@@ -22,8 +24,12 @@ fn write_dataset(root: &Path) {
             *p = image::Rgba([next(), next(), next(), next()]);
             label.put_pixel(x, y, image::Luma([if p.0[3] > 128 { 2 } else { 0 }]));
         }
-        image.save(root.join("images").join(format!("{name}.png"))).unwrap();
-        label.save(root.join("labels").join(format!("{name}.png"))).unwrap();
+        image
+            .save(root.join("images").join(format!("{name}.png")))
+            .unwrap();
+        label
+            .save(root.join("labels").join(format!("{name}.png")))
+            .unwrap();
     }
     std::fs::write(root.join("train.txt"), names[..4].join("\n")).unwrap();
     std::fs::write(root.join("val.txt"), names[4..].join("\n")).unwrap();
@@ -34,7 +40,11 @@ static TORCH_RNG: Mutex<()> = Mutex::new(());
 
 fn config(root: &Path, epochs: usize) -> TrainConfig {
     let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
-    cfg.dataset = DatasetConfig::Mf { root: root.to_path_buf(), train_split: "train".into(), val_split: Some("val".into()) };
+    cfg.dataset = DatasetConfig::Mf {
+        root: root.to_path_buf(),
+        train_split: "train".into(),
+        val_split: Some("val".into()),
+    };
     cfg.epochs = epochs;
     cfg.batch_size = 2;
     cfg.seed = 7;
@@ -45,7 +55,11 @@ fn config(root: &Path, epochs: usize) -> TrainConfig {
 fn weights(path: &Path) -> Vec<(String, Vec<u8>)> {
     let bytes = std::fs::read(path).unwrap();
     let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
-    let mut named: Vec<_> = st.tensors().into_iter().map(|(n, v)| (n, v.data().to_vec())).collect();
+    let mut named: Vec<_> = st
+        .tensors()
+        .into_iter()
+        .map(|(n, v)| (n, v.data().to_vec()))
+        .collect();
     named.sort_by(|a, b| a.0.cmp(&b.0));
     named
 }
@@ -60,7 +74,10 @@ fn resumed_run_equals_uninterrupted_run() {
     let straight = tmp.path().join("straight");
     let outcome = rtf_train::train(&config(&data, 2), &straight, false, &mut |_| {}).unwrap();
     assert_eq!(outcome.records.len(), 2);
-    assert!(outcome.records.iter().all(|r| r.train_loss.is_finite() && r.val_miou.is_some()));
+    assert!(outcome
+        .records
+        .iter()
+        .all(|r| r.train_loss.is_finite() && r.val_miou.is_some()));
 
     let split = tmp.path().join("split");
     rtf_train::train(&config(&data, 1), &split, false, &mut |_| {}).unwrap();
@@ -74,7 +91,10 @@ fn resumed_run_equals_uninterrupted_run() {
     assert_eq!(a.len(), b.len());
     for ((na, da), (nb, db)) in a.iter().zip(&b) {
         assert_eq!(na, nb);
-        assert!(da == db, "`{na}` differs between the resumed and the uninterrupted run");
+        assert!(
+            da == db,
+            "`{na}` differs between the resumed and the uninterrupted run"
+        );
     }
     let log = std::fs::read_to_string(split.join("log.jsonl")).unwrap();
     assert_eq!(log.lines().count(), 2);
@@ -88,7 +108,11 @@ fn training_lowers_the_loss() {
     write_dataset(&data);
     let mut cfg = config(&data, 20);
     cfg.optimizer.lr = 0.05;
-    cfg.dataset = DatasetConfig::Mf { root: data.clone(), train_split: "train".into(), val_split: None };
+    cfg.dataset = DatasetConfig::Mf {
+        root: data.clone(),
+        train_split: "train".into(),
+        val_split: None,
+    };
     let outcome = rtf_train::train(&cfg, &tmp.path().join("run"), false, &mut |_| {}).unwrap();
     let first = outcome.records.first().unwrap().train_loss;
     let last = outcome.records.last().unwrap().train_loss;
@@ -109,7 +133,11 @@ fn backbone_weights_are_loaded_before_the_first_step() {
 
     let mut cfg = config(&data, 1);
     cfg.model = rtf_models::ModelConfig::from_name("rtfnet18", 9).unwrap();
-    cfg.dataset = DatasetConfig::Mf { root: data.clone(), train_split: "train".into(), val_split: None };
+    cfg.dataset = DatasetConfig::Mf {
+        root: data.clone(),
+        train_split: "train".into(),
+        val_split: None,
+    };
     cfg.backbone_weights = Some(backbone.clone());
     // No update: the written weights are the initial ones.
     cfg.optimizer.lr = 0.0;
@@ -118,16 +146,32 @@ fn backbone_weights_are_loaded_before_the_first_step() {
     let run = tmp.path().join("run");
     rtf_train::train(&cfg, &run, false, &mut |_| {}).unwrap();
     let written = weights(&run.join("final.safetensors"));
-    let get = |name: &str| written.iter().find(|(n, _)| n == name).unwrap_or_else(|| panic!("{name}")).1.clone();
+    let get = |name: &str| {
+        written
+            .iter()
+            .find(|(n, _)| n == name)
+            .unwrap_or_else(|| panic!("{name}"))
+            .1
+            .clone()
+    };
     let source = imagenet.variables();
     let bytes = |t: &tch::Tensor| {
         let v = Vec::<f32>::try_from(t.flatten(0, -1)).unwrap();
         v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>()
     };
-    assert_eq!(get("encoder_rgb_layer1.0.conv1.weight"), bytes(&source["layer1.0.conv1.weight"]));
-    assert_eq!(get("encoder_thermal_layer4.1.conv2.weight"), bytes(&source["layer4.1.conv2.weight"]));
+    assert_eq!(
+        get("encoder_rgb_layer1.0.conv1.weight"),
+        bytes(&source["layer1.0.conv1.weight"])
+    );
+    assert_eq!(
+        get("encoder_thermal_layer4.1.conv2.weight"),
+        bytes(&source["layer4.1.conv2.weight"])
+    );
     // Thermal stem: mean of the RGB stem over its input channels.
-    assert_eq!(get("encoder_thermal_conv1.weight"), bytes(&source["conv1.weight"].mean_dim(1, true, tch::Kind::Float)));
+    assert_eq!(
+        get("encoder_thermal_conv1.weight"),
+        bytes(&source["conv1.weight"].mean_dim(1, true, tch::Kind::Float))
+    );
 
     let mut missing = cfg.clone();
     missing.backbone_weights = Some(tmp.path().join("nope.safetensors"));

@@ -18,7 +18,6 @@ pub enum RecipeArg {
     Paper,
 }
 
-
 #[derive(clap::Args)]
 pub struct Args {
     /// The rig description (paths inside are relative to it).

@@ -64,15 +64,36 @@ pub fn run(args: Args) -> Result<()> {
     let dataset = MfDataset::open(&args.data)?;
     let split: Arc<dyn FrameSource> = Arc::new(dataset.split(&args.split)?);
     let classes = split.class_set().clone();
-    let (_vs, network) = load_network(&args.model, classes.len() as i64, &args.weights, device, args.precision)?;
-    let options = EvalOptions { batch_size: args.batch_size, resize: args.resize, workers: 2 };
+    let (_vs, network) = load_network(
+        &args.model,
+        classes.len() as i64,
+        &args.weights,
+        device,
+        args.precision,
+    )?;
+    let options = EvalOptions {
+        batch_size: args.batch_size,
+        resize: args.resize,
+        workers: 2,
+    };
     let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
 
-    println!("{} on {} `{}` ({} frames)", args.model, args.data.display(), args.split, report.frames);
+    println!(
+        "{} on {} `{}` ({} frames)",
+        args.model,
+        args.data.display(),
+        args.split,
+        report.frames
+    );
     println!("{}", report.all.table());
     for (label, scores) in [("day", &report.day), ("night", &report.night)] {
         if let Some(s) = scores {
-            println!("{label}: mAcc {:.1}  mIoU {:.1}  mIoU(MFNet) {:.1}", 100.0 * s.macc, 100.0 * s.miou, 100.0 * s.miou_mfnet);
+            println!(
+                "{label}: mAcc {:.1}  mIoU {:.1}  mIoU(MFNet) {:.1}",
+                100.0 * s.macc,
+                100.0 * s.miou,
+                100.0 * s.miou_mfnet
+            );
         }
     }
     if let Some(path) = &args.json {
@@ -86,10 +107,17 @@ pub fn run(args: Args) -> Result<()> {
             day: report.day.as_ref(),
             night: report.night.as_ref(),
         })?;
-        rtf_core::write_bytes_atomic(path, json.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
+        rtf_core::write_bytes_atomic(path, json.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.figure {
-        let rows = rtf_eval::figure::rows_for(network.as_ref(), split.as_ref(), args.figure_frames, args.resize, device)?;
+        let rows = rtf_eval::figure::rows_for(
+            network.as_ref(),
+            split.as_ref(),
+            args.figure_frames,
+            args.resize,
+            device,
+        )?;
         let grid = rtf_eval::figure::prediction_grid(&rows, &classes);
         rtf_eval::figure::save_png(&grid, path)?;
         println!("figure: {}", path.display());

@@ -1,22 +1,26 @@
 //! One module per subcommand: a clap `Args` struct and `run(args) -> anyhow::Result<()>`.
 
-pub mod eval;
-pub mod predict;
 pub mod bench_data;
 pub mod bench_model;
 pub mod calibrate;
 pub mod data;
+pub mod eval;
 pub mod models;
+pub mod predict;
 pub mod synth;
 pub mod train;
 
 /// Parses `WxH` (e.g. `640x480`) into (width, height).
 pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
-    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("`{text}` is not WxH (e.g. 640x480)"))?;
+    let (w, h) = text
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("`{text}` is not WxH (e.g. 640x480)"))?;
     let parse = |s: &str| s.trim().parse::<usize>().ok().filter(|&v| v > 0);
     match (parse(w), parse(h)) {
         (Some(w), Some(h)) => Ok((w, h)),
-        _ => Err(format!("`{text}` is not WxH with positive integers (e.g. 640x480)")),
+        _ => Err(format!(
+            "`{text}` is not WxH with positive integers (e.g. 640x480)"
+        )),
     }
 }
 
@@ -34,7 +38,9 @@ pub fn load_network(
     let net = rtf_models::build(&vs.root(), &cfg)?;
     rtf_models::weights::load_safetensors(&mut vs, weights)?;
     let net = match precision {
-        Some(p) => Box::new(rtf_models::fast::InferenceNet::new(net, p)?) as Box<dyn rtf_models::Network>,
+        Some(p) => {
+            Box::new(rtf_models::fast::InferenceNet::new(net, p)?) as Box<dyn rtf_models::Network>
+        }
         None => net,
     };
     Ok((vs, net))

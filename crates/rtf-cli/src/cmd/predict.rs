@@ -48,7 +48,9 @@ pub struct Args {
 }
 
 fn parse_range(text: &str) -> Result<(u16, u16), String> {
-    let parsed = text.split_once(':').and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)));
+    let parsed = text
+        .split_once(':')
+        .and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)));
     match parsed {
         Some((lo, hi)) if lo < hi => Ok((lo, hi)),
         _ => Err(format!("`{text}` is not LO:HI with 0 <= LO < HI <= 65535")),
@@ -56,22 +58,42 @@ fn parse_range(text: &str) -> Result<(u16, u16), String> {
 }
 
 fn stem(path: &Path) -> String {
-    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 /// Reads an MF-style RGBA PNG into an unlabelled frame.
 fn read_rgba(path: &Path) -> Result<Frame> {
     let png = read_png(path)?;
     let Samples::U8(rgba) = png.samples else {
-        bail!("{}: 16-bit PNG, expected 8-bit RGBA with thermal in alpha", path.display());
+        bail!(
+            "{}: 16-bit PNG, expected 8-bit RGBA with thermal in alpha",
+            path.display()
+        );
     };
     if png.channels != 4 || png.indexed {
-        bail!("{}: {} channel(s), expected 4 (RGBA with thermal in alpha)", path.display(), png.channels);
+        bail!(
+            "{}: {} channel(s), expected 4 (RGBA with thermal in alpha)",
+            path.display(),
+            png.channels
+        );
     }
-    let rgb = rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+    let rgb = rgba
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
     let thermal = rgba.chunks_exact(4).map(|p| p[3] as f32 / 255.0).collect();
     let name = stem(path);
-    Ok(Frame { daytime: rtf_core::Daytime::from_mf_name(&name), name, width: png.width, height: png.height, rgb, thermal, label: None })
+    Ok(Frame {
+        daytime: rtf_core::Daytime::from_mf_name(&name),
+        name,
+        width: png.width,
+        height: png.height,
+        rgb,
+        thermal,
+        label: None,
+    })
 }
 
 /// Reads an RGB PNG and a grey thermal PNG (8- or 16-bit) of the same size into a frame.
@@ -101,22 +123,39 @@ fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) ->
     }
     let thermal = thermal_unit(&thermal_png, thermal_path, range)?;
     let name = stem(rgb_path);
-    Ok(Frame { daytime: None, name, width: rgb_png.width, height: rgb_png.height, rgb, thermal, label: None })
+    Ok(Frame {
+        daytime: None,
+        name,
+        width: rgb_png.width,
+        height: rgb_png.height,
+        rgb,
+        thermal,
+        label: None,
+    })
 }
 
 /// Thermal samples in [0, 1]: 8-bit / 255; 16-bit clipped to `range` (or the frame's min:max).
 fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Result<Vec<f32>> {
     if png.channels != 1 || png.indexed {
-        bail!("{}: {} channel(s), expected a single grey thermal channel", path.display(), png.channels);
+        bail!(
+            "{}: {} channel(s), expected a single grey thermal channel",
+            path.display(),
+            png.channels
+        );
     }
     Ok(match &png.samples {
         Samples::U8(v) => v.iter().map(|&x| x as f32 / 255.0).collect(),
         Samples::U16(v) => {
             let (lo, hi) = range.unwrap_or_else(|| {
-                (v.iter().copied().min().unwrap_or(0), v.iter().copied().max().unwrap_or(1))
+                (
+                    v.iter().copied().min().unwrap_or(0),
+                    v.iter().copied().max().unwrap_or(1),
+                )
             });
             let span = (hi.saturating_sub(lo)).max(1) as f32;
-            v.iter().map(|&x| (x.clamp(lo, hi) - lo) as f32 / span).collect()
+            v.iter()
+                .map(|&x| (x.clamp(lo, hi) - lo) as f32 / span)
+                .collect()
         }
     })
 }
@@ -131,32 +170,58 @@ pub fn run(args: Args) -> Result<()> {
         None if heatnet => ClassSet::freiburg(),
         None => ClassSet::mf(),
     };
-    let (_vs, network) = load_network(&args.model, classes.len() as i64, &args.weights, device, args.precision)?;
+    let (_vs, network) = load_network(
+        &args.model,
+        classes.len() as i64,
+        &args.weights,
+        device,
+        args.precision,
+    )?;
     // Read every input first: a bad file stops the run before anything is written.
-    let mut frames = args.images.iter().map(|p| read_rgba(p)).collect::<Result<Vec<_>>>()?;
+    let mut frames = args
+        .images
+        .iter()
+        .map(|p| read_rgba(p))
+        .collect::<Result<Vec<_>>>()?;
     let mut sources: Vec<PathBuf> = args.images.clone();
     if let (Some(rgb), Some(thermal)) = (&args.rgb, &args.thermal) {
         let range = args.thermal_range.or(heatnet.then_some((21800, 25000)));
         frames.push(read_pair(rgb, thermal, range)?);
         sources.push(rgb.clone());
     }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let _guard = tch::no_grad_guard();
     for (frame, path) in frames.iter().zip(&sources) {
-        let input = rtf_eval::figure::frame_input(frame, network.input_convention()).to_device(device);
-        let logits = rtf_eval::evaluate::logits(network.as_ref(), &input)?.get(0).to_kind(Kind::Float).to_device(tch::Device::Cpu);
+        let input =
+            rtf_eval::figure::frame_input(frame, network.input_convention()).to_device(device);
+        let logits = rtf_eval::evaluate::logits(network.as_ref(), &input)?
+            .get(0)
+            .to_kind(Kind::Float)
+            .to_device(tch::Device::Cpu);
         let ids = Vec::<u8>::try_from(logits.argmax(0, false).to_kind(Kind::Uint8).flatten(0, -1))?;
         let (w, h) = (frame.width as u32, frame.height as u32);
         let stem = &frame.name;
         let ids_path = args.out.join(format!("{stem}.png"));
         let color_path = args.out.join(format!("{stem}_color.png"));
-        save_png(&ids_path, image::DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, ids.clone()).expect("sized")))?;
-        save_png(&color_path, image::DynamicImage::ImageRgb8(image::RgbImage::from_raw(w, h, classes.colorize(&ids)).expect("sized")))?;
+        save_png(
+            &ids_path,
+            image::DynamicImage::ImageLuma8(
+                image::GrayImage::from_raw(w, h, ids.clone()).expect("sized"),
+            ),
+        )?;
+        save_png(
+            &color_path,
+            image::DynamicImage::ImageRgb8(
+                image::RgbImage::from_raw(w, h, classes.colorize(&ids)).expect("sized"),
+            ),
+        )?;
         if args.logits {
             let shape: Vec<usize> = logits.size().iter().map(|&d| d as usize).collect();
             let values = Vec::<f32>::try_from(logits.flatten(0, -1))?;
             let npy = args.out.join(format!("{stem}.npy"));
-            rtf_core::npy::write_f32(&npy, &shape, &values).with_context(|| format!("writing {}", npy.display()))?;
+            rtf_core::npy::write_f32(&npy, &shape, &values)
+                .with_context(|| format!("writing {}", npy.display()))?;
         }
         println!("{} -> {}", path.display(), ids_path.display());
     }
@@ -164,8 +229,10 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 fn save_png(path: &Path, image: image::DynamicImage) -> Result<()> {
-    rtf_core::write_atomic(path, |tmp| image.save_with_format(tmp, image::ImageFormat::Png))
-        .with_context(|| format!("writing {}", path.display()))
+    rtf_core::write_atomic(path, |tmp| {
+        image.save_with_format(tmp, image::ImageFormat::Png)
+    })
+    .with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]
@@ -176,8 +243,20 @@ mod tests {
     fn thermal_ranges() {
         assert_eq!(parse_range("21800:25000"), Ok((21800, 25000)));
         assert!(parse_range("5:5").is_err());
-        let png = PngImage { width: 3, height: 1, channels: 1, indexed: false, samples: Samples::U16(vec![100, 200, 300]) };
-        assert_eq!(thermal_unit(&png, Path::new("t.png"), None).unwrap(), vec![0.0, 0.5, 1.0]);
-        assert_eq!(thermal_unit(&png, Path::new("t.png"), Some((200, 250))).unwrap(), vec![0.0, 0.0, 1.0]);
+        let png = PngImage {
+            width: 3,
+            height: 1,
+            channels: 1,
+            indexed: false,
+            samples: Samples::U16(vec![100, 200, 300]),
+        };
+        assert_eq!(
+            thermal_unit(&png, Path::new("t.png"), None).unwrap(),
+            vec![0.0, 0.5, 1.0]
+        );
+        assert_eq!(
+            thermal_unit(&png, Path::new("t.png"), Some((200, 250))).unwrap(),
+            vec![0.0, 0.0, 1.0]
+        );
     }
 }

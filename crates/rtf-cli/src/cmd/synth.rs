@@ -101,7 +101,13 @@ fn calibration_rig(args: &Args) -> Result<()> {
         },
         ..Default::default()
     };
-    let rig = write_rig(&args.out, &cfg).with_context(|| format!("writing a synthetic rig to {}", args.out.display()))?;
-    println!("wrote {} ({} frames) and {}", rig.rig_path.display(), cfg.frames, rig.ground_truth_path.display());
+    let rig = write_rig(&args.out, &cfg)
+        .with_context(|| format!("writing a synthetic rig to {}", args.out.display()))?;
+    println!(
+        "wrote {} ({} frames) and {}",
+        rig.rig_path.display(),
+        cfg.frames,
+        rig.ground_truth_path.display()
+    );
     Ok(())
 }

@@ -101,9 +101,16 @@ pub fn run(args: Args) -> Result<()> {
             (cfg, out, false)
         }
     };
-    eprintln!("training {} for {} epochs into {}", cfg.model.name(), cfg.epochs, run_dir.display());
+    eprintln!(
+        "training {} for {} epochs into {}",
+        cfg.model.name(),
+        cfg.epochs,
+        run_dir.display()
+    );
     let outcome = rtf_train::train(&cfg, &run_dir, resume, &mut |r| {
-        let val = r.val_miou.map_or(String::new(), |m| format!("  val mIoU {:.1}", 100.0 * m));
+        let val = r
+            .val_miou
+            .map_or(String::new(), |m| format!("  val mIoU {:.1}", 100.0 * m));
         eprintln!(
             "epoch {:>3}  lr {:.5}  loss {:.4}  {:.1} img/s  data wait {:.0}%{val}",
             r.epoch + 1,
