@@ -78,7 +78,7 @@ fn calibrates_a_small_synthetic_rig_with_overlays() {
     let number = |after: &str| -> f64 {
         let rest = &line[line.find(after).unwrap() + after.len()..];
         rest.trim_start()
-            .split(|c: char| c == ' ' || c == ')')
+            .split([' ', ')'])
             .next()
             .unwrap()
             .parse()

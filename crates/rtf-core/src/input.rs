@@ -3,19 +3,14 @@
 
 use serde::{Deserialize, Serialize};
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum InputConvention {
     /// MFNet / RTFNet reference: pixel / 255 in [0, 1], channels R, G, B, T, no mean/std.
+    #[default]
     UnitRange,
     /// HeatNet reference: (pixel in [0, 1] - mean) / std per modality, mean = std = 0.5.
     MeanStd { mean: f32, std: f32 },
-}
-
-impl Default for InputConvention {
-    fn default() -> Self {
-        Self::UnitRange
-    }
 }
 
 impl InputConvention {

@@ -124,7 +124,7 @@ pub fn logits(network: &dyn Network, input: &Tensor) -> Result<Tensor, EvalError
     let m = network.size_multiple().max(1);
     let (ph, pw) = ((m - h % m) % m, (m - w % m) % m);
     let padded = if ph > 0 || pw > 0 {
-        input.f_pad(&[0, pw, 0, ph], "replicate", None)?
+        input.f_pad([0, pw, 0, ph], "replicate", None)?
     } else {
         input.shallow_clone()
     };

@@ -31,7 +31,10 @@ pub struct TrainState {
 
 const STATE_KEY: &str = "rtf_train_state";
 
-fn to_bytes(t: &Tensor) -> (Vec<usize>, Vec<u8>) {
+/// A tensor as safetensors wants it: shape and little-endian f32 bytes.
+type RawTensor = (Vec<usize>, Vec<u8>);
+
+fn to_bytes(t: &Tensor) -> RawTensor {
     let t = t.to_device(Device::Cpu).to_kind(Kind::Float).contiguous();
     let shape = t.size().iter().map(|&d| d as usize).collect();
     let values = Vec::<f32>::try_from(t.flatten(0, -1)).expect("float tensor");
@@ -45,7 +48,7 @@ pub fn save(
     momentum: &BTreeMap<String, Tensor>,
     state: &TrainState,
 ) -> Result<(), CheckpointError> {
-    let mut named: Vec<(String, (Vec<usize>, Vec<u8>))> = Vec::new();
+    let mut named: Vec<(String, RawTensor)> = Vec::new();
     for (name, t) in vs.variables() {
         named.push((format!("model/{name}"), to_bytes(&t)));
     }

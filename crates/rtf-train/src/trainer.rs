@@ -88,9 +88,10 @@ fn write_config(run_dir: &Path, cfg: &TrainConfig) -> Result<(), TrainError> {
         .map_err(|e| run_error(&path, e.to_string()))
 }
 
-fn open_split(
-    dataset: &DatasetConfig,
-) -> Result<(Arc<dyn FrameSource>, Option<Arc<dyn FrameSource>>), TrainError> {
+type Source = Arc<dyn FrameSource>;
+
+/// The training split and, if configured, the validation split.
+fn open_split(dataset: &DatasetConfig) -> Result<(Source, Option<Source>), TrainError> {
     match dataset {
         DatasetConfig::Mf {
             root,
