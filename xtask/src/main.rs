@@ -65,9 +65,9 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
 }
 
 /// The demo's dataset and schedule: sized to train in a few minutes on 2 CPU cores.
-const DEMO_FRAMES: &str = "160";
+const DEMO_FRAMES: &str = "240";
 const DEMO_SIZE: &str = "160x128";
-const DEMO_EPOCHS: &str = "30";
+const DEMO_EPOCHS: &str = "40";
 
 fn demo(root: &Path, extra: &[String]) -> Result<()> {
     setup::ensure_libtorch(root)?;
