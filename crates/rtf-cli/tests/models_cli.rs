@@ -1,0 +1,76 @@
+//! `rtf models --json` and `rtf bench model --json` through the binary.
+
+use std::process::Command;
+
+fn rtf_json(args: &[&str]) -> serde_json::Value {
+    let out = Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args(args)
+        .output()
+        .expect("rtf runs");
+    assert!(
+        out.status.success(),
+        "rtf {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
+}
+
+#[test]
+fn models_lists_every_network_with_reference_counts() {
+    let list = rtf_json(&["models", "--json"]);
+    let rows = list.as_array().unwrap();
+    let params = |name: &str| {
+        rows.iter()
+            .find(|r| r["name"] == name)
+            .unwrap_or_else(|| panic!("{name} missing"))["params"]
+            .as_i64()
+            .unwrap()
+    };
+    // Reference counts (spec §3–5).
+    assert_eq!(params("mfnet"), 736_275);
+    assert_eq!(params("rtfnet50"), 185_238_501);
+    assert_eq!(params("heatnet"), 54_361_040);
+    assert_eq!(params("heatnet-critic"), 2_774_977);
+    for name in [
+        "rtfnet152-fci",
+        "rtfnet18-nre",
+        "erfnet-4c",
+        "unet-3c",
+        "fusenet",
+        "enet-3c",
+        "mfnet-n",
+        "heatnet-ir",
+    ] {
+        assert!(params(name) > 0, "{name}");
+    }
+    let mfnet = rows.iter().find(|r| r["name"] == "mfnet").unwrap();
+    let megabytes = mfnet["megabytes"].as_f64().unwrap();
+    assert!((megabytes - 736_275.0 * 4.0 / 1048576.0).abs() < 1e-9);
+}
+
+#[test]
+fn bench_model_reports_timings_as_json() {
+    let r = rtf_json(&[
+        "bench",
+        "model",
+        "--model",
+        "mfnet",
+        "--size",
+        "64x48",
+        "--warmup",
+        "1",
+        "--iterations",
+        "2",
+        "--json",
+    ]);
+    assert_eq!(r["model"], "mfnet");
+    assert_eq!(r["batch"], 1);
+    assert_eq!(r["precision"], "fp32");
+    let (median, min, fps) = (
+        r["median_ms"].as_f64().unwrap(),
+        r["min_ms"].as_f64().unwrap(),
+        r["fps"].as_f64().unwrap(),
+    );
+    assert!(min > 0.0 && min <= median, "{r}");
+    assert!(fps > 0.0, "{r}");
+}
