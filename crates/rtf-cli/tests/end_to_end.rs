@@ -31,6 +31,38 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// A synthetic 32×32 dataset under `dir` and MFNet weights trained on it for one step.
+fn tiny_weights(dir: &Path, frames: &str, seed: &str) -> std::path::PathBuf {
+    let (data, run) = (dir.join("data"), dir.join("run"));
+    ok(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--count",
+        frames,
+        "--seed",
+        seed,
+        "--size",
+        "32x32",
+    ]);
+    ok(&[
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--epochs",
+        "1",
+        "--batch-size",
+        "2",
+        "--max-steps",
+        "1",
+        "--val-split",
+        "none",
+    ]);
+    run.join("final.safetensors")
+}
+
 #[test]
 fn synth_train_resume_eval_predict() {
     let tmp = tempfile::tempdir().unwrap();
@@ -223,39 +255,12 @@ fn bad_inputs_name_the_file() {
     ]);
     assert!(err.contains("nodata"), "{err}");
     // A 3-channel image where RGBA is expected, with valid weights.
-    let data = tmp.path().join("data");
-    let run = tmp.path().join("run");
-    ok(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--count",
-        "8",
-        "--seed",
-        "1",
-        "--size",
-        "32x32",
-    ]);
-    ok(&[
-        "train",
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--epochs",
-        "1",
-        "--batch-size",
-        "2",
-        "--max-steps",
-        "1",
-        "--val-split",
-        "none",
-    ]);
+    let weights = tiny_weights(tmp.path(), "8", "1");
     let out_dir = tmp.path().join("pred");
     let err = fails(&[
         "predict",
         "--weights",
-        s(&run.join("final.safetensors")),
+        s(&weights),
         "--out",
         s(&out_dir),
         s(&rgb),
@@ -271,7 +276,7 @@ fn bad_inputs_name_the_file() {
         "--model",
         "nosuchnet",
         "--data",
-        s(&data),
+        s(&tmp.path().join("data")),
         "--out",
         s(&tmp.path().join("r2")),
     ]);
@@ -281,34 +286,7 @@ fn bad_inputs_name_the_file() {
 #[test]
 fn predict_takes_separate_rgb_and_16_bit_thermal() {
     let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    let run = tmp.path().join("run");
-    ok(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--count",
-        "6",
-        "--seed",
-        "2",
-        "--size",
-        "32x32",
-    ]);
-    ok(&[
-        "train",
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--epochs",
-        "1",
-        "--batch-size",
-        "2",
-        "--max-steps",
-        "1",
-        "--val-split",
-        "none",
-    ]);
+    let weights = tiny_weights(tmp.path(), "6", "2");
     let rgb = tmp.path().join("cam_rgb.png");
     let thermal = tmp.path().join("cam_ir.png");
     image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([x as u8 * 8, y as u8 * 8, 90]))
@@ -323,7 +301,7 @@ fn predict_takes_separate_rgb_and_16_bit_thermal() {
     ok(&[
         "predict",
         "--weights",
-        s(&run.join("final.safetensors")),
+        s(&weights),
         "--out",
         s(&out),
         "--rgb",
@@ -344,7 +322,7 @@ fn predict_takes_separate_rgb_and_16_bit_thermal() {
     let err = fails(&[
         "predict",
         "--weights",
-        s(&run.join("final.safetensors")),
+        s(&weights),
         "--out",
         s(&out),
         "--rgb",
