@@ -30,9 +30,10 @@ pub struct Args {
     /// Output directory.
     #[arg(long)]
     pub out: PathBuf,
-    /// Number of frames (half day, half night; at least 6).
-    #[arg(long, default_value_t = 48)]
-    pub count: usize,
+    /// Number of frames (datasets: half day, half night, at least 6; default 48. Calibration
+    /// rig: default 12).
+    #[arg(long)]
+    pub count: Option<usize>,
     /// Random seed; the same seed writes the same dataset.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -58,7 +59,7 @@ pub fn run(args: Args) -> Result<()> {
         Format::CalibrationRig => return calibration_rig(&args),
     };
     let cfg = SynthConfig {
-        count: args.count,
+        count: args.count.unwrap_or(48),
         seed: args.seed,
         width: args.size.0,
         height: args.size.1,
@@ -93,7 +94,7 @@ fn calibration_rig(args: &Args) -> Result<()> {
         seed: args.seed,
         width: args.size.0,
         height: args.size.1,
-        frames: args.count,
+        frames: args.count.unwrap_or(RigSynthConfig::default().frames),
         depth: match args.rig_depth {
             RigDepth::Given => DepthSource::Given,
             RigDepth::Stereo => DepthSource::Stereo,
