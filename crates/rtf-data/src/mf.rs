@@ -126,6 +126,50 @@ impl MfDataset {
     }
 }
 
+/// Decodes an MF image (8-bit RGBA, thermal in alpha) into (width, height, interleaved RGB,
+/// thermal / 255). Errors name `path` and what is wrong (channels, bit depth, corruption).
+pub fn decode_mf_image(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<(usize, usize, Vec<u8>, Vec<f32>), DataError> {
+    // Fast path for the common case; anything unusual goes through the checked general path.
+    if let Some(decoded) = crate::pngio::decode_rgba8_split(bytes, path) {
+        return decoded;
+    }
+    let image = decode_u8(bytes, path, 4, "RGBA image, thermal in alpha")?;
+    let Samples::U8(rgba) = image.samples else {
+        unreachable!("decode_u8 checked 8-bit samples")
+    };
+    let rgb = rgba
+        .chunks_exact(4)
+        .flat_map(|px| [px[0], px[1], px[2]])
+        .collect();
+    let thermal = rgba
+        .chunks_exact(4)
+        .map(|px| px[3] as f32 / 255.0)
+        .collect();
+    Ok((image.width, image.height, rgb, thermal))
+}
+
+/// Reads one MF-style RGBA image (no label) as an unlabelled frame named after the file stem.
+pub fn read_mf_image(path: &Path) -> Result<Frame, DataError> {
+    let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
+    let (width, height, rgb, thermal) = decode_mf_image(&bytes, path)?;
+    let name = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    Ok(Frame {
+        daytime: Daytime::from_mf_name(&name),
+        name,
+        width,
+        height,
+        rgb,
+        thermal,
+        label: None,
+    })
+}
+
 /// Decodes an MF image/label pair from bytes (the fuzzed entry point).
 pub fn decode_mf_frame(
     name: &str,
@@ -135,26 +179,7 @@ pub fn decode_mf_frame(
     label_path: &Path,
     classes: &ClassSet,
 ) -> Result<Frame, DataError> {
-    // Fast path for the common case; anything unusual goes through the checked general path.
-    let (width, height, rgb, thermal) =
-        match crate::pngio::decode_rgba8_split(image_bytes, image_path) {
-            Some(decoded) => decoded?,
-            None => {
-                let image = decode_u8(image_bytes, image_path, 4, "RGBA image, thermal in alpha")?;
-                let Samples::U8(rgba) = image.samples else {
-                    unreachable!("decode_u8 checked 8-bit samples")
-                };
-                let rgb = rgba
-                    .chunks_exact(4)
-                    .flat_map(|px| [px[0], px[1], px[2]])
-                    .collect();
-                let thermal = rgba
-                    .chunks_exact(4)
-                    .map(|px| px[3] as f32 / 255.0)
-                    .collect();
-                (image.width, image.height, rgb, thermal)
-            }
-        };
+    let (width, height, rgb, thermal) = decode_mf_image(image_bytes, image_path)?;
     let label = decode_u8(label_bytes, label_path, 1, "label of class ids")?;
     if (label.width, label.height) != (width, height) {
         return Err(DataError::SizeMismatch {

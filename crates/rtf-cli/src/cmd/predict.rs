@@ -63,39 +63,6 @@ fn stem(path: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// Reads an MF-style RGBA PNG into an unlabelled frame.
-fn read_rgba(path: &Path) -> Result<Frame> {
-    let png = read_png(path)?;
-    let Samples::U8(rgba) = png.samples else {
-        bail!(
-            "{}: 16-bit PNG, expected 8-bit RGBA with thermal in alpha",
-            path.display()
-        );
-    };
-    if png.channels != 4 || png.indexed {
-        bail!(
-            "{}: {} channel(s), expected 4 (RGBA with thermal in alpha)",
-            path.display(),
-            png.channels
-        );
-    }
-    let rgb = rgba
-        .chunks_exact(4)
-        .flat_map(|p| [p[0], p[1], p[2]])
-        .collect();
-    let thermal = rgba.chunks_exact(4).map(|p| p[3] as f32 / 255.0).collect();
-    let name = stem(path);
-    Ok(Frame {
-        daytime: rtf_core::Daytime::from_mf_name(&name),
-        name,
-        width: png.width,
-        height: png.height,
-        rgb,
-        thermal,
-        label: None,
-    })
-}
-
 /// Reads an RGB PNG and a grey thermal PNG (8- or 16-bit) of the same size into a frame.
 fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) -> Result<Frame> {
     let rgb_png = read_png(rgb_path)?;
@@ -181,7 +148,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut frames = args
         .images
         .iter()
-        .map(|p| read_rgba(p))
+        .map(|p| rtf_data::mf::read_mf_image(p).map_err(anyhow::Error::from))
         .collect::<Result<Vec<_>>>()?;
     let mut sources: Vec<PathBuf> = args.images.clone();
     if let (Some(rgb), Some(thermal)) = (&args.rgb, &args.thermal) {
