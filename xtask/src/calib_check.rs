@@ -97,57 +97,37 @@ pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
         )?;
         Ok(dir)
     };
-    for &seed in &o.seeds {
-        let dir = synth(seed, "given")?;
+    // Default recipe on one rig against its ground truth: prints and records a table row.
+    let mut check = |seed: u64, depth: &str, label: &str, extra: &[String]| -> Result<()> {
+        let dir = synth(seed, depth)?;
         let start = Instant::now();
-        let out = rtf(
-            root,
-            &s(&[
-                "calibrate",
-                "--rig",
-                &format!("{dir}/rig.yaml"),
-                "--out",
-                &format!("{dir}/calib.yaml"),
-                "--ground-truth",
-                &format!("{dir}/ground_truth.yaml"),
-            ]),
-        )?;
-        let line = truth_line(&out);
-        println!(
-            "default, given depth, seed {seed}: {line} (wall {:.1} s)",
-            start.elapsed().as_secs_f64()
-        );
-        rows.push(format!(
-            "| default | given | {seed} | {line} | {:.1} |",
-            start.elapsed().as_secs_f64()
-        ));
-    }
-    let seed = o.seeds[0];
-    let dir = synth(seed, "stereo")?;
-    let start = Instant::now();
-    let out = rtf(
-        root,
-        &s(&[
+        let mut args = s(&[
             "calibrate",
             "--rig",
             &format!("{dir}/rig.yaml"),
             "--out",
             &format!("{dir}/calib.yaml"),
-            "--ground-truth",
-            &format!("{dir}/ground_truth.yaml"),
-            "--eval-rig",
-            &format!("{dir}/rig_depth.yaml"),
-        ]),
+        ]);
+        args.extend(s(&["--ground-truth", &format!("{dir}/ground_truth.yaml")]));
+        args.extend(extra.iter().map(|a| a.replace("{dir}", &dir)));
+        let line = truth_line(&rtf(root, &args)?);
+        let secs = start.elapsed().as_secs_f64();
+        println!("default, {label} depth, seed {seed}: {line} (wall {secs:.1} s)");
+        rows.push(format!(
+            "| default | {label} | {seed} | {line} | {secs:.1} |"
+        ));
+        Ok(())
+    };
+    for &seed in &o.seeds {
+        check(seed, "given", "given", &[])?;
+    }
+    let seed = o.seeds[0];
+    check(
+        seed,
+        "stereo",
+        "stereo (SGM)",
+        &s(&["--eval-rig", "{dir}/rig_depth.yaml"]),
     )?;
-    let line = truth_line(&out);
-    println!(
-        "default, stereo (SGM) depth, seed {seed}: {line} (wall {:.1} s)",
-        start.elapsed().as_secs_f64()
-    );
-    rows.push(format!(
-        "| default | stereo (SGM) | {seed} | {line} | {:.1} |",
-        start.elapsed().as_secs_f64()
-    ));
     // Paper recipe: a short run timed, extrapolated to the recipe's 8000 iterations.
     let dir = format!("{}/rig-{}-given-{}", o.out, width, seed);
     let start = Instant::now();
