@@ -245,7 +245,16 @@ def main():
                          "hits them alike")
     ap.add_argument("--rtf", default="target/release/rtf", help="the rtf binary")
     ap.add_argument("--nchw", action="store_true", help="also time rtf's fast path with NCHW activations")
+    ap.add_argument("--torch-retain-memory", action="store_true",
+                    help="give PyTorch the allocator policy rtf sets for itself (glibc: no mmap-served blocks, "
+                         "no heap trimming), to see how much of the gap that policy accounts for")
     args = ap.parse_args()
+    if args.torch_retain_memory:
+        import ctypes
+        libc = ctypes.CDLL("libc.so.6")
+        M_TRIM_THRESHOLD, M_MMAP_MAX = -1, -4
+        if not (libc.mallopt(M_MMAP_MAX, 0) == 1 and libc.mallopt(M_TRIM_THRESHOLD, 2**31 - 1) == 1):
+            sys.exit("bench_torch.py: mallopt refused the allocator policy")
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     net = build(args.model).eval()
@@ -253,7 +262,7 @@ def main():
     x = torch.rand(args.batch, 4, 480, 640)
     print(f"{args.model}: {params:,} parameters (PyTorch {torch.__version__}), batch {args.batch}, "
           f"{args.threads} threads, 480x640, {args.rounds} interleaved rounds of {args.iterations} timed passes "
-          f"after {args.warmup} warm-up")
+          f"after {args.warmup} warm-up" + (", PyTorch with rtf's allocator policy" if args.torch_retain_memory else ""))
     torch_configs = (("torch eager fp32 NCHW", False, False), ("torch channels_last fp32", True, False),
                      ("torch bf16 autocast", True, True))
     samples = {}

@@ -38,6 +38,9 @@ enum Command {
 
 fn main() {
     let cli = Cli::parse();
+    // Every command repeats the same tensor work; keeping freed memory avoids page-faulting
+    // activations in again on every pass (rtf_models::allocator).
+    rtf_models::allocator::retain_freed_memory();
     let result = match cli.command {
         Command::Synth(args) => cmd::synth::run(args),
         Command::Data(args) => cmd::data::run(args),

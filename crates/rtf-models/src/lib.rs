@@ -5,6 +5,7 @@
 //! [`Network::input_convention`]; networks that use fewer channels select them inside forward.
 //! Output: logits `[B, num_classes, H, W]`.
 
+pub mod allocator;
 pub mod backbone;
 pub mod baselines;
 pub mod error;
