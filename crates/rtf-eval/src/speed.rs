@@ -43,6 +43,8 @@ pub struct BenchOptions {
     pub iterations: usize,
     /// Weights to load (random initialisation otherwise; speed does not depend on them).
     pub weights: Option<PathBuf>,
+    /// Where the network runs; CUDA passes are timed to completion (synchronised).
+    pub device: Device,
 }
 
 impl Default for BenchOptions {
@@ -58,6 +60,7 @@ impl Default for BenchOptions {
             warmup: 3,
             iterations: 10,
             weights: None,
+            device: Device::Cpu,
         }
     }
 }
@@ -78,6 +81,8 @@ pub struct BenchReport {
     pub height: i64,
     pub width: i64,
     pub iterations: usize,
+    /// `cpu` or `cuda:N`.
+    pub device: String,
     /// libtorch intra-op threads.
     pub threads: i32,
     /// Fast path only: fraction of pixels whose arg-max class equals the plain fp32 path's on
@@ -111,7 +116,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         ));
     }
     let cfg = ModelConfig::from_name(&opts.model, rtf_models::default_num_classes(&opts.model))?;
-    let mut vs = nn::VarStore::new(Device::Cpu);
+    let mut vs = nn::VarStore::new(opts.device);
     let net = rtf_models::build(&vs.root(), &cfg)?;
     if let Some(path) = &opts.weights {
         rtf_models::weights::load_safetensors(&mut vs, path)?;
@@ -122,7 +127,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     };
     let shape = [opts.batch, channels, opts.height, opts.width];
     net.check_input(&shape)?;
-    let input = Tensor::rand(shape, (Kind::Float, Device::Cpu));
+    let input = Tensor::rand(shape, (Kind::Float, opts.device));
     let mut agreement_with_plain = None;
     let run: Box<dyn Fn() -> Result<Tensor, ModelError>> = match opts.path {
         ForwardPath::Fast => {
@@ -133,13 +138,21 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         }
         ForwardPath::Plain => Box::new(move || Ok(tch::no_grad(|| net.forward_t(&input, false)))),
     };
+    // CUDA kernels run asynchronously: wait for them before reading the clock.
+    let synchronize = || {
+        if let Device::Cuda(index) = opts.device {
+            tch::Cuda::synchronize(index as i64);
+        }
+    };
     for _ in 0..opts.warmup {
         let _ = run()?;
     }
+    synchronize();
     let mut per_frame_ms = Vec::with_capacity(opts.iterations);
     for _ in 0..opts.iterations {
         let start = Instant::now();
         let out = run()?;
+        synchronize();
         drop(out);
         per_frame_ms.push(start.elapsed().as_secs_f64() * 1e3 / opts.batch as f64);
     }
@@ -156,6 +169,10 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         height: opts.height,
         width: opts.width,
         iterations: opts.iterations,
+        device: match opts.device {
+            Device::Cuda(index) => format!("cuda:{index}"),
+            _ => "cpu".into(),
+        },
         threads: tch::get_num_threads(),
         agreement_with_plain,
     })

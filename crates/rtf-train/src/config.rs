@@ -104,8 +104,9 @@ impl TrainConfig {
         }
     }
 
+    /// The configured device, checked to exist on this machine.
     pub fn device(&self) -> Result<tch::Device, String> {
-        parse_device(&self.device)
+        available_device(&self.device)
     }
 }
 
@@ -120,6 +121,26 @@ pub fn parse_device(name: &str) -> Result<tch::Device, String> {
             .map(tch::Device::Cuda)
             .ok_or_else(|| format!("unknown device `{name}` (expected cpu, cuda or cuda:N)")),
     }
+}
+
+/// [`parse_device`], then checks libtorch can use it here, so a missing GPU is a clear error
+/// rather than a libtorch panic at the first tensor.
+pub fn available_device(name: &str) -> Result<tch::Device, String> {
+    let device = parse_device(name)?;
+    if let tch::Device::Cuda(index) = device {
+        let count = tch::Cuda::device_count();
+        if index as i64 >= count {
+            return Err(format!(
+                "device `{name}` is not available: libtorch sees {count} CUDA device(s) here{}",
+                if tch::Cuda::is_available() {
+                    ""
+                } else {
+                    " (no usable NVIDIA driver, or a CPU-only libtorch)"
+                }
+            ));
+        }
+    }
+    Ok(device)
 }
 
 #[cfg(test)]
@@ -146,5 +167,14 @@ mod tests {
         assert_eq!(parse_device("cpu"), Ok(tch::Device::Cpu));
         assert_eq!(parse_device("cuda:1"), Ok(tch::Device::Cuda(1)));
         assert!(parse_device("tpu").is_err());
+    }
+
+    #[test]
+    fn unavailable_gpus_are_a_clear_error() {
+        assert_eq!(available_device("cpu"), Ok(tch::Device::Cpu));
+        let count = tch::Cuda::device_count();
+        let missing = format!("cuda:{count}");
+        let err = available_device(&missing).unwrap_err();
+        assert!(err.contains(&missing) && err.contains("not available"), "{err}");
     }
 }

@@ -38,6 +38,9 @@ pub struct Args {
     /// Load these weights (random initialisation otherwise).
     #[arg(long)]
     pub weights: Option<PathBuf>,
+    /// cpu, cuda or cuda:N.
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
     /// Print {model, batch, precision, median_ms, min_ms, fps, ...} as JSON.
     #[arg(long)]
     pub json: bool,
@@ -75,16 +78,18 @@ pub fn run(args: Args) -> Result<()> {
         warmup: args.warmup,
         iterations: args.iterations,
         weights: args.weights,
+        device: rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?,
     };
     let report = bench_model(&opts)?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!(
-            "{} batch {} {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, min {:.2} ms/frame, {:.2} FPS",
+            "{} batch {} {} on {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, min {:.2} ms/frame, {:.2} FPS",
             report.model,
             report.batch,
             report.precision,
+            report.device,
             report.path,
             report.layout,
             report.width,

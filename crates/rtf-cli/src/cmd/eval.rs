@@ -4,7 +4,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use rtf_data::{FrameSource, MfDataset};
 use rtf_eval::{EvalOptions, Scores};
-use rtf_train::config::parse_device;
+use rtf_train::config::available_device;
 use serde::Serialize;
 
 use super::{load_network, parse_size};
@@ -60,7 +60,7 @@ struct Report<'a> {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let device = parse_device(&args.device).map_err(anyhow::Error::msg)?;
+    let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let dataset = MfDataset::open(&args.data)?;
     let split: Arc<dyn FrameSource> = Arc::new(dataset.split(&args.split)?);
     let classes = split.class_set().clone();

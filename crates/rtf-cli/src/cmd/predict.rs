@@ -4,7 +4,7 @@ use anyhow::{bail, Context, Result};
 use rtf_core::ClassSet;
 use rtf_data::pngio::{read_png, PngImage, Samples};
 use rtf_data::Frame;
-use rtf_train::config::parse_device;
+use rtf_train::config::available_device;
 use tch::Kind;
 
 use super::load_network;
@@ -128,7 +128,7 @@ fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Resul
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let device = parse_device(&args.device).map_err(anyhow::Error::msg)?;
+    let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let heatnet = args.model.starts_with("heatnet");
     let classes = match args.classes.as_deref() {
         Some("mf") => ClassSet::mf(),

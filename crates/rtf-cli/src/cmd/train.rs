@@ -2,7 +2,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use rtf_models::ModelConfig;
-use rtf_train::{config::parse_device, DatasetConfig, TrainConfig};
+use rtf_train::{config::available_device, DatasetConfig, TrainConfig};
 
 use super::parse_size;
 
@@ -77,7 +77,7 @@ pub fn run(args: Args) -> Result<()> {
         None => {
             let data = args.data.clone().context("--data is required")?;
             let out = args.out.clone().context("--out is required")?;
-            parse_device(&args.device).map_err(anyhow::Error::msg)?;
+            available_device(&args.device).map_err(anyhow::Error::msg)?;
             let mut cfg = TrainConfig::mfnet_paper(data.clone());
             cfg.model = ModelConfig::from_name(&args.model, 9)?;
             cfg.dataset = DatasetConfig::Mf {
