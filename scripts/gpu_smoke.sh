@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# CUDA check of the rtf binary, for a machine with an NVIDIA GPU (CI has none, so this is not
+# part of `cargo xtask test`). Every command that takes --device runs on the GPU:
+#   synthetic data -> train MFNet on the GPU, resume, train RTFNet-18 -> evaluate the same
+#   weights on the GPU (plain, fast fp32, fast bf16) and on the CPU, comparing mIoU ->
+#   predict on both, comparing logits -> `rtf bench model --device cuda`.
+# Usage: scripts/gpu_smoke.sh [RTF_BINARY] [WORK_DIR]
+# Exit 0 only if every step ran and the GPU results match the CPU's. RTF_SMOKE_DEVICE=cpu runs
+# the same steps on the CPU (to check the script itself on a machine without a GPU);
+# RTF_SMOKE_EPOCHS sets the MFNet schedule (default 40, the demo's).
+set -euo pipefail
+rtf=${1:-target/release/rtf}
+work=${2:-$(mktemp -d)}
+gpu=${RTF_SMOKE_DEVICE:-cuda}
+python=${PYTHON:-python3} # with numpy
+mkdir -p "$work"
+step() { echo; echo "\$ rtf $*"; "$rtf" "$@"; }
+
+# The demo's data and schedule (cargo xtask demo), so the scores compared are not trivial.
+step synth --out "$work/data" --count 240 --size 160x128 --seed 0
+step train --model mfnet --data "$work/data" --out "$work/mfnet" --epochs 2 --batch-size 6 \
+    --lr-decay 0.94 --device "$gpu"
+step train --resume "$work/mfnet" --epochs "${RTF_SMOKE_EPOCHS:-40}"
+step train --model rtfnet18 --data "$work/data" --out "$work/rtfnet18" --epochs 1 --batch-size 4 \
+    --device "$gpu"
+weights="$work/mfnet/final.safetensors"
+
+eval_on() { # device precision json
+    local extra=()
+    [ "$2" = plain ] || extra=(--precision "$2")
+    step eval --model mfnet --weights "$weights" --data "$work/data" --split test --device "$1" \
+        "${extra[@]}" --json "$3"
+}
+eval_on cpu plain "$work/eval_cpu.json"
+eval_on "$gpu" plain "$work/eval_gpu.json"
+eval_on "$gpu" fp32 "$work/eval_gpu_fp32.json"
+eval_on "$gpu" bf16 "$work/eval_gpu_bf16.json"
+"$python" - "$work" <<'PY'
+import json, sys
+work = sys.argv[1]
+miou = {k: json.load(open(f"{work}/eval_{k}.json"))["miou"] for k in ("cpu", "gpu", "gpu_fp32", "gpu_bf16")}
+print("mIoU:", {k: round(100 * v, 2) for k, v in miou.items()})
+assert miou["cpu"] > 0.2, "training did not learn: comparing its scores would prove nothing"
+# Same weights, same frames: fp32 on the GPU must give the CPU's scores up to rounding; bf16
+# may move a few border pixels.
+for k, tol in (("gpu", 0.002), ("gpu_fp32", 0.002), ("gpu_bf16", 0.02)):
+    assert abs(miou[k] - miou["cpu"]) <= tol, f"{k}: mIoU {miou[k]:.4f} vs CPU {miou['cpu']:.4f}"
+print("GPU scores match the CPU's")
+PY
+
+# Logits of the same frames on the CPU (plain path) and on the GPU (plain, fast fp32, fast bf16).
+mapfile -t frames < <(head -n 4 "$work/data/test.txt" | tr -d '\r' | sed "s|^|$work/data/images/|; s|\$|.png|")
+predict_on() { # device precision folder
+    local extra=()
+    [ "$2" = plain ] || extra=(--precision "$2")
+    step predict --model mfnet --weights "$weights" --out "$3" --device "$1" "${extra[@]}" \
+        --logits "${frames[@]}"
+}
+predict_on cpu plain "$work/logits_cpu"
+predict_on "$gpu" plain "$work/logits_gpu"
+predict_on "$gpu" fp32 "$work/logits_gpu_fp32"
+predict_on "$gpu" bf16 "$work/logits_gpu_bf16"
+"$python" - "$work" <<'PY'
+import glob, os, sys
+import numpy as np
+work = sys.argv[1]
+cpu_files = sorted(glob.glob(f"{work}/logits_cpu/*.npy"))
+assert cpu_files, "no logits written"
+for variant, min_agreement in (("gpu", 0.999), ("gpu_fp32", 0.999), ("gpu_bf16", 0.99)):
+    same = total = 0
+    worst = 0.0
+    for cpu_file in cpu_files:
+        a = np.load(cpu_file)
+        b = np.load(f"{work}/logits_{variant}/{os.path.basename(cpu_file)}")
+        assert a.shape == b.shape, (cpu_file, a.shape, b.shape)
+        worst = max(worst, float(np.abs(a - b).max()))
+        same += int((a.argmax(0) == b.argmax(0)).sum())
+        total += a[0].size
+    print(f"{variant}: arg-max agreement with the CPU {100 * same / total:.3f} % of {total} pixels, "
+          f"max |logit difference| {worst:.2e}")
+    assert same / total >= min_agreement, variant
+PY
+
+for model in mfnet rtfnet50 heatnet; do
+    for precision in fp32 bf16; do
+        step bench model --model "$model" --device "$gpu" --precision "$precision" --iterations 20
+    done
+done
+step bench model --model rtfnet50 --device "$gpu" --batch 8 --precision bf16 --iterations 10
+echo; echo "gpu_smoke: all steps passed ($work)"
