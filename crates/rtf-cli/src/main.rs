@@ -37,6 +37,13 @@ enum Command {
 }
 
 fn main() {
+    // `rtf models | head` should end quietly, as Unix tools do, not panic on the closed pipe
+    // (Rust ignores SIGPIPE, so printing would fail with EPIPE).
+    #[cfg(unix)]
+    // SAFETY: restoring the default disposition of one signal before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     // Every command repeats the same tensor work; keeping freed memory avoids page-faulting
     // activations in again on every pass (rtf_models::allocator).

@@ -151,7 +151,11 @@ impl InferenceNet {
             xs
         };
         let logits = self.net.forward_t(&xs, false);
-        Ok(logits.to_kind(Kind::Float).contiguous())
+        // Float and NCHW in one pass (to_kind keeps channels-last; contiguous would copy again).
+        let out = Tensor::empty(logits.size(), (Kind::Float, logits.device()));
+        let mut out_ = out.shallow_clone();
+        out_.copy_(&logits);
+        Ok(out)
     }
 }
 

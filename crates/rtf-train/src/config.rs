@@ -175,6 +175,9 @@ mod tests {
         let count = tch::Cuda::device_count();
         let missing = format!("cuda:{count}");
         let err = available_device(&missing).unwrap_err();
-        assert!(err.contains(&missing) && err.contains("not available"), "{err}");
+        assert!(
+            err.contains(&missing) && err.contains("not available"),
+            "{err}"
+        );
     }
 }
