@@ -46,8 +46,8 @@ fn main() {
     }
     let cli = Cli::parse();
     // Every command repeats the same tensor work; keeping freed memory avoids page-faulting
-    // activations in again on every pass (rtf_models::runtime).
-    rtf_models::runtime::retain_freed_memory();
+    // activations in again on every pass (rtf_models::allocator).
+    rtf_models::allocator::retain_freed_memory();
     let result = match cli.command {
         Command::Synth(args) => cmd::synth::run(args),
         Command::Data(args) => cmd::data::run(args),

@@ -116,7 +116,6 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         ));
     }
     let cfg = ModelConfig::from_name(&opts.model, rtf_models::default_num_classes(&opts.model))?;
-    rtf_models::runtime::autotune_cuda_convolutions(opts.device);
     let mut vs = nn::VarStore::new(opts.device);
     let net = rtf_models::build(&vs.root(), &cfg)?;
     if let Some(path) = &opts.weights {

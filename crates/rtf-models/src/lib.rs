@@ -5,6 +5,7 @@
 //! [`Network::input_convention`]; networks that use fewer channels select them inside forward.
 //! Output: logits `[B, num_classes, H, W]`.
 
+pub mod allocator;
 pub mod backbone;
 pub mod baselines;
 pub mod error;
@@ -14,7 +15,6 @@ pub mod layers;
 pub mod mfnet;
 pub mod resnet;
 pub mod rtfnet;
-pub mod runtime;
 pub mod weights;
 
 use serde::{Deserialize, Serialize};

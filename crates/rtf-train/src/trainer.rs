@@ -125,8 +125,6 @@ pub fn train(
         ));
     }
     let device = cfg.device().map_err(TrainError::Config)?;
-    // Training batches (fixed resize or crop) repeat their sizes.
-    rtf_models::runtime::autotune_cuda_convolutions(device);
     let checkpoint_path = run_dir.join(CHECKPOINT_FILE);
     if !resume && checkpoint_path.exists() {
         return Err(run_error(

@@ -34,8 +34,6 @@ pub fn load_network(
     precision: Option<rtf_models::fast::Precision>,
 ) -> anyhow::Result<(tch::nn::VarStore, Box<dyn rtf_models::Network>)> {
     let cfg = rtf_models::ModelConfig::from_name(name, num_classes)?;
-    // Every frame of a run has the same size.
-    rtf_models::runtime::autotune_cuda_convolutions(device);
     let mut vs = tch::nn::VarStore::new(device);
     let net = rtf_models::build(&vs.root(), &cfg)?;
     rtf_models::weights::load_safetensors(&mut vs, weights)?;

@@ -1,5 +1,4 @@
-//! Process-wide settings that make repeated tensor work fast: the allocator's policy on the
-//! CPU, cuDNN's algorithm autotuning on CUDA.
+//! The process allocator's policy for tensor work.
 //!
 //! libtorch's CPU tensors come from `malloc`. glibc serves large blocks with fresh `mmap`s
 //! and hands freed heap tops back to the kernel, so a network that allocates the same
@@ -25,19 +24,6 @@ pub fn retain_freed_memory() -> bool {
     #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
     {
         false
-    }
-}
-
-/// On a CUDA device, lets cuDNN time its convolution algorithms on the first pass of each
-/// input shape and keep the fastest (PyTorch's `cudnn.benchmark`). It pays when the same sizes
-/// repeat (evaluation, prediction, training on fixed crops): measured on an H100, MFNet fp32
-/// at 480×640 went from 2.83 to 1.87 ms per frame, RTFNet-50 from 8.68 to 7.62
-/// (docs/src/getting-started.md). The chosen algorithms may differ between runs, so results on
-/// the GPU are reproducible to float rounding, not bit for bit. Process-wide; no effect on
-/// the CPU.
-pub fn autotune_cuda_convolutions(device: tch::Device) {
-    if device.is_cuda() {
-        tch::Cuda::cudnn_set_benchmark(true);
     }
 }
 
