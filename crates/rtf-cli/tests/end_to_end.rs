@@ -230,6 +230,113 @@ fn synth_train_resume_eval_predict() {
 }
 
 #[test]
+fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, run) = (dir.path().join("fr"), dir.path().join("run"));
+    let synth = [
+        "synth",
+        "--format",
+        "freiburg",
+        "--out",
+        s(&data),
+        "--count",
+        "12",
+        "--size",
+        "96x64",
+    ];
+    ok(&synth);
+    let train = [
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--epochs",
+        "1",
+        "--batch-size",
+        "2",
+        "--max-steps",
+        "1",
+    ];
+    ok(&train);
+    let config: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    assert_eq!(config["dataset"]["format"], "freiburg");
+    assert_eq!(config["model"]["num_classes"], 13);
+    // The reference preprocessing leaves 700×320, trained through a 640×320 window.
+    assert_eq!(config["augment"]["window"], serde_json::json!([640, 320]));
+    let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
+    let record: serde_json::Value = serde_json::from_str(log.lines().next().unwrap()).unwrap();
+    assert!(
+        record["val_miou"].is_number(),
+        "validated on the test layout: {record}"
+    );
+
+    let weights = run.join("final.safetensors");
+    let json = dir.path().join("eval.json");
+    let eval = [
+        "eval",
+        "--weights",
+        s(&weights),
+        "--data",
+        s(&data),
+        "--json",
+        s(&json),
+    ];
+    let printed = ok(&eval);
+    assert!(
+        printed.contains("background") && printed.contains("HeatNet convention"),
+        "{printed}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(report["per_class"].as_array().unwrap().len(), 13);
+    let heatnet = &report["heatnet"];
+    let (day, night) = (
+        heatnet["day_miou"].as_f64().unwrap(),
+        heatnet["night_miou"].as_f64().unwrap(),
+    );
+    assert!((heatnet["day_night_miou"].as_f64().unwrap() - (day + night) / 2.0).abs() < 1e-12);
+
+    let err = fails(&[
+        "eval",
+        "--weights",
+        s(&weights),
+        "--data",
+        s(&data),
+        "--split",
+        "val",
+    ]);
+    assert!(
+        err.contains(s(&data)) && err.contains("`test` and `train`"),
+        "{err}"
+    );
+    let err = fails(&[
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&dir.path().join("run2")),
+        "--train-split",
+        "a",
+    ]);
+    assert!(
+        err.contains(s(&data)) && err.contains("no named splits"),
+        "{err}"
+    );
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let err = fails(&[
+        "train",
+        "--data",
+        s(&empty),
+        "--out",
+        s(&dir.path().join("run3")),
+    ]);
+    assert!(err.contains("not a training dataset"), "{err}");
+}
+
+#[test]
 fn bad_inputs_name_the_file() {
     let tmp = tempfile::tempdir().unwrap();
     let weights = tmp.path().join("missing.safetensors");

@@ -71,6 +71,17 @@ struct Entry {
     ir: PathBuf,
     label: Option<LabelFile>,
     daytime: Daytime,
+    part: FreiburgPart,
+}
+
+/// Which of the two Freiburg layouts a frame comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FreiburgPart {
+    /// `<run>/<seq>/fl_rgb/…`: the training tree (day frames labelled, night ones not).
+    TrainTree,
+    /// `ImagesRGB/…_rgb.png`: the labelled test layout.
+    TestLayout,
 }
 
 /// Frames of a Freiburg Thermal root (training tree and/or test layout).
@@ -199,6 +210,7 @@ impl FreiburgSplit {
                     rgb,
                     ir,
                     label,
+                    part: FreiburgPart::TrainTree,
                 });
             }
         }
@@ -240,6 +252,7 @@ impl FreiburgSplit {
                     rgb,
                     ir,
                     label,
+                    part: FreiburgPart::TestLayout,
                 });
             }
         }
@@ -262,6 +275,13 @@ impl FreiburgSplit {
 
     pub fn root(&self) -> &Path {
         &self.root
+    }
+
+    /// Keeps only the frames of one layout (e.g. the training tree for training, the test
+    /// layout for evaluation).
+    pub fn part(mut self, part: FreiburgPart) -> Self {
+        self.entries.retain(|e| e.part == part);
+        self
     }
 
     /// Keeps only frames matching `keep` (e.g. labelled day frames, or night).
@@ -703,6 +723,11 @@ mod tests {
             night_train_labelled, 0,
             "night training frames are unlabelled, as in the real data"
         );
+        let tree = all.clone().part(FreiburgPart::TrainTree);
+        let test_layout = all.clone().part(FreiburgPart::TestLayout);
+        assert_eq!((tree.len(), test_layout.len()), (6, 2));
+        assert!((0..tree.len()).all(|i| tree.frame_name(i).starts_with("train")));
+        assert!((0..test_layout.len()).all(|i| test_layout.is_labelled(i)));
         let test = FreiburgSplit::open(
             dir.path().join("test"),
             FreiburgPreprocess {

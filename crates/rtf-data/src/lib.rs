@@ -20,7 +20,7 @@ pub mod synth;
 pub use augment::{resize_frame, AugmentConfig};
 pub use error::DataError;
 pub use frame::{Frame, FrameSource, MemorySource};
-pub use freiburg::{FreiburgPreprocess, FreiburgSplit};
+pub use freiburg::{FreiburgPart, FreiburgPreprocess, FreiburgSplit};
 pub use loader::{Batch, Loader, LoaderConfig};
 pub use mf::{MfDataset, MfSplit};
 

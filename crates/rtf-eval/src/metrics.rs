@@ -168,15 +168,30 @@ impl Scores {
             out += &format!("{:<12} {:>6} {:>6}\n", s.name, pct(s.acc), pct(s.iou));
         }
         out += &format!(
-            "mAcc {:.1}  mIoU {:.1}  (RTFNet convention, all classes)   mIoU {:.1} (MFNet paper, unlabeled excluded)   pixel acc {:.1}\n",
+            "mAcc {:.1}  mIoU {:.1}  (RTFNet convention, all classes)   pixel acc {:.1}\n",
             100.0 * self.macc,
             100.0 * self.miou,
-            100.0 * self.miou_mfnet,
             100.0 * self.pixel_acc
         );
         out
     }
+
+    /// HeatNet's mIoU (spec §2): the IoUs of the first `classes` classes (Freiburg: 12, so
+    /// background is left out while its pixels still count as false positives of the class
+    /// they are taken for), averaged over the classes whose IoU is defined. None if none is.
+    pub fn miou_heatnet(&self, classes: usize) -> Option<f64> {
+        let defined: Vec<f64> = self
+            .per_class
+            .iter()
+            .take(classes)
+            .filter_map(|c| c.iou)
+            .collect();
+        (!defined.is_empty()).then(|| defined.iter().sum::<f64>() / defined.len() as f64)
+    }
 }
+
+/// Freiburg Thermal classes HeatNet's mIoU averages over (0–11; 12 is background).
+pub const HEATNET_MIOU_CLASSES: usize = 12;
 
 #[cfg(test)]
 mod tests {
@@ -191,6 +206,18 @@ mod tests {
             }
         }
         m
+    }
+
+    #[test]
+    fn heatnet_miou_skips_undefined_classes_and_background() {
+        // 0: IoU 8/11; 1: 3/7 (one background pixel predicted as 1); 2: absent -> skipped;
+        // 3 (background) is beyond `classes` and not averaged.
+        let m = matrix_from(&[&[8, 2, 0, 0], &[1, 3, 0, 0], &[0, 0, 0, 0], &[0, 1, 0, 5]]);
+        let s = m.compute(&["a", "b", "c", "background"]);
+        let expected = (8.0 / 11.0 + 3.0 / 7.0) / 2.0;
+        assert!((s.miou_heatnet(3).unwrap() - expected).abs() < 1e-12);
+        let empty = matrix_from(&[&[0, 0], &[0, 0]]).compute(&["a", "b"]);
+        assert_eq!(empty.miou_heatnet(1), None);
     }
 
     #[test]

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use rtf_data::AugmentConfig;
+use rtf_data::{AugmentConfig, FreiburgPreprocess};
 use rtf_models::ModelConfig;
 use serde::{Deserialize, Serialize};
 
@@ -39,6 +39,35 @@ pub enum DatasetConfig {
         train_split: String,
         val_split: Option<String>,
     },
+    /// Freiburg Thermal (spec §5), supervised: trains on the labelled frames of the training
+    /// tree under `root`, validates on the test layout under `root` (if any), each with its
+    /// own preprocessing (reference: 960×320, columns 150..850 / 148..852, IR clip).
+    Freiburg {
+        root: PathBuf,
+        #[serde(default = "FreiburgPreprocess::reference_train")]
+        train_preprocess: FreiburgPreprocess,
+        #[serde(default = "FreiburgPreprocess::reference_test")]
+        val_preprocess: FreiburgPreprocess,
+        /// Evaluate the test layout after every epoch.
+        #[serde(default = "yes")]
+        validate: bool,
+    },
+}
+
+fn yes() -> bool {
+    true
+}
+
+impl DatasetConfig {
+    /// A Freiburg Thermal root with the reference preprocessing.
+    pub fn freiburg(root: PathBuf) -> Self {
+        DatasetConfig::Freiburg {
+            root,
+            train_preprocess: FreiburgPreprocess::reference_train(),
+            val_preprocess: FreiburgPreprocess::reference_test(),
+            validate: true,
+        }
+    }
 }
 
 /// SGD with momentum and weight decay, learning rate × `lr_decay` per epoch.
@@ -160,6 +189,15 @@ mod tests {
         let json = serde_json::to_string_pretty(&cfg).unwrap();
         assert_eq!(serde_json::from_str::<TrainConfig>(&json).unwrap(), cfg);
         assert!(json.contains("\"seed\""));
+    }
+
+    #[test]
+    fn freiburg_dataset_round_trips_and_defaults_to_the_reference_preprocessing() {
+        let cfg = DatasetConfig::freiburg("data/freiburg".into());
+        let json = serde_json::to_string(&cfg).unwrap();
+        assert_eq!(serde_json::from_str::<DatasetConfig>(&json).unwrap(), cfg);
+        let short = r#"{"format": "freiburg", "root": "data/freiburg"}"#;
+        assert_eq!(serde_json::from_str::<DatasetConfig>(short).unwrap(), cfg);
     }
 
     #[test]

@@ -9,7 +9,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use rtf_data::{DataError, FrameSource, Loader, LoaderConfig, MfDataset};
+use rtf_data::{
+    DataError, FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset,
+};
 use rtf_eval::{EvalError, EvalOptions};
 use rtf_models::ModelError;
 use serde::{Deserialize, Serialize};
@@ -105,6 +107,34 @@ fn open_split(dataset: &DatasetConfig) -> Result<(Source, Option<Source>), Train
                 None => None,
             };
             Ok((train, val))
+        }
+        DatasetConfig::Freiburg {
+            root,
+            train_preprocess,
+            val_preprocess,
+            validate,
+        } => {
+            let train = FreiburgSplit::open(root, train_preprocess.clone())?
+                .part(FreiburgPart::TrainTree)
+                .filter(|_, _, labelled| labelled);
+            if train.is_empty() {
+                return Err(run_error(
+                    root,
+                    "no labelled frames in a Freiburg training tree (<run>/<seq>/fl_rgb + fl_rgb_labels)",
+                ));
+            }
+            let val = match validate {
+                true => Some(
+                    FreiburgSplit::open(root, val_preprocess.clone())?
+                        .part(FreiburgPart::TestLayout)
+                        .filter(|_, _, labelled| labelled),
+                ),
+                false => None,
+            };
+            let val = val
+                .filter(|v| !v.is_empty())
+                .map(|v| Arc::new(v) as Arc<dyn FrameSource>);
+            Ok((Arc::new(train), val))
         }
     }
 }

@@ -1,8 +1,10 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use rtf_data::{FrameSource, MfDataset};
+use rtf_data::inspect::DatasetFormat;
+use rtf_data::{FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit, MfDataset};
+use rtf_eval::metrics::HEATNET_MIOU_CLASSES;
 use rtf_eval::{EvalOptions, Scores};
 use rtf_train::config::available_device;
 use serde::Serialize;
@@ -17,10 +19,12 @@ pub struct Args {
     /// Weights (safetensors, reference names), e.g. RUN/final.safetensors.
     #[arg(long)]
     pub weights: PathBuf,
-    /// Dataset root (MF layout).
+    /// Dataset root, MF or Freiburg Thermal layout (recognised by its folders).
     #[arg(long)]
     pub data: PathBuf,
-    /// Split to evaluate; its day and night frames are also scored separately.
+    /// Split to evaluate; its day and night frames are also scored separately. Freiburg:
+    /// `test` (the test layout) or `train` (labelled frames of the training tree), both with
+    /// the reference test preprocessing (320×704).
     #[arg(long, default_value = "test")]
     pub split: String,
     /// Also write the scores as JSON.
@@ -45,7 +49,8 @@ pub struct Args {
     pub precision: Option<rtf_models::fast::Precision>,
 }
 
-/// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside it.
+/// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside
+/// it; for Freiburg Thermal also HeatNet's convention.
 #[derive(Serialize)]
 struct Report<'a> {
     model: &'a str,
@@ -57,12 +62,72 @@ struct Report<'a> {
     all: &'a Scores,
     day: Option<&'a Scores>,
     night: Option<&'a Scores>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    heatnet: Option<HeatnetScores>,
+}
+
+/// HeatNet's convention (spec §2): mIoU over classes 0–11 with undefined classes skipped;
+/// "day/night" is the mean of the day and the night mIoU.
+#[derive(Serialize)]
+struct HeatnetScores {
+    miou: Option<f64>,
+    day_miou: Option<f64>,
+    night_miou: Option<f64>,
+    day_night_miou: Option<f64>,
+}
+
+impl HeatnetScores {
+    fn of(report: &rtf_eval::EvalReport) -> Self {
+        let miou = |s: &Scores| s.miou_heatnet(HEATNET_MIOU_CLASSES);
+        let day_miou = report.day.as_ref().and_then(miou);
+        let night_miou = report.night.as_ref().and_then(miou);
+        Self {
+            miou: miou(&report.all),
+            day_miou,
+            night_miou,
+            day_night_miou: day_miou.zip(night_miou).map(|(d, n)| (d + n) / 2.0),
+        }
+    }
+}
+
+/// The frames of `split` under `root`, by the root's layout.
+fn open_split(root: &Path, split: &str) -> Result<(Arc<dyn FrameSource>, DatasetFormat)> {
+    match rtf_data::inspect::detect_format(root) {
+        Some(DatasetFormat::Mf) => Ok((
+            Arc::new(MfDataset::open(root)?.split(split)?),
+            DatasetFormat::Mf,
+        )),
+        Some(DatasetFormat::Freiburg) => {
+            let part = match split {
+                "test" => FreiburgPart::TestLayout,
+                "train" => FreiburgPart::TrainTree,
+                other => anyhow::bail!(
+                    "{}: a Freiburg Thermal root has the splits `test` and `train`, not `{other}`",
+                    root.display()
+                ),
+            };
+            let frames = FreiburgSplit::open(root, FreiburgPreprocess::reference_test())?
+                .part(part)
+                .filter(|_, _, labelled| labelled);
+            anyhow::ensure!(
+                !frames.is_empty(),
+                "{}: no labelled frames in its `{split}` part",
+                root.display()
+            );
+            Ok((Arc::new(frames), DatasetFormat::Freiburg))
+        }
+        other => anyhow::bail!(
+            "{}: not a dataset rtf can evaluate on ({}; expected the MF or the Freiburg Thermal \
+             layout, see `rtf data check`)",
+            root.display(),
+            other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))
+        ),
+    }
 }
 
 pub fn run(args: Args) -> Result<()> {
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
-    let dataset = MfDataset::open(&args.data)?;
-    let split: Arc<dyn FrameSource> = Arc::new(dataset.split(&args.split)?);
+    let (split, format) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();
     let (_vs, network) = load_network(
         &args.model,
@@ -86,13 +151,31 @@ pub fn run(args: Args) -> Result<()> {
         report.frames
     );
     println!("{}", report.all.table());
+    let heatnet = (format == DatasetFormat::Freiburg).then(|| HeatnetScores::of(&report));
+    let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.1}", 100.0 * v));
+    match &heatnet {
+        Some(h) => println!(
+            "HeatNet convention (classes 0–11, undefined skipped): mIoU {}  day {}  night {}  day/night {}",
+            pct(h.miou),
+            pct(h.day_miou),
+            pct(h.night_miou),
+            pct(h.day_night_miou)
+        ),
+        None => println!(
+            "MFNet paper (unlabeled excluded from the sums): mIoU {:.1}",
+            100.0 * report.all.miou_mfnet
+        ),
+    }
     for (label, scores) in [("day", &report.day), ("night", &report.night)] {
         if let Some(s) = scores {
+            let extra = match format {
+                DatasetFormat::Mf => format!("  mIoU(MFNet) {:.1}", 100.0 * s.miou_mfnet),
+                _ => String::new(),
+            };
             println!(
-                "{label}: mAcc {:.1}  mIoU {:.1}  mIoU(MFNet) {:.1}",
+                "{label}: mAcc {:.1}  mIoU {:.1}{extra}",
                 100.0 * s.macc,
-                100.0 * s.miou,
-                100.0 * s.miou_mfnet
+                100.0 * s.miou
             );
         }
     }
@@ -106,6 +189,7 @@ pub fn run(args: Args) -> Result<()> {
             all: &report.all,
             day: report.day.as_ref(),
             night: report.night.as_ref(),
+            heatnet,
         })?;
         rtf_core::write_bytes_atomic(path, json.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;

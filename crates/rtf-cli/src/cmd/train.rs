@@ -1,6 +1,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
+use rtf_core::ClassSet;
+use rtf_data::inspect::DatasetFormat;
 use rtf_models::ModelConfig;
 use rtf_train::{config::available_device, DatasetConfig, TrainConfig};
 
@@ -11,7 +13,9 @@ pub struct Args {
     /// Network name (see `rtf models`).
     #[arg(long, default_value = "mfnet")]
     pub model: String,
-    /// Dataset root (MF layout).
+    /// Dataset root, MF or Freiburg Thermal layout (recognised by its folders). Freiburg:
+    /// trains on the labelled frames of the training tree with the reference preprocessing and
+    /// a random 640×320 window, validates on the test layout (13 classes).
     #[arg(long, required_unless_present = "resume")]
     pub data: Option<PathBuf>,
     /// Run folder: config.json, log.jsonl, checkpoints, final.safetensors.
@@ -42,9 +46,11 @@ pub struct Args {
     pub no_flip: bool,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// MF: the training split.
     #[arg(long, default_value = "train")]
     pub train_split: String,
-    /// Validation split evaluated after every epoch ("none" to skip).
+    /// Validation split evaluated after every epoch ("none" to skip; Freiburg: "none" or the
+    /// default, which means its test layout).
     #[arg(long, default_value = "val")]
     pub val_split: String,
     /// Resize frames to WxH (labels nearest) before the network.
@@ -79,12 +85,43 @@ pub fn run(args: Args) -> Result<()> {
             let out = args.out.clone().context("--out is required")?;
             available_device(&args.device).map_err(anyhow::Error::msg)?;
             let mut cfg = TrainConfig::mfnet_paper(data.clone());
-            cfg.model = ModelConfig::from_name(&args.model, 9)?;
-            cfg.dataset = DatasetConfig::Mf {
-                root: data,
-                train_split: args.train_split.clone(),
-                val_split: (args.val_split != "none").then(|| args.val_split.clone()),
+            let validate = args.val_split != "none";
+            let (dataset, classes) = match rtf_data::inspect::detect_format(&data) {
+                Some(DatasetFormat::Mf) => (
+                    DatasetConfig::Mf {
+                        root: data.clone(),
+                        train_split: args.train_split.clone(),
+                        val_split: validate.then(|| args.val_split.clone()),
+                    },
+                    ClassSet::mf(),
+                ),
+                Some(DatasetFormat::Freiburg) => {
+                    anyhow::ensure!(
+                        args.train_split == "train" && ["val", "none"].contains(&args.val_split.as_str()),
+                        "{}: a Freiburg Thermal root has no named splits (training tree and test layout); \
+                         drop --train-split, and use --val-split only as \"none\"",
+                        data.display()
+                    );
+                    // The reference preprocessing leaves 700×320; HeatNet trains on a random
+                    // 640×320 window of it.
+                    if args.resize.is_none() {
+                        cfg.augment.window = Some((640, 320));
+                    }
+                    let mut dataset = DatasetConfig::freiburg(data.clone());
+                    if let DatasetConfig::Freiburg { validate: v, .. } = &mut dataset {
+                        *v = validate;
+                    }
+                    (dataset, ClassSet::freiburg())
+                }
+                other => anyhow::bail!(
+                    "{}: not a training dataset rtf can read ({}; expected the MF or the Freiburg \
+                     Thermal layout, see `rtf data check`)",
+                    data.display(),
+                    other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))
+                ),
             };
+            cfg.model = ModelConfig::from_name(&args.model, classes.len() as i64)?;
+            cfg.dataset = dataset;
             cfg.epochs = args.epochs.unwrap_or(80);
             cfg.batch_size = args.batch_size;
             cfg.seed = args.seed;
