@@ -60,12 +60,12 @@ fn yes() -> bool {
 
 impl DatasetConfig {
     /// A Freiburg Thermal root with the reference preprocessing.
-    pub fn freiburg(root: PathBuf) -> Self {
+    pub fn freiburg(root: PathBuf, validate: bool) -> Self {
         DatasetConfig::Freiburg {
             root,
             train_preprocess: FreiburgPreprocess::reference_train(),
             val_preprocess: FreiburgPreprocess::reference_test(),
-            validate: true,
+            validate,
         }
     }
 }
@@ -193,7 +193,7 @@ mod tests {
 
     #[test]
     fn freiburg_dataset_round_trips_and_defaults_to_the_reference_preprocessing() {
-        let cfg = DatasetConfig::freiburg("data/freiburg".into());
+        let cfg = DatasetConfig::freiburg("data/freiburg".into(), true);
         let json = serde_json::to_string(&cfg).unwrap();
         assert_eq!(serde_json::from_str::<DatasetConfig>(&json).unwrap(), cfg);
         let short = r#"{"format": "freiburg", "root": "data/freiburg"}"#;

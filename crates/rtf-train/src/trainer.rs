@@ -123,13 +123,14 @@ fn open_split(dataset: &DatasetConfig) -> Result<(Source, Option<Source>), Train
                     "no labelled frames in a Freiburg training tree (<run>/<seq>/fl_rgb + fl_rgb_labels)",
                 ));
             }
-            let val = match validate {
-                true => Some(
+            let val = if *validate {
+                Some(
                     FreiburgSplit::open(root, val_preprocess.clone())?
                         .part(FreiburgPart::TestLayout)
                         .filter(|_, _, labelled| labelled),
-                ),
-                false => None,
+                )
+            } else {
+                None
             };
             let val = val
                 .filter(|v| !v.is_empty())

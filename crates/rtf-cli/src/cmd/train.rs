@@ -107,11 +107,10 @@ pub fn run(args: Args) -> Result<()> {
                     if args.resize.is_none() {
                         cfg.augment.window = Some((640, 320));
                     }
-                    let mut dataset = DatasetConfig::freiburg(data.clone());
-                    if let DatasetConfig::Freiburg { validate: v, .. } = &mut dataset {
-                        *v = validate;
-                    }
-                    (dataset, ClassSet::freiburg())
+                    (
+                        DatasetConfig::freiburg(data.clone(), validate),
+                        ClassSet::freiburg(),
+                    )
                 }
                 other => anyhow::bail!(
                     "{}: not a training dataset rtf can read ({}; expected the MF or the Freiburg \
