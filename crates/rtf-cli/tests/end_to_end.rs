@@ -257,12 +257,21 @@ fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style
         "2",
         "--max-steps",
         "1",
+        "--optimizer",
+        "rmsprop",
     ];
     ok(&train);
     let config: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["dataset"]["format"], "freiburg");
     assert_eq!(config["model"]["num_classes"], 13);
+    // --optimizer rmsprop takes the HeatNet paper's schedule.
+    let optimizer = &config["optimizer"];
+    assert_eq!(optimizer["kind"], "rmsprop");
+    assert_eq!(
+        (optimizer["lr"].as_f64(), optimizer["decay_every"].as_u64()),
+        (Some(1e-4), Some(30))
+    );
     // The reference preprocessing leaves 700×320, trained through a 640×320 window.
     assert_eq!(config["augment"]["window"], serde_json::json!([640, 320]));
     let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();

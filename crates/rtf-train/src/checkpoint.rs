@@ -1,5 +1,6 @@
 //! Checkpoints: one safetensors file holding the weights (`model/<name>`), the optimiser's
-//! momentum buffers (`momentum/<name>`) and, in its metadata, the training state. One file, written
+//! state under its own keys (`momentum/<name>`, `square_avg/<name>`) and, in its metadata, the
+//! training state. One file, written
 //! atomically, so a checkpoint is never half old and half new.
 
 use std::collections::{BTreeMap, HashMap};
@@ -41,19 +42,21 @@ fn to_bytes(t: &Tensor) -> RawTensor {
     (shape, values.iter().flat_map(|v| v.to_le_bytes()).collect())
 }
 
-/// Writes weights, momentum buffers and state to `path` (temp file + rename).
+/// Writes weights, the optimiser's state (keys as [`crate::Optimizer::state`] names them)
+/// and the training state to `path` (temp file + rename).
 pub fn save(
     path: &Path,
     vs: &VarStore,
-    momentum: &BTreeMap<String, Tensor>,
+    optimizer_state: &BTreeMap<String, Tensor>,
     state: &TrainState,
 ) -> Result<(), CheckpointError> {
     let mut named: Vec<(String, RawTensor)> = Vec::new();
     for (name, t) in vs.variables() {
         named.push((format!("model/{name}"), to_bytes(&t)));
     }
-    for (name, t) in momentum {
-        named.push((format!("momentum/{name}"), to_bytes(t)));
+    for (key, t) in optimizer_state {
+        debug_assert!(!key.starts_with("model/"), "optimizer key {key}");
+        named.push((key.clone(), to_bytes(t)));
     }
     let views = named
         .iter()
@@ -81,7 +84,7 @@ pub fn save(
 }
 
 /// Restores weights into `vs` (every variable must be present with its shape) and returns the
-/// momentum buffers and state.
+/// optimiser's state and the training state.
 pub fn load(
     path: &Path,
     vs: &mut VarStore,
@@ -140,13 +143,13 @@ pub fn load(
         }
         Ok(())
     })?;
-    let mut momentum = BTreeMap::new();
+    let mut optimizer_state = BTreeMap::new();
     for name in tensors.names() {
-        if let Some(param) = name.strip_prefix("momentum/") {
-            momentum.insert(param.to_string(), read(name)?.to_device(device));
+        if !name.starts_with("model/") {
+            optimizer_state.insert(name.to_string(), read(name)?.to_device(device));
         }
     }
-    Ok((momentum, state))
+    Ok((optimizer_state, state))
 }
 
 #[cfg(test)]
@@ -160,8 +163,8 @@ mod tests {
         let path = dir.path().join("checkpoint.safetensors");
         let vs = VarStore::new(Device::Cpu);
         let _ = nn::linear(vs.root() / "fc", 3, 2, Default::default());
-        let momentum = BTreeMap::from([(
-            "fc.weight".to_string(),
+        let optimizer_state = BTreeMap::from([(
+            "momentum/fc.weight".to_string(),
             Tensor::ones([2, 3], (Kind::Float, Device::Cpu)),
         )]);
         let state = TrainState {
@@ -169,13 +172,14 @@ mod tests {
             steps_done: 42,
             best_val_miou: Some(0.5),
         };
-        save(&path, &vs, &momentum, &state).unwrap();
+        save(&path, &vs, &optimizer_state, &state).unwrap();
 
         let mut other = VarStore::new(Device::Cpu);
         let _ = nn::linear(other.root() / "fc", 3, 2, Default::default());
         let (m, s) = load(&path, &mut other).unwrap();
         assert_eq!(s, state);
-        assert_eq!(m["fc.weight"].size(), vec![2, 3]);
+        assert_eq!(m.len(), 1);
+        assert_eq!(m["momentum/fc.weight"].size(), vec![2, 3]);
         let a = vs.variables();
         let b = other.variables();
         assert!(a["fc.weight"].equal(&b["fc.weight"]));

@@ -8,7 +8,7 @@ pub mod loss;
 pub mod optim;
 pub mod trainer;
 
-pub use config::{DatasetConfig, LossConfig, SgdConfig, TrainConfig};
+pub use config::{DatasetConfig, LossConfig, OptimizerConfig, OptimizerKind, TrainConfig};
 pub use loss::Loss;
-pub use optim::Sgd;
+pub use optim::Optimizer;
 pub use trainer::{train, EpochRecord, TrainError, TrainOutcome};

@@ -1,59 +1,87 @@
-//! SGD with momentum and weight decay (PyTorch semantics) whose state can be saved: tch's
-//! `nn::Optimizer` cannot export its momentum buffers, which an exact `--resume` needs.
+//! The optimisers of the papers with PyTorch's update rules and state that can be saved: SGD
+//! with momentum (MFNet, RTFNet) and RMSprop (HeatNet). tch's `nn::Optimizer` cannot export
+//! its buffers, which an exact `--resume` needs.
 
 use std::collections::BTreeMap;
 
 use tch::{nn::VarStore, Tensor};
 
-/// Momentum buffers keyed by parameter name.
-#[derive(Debug, Default)]
-pub struct Sgd {
-    pub momentum: f64,
-    pub weight_decay: f64,
-    buffers: BTreeMap<String, Tensor>,
+use crate::config::{OptimizerConfig, OptimizerKind};
+
+/// An optimiser and its per-parameter state, keyed `momentum/<parameter>` and
+/// `square_avg/<parameter>` (the names checkpoints store them under).
+#[derive(Debug)]
+pub struct Optimizer {
+    config: OptimizerConfig,
+    state: BTreeMap<String, Tensor>,
 }
 
-impl Sgd {
-    pub fn new(momentum: f64, weight_decay: f64) -> Self {
+impl Optimizer {
+    pub fn new(config: &OptimizerConfig) -> Self {
         Self {
-            momentum,
-            weight_decay,
-            buffers: BTreeMap::new(),
+            config: config.clone(),
+            state: BTreeMap::new(),
         }
     }
 
-    /// One update of every trainable variable of `vs` that has a gradient:
-    /// g += wd·p; b = μ·b + g (b = g on the first step); p -= lr·b.
+    /// One update of every trainable variable of `vs` that has a gradient, PyTorch's rules:
+    /// g += wd·p; then
+    /// - SGD: b = μ·b + g (b = g on the first step), p −= lr·b;
+    /// - RMSprop: v = α·v + (1 − α)·g² (v starts at 0), d = g / (√v + ε);
+    ///   with momentum b = μ·b + d (b starts at 0), p −= lr·b; else p −= lr·d.
     pub fn step(&mut self, vs: &VarStore, lr: f64) {
+        let cfg = self.config.clone();
         tch::no_grad(|| {
             for (name, mut param) in trainable(vs) {
                 let grad = param.grad();
                 if !grad.defined() {
                     continue;
                 }
-                let grad = if self.weight_decay != 0.0 {
-                    grad + &param * self.weight_decay
+                let grad = if cfg.weight_decay != 0.0 {
+                    grad + &param * cfg.weight_decay
                 } else {
                     grad
                 };
-                let update = if self.momentum != 0.0 {
-                    match self.buffers.get_mut(&name) {
+                let direction = match cfg.kind {
+                    OptimizerKind::Sgd => grad,
+                    OptimizerKind::Rmsprop => {
+                        let square_avg = self.buffer(format!("square_avg/{name}"), &grad);
+                        let _ = square_avg
+                            .shallow_clone()
+                            .g_mul_scalar_(cfg.alpha)
+                            .g_add_(&(&grad * &grad * (1.0 - cfg.alpha)));
+                        grad / (square_avg.sqrt() + cfg.eps)
+                    }
+                };
+                let update = if cfg.momentum == 0.0 {
+                    direction
+                } else {
+                    let key = format!("momentum/{name}");
+                    match self.state.get_mut(&key) {
                         Some(buffer) => {
-                            let _ = buffer.g_mul_scalar_(self.momentum).g_add_(&grad);
+                            let _ = buffer.g_mul_scalar_(cfg.momentum).g_add_(&direction);
                             buffer.shallow_clone()
                         }
+                        // SGD starts its buffer at the first direction; RMSprop starts at 0 and
+                        // adds it, which is the same.
                         None => {
-                            let buffer = grad.detach().copy();
-                            self.buffers.insert(name.clone(), buffer.shallow_clone());
+                            let buffer = direction.detach().copy();
+                            self.state.insert(key, buffer.shallow_clone());
                             buffer
                         }
                     }
-                } else {
-                    grad
                 };
                 let _ = param.g_sub_(&(update * lr));
             }
         });
+    }
+
+    /// The state tensor `key`, created as zeros shaped like `like` on first use.
+    fn buffer(&mut self, key: String, like: &Tensor) -> Tensor {
+        self.state
+            .entry(key)
+            .or_insert_with(|| like.zeros_like())
+            .shallow_clone()
     }
 
     /// Clears the gradients of every trainable variable.
@@ -63,14 +91,14 @@ impl Sgd {
         }
     }
 
-    /// Momentum buffers (for checkpoints).
-    pub fn buffers(&self) -> &BTreeMap<String, Tensor> {
-        &self.buffers
+    /// The per-parameter state (for checkpoints).
+    pub fn state(&self) -> &BTreeMap<String, Tensor> {
+        &self.state
     }
 
-    /// Restores momentum buffers saved by [`buffers`](Self::buffers).
-    pub fn set_buffers(&mut self, buffers: BTreeMap<String, Tensor>) {
-        self.buffers = buffers;
+    /// Restores state saved from [`state`](Self::state).
+    pub fn set_state(&mut self, state: BTreeMap<String, Tensor>) {
+        self.state = state;
     }
 }
 
@@ -88,36 +116,76 @@ pub fn trainable(vs: &VarStore) -> Vec<(String, Tensor)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::OptimizerConfig;
     use tch::{nn, Device, Kind};
 
-    /// Two steps on a quadratic, checked against the update rule written out by hand.
-    #[test]
-    fn matches_pytorch_update_rule() {
+    fn quadratic_steps(cfg: &OptimizerConfig, steps: usize, lr: f64) -> (Vec<f32>, usize) {
         let vs = VarStore::new(Device::Cpu);
         let w = vs
             .root()
             .var_copy("w", &Tensor::from_slice(&[1.0f32, -2.0]));
-        let mut sgd = Sgd::new(0.9, 0.1);
+        let mut optimizer = Optimizer::new(cfg);
+        for _ in 0..steps {
+            optimizer.zero_grad(&vs);
+            (&w * &w).sum(Kind::Float).backward(); // grad = 2w
+            optimizer.step(&vs, lr);
+        }
+        (Vec::<f32>::try_from(&w).unwrap(), optimizer.state().len())
+    }
+
+    fn assert_close(got: &[f32], expected: &[f64]) {
+        for (g, e) in got.iter().zip(expected) {
+            assert!((*g as f64 - e).abs() < 1e-5, "{got:?} vs {expected:?}");
+        }
+    }
+
+    /// Two SGD steps on a quadratic, checked against the update rule written out by hand.
+    #[test]
+    fn sgd_matches_pytorch_update_rule() {
+        let cfg = OptimizerConfig {
+            momentum: 0.9,
+            weight_decay: 0.1,
+            ..OptimizerConfig::mfnet_paper()
+        };
         let mut expected = [1.0f64, -2.0];
         let mut buffer = [0.0f64; 2];
         for step in 0..2 {
-            sgd.zero_grad(&vs);
-            (&w * &w).sum(Kind::Float).backward(); // grad = 2w
-            sgd.step(&vs, 0.5);
             for i in 0..2 {
                 let g = 2.0 * expected[i] + 0.1 * expected[i];
                 buffer[i] = if step == 0 { g } else { 0.9 * buffer[i] + g };
                 expected[i] -= 0.5 * buffer[i];
             }
         }
-        let got = Vec::<f32>::try_from(&w).unwrap();
-        for i in 0..2 {
-            assert!(
-                (got[i] as f64 - expected[i]).abs() < 1e-5,
-                "{got:?} vs {expected:?}"
-            );
+        let (got, state) = quadratic_steps(&cfg, 2, 0.5);
+        assert_close(&got, &expected);
+        assert_eq!(state, 1, "one momentum buffer");
+    }
+
+    /// Three RMSprop steps (PyTorch's `torch.optim.RMSprop` rule), with and without momentum.
+    #[test]
+    fn rmsprop_matches_pytorch_update_rule() {
+        for momentum in [0.0, 0.5] {
+            let cfg = OptimizerConfig {
+                momentum,
+                weight_decay: 0.1,
+                ..OptimizerConfig::heatnet_paper()
+            };
+            let (alpha, eps, lr) = (cfg.alpha, cfg.eps, 0.01);
+            let mut expected = [1.0f64, -2.0];
+            let (mut square_avg, mut buffer) = ([0.0f64; 2], [0.0f64; 2]);
+            for _ in 0..3 {
+                for i in 0..2 {
+                    let g = 2.0 * expected[i] + 0.1 * expected[i];
+                    square_avg[i] = alpha * square_avg[i] + (1.0 - alpha) * g * g;
+                    let d = g / (square_avg[i].sqrt() + eps);
+                    buffer[i] = momentum * buffer[i] + d;
+                    expected[i] -= lr * if momentum > 0.0 { buffer[i] } else { d };
+                }
+            }
+            let (got, state) = quadratic_steps(&cfg, 3, lr);
+            assert_close(&got, &expected);
+            assert_eq!(state, if momentum > 0.0 { 2 } else { 1 });
         }
-        assert_eq!(sgd.buffers().len(), 1);
     }
 
     #[test]

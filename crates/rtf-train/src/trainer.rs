@@ -19,7 +19,7 @@ use tch::nn::VarStore;
 
 use crate::checkpoint::{self, CheckpointError, TrainState};
 use crate::config::{DatasetConfig, TrainConfig};
-use crate::optim::Sgd;
+use crate::optim::Optimizer;
 
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
@@ -141,7 +141,7 @@ fn open_split(dataset: &DatasetConfig) -> Result<(Source, Option<Source>), Train
 }
 
 /// Trains `cfg` into `run_dir`. With `resume`, continues from `run_dir/checkpoint.safetensors`
-/// (weights, momentum, epoch; data order and augmentation depend only on (seed, epoch), and
+/// (weights, optimiser state, epoch; data order and augmentation depend only on (seed, epoch), and
 /// libtorch's generator is reseeded per epoch, so the continuation equals an uninterrupted
 /// run). `on_epoch` sees each epoch's record as it is logged.
 pub fn train(
@@ -183,15 +183,15 @@ pub fn train(
     tch::manual_seed(cfg.seed as i64);
     let mut vs = VarStore::new(device);
     let network = rtf_models::build(&vs.root(), &cfg.model)?;
-    let mut sgd = Sgd::new(cfg.optimizer.momentum, cfg.optimizer.weight_decay);
+    let mut optimizer = Optimizer::new(&cfg.optimizer);
     let mut state = TrainState {
         epochs_done: 0,
         steps_done: 0,
         best_val_miou: None,
     };
     if resume {
-        let (momentum, saved) = checkpoint::load(&checkpoint_path, &mut vs)?;
-        sgd.set_buffers(momentum);
+        let (optimizer_state, saved) = checkpoint::load(&checkpoint_path, &mut vs)?;
+        optimizer.set_state(optimizer_state);
         state = saved;
     } else if let Some(path) = &cfg.backbone_weights {
         rtf_models::backbone::load_backbone_weights(&mut vs, &cfg.model, path)?;
@@ -229,9 +229,9 @@ pub fn train(
             let target = batch.target.to_device(device);
             let logits = network.forward_t(&input, true);
             let loss = loss_fn.compute(&logits, &target);
-            sgd.zero_grad(&vs);
+            optimizer.zero_grad(&vs);
             loss.backward();
-            sgd.step(&vs, lr);
+            optimizer.step(&vs, lr);
             let value = f64::try_from(&loss).unwrap_or(f64::NAN);
             if !value.is_finite() {
                 return Err(TrainError::Diverged {
@@ -271,7 +271,7 @@ pub fn train(
                 rtf_models::weights::save_safetensors(&vs, &run_dir.join(BEST_FILE))?;
             }
         }
-        checkpoint::save(&checkpoint_path, &vs, sgd.buffers(), &state)?;
+        checkpoint::save(&checkpoint_path, &vs, optimizer.state(), &state)?;
         let record = EpochRecord {
             epoch,
             lr,

@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::sync::Mutex;
 
-use rtf_train::{DatasetConfig, TrainConfig};
+use rtf_train::{DatasetConfig, OptimizerConfig, TrainConfig};
 
 /// A tiny MF-layout dataset: random RGBA frames whose label is "hot pixel = person".
 fn write_dataset(root: &Path) {
@@ -70,34 +70,50 @@ fn resumed_run_equals_uninterrupted_run() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     write_dataset(&data);
+    // SGD's momentum buffers, and RMSprop's square averages plus momentum, must all resume.
+    let optimizers = [
+        ("sgd", OptimizerConfig::mfnet_paper()),
+        (
+            "rmsprop",
+            OptimizerConfig {
+                momentum: 0.5,
+                ..OptimizerConfig::heatnet_paper()
+            },
+        ),
+    ];
+    for (label, optimizer) in optimizers {
+        let config = |epochs| TrainConfig {
+            optimizer: optimizer.clone(),
+            ..config(&data, epochs)
+        };
+        let straight = tmp.path().join(format!("{label}-straight"));
+        let outcome = rtf_train::train(&config(2), &straight, false, &mut |_| {}).unwrap();
+        assert_eq!(outcome.records.len(), 2);
+        assert!(outcome
+            .records
+            .iter()
+            .all(|r| r.train_loss.is_finite() && r.val_miou.is_some()));
 
-    let straight = tmp.path().join("straight");
-    let outcome = rtf_train::train(&config(&data, 2), &straight, false, &mut |_| {}).unwrap();
-    assert_eq!(outcome.records.len(), 2);
-    assert!(outcome
-        .records
-        .iter()
-        .all(|r| r.train_loss.is_finite() && r.val_miou.is_some()));
+        let split = tmp.path().join(format!("{label}-split"));
+        rtf_train::train(&config(1), &split, false, &mut |_| {}).unwrap();
+        let resumed = rtf_train::train(&config(2), &split, true, &mut |_| {}).unwrap();
+        assert_eq!(resumed.records.len(), 1, "only the missing epoch runs");
+        assert_eq!(resumed.state.epochs_done, 2);
+        assert_eq!(resumed.state.steps_done, outcome.state.steps_done);
 
-    let split = tmp.path().join("split");
-    rtf_train::train(&config(&data, 1), &split, false, &mut |_| {}).unwrap();
-    let resumed = rtf_train::train(&config(&data, 2), &split, true, &mut |_| {}).unwrap();
-    assert_eq!(resumed.records.len(), 1, "only the missing epoch runs");
-    assert_eq!(resumed.state.epochs_done, 2);
-    assert_eq!(resumed.state.steps_done, outcome.state.steps_done);
-
-    let a = weights(&straight.join("final.safetensors"));
-    let b = weights(&split.join("final.safetensors"));
-    assert_eq!(a.len(), b.len());
-    for ((na, da), (nb, db)) in a.iter().zip(&b) {
-        assert_eq!(na, nb);
-        assert!(
-            da == db,
-            "`{na}` differs between the resumed and the uninterrupted run"
-        );
+        let a = weights(&straight.join("final.safetensors"));
+        let b = weights(&split.join("final.safetensors"));
+        assert_eq!(a.len(), b.len());
+        for ((na, da), (nb, db)) in a.iter().zip(&b) {
+            assert_eq!(na, nb);
+            assert!(
+                da == db,
+                "{label}: `{na}` differs between the resumed and the uninterrupted run"
+            );
+        }
+        let log = std::fs::read_to_string(split.join("log.jsonl")).unwrap();
+        assert_eq!(log.lines().count(), 2);
     }
-    let log = std::fs::read_to_string(split.join("log.jsonl")).unwrap();
-    assert_eq!(log.lines().count(), 2);
 }
 
 #[test]

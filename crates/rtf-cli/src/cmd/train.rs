@@ -4,7 +4,9 @@ use anyhow::{Context, Result};
 use rtf_core::ClassSet;
 use rtf_data::inspect::DatasetFormat;
 use rtf_models::ModelConfig;
-use rtf_train::{config::available_device, DatasetConfig, TrainConfig};
+use rtf_train::{
+    config::available_device, DatasetConfig, OptimizerConfig, OptimizerKind, TrainConfig,
+};
 
 use super::parse_size;
 
@@ -31,16 +33,24 @@ pub struct Args {
     /// Batch size (MFNet paper: 6).
     #[arg(long, default_value_t = 6)]
     pub batch_size: usize,
+    /// sgd (MFNet paper: lr 0.01, momentum 0.9, weight decay 5e-4, ×0.94 every epoch) or
+    /// rmsprop (HeatNet paper: lr 1e-4, no momentum or weight decay, ×0.5 every 30 epochs);
+    /// the flags below override the chosen paper's values.
+    #[arg(long, default_value = "sgd", value_parser = parse_optimizer)]
+    pub optimizer: OptimizerKind,
     /// Initial learning rate.
-    #[arg(long, default_value_t = 0.01)]
-    pub lr: f64,
-    /// Learning-rate factor per epoch (MFNet paper: 0.94).
-    #[arg(long, default_value_t = 0.94)]
-    pub lr_decay: f64,
-    #[arg(long, default_value_t = 0.9)]
-    pub momentum: f64,
-    #[arg(long, default_value_t = 5e-4)]
-    pub weight_decay: f64,
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Learning-rate factor applied every --decay-every epochs.
+    #[arg(long)]
+    pub lr_decay: Option<f64>,
+    /// Epochs between learning-rate decays.
+    #[arg(long)]
+    pub decay_every: Option<usize>,
+    #[arg(long)]
+    pub momentum: Option<f64>,
+    #[arg(long)]
+    pub weight_decay: Option<f64>,
     /// Disable horizontal-flip augmentation.
     #[arg(long)]
     pub no_flip: bool,
@@ -124,10 +134,22 @@ pub fn run(args: Args) -> Result<()> {
             cfg.epochs = args.epochs.unwrap_or(80);
             cfg.batch_size = args.batch_size;
             cfg.seed = args.seed;
-            cfg.optimizer.lr = args.lr;
-            cfg.optimizer.lr_decay = args.lr_decay;
-            cfg.optimizer.momentum = args.momentum;
-            cfg.optimizer.weight_decay = args.weight_decay;
+            let paper = match args.optimizer {
+                OptimizerKind::Sgd => OptimizerConfig::mfnet_paper(),
+                OptimizerKind::Rmsprop => OptimizerConfig::heatnet_paper(),
+            };
+            cfg.optimizer = OptimizerConfig {
+                lr: args.lr.unwrap_or(paper.lr),
+                lr_decay: args.lr_decay.unwrap_or(paper.lr_decay),
+                decay_every: args.decay_every.unwrap_or(paper.decay_every),
+                momentum: args.momentum.unwrap_or(paper.momentum),
+                weight_decay: args.weight_decay.unwrap_or(paper.weight_decay),
+                ..paper
+            };
+            anyhow::ensure!(
+                cfg.optimizer.decay_every >= 1,
+                "--decay-every must be at least 1"
+            );
             cfg.augment.hflip = !args.no_flip;
             cfg.resize = args.resize;
             cfg.max_steps_per_epoch = args.max_steps;
@@ -158,4 +180,14 @@ pub fn run(args: Args) -> Result<()> {
     })?;
     println!("{}", outcome.final_weights.display());
     Ok(())
+}
+
+fn parse_optimizer(text: &str) -> Result<OptimizerKind, String> {
+    match text {
+        "sgd" => Ok(OptimizerKind::Sgd),
+        "rmsprop" => Ok(OptimizerKind::Rmsprop),
+        other => Err(format!(
+            "unknown optimizer `{other}` (expected sgd or rmsprop)"
+        )),
+    }
 }
