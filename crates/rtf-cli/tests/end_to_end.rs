@@ -31,6 +31,10 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+fn json_file(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
 /// A synthetic 32×32 dataset under `dir` and MFNet weights trained on it for one step.
 fn tiny_weights(dir: &Path, frames: &str, seed: &str) -> std::path::PathBuf {
     let (data, run) = (dir.join("data"), dir.join("run"));
@@ -102,8 +106,7 @@ fn synth_train_resume_eval_predict() {
         "2",
     ];
     ok(&train);
-    let config: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    let config = json_file(&run.join("config.json"));
     assert_eq!(config["model"]["network"], "mfnet");
     assert_eq!(config["seed"], 0);
     assert!(run.join("final.safetensors").exists() && run.join("checkpoint.safetensors").exists());
@@ -149,8 +152,7 @@ fn synth_train_resume_eval_predict() {
         table.contains("mIoU") && table.contains("person"),
         "{table}"
     );
-    let scores: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let scores = json_file(&json);
     for key in ["miou", "macc", "miou_mfnet"] {
         let v = scores[key]
             .as_f64()
@@ -187,8 +189,7 @@ fn synth_train_resume_eval_predict() {
         "--precision",
         "fp32",
     ]);
-    let fast: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json_fast).unwrap()).unwrap();
+    let fast = json_file(&json_fast);
     assert!((fast["miou"].as_f64().unwrap() - scores["miou"].as_f64().unwrap()).abs() < 0.01);
 
     let test_names = std::fs::read_to_string(data.join("test.txt")).unwrap();
@@ -261,8 +262,7 @@ fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style
         "rmsprop",
     ];
     ok(&train);
-    let config: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    let config = json_file(&run.join("config.json"));
     assert_eq!(config["dataset"]["format"], "freiburg");
     assert_eq!(config["model"]["num_classes"], 13);
     // --optimizer rmsprop takes the HeatNet paper's schedule.
@@ -297,8 +297,7 @@ fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style
         printed.contains("background") && printed.contains("HeatNet convention"),
         "{printed}"
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let report = json_file(&json);
     assert_eq!(report["per_class"].as_array().unwrap().len(), 13);
     let heatnet = &report["heatnet"];
     let (day, night) = (
