@@ -345,6 +345,58 @@ fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style
 }
 
 #[test]
+fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, run) = (dir.path().join("data"), dir.path().join("run"));
+    ok(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--count",
+        "12",
+        "--seed",
+        "4",
+        "--size",
+        "32x32",
+    ]);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args([
+            "train",
+            "--data",
+            s(&data),
+            "--out",
+            s(&run),
+            "--epochs",
+            "500",
+            "--batch-size",
+            "2",
+            "--val-split",
+            "none",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // config.json is written after the handler is installed and before the first step.
+    let started = std::time::Instant::now();
+    while !run.join("config.json").exists() {
+        assert!(started.elapsed().as_secs() < 60, "training did not start");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    // SAFETY: sends SIGINT to our own child process.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{stderr}");
+    assert!(stderr.contains("--resume"), "{stderr}");
+    assert!(run.join("checkpoint.safetensors").exists());
+    assert!(!run.join("final.safetensors").exists());
+    // Resuming with a shorter schedule finishes from the checkpoint and writes the weights.
+    ok(&["train", "--resume", s(&run), "--epochs", "1"]);
+    assert!(run.join("final.safetensors").exists());
+}
+
+#[test]
 fn bad_inputs_name_the_file() {
     let tmp = tempfile::tempdir().unwrap();
     let weights = tmp.path().join("missing.safetensors");

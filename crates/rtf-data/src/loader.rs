@@ -117,6 +117,16 @@ impl Loader {
     /// Batches of one epoch; order and augmentation depend only on (seed, epoch), so a resumed
     /// run sees exactly the batches it would have seen.
     pub fn epoch(&self, epoch: u64) -> impl Iterator<Item = Result<Batch, DataError>> + '_ {
+        self.epoch_from(epoch, 0)
+    }
+
+    /// The batches of `epoch` from batch `first_batch` on (those before are not loaded): a run
+    /// resumed inside an epoch continues with exactly the batches it had left.
+    pub fn epoch_from(
+        &self,
+        epoch: u64,
+        first_batch: usize,
+    ) -> impl Iterator<Item = Result<Batch, DataError>> + '_ {
         let job = Arc::new(EpochJob {
             source: self.source.clone(),
             cfg: self.cfg.clone(),
@@ -131,14 +141,14 @@ impl Loader {
             )))
         } else {
             match &self.pool {
-                None => Mode::Inline { next: 0 },
+                None => Mode::Inline { next: first_batch },
                 Some(pool) => {
                     let (tx, rx) = crossbeam_channel::bounded(self.cfg.prefetch);
                     let (job2, pool) = (job.clone(), pool.clone());
                     let handle = std::thread::Builder::new()
                         .name("rtf-data-batches".into())
                         .spawn(move || {
-                            for b in 0..job2.num_batches {
+                            for b in first_batch..job2.num_batches {
                                 let batch = pool.install(|| job2.batch(b, true));
                                 let failed = batch.is_err();
                                 if tx.send(batch).is_err() || failed {
@@ -151,7 +161,7 @@ impl Loader {
                             rx: Some(rx),
                             handle: Some(h),
                         },
-                        Err(_) => Mode::Inline { next: 0 },
+                        Err(_) => Mode::Inline { next: first_batch },
                     }
                 }
             }
@@ -575,9 +585,15 @@ mod tests {
         }
     }
 
-    fn collect(loader: &Loader, epoch: u64) -> Vec<(Vec<f32>, Vec<i64>, Vec<String>)> {
+    type Batches = Vec<(Vec<f32>, Vec<i64>, Vec<String>)>;
+
+    fn collect(loader: &Loader, epoch: u64) -> Batches {
+        collect_from(loader, epoch, 0)
+    }
+
+    fn collect_from(loader: &Loader, epoch: u64, first_batch: usize) -> Batches {
         loader
-            .epoch(epoch)
+            .epoch_from(epoch, first_batch)
             .map(|b| {
                 let b = b.unwrap();
                 (
@@ -665,6 +681,10 @@ mod tests {
             InputConvention::UnitRange,
         );
         assert_ne!(e3, collect(&other_seed, 3));
+        // An epoch resumed at batch 3 continues with exactly the batches it had left.
+        assert_eq!(collect_from(&a, 3, 3), e3[3..]);
+        assert_eq!(collect_from(&b, 3, 3), e3[3..]);
+        assert!(collect_from(&a, 3, e3.len()).is_empty());
     }
 
     #[test]

@@ -21,13 +21,27 @@ pub enum CheckpointError {
     },
 }
 
-/// Where training stands after a completed epoch.
+/// Where training stands: after a completed epoch, or inside one (`partial`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainState {
     /// Epochs completed; training resumes at this (0-based) epoch.
     pub epochs_done: usize,
     pub steps_done: u64,
     pub best_val_miou: Option<f64>,
+    /// Progress inside epoch `epochs_done` when the checkpoint was written mid-epoch.
+    #[serde(default)]
+    pub partial: Option<PartialEpoch>,
+}
+
+/// The part of an epoch done before a mid-epoch checkpoint, with the sums its log record needs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PartialEpoch {
+    /// Batches of the epoch done; training resumes at this batch.
+    pub batches: usize,
+    pub loss_sum: f64,
+    pub images: usize,
+    pub seconds: f64,
+    pub wait_seconds: f64,
 }
 
 const STATE_KEY: &str = "rtf_train_state";
@@ -171,6 +185,13 @@ mod tests {
             epochs_done: 3,
             steps_done: 42,
             best_val_miou: Some(0.5),
+            partial: Some(PartialEpoch {
+                batches: 2,
+                loss_sum: 1.5,
+                images: 12,
+                seconds: 3.0,
+                wait_seconds: 0.1,
+            }),
         };
         save(&path, &vs, &optimizer_state, &state).unwrap();
 
@@ -200,6 +221,7 @@ mod tests {
                 epochs_done: 1,
                 steps_done: 1,
                 best_val_miou: None,
+                partial: None,
             },
         )
         .unwrap();

@@ -20,6 +20,10 @@ pub struct TrainConfig {
     pub resize: Option<(usize, usize)>,
     /// Stop each epoch after this many steps (quick experiments); None = full epochs.
     pub max_steps_per_epoch: Option<usize>,
+    /// Also write the checkpoint every this many steps inside an epoch (long epochs,
+    /// preemptible machines); None = at the end of each epoch only.
+    #[serde(default)]
+    pub checkpoint_every: Option<usize>,
     /// Decode/augment threads.
     pub workers: usize,
     /// "cpu", "cuda" or "cuda:N".
@@ -177,6 +181,7 @@ impl TrainConfig {
             },
             resize: None,
             max_steps_per_epoch: None,
+            checkpoint_every: None,
             workers: 2,
             device: "cpu".into(),
             backbone_weights: None,

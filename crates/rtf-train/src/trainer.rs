@@ -5,6 +5,7 @@
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -17,7 +18,7 @@ use rtf_models::ModelError;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 
-use crate::checkpoint::{self, CheckpointError, TrainState};
+use crate::checkpoint::{self, CheckpointError, PartialEpoch, TrainState};
 use crate::config::{DatasetConfig, TrainConfig};
 use crate::optim::Optimizer;
 
@@ -57,7 +58,9 @@ pub struct EpochRecord {
 #[derive(Debug, Clone)]
 pub struct TrainOutcome {
     pub run_dir: PathBuf,
-    pub final_weights: PathBuf,
+    /// `final.safetensors`; None when the run was interrupted (its checkpoint holds where it
+    /// stopped, `--resume` continues it).
+    pub final_weights: Option<PathBuf>,
     pub records: Vec<EpochRecord>,
     pub state: TrainState,
 }
@@ -141,14 +144,27 @@ fn open_split(dataset: &DatasetConfig) -> Result<(Source, Option<Source>), Train
 }
 
 /// Trains `cfg` into `run_dir`. With `resume`, continues from `run_dir/checkpoint.safetensors`
-/// (weights, optimiser state, epoch; data order and augmentation depend only on (seed, epoch), and
-/// libtorch's generator is reseeded per epoch, so the continuation equals an uninterrupted
-/// run). `on_epoch` sees each epoch's record as it is logged.
+/// (weights, optimiser state, epoch and, for a mid-epoch checkpoint, the batch; data order and
+/// augmentation depend only on (seed, epoch), and libtorch's generator is reseeded from (seed,
+/// epoch, batch) before every step, so the continuation equals an uninterrupted run).
+/// `on_epoch` sees each epoch's record as it is logged.
 pub fn train(
     cfg: &TrainConfig,
     run_dir: &Path,
     resume: bool,
     on_epoch: &mut dyn FnMut(&EpochRecord),
+) -> Result<TrainOutcome, TrainError> {
+    train_until(cfg, run_dir, resume, on_epoch, &AtomicBool::new(false))
+}
+
+/// [`train`] that stops cleanly once `stop` is set (e.g. by Ctrl-C): it finishes the step in
+/// flight, writes a mid-epoch checkpoint and returns with `final_weights` None.
+pub fn train_until(
+    cfg: &TrainConfig,
+    run_dir: &Path,
+    resume: bool,
+    on_epoch: &mut dyn FnMut(&EpochRecord),
+    stop: &AtomicBool,
 ) -> Result<TrainOutcome, TrainError> {
     if cfg.batch_size == 0 || cfg.epochs == 0 {
         return Err(TrainError::Config(
@@ -188,6 +204,7 @@ pub fn train(
         epochs_done: 0,
         steps_done: 0,
         best_val_miou: None,
+        partial: None,
     };
     if resume {
         let (optimizer_state, saved) = checkpoint::load(&checkpoint_path, &mut vs)?;
@@ -216,13 +233,32 @@ pub fn train(
         .map_or(loader.num_batches(), |m| m.min(loader.num_batches()));
     let mut records = Vec::new();
     for epoch in state.epochs_done..cfg.epochs {
-        // Reseeded per epoch so a resumed run draws the same random numbers (dropout, ...).
-        tch::manual_seed(cfg.seed.wrapping_add(epoch as u64 + 1) as i64);
         let lr = cfg.optimizer.lr_at(epoch);
         let bar = progress_bar(steps_per_epoch, epoch, cfg.epochs);
-        let started = Instant::now();
-        let (mut loss_sum, mut images, mut waited) = (0.0, 0usize, Duration::ZERO);
-        for (step, batch) in loader.epoch(epoch as u64).take(steps_per_epoch).enumerate() {
+        // A mid-epoch checkpoint resumes at its batch with the epoch's sums so far.
+        let done = state.partial.take().unwrap_or(PartialEpoch {
+            batches: 0,
+            loss_sum: 0.0,
+            images: 0,
+            seconds: 0.0,
+            wait_seconds: 0.0,
+        });
+        let first = done.batches.min(steps_per_epoch);
+        bar.set_position(first as u64);
+        // Time of the epoch so far (the part before a resume, if any, plus this process's).
+        let (before, started) = (Duration::from_secs_f64(done.seconds), Instant::now());
+        let elapsed = || before + started.elapsed();
+        let (mut loss_sum, mut images, mut waited) = (
+            done.loss_sum,
+            done.images,
+            Duration::from_secs_f64(done.wait_seconds),
+        );
+        let batches = loader
+            .epoch_from(epoch as u64, first)
+            .take(steps_per_epoch - first);
+        for (step, batch) in (first..).zip(batches) {
+            // Reseeded per step so a resumed run draws the same random numbers (dropout, ...).
+            tch::manual_seed(rtf_data::loader::mix(cfg.seed, epoch as u64, step as u64) as i64);
             let batch = batch?;
             waited += batch.wait;
             let input = batch.input.to_device(device);
@@ -243,15 +279,40 @@ pub fn train(
             state.steps_done += 1;
             loss_sum += value;
             images += batch.names.len();
-            let rate = images as f64 / started.elapsed().as_secs_f64().max(1e-9);
+            let rate = images as f64 / elapsed().as_secs_f64().max(1e-9);
             bar.set_message(format!(
                 "loss {:.4} | {rate:.1} img/s",
                 loss_sum / (step + 1) as f64
             ));
             bar.inc(1);
+            let interrupted = stop.load(Ordering::Relaxed);
+            let scheduled = cfg
+                .checkpoint_every
+                .is_some_and(|every| every > 0 && state.steps_done % every as u64 == 0);
+            // On an epoch's last step the epoch-end checkpoint below does the work.
+            if step + 1 < steps_per_epoch && (interrupted || scheduled) {
+                state.partial = Some(PartialEpoch {
+                    batches: step + 1,
+                    loss_sum,
+                    images,
+                    seconds: elapsed().as_secs_f64(),
+                    wait_seconds: waited.as_secs_f64(),
+                });
+                checkpoint::save(&checkpoint_path, &vs, optimizer.state(), &state)?;
+                if interrupted {
+                    bar.abandon();
+                    return Ok(TrainOutcome {
+                        run_dir: run_dir.to_path_buf(),
+                        final_weights: None,
+                        records,
+                        state,
+                    });
+                }
+                state.partial = None;
+            }
         }
         bar.finish_and_clear();
-        let seconds = started.elapsed().as_secs_f64();
+        let seconds = elapsed().as_secs_f64();
         let (val_miou, val_macc) = match &val_source {
             Some(val) => {
                 let options = EvalOptions {
@@ -286,12 +347,21 @@ pub fn train(
         append_log(run_dir, &record)?;
         on_epoch(&record);
         records.push(record);
+        if stop.load(Ordering::Relaxed) && state.epochs_done < cfg.epochs {
+            // Stopped on an epoch's last step: its checkpoint is the epoch-end one.
+            return Ok(TrainOutcome {
+                run_dir: run_dir.to_path_buf(),
+                final_weights: None,
+                records,
+                state,
+            });
+        }
     }
     let final_weights = run_dir.join(FINAL_FILE);
     rtf_models::weights::save_safetensors(&vs, &final_weights)?;
     Ok(TrainOutcome {
         run_dir: run_dir.to_path_buf(),
-        final_weights,
+        final_weights: Some(final_weights),
         records,
         state,
     })

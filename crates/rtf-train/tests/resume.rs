@@ -1,6 +1,7 @@
 //! A run stopped after one epoch and resumed ends bit-identical to an uninterrupted run.
 
 use std::path::Path;
+use std::sync::atomic::AtomicBool;
 use std::sync::Mutex;
 
 use rtf_train::{DatasetConfig, OptimizerConfig, TrainConfig};
@@ -114,6 +115,59 @@ fn resumed_run_equals_uninterrupted_run() {
         let log = std::fs::read_to_string(split.join("log.jsonl")).unwrap();
         assert_eq!(log.lines().count(), 2);
     }
+}
+
+#[test]
+fn run_stopped_inside_an_epoch_resumes_exactly() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    write_dataset(&data);
+    // HeatNet's optimiser with momentum: its state must survive a mid-epoch stop too.
+    let cfg = TrainConfig {
+        optimizer: OptimizerConfig {
+            momentum: 0.5,
+            ..OptimizerConfig::heatnet_paper()
+        },
+        ..config(&data, 2)
+    };
+    let straight = tmp.path().join("straight");
+    let expected = rtf_train::train(&cfg, &straight, false, &mut |_| {}).unwrap();
+
+    // A stop requested before the first step ends the run after it: batch 1 of epoch 1's 2.
+    let stopped = tmp.path().join("stopped");
+    let stop = AtomicBool::new(true);
+    let outcome =
+        rtf_train::trainer::train_until(&cfg, &stopped, false, &mut |_| {}, &stop).unwrap();
+    assert!(outcome.final_weights.is_none() && outcome.records.is_empty());
+    assert_eq!(outcome.state.partial.as_ref().map(|p| p.batches), Some(1));
+    assert!(!stopped.join("final.safetensors").exists());
+
+    // Checkpointing every step must not change the result either.
+    let resumed_cfg = TrainConfig {
+        checkpoint_every: Some(1),
+        ..cfg.clone()
+    };
+    let resumed = rtf_train::train(&resumed_cfg, &stopped, true, &mut |_| {}).unwrap();
+    assert_eq!(
+        resumed.records.len(),
+        2,
+        "the stopped epoch is finished and logged"
+    );
+    assert_eq!(resumed.state.steps_done, expected.state.steps_done);
+    for (a, b) in expected.records.iter().zip(&resumed.records) {
+        assert_eq!((a.epoch, a.images), (b.epoch, b.images));
+        assert_eq!(
+            a.train_loss, b.train_loss,
+            "epoch {}: loss sums carried over",
+            a.epoch
+        );
+    }
+    assert_eq!(
+        weights(&straight.join("final.safetensors")),
+        weights(&stopped.join("final.safetensors")),
+        "stopped and resumed inside an epoch = uninterrupted"
+    );
 }
 
 #[test]

@@ -1,4 +1,5 @@
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, Result};
 use rtf_core::ClassSet;
@@ -69,6 +70,10 @@ pub struct Args {
     /// Stop each epoch after N steps (quick experiments).
     #[arg(long)]
     pub max_steps: Option<usize>,
+    /// Also checkpoint every N steps inside an epoch (long epochs, preemptible machines).
+    /// Ctrl-C always checkpoints the step it stops at.
+    #[arg(long)]
+    pub checkpoint_every: Option<usize>,
     /// Data-loading threads.
     #[arg(long, default_value_t = 2)]
     pub workers: usize,
@@ -153,6 +158,7 @@ pub fn run(args: Args) -> Result<()> {
             cfg.augment.hflip = !args.no_flip;
             cfg.resize = args.resize;
             cfg.max_steps_per_epoch = args.max_steps;
+            cfg.checkpoint_every = args.checkpoint_every;
             cfg.workers = args.workers;
             cfg.device = args.device.clone();
             cfg.backbone_weights = args.backbone_weights.clone();
@@ -165,21 +171,63 @@ pub fn run(args: Args) -> Result<()> {
         cfg.epochs,
         run_dir.display()
     );
-    let outcome = rtf_train::train(&cfg, &run_dir, resume, &mut |r| {
-        let val = r
-            .val_miou
-            .map_or(String::new(), |m| format!("  val mIoU {:.1}", 100.0 * m));
-        eprintln!(
-            "epoch {:>3}  lr {:.5}  loss {:.4}  {:.1} img/s  data wait {:.0}%{val}",
-            r.epoch + 1,
-            r.lr,
-            r.train_loss,
-            r.images_per_s,
-            100.0 * r.data_wait_fraction
-        );
-    })?;
-    println!("{}", outcome.final_weights.display());
+    let stop = stop_on_ctrl_c();
+    let outcome = rtf_train::trainer::train_until(
+        &cfg,
+        &run_dir,
+        resume,
+        &mut |r| {
+            let val = r
+                .val_miou
+                .map_or(String::new(), |m| format!("  val mIoU {:.1}", 100.0 * m));
+            eprintln!(
+                "epoch {:>3}  lr {:.5}  loss {:.4}  {:.1} img/s  data wait {:.0}%{val}",
+                r.epoch + 1,
+                r.lr,
+                r.train_loss,
+                r.images_per_s,
+                100.0 * r.data_wait_fraction
+            );
+        },
+        stop,
+    )?;
+    match &outcome.final_weights {
+        Some(path) => println!("{}", path.display()),
+        None => {
+            let batch = outcome.state.partial.as_ref().map_or(0, |p| p.batches);
+            eprintln!(
+                "interrupted in epoch {} after batch {batch}: checkpoint written; continue with \
+                 `rtf train --resume {}`",
+                outcome.state.epochs_done + 1,
+                run_dir.display()
+            );
+            std::process::exit(130);
+        }
+    }
     Ok(())
+}
+
+/// Set by the first Ctrl-C; training then checkpoints and stops after the step in flight.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+/// Installs a SIGINT handler that sets [`STOP`] (a second Ctrl-C kills as usual).
+fn stop_on_ctrl_c() -> &'static AtomicBool {
+    #[cfg(unix)]
+    {
+        extern "C" fn on_sigint(_: libc::c_int) {
+            STOP.store(true, Ordering::SeqCst);
+            // SAFETY: signal() is async-signal-safe; restores the default for a second Ctrl-C.
+            unsafe {
+                libc::signal(libc::SIGINT, libc::SIG_DFL);
+            }
+        }
+        // SAFETY: the handler only stores an atomic and calls signal(), both allowed in
+        // a signal handler.
+        unsafe {
+            libc::signal(libc::SIGINT, on_sigint as *const () as libc::sighandler_t);
+        }
+    }
+    &STOP
 }
 
 fn parse_optimizer(text: &str) -> Result<OptimizerKind, String> {
