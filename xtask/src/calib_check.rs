@@ -4,7 +4,6 @@
 
 use anyhow::{bail, Context, Result};
 use std::path::Path;
-use std::process::Command;
 use std::time::Instant;
 
 struct Options {
@@ -38,23 +37,6 @@ fn parse(args: &[String]) -> Result<Options> {
     Ok(o)
 }
 
-/// Runs `rtf` and returns its stdout, failing with its stderr.
-fn rtf(root: &Path, args: &[String]) -> Result<String> {
-    let output = Command::new(root.join("target/release/rtf"))
-        .args(args)
-        .current_dir(root)
-        .output()
-        .context("cannot start target/release/rtf")?;
-    if !output.status.success() {
-        bail!(
-            "`rtf {}` failed:\n{}",
-            args.join(" "),
-            String::from_utf8_lossy(&output.stderr)
-        );
-    }
-    Ok(String::from_utf8_lossy(&output.stdout).into_owned())
-}
-
 /// The "vs ground truth:" line of `rtf calibrate --ground-truth`.
 fn truth_line(stdout: &str) -> String {
     stdout
@@ -77,7 +59,7 @@ pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
     let synth = |seed: u64, depth: &str| -> Result<String> {
         let dir = format!("{}/rig-{}-{}-{}", o.out, width, depth, seed);
         let _ = std::fs::remove_dir_all(root.join(&dir));
-        rtf(
+        crate::rtf_stdout(
             root,
             &s(&[
                 "synth",
@@ -110,7 +92,7 @@ pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
         ]);
         args.extend(s(&["--ground-truth", &format!("{dir}/ground_truth.yaml")]));
         args.extend(extra.iter().map(|a| a.replace("{dir}", &dir)));
-        let line = truth_line(&rtf(root, &args)?);
+        let line = truth_line(&crate::rtf_stdout(root, &args)?);
         let secs = start.elapsed().as_secs_f64();
         println!("default, {label} depth, seed {seed}: {line} (wall {secs:.1} s)");
         rows.push(format!(
@@ -131,7 +113,7 @@ pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
     // Paper recipe: a short run timed, extrapolated to the recipe's 8000 iterations.
     let dir = format!("{}/rig-{}-given-{}", o.out, width, seed);
     let start = Instant::now();
-    rtf(
+    crate::rtf_stdout(
         root,
         &s(&[
             "calibrate",

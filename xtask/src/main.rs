@@ -3,6 +3,7 @@
 
 mod calib_check;
 mod convert;
+mod reproduce;
 mod setup;
 
 use anyhow::{bail, Context, Result};
@@ -17,6 +18,7 @@ tasks:
   demo     setup, build, synthesise a small RGB-T dataset, train MFNet, evaluate, draw predictions
   convert-pth IN.pth OUT.safetensors  convert a PyTorch checkpoint (published weights) for rtf
   calib-check  full-size accuracy/timing run of `rtf calibrate` on synthetic rigs with ground truth
+  reproduce <table>  measure a paper's table with rtf, beside the paper's numbers (--help: list)
 ";
 
 fn main() -> Result<()> {
@@ -28,6 +30,7 @@ fn main() -> Result<()> {
         Some("demo") => demo(&root, &args[1..]),
         Some("convert-pth") => convert::convert_pth(&root, &args[1..]),
         Some("calib-check") => calib_check::calib_check(&root, &args[1..]),
+        Some("reproduce") => reproduce::reproduce(&root, &args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{USAGE}");
             Ok(())
@@ -42,6 +45,24 @@ fn project_root() -> PathBuf {
         .parent()
         .expect("xtask has a parent")
         .to_path_buf()
+}
+
+/// Runs the release `rtf` binary and returns its stdout, failing with its stderr.
+fn rtf_stdout<S: AsRef<str>>(root: &Path, args: &[S]) -> Result<String> {
+    let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
+    let output = Command::new(root.join("target/release/rtf"))
+        .args(&args)
+        .current_dir(root)
+        .output()
+        .context("cannot start target/release/rtf")?;
+    if !output.status.success() {
+        bail!(
+            "`rtf {}` failed:\n{}",
+            args.join(" "),
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    Ok(String::from_utf8_lossy(&output.stdout).into_owned())
 }
 
 /// Runs a command in the project root, failing with the command line if it fails.
