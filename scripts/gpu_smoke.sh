@@ -3,7 +3,8 @@
 # part of `cargo xtask test`). Every command that takes --device runs on the GPU:
 #   synthetic data -> train MFNet on the GPU, resume, train RTFNet-18 -> evaluate the same
 #   weights on the GPU (plain, fast fp32, fast bf16) and on the CPU, comparing mIoU ->
-#   predict on both, comparing logits -> `rtf bench model --device cuda`.
+#   predict on both, comparing logits -> Freiburg training with RMSprop, interrupted by
+#   Ctrl-C and resumed, evaluated on both -> `rtf bench model --device cuda`.
 # Usage: scripts/gpu_smoke.sh [RTF_BINARY] [WORK_DIR]
 # Exit 0 only if every step ran and the GPU results match the CPU's. RTF_SMOKE_DEVICE=cpu runs
 # the same steps on the CPU (to check the script itself on a machine without a GPU);
@@ -79,6 +80,31 @@ for variant, min_agreement in (("gpu", 0.999), ("gpu_fp32", 0.999), ("gpu_bf16",
     print(f"{variant}: arg-max agreement with the CPU {100 * same / total:.3f} % of {total} pixels, "
           f"max |logit difference| {worst:.2e}")
     assert same / total >= min_agreement, variant
+PY
+
+# Freiburg Thermal, HeatNet's optimiser, and a Ctrl-C inside an epoch, resumed to the end.
+step synth --format freiburg --out "$work/fr" --count 40 --size 320x160 --seed 2
+"$rtf" train --data "$work/fr" --out "$work/fr_run" --optimizer rmsprop --momentum 0.5 \
+    --epochs 400 --batch-size 2 --checkpoint-every 3 --device "$gpu" >"$work/fr_train.log" 2>&1 &
+trainer=$!
+while [ ! -f "$work/fr_run/config.json" ]; do sleep 0.2; done
+sleep 4
+kill -INT "$trainer"
+status=0
+wait "$trainer" || status=$?
+[ "$status" = 130 ] || { echo "expected exit 130 after Ctrl-C, got $status"; exit 1; }
+grep -q -- "--resume" "$work/fr_train.log"
+step train --resume "$work/fr_run" --epochs 3
+for target in cpu "$gpu"; do
+    step eval --model mfnet --weights "$work/fr_run/final.safetensors" --data "$work/fr" \
+        --device "$target" --json "$work/fr_eval_$target.json"
+done
+"$python" - "$work" "$gpu" <<'PY'
+import json, sys
+work, gpu = sys.argv[1:]
+a, b = (json.load(open(f"{work}/fr_eval_{d}.json"))["heatnet"]["miou"] for d in ("cpu", gpu))
+assert abs(a - b) <= 0.002, f"Freiburg HeatNet mIoU: CPU {a} vs {gpu} {b}"
+print(f"Freiburg: HeatNet-convention mIoU CPU {100 * a:.2f} = {gpu} {100 * b:.2f}")
 PY
 
 for model in mfnet rtfnet50 heatnet; do
