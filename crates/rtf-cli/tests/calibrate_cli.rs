@@ -2,22 +2,9 @@
 //! the ground truth); malformed rig.yaml → exit 1 naming the field.
 
 use std::path::Path;
-use std::process::Command;
 
-fn rtf(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_rtf"))
-        .args(args)
-        .output()
-        .expect("rtf runs")
-}
-
-fn text(out: &std::process::Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
-}
+mod common;
+use common::*;
 
 #[test]
 fn calibrates_a_small_synthetic_rig_with_overlays() {

@@ -1,36 +1,13 @@
 //! `rtf data check`, `rtf data stats` and `rtf bench data` through the binary.
 
-use std::path::Path;
-use std::process::{Command, Output};
-
-fn rtf(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rtf"))
-        .args(args)
-        .output()
-        .expect("rtf runs")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+mod common;
+use common::*;
 
 #[test]
 fn check_reports_every_problem_and_stats_count_frames() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    assert!(rtf(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--count",
-        "12",
-        "--seed",
-        "4",
-        "--size",
-        "64x48"
-    ])
-    .status
-    .success());
+    synth_mf(&data, "12", "4", "64x48");
 
     let clean = rtf(&["data", "check", s(&data)]);
     assert!(
@@ -79,19 +56,7 @@ fn check_reports_every_problem_and_stats_count_frames() {
 fn bench_data_reports_throughput_as_json() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    assert!(rtf(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--count",
-        "8",
-        "--seed",
-        "1",
-        "--size",
-        "64x48"
-    ])
-    .status
-    .success());
+    synth_mf(&data, "8", "1", "64x48");
     let out = rtf(&[
         "bench",
         "data",

@@ -2,68 +2,16 @@
 //! synthetic dataset, checking what each step writes; and the CLI's bad-input contract.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 
-fn rtf(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rtf"))
-        .args(args)
-        .output()
-        .expect("rtf runs")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = rtf(args);
-    assert!(
-        out.status.success(),
-        "rtf {args:?} failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn fails(args: &[&str]) -> String {
-    let out = rtf(args);
-    assert!(!out.status.success(), "rtf {args:?} should fail");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn json_file(path: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
-}
+mod common;
+use common::*;
 
 /// A synthetic 32×32 dataset under `dir` and MFNet weights trained on it for one step.
 fn tiny_weights(dir: &Path, frames: &str, seed: &str) -> std::path::PathBuf {
     let (data, run) = (dir.join("data"), dir.join("run"));
-    ok(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--count",
-        frames,
-        "--seed",
-        seed,
-        "--size",
-        "32x32",
-    ]);
-    ok(&[
-        "train",
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--epochs",
-        "1",
-        "--batch-size",
-        "2",
-        "--max-steps",
-        "1",
-        "--val-split",
-        "none",
-    ]);
+    synth_mf(&data, frames, seed, "32x32");
+    ok(&short_train(&data, &run, "1", &["--val-split", "none"]));
     run.join("final.safetensors")
 }
 
@@ -72,17 +20,7 @@ fn synth_train_resume_eval_predict() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let run = tmp.path().join("run");
-    ok(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--count",
-        "12",
-        "--seed",
-        "3",
-        "--size",
-        "64x48",
-    ]);
+    synth_mf(&data, "12", "3", "64x48");
     for split in ["train", "val", "test", "test_day", "test_night"] {
         assert!(
             data.join(format!("{split}.txt")).exists(),
@@ -90,21 +28,7 @@ fn synth_train_resume_eval_predict() {
         );
     }
 
-    let train = [
-        "train",
-        "--model",
-        "mfnet",
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--epochs",
-        "1",
-        "--batch-size",
-        "2",
-        "--max-steps",
-        "2",
-    ];
+    let train = short_train(&data, &run, "2", &["--model", "mfnet"]);
     ok(&train);
     let config = json_file(&run.join("config.json"));
     assert_eq!(config["model"]["network"], "mfnet");
@@ -246,21 +170,7 @@ fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style
         "96x64",
     ];
     ok(&synth);
-    let train = [
-        "train",
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--epochs",
-        "1",
-        "--batch-size",
-        "2",
-        "--max-steps",
-        "1",
-        "--optimizer",
-        "rmsprop",
-    ];
+    let train = short_train(&data, &run, "1", &["--optimizer", "rmsprop"]);
     ok(&train);
     let config = json_file(&run.join("config.json"));
     assert_eq!(config["dataset"]["format"], "freiburg");
@@ -348,18 +258,8 @@ fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style
 fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
     let dir = tempfile::tempdir().unwrap();
     let (data, run) = (dir.path().join("data"), dir.path().join("run"));
-    ok(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--count",
-        "12",
-        "--seed",
-        "4",
-        "--size",
-        "32x32",
-    ]);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_rtf"))
+    synth_mf(&data, "12", "4", "32x32");
+    let child = Command::new(env!("CARGO_BIN_EXE_rtf"))
         .args([
             "train",
             "--data",

@@ -1,23 +1,11 @@
 //! `rtf models --json` and `rtf bench model --json` through the binary.
 
-use std::process::Command;
-
-fn rtf_json(args: &[&str]) -> serde_json::Value {
-    let out = Command::new(env!("CARGO_BIN_EXE_rtf"))
-        .args(args)
-        .output()
-        .expect("rtf runs");
-    assert!(
-        out.status.success(),
-        "rtf {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
-}
+mod common;
+use common::*;
 
 #[test]
 fn models_lists_every_network_with_reference_counts() {
-    let list = rtf_json(&["models", "--json"]);
+    let list = json_out(&["models", "--json"]);
     let rows = list.as_array().unwrap();
     let params = |name: &str| {
         rows.iter()
@@ -50,7 +38,7 @@ fn models_lists_every_network_with_reference_counts() {
 
 #[test]
 fn bench_model_reports_timings_as_json() {
-    let r = rtf_json(&[
+    let r = json_out(&[
         "bench",
         "model",
         "--model",

@@ -1,0 +1,93 @@
+//! Helpers shared by the CLI tests: run the `rtf` binary, check its outcome, and the two
+//! invocations most tests start from (a synthetic MF dataset, a short training run).
+// Each test file uses a different subset.
+#![allow(dead_code)]
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+pub fn rtf(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args(args)
+        .output()
+        .expect("rtf runs")
+}
+
+/// Runs `rtf`, requires success, returns stdout.
+pub fn ok(args: &[&str]) -> String {
+    let out = rtf(args);
+    assert!(
+        out.status.success(),
+        "rtf {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Runs `rtf`, requires failure, returns stderr.
+pub fn fails(args: &[&str]) -> String {
+    let out = rtf(args);
+    assert!(!out.status.success(), "rtf {args:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// stdout then stderr.
+pub fn text(out: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// Runs `rtf`, requires success, parses stdout as JSON.
+pub fn json_out(args: &[&str]) -> serde_json::Value {
+    serde_json::from_str(&ok(args)).expect("JSON on stdout")
+}
+
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+pub fn json_file(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// `rtf synth` of an MF-layout dataset: `count` frames of `size` (WxH) from `seed`.
+pub fn synth_mf(data: &Path, count: &str, seed: &str, size: &str) {
+    ok(&[
+        "synth",
+        "--out",
+        s(data),
+        "--count",
+        count,
+        "--seed",
+        seed,
+        "--size",
+        size,
+    ]);
+}
+
+/// Arguments of `rtf train` for one short epoch (batch 2, `max_steps` steps), then `extra`.
+pub fn short_train<'a>(
+    data: &'a Path,
+    run: &'a Path,
+    max_steps: &'a str,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
+    let mut args = vec![
+        "train",
+        "--data",
+        s(data),
+        "--out",
+        s(run),
+        "--epochs",
+        "1",
+        "--batch-size",
+        "2",
+        "--max-steps",
+        max_steps,
+    ];
+    args.extend_from_slice(extra);
+    args
+}
