@@ -92,12 +92,12 @@ impl HeatnetScores {
 
 /// The frames of `split` under `root`, by the root's layout.
 fn open_split(root: &Path, split: &str) -> Result<(Arc<dyn FrameSource>, DatasetFormat)> {
-    match rtf_data::inspect::detect_format(root) {
-        Some(DatasetFormat::Mf) => Ok((
+    match super::segmentation_format(root, "evaluation")? {
+        DatasetFormat::Mf => Ok((
             Arc::new(MfDataset::open(root)?.split(split)?),
             DatasetFormat::Mf,
         )),
-        Some(DatasetFormat::Freiburg) => {
+        DatasetFormat::Freiburg => {
             let part = match split {
                 "test" => FreiburgPart::TestLayout,
                 "train" => FreiburgPart::TrainTree,
@@ -116,12 +116,7 @@ fn open_split(root: &Path, split: &str) -> Result<(Arc<dyn FrameSource>, Dataset
             );
             Ok((Arc::new(frames), DatasetFormat::Freiburg))
         }
-        other => anyhow::bail!(
-            "{}: not a dataset rtf can evaluate on ({}; expected the MF or the Freiburg Thermal \
-             layout, see `rtf data check`)",
-            root.display(),
-            other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))
-        ),
+        other => unreachable!("segmentation_format returned {other:?}"),
     }
 }
 

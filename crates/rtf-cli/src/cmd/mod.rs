@@ -24,6 +24,24 @@ pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
     }
 }
 
+/// The layout of a dataset root that `rtf train` / `rtf eval` read (MF or Freiburg Thermal);
+/// anything else is an error naming the root. `purpose` words the error ("training").
+pub fn segmentation_format(
+    root: &std::path::Path,
+    purpose: &str,
+) -> anyhow::Result<rtf_data::inspect::DatasetFormat> {
+    use rtf_data::inspect::DatasetFormat;
+    match rtf_data::inspect::detect_format(root) {
+        Some(format @ (DatasetFormat::Mf | DatasetFormat::Freiburg)) => Ok(format),
+        other => anyhow::bail!(
+            "{}: not a {purpose} dataset rtf can read ({}; expected the MF or the Freiburg \
+             Thermal layout, see `rtf data check`)",
+            root.display(),
+            other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))
+        ),
+    }
+}
+
 /// Builds a network by name and loads weights (strict, reference names). With a precision,
 /// the network is wrapped in the fast inference path (BatchNorm folded, channels-last).
 pub fn load_network(

@@ -101,8 +101,8 @@ pub fn run(args: Args) -> Result<()> {
             available_device(&args.device).map_err(anyhow::Error::msg)?;
             let mut cfg = TrainConfig::mfnet_paper(data.clone());
             let validate = args.val_split != "none";
-            let (dataset, classes) = match rtf_data::inspect::detect_format(&data) {
-                Some(DatasetFormat::Mf) => (
+            let (dataset, classes) = match super::segmentation_format(&data, "training")? {
+                DatasetFormat::Mf => (
                     DatasetConfig::Mf {
                         root: data.clone(),
                         train_split: args.train_split.clone(),
@@ -110,7 +110,7 @@ pub fn run(args: Args) -> Result<()> {
                     },
                     ClassSet::mf(),
                 ),
-                Some(DatasetFormat::Freiburg) => {
+                DatasetFormat::Freiburg => {
                     anyhow::ensure!(
                         args.train_split == "train" && ["val", "none"].contains(&args.val_split.as_str()),
                         "{}: a Freiburg Thermal root has no named splits (training tree and test layout); \
@@ -127,12 +127,7 @@ pub fn run(args: Args) -> Result<()> {
                         ClassSet::freiburg(),
                     )
                 }
-                other => anyhow::bail!(
-                    "{}: not a training dataset rtf can read ({}; expected the MF or the Freiburg \
-                     Thermal layout, see `rtf data check`)",
-                    data.display(),
-                    other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))
-                ),
+                other => unreachable!("segmentation_format returned {other:?}"),
             };
             cfg.model = ModelConfig::from_name(&args.model, classes.len() as i64)?;
             cfg.dataset = dataset;
