@@ -92,7 +92,7 @@ impl HeatnetScores {
 
 /// The frames of `split` under `root`, by the root's layout.
 fn open_split(root: &Path, split: &str) -> Result<(Arc<dyn FrameSource>, DatasetFormat)> {
-    match super::segmentation_format(root, "evaluation")? {
+    match super::segmentation_format(root, "an evaluation")? {
         DatasetFormat::Mf => Ok((
             Arc::new(MfDataset::open(root)?.split(split)?),
             DatasetFormat::Mf,

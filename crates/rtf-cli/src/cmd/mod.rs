@@ -25,7 +25,7 @@ pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
 }
 
 /// The layout of a dataset root that `rtf train` / `rtf eval` read (MF or Freiburg Thermal);
-/// anything else is an error naming the root. `purpose` words the error ("training").
+/// anything else is an error naming the root. `purpose` words the error ("a training").
 pub fn segmentation_format(
     root: &std::path::Path,
     purpose: &str,
@@ -34,7 +34,7 @@ pub fn segmentation_format(
     match rtf_data::inspect::detect_format(root) {
         Some(format @ (DatasetFormat::Mf | DatasetFormat::Freiburg)) => Ok(format),
         other => anyhow::bail!(
-            "{}: not a {purpose} dataset rtf can read ({}; expected the MF or the Freiburg \
+            "{}: not {purpose} dataset rtf can read ({}; expected the MF or the Freiburg \
              Thermal layout, see `rtf data check`)",
             root.display(),
             other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))

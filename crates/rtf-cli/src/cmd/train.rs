@@ -101,7 +101,7 @@ pub fn run(args: Args) -> Result<()> {
             available_device(&args.device).map_err(anyhow::Error::msg)?;
             let mut cfg = TrainConfig::mfnet_paper(data.clone());
             let validate = args.val_split != "none";
-            let (dataset, classes) = match super::segmentation_format(&data, "training")? {
+            let (dataset, classes) = match super::segmentation_format(&data, "a training")? {
                 DatasetFormat::Mf => (
                     DatasetConfig::Mf {
                         root: data.clone(),
