@@ -3,6 +3,11 @@
 .venv torch, same thread count) as NCHW fp32, channels_last fp32 and bf16 autocast, then runs
 `rtf bench model --json` for fp32 and bf16 and prints the speed ratios.
 
+Every configuration, PyTorch's and rtf's alike, runs in a fresh process of its own (as a user
+runs one of them), round after round, so load from other processes hits them all alike and no
+configuration inherits another's allocator state; `--shared-process` runs the three PyTorch
+configurations in this one process instead (the script's earlier behaviour).
+
 Usage (from the repo root):
     .venv/bin/python scripts/bench_torch.py --model mfnet [--threads 2] [--iterations 10]
     .venv/bin/python scripts/bench_torch.py --model rtfnet50 --iterations 5
@@ -12,6 +17,7 @@ parameter counts are printed and checked against the rtf model of the same name.
 """
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -233,6 +239,40 @@ def rtf_bench(args, precision, iterations, layout="nhwc"):
     return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
 
 
+TORCH_CONFIGS = {"torch eager fp32 NCHW": (False, False), "torch channels_last fp32": (True, False),
+                 "torch bf16 autocast": (True, True)}
+
+
+def retain_freed_memory():
+    """rtf's allocator policy (glibc: no mmap-served blocks, no heap trimming)."""
+    import ctypes
+    libc = ctypes.CDLL("libc.so.6")
+    M_TRIM_THRESHOLD, M_MMAP_MAX = -1, -4
+    if not (libc.mallopt(M_MMAP_MAX, 0) == 1 and libc.mallopt(M_TRIM_THRESHOLD, 2**31 - 1) == 1):
+        sys.exit("bench_torch.py: mallopt refused the allocator policy")
+
+
+def torch_times(args, label):
+    """Times of one PyTorch configuration: in a fresh worker process, or here with --shared-process."""
+    if args.shared_process:
+        channels_last, bf16 = TORCH_CONFIGS[label]
+        return time_torch(args.net, args.x, args.warmup, args.iterations, channels_last, bf16)
+    cmd = [sys.executable, os.path.abspath(__file__), "--worker", label, "--model", args.model, "--batch",
+           str(args.batch), "--threads", str(args.threads), "--warmup", str(args.warmup), "--iterations",
+           str(args.iterations)] + (["--torch-retain-memory"] if args.torch_retain_memory else [])
+    return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
+
+
+def setup(args):
+    """Applies the process-wide settings and builds the network and input (seeded)."""
+    if args.torch_retain_memory:
+        retain_freed_memory()
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    args.net = build(args.model).eval()
+    args.x = torch.rand(args.batch, 4, 480, 640)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default="mfnet")
@@ -248,27 +288,27 @@ def main():
     ap.add_argument("--torch-retain-memory", action="store_true",
                     help="give PyTorch the allocator policy rtf sets for itself (glibc: no mmap-served blocks, "
                          "no heap trimming), to see how much of the gap that policy accounts for")
+    ap.add_argument("--shared-process", action="store_true",
+                    help="run the PyTorch configurations one after another in this process instead of a "
+                         "fresh process each (they then inherit each other's allocator state)")
+    ap.add_argument("--worker", choices=sorted(TORCH_CONFIGS), help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.torch_retain_memory:
-        import ctypes
-        libc = ctypes.CDLL("libc.so.6")
-        M_TRIM_THRESHOLD, M_MMAP_MAX = -1, -4
-        if not (libc.mallopt(M_MMAP_MAX, 0) == 1 and libc.mallopt(M_TRIM_THRESHOLD, 2**31 - 1) == 1):
-            sys.exit("bench_torch.py: mallopt refused the allocator policy")
-    torch.set_num_threads(args.threads)
-    torch.manual_seed(0)
-    net = build(args.model).eval()
-    params = sum(p.numel() for p in net.parameters())
-    x = torch.rand(args.batch, 4, 480, 640)
+    if args.worker:
+        setup(args)
+        channels_last, bf16 = TORCH_CONFIGS[args.worker]
+        print(json.dumps(time_torch(args.net, args.x, args.warmup, args.iterations, channels_last, bf16)))
+        return
+    setup(args)
+    params = sum(p.numel() for p in args.net.parameters())
     print(f"{args.model}: {params:,} parameters (PyTorch {torch.__version__}), batch {args.batch}, "
           f"{args.threads} threads, 480x640, {args.rounds} interleaved rounds of {args.iterations} timed passes "
-          f"after {args.warmup} warm-up" + (", PyTorch with rtf's allocator policy" if args.torch_retain_memory else ""))
-    torch_configs = (("torch eager fp32 NCHW", False, False), ("torch channels_last fp32", True, False),
-                     ("torch bf16 autocast", True, True))
+          f"after {args.warmup} warm-up, "
+          + ("PyTorch configurations sharing one process" if args.shared_process else "a fresh process per configuration")
+          + (", PyTorch with rtf's allocator policy" if args.torch_retain_memory else ""))
     samples = {}
     for _ in range(args.rounds):
-        for label, cl, bf in torch_configs:
-            samples.setdefault(label, []).extend(time_torch(net, x, args.warmup, args.iterations, cl, bf))
+        for label in TORCH_CONFIGS:
+            samples.setdefault(label, []).extend(torch_times(args, label))
         for precision in ("fp32", "bf16"):
             report = rtf_bench(args, precision, args.iterations)
             # rtf reports only median and min per call; keep both as samples of that round.

@@ -151,6 +151,10 @@ impl InferenceNet {
             xs
         };
         let logits = self.net.forward_t(&xs, false);
+        if logits.kind() == Kind::Float && logits.is_contiguous() {
+            // Some networks write their logits in this form (MFNet's decode1).
+            return Ok(logits);
+        }
         // Float and NCHW in one pass (to_kind keeps channels-last; contiguous would copy again).
         let out = Tensor::empty(logits.size(), (Kind::Float, logits.device()));
         let mut out_ = out.shallow_clone();
