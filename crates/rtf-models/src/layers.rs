@@ -551,9 +551,10 @@ impl ConvBnAct {
             .apply_t(self, train)
     }
 
-    /// This unit followed by `pool`, a max pooling: on the inference path it pools before the
-    /// activation, which is monotonic and so commutes with taking maxima (same values), and
-    /// activates a map a quarter the size.
+    /// This unit followed by `pool`, a max pooling. On the inference path with the activation
+    /// fused into the convolution, that is all (measured faster than the next option in bf16);
+    /// otherwise it pools before the activation, which is monotonic and so commutes with taking
+    /// maxima (same values), and activates a map a quarter the size.
     pub fn forward_then_max_pool(
         &self,
         xs: &Tensor,

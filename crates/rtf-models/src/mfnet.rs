@@ -816,6 +816,16 @@ mod tests {
         assert!((&plain - &out).abs().max().double_value(&[]) < 1e-3);
         let err = fast.forward(&Tensor::rand([1, 4, 60, 80], (Kind::Float, Device::Cpu)));
         assert!(err.is_err(), "sizes must be multiples of 16");
+        // bfloat16 (activations fused into the convolutions, decode1 as phases): float NCHW
+        // logits that still pick the plain path's class almost everywhere.
+        let (mut vs3, net3) = build(&Config::reference(9));
+        weights::load_safetensors(&mut vs3, &file).unwrap();
+        let bf16 = InferenceNet::new(Box::new(net3), Precision::Bf16).unwrap();
+        let out = bf16.forward(&x).unwrap();
+        assert_eq!(out.kind(), Kind::Float);
+        assert!(out.is_contiguous());
+        let agreement = argmax_agreement(&plain, &out);
+        assert!(agreement >= 0.98, "bf16 agreement {agreement}");
     }
 
     #[test]
