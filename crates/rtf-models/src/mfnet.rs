@@ -522,18 +522,15 @@ impl Fuse for Encoder {
     }
 }
 
-/// 2×2 max pooling with stride 2 for even H and W, as the maximum of the four strided
-/// sub-grids: the same values as `max_pool2d` without computing indices, about 2.5× faster on
-/// MFNet's large bf16/fp32 channels-last maps. Eval only (ties route gradients differently).
-/// [B, C, H, W] -> [B, C, H/2, W/2]
+/// 2×2 max pooling with stride 2 for even H and W: the maximum of the even and odd rows
+/// (whole rows, contiguous in channels-last memory), then of the even and odd columns. The
+/// same values as `max_pool2d` without computing indices, about 2.5× faster on MFNet's large
+/// bf16/fp32 channels-last maps. Eval only (ties route gradients differently).
+/// [B, C, H, W] -> [B, C, H/2, W] -> [B, C, H/2, W/2]
 fn max_pool_2x2(x: &Tensor) -> Tensor {
     let (h, w) = (x.size()[2], x.size()[3]);
-    let rows = |r: i64| x.slice(2, r, h, 2);
-    let even = rows(0);
-    let odd = rows(1);
-    let top = even.slice(3, 0, w, 2).maximum(&even.slice(3, 1, w, 2));
-    let bottom = odd.slice(3, 0, w, 2).maximum(&odd.slice(3, 1, w, 2));
-    top.maximum(&bottom)
+    let rows = x.slice(2, 0, h, 2).maximum(&x.slice(2, 1, h, 2));
+    rows.slice(3, 0, w, 2).maximum(&rows.slice(3, 1, w, 2))
 }
 
 /// Nearest-neighbour ×2 upsampling. [B, C, H, W] -> [B, C, 2H, 2W]
