@@ -104,6 +104,8 @@ pub fn median_min(samples: &[f64]) -> (f64, f64) {
 }
 
 /// Builds the named network and times its forward on a random `[batch, 4, H, W]` input.
+/// Weights (unless loaded) and input come from libtorch's generator seeded with 0, so runs
+/// time the same computation and report the same agreement.
 pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     if opts.batch < 1 || opts.iterations < 1 {
         return Err(SpeedError::Options(
@@ -116,6 +118,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         ));
     }
     let cfg = ModelConfig::from_name(&opts.model, rtf_models::default_num_classes(&opts.model))?;
+    tch::manual_seed(0);
     let mut vs = nn::VarStore::new(opts.device);
     let net = rtf_models::build(&vs.root(), &cfg)?;
     if let Some(path) = &opts.weights {
