@@ -211,6 +211,16 @@ mod tests {
         }
         assert_eq!(json["precision"], "fp32");
         assert!(report.agreement_with_plain.unwrap() >= 0.999);
+        // Seeded weights and input: a bf16 run reports the same agreement (here ≈ 99.6 %, so a
+        // different draw would show) every time.
+        let bf16 = BenchOptions {
+            precision: Precision::Bf16,
+            iterations: 1,
+            ..opts
+        };
+        let agreement = |o: &BenchOptions| bench_model(o).unwrap().agreement_with_plain.unwrap();
+        let first = agreement(&bf16);
+        assert_eq!(first, agreement(&bf16));
     }
 
     #[test]
