@@ -692,6 +692,8 @@ mod tests {
             randomise_bn(&vs);
             let x = Tensor::randn([2, 6, 12, 16], (Kind::Float, Device::Cpu));
             let plain = tch::no_grad(|| unit.forward_t(&x, false));
+            let residual = Tensor::randn(plain.size(), (Kind::Float, Device::Cpu));
+            let plain_add = tch::no_grad(|| unit.forward_add(&x, &residual, false));
             unit.fuse(Kind::Float);
             let fused = tch::no_grad(|| unit.forward_t(&to_channels_last(&x), false));
             assert_eq!(plain.size(), fused.size());
@@ -699,6 +701,19 @@ mod tests {
             // Training forwards never use the folded weights.
             let train = unit.forward_t(&x, true);
             assert!(train.requires_grad());
+            // bfloat16: the activation (and the residual add) run inside the convolution.
+            unit.fuse(Kind::BFloat16);
+            let bf16 = |t: &Tensor| to_channels_last(&t.to_kind(Kind::BFloat16));
+            let fused = tch::no_grad(|| unit.forward_t(&bf16(&x), false));
+            assert_eq!(fused.kind(), Kind::BFloat16);
+            let close =
+                |a: &Tensor, b: &Tensor| a.allclose(&b.to_kind(Kind::Float), 0.05, 0.05, false);
+            assert!(close(&plain, &fused), "{spec:?} bf16");
+            if !spec.transposed {
+                let fused_add =
+                    tch::no_grad(|| unit.forward_add(&bf16(&x), &bf16(&residual), false));
+                assert!(close(&plain_add, &fused_add), "{spec:?} bf16 + residual");
+            }
         }
     }
 
