@@ -144,11 +144,11 @@ pub enum PostOp {
 }
 
 impl PostOp {
-    fn attr(self) -> &'static [u8] {
+    fn attr(self) -> &'static CStr {
         match self {
-            PostOp::None => b"none\0",
-            PostOp::Relu => b"relu\0",
-            PostOp::LeakyRelu(_) => b"leaky_relu\0",
+            PostOp::None => c"none",
+            PostOp::Relu => c"relu",
+            PostOp::LeakyRelu(_) => c"leaky_relu",
         }
     }
     fn scalar(self) -> Option<f64> {
@@ -179,7 +179,7 @@ struct Args {
     groups: i64,
     /// `post_op`'s scalar (LeakyReLU slope), pointed to by `scalars`.
     scalar: Option<f64>,
-    attr: &'static [u8],
+    attr: &'static CStr,
 }
 
 impl Args {
@@ -195,7 +195,7 @@ impl Args {
         }
     }
     fn attr(&self) -> *const c_char {
-        self.attr.as_ptr() as *const c_char
+        self.attr.as_ptr()
     }
     /// The array of optional scalars (one pointer, or none).
     fn scalars(&self) -> ([*const f64; 1], i64) {
