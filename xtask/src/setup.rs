@@ -42,21 +42,12 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
         if repair {
             println!("setup: torch in .venv cannot be imported; reinstalling");
         }
-        let status = Command::new(&python)
-            .args([
-                "-m",
-                "pip",
-                "install",
-                "--quiet",
-                "--disable-pip-version-check",
-            ])
-            .args(repair.then_some("--force-reinstall"))
-            .arg(format!("torch=={TORCH_VERSION}"))
-            .status()
-            .context("cannot run pip in .venv")?;
-        if !status.success() {
-            bail!("pip install torch=={TORCH_VERSION} failed; is PyPI reachable?");
+        let torch = format!("torch=={TORCH_VERSION}");
+        let mut packages = vec![torch.as_str()];
+        if repair {
+            packages.insert(0, "--force-reinstall");
         }
+        pip_install(&python, &packages)?;
         if torch_version(&python).is_none() {
             bail!(
                 "torch installed but `import torch` fails in {}",
@@ -97,6 +88,11 @@ fn ensure_script_packages(python: &Path) -> Result<()> {
         return Ok(());
     }
     println!("setup: installing numpy and pillow into .venv (benchmark scripts)");
+    pip_install(python, &["numpy", "pillow"])
+}
+
+/// `pip install --quiet <args>` with the venv's Python.
+fn pip_install(python: &Path, args: &[&str]) -> Result<()> {
     let status = Command::new(python)
         .args([
             "-m",
@@ -104,13 +100,12 @@ fn ensure_script_packages(python: &Path) -> Result<()> {
             "install",
             "--quiet",
             "--disable-pip-version-check",
-            "numpy",
-            "pillow",
         ])
+        .args(args)
         .status()
         .context("cannot run pip in .venv")?;
     if !status.success() {
-        bail!("pip install numpy pillow failed; is PyPI reachable?");
+        bail!("pip install {} failed; is PyPI reachable?", args.join(" "));
     }
     Ok(())
 }
