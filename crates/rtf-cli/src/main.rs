@@ -26,8 +26,11 @@ enum Command {
     /// Benchmarks (`rtf bench model --model NAME`).
     #[command(subcommand)]
     Bench(cmd::bench_model::Bench),
-    /// Train a network (writes a run folder; --resume continues one).
+    /// Train a network (writes a run folder; --resume continues one); --recipe runs a paper's
+    /// procedure (HeatNet's teacher–student, adversarial, two-stage, distillation).
     Train(cmd::train::Args),
+    /// List the papers' training recipes (`rtf train --recipe NAME`).
+    Recipes(cmd::recipes::Args),
     /// Evaluate weights on a split: per-class Acc/IoU, mAcc/mIoU, day and night.
     Eval(cmd::eval::Args),
     /// Segment RGB-T images: class-id PNG, colour PNG, optional logits .npy.
@@ -54,6 +57,7 @@ fn main() {
         Command::Models(args) => cmd::models::run(args),
         Command::Bench(bench) => cmd::bench_model::run_bench(bench),
         Command::Train(args) => cmd::train::run(args),
+        Command::Recipes(args) => cmd::recipes::run(args),
         Command::Eval(args) => cmd::eval::run(args),
         Command::Predict(args) => cmd::predict::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),

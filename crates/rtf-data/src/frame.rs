@@ -1,5 +1,7 @@
 //! One RGB-thermal frame as decoded from a dataset, and the trait every dataset split implements.
 
+use std::sync::Arc;
+
 use crate::DataError;
 use rtf_core::{ClassSet, Daytime};
 
@@ -64,6 +66,81 @@ pub trait FrameSource: Send + Sync {
     fn daytime(&self, index: usize) -> Option<Daytime>;
     fn class_set(&self) -> &ClassSet;
     fn load(&self, index: usize) -> Result<Frame, DataError>;
+    /// The frame without its label. Sources whose labels are separate files override this so
+    /// that the label file is never opened (label-free training must not read night labels).
+    fn load_unlabelled(&self, index: usize) -> Result<Frame, DataError> {
+        let mut frame = self.load(index)?;
+        frame.label = None;
+        Ok(frame)
+    }
+}
+
+/// Some frames of another source (e.g. its day or its night frames), with or without their
+/// labels. Without labels, frames come from [`FrameSource::load_unlabelled`] and the class set
+/// gains an ignore id if it has none, so the loader's targets are "ignore" everywhere.
+pub struct Subset {
+    inner: Arc<dyn FrameSource>,
+    indices: Vec<usize>,
+    labelled: bool,
+    class_set: ClassSet,
+}
+
+/// The ignore id given to unlabelled subsets of class sets without one (MF).
+pub const UNLABELLED_IGNORE_ID: u8 = 255;
+
+impl Subset {
+    /// The frames of `inner` for which `keep(index)` holds.
+    pub fn new(inner: Arc<dyn FrameSource>, keep: impl Fn(usize) -> bool, labelled: bool) -> Self {
+        let indices = (0..inner.len()).filter(|&i| keep(i)).collect();
+        let mut class_set = inner.class_set().clone();
+        if !labelled && class_set.ignore_id.is_none() {
+            class_set.ignore_id = Some(UNLABELLED_IGNORE_ID);
+        }
+        Self {
+            inner,
+            indices,
+            labelled,
+            class_set,
+        }
+    }
+
+    /// The frames of `inner` taken at `daytime`.
+    pub fn of_daytime(inner: Arc<dyn FrameSource>, daytime: Daytime, labelled: bool) -> Self {
+        let source = inner.clone();
+        Self::new(inner, move |i| source.daytime(i) == Some(daytime), labelled)
+    }
+}
+
+impl FrameSource for Subset {
+    fn len(&self) -> usize {
+        self.indices.len()
+    }
+    fn frame_name(&self, index: usize) -> &str {
+        self.inner.frame_name(self.indices[index])
+    }
+    fn daytime(&self, index: usize) -> Option<Daytime> {
+        self.inner.daytime(self.indices[index])
+    }
+    fn class_set(&self) -> &ClassSet {
+        &self.class_set
+    }
+    fn load(&self, index: usize) -> Result<Frame, DataError> {
+        let inner = *self.indices.get(index).ok_or_else(|| DataError::Frame {
+            name: format!("#{index}"),
+            message: format!("index out of range (len {})", self.indices.len()),
+        })?;
+        match self.labelled {
+            true => self.inner.load(inner),
+            false => self.inner.load_unlabelled(inner),
+        }
+    }
+    fn load_unlabelled(&self, index: usize) -> Result<Frame, DataError> {
+        let inner = *self.indices.get(index).ok_or_else(|| DataError::Frame {
+            name: format!("#{index}"),
+            message: format!("index out of range (len {})", self.indices.len()),
+        })?;
+        self.inner.load_unlabelled(inner)
+    }
 }
 
 /// Frames kept in memory (tests, generated data).

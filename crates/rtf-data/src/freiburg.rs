@@ -82,6 +82,9 @@ pub enum FreiburgPart {
     TrainTree,
     /// `ImagesRGB/…_rgb.png`: the labelled test layout.
     TestLayout,
+    /// The test layout's format under `<root>/val/`: labelled day and night frames held out for
+    /// validation (checkpoint selection never looks at the test layout).
+    Validation,
 }
 
 /// Frames of a Freiburg Thermal root (training tree and/or test layout).
@@ -246,13 +249,22 @@ impl FreiburgSplit {
                     .join(&stem)
                     .to_string_lossy()
                     .into_owned();
+                let in_val = dir
+                    .strip_prefix(&root)
+                    .ok()
+                    .and_then(|rel| rel.components().next())
+                    .is_some_and(|c| c.as_os_str() == "val");
                 entries.push(Entry {
                     name,
                     daytime: daytime_of(&rgb),
                     rgb,
                     ir,
                     label,
-                    part: FreiburgPart::TestLayout,
+                    part: if in_val {
+                        FreiburgPart::Validation
+                    } else {
+                        FreiburgPart::TestLayout
+                    },
                 });
             }
         }
@@ -306,13 +318,18 @@ impl FreiburgSplit {
 
     /// Decodes a frame without preprocessing: RGB bytes, raw IR counts, label ids.
     pub fn load_raw(&self, index: usize) -> Result<RawFreiburgFrame, DataError> {
+        self.read_raw(index, true)
+    }
+
+    /// [`Self::load_raw`]; without `labels` the label file is not opened.
+    fn read_raw(&self, index: usize, labels: bool) -> Result<RawFreiburgFrame, DataError> {
         let e = self.entries.get(index).ok_or_else(|| DataError::Frame {
             name: format!("#{index}"),
             message: "index out of range".into(),
         })?;
         let rgb_bytes = std::fs::read(&e.rgb).map_err(|err| DataError::io(&e.rgb, err))?;
         let ir_bytes = std::fs::read(&e.ir).map_err(|err| DataError::io(&e.ir, err))?;
-        let label = match &e.label {
+        let label = match e.label.as_ref().filter(|_| labels) {
             None => None,
             Some(LabelFile::Png(p)) => Some((
                 std::fs::read(p).map_err(|err| DataError::io(p, err))?,
@@ -535,11 +552,14 @@ impl FrameSource for FreiburgSplit {
     fn load(&self, index: usize) -> Result<Frame, DataError> {
         preprocess(self.load_raw(index)?, &self.preprocess)
     }
+    fn load_unlabelled(&self, index: usize) -> Result<Frame, DataError> {
+        preprocess(self.read_raw(index, false)?, &self.preprocess)
+    }
 }
 
-/// Writes the synthetic Freiburg layout: train+val frames as a training tree (day labelled,
-/// night unlabelled as in the real data), test frames as `test/day` and `test/night` with
-/// `.npy` labels.
+/// Writes the synthetic Freiburg layout: train frames as a training tree (day labelled, night
+/// unlabelled as in the real data); val and test frames as `val/{day,night}` and
+/// `test/{day,night}` in the test layout with `.npy` labels (validation never looks at test/).
 pub(crate) fn write_synthetic(
     out: &Path,
     cfg: &crate::synth::SynthConfig,
@@ -554,18 +574,38 @@ pub(crate) fn write_synthetic(
             .map(|(_, v)| v.clone())
             .unwrap_or_default()
     };
-    let mut jobs: Vec<(usize, bool)> = get("train")
-        .into_iter()
-        .chain(get("val"))
-        .map(|i| (i, true))
-        .collect();
-    jobs.extend(get("test").into_iter().map(|i| (i, false)));
-    jobs.par_iter().try_for_each(|&(i, train)| {
+    // Where a frame goes: the training tree, or a labelled layout folder (val/, test/).
+    let mut jobs: Vec<(usize, Option<&str>)> =
+        get("train").into_iter().map(|i| (i, None)).collect();
+    jobs.extend(get("val").into_iter().map(|i| (i, Some("val"))));
+    jobs.extend(get("test").into_iter().map(|i| (i, Some("test"))));
+    jobs.par_iter().try_for_each(|&(i, layout)| {
         let f = crate::synth::render_frame(cfg, i);
         let (w, h) = (f.width, f.height);
         let ir = f.thermal_u16();
         let label = f.freiburg_label();
-        if train {
+        if let Some(layout) = layout {
+            let dir = out.join(layout).join(if f.night { "night" } else { "day" });
+            write_png_u8(
+                &dir.join("ImagesRGB").join(format!("{}_rgb.png", f.name)),
+                w,
+                h,
+                3,
+                &f.rgb,
+            )?;
+            write_png_u16(
+                &dir.join("ImagesIR").join(format!("{}_ir.png", f.name)),
+                w,
+                h,
+                1,
+                &ir,
+            )?;
+            rtf_core::write_bytes_atomic(
+                &dir.join("SegmentationClass")
+                    .join(format!("{}.npy", f.name)),
+                &crate::npy::encode_u8(w, h, &label),
+            )?;
+        } else {
             let seq = out
                 .join("train")
                 .join(if f.night {
@@ -599,36 +639,18 @@ pub(crate) fn write_synthetic(
                     &label,
                 )?;
             }
-        } else {
-            let dir = out.join("test").join(if f.night { "night" } else { "day" });
-            write_png_u8(
-                &dir.join("ImagesRGB").join(format!("{}_rgb.png", f.name)),
-                w,
-                h,
-                3,
-                &f.rgb,
-            )?;
-            write_png_u16(
-                &dir.join("ImagesIR").join(format!("{}_ir.png", f.name)),
-                w,
-                h,
-                1,
-                &ir,
-            )?;
-            rtf_core::write_bytes_atomic(
-                &dir.join("SegmentationClass")
-                    .join(format!("{}.npy", f.name)),
-                &crate::npy::encode_u8(w, h, &label),
-            )?;
         }
         Ok::<(), DataError>(())
     })?;
     crate::synth::write_provenance(out, cfg)?;
-    let n_train = get("train").len() + get("val").len();
+    let night = |split: &str| get(split).iter().filter(|&&i| i % 2 == 1).count();
+    let day = |split: &str| get(split).len() - night(split);
     Ok(crate::synth::SynthSummary {
         frames: cfg.count,
         splits: vec![
-            ("train".into(), n_train),
+            ("train".into(), get("train").len()),
+            ("val/day".into(), day("val")),
+            ("val/night".into(), night("val")),
             ("test/day".into(), get("test_day").len()),
             ("test/night".into(), get("test_night").len()),
         ],

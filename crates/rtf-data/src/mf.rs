@@ -78,6 +78,16 @@ impl MfDataset {
 
     /// Reads `<name>.txt`; every listed frame must have its image and label.
     pub fn split(&self, name: &str) -> Result<MfSplit, DataError> {
+        self.split_with(name, true)
+    }
+
+    /// Like [`Self::split`], but only images must exist (label-free training: night labels
+    /// may be absent and are never opened).
+    pub fn split_images_only(&self, name: &str) -> Result<MfSplit, DataError> {
+        self.split_with(name, false)
+    }
+
+    fn split_with(&self, name: &str, labels: bool) -> Result<MfSplit, DataError> {
         if !self.splits.iter().any(|s| s == name) {
             return Err(DataError::UnknownSplit {
                 root: self.root.clone(),
@@ -88,7 +98,8 @@ impl MfDataset {
         let file = self.root.join(format!("{name}.txt"));
         let names = read_split_file(&file)?;
         for (line, frame) in &names {
-            for path in [self.image_path(frame), self.label_path(frame)] {
+            let label = labels.then(|| self.label_path(frame));
+            for path in std::iter::once(self.image_path(frame)).chain(label) {
                 if !path.is_file() {
                     return Err(DataError::MissingFrame {
                         split_file: file.clone(),
@@ -107,6 +118,13 @@ impl MfDataset {
             names,
             daytimes,
         })
+    }
+
+    /// Decodes one frame's image alone (its label file is not opened).
+    pub fn load_image_frame(&self, name: &str) -> Result<Frame, DataError> {
+        let mut frame = read_mf_image(&self.image_path(name))?;
+        frame.name = name.to_string();
+        Ok(frame)
     }
 
     /// Decodes one frame by name (image + label), with every check of spec §1.
@@ -290,6 +308,13 @@ impl FrameSource for MfSplit {
             ),
         })?;
         self.dataset.load_frame(name)
+    }
+    fn load_unlabelled(&self, index: usize) -> Result<Frame, DataError> {
+        let name = self.names.get(index).ok_or_else(|| DataError::Frame {
+            name: format!("#{index}"),
+            message: format!("index out of range in split '{}'", self.split),
+        })?;
+        self.dataset.load_image_frame(name)
     }
 }
 

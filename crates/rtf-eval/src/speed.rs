@@ -124,11 +124,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     if let Some(path) = &opts.weights {
         rtf_models::weights::load_safetensors(&mut vs, path)?;
     }
-    let channels = match &cfg {
-        ModelConfig::HeatnetCritic(c) => c.in_channels,
-        _ => 4,
-    };
-    let shape = [opts.batch, channels, opts.height, opts.width];
+    let shape = [opts.batch, 4, opts.height, opts.width];
     net.check_input(&shape)?;
     let input = Tensor::rand(shape, (Kind::Float, opts.device));
     let mut agreement_with_plain = None;

@@ -458,26 +458,17 @@ impl ModuleT for Critic {
     }
 }
 
-impl Network for Critic {
-    fn input_convention(&self) -> rtf_core::InputConvention {
-        rtf_core::InputConvention::UnitRange
+impl Critic {
+    /// The critic's output stride: H and W must be multiples of it.
+    pub const SIZE_MULTIPLE: i64 = 32;
+
+    pub fn config(&self) -> &CriticConfig {
+        &self.config
     }
-    /// One output map (the day/night score).
-    fn num_classes(&self) -> i64 {
-        1
-    }
-    fn size_multiple(&self) -> i64 {
-        32
-    }
-    fn name(&self) -> String {
-        "heatnet-critic".into()
-    }
-    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
-        self.convs.fuse(kind);
-        true
-    }
-    fn check_input(&self, shape: &[i64]) -> Result<(), ModelError> {
-        let m = self.size_multiple();
+
+    /// Checks an input shape before forward (which panics inside libtorch on bad shapes).
+    pub fn check_input(&self, shape: &[i64]) -> Result<(), ModelError> {
+        let m = Self::SIZE_MULTIPLE;
         let ok = shape.len() == 4
             && shape[1] == self.config.in_channels
             && shape[0] >= 1
@@ -489,7 +480,7 @@ impl Network for Critic {
             Ok(())
         } else {
             Err(ModelError::InvalidInput {
-                network: self.name(),
+                network: "heatnet-critic".into(),
                 shape: shape.to_vec(),
                 reason: format!(
                     "expected [B, {}, H, W] with H and W positive multiples of {m}",

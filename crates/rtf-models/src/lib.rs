@@ -75,7 +75,6 @@ pub enum ModelConfig {
     Mfnet(mfnet::Config),
     Rtfnet(rtfnet::Config),
     Heatnet(heatnet::Config),
-    HeatnetCritic(heatnet::CriticConfig),
     Baseline(baselines::Config),
 }
 
@@ -88,9 +87,6 @@ impl ModelConfig {
             _ if mfnet_letter(name).is_some() => Self::Mfnet(
                 mfnet::Config::variant(mfnet_letter(name).unwrap(), num_classes).unwrap(),
             ),
-            "heatnet-critic" => Self::HeatnetCritic(heatnet::CriticConfig {
-                in_channels: num_classes,
-            }),
             _ if heatnet_inputs(name).is_some() => Self::Heatnet(heatnet::Config::new(
                 heatnet_inputs(name).unwrap(),
                 num_classes,
@@ -119,7 +115,6 @@ impl ModelConfig {
             Self::Mfnet(c) => c.name(),
             Self::Rtfnet(c) => c.name(),
             Self::Heatnet(c) => c.name(),
-            Self::HeatnetCritic(_) => "heatnet-critic".into(),
             Self::Baseline(c) => c.name(),
         }
     }
@@ -129,8 +124,6 @@ impl ModelConfig {
             Self::Mfnet(c) => c.num_classes,
             Self::Rtfnet(c) => c.num_classes,
             Self::Heatnet(c) => c.num_classes,
-            // The critic reads `in_channels` logits and writes one map.
-            Self::HeatnetCritic(c) => c.in_channels,
             Self::Baseline(c) => c.num_classes,
         }
     }
@@ -140,7 +133,6 @@ impl ModelConfig {
             Self::Mfnet(c) => c.input,
             Self::Rtfnet(c) => c.input,
             Self::Heatnet(c) => c.input,
-            Self::HeatnetCritic(_) => rtf_core::InputConvention::UnitRange,
             Self::Baseline(c) => c.input,
         }
     }
@@ -152,7 +144,6 @@ pub fn build(p: &nn::Path, cfg: &ModelConfig) -> Result<Box<dyn Network>, ModelE
         ModelConfig::Mfnet(c) => Box::new(mfnet::MfNet::new(p.clone(), c)?) as Box<dyn Network>,
         ModelConfig::Rtfnet(c) => Box::new(rtfnet::RtfNet::new(p.clone(), c)?),
         ModelConfig::Heatnet(c) => Box::new(heatnet::HeatNet::new(p.clone(), c)?),
-        ModelConfig::HeatnetCritic(c) => Box::new(heatnet::Critic::new(p.clone(), c)?),
         ModelConfig::Baseline(c) => Box::new(baselines::Baseline::new(p.clone(), c)?),
     })
 }
@@ -186,20 +177,31 @@ pub struct ModelInfo {
     pub megabytes: f64,
 }
 
-/// Every named model with its parameter count and size.
+/// Every named model with its parameter count and size, then HeatNet's critic (a training
+/// module, not a segmentation network: `heatnet-critic`, reading Freiburg's 13 classes).
 pub fn model_infos() -> Result<Vec<ModelInfo>, ModelError> {
-    model_names()
+    let info = |name: String, params: i64| ModelInfo {
+        name,
+        params,
+        megabytes: params as f64 * 4.0 / (1u64 << 20) as f64,
+    };
+    let mut infos = model_names()
         .into_iter()
         .map(|name| {
             let cfg = ModelConfig::from_name(&name, default_num_classes(&name))?;
-            let params = count_parameters(&cfg)?;
-            Ok(ModelInfo {
-                name,
-                params,
-                megabytes: params as f64 * 4.0 / (1u64 << 20) as f64,
-            })
+            Ok(info(name, count_parameters(&cfg)?))
         })
-        .collect()
+        .collect::<Result<Vec<_>, ModelError>>()?;
+    let critic = layers::with_zero_init(|| {
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let cfg = heatnet::CriticConfig {
+            in_channels: rtf_core::ClassSet::freiburg().len() as i64,
+        };
+        heatnet::Critic::new(vs.root(), &cfg)?;
+        Ok::<_, ModelError>(weights::count_trainable(&vs))
+    })?;
+    infos.push(info("heatnet-critic".into(), critic));
+    Ok(infos)
 }
 
 /// Every name [`ModelConfig::from_name`] accepts.
@@ -214,7 +216,6 @@ pub fn model_names() -> Vec<String> {
     for inputs in heatnet::Inputs::ALL {
         names.push(format!("heatnet{}", inputs.suffix()));
     }
-    names.push("heatnet-critic".into());
     for arch in baselines::Arch::ALL {
         for &c in arch.channel_options() {
             names.push(baselines::Config::new(arch, c, 9).name());
@@ -296,7 +297,7 @@ mod tests {
 
     #[test]
     fn counting_without_init_matches_a_real_build() {
-        for name in ["mfnet", "rtfnet18-nub", "heatnet-critic"] {
+        for name in ["mfnet", "rtfnet18-nub", "heatnet"] {
             let cfg = ModelConfig::from_name(name, default_num_classes(name)).unwrap();
             let vs = VarStore::new(Device::Cpu);
             build(&vs.root(), &cfg).unwrap();
@@ -311,7 +312,7 @@ mod tests {
     #[test]
     fn model_infos_cover_every_name_with_reference_counts() {
         let infos = model_infos().unwrap();
-        assert_eq!(infos.len(), model_names().len());
+        assert_eq!(infos.len(), model_names().len() + 1);
         let params = |name: &str| infos.iter().find(|i| i.name == name).unwrap().params;
         // Reference counts (spec §3–5).
         assert_eq!(params("mfnet"), 736_275);

@@ -1,7 +1,9 @@
-//! Checkpoints: one safetensors file holding the weights (`model/<name>`), the optimiser's
-//! state under its own keys (`momentum/<name>`, `square_avg/<name>`) and, in its metadata, the
-//! training state. One file, written
-//! atomically, so a checkpoint is never half old and half new.
+//! Checkpoints: one safetensors file holding, for every trained network (its *role*:
+//! `student`, `critic`), its weights under `<role>/w/<name>` and its optimiser's state under
+//! `<role>/opt/<key>` (`momentum/<name>`, `square_avg/<name>`), and, in its metadata, the
+//! training state. One file, written atomically, so a checkpoint is never half old and half new.
+//! Checkpoints of older builds (`model/<name>` plus un-prefixed optimiser keys) load as the
+//! `student` role.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -31,6 +33,10 @@ pub struct TrainState {
     /// Progress inside epoch `epochs_done` when the checkpoint was written mid-epoch.
     #[serde(default)]
     pub partial: Option<PartialEpoch>,
+    /// The log records of the epochs done (`log.jsonl` is rewritten from them on resume, so a
+    /// line lost to a kill between checkpoint and log comes back).
+    #[serde(default)]
+    pub records: Vec<serde_json::Value>,
 }
 
 /// The part of an epoch done before a mid-epoch checkpoint, with the sums its log record needs.
@@ -42,9 +48,21 @@ pub struct PartialEpoch {
     pub images: usize,
     pub seconds: f64,
     pub wait_seconds: f64,
+    /// Sums of every named loss term and training metric so far.
+    #[serde(default)]
+    pub term_sums: BTreeMap<String, f64>,
 }
 
 const STATE_KEY: &str = "rtf_train_state";
+const FORMAT_KEY: &str = "rtf_checkpoint_format";
+const FORMAT: &str = "2";
+
+/// One trained network's share of a checkpoint.
+pub struct Part<'a> {
+    pub role: &'a str,
+    pub vs: &'a VarStore,
+    pub optimizer: &'a BTreeMap<String, Tensor>,
+}
 
 /// A tensor as safetensors wants it: shape and little-endian f32 bytes.
 type RawTensor = (Vec<usize>, Vec<u8>);
@@ -56,21 +74,17 @@ fn to_bytes(t: &Tensor) -> RawTensor {
     (shape, values.iter().flat_map(|v| v.to_le_bytes()).collect())
 }
 
-/// Writes weights, the optimiser's state (keys as [`crate::Optimizer::state`] names them)
-/// and the training state to `path` (temp file + rename).
-pub fn save(
-    path: &Path,
-    vs: &VarStore,
-    optimizer_state: &BTreeMap<String, Tensor>,
-    state: &TrainState,
-) -> Result<(), CheckpointError> {
+/// Writes every part's weights and optimiser state and the training state to `path` (temp
+/// file + rename).
+pub fn save(path: &Path, parts: &[Part], state: &TrainState) -> Result<(), CheckpointError> {
     let mut named: Vec<(String, RawTensor)> = Vec::new();
-    for (name, t) in vs.variables() {
-        named.push((format!("model/{name}"), to_bytes(&t)));
-    }
-    for (key, t) in optimizer_state {
-        debug_assert!(!key.starts_with("model/"), "optimizer key {key}");
-        named.push((key.clone(), to_bytes(t)));
+    for part in parts {
+        for (name, t) in part.vs.variables() {
+            named.push((format!("{}/w/{name}", part.role), to_bytes(&t)));
+        }
+        for (key, t) in part.optimizer {
+            named.push((format!("{}/opt/{key}", part.role), to_bytes(t)));
+        }
     }
     let views = named
         .iter()
@@ -82,10 +96,13 @@ pub fn save(
             path: path.into(),
             message: e.to_string(),
         })?;
-    let metadata = HashMap::from([(
-        STATE_KEY.to_string(),
-        serde_json::to_string(state).expect("state serialises"),
-    )]);
+    let metadata = HashMap::from([
+        (
+            STATE_KEY.to_string(),
+            serde_json::to_string(state).expect("state serialises"),
+        ),
+        (FORMAT_KEY.to_string(), FORMAT.to_string()),
+    ]);
     let bytes =
         safetensors::serialize(views, Some(metadata)).map_err(|e| CheckpointError::Invalid {
             path: path.into(),
@@ -97,12 +114,42 @@ pub fn save(
     })
 }
 
-/// Restores weights into `vs` (every variable must be present with its shape) and returns the
-/// optimiser's state and the training state.
+/// Reads only the training state of a checkpoint (where a run stands).
+pub fn read_state(path: &Path) -> Result<TrainState, CheckpointError> {
+    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io {
+        path: path.into(),
+        source,
+    })?;
+    Ok(header(path, &bytes)?.0)
+}
+
+fn header(path: &Path, bytes: &[u8]) -> Result<(TrainState, bool), CheckpointError> {
+    let invalid = |message: String| CheckpointError::Invalid {
+        path: path.into(),
+        message,
+    };
+    let (_, metadata) = SafeTensors::read_metadata(bytes).map_err(|e| {
+        invalid(format!(
+            "not a safetensors file, or a truncated one ({e}); delete it to start the run over"
+        ))
+    })?;
+    let meta = metadata.metadata().as_ref();
+    let state: TrainState = meta
+        .and_then(|m| m.get(STATE_KEY))
+        .ok_or_else(|| invalid("no training state in metadata (not an rtf checkpoint)".into()))
+        .and_then(|s| {
+            serde_json::from_str(s).map_err(|e| invalid(format!("bad training state: {e}")))
+        })?;
+    let namespaced = meta.and_then(|m| m.get(FORMAT_KEY)).is_some();
+    Ok((state, namespaced))
+}
+
+/// Restores every role's weights (every variable must be present with its shape) and returns
+/// each role's optimiser state and the training state.
 pub fn load(
     path: &Path,
-    vs: &mut VarStore,
-) -> Result<(BTreeMap<String, Tensor>, TrainState), CheckpointError> {
+    parts: &mut [(&str, &mut VarStore)],
+) -> Result<(BTreeMap<String, BTreeMap<String, Tensor>>, TrainState), CheckpointError> {
     let invalid = |message: String| CheckpointError::Invalid {
         path: path.into(),
         message,
@@ -111,16 +158,7 @@ pub fn load(
         path: path.into(),
         source,
     })?;
-    let (_, metadata) = SafeTensors::read_metadata(&bytes)
-        .map_err(|e| invalid(format!("not a safetensors file: {e}")))?;
-    let state: TrainState = metadata
-        .metadata()
-        .as_ref()
-        .and_then(|m| m.get(STATE_KEY))
-        .ok_or_else(|| invalid("no training state in metadata (not an rtf checkpoint)".into()))
-        .and_then(|s| {
-            serde_json::from_str(s).map_err(|e| invalid(format!("bad training state: {e}")))
-        })?;
+    let (state, namespaced) = header(path, &bytes)?;
     let tensors = SafeTensors::deserialize(&bytes).map_err(|e| invalid(e.to_string()))?;
     let read = |name: &str| -> Result<Tensor, CheckpointError> {
         let view = tensors
@@ -140,30 +178,48 @@ pub fn load(
         let shape: Vec<i64> = view.shape().iter().map(|&d| d as i64).collect();
         Ok(Tensor::from_slice(&values).view(shape.as_slice()))
     };
-    let device = vs.device();
-    let mut vars: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
-    vars.sort_by(|a, b| a.0.cmp(&b.0));
-    tch::no_grad(|| -> Result<(), CheckpointError> {
-        for (name, mut var) in vars {
-            let saved = read(&format!("model/{name}"))?;
-            if saved.size() != var.size() {
-                return Err(invalid(format!(
-                    "`{name}` has shape {:?}, the network expects {:?}",
-                    saved.size(),
-                    var.size()
-                )));
+    // Where a role's weights and optimiser keys live in this file.
+    let weight_key = |role: &str, name: &str| match namespaced {
+        true => format!("{role}/w/{name}"),
+        false => format!("model/{name}"),
+    };
+    let mut optimizers = BTreeMap::new();
+    for (role, vs) in parts.iter_mut() {
+        if !namespaced && *role != "student" {
+            return Err(invalid(format!(
+                "written by an older rtf that trained one network; it holds no `{role}`"
+            )));
+        }
+        let device = vs.device();
+        let mut vars: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
+        vars.sort_by(|a, b| a.0.cmp(&b.0));
+        tch::no_grad(|| -> Result<(), CheckpointError> {
+            for (name, mut var) in vars {
+                let saved = read(&weight_key(role, &name))?;
+                if saved.size() != var.size() {
+                    return Err(invalid(format!(
+                        "`{role}` `{name}` has shape {:?}, the network expects {:?}",
+                        saved.size(),
+                        var.size()
+                    )));
+                }
+                var.copy_(&saved.to_device(device));
             }
-            var.copy_(&saved.to_device(device));
+            Ok(())
+        })?;
+        let mut optimizer = BTreeMap::new();
+        for name in tensors.names() {
+            let key = match namespaced {
+                true => name.strip_prefix(&format!("{role}/opt/")),
+                false => (!name.starts_with("model/")).then_some(&name[..]),
+            };
+            if let Some(key) = key {
+                optimizer.insert(key.to_string(), read(name)?.to_device(device));
+            }
         }
-        Ok(())
-    })?;
-    let mut optimizer_state = BTreeMap::new();
-    for name in tensors.names() {
-        if !name.starts_with("model/") {
-            optimizer_state.insert(name.to_string(), read(name)?.to_device(device));
-        }
+        optimizers.insert(role.to_string(), optimizer);
     }
-    Ok((optimizer_state, state))
+    Ok((optimizers, state))
 }
 
 #[cfg(test)]
@@ -191,16 +247,43 @@ mod tests {
                 images: 12,
                 seconds: 3.0,
                 wait_seconds: 0.1,
+                term_sums: BTreeMap::from([("ce".to_string(), 1.5)]),
             }),
+            records: vec![serde_json::json!({"epoch": 0})],
         };
-        save(&path, &vs, &optimizer_state, &state).unwrap();
+        let critic = VarStore::new(Device::Cpu);
+        let _ = nn::linear(critic.root() / "fc", 3, 2, Default::default());
+        let parts = [
+            Part {
+                role: "student",
+                vs: &vs,
+                optimizer: &optimizer_state,
+            },
+            Part {
+                role: "critic",
+                vs: &critic,
+                optimizer: &BTreeMap::new(),
+            },
+        ];
+        save(&path, &parts, &state).unwrap();
 
         let mut other = VarStore::new(Device::Cpu);
         let _ = nn::linear(other.root() / "fc", 3, 2, Default::default());
-        let (m, s) = load(&path, &mut other).unwrap();
+        let mut other_critic = VarStore::new(Device::Cpu);
+        let _ = nn::linear(other_critic.root() / "fc", 3, 2, Default::default());
+        let (m, s) = load(
+            &path,
+            &mut [("student", &mut other), ("critic", &mut other_critic)],
+        )
+        .unwrap();
         assert_eq!(s, state);
-        assert_eq!(m.len(), 1);
-        assert_eq!(m["momentum/fc.weight"].size(), vec![2, 3]);
+        assert_eq!(read_state(&path).unwrap(), state);
+        assert_eq!(m["student"].len(), 1);
+        assert!(m["critic"].is_empty());
+        assert_eq!(m["student"]["momentum/fc.weight"].size(), vec![2, 3]);
+        // Same architecture, different roles: each role gets its own weights back.
+        assert!(critic.variables()["fc.weight"].equal(&other_critic.variables()["fc.weight"]));
+        assert!(!vs.variables()["fc.weight"].equal(&critic.variables()["fc.weight"]));
         let a = vs.variables();
         let b = other.variables();
         assert!(a["fc.weight"].equal(&b["fc.weight"]));
@@ -215,22 +298,81 @@ mod tests {
         let _ = nn::linear(vs.root() / "fc", 3, 2, Default::default());
         save(
             &path,
-            &vs,
-            &BTreeMap::new(),
+            &[Part {
+                role: "student",
+                vs: &vs,
+                optimizer: &BTreeMap::new(),
+            }],
             &TrainState {
                 epochs_done: 1,
                 steps_done: 1,
                 best_val_miou: None,
                 partial: None,
+                records: vec![],
             },
         )
         .unwrap();
         let mut other = VarStore::new(Device::Cpu);
         let _ = nn::linear(other.root() / "fc", 4, 2, Default::default());
-        let err = load(&path, &mut other).unwrap_err().to_string();
+        let err = load(&path, &mut [("student", &mut other)])
+            .unwrap_err()
+            .to_string();
         assert!(
             err.contains("fc.weight") && err.contains("c.safetensors"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn checkpoints_of_older_builds_load_as_the_student() {
+        // The layout written before roles: `model/<name>`, optimiser keys un-prefixed.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.safetensors");
+        let weight: Vec<u8> = [1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let bias: Vec<u8> = [0.5f32, -0.5]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let views = vec![
+            (
+                "model/fc.weight",
+                TensorView::new(Dtype::F32, vec![2, 3], &weight).unwrap(),
+            ),
+            (
+                "model/fc.bias",
+                TensorView::new(Dtype::F32, vec![2], &bias).unwrap(),
+            ),
+            (
+                "momentum/fc.bias",
+                TensorView::new(Dtype::F32, vec![2], &bias).unwrap(),
+            ),
+        ];
+        let state = r#"{"epochs_done":1,"steps_done":3,"best_val_miou":null}"#;
+        let metadata = HashMap::from([(STATE_KEY.to_string(), state.to_string())]);
+        std::fs::write(
+            &path,
+            safetensors::serialize(views, Some(metadata)).unwrap(),
+        )
+        .unwrap();
+
+        let mut vs = VarStore::new(Device::Cpu);
+        let _ = nn::linear(vs.root() / "fc", 3, 2, Default::default());
+        let (optimizers, state) = load(&path, &mut [("student", &mut vs)]).unwrap();
+        assert_eq!((state.epochs_done, state.steps_done), (1, 3));
+        assert_eq!(
+            Vec::<f32>::try_from(vs.variables()["fc.bias"].shallow_clone()).unwrap(),
+            vec![0.5, -0.5]
+        );
+        assert_eq!(
+            optimizers["student"].keys().collect::<Vec<_>>(),
+            vec!["momentum/fc.bias"]
+        );
+        let mut critic = VarStore::new(Device::Cpu);
+        let _ = nn::linear(critic.root() / "fc", 3, 2, Default::default());
+        let err = load(&path, &mut [("critic", &mut critic)]).unwrap_err();
+        assert!(err.to_string().contains("critic"), "{err}");
     }
 }

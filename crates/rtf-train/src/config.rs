@@ -7,6 +7,7 @@ use rtf_models::ModelConfig;
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TrainConfig {
     pub model: ModelConfig,
     pub dataset: DatasetConfig,
@@ -32,6 +33,273 @@ pub struct TrainConfig {
     /// the first step (RTFNet and the ResNet-based baselines).
     #[serde(default)]
     pub backbone_weights: Option<PathBuf>,
+    /// How the network learns (HeatNet §III-A); supervised for configs written before there
+    /// was a choice.
+    #[serde(default)]
+    pub procedure: Procedure,
+    /// Which input channels the trained network sees (the others are zeroed): RGB-only and
+    /// thermal-only variants of any network (HeatNet Tab. II V1, V2; the RGB teacher).
+    #[serde(default)]
+    pub inputs: Modality,
+    /// Weights the network starts from (a stage's fine-tuning: HeatNet's second stage).
+    #[serde(default)]
+    pub init_from: Option<WeightsRef>,
+    /// The validation score that picks `best.safetensors`; None = the dataset's usual one
+    /// (HeatNet's day/night mIoU on Freiburg, mIoU on MF).
+    #[serde(default)]
+    pub select_by: Option<SelectMetric>,
+}
+
+/// Which input channels a network sees; the others are set to 0 in the network's input space
+/// (after its input convention). Works with any network, so the unimodal variants of the
+/// papers can be trained with a light network on a CPU budget.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Modality {
+    #[default]
+    RgbT,
+    Rgb,
+    Thermal,
+}
+
+impl Modality {
+    pub fn name(self) -> &'static str {
+        match self {
+            Modality::RgbT => "rgb_t",
+            Modality::Rgb => "rgb",
+            Modality::Thermal => "thermal",
+        }
+    }
+
+    pub fn parse(text: &str) -> Result<Self, String> {
+        match text {
+            "rgb_t" | "rgbt" | "rgb-t" => Ok(Modality::RgbT),
+            "rgb" => Ok(Modality::Rgb),
+            "thermal" | "ir" => Ok(Modality::Thermal),
+            other => Err(format!(
+                "unknown inputs `{other}` (expected rgb_t, rgb or thermal)"
+            )),
+        }
+    }
+
+    /// `x` [B, 4, H, W] with the channels this modality does not see set to 0.
+    pub fn apply(self, x: &tch::Tensor) -> tch::Tensor {
+        let (keep_rgb, keep_t) = match self {
+            Modality::RgbT => return x.shallow_clone(),
+            Modality::Rgb => (1.0, 0.0),
+            Modality::Thermal => (0.0, 1.0),
+        };
+        let mask = tch::Tensor::from_slice(&[keep_rgb, keep_rgb, keep_rgb, keep_t])
+            .to_kind(x.kind())
+            .to_device(x.device())
+            .view([1, 4, 1, 1]);
+        x * mask
+    }
+}
+
+/// How a network learns.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Procedure {
+    /// Cross-entropy on the dataset's labels (MFNet, RTFNet; the RGB teacher on labelled days).
+    #[default]
+    Supervised,
+    /// HeatNet eq. 1: the student learns from a frozen teacher's labels of day frames and,
+    /// with a night teacher, from its labels of night frames (stage 1 of two-stage training;
+    /// the thermal teacher; RGB-T → RGB distillation). No dataset label is read.
+    TeacherStudent {
+        day_teacher: TeacherRef,
+        #[serde(default)]
+        night_teacher: Option<TeacherRef>,
+        #[serde(default)]
+        targets: TargetOptions,
+    },
+    /// HeatNet eq. 2–3: teacher labels by day plus a day/night critic on the student's night
+    /// outputs, alternating critic and segmentation steps. No dataset label is read.
+    Adversarial {
+        day_teacher: TeacherRef,
+        /// The published code's best configuration also keeps a night teacher, whose
+        /// confidence weights its cross-entropy and the adversarial term per pixel.
+        #[serde(default)]
+        night_teacher: Option<TeacherRef>,
+        #[serde(default)]
+        targets: TargetOptions,
+        #[serde(default)]
+        critic: CriticOptions,
+    },
+}
+
+impl Procedure {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Procedure::Supervised => "supervised",
+            Procedure::TeacherStudent { .. } => "teacher_student",
+            Procedure::Adversarial { .. } => "adversarial",
+        }
+    }
+
+    /// Whether the procedure reads the dataset's training labels.
+    pub fn reads_labels(&self) -> bool {
+        matches!(self, Procedure::Supervised)
+    }
+
+    /// Whether the procedure needs a stream of night frames.
+    pub fn uses_night(&self) -> bool {
+        match self {
+            Procedure::Supervised => false,
+            Procedure::TeacherStudent { night_teacher, .. } => night_teacher.is_some(),
+            Procedure::Adversarial { .. } => true,
+        }
+    }
+
+    /// Every teacher the procedure names.
+    pub fn teachers(&self) -> Vec<&TeacherRef> {
+        match self {
+            Procedure::Supervised => vec![],
+            Procedure::TeacherStudent {
+                day_teacher,
+                night_teacher,
+                ..
+            }
+            | Procedure::Adversarial {
+                day_teacher,
+                night_teacher,
+                ..
+            } => std::iter::once(day_teacher)
+                .chain(night_teacher.as_ref())
+                .collect(),
+        }
+    }
+
+    pub(crate) fn teachers_mut(&mut self) -> Vec<&mut TeacherRef> {
+        match self {
+            Procedure::Supervised => vec![],
+            Procedure::TeacherStudent {
+                day_teacher,
+                night_teacher,
+                ..
+            }
+            | Procedure::Adversarial {
+                day_teacher,
+                night_teacher,
+                ..
+            } => std::iter::once(day_teacher)
+                .chain(night_teacher.as_mut())
+                .collect(),
+        }
+    }
+}
+
+/// A frozen network that labels frames: an earlier stage of the same run, or a weights file
+/// with the network it belongs to.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum TeacherRef {
+    /// The selected (best, else final) weights of an earlier stage, by stage name.
+    Stage(String),
+    Weights {
+        path: PathBuf,
+        model: ModelConfig,
+        #[serde(default)]
+        inputs: Modality,
+    },
+}
+
+/// Weights a network starts from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum WeightsRef {
+    /// The final weights of an earlier stage, by stage name.
+    Stage(String),
+    File(PathBuf),
+}
+
+/// How a teacher's output becomes the student's target.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetOptions {
+    /// Pixels whose teacher confidence (max softmax) is below this are ignored.
+    #[serde(default)]
+    pub threshold: Option<f64>,
+    /// Learn the teacher's softmax (soft cross-entropy) instead of its arg-max.
+    #[serde(default)]
+    pub soft: bool,
+}
+
+/// What the critic reads (paper: the softmax; published code: raw logits).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CriticInput {
+    #[default]
+    Softmax,
+    Logits,
+}
+
+/// The critic and the adversarial term (HeatNet eq. 2–3, spec §5).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CriticOptions {
+    /// λ of eq. 3 (paper: 0.01).
+    #[serde(default = "lambda_paper")]
+    pub lambda: f64,
+    #[serde(default)]
+    pub input: CriticInput,
+    /// Published code's `--multidir`: a second term pushes day outputs toward the night target.
+    #[serde(default)]
+    pub multidir: bool,
+    /// Weight the adversarial term per pixel by (1 − night-teacher confidence) (published
+    /// code; needs a night teacher).
+    #[serde(default)]
+    pub confidence_weighting: bool,
+    /// Critic steps per segmentation step (paper: 1).
+    #[serde(default = "one")]
+    pub steps: usize,
+    /// The critic's own optimiser (paper: RMSprop 1e-4, halved every 30 epochs).
+    #[serde(default = "OptimizerConfig::heatnet_paper")]
+    pub optimizer: OptimizerConfig,
+}
+
+fn lambda_paper() -> f64 {
+    0.01
+}
+
+impl Default for CriticOptions {
+    fn default() -> Self {
+        Self {
+            lambda: lambda_paper(),
+            input: CriticInput::default(),
+            multidir: false,
+            confidence_weighting: false,
+            steps: 1,
+            optimizer: OptimizerConfig::heatnet_paper(),
+        }
+    }
+}
+
+/// The validation score that picks `best.safetensors`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SelectMetric {
+    /// mIoU over all validation frames (RTFNet convention).
+    Miou,
+    /// Mean of the day and night mIoU (RTFNet convention each).
+    DayNightMiou,
+    /// HeatNet's convention (classes 0–11, undefined skipped), mean of day and night.
+    HeatnetMiou,
+    DayMiou,
+    NightMiou,
+}
+
+impl SelectMetric {
+    pub fn name(self) -> &'static str {
+        match self {
+            SelectMetric::Miou => "miou",
+            SelectMetric::DayNightMiou => "day_night_miou",
+            SelectMetric::HeatnetMiou => "heatnet_miou",
+            SelectMetric::DayMiou => "day_miou",
+            SelectMetric::NightMiou => "night_miou",
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -88,6 +356,7 @@ pub enum OptimizerKind {
 /// Optimiser and learning-rate schedule: the rate is multiplied by `lr_decay` every
 /// `decay_every` epochs (MFNet: ×0.94 every epoch; HeatNet: ×0.5 every 30).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct OptimizerConfig {
     #[serde(default)]
     pub kind: OptimizerKind,
@@ -157,7 +426,276 @@ pub enum LossConfig {
     CrossEntropy { class_weights: Option<Vec<f64>> },
 }
 
+/// A run of several stages, each an ordinary run folder `RUN/<name>/` (HeatNet's teachers,
+/// two-stage training, distillation). A later stage names earlier ones as teachers or as
+/// its starting weights; a resumed run skips finished stages.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PipelineConfig {
+    /// The recipe it was made from, if any (`rtf recipes`).
+    #[serde(default)]
+    pub recipe: Option<String>,
+    pub stages: Vec<StageConfig>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageConfig {
+    /// Folder name under the run folder (letters, digits, `-`, `_`).
+    pub name: String,
+    pub config: TrainConfig,
+}
+
+/// What a run folder's `config.json` holds: one training, or a pipeline of stages.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunConfig {
+    Single(Box<TrainConfig>),
+    Pipeline(PipelineConfig),
+}
+
+impl Serialize for RunConfig {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            RunConfig::Single(c) => c.serialize(s),
+            RunConfig::Pipeline(p) => p.serialize(s),
+        }
+    }
+}
+
+impl RunConfig {
+    /// Parses JSON or YAML text; a document with `stages` is a pipeline. Errors name the field.
+    pub fn parse(text: &str, yaml: bool) -> Result<Self, String> {
+        let value: serde_json::Value = if yaml {
+            serde_yaml_ng::from_str(text).map_err(|e| e.to_string())?
+        } else {
+            serde_json::from_str(text).map_err(|e| e.to_string())?
+        };
+        let is_pipeline = value.get("stages").is_some();
+        if is_pipeline {
+            serde_json::from_value(value)
+                .map(RunConfig::Pipeline)
+                .map_err(|e| e.to_string())
+        } else {
+            serde_json::from_value(value)
+                .map(|c| RunConfig::Single(Box::new(c)))
+                .map_err(|e| e.to_string())
+        }
+    }
+
+    /// Every stage with its name (a single training is one stage named "").
+    pub fn stages(&self) -> Vec<(&str, &TrainConfig)> {
+        match self {
+            RunConfig::Single(c) => vec![("", c)],
+            RunConfig::Pipeline(p) => p
+                .stages
+                .iter()
+                .map(|s| (s.name.as_str(), &s.config))
+                .collect(),
+        }
+    }
+
+    pub fn stages_mut(&mut self) -> Vec<&mut TrainConfig> {
+        match self {
+            RunConfig::Single(c) => vec![c],
+            RunConfig::Pipeline(p) => p.stages.iter_mut().map(|s| &mut s.config).collect(),
+        }
+    }
+
+    /// The network the run ends with (the last stage's).
+    pub fn final_model(&self) -> &ModelConfig {
+        &self.stages().last().expect("a run has a stage").1.model
+    }
+
+    /// Every check of [`TrainConfig::validate`] per stage, plus stage names and references
+    /// (a stage names only earlier stages).
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let stages = self.stages();
+        if stages.is_empty() {
+            return Err(ConfigError::field(
+                "stages",
+                "a pipeline needs at least one stage",
+            ));
+        }
+        for (i, (name, cfg)) in stages.iter().enumerate() {
+            let at = |field: &str| match name.is_empty() {
+                true => field.to_string(),
+                false => format!("stages[{i}] ({name}).{field}"),
+            };
+            if let RunConfig::Pipeline(_) = self {
+                let ok = !name.is_empty()
+                    && name
+                        .chars()
+                        .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_');
+                if !ok {
+                    return Err(ConfigError::field(
+                        &at("name"),
+                        "a stage name is letters, digits, '-' or '_'",
+                    ));
+                }
+                if stages[..i].iter().any(|(n, _)| n == name) {
+                    return Err(ConfigError::field(
+                        &at("name"),
+                        "two stages share this name",
+                    ));
+                }
+            }
+            cfg.validate().map_err(|e| ConfigError {
+                field: at(&e.field),
+                message: e.message,
+            })?;
+            let earlier: Vec<&str> = stages[..i].iter().map(|(n, _)| *n).collect();
+            let check_stage = |field: &str, stage: &str| {
+                if earlier.contains(&stage) {
+                    Ok(())
+                } else {
+                    Err(ConfigError::field(
+                        &at(field),
+                        &format!(
+                            "names stage `{stage}`, which is not an earlier stage of this run (earlier: {})",
+                            if earlier.is_empty() { "none".to_string() } else { earlier.join(", ") }
+                        ),
+                    ))
+                }
+            };
+            for teacher in cfg.procedure.teachers() {
+                if let TeacherRef::Stage(stage) = teacher {
+                    check_stage("procedure (teacher)", stage)?;
+                }
+            }
+            if let Some(WeightsRef::Stage(stage)) = &cfg.init_from {
+                check_stage("init_from", stage)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A configuration value that cannot work, with the field it is in.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{field}: {message}")]
+pub struct ConfigError {
+    pub field: String,
+    pub message: String,
+}
+
+impl ConfigError {
+    pub fn field(field: &str, message: &str) -> Self {
+        Self {
+            field: field.to_string(),
+            message: message.to_string(),
+        }
+    }
+}
+
+impl OptimizerConfig {
+    /// Values the update rules can work with; `prefix` names the field in errors.
+    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        let bad = |field: &str, message: String| {
+            Err(ConfigError {
+                field: format!("{prefix}.{field}"),
+                message,
+            })
+        };
+        if !(self.lr.is_finite() && self.lr > 0.0) {
+            return bad("lr", format!("must be a positive number, got {}", self.lr));
+        }
+        if !(self.momentum.is_finite() && (0.0..1.0).contains(&self.momentum)) {
+            return bad(
+                "momentum",
+                format!("must be in [0, 1), got {}", self.momentum),
+            );
+        }
+        if !(self.weight_decay.is_finite() && self.weight_decay >= 0.0) {
+            return bad(
+                "weight_decay",
+                format!("must be ≥ 0, got {}", self.weight_decay),
+            );
+        }
+        if !(self.lr_decay.is_finite() && self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
+            return bad(
+                "lr_decay",
+                format!("must be in (0, 1], got {}", self.lr_decay),
+            );
+        }
+        if self.decay_every == 0 {
+            return bad("decay_every", "must be at least 1".into());
+        }
+        if !(self.alpha.is_finite() && self.alpha > 0.0 && self.alpha < 1.0) {
+            return bad("alpha", format!("must be in (0, 1), got {}", self.alpha));
+        }
+        if !(self.eps.is_finite() && self.eps > 0.0) {
+            return bad("eps", format!("must be > 0, got {}", self.eps));
+        }
+        Ok(())
+    }
+}
+
 impl TrainConfig {
+    /// Every value checked in one place: flags, `--config` files and edited `config.json`s of
+    /// resumed runs all pass here before anything is written. Errors name the field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let positive = |field: &str, v: usize| match v {
+            0 => Err(ConfigError::field(field, "must be at least 1")),
+            _ => Ok(()),
+        };
+        positive("epochs", self.epochs)?;
+        positive("batch_size", self.batch_size)?;
+        if let Some(steps) = self.max_steps_per_epoch {
+            positive("max_steps_per_epoch", steps)?;
+        }
+        if let Some(every) = self.checkpoint_every {
+            positive("checkpoint_every", every)?;
+        }
+        if let Some((w, h)) = self.resize {
+            if w == 0 || h == 0 {
+                return Err(ConfigError::field("resize", "width and height must be ≥ 1"));
+            }
+        }
+        parse_device(&self.device).map_err(|m| ConfigError::field("device", &m))?;
+        self.optimizer.validate("optimizer")?;
+        let LossConfig::CrossEntropy { class_weights } = &self.loss;
+        if let Some(w) = class_weights {
+            if w.len() as i64 != self.model.num_classes()
+                || w.iter().any(|v| !(v.is_finite() && *v >= 0.0))
+            {
+                return Err(ConfigError::field(
+                    "loss.class_weights",
+                    &format!(
+                        "needs {} finite values ≥ 0 (one per class), got {w:?}",
+                        self.model.num_classes()
+                    ),
+                ));
+            }
+        }
+        match &self.procedure {
+            Procedure::Supervised => {}
+            Procedure::TeacherStudent { targets, .. } => targets.validate()?,
+            Procedure::Adversarial {
+                targets,
+                critic,
+                night_teacher,
+                ..
+            } => {
+                targets.validate()?;
+                if !(critic.lambda.is_finite() && critic.lambda >= 0.0) {
+                    return Err(ConfigError::field(
+                        "procedure.critic.lambda",
+                        &format!("must be ≥ 0, got {}", critic.lambda),
+                    ));
+                }
+                positive("procedure.critic.steps", critic.steps)?;
+                critic.optimizer.validate("procedure.critic.optimizer")?;
+                if critic.confidence_weighting && night_teacher.is_none() {
+                    return Err(ConfigError::field(
+                        "procedure.critic.confidence_weighting",
+                        "weights by the night teacher's confidence: set procedure.night_teacher",
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// MFNet paper's recipe on an MF-layout dataset (spec §3): 80 epochs, batch 6, SGD ×0.94,
     /// horizontal flips.
     pub fn mfnet_paper(root: PathBuf) -> Self {
@@ -185,12 +723,28 @@ impl TrainConfig {
             workers: 2,
             device: "cpu".into(),
             backbone_weights: None,
+            procedure: Procedure::Supervised,
+            inputs: Modality::RgbT,
+            init_from: None,
+            select_by: None,
         }
     }
 
     /// The configured device, checked to exist on this machine.
     pub fn device(&self) -> Result<tch::Device, String> {
         available_device(&self.device)
+    }
+}
+
+impl TargetOptions {
+    fn validate(&self) -> Result<(), ConfigError> {
+        match self.threshold {
+            Some(t) if !(t.is_finite() && (0.0..1.0).contains(&t)) => Err(ConfigError::field(
+                "procedure.targets.threshold",
+                &format!("must be in [0, 1), got {t}"),
+            )),
+            _ => Ok(()),
+        }
     }
 }
 

@@ -1,14 +1,24 @@
-//! rtf-train: one supervised training loop for any network and loss, writing a run folder
-//! (config before the first step, a JSON-lines log, atomic checkpoints) that `--resume`
-//! continues exactly.
+//! rtf-train: every training procedure of the three papers on one training core. The loop
+//! mechanics live once ([`trainer`]); each procedure is a step body over the networks it trains
+//! ([`procedure`]); a run of several stages (HeatNet's teachers, two-stage training,
+//! distillation) is a pipeline of ordinary runs ([`pipeline`]); the papers' recipes are data
+//! ([`recipe`]). Every run folder has its full config before the first step, a JSON-lines log,
+//! atomic checkpoints, and `--resume` continues it exactly.
 
 pub mod checkpoint;
 pub mod config;
 pub mod loss;
 pub mod optim;
+pub mod pipeline;
+pub mod procedure;
+pub mod recipe;
+pub mod run;
 pub mod trainer;
 
-pub use config::{DatasetConfig, LossConfig, OptimizerConfig, OptimizerKind, TrainConfig};
+pub use config::{
+    DatasetConfig, LossConfig, Modality, OptimizerConfig, OptimizerKind, PipelineConfig, Procedure,
+    RunConfig, TrainConfig,
+};
 pub use loss::Loss;
 pub use optim::Optimizer;
 pub use trainer::{train, EpochRecord, TrainError, TrainOutcome};

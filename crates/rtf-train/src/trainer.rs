@@ -1,26 +1,29 @@
-//! The supervised training loop. A run folder holds:
-//! `config.json` (written before the first step), `log.jsonl` (one record per epoch),
-//! `checkpoint.safetensors` (weights + optimiser + state, after every epoch), `best.safetensors`
-//! (best validation mIoU) and `final.safetensors` (weights, reference names).
+//! The training loop, written once for every procedure: epochs and steps, libtorch reseeded
+//! per step, mid-epoch checkpoints, Ctrl-C, validation, logging, best/final weights. What a
+//! step does is the procedure's ([`crate::procedure`]). The run folder is described in
+//! [`crate::run`].
 
-use std::io::Write;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
+use rtf_core::Daytime;
+use rtf_data::frame::Subset;
 use rtf_data::{
     DataError, FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset,
 };
-use rtf_eval::{EvalError, EvalOptions};
-use rtf_models::ModelError;
+use rtf_eval::{EvalError, EvalOptions, EvalReport};
+use rtf_models::{ModelError, Network};
 use serde::{Deserialize, Serialize};
-use tch::nn::VarStore;
 
-use crate::checkpoint::{self, CheckpointError, PartialEpoch, TrainState};
-use crate::config::{DatasetConfig, TrainConfig};
-use crate::optim::Optimizer;
+use crate::checkpoint::{self, CheckpointError, Part, PartialEpoch, TrainState};
+use crate::config::{ConfigError, DatasetConfig, SelectMetric, TrainConfig, WeightsRef};
+use crate::procedure::{self, Procedure, StepBatches};
+use crate::run::{self as rundir, run_error};
+pub use crate::run::{BEST_FILE, CHECKPOINT_FILE, CONFIG_FILE, FINAL_FILE, LOG_FILE};
 
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
@@ -36,15 +39,50 @@ pub enum TrainError {
     Run { path: PathBuf, message: String },
     #[error("{0}")]
     Config(String),
-    #[error("training diverged at epoch {epoch}, step {step}: loss is {loss}")]
-    Diverged { epoch: usize, step: u64, loss: f64 },
+    #[error("invalid configuration: {0}")]
+    Invalid(#[from] ConfigError),
+    #[error("training diverged at epoch {epoch}, step {step}: {what}")]
+    Diverged {
+        epoch: usize,
+        step: u64,
+        what: String,
+    },
+}
+
+/// Validation scores of one epoch (percent-free fractions like every score of rtf-eval).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ValRecord {
+    pub miou: f64,
+    pub macc: f64,
+    #[serde(default)]
+    pub miou_day: Option<f64>,
+    #[serde(default)]
+    pub miou_night: Option<f64>,
+    /// HeatNet's convention (Freiburg only): day, night and their mean.
+    #[serde(default)]
+    pub miou_heatnet_day: Option<f64>,
+    #[serde(default)]
+    pub miou_heatnet_night: Option<f64>,
+    #[serde(default)]
+    pub miou_heatnet: Option<f64>,
+    #[serde(default)]
+    pub per_class_iou: BTreeMap<String, Option<f64>>,
+    #[serde(default)]
+    pub per_class_iou_day: BTreeMap<String, Option<f64>>,
+    #[serde(default)]
+    pub per_class_iou_night: BTreeMap<String, Option<f64>>,
+    /// The score that picks `best.safetensors`, and its value.
+    pub selected_by: String,
+    pub selected: f64,
 }
 
 /// What one epoch did (a line of `log.jsonl`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EpochRecord {
     pub epoch: usize,
+    /// The student's learning rate.
     pub lr: f64,
+    /// Mean of the student's objective over the epoch's steps.
     pub train_loss: f64,
     pub images: usize,
     pub seconds: f64,
@@ -53,6 +91,17 @@ pub struct EpochRecord {
     pub data_wait_fraction: f64,
     pub val_miou: Option<f64>,
     pub val_macc: Option<f64>,
+    /// Every loss term by name, mean over the epoch's steps.
+    #[serde(default)]
+    pub losses: BTreeMap<String, f64>,
+    /// Learning rate of every trained network, by role.
+    #[serde(default)]
+    pub lrs: BTreeMap<String, f64>,
+    /// Training metrics (the critic's day / night accuracy), mean over the epoch's steps.
+    #[serde(default)]
+    pub metrics: BTreeMap<String, f64>,
+    #[serde(default)]
+    pub val: Option<ValRecord>,
 }
 
 #[derive(Debug, Clone)]
@@ -65,51 +114,49 @@ pub struct TrainOutcome {
     pub state: TrainState,
 }
 
-pub const CONFIG_FILE: &str = "config.json";
-pub const LOG_FILE: &str = "log.jsonl";
-pub const CHECKPOINT_FILE: &str = "checkpoint.safetensors";
-pub const BEST_FILE: &str = "best.safetensors";
-pub const FINAL_FILE: &str = "final.safetensors";
-
-fn run_error(path: &Path, message: impl Into<String>) -> TrainError {
-    TrainError::Run {
-        path: path.to_path_buf(),
-        message: message.into(),
-    }
-}
-
-/// Reads the configuration of an existing run (for `--resume`).
-pub fn read_config(run_dir: &Path) -> Result<TrainConfig, TrainError> {
+/// Reads the configuration of an existing run (for `--resume`), checked.
+pub fn read_config(run_dir: &Path) -> Result<crate::config::RunConfig, TrainError> {
     let path = run_dir.join(CONFIG_FILE);
     let text = std::fs::read_to_string(&path)
         .map_err(|e| run_error(&path, format!("cannot read: {e}")))?;
-    serde_json::from_str(&text).map_err(|e| run_error(&path, format!("not a training config: {e}")))
-}
-
-fn write_config(run_dir: &Path, cfg: &TrainConfig) -> Result<(), TrainError> {
-    let path = run_dir.join(CONFIG_FILE);
-    let json = serde_json::to_string_pretty(cfg).expect("config serialises");
-    rtf_core::write_bytes_atomic(&path, json.as_bytes())
-        .map_err(|e| run_error(&path, e.to_string()))
+    let cfg = crate::config::RunConfig::parse(&text, false)
+        .map_err(|e| run_error(&path, format!("not a training config: {e}")))?;
+    cfg.validate()
+        .map_err(|e| run_error(&path, format!("invalid value: {e}")))?;
+    Ok(cfg)
 }
 
 type Source = Arc<dyn FrameSource>;
 
-/// The training split and, if configured, the validation split.
-fn open_split(dataset: &DatasetConfig) -> Result<(Source, Option<Source>), TrainError> {
-    match dataset {
+/// Where a run's frames come from: the main stream (labelled frames for supervised training,
+/// day frames for the label-free procedures), the night stream if the procedure uses one, and
+/// validation (never the test split).
+struct Sources {
+    main: Source,
+    night: Option<Source>,
+    val: Option<Source>,
+    ignore_id: Option<u8>,
+    freiburg: bool,
+}
+
+fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
+    let labels = cfg.procedure.reads_labels();
+    let (train, val, freiburg): (Source, Option<Source>, bool) = match &cfg.dataset {
         DatasetConfig::Mf {
             root,
             train_split,
             val_split,
         } => {
             let mf = MfDataset::open(root)?;
-            let train: Arc<dyn FrameSource> = Arc::new(mf.split(train_split)?);
+            let train: Source = match labels {
+                true => Arc::new(mf.split(train_split)?),
+                false => Arc::new(mf.split_images_only(train_split)?),
+            };
             let val = match val_split {
-                Some(name) => Some(Arc::new(mf.split(name)?) as Arc<dyn FrameSource>),
+                Some(name) => Some(Arc::new(mf.split(name)?) as Source),
                 None => None,
             };
-            Ok((train, val))
+            (train, val, false)
         }
         DatasetConfig::Freiburg {
             root,
@@ -117,37 +164,154 @@ fn open_split(dataset: &DatasetConfig) -> Result<(Source, Option<Source>), Train
             val_preprocess,
             validate,
         } => {
-            let train = FreiburgSplit::open(root, train_preprocess.clone())?
-                .part(FreiburgPart::TrainTree)
-                .filter(|_, _, labelled| labelled);
+            let tree =
+                FreiburgSplit::open(root, train_preprocess.clone())?.part(FreiburgPart::TrainTree);
+            let train = match labels {
+                true => tree.filter(|_, _, labelled| labelled),
+                false => tree,
+            };
             if train.is_empty() {
                 return Err(run_error(
                     root,
-                    "no labelled frames in a Freiburg training tree (<run>/<seq>/fl_rgb + fl_rgb_labels)",
+                    match labels {
+                        true => "no labelled frames in a Freiburg training tree (<run>/<seq>/fl_rgb + fl_rgb_labels)",
+                        false => "no frames in a Freiburg training tree (<run>/<seq>/fl_rgb)",
+                    },
                 ));
             }
-            let val = if *validate {
-                Some(
+            let val = match validate {
+                true => Some(
                     FreiburgSplit::open(root, val_preprocess.clone())?
-                        .part(FreiburgPart::TestLayout)
+                        .part(FreiburgPart::Validation)
                         .filter(|_, _, labelled| labelled),
-                )
-            } else {
-                None
-            };
-            let val = val
-                .filter(|v| !v.is_empty())
-                .map(|v| Arc::new(v) as Arc<dyn FrameSource>);
-            Ok((Arc::new(train), val))
+                ),
+                false => None,
+            }
+            .filter(|v| !v.is_empty())
+            .map(|v| Arc::new(v) as Source);
+            (Arc::new(train), val, true)
         }
+    };
+    let ignore_id = train.class_set().ignore_id;
+    if labels {
+        return Ok(Sources {
+            main: train,
+            night: None,
+            val,
+            ignore_id,
+            freiburg,
+        });
+    }
+    let day: Source = Arc::new(Subset::of_daytime(train.clone(), Daytime::Day, false));
+    if day.is_empty() {
+        return Err(TrainError::Config(
+            "the training frames hold no day frame (MF: names ending in D; Freiburg: paths without `night`)".into(),
+        ));
+    }
+    let night = match cfg.procedure.uses_night() {
+        true => {
+            let night: Source = Arc::new(Subset::of_daytime(train, Daytime::Night, false));
+            if night.is_empty() {
+                return Err(TrainError::Config(format!(
+                    "the {} procedure needs night frames; the training frames hold none",
+                    cfg.procedure.name()
+                )));
+            }
+            Some(night)
+        }
+        false => None,
+    };
+    Ok(Sources {
+        main: day,
+        night,
+        val,
+        ignore_id,
+        freiburg,
+    })
+}
+
+fn loader(
+    cfg: &TrainConfig,
+    source: Source,
+    seed: u64,
+    input: rtf_core::InputConvention,
+) -> Loader {
+    Loader::new(
+        source,
+        LoaderConfig {
+            batch_size: cfg.batch_size,
+            shuffle: true,
+            drop_last: false,
+            seed,
+            workers: cfg.workers,
+            prefetch: 2,
+            augment: cfg.augment.clone(),
+            resize: cfg.resize,
+        },
+        input,
+    )
+}
+
+/// The default selection metric of a dataset: HeatNet's day/night mIoU on Freiburg, mIoU on MF.
+pub fn default_select_metric(dataset: &DatasetConfig) -> SelectMetric {
+    match dataset {
+        DatasetConfig::Freiburg { .. } => SelectMetric::HeatnetMiou,
+        DatasetConfig::Mf { .. } => SelectMetric::Miou,
     }
 }
 
-/// Trains `cfg` into `run_dir`. With `resume`, continues from `run_dir/checkpoint.safetensors`
-/// (weights, optimiser state, epoch and, for a mid-epoch checkpoint, the batch; data order and
-/// augmentation depend only on (seed, epoch), and libtorch's generator is reseeded from (seed,
-/// epoch, batch) before every step, so the continuation equals an uninterrupted run).
-/// `on_epoch` sees each epoch's record as it is logged.
+fn per_class(scores: &rtf_eval::metrics::Scores) -> BTreeMap<String, Option<f64>> {
+    scores
+        .per_class
+        .iter()
+        .map(|c| (c.name.clone(), c.iou))
+        .collect()
+}
+
+fn mean_of(values: &[Option<f64>]) -> Option<f64> {
+    let v: Vec<f64> = values.iter().flatten().copied().collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// The epoch's validation record from an evaluation report.
+pub fn val_record(report: &EvalReport, freiburg: bool, select: SelectMetric) -> ValRecord {
+    let classes = rtf_eval::metrics::HEATNET_MIOU_CLASSES;
+    let heatnet = |s: &Option<rtf_eval::metrics::Scores>| {
+        s.as_ref()
+            .filter(|_| freiburg)
+            .and_then(|s| s.miou_heatnet(classes))
+    };
+    let (miou_day, miou_night) = (
+        report.day.as_ref().map(|s| s.miou),
+        report.night.as_ref().map(|s| s.miou),
+    );
+    let (h_day, h_night) = (heatnet(&report.day), heatnet(&report.night));
+    let miou_heatnet = mean_of(&[h_day, h_night]);
+    let selected = match select {
+        SelectMetric::Miou => Some(report.all.miou),
+        SelectMetric::DayNightMiou => mean_of(&[miou_day, miou_night]),
+        SelectMetric::HeatnetMiou => miou_heatnet,
+        SelectMetric::DayMiou => miou_day,
+        SelectMetric::NightMiou => miou_night,
+    };
+    ValRecord {
+        miou: report.all.miou,
+        macc: report.all.macc,
+        miou_day,
+        miou_night,
+        miou_heatnet_day: h_day,
+        miou_heatnet_night: h_night,
+        miou_heatnet,
+        per_class_iou: per_class(&report.all),
+        per_class_iou_day: report.day.as_ref().map(per_class).unwrap_or_default(),
+        per_class_iou_night: report.night.as_ref().map(per_class).unwrap_or_default(),
+        selected_by: select.name().to_string(),
+        // A metric the validation frames cannot give (no night frame) falls back to mIoU.
+        selected: selected.unwrap_or(report.all.miou),
+    }
+}
+
+/// [`train_until`] that runs to the end.
 pub fn train(
     cfg: &TrainConfig,
     run_dir: &Path,
@@ -157,8 +321,12 @@ pub fn train(
     train_until(cfg, run_dir, resume, on_epoch, &AtomicBool::new(false))
 }
 
-/// [`train`] that stops cleanly once `stop` is set (e.g. by Ctrl-C): it finishes the step in
-/// flight, writes a mid-epoch checkpoint and returns with `final_weights` None.
+/// Trains `cfg` into `run_dir`. With `resume`, continues from its checkpoint (every trained
+/// network, optimiser state, epoch and, for a mid-epoch checkpoint, the batch; data order and
+/// augmentation depend only on (seed, stream, epoch), and libtorch's generator is reseeded from
+/// (seed, epoch, batch) before every step, so the continuation equals an uninterrupted run).
+/// Stops cleanly once `stop` is set (Ctrl-C, SIGTERM): it finishes the step in flight, writes a
+/// mid-epoch checkpoint and returns with `final_weights` None.
 pub fn train_until(
     cfg: &TrainConfig,
     run_dir: &Path,
@@ -166,27 +334,36 @@ pub fn train_until(
     on_epoch: &mut dyn FnMut(&EpochRecord),
     stop: &AtomicBool,
 ) -> Result<TrainOutcome, TrainError> {
-    if cfg.batch_size == 0 || cfg.epochs == 0 {
-        return Err(TrainError::Config(
-            "batch size and epochs must be at least 1".into(),
-        ));
-    }
+    cfg.validate()?;
     let device = cfg.device().map_err(TrainError::Config)?;
     let checkpoint_path = run_dir.join(CHECKPOINT_FILE);
-    if !resume && checkpoint_path.exists() {
+    if !resume && rundir::holds_run(run_dir) {
         return Err(run_error(
             run_dir,
             "already holds a run; use --resume to continue it or choose another output folder",
         ));
     }
-    if resume && !checkpoint_path.exists() {
-        return Err(run_error(&checkpoint_path, "no checkpoint to resume from"));
-    }
+    procedure::check_teachers(cfg)?;
     std::fs::create_dir_all(run_dir)
         .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
+    let _lock = rundir::RunLock::acquire(run_dir)?;
+    rundir::remove_orphan_temp_files(run_dir);
+    // A resume of a run killed before its first checkpoint starts it over.
+    let resume = resume && checkpoint_path.exists();
+    if resume {
+        let saved = checkpoint::read_state(&checkpoint_path)?;
+        if cfg.epochs < saved.epochs_done {
+            return Err(TrainError::Config(format!(
+                "{}: the run has done {} epochs; --epochs {} would end it before where it stands",
+                run_dir.display(),
+                saved.epochs_done,
+                cfg.epochs
+            )));
+        }
+    }
 
-    let (train_source, val_source) = open_split(&cfg.dataset)?;
-    let classes = train_source.class_set().clone();
+    let sources = open_sources(cfg)?;
+    let classes = sources.main.class_set().clone();
     if classes.len() as i64 != cfg.model.num_classes() {
         return Err(TrainError::Config(format!(
             "the dataset has {} classes but the model is configured for {}",
@@ -194,43 +371,63 @@ pub fn train_until(
             cfg.model.num_classes()
         )));
     }
-    write_config(run_dir, cfg)?;
+    procedure::check_teachers(cfg)?;
+    rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), cfg)?;
 
     tch::manual_seed(cfg.seed as i64);
-    let mut vs = VarStore::new(device);
-    let network = rtf_models::build(&vs.root(), &cfg.model)?;
-    let mut optimizer = Optimizer::new(&cfg.optimizer);
+    let mut procedure = procedure::build(cfg, sources.ignore_id, device)?;
     let mut state = TrainState {
         epochs_done: 0,
         steps_done: 0,
         best_val_miou: None,
         partial: None,
+        records: Vec::new(),
     };
     if resume {
-        let (optimizer_state, saved) = checkpoint::load(&checkpoint_path, &mut vs)?;
-        optimizer.set_state(optimizer_state);
+        let mut trained = procedure.trained_mut();
+        let mut parts: Vec<(&str, &mut tch::nn::VarStore)> =
+            trained.iter_mut().map(|t| (t.role, &mut t.vs)).collect();
+        let (mut optimizers, saved) = checkpoint::load(&checkpoint_path, &mut parts)?;
+        drop(parts);
+        for t in trained.iter_mut() {
+            t.optimizer
+                .set_state(optimizers.remove(t.role).unwrap_or_default());
+        }
         state = saved;
-    } else if let Some(path) = &cfg.backbone_weights {
-        rtf_models::backbone::load_backbone_weights(&mut vs, &cfg.model, path)?;
+        rundir::rewrite_log(run_dir, &state.records)?;
+    } else {
+        let _ = std::fs::remove_file(run_dir.join(LOG_FILE));
+        let student = &mut procedure.trained_mut()[0].vs;
+        if let Some(path) = &cfg.backbone_weights {
+            rtf_models::backbone::load_backbone_weights(student, &cfg.model, path)?;
+        }
+        match &cfg.init_from {
+            Some(WeightsRef::File(path)) => rtf_models::weights::load_safetensors(student, path)?,
+            Some(WeightsRef::Stage(name)) => {
+                return Err(TrainError::Config(format!(
+                    "init_from stage `{name}` was not resolved (stage references only work inside a multi-stage run)"
+                )))
+            }
+            None => {}
+        }
     }
-    let loss_fn = cfg.loss.build(classes.ignore_id);
-    let loader = Loader::new(
-        train_source,
-        LoaderConfig {
-            batch_size: cfg.batch_size,
-            shuffle: true,
-            drop_last: false,
-            seed: cfg.seed,
-            workers: cfg.workers,
-            prefetch: 2,
-            augment: cfg.augment.clone(),
-            resize: cfg.resize,
-        },
-        network.input_convention(),
-    );
+    let input = procedure.student().net.input_convention();
+    let main = loader(cfg, sources.main.clone(), cfg.seed, input);
+    // The night stream has its own order, and cycles when it is the shorter one.
+    let night = sources.night.clone().map(|s| {
+        loader(
+            cfg,
+            s,
+            rtf_data::loader::mix(cfg.seed, 0x6e69676874, 0),
+            input,
+        )
+    });
+    let select = cfg
+        .select_by
+        .unwrap_or_else(|| default_select_metric(&cfg.dataset));
     let steps_per_epoch = cfg
         .max_steps_per_epoch
-        .map_or(loader.num_batches(), |m| m.min(loader.num_batches()));
+        .map_or(main.num_batches(), |m| m.min(main.num_batches()));
     let mut records = Vec::new();
     for epoch in state.epochs_done..cfg.epochs {
         let lr = cfg.optimizer.lr_at(epoch);
@@ -242,43 +439,67 @@ pub fn train_until(
             images: 0,
             seconds: 0.0,
             wait_seconds: 0.0,
+            term_sums: BTreeMap::new(),
         });
         let first = done.batches.min(steps_per_epoch);
         bar.set_position(first as u64);
         // Time of the epoch so far (the part before a resume, if any, plus this process's).
         let (before, started) = (Duration::from_secs_f64(done.seconds), Instant::now());
         let elapsed = || before + started.elapsed();
-        let (mut loss_sum, mut images, mut waited) = (
+        let (mut loss_sum, mut images, mut waited, mut term_sums) = (
             done.loss_sum,
             done.images,
             Duration::from_secs_f64(done.wait_seconds),
+            done.term_sums,
         );
-        let batches = loader
+        let batches = main
             .epoch_from(epoch as u64, first)
             .take(steps_per_epoch - first);
+        // Night batch g of the run is batch g mod n of night epoch g div n.
+        let mut night_batches = night.as_ref().map(|n| {
+            let per_epoch = n.num_batches().max(1);
+            let global = epoch * steps_per_epoch + first;
+            let (start_epoch, start_batch) = (global / per_epoch, global % per_epoch);
+            (start_epoch..).flat_map(move |e| {
+                n.epoch_from(e as u64, if e == start_epoch { start_batch } else { 0 })
+            })
+        });
         for (step, batch) in (first..).zip(batches) {
             // Reseeded per step so a resumed run draws the same random numbers (dropout, ...).
             tch::manual_seed(rtf_data::loader::mix(cfg.seed, epoch as u64, step as u64) as i64);
             let batch = batch?;
-            waited += batch.wait;
-            let input = batch.input.to_device(device);
-            let target = batch.target.to_device(device);
-            let logits = network.forward_t(&input, true);
-            let loss = loss_fn.compute(&logits, &target);
-            optimizer.zero_grad(&vs);
-            loss.backward();
-            optimizer.step(&vs, lr);
-            let value = f64::try_from(&loss).unwrap_or(f64::NAN);
-            if !value.is_finite() {
+            let night_batch = match night_batches.as_mut() {
+                Some(it) => Some(
+                    it.next()
+                        .ok_or_else(|| TrainError::Config("the night stream ended".into()))??,
+                ),
+                None => None,
+            };
+            waited += batch.wait + night_batch.as_ref().map_or(Duration::ZERO, |b| b.wait);
+            let count = batch.names.len();
+            let on_device = |mut b: rtf_data::Batch| {
+                b.input = b.input.to_device(device);
+                b.target = b.target.to_device(device);
+                b
+            };
+            let batches = StepBatches {
+                main: on_device(batch),
+                night: night_batch.map(on_device),
+            };
+            let report = procedure.step(&batches, epoch)?;
+            if !report.total.is_finite() {
                 return Err(TrainError::Diverged {
                     epoch,
                     step: state.steps_done,
-                    loss: value,
+                    what: format!("loss is {}", report.total),
                 });
             }
             state.steps_done += 1;
-            loss_sum += value;
-            images += batch.names.len();
+            loss_sum += report.total;
+            for (name, value) in report.terms.iter().chain(&report.metrics) {
+                *term_sums.entry(name.clone()).or_default() += value;
+            }
+            images += count;
             let rate = images as f64 / elapsed().as_secs_f64().max(1e-9);
             bar.set_message(format!(
                 "loss {:.4} | {rate:.1} img/s",
@@ -297,8 +518,9 @@ pub fn train_until(
                     images,
                     seconds: elapsed().as_secs_f64(),
                     wait_seconds: waited.as_secs_f64(),
+                    term_sums: term_sums.clone(),
                 });
-                checkpoint::save(&checkpoint_path, &vs, optimizer.state(), &state)?;
+                save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
                 if interrupted {
                     bar.abandon();
                     return Ok(TrainOutcome {
@@ -313,38 +535,59 @@ pub fn train_until(
         }
         bar.finish_and_clear();
         let seconds = elapsed().as_secs_f64();
-        let (val_miou, val_macc) = match &val_source {
+        let val = match &sources.val {
             Some(val) => {
                 let options = EvalOptions {
                     batch_size: cfg.batch_size,
                     resize: cfg.resize,
                     workers: cfg.workers,
                 };
-                let report = rtf_eval::evaluate(network.as_ref(), val.clone(), &options, device)?;
-                (Some(report.all.miou), Some(report.all.macc))
+                let report =
+                    rtf_eval::evaluate(&procedure.student().net, val.clone(), &options, device)?;
+                Some(val_record(&report, sources.freiburg, select))
             }
-            None => (None, None),
+            None => None,
         };
         state.epochs_done = epoch + 1;
-        if let Some(miou) = val_miou {
-            if state.best_val_miou.is_none_or(|best| miou > best) {
-                state.best_val_miou = Some(miou);
-                rtf_models::weights::save_safetensors(&vs, &run_dir.join(BEST_FILE))?;
-            }
-        }
-        checkpoint::save(&checkpoint_path, &vs, optimizer.state(), &state)?;
+        let steps = steps_per_epoch.max(1) as f64;
+        let (losses, metrics): (BTreeMap<_, _>, BTreeMap<_, _>) = term_sums
+            .into_iter()
+            .map(|(k, v)| (k, v / steps))
+            .partition(|(k, _)| !k.starts_with("critic_acc"));
         let record = EpochRecord {
             epoch,
             lr,
-            train_loss: loss_sum / steps_per_epoch.max(1) as f64,
+            train_loss: loss_sum / steps,
             images,
             seconds,
             images_per_s: images as f64 / seconds.max(1e-9),
             data_wait_fraction: waited.as_secs_f64() / seconds.max(1e-9),
-            val_miou,
-            val_macc,
+            val_miou: val.as_ref().map(|v| v.miou),
+            val_macc: val.as_ref().map(|v| v.macc),
+            losses,
+            lrs: procedure
+                .trained()
+                .iter()
+                .map(|t| (t.role.to_string(), t.schedule.lr_at(epoch)))
+                .collect(),
+            metrics,
+            val,
         };
-        append_log(run_dir, &record)?;
+        if let Some(v) = &record.val {
+            if state.best_val_miou.is_none_or(|best| v.selected > best) {
+                check_finite(procedure.as_ref(), epoch, state.steps_done)?;
+                state.best_val_miou = Some(v.selected);
+                rtf_models::weights::save_safetensors(
+                    &procedure.student().trained.vs,
+                    &run_dir.join(BEST_FILE),
+                )?;
+            }
+        }
+        state
+            .records
+            .push(serde_json::to_value(&record).expect("record serialises"));
+        save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
+        rundir::append_log(run_dir, &record)?;
         on_epoch(&record);
         records.push(record);
         if stop.load(Ordering::Relaxed) && state.epochs_done < cfg.epochs {
@@ -358,7 +601,7 @@ pub fn train_until(
         }
     }
     let final_weights = run_dir.join(FINAL_FILE);
-    rtf_models::weights::save_safetensors(&vs, &final_weights)?;
+    rtf_models::weights::save_safetensors(&procedure.student().trained.vs, &final_weights)?;
     Ok(TrainOutcome {
         run_dir: run_dir.to_path_buf(),
         final_weights: Some(final_weights),
@@ -367,15 +610,45 @@ pub fn train_until(
     })
 }
 
-fn append_log(run_dir: &Path, record: &EpochRecord) -> Result<(), TrainError> {
-    let path = run_dir.join(LOG_FILE);
-    let line = serde_json::to_string(record).expect("record serialises");
-    std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&path)
-        .and_then(|mut f| writeln!(f, "{line}"))
-        .map_err(|e| run_error(&path, format!("cannot append: {e}")))
+/// Refuses to keep weights with a non-finite value (a diverged run would otherwise leave Inf
+/// BatchNorm statistics in its checkpoint and best weights).
+fn check_finite(procedure: &dyn Procedure, epoch: usize, step: u64) -> Result<(), TrainError> {
+    for trained in procedure.trained() {
+        for (name, t) in trained.vs.variables() {
+            let finite = tch::no_grad(|| t.isfinite().all().int64_value(&[]) != 0);
+            if !finite {
+                return Err(TrainError::Diverged {
+                    epoch,
+                    step,
+                    what: format!(
+                        "`{}` `{name}` holds a non-finite value; the last checkpoint (before this) is kept",
+                        trained.role
+                    ),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+fn save_checkpoint(
+    path: &Path,
+    procedure: &dyn Procedure,
+    state: &TrainState,
+    epoch: usize,
+) -> Result<(), TrainError> {
+    check_finite(procedure, epoch, state.steps_done)?;
+    let trained = procedure.trained();
+    let parts: Vec<Part> = trained
+        .iter()
+        .map(|t| Part {
+            role: t.role,
+            vs: &t.vs,
+            optimizer: t.optimizer.state(),
+        })
+        .collect();
+    checkpoint::save(path, &parts, state)?;
+    Ok(())
 }
 
 fn progress_bar(steps: usize, epoch: usize, epochs: usize) -> ProgressBar {

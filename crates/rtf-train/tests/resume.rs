@@ -209,8 +209,9 @@ fn backbone_weights_are_loaded_before_the_first_step() {
         val_split: None,
     };
     cfg.backbone_weights = Some(backbone.clone());
-    // No update: the written weights are the initial ones.
-    cfg.optimizer.lr = 0.0;
+    // No visible update (a rate of 0 is refused as a configuration error): 1e-30 × any
+    // gradient is far below one ulp of these weights, so the written weights are the initial ones.
+    cfg.optimizer.lr = 1e-30;
     cfg.optimizer.weight_decay = 0.0;
     cfg.max_steps_per_epoch = Some(1);
     let run = tmp.path().join("run");

@@ -7,6 +7,7 @@ pub mod data;
 pub mod eval;
 pub mod models;
 pub mod predict;
+pub mod recipes;
 pub mod synth;
 pub mod train;
 

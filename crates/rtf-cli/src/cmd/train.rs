@@ -1,44 +1,96 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use rtf_core::ClassSet;
 use rtf_data::inspect::DatasetFormat;
 use rtf_models::ModelConfig;
-use rtf_train::{
-    config::available_device, DatasetConfig, OptimizerConfig, OptimizerKind, TrainConfig,
+use rtf_train::config::{
+    available_device, CriticInput, Procedure, SelectMetric, TeacherRef, TrainConfig,
 };
+use rtf_train::recipe::{self, RecipeInputs};
+use rtf_train::{DatasetConfig, Modality, OptimizerConfig, OptimizerKind, RunConfig};
 
 use super::parse_size;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Network name (see `rtf models`).
-    #[arg(long, default_value = "mfnet")]
-    pub model: String,
+    /// A paper's recipe (`rtf recipes` lists them): procedure, networks, schedule, stages.
+    #[arg(long, conflicts_with = "config")]
+    pub recipe: Option<String>,
+    /// A run configuration (YAML or JSON, the schema of a run folder's config.json).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Network name (see `rtf models`; default mfnet). With a HeatNet recipe: one network for
+    /// every role (e.g. a light one on a CPU), the paper's networks otherwise.
+    #[arg(long)]
+    pub model: Option<String>,
     /// Dataset root, MF or Freiburg Thermal layout (recognised by its folders). Freiburg:
-    /// trains on the labelled frames of the training tree with the reference preprocessing and
-    /// a random 640×320 window, validates on the test layout (13 classes).
-    #[arg(long, required_unless_present = "resume")]
+    /// trains on the training tree with the reference preprocessing and a random 640×320
+    /// window, validates on `<root>/val` if present (never on the test layout).
+    #[arg(long, required_unless_present_any = ["resume", "config"])]
     pub data: Option<PathBuf>,
-    /// Run folder: config.json, log.jsonl, checkpoints, final.safetensors.
+    /// Run folder: config.json, log.jsonl, checkpoints, final.safetensors (one sub-folder per
+    /// stage for multi-stage recipes).
     #[arg(long, required_unless_present = "resume")]
     pub out: Option<PathBuf>,
     /// Continue the run in this folder exactly where it stopped (its config.json is used;
     /// --epochs may extend it).
-    #[arg(long, conflicts_with_all = ["data", "out"])]
+    #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config"])]
     pub resume: Option<PathBuf>,
-    /// Number of epochs (MFNet paper: 80).
+    /// The day teacher (HeatNet's RGB teacher): a run folder, or a weights file with
+    /// --teacher-model. Without it, recipes train the teacher first.
+    #[arg(long)]
+    pub teacher: Option<PathBuf>,
+    /// Network of a --teacher weights file.
+    #[arg(long)]
+    pub teacher_model: Option<String>,
+    /// Channels the --teacher sees (rgb_t, rgb, thermal; default: its run's, else rgb_t).
+    #[arg(long, value_parser = Modality::parse)]
+    pub teacher_inputs: Option<Modality>,
+    /// The night teacher (two-stage: the thermal teacher; distillation: the RGB-T model).
+    #[arg(long)]
+    pub night_teacher: Option<PathBuf>,
+    #[arg(long)]
+    pub night_teacher_model: Option<String>,
+    #[arg(long, value_parser = Modality::parse)]
+    pub night_teacher_inputs: Option<Modality>,
+    /// Channels the trained network sees (rgb_t, rgb, thermal); the others are zeroed.
+    #[arg(long, value_parser = Modality::parse)]
+    pub inputs: Option<Modality>,
+    /// Teacher pixels below this confidence are ignored.
+    #[arg(long)]
+    pub threshold: Option<f64>,
+    /// Learn the teacher's softmax (soft targets) instead of its labels.
+    #[arg(long)]
+    pub soft: bool,
+    /// λ of the adversarial term (HeatNet: 0.01).
+    #[arg(long)]
+    pub lambda: Option<f64>,
+    /// What the critic reads: softmax (paper) or logits (published code).
+    #[arg(long, value_parser = parse_critic_input)]
+    pub critic_input: Option<CriticInput>,
+    /// Also push day outputs toward the night target (published code's --multidir).
+    #[arg(long)]
+    pub multidir: bool,
+    /// Critic steps per segmentation step.
+    #[arg(long)]
+    pub critic_steps: Option<usize>,
+    /// Validation score that picks best.safetensors: miou, day_night_miou, heatnet_miou,
+    /// day_miou, night_miou (default: heatnet_miou on Freiburg, miou on MF).
+    #[arg(long, value_parser = parse_select)]
+    pub select_by: Option<SelectMetric>,
+    /// Number of epochs (MFNet paper: 80; HeatNet: 100 per stage).
     #[arg(long)]
     pub epochs: Option<usize>,
-    /// Batch size (MFNet paper: 6).
-    #[arg(long, default_value_t = 6)]
-    pub batch_size: usize,
+    /// Batch size (MFNet paper: 6; HeatNet: 8).
+    #[arg(long)]
+    pub batch_size: Option<usize>,
     /// sgd (MFNet paper: lr 0.01, momentum 0.9, weight decay 5e-4, ×0.94 every epoch) or
     /// rmsprop (HeatNet paper: lr 1e-4, no momentum or weight decay, ×0.5 every 30 epochs);
     /// the flags below override the chosen paper's values.
-    #[arg(long, default_value = "sgd", value_parser = parse_optimizer)]
-    pub optimizer: OptimizerKind,
+    #[arg(long, value_parser = parse_optimizer)]
+    pub optimizer: Option<OptimizerKind>,
     /// Initial learning rate.
     #[arg(long)]
     pub lr: Option<f64>,
@@ -55,15 +107,15 @@ pub struct Args {
     /// Disable horizontal-flip augmentation.
     #[arg(long)]
     pub no_flip: bool,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    #[arg(long)]
+    pub seed: Option<u64>,
     /// MF: the training split.
-    #[arg(long, default_value = "train")]
-    pub train_split: String,
-    /// Validation split evaluated after every epoch ("none" to skip; Freiburg: "none" or the
-    /// default, which means its test layout).
-    #[arg(long, default_value = "val")]
-    pub val_split: String,
+    #[arg(long)]
+    pub train_split: Option<String>,
+    /// MF: validation split evaluated after every epoch ("none" to skip). Freiburg: "none"
+    /// skips the `val` layout.
+    #[arg(long)]
+    pub val_split: Option<String>,
     /// Resize frames to WxH (labels nearest) before the network.
     #[arg(long, value_parser = parse_size)]
     pub resize: Option<(usize, usize)>,
@@ -71,15 +123,15 @@ pub struct Args {
     #[arg(long)]
     pub max_steps: Option<usize>,
     /// Also checkpoint every N steps inside an epoch (long epochs, preemptible machines).
-    /// Ctrl-C always checkpoints the step it stops at.
+    /// Ctrl-C and SIGTERM always checkpoint the step they stop at.
     #[arg(long)]
     pub checkpoint_every: Option<usize>,
     /// Data-loading threads.
-    #[arg(long, default_value_t = 2)]
-    pub workers: usize,
+    #[arg(long)]
+    pub workers: Option<usize>,
     /// cpu, cuda or cuda:N.
-    #[arg(long, default_value = "cpu")]
-    pub device: String,
+    #[arg(long)]
+    pub device: Option<String>,
     /// ImageNet ResNet weights (torchvision names, safetensors; see `cargo xtask convert-pth`)
     /// for the encoders of RTFNet and the ResNet-based baselines.
     #[arg(long)]
@@ -91,135 +143,393 @@ pub fn run(args: Args) -> Result<()> {
         Some(run_dir) => {
             let mut cfg = rtf_train::trainer::read_config(run_dir)?;
             if let Some(epochs) = args.epochs {
-                cfg.epochs = epochs;
+                cfg.stages_mut().into_iter().for_each(|c| c.epochs = epochs);
             }
+            cfg.validate()?;
             (cfg, run_dir.clone(), true)
         }
         None => {
-            let data = args.data.clone().context("--data is required")?;
             let out = args.out.clone().context("--out is required")?;
-            available_device(&args.device).map_err(anyhow::Error::msg)?;
-            let mut cfg = TrainConfig::mfnet_paper(data.clone());
-            let validate = args.val_split != "none";
-            let (dataset, classes) = match super::segmentation_format(&data, "a training")? {
-                DatasetFormat::Mf => (
-                    DatasetConfig::Mf {
-                        root: data.clone(),
-                        train_split: args.train_split.clone(),
-                        val_split: validate.then(|| args.val_split.clone()),
-                    },
-                    ClassSet::mf(),
-                ),
-                DatasetFormat::Freiburg => {
-                    anyhow::ensure!(
-                        args.train_split == "train" && ["val", "none"].contains(&args.val_split.as_str()),
-                        "{}: a Freiburg Thermal root has no named splits (training tree and test layout); \
-                         drop --train-split, and use --val-split only as \"none\"",
-                        data.display()
-                    );
-                    // The reference preprocessing leaves 700×320; HeatNet trains on a random
-                    // 640×320 window of it.
-                    if args.resize.is_none() {
-                        cfg.augment.window = Some((640, 320));
-                    }
-                    (
-                        DatasetConfig::freiburg(data.clone(), validate),
-                        ClassSet::freiburg(),
-                    )
-                }
-                other => unreachable!("segmentation_format returned {other:?}"),
-            };
-            cfg.model = ModelConfig::from_name(&args.model, classes.len() as i64)?;
-            cfg.dataset = dataset;
-            cfg.epochs = args.epochs.unwrap_or(80);
-            cfg.batch_size = args.batch_size;
-            cfg.seed = args.seed;
-            let paper = match args.optimizer {
-                OptimizerKind::Sgd => OptimizerConfig::mfnet_paper(),
-                OptimizerKind::Rmsprop => OptimizerConfig::heatnet_paper(),
-            };
-            cfg.optimizer = OptimizerConfig {
-                lr: args.lr.unwrap_or(paper.lr),
-                lr_decay: args.lr_decay.unwrap_or(paper.lr_decay),
-                decay_every: args.decay_every.unwrap_or(paper.decay_every),
-                momentum: args.momentum.unwrap_or(paper.momentum),
-                weight_decay: args.weight_decay.unwrap_or(paper.weight_decay),
-                ..paper
-            };
-            anyhow::ensure!(
-                cfg.optimizer.decay_every >= 1,
-                "--decay-every must be at least 1"
-            );
-            cfg.augment.hflip = !args.no_flip;
-            cfg.resize = args.resize;
-            cfg.max_steps_per_epoch = args.max_steps;
-            cfg.checkpoint_every = args.checkpoint_every;
-            cfg.workers = args.workers;
-            cfg.device = args.device.clone();
-            cfg.backbone_weights = args.backbone_weights.clone();
+            let cfg = new_run(&args)?;
             (cfg, out, false)
         }
     };
-    eprintln!(
-        "training {} for {} epochs into {}",
-        cfg.model.name(),
-        cfg.epochs,
-        run_dir.display()
-    );
-    let stop = stop_on_ctrl_c();
-    let outcome = rtf_train::trainer::train_until(
-        &cfg,
-        &run_dir,
-        resume,
-        &mut |r| {
-            let val = r
-                .val_miou
-                .map_or(String::new(), |m| format!("  val mIoU {:.1}", 100.0 * m));
+    for (_, stage) in cfg.stages() {
+        available_device(&stage.device).map_err(anyhow::Error::msg)?;
+    }
+    let stop = stop_on_signals();
+    let interrupted = |stage: &str, state: &rtf_train::checkpoint::TrainState| -> ! {
+        let batch = state.partial.as_ref().map_or(0, |p| p.batches);
+        eprintln!(
+            "interrupted{stage} in epoch {} after batch {batch}: checkpoint written; continue with \
+             `rtf train --resume {}`",
+            state.epochs_done + 1,
+            run_dir.display()
+        );
+        std::process::exit(130);
+    };
+    match &cfg {
+        RunConfig::Single(single) => {
             eprintln!(
-                "epoch {:>3}  lr {:.5}  loss {:.4}  {:.1} img/s  data wait {:.0}%{val}",
-                r.epoch + 1,
-                r.lr,
-                r.train_loss,
-                r.images_per_s,
-                100.0 * r.data_wait_fraction
-            );
-        },
-        stop,
-    )?;
-    match &outcome.final_weights {
-        Some(path) => println!("{}", path.display()),
-        None => {
-            let batch = outcome.state.partial.as_ref().map_or(0, |p| p.batches);
-            eprintln!(
-                "interrupted in epoch {} after batch {batch}: checkpoint written; continue with \
-                 `rtf train --resume {}`",
-                outcome.state.epochs_done + 1,
+                "training {} ({}) for {} epochs into {}",
+                single.model.name(),
+                single.procedure.name(),
+                single.epochs,
                 run_dir.display()
             );
-            std::process::exit(130);
+            let outcome = rtf_train::trainer::train_until(
+                single,
+                &run_dir,
+                resume,
+                &mut print_epoch(""),
+                stop,
+            )?;
+            match &outcome.final_weights {
+                Some(path) => println!("{}", path.display()),
+                None => interrupted("", &outcome.state),
+            }
+        }
+        RunConfig::Pipeline(pipeline) => {
+            let names: Vec<&str> = pipeline.stages.iter().map(|s| s.name.as_str()).collect();
+            eprintln!(
+                "training {} stage(s) ({}) into {}",
+                names.len(),
+                names.join(" → "),
+                run_dir.display()
+            );
+            let mut current = String::new();
+            let outcome = rtf_train::pipeline::run_pipeline(
+                pipeline,
+                &run_dir,
+                resume,
+                &mut |stage, r| {
+                    if stage != current {
+                        current = stage.to_string();
+                    }
+                    print_epoch(stage)(r)
+                },
+                stop,
+            )?;
+            match (&outcome.final_weights, &outcome.interrupted) {
+                (Some(path), _) => println!("{}", path.display()),
+                (None, Some((stage, o))) => interrupted(&format!(" (stage {stage})"), &o.state),
+                (None, None) => bail!("the run stopped without final weights"),
+            }
         }
     }
     Ok(())
 }
 
-/// Set by the first Ctrl-C; training then checkpoints and stops after the step in flight.
+fn print_epoch(stage: &str) -> impl FnMut(&rtf_train::EpochRecord) + '_ {
+    move |r| {
+        let val = r.val.as_ref().map_or(String::new(), |v| {
+            let dn = match (v.miou_day, v.miou_night) {
+                (Some(d), Some(n)) => format!(" (day {:.1}, night {:.1})", 100.0 * d, 100.0 * n),
+                _ => String::new(),
+            };
+            format!("  val mIoU {:.1}{dn}", 100.0 * v.miou)
+        });
+        let terms: Vec<String> = r
+            .losses
+            .iter()
+            .filter(|(k, _)| r.losses.len() > 1 || k.as_str() != "ce")
+            .map(|(k, v)| format!("{k} {v:.4}"))
+            .chain(
+                r.metrics
+                    .iter()
+                    .map(|(k, v)| format!("{k} {:.0}%", 100.0 * v)),
+            )
+            .collect();
+        let terms = match terms.is_empty() {
+            true => String::new(),
+            false => format!(" [{}]", terms.join(", ")),
+        };
+        let prefix = match stage.is_empty() {
+            true => String::new(),
+            false => format!("{stage}: "),
+        };
+        eprintln!(
+            "{prefix}epoch {:>3}  lr {:.5}  loss {:.4}{terms}  {:.1} img/s  data wait {:.0}%{val}",
+            r.epoch + 1,
+            r.lr,
+            r.train_loss,
+            r.images_per_s,
+            100.0 * r.data_wait_fraction
+        );
+    }
+}
+
+/// The dataset a `--data` root holds, its class set, resolved to an absolute path (a resume
+/// from another directory finds it).
+fn dataset_of(data: &Path, args: &Args) -> Result<(DatasetConfig, ClassSet)> {
+    let root = std::fs::canonicalize(data)
+        .with_context(|| format!("{}: cannot open the dataset root", data.display()))?;
+    let val = args.val_split.clone().unwrap_or_else(|| "val".into());
+    let validate = val != "none";
+    Ok(match super::segmentation_format(&root, "a training")? {
+        DatasetFormat::Mf => (
+            DatasetConfig::Mf {
+                root,
+                train_split: args.train_split.clone().unwrap_or_else(|| "train".into()),
+                val_split: validate.then_some(val),
+            },
+            ClassSet::mf(),
+        ),
+        DatasetFormat::Freiburg => {
+            anyhow::ensure!(
+                args.train_split.is_none() && ["val", "none"].contains(&val.as_str()),
+                "{}: a Freiburg Thermal root has no named splits (training tree, val and test \
+                 layouts); drop --train-split, and use --val-split only as \"none\"",
+                data.display()
+            );
+            (
+                DatasetConfig::freiburg(root, validate),
+                ClassSet::freiburg(),
+            )
+        }
+        other => unreachable!("segmentation_format returned {other:?}"),
+    })
+}
+
+/// A teacher given on the command line: a run folder (its network, channels and selected
+/// weights), or a weights file with its network named.
+fn teacher_ref(
+    path: &Path,
+    model: &Option<String>,
+    inputs: Option<Modality>,
+    num_classes: i64,
+    flag: &str,
+) -> Result<TeacherRef> {
+    if path.is_dir() {
+        let run = rtf_train::trainer::read_config(path)
+            .with_context(|| format!("{flag} {}: not a run folder", path.display()))?;
+        let last = run.stages().last().expect("a run has a stage").1.clone();
+        let weights = rtf_train::pipeline::stage_weights(path);
+        anyhow::ensure!(
+            weights.is_file(),
+            "{}: the run has no best.safetensors or final.safetensors yet ({flag})",
+            path.display()
+        );
+        return Ok(TeacherRef::Weights {
+            path: std::fs::canonicalize(&weights)?,
+            model: last.model,
+            inputs: inputs.unwrap_or(last.inputs),
+        });
+    }
+    anyhow::ensure!(
+        path.is_file(),
+        "{}: {flag} is neither a run folder nor a weights file",
+        path.display()
+    );
+    let name = model.as_ref().with_context(|| {
+        format!(
+            "{flag} {} is a weights file: name its network with {flag}-model",
+            path.display()
+        )
+    })?;
+    Ok(TeacherRef::Weights {
+        path: std::fs::canonicalize(path)?,
+        model: ModelConfig::from_name(name, num_classes)?,
+        inputs: inputs.unwrap_or_default(),
+    })
+}
+
+fn new_run(args: &Args) -> Result<RunConfig> {
+    let mut cfg = match (&args.recipe, &args.config) {
+        (_, Some(path)) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("{}: cannot read", path.display()))?;
+            let yaml = path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml"));
+            RunConfig::parse(&text, yaml).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+        }
+        (Some(name), None) => {
+            let recipe = recipe::recipe(name)?;
+            let data = args.data.as_ref().context("--data is required")?;
+            let (dataset, classes) = dataset_of(data, args)?;
+            let n = classes.len() as i64;
+            let teacher = |p: &Option<PathBuf>, m: &Option<String>, i, flag| {
+                p.as_ref()
+                    .map(|p| teacher_ref(p, m, i, n, flag))
+                    .transpose()
+            };
+            recipe::instantiate(
+                recipe,
+                &RecipeInputs {
+                    dataset,
+                    num_classes: n,
+                    model: args.model.clone(),
+                    teacher: teacher(
+                        &args.teacher,
+                        &args.teacher_model,
+                        args.teacher_inputs,
+                        "--teacher",
+                    )?,
+                    night_teacher: teacher(
+                        &args.night_teacher,
+                        &args.night_teacher_model,
+                        args.night_teacher_inputs,
+                        "--night-teacher",
+                    )?,
+                },
+            )?
+        }
+        (None, None) => {
+            let data = args.data.as_ref().context("--data is required")?;
+            let (dataset, classes) = dataset_of(data, args)?;
+            let mut single = TrainConfig::mfnet_paper(PathBuf::new());
+            let model = args.model.as_deref().unwrap_or("mfnet");
+            single.model = ModelConfig::from_name(model, classes.len() as i64)?;
+            // The reference preprocessing leaves 700×320; HeatNet trains on a 640×320 window.
+            if matches!(dataset, DatasetConfig::Freiburg { .. }) && args.resize.is_none() {
+                single.augment.window = Some((640, 320));
+            }
+            single.dataset = dataset;
+            if let Some(teacher) = &args.teacher {
+                let n = single.model.num_classes();
+                single.procedure = Procedure::TeacherStudent {
+                    day_teacher: teacher_ref(
+                        teacher,
+                        &args.teacher_model,
+                        args.teacher_inputs,
+                        n,
+                        "--teacher",
+                    )?,
+                    night_teacher: args
+                        .night_teacher
+                        .as_ref()
+                        .map(|p| {
+                            teacher_ref(
+                                p,
+                                &args.night_teacher_model,
+                                args.night_teacher_inputs,
+                                n,
+                                "--night-teacher",
+                            )
+                        })
+                        .transpose()?,
+                    targets: Default::default(),
+                };
+            }
+            RunConfig::Single(Box::new(single))
+        }
+    };
+    if args.config.is_some() {
+        if let Some(data) = &args.data {
+            let (dataset, _) = dataset_of(data, args)?;
+            cfg.stages_mut()
+                .into_iter()
+                .for_each(|c| c.dataset = dataset.clone());
+        }
+        anyhow::ensure!(
+            args.teacher.is_none() && args.night_teacher.is_none(),
+            "--teacher and --night-teacher go with --recipe (a --config names its teachers)"
+        );
+    }
+    let recipe_networks = args.recipe.is_some() || args.config.is_some();
+    for stage in cfg.stages_mut() {
+        apply_flags(stage, args, recipe_networks)?;
+    }
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// Flags the user gave override the recipe's or config's values, in every stage.
+fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Result<()> {
+    if let (Some(model), false) = (&args.model, recipe_networks) {
+        cfg.model = ModelConfig::from_name(model, cfg.model.num_classes())?;
+    }
+    if let Some(kind) = args.optimizer {
+        cfg.optimizer = match kind {
+            OptimizerKind::Sgd => OptimizerConfig::mfnet_paper(),
+            OptimizerKind::Rmsprop => OptimizerConfig::heatnet_paper(),
+        };
+    }
+    let o = &mut cfg.optimizer;
+    o.lr = args.lr.unwrap_or(o.lr);
+    o.lr_decay = args.lr_decay.unwrap_or(o.lr_decay);
+    o.decay_every = args.decay_every.unwrap_or(o.decay_every);
+    o.momentum = args.momentum.unwrap_or(o.momentum);
+    o.weight_decay = args.weight_decay.unwrap_or(o.weight_decay);
+    if let Some(v) = args.epochs {
+        cfg.epochs = v;
+    }
+    if let Some(v) = args.batch_size {
+        cfg.batch_size = v;
+    }
+    if let Some(v) = args.seed {
+        cfg.seed = v;
+    }
+    if args.no_flip {
+        cfg.augment.hflip = false;
+    }
+    if args.resize.is_some() {
+        cfg.resize = args.resize;
+        cfg.augment.window = None;
+    }
+    if args.max_steps.is_some() {
+        cfg.max_steps_per_epoch = args.max_steps;
+    }
+    if args.checkpoint_every.is_some() {
+        cfg.checkpoint_every = args.checkpoint_every;
+    }
+    if let Some(v) = args.workers {
+        cfg.workers = v;
+    }
+    if let Some(v) = &args.device {
+        cfg.device = v.clone();
+    }
+    if args.backbone_weights.is_some() {
+        cfg.backbone_weights = args.backbone_weights.clone();
+    }
+    if let (Some(v), false) = (args.inputs, recipe_networks) {
+        cfg.inputs = v;
+    }
+    if args.select_by.is_some() {
+        cfg.select_by = args.select_by;
+    }
+    match &mut cfg.procedure {
+        Procedure::Supervised => {}
+        Procedure::TeacherStudent { targets, .. } => {
+            targets.threshold = args.threshold.or(targets.threshold);
+            targets.soft |= args.soft;
+        }
+        Procedure::Adversarial {
+            targets, critic, ..
+        } => {
+            targets.threshold = args.threshold.or(targets.threshold);
+            targets.soft |= args.soft;
+            critic.lambda = args.lambda.unwrap_or(critic.lambda);
+            critic.input = args.critic_input.unwrap_or(critic.input);
+            critic.multidir |= args.multidir;
+            critic.steps = args.critic_steps.unwrap_or(critic.steps);
+        }
+    }
+    Ok(())
+}
+
+/// Set by the first Ctrl-C or SIGTERM (what schedulers and preemption send); training then
+/// checkpoints and stops after the step in flight.
 static STOP: AtomicBool = AtomicBool::new(false);
 
-/// Installs a SIGINT handler that sets [`STOP`] (a second Ctrl-C kills as usual).
-fn stop_on_ctrl_c() -> &'static AtomicBool {
+/// Installs SIGINT and SIGTERM handlers that set [`STOP`] (a second signal kills as usual).
+fn stop_on_signals() -> &'static AtomicBool {
     #[cfg(unix)]
     {
-        extern "C" fn on_sigint(_: libc::c_int) {
+        extern "C" fn on_signal(signal: libc::c_int) {
             STOP.store(true, Ordering::SeqCst);
-            // SAFETY: signal() is async-signal-safe; restores the default for a second Ctrl-C.
+            // SAFETY: signal() is async-signal-safe; restores the default for a second signal.
             unsafe {
-                libc::signal(libc::SIGINT, libc::SIG_DFL);
+                libc::signal(signal, libc::SIG_DFL);
             }
         }
-        // SAFETY: the handler only stores an atomic and calls signal(), both allowed in
-        // a signal handler.
-        unsafe {
-            libc::signal(libc::SIGINT, on_sigint as *const () as libc::sighandler_t);
+        for signal in [libc::SIGINT, libc::SIGTERM] {
+            // SAFETY: the handler only stores an atomic and calls signal(), both allowed in
+            // a signal handler.
+            unsafe {
+                libc::signal(signal, on_signal as *const () as libc::sighandler_t);
+            }
         }
     }
     &STOP
@@ -233,4 +543,20 @@ fn parse_optimizer(text: &str) -> Result<OptimizerKind, String> {
             "unknown optimizer `{other}` (expected sgd or rmsprop)"
         )),
     }
+}
+
+fn parse_critic_input(text: &str) -> Result<CriticInput, String> {
+    match text {
+        "softmax" => Ok(CriticInput::Softmax),
+        "logits" => Ok(CriticInput::Logits),
+        other => Err(format!(
+            "unknown critic input `{other}` (expected softmax or logits)"
+        )),
+    }
+}
+
+fn parse_select(text: &str) -> Result<SelectMetric, String> {
+    serde_json::from_value(serde_json::Value::String(text.to_string())).map_err(|_| {
+        format!("unknown metric `{text}` (expected miou, day_night_miou, heatnet_miou, day_miou or night_miou)")
+    })
 }

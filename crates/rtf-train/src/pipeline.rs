@@ -1,0 +1,135 @@
+//! Runs of several stages (HeatNet's teachers, two-stage training, distillation): each stage is
+//! an ordinary run folder `RUN/<stage>/` trained by [`crate::trainer`]; a later stage's
+//! references to earlier ones are resolved to their weights when it starts; a resumed run skips
+//! the stages that finished and resumes the one that was interrupted. When the last stage is
+//! done its `best`/`final` weights are copied to `RUN/`.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use crate::config::{PipelineConfig, RunConfig, TeacherRef, TrainConfig, WeightsRef};
+use crate::run::{self as rundir, run_error, BEST_FILE, CONFIG_FILE, FINAL_FILE};
+use crate::trainer::{self, EpochRecord, TrainError, TrainOutcome};
+
+#[derive(Debug, Clone)]
+pub struct PipelineOutcome {
+    pub run_dir: PathBuf,
+    /// `RUN/final.safetensors` once every stage is done; None when interrupted.
+    pub final_weights: Option<PathBuf>,
+    /// The stage that was interrupted, with its outcome.
+    pub interrupted: Option<(String, TrainOutcome)>,
+    /// Stages trained by this call (finished earlier ones are skipped).
+    pub trained: Vec<String>,
+}
+
+/// The weights of a finished stage a teacher uses: best on validation, else final.
+pub fn stage_weights(stage_dir: &Path) -> PathBuf {
+    let best = stage_dir.join(BEST_FILE);
+    match best.is_file() {
+        true => best,
+        false => stage_dir.join(FINAL_FILE),
+    }
+}
+
+/// `cfg` with its stage references replaced by the files of the stages under `run_dir`.
+pub fn resolve(
+    cfg: &TrainConfig,
+    run_dir: &Path,
+    stages: &[crate::config::StageConfig],
+) -> Result<TrainConfig, TrainError> {
+    let mut cfg = cfg.clone();
+    let find = |name: &str| {
+        stages
+            .iter()
+            .find(|s| s.name == name)
+            .ok_or_else(|| TrainError::Config(format!("no stage named `{name}`")))
+    };
+    for teacher in cfg.procedure.teachers_mut() {
+        if let TeacherRef::Stage(name) = teacher {
+            let stage = find(name)?;
+            *teacher = TeacherRef::Weights {
+                path: stage_weights(&run_dir.join(&stage.name)),
+                model: stage.config.model.clone(),
+                inputs: stage.config.inputs,
+            };
+        }
+    }
+    if let Some(WeightsRef::Stage(name)) = &cfg.init_from {
+        let stage = find(name)?;
+        cfg.init_from = Some(WeightsRef::File(run_dir.join(&stage.name).join(FINAL_FILE)));
+    }
+    Ok(cfg)
+}
+
+/// Trains every stage of `cfg` in order into `run_dir`.
+pub fn run_pipeline(
+    cfg: &PipelineConfig,
+    run_dir: &Path,
+    resume: bool,
+    on_epoch: &mut dyn FnMut(&str, &EpochRecord),
+    stop: &AtomicBool,
+) -> Result<PipelineOutcome, TrainError> {
+    let run = RunConfig::Pipeline(cfg.clone());
+    run.validate()?;
+    if !resume && rundir::holds_run(run_dir) {
+        return Err(run_error(
+            run_dir,
+            "already holds a run; use --resume to continue it or choose another output folder",
+        ));
+    }
+    for stage in &cfg.stages {
+        crate::procedure::check_teachers(&stage.config)?;
+    }
+    std::fs::create_dir_all(run_dir)
+        .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
+    let lock = rundir::RunLock::acquire(run_dir)?;
+    rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &run)?;
+    let mut trained = Vec::new();
+    for stage in &cfg.stages {
+        let dir = run_dir.join(&stage.name);
+        if dir.join(FINAL_FILE).is_file() {
+            continue;
+        }
+        let resolved = resolve(&stage.config, run_dir, &cfg.stages)?;
+        eprintln!(
+            "stage {} ({}, {}): {} epochs into {}",
+            stage.name,
+            resolved.procedure.name(),
+            resolved.model.name(),
+            resolved.epochs,
+            dir.display()
+        );
+        let outcome = trainer::train_until(
+            &resolved,
+            &dir,
+            rundir::holds_run(&dir),
+            &mut |r| on_epoch(&stage.name, r),
+            stop,
+        )?;
+        trained.push(stage.name.clone());
+        if outcome.final_weights.is_none() {
+            return Ok(PipelineOutcome {
+                run_dir: run_dir.to_path_buf(),
+                final_weights: None,
+                interrupted: Some((stage.name.clone(), outcome)),
+                trained,
+            });
+        }
+    }
+    let last = run_dir.join(&cfg.stages.last().expect("validated: a stage").name);
+    for file in [FINAL_FILE, BEST_FILE] {
+        if last.join(file).is_file() {
+            let bytes = std::fs::read(last.join(file))
+                .map_err(|e| run_error(&last.join(file), format!("cannot read: {e}")))?;
+            rtf_core::write_bytes_atomic(&run_dir.join(file), &bytes)
+                .map_err(|e| run_error(&run_dir.join(file), e.to_string()))?;
+        }
+    }
+    drop(lock);
+    Ok(PipelineOutcome {
+        run_dir: run_dir.to_path_buf(),
+        final_weights: Some(run_dir.join(FINAL_FILE)),
+        interrupted: None,
+        trained,
+    })
+}

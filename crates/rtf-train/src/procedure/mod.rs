@@ -1,0 +1,287 @@
+//! Training procedures: each an explicit step body over the networks it trains. The loop
+//! mechanics they share (epochs, reseeding, checkpoints, validation, logging) live once in
+//! [`crate::trainer`]. Every trained network has its own [`Trained`] (VarStore, optimiser,
+//! schedule) saved under its role; teachers are [`Frozen`]: eval mode, no gradient, never saved.
+
+mod adversarial;
+mod supervised;
+mod teacher_student;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use rtf_data::Batch;
+use rtf_models::{ModelConfig, Network};
+use tch::{nn::VarStore, Device, Kind, Tensor};
+
+pub use adversarial::Adversarial;
+pub use supervised::Supervised;
+pub use teacher_student::TeacherStudent;
+
+use crate::config::{Modality, OptimizerConfig, Procedure as ProcedureConfig, TrainConfig};
+use crate::loss::PseudoTargets;
+use crate::optim::Optimizer;
+use crate::trainer::TrainError;
+
+/// Role of the segmentation network every procedure trains (and validation scores).
+pub const STUDENT: &str = "student";
+/// Role of HeatNet's day/night critic.
+pub const CRITIC: &str = "critic";
+
+/// A network being trained: its variables, optimiser and learning-rate schedule.
+pub struct Trained {
+    pub role: &'static str,
+    pub vs: VarStore,
+    pub optimizer: Optimizer,
+    pub schedule: OptimizerConfig,
+}
+
+impl Trained {
+    pub fn new(role: &'static str, device: Device, schedule: &OptimizerConfig) -> Self {
+        Self {
+            role,
+            vs: VarStore::new(device),
+            optimizer: Optimizer::new(schedule),
+            schedule: schedule.clone(),
+        }
+    }
+
+    /// Gradients of `loss` into this network's variables, then one update at `epoch`'s rate.
+    pub fn minimise(&mut self, loss: &Tensor, epoch: usize) {
+        self.optimizer.zero_grad(&self.vs);
+        loss.backward();
+        self.optimizer.step(&self.vs, self.schedule.lr_at(epoch));
+    }
+}
+
+/// A network behind its input mask: it sees only the channels of `inputs`.
+#[derive(Debug)]
+pub struct Masked {
+    pub inner: Box<dyn Network>,
+    pub inputs: Modality,
+}
+
+impl tch::nn::ModuleT for Masked {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        self.inner.forward_t(&self.inputs.apply(xs), train)
+    }
+}
+
+impl Network for Masked {
+    fn input_convention(&self) -> rtf_core::InputConvention {
+        self.inner.input_convention()
+    }
+    fn num_classes(&self) -> i64 {
+        self.inner.num_classes()
+    }
+    fn size_multiple(&self) -> i64 {
+        self.inner.size_multiple()
+    }
+    fn name(&self) -> String {
+        self.inner.name()
+    }
+}
+
+/// The segmentation network a procedure trains, with the channels it sees.
+pub struct Student {
+    pub trained: Trained,
+    pub net: Masked,
+}
+
+impl Student {
+    /// Built under `seed` as the supervised loop always did (same initial weights).
+    pub fn build(cfg: &TrainConfig, device: Device) -> Result<Self, TrainError> {
+        let trained = Trained::new(STUDENT, device, &cfg.optimizer);
+        let inner = rtf_models::build(&trained.vs.root(), &cfg.model)?;
+        Ok(Self {
+            trained,
+            net: Masked {
+                inner,
+                inputs: cfg.inputs,
+            },
+        })
+    }
+
+    /// Training-mode logits for `input` [B, 4, H, W]; sizes that are not a multiple of the
+    /// network's stride are padded (replicating the border) and the logits cropped back.
+    pub fn logits(&self, input: &Tensor) -> Tensor {
+        forward_padded(&self.net, input, true)
+    }
+}
+
+/// `net` on `x`, padded up to its size multiple and cropped back.
+pub fn forward_padded(net: &dyn Network, x: &Tensor, train: bool) -> Tensor {
+    let size = x.size();
+    let (h, w) = (size[2], size[3]);
+    let m = net.size_multiple().max(1);
+    let (ph, pw) = ((m - h % m) % m, (m - w % m) % m);
+    if ph == 0 && pw == 0 {
+        return net.forward_t(x, train);
+    }
+    let padded = x.pad([0, pw, 0, ph], "replicate", None);
+    net.forward_t(&padded, train)
+        .narrow(2, 0, h)
+        .narrow(3, 0, w)
+}
+
+/// A teacher: a trained network that labels frames for a student. Eval mode, no gradient,
+/// never saved.
+pub struct Frozen {
+    _vs: VarStore,
+    net: Masked,
+}
+
+impl Frozen {
+    /// Loads `weights` into a `model` network, checking it can teach `student`: same class
+    /// count and input convention (the batch is scaled once, for the student).
+    pub fn load(
+        model: &ModelConfig,
+        weights: &Path,
+        inputs: Modality,
+        student: &ModelConfig,
+        device: Device,
+    ) -> Result<Self, TrainError> {
+        check_teacher(model, weights, student)?;
+        let mut vs = VarStore::new(device);
+        let inner = rtf_models::build(&vs.root(), model)?;
+        rtf_models::weights::load_safetensors(&mut vs, weights)?;
+        vs.freeze();
+        Ok(Self {
+            _vs: vs,
+            net: Masked { inner, inputs },
+        })
+    }
+
+    /// The teacher's targets for `input` (HeatNet eq. 1's M_D(I)).
+    pub fn targets(&self, input: &Tensor, threshold: Option<f64>) -> PseudoTargets {
+        let logits = tch::no_grad(|| forward_padded(&self.net, input, false).to_kind(Kind::Float));
+        PseudoTargets::from_logits(&logits, threshold)
+    }
+}
+
+/// Checks, before anything is written, that the teachers of `cfg` given as files can teach its
+/// student (stage teachers are checked by their stage).
+pub fn check_teachers(cfg: &TrainConfig) -> Result<(), TrainError> {
+    for teacher in cfg.procedure.teachers() {
+        if let crate::config::TeacherRef::Weights { path, model, .. } = teacher {
+            check_teacher(model, path, &cfg.model)?;
+        }
+    }
+    Ok(())
+}
+
+fn check_teacher(
+    model: &ModelConfig,
+    weights: &Path,
+    student: &ModelConfig,
+) -> Result<(), TrainError> {
+    {
+        let bad = |message: String| TrainError::Run {
+            path: weights.to_path_buf(),
+            message,
+        };
+        if model.num_classes() != student.num_classes() {
+            return Err(bad(format!(
+                "the teacher ({}) predicts {} classes, the student ({}) {}",
+                model.name(),
+                model.num_classes(),
+                student.name(),
+                student.num_classes()
+            )));
+        }
+        if model.input_convention() != student.input_convention() {
+            return Err(bad(format!(
+                "the teacher ({}) takes inputs scaled as {:?}, the student ({}) as {:?}; \
+                 pick a teacher and student of the same input convention",
+                model.name(),
+                model.input_convention(),
+                student.name(),
+                student.input_convention()
+            )));
+        }
+        if !weights.is_file() {
+            return Err(bad("teacher weights not found".into()));
+        }
+        Ok(())
+    }
+}
+
+/// The batches of one step: the main stream's (labelled frames for supervised training, day
+/// frames otherwise) and, for procedures that use them, the night stream's.
+pub struct StepBatches {
+    pub main: Batch,
+    pub night: Option<Batch>,
+}
+
+/// What one step reports: the student's total objective (checked for divergence, logged as
+/// `train_loss`), every loss term by name, and training metrics (the critic's accuracies).
+#[derive(Debug, Default)]
+pub struct StepReport {
+    pub total: f64,
+    pub terms: BTreeMap<String, f64>,
+    pub metrics: BTreeMap<String, f64>,
+}
+
+/// One training procedure's networks and step body.
+pub trait Procedure {
+    /// The networks it trains (checkpointed under their roles), student first.
+    fn trained(&self) -> Vec<&Trained>;
+    fn trained_mut(&mut self) -> Vec<&mut Trained>;
+    /// The network validation scores and whose weights `best`/`final` hold.
+    fn student(&self) -> &Student;
+    /// One optimisation step (inputs already on the device).
+    fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError>;
+}
+
+/// Builds the procedure `cfg` names, teachers resolved to weights files. The student is built
+/// first, right after the caller seeded libtorch, so supervised runs start from the weights
+/// they always did.
+pub fn build(
+    cfg: &TrainConfig,
+    ignore_id: Option<u8>,
+    device: Device,
+) -> Result<Box<dyn Procedure>, TrainError> {
+    let student = Student::build(cfg, device)?;
+    let frozen = |teacher: &crate::config::TeacherRef| -> Result<Frozen, TrainError> {
+        match teacher {
+            crate::config::TeacherRef::Weights {
+                path,
+                model,
+                inputs,
+            } => Frozen::load(model, path, *inputs, &cfg.model, device),
+            crate::config::TeacherRef::Stage(name) => Err(TrainError::Config(format!(
+                "teacher stage `{name}` was not resolved to its weights (a stage teacher only \
+                 works inside a multi-stage run)"
+            ))),
+        }
+    };
+    Ok(match &cfg.procedure {
+        ProcedureConfig::Supervised => Box::new(Supervised {
+            student,
+            loss: cfg.loss.build(ignore_id),
+        }),
+        ProcedureConfig::TeacherStudent {
+            day_teacher,
+            night_teacher,
+            targets,
+        } => Box::new(TeacherStudent {
+            student,
+            day_teacher: frozen(day_teacher)?,
+            night_teacher: night_teacher.as_ref().map(frozen).transpose()?,
+            targets: targets.clone(),
+        }),
+        ProcedureConfig::Adversarial {
+            day_teacher,
+            night_teacher,
+            targets,
+            critic,
+        } => Box::new(Adversarial::new(
+            student,
+            frozen(day_teacher)?,
+            night_teacher.as_ref().map(frozen).transpose()?,
+            targets.clone(),
+            critic.clone(),
+            device,
+        )?),
+    })
+}
