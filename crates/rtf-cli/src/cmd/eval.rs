@@ -47,6 +47,10 @@ pub struct Args {
     /// the plain path.
     #[arg(long)]
     pub precision: Option<rtf_models::fast::Precision>,
+    /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed), as it was trained
+    /// (`inputs` in its run's config.json: RGB-only and thermal-only variants of a network).
+    #[arg(long, value_parser = rtf_train::Modality::parse)]
+    pub inputs: Option<rtf_train::Modality>,
 }
 
 /// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside
@@ -131,6 +135,13 @@ pub fn run(args: Args) -> Result<()> {
         device,
         args.precision,
     )?;
+    let network: Box<dyn rtf_models::Network> = match args.inputs {
+        None | Some(rtf_train::Modality::RgbT) => network,
+        Some(inputs) => Box::new(rtf_train::procedure::Masked {
+            inner: network,
+            inputs,
+        }),
+    };
     let options = EvalOptions {
         batch_size: args.batch_size,
         resize: args.resize,

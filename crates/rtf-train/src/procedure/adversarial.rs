@@ -63,6 +63,42 @@ impl Adversarial {
         })
     }
 
+    /// The procedure `cfg` describes (tests reach its two step halves through it).
+    pub fn for_test(cfg: &crate::config::TrainConfig) -> Result<Self, TrainError> {
+        let device = Device::Cpu;
+        let crate::config::Procedure::Adversarial {
+            day_teacher,
+            targets,
+            critic,
+            ..
+        } = &cfg.procedure
+        else {
+            return Err(TrainError::Config(
+                "not an adversarial configuration".into(),
+            ));
+        };
+        let crate::config::TeacherRef::Weights {
+            path,
+            model,
+            inputs,
+        } = day_teacher
+        else {
+            return Err(TrainError::Config(
+                "the day teacher must be a weights file".into(),
+            ));
+        };
+        let student = Student::build(cfg, device)?;
+        let teacher = Frozen::load(model, path, *inputs, &cfg.model, device)?;
+        Self::new(
+            student,
+            teacher,
+            None,
+            targets.clone(),
+            critic.clone(),
+            device,
+        )
+    }
+
     /// The critic's score map [B, 1, H, W] of segmentation logits [B, C, H, W].
     fn critic_scores(&self, logits: &Tensor) -> Tensor {
         let x = match self.options.input {

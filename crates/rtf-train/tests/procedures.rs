@@ -1,0 +1,459 @@
+//! HeatNet's procedures on the training core: each runs end to end, resumes bit-identically
+//! (both networks and both optimisers of the adversarial procedure; a two-stage run stopped in
+//! stage 2), each step updates only its own network, label-free procedures never open a night
+//! label, and bad teachers or configs are refused before anything is written.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
+
+use rtf_models::ModelConfig;
+use rtf_train::config::{
+    CriticOptions, PipelineConfig, StageConfig, TargetOptions, TeacherRef, WeightsRef,
+};
+use rtf_train::{DatasetConfig, Modality, OptimizerConfig, Procedure, RunConfig, TrainConfig};
+
+/// libtorch's random generator is process-global: tests that compare runs must not interleave.
+static TORCH_RNG: Mutex<()> = Mutex::new(());
+
+/// A tiny MF-layout dataset, 32×32, day and night frames ("hot pixel = person"); night label
+/// files are garbage, so any attempt to decode one fails the run.
+fn write_dataset(root: &Path) {
+    std::fs::create_dir_all(root.join("images")).unwrap();
+    std::fs::create_dir_all(root.join("labels")).unwrap();
+    let mut state = 777u32;
+    let mut next = move || {
+        state = state.wrapping_mul(1664525).wrapping_add(1013904223);
+        (state >> 24) as u8
+    };
+    let names: Vec<String> = (0..10)
+        .map(|i| format!("{i:05}{}", if i % 2 == 0 { 'D' } else { 'N' }))
+        .collect();
+    for name in &names {
+        let mut image = image::RgbaImage::new(32, 32);
+        let mut label = image::GrayImage::new(32, 32);
+        for (x, y, p) in image.enumerate_pixels_mut() {
+            *p = image::Rgba([next(), next(), next(), next()]);
+            label.put_pixel(x, y, image::Luma([if p.0[3] > 128 { 2 } else { 0 }]));
+        }
+        image
+            .save(root.join("images").join(format!("{name}.png")))
+            .unwrap();
+        let label_path = root.join("labels").join(format!("{name}.png"));
+        match name.ends_with('N') {
+            true => {
+                std::fs::write(&label_path, b"not a png: night labels must not be read").unwrap()
+            }
+            false => label.save(&label_path).unwrap(),
+        }
+    }
+    std::fs::write(root.join("train.txt"), names[..8].join("\n")).unwrap();
+    // Validation and test keep real labels for both day and night.
+    std::fs::write(root.join("val.txt"), "00008D").unwrap();
+}
+
+fn base(root: &Path, epochs: usize) -> TrainConfig {
+    let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
+    cfg.dataset = DatasetConfig::Mf {
+        root: root.to_path_buf(),
+        train_split: "train".into(),
+        val_split: Some("val".into()),
+    };
+    cfg.epochs = epochs;
+    cfg.batch_size = 2;
+    cfg.seed = 3;
+    cfg.workers = 1;
+    cfg.optimizer = OptimizerConfig {
+        lr: 1e-3,
+        momentum: 0.5,
+        ..OptimizerConfig::heatnet_paper()
+    };
+    cfg
+}
+
+/// A randomly initialised MFNet saved as a teacher.
+fn teacher(dir: &Path, seed: i64) -> TeacherRef {
+    tch::manual_seed(seed);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    let model = ModelConfig::from_name("mfnet", 9).unwrap();
+    rtf_models::build(&vs.root(), &model).unwrap();
+    let path = dir.join(format!("teacher{seed}.safetensors"));
+    rtf_models::weights::save_safetensors(&vs, &path).unwrap();
+    TeacherRef::Weights {
+        path,
+        model,
+        inputs: Modality::Rgb,
+    }
+}
+
+fn adversarial(root: &Path, epochs: usize, day: TeacherRef) -> TrainConfig {
+    TrainConfig {
+        procedure: Procedure::Adversarial {
+            day_teacher: day,
+            night_teacher: None,
+            targets: TargetOptions::default(),
+            critic: CriticOptions {
+                optimizer: OptimizerConfig {
+                    lr: 1e-3,
+                    momentum: 0.5,
+                    ..OptimizerConfig::heatnet_paper()
+                },
+                ..CriticOptions::default()
+            },
+        },
+        ..base(root, epochs)
+    }
+}
+
+/// Every tensor of a safetensors file, sorted by name.
+fn tensors(path: &Path) -> Vec<(String, Vec<u8>)> {
+    let bytes = std::fs::read(path).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let mut named: Vec<_> = st
+        .tensors()
+        .into_iter()
+        .map(|(n, v)| (n, v.data().to_vec()))
+        .collect();
+    named.sort_by(|a, b| a.0.cmp(&b.0));
+    named
+}
+
+fn setup() -> (tempfile::TempDir, PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    write_dataset(&data);
+    (tmp, data)
+}
+
+#[test]
+fn adversarial_runs_and_resumes_exactly_after_an_epoch_and_inside_one() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, data) = setup();
+    let cfg = adversarial(&data, 2, teacher(tmp.path(), 1));
+    let straight = tmp.path().join("straight");
+    let expected = rtf_train::train(&cfg, &straight, false, &mut |_| {}).unwrap();
+    let record = &expected.records[1];
+    for term in ["ce_day", "adv", "critic"] {
+        assert!(
+            record.losses[term].is_finite(),
+            "{term} in {:?}",
+            record.losses
+        );
+    }
+    for metric in ["critic_acc_day", "critic_acc_night"] {
+        assert!((0.0..=1.0).contains(&record.metrics[metric]), "{metric}");
+    }
+    assert_eq!(record.lrs.keys().collect::<Vec<_>>(), ["critic", "student"]);
+    let checkpoint = tensors(&straight.join("checkpoint.safetensors"));
+    for prefix in ["student/w/", "student/opt/", "critic/w/", "critic/opt/"] {
+        assert!(
+            checkpoint.iter().any(|(n, _)| n.starts_with(prefix)),
+            "{prefix}"
+        );
+    }
+
+    // Stopped after epoch 1, then resumed.
+    let split = tmp.path().join("split");
+    rtf_train::train(
+        &TrainConfig {
+            epochs: 1,
+            ..cfg.clone()
+        },
+        &split,
+        false,
+        &mut |_| {},
+    )
+    .unwrap();
+    rtf_train::train(&cfg, &split, true, &mut |_| {}).unwrap();
+    // Stopped after the first step (inside epoch 1), then resumed.
+    let inside = tmp.path().join("inside");
+    let stop = AtomicBool::new(true);
+    let stopped =
+        rtf_train::trainer::train_until(&cfg, &inside, false, &mut |_| {}, &stop).unwrap();
+    assert_eq!(stopped.state.partial.as_ref().map(|p| p.batches), Some(1));
+    let resumed = rtf_train::train(&cfg, &inside, true, &mut |_| {}).unwrap();
+    assert_eq!(resumed.records[0].losses, expected.records[0].losses);
+    for run in [&split, &inside] {
+        assert_eq!(
+            tensors(&run.join("checkpoint.safetensors")),
+            checkpoint,
+            "{}: both networks and both optimisers equal the uninterrupted run",
+            run.display()
+        );
+        let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
+        assert_eq!(log.lines().count(), 2);
+    }
+}
+
+#[test]
+fn each_adversarial_step_updates_only_its_own_network() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, data) = setup();
+    let cfg = adversarial(&data, 1, teacher(tmp.path(), 1));
+    let mut procedure = rtf_train::procedure::build(&cfg, None, tch::Device::Cpu).unwrap();
+    let student_of = |p: &dyn rtf_train::procedure::Procedure, i: usize| {
+        p.trained()[i]
+            .vs
+            .variables()
+            .into_iter()
+            .map(|(n, t)| (n, t.copy()))
+            .collect::<std::collections::BTreeMap<_, _>>()
+    };
+    let batch = |daytime: char| {
+        let input = tch::Tensor::rand([2, 4, 32, 32], (tch::Kind::Float, tch::Device::Cpu));
+        rtf_data::Batch {
+            input,
+            target: tch::Tensor::zeros([2, 32, 32], (tch::Kind::Int64, tch::Device::Cpu)),
+            names: vec![format!("a{daytime}"), format!("b{daytime}")],
+            daytimes: vec![None, None],
+            wait: std::time::Duration::ZERO,
+        }
+    };
+    let batches = rtf_train::procedure::StepBatches {
+        main: batch('D'),
+        night: Some(batch('N')),
+    };
+    // Reach into the adversarial step halves through the concrete type.
+    let adv = rtf_train::procedure::build(&cfg, None, tch::Device::Cpu).unwrap();
+    drop(adv);
+    let before_student = student_of(procedure.as_ref(), 0);
+    let before_critic = student_of(procedure.as_ref(), 1);
+    procedure.step(&batches, 0).unwrap();
+    let after_student = student_of(procedure.as_ref(), 0);
+    let after_critic = student_of(procedure.as_ref(), 1);
+    assert!(
+        before_student
+            .iter()
+            .any(|(n, t)| !t.equal(&after_student[n])),
+        "the student learnt"
+    );
+    assert!(
+        before_critic
+            .iter()
+            .any(|(n, t)| !t.equal(&after_critic[n])),
+        "the critic learnt"
+    );
+
+    // The halves alone: the segmentation step leaves the critic untouched, the critic step the
+    // student.
+    let mut halves = rtf_train::procedure::Adversarial::for_test(&cfg).unwrap();
+    let critic0 = halves
+        .critic
+        .vs
+        .variables()
+        .into_iter()
+        .map(|(n, t)| (n, t.copy()))
+        .collect::<Vec<_>>();
+    let student0 = halves
+        .student
+        .trained
+        .vs
+        .variables()
+        .into_iter()
+        .map(|(n, t)| (n, t.copy()))
+        .collect::<Vec<_>>();
+    let (_, _, night_logits, day_logits) = halves.segmentation_step(&batches, 0).unwrap();
+    let critic1 = halves.critic.vs.variables();
+    assert!(
+        critic0.iter().all(|(n, t)| t.equal(&critic1[n])),
+        "segmentation step froze the critic"
+    );
+    let student1 = halves
+        .student
+        .trained
+        .vs
+        .variables()
+        .into_iter()
+        .map(|(n, t)| (n, t.copy()))
+        .collect::<Vec<_>>();
+    assert!(student0
+        .iter()
+        .any(|(n, t)| !t.equal(&student1.iter().find(|(m, _)| m == n).unwrap().1)));
+    halves.critic_step(&day_logits, &night_logits, 0);
+    let student2 = halves.student.trained.vs.variables();
+    assert!(
+        student1.iter().all(|(n, t)| t.equal(&student2[n])),
+        "critic step froze the student"
+    );
+    let critic2 = halves.critic.vs.variables();
+    assert!(
+        critic0.iter().any(|(n, t)| !t.equal(&critic2[n])),
+        "the critic learnt"
+    );
+}
+
+#[test]
+fn two_stage_run_stopped_in_stage_two_resumes_exactly() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, data) = setup();
+    let day = teacher(tmp.path(), 1);
+    let night = teacher(tmp.path(), 2);
+    let stage1 = TrainConfig {
+        procedure: Procedure::TeacherStudent {
+            day_teacher: day.clone(),
+            night_teacher: Some(night),
+            targets: TargetOptions::default(),
+        },
+        ..base(&data, 1)
+    };
+    let stage2 = TrainConfig {
+        init_from: Some(WeightsRef::Stage("stage1".into())),
+        ..adversarial(&data, 2, day)
+    };
+    let pipeline = PipelineConfig {
+        recipe: None,
+        stages: vec![
+            StageConfig {
+                name: "stage1".into(),
+                config: stage1,
+            },
+            StageConfig {
+                name: "stage2".into(),
+                config: stage2,
+            },
+        ],
+    };
+    let straight = tmp.path().join("straight");
+    let never = AtomicBool::new(false);
+    let done =
+        rtf_train::pipeline::run_pipeline(&pipeline, &straight, false, &mut |_, _| {}, &never)
+            .unwrap();
+    assert_eq!(done.trained, ["stage1", "stage2"]);
+    assert!(straight.join("final.safetensors").is_file());
+    // The stage config on disk names the stage-1 weights it started from.
+    let s2 = rtf_train::trainer::read_config(&straight.join("stage2")).unwrap();
+    let RunConfig::Single(s2) = s2 else {
+        panic!("a stage is a single run")
+    };
+    assert_eq!(
+        s2.init_from,
+        Some(WeightsRef::File(straight.join("stage1/final.safetensors")))
+    );
+
+    // Stop once stage 1 has finished: stage 2 stops after its first step.
+    let stopped = tmp.path().join("stopped");
+    let stop = AtomicBool::new(false);
+    let outcome = rtf_train::pipeline::run_pipeline(
+        &pipeline,
+        &stopped,
+        false,
+        &mut |stage, _| {
+            if stage == "stage1" {
+                stop.store(true, Ordering::SeqCst)
+            }
+        },
+        &stop,
+    )
+    .unwrap();
+    let (stage, inner) = outcome.interrupted.expect("stopped in stage 2");
+    assert_eq!(stage, "stage2");
+    assert_eq!(inner.state.partial.as_ref().map(|p| p.batches), Some(1));
+    // A fresh start on that folder is refused; --resume skips stage 1 and finishes stage 2.
+    let err = rtf_train::pipeline::run_pipeline(&pipeline, &stopped, false, &mut |_, _| {}, &never)
+        .unwrap_err();
+    assert!(err.to_string().contains("--resume"), "{err}");
+    let resumed =
+        rtf_train::pipeline::run_pipeline(&pipeline, &stopped, true, &mut |_, _| {}, &never)
+            .unwrap();
+    assert_eq!(resumed.trained, ["stage2"]);
+    assert_eq!(
+        tensors(&stopped.join("stage2/checkpoint.safetensors")),
+        tensors(&straight.join("stage2/checkpoint.safetensors"))
+    );
+    assert_eq!(
+        tensors(&stopped.join("final.safetensors")),
+        tensors(&straight.join("final.safetensors"))
+    );
+}
+
+#[test]
+fn label_free_procedures_train_without_night_labels_and_supervised_needs_them() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, data) = setup();
+    let cfg = TrainConfig {
+        procedure: Procedure::TeacherStudent {
+            day_teacher: teacher(tmp.path(), 1),
+            night_teacher: Some(teacher(tmp.path(), 2)),
+            targets: TargetOptions {
+                threshold: Some(0.05),
+                soft: true,
+            },
+        },
+        inputs: Modality::Rgb,
+        ..base(&data, 1)
+    };
+    let run = rtf_train::train(&cfg, &tmp.path().join("ts"), false, &mut |_| {}).unwrap();
+    assert!(run.records[0].losses.contains_key("ce_night"));
+    // Supervised training reads every label of the split: the garbage night labels fail it,
+    // which is what makes the run above a proof.
+    let err = rtf_train::train(&base(&data, 1), &tmp.path().join("sup"), false, &mut |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("labels") && err.contains("N.png"), "{err}");
+}
+
+#[test]
+fn bad_teachers_and_configs_are_refused_before_anything_is_written() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, data) = setup();
+    let good = teacher(tmp.path(), 1);
+    let TeacherRef::Weights { path, .. } = &good else {
+        unreachable!()
+    };
+    let cases: Vec<(TeacherRef, &str)> = vec![
+        (
+            TeacherRef::Weights {
+                path: tmp.path().join("missing.safetensors"),
+                model: ModelConfig::from_name("mfnet", 9).unwrap(),
+                inputs: Modality::RgbT,
+            },
+            "missing.safetensors",
+        ),
+        (
+            TeacherRef::Weights {
+                path: path.clone(),
+                model: ModelConfig::from_name("mfnet", 13).unwrap(),
+                inputs: Modality::RgbT,
+            },
+            "13 classes",
+        ),
+        (
+            TeacherRef::Weights {
+                path: path.clone(),
+                model: ModelConfig::from_name("heatnet-rgb", 9).unwrap(),
+                inputs: Modality::RgbT,
+            },
+            "input",
+        ),
+    ];
+    for (i, (bad, expected)) in cases.into_iter().enumerate() {
+        let cfg = adversarial(&data, 1, bad);
+        let run = tmp.path().join(format!("bad{i}"));
+        let err = rtf_train::train(&cfg, &run, false, &mut |_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(expected), "case {i}: {err}");
+        assert!(!run.exists(), "case {i}: nothing written");
+    }
+    let unknown = r#"{"stages": [{"name": "a", "config": {"epochz": 3}}]}"#;
+    let err = RunConfig::parse(unknown, false).unwrap_err();
+    assert!(err.contains("epochz"), "{err}");
+    let mut edited = serde_json::to_value(base(&data, 1)).unwrap();
+    edited["optimizer"]["lr"] = serde_json::json!(-1.0);
+    let parsed = RunConfig::parse(&edited.to_string(), false).unwrap();
+    let err = parsed.validate().unwrap_err().to_string();
+    assert!(err.contains("optimizer.lr"), "{err}");
+    // A stage may only name earlier stages.
+    let forward = PipelineConfig {
+        recipe: None,
+        stages: vec![StageConfig {
+            name: "only".into(),
+            config: adversarial(&data, 1, TeacherRef::Stage("later".into())),
+        }],
+    };
+    let err = RunConfig::Pipeline(forward)
+        .validate()
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("later"), "{err}");
+}
