@@ -1,0 +1,250 @@
+//! `rtf train` as users drive it: recipes, configs, the run folder's guarantees (no mixed runs,
+//! SIGTERM like Ctrl-C, resumable from anywhere) and every value checked before anything runs.
+
+mod common;
+
+use std::process::Command;
+
+use common::*;
+
+#[test]
+fn recipes_list_as_json_with_what_each_sets() {
+    let recipes = json_out(&["recipes", "--json"]);
+    let names: Vec<&str> = recipes
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["name"].as_str().unwrap())
+        .collect();
+    for name in [
+        "mfnet-paper",
+        "rtfnet-code",
+        "heatnet-teacher-rgb",
+        "heatnet-teacher-ir",
+        "heatnet-v1",
+        "heatnet-v6",
+        "heatnet-distill",
+    ] {
+        assert!(names.contains(&name), "{name} in {names:?}");
+    }
+    for r in recipes.as_array().unwrap() {
+        assert!(
+            r["procedure"].is_string() && r["description"].is_string(),
+            "{r}"
+        );
+        assert!(!r["stages"].as_array().unwrap().is_empty(), "{r}");
+    }
+    assert!(ok(&["recipes"]).contains("heatnet-v5"));
+}
+
+#[test]
+fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, run) = (dir.path().join("fr"), dir.path().join("run"));
+    ok(&[
+        "synth",
+        "--format",
+        "freiburg",
+        "--out",
+        s(&data),
+        "--count",
+        "12",
+        "--size",
+        "64x32",
+    ]);
+    let args = [
+        "train",
+        "--recipe",
+        "heatnet-v5",
+        "--model",
+        "mfnet",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--epochs",
+        "1",
+        "--batch-size",
+        "2",
+        "--max-steps",
+        "1",
+        "--resize",
+        "64x32",
+        "--workers",
+        "1",
+    ];
+    let stdout = ok(&args);
+    assert!(stdout.trim().ends_with("final.safetensors"), "{stdout}");
+    for stage in ["teacher-rgb", "v5"] {
+        assert!(
+            run.join(stage).join("final.safetensors").is_file(),
+            "{stage}"
+        );
+    }
+    let config = json_file(&run.join("config.json"));
+    assert_eq!(config["recipe"], "heatnet-v5");
+    // The resolved data path: absolute, so the run resumes from any directory.
+    let root = config["stages"][0]["config"]["dataset"]["root"]
+        .as_str()
+        .unwrap();
+    assert!(std::path::Path::new(root).is_absolute(), "{root}");
+    let log = std::fs::read_to_string(run.join("v5/log.jsonl")).unwrap();
+    let record: serde_json::Value = serde_json::from_str(log.lines().next().unwrap()).unwrap();
+    for term in ["ce_day", "adv", "critic"] {
+        assert!(record["losses"][term].is_number(), "{term}: {record}");
+    }
+    assert!(
+        record["metrics"]["critic_acc_night"].is_number(),
+        "{record}"
+    );
+    assert!(record["val"]["miou_heatnet"].is_number() || record["val"]["miou_heatnet"].is_null());
+    // The same folder again without --resume: refused. With it: nothing left to do.
+    let err = fails(&args);
+    assert!(err.contains("--resume"), "{err}");
+    let out = Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args(["train", "--resume", s(&run)])
+        .current_dir(dir.path().join("fr"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+}
+
+#[test]
+fn bad_recipes_configs_and_values_fail_before_anything_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    synth_mf(&data, "6", "1", "32x32");
+    let run = dir.path().join("run");
+    let err = fails(&[
+        "train",
+        "--recipe",
+        "heatnet-v9",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+    ]);
+    assert!(
+        err.contains("heatnet-v9") && err.contains("heatnet-v6"),
+        "{err}"
+    );
+    for (flag, value, field) in [
+        ("--lr", "-1", "lr"),
+        ("--momentum", "5", "momentum"),
+        ("--lr-decay", "0", "lr_decay"),
+        ("--weight-decay", "-0.1", "weight_decay"),
+        ("--max-steps", "0", "max_steps"),
+    ] {
+        let err = fails(&["train", "--data", s(&data), "--out", s(&run), flag, value]);
+        assert!(err.contains(field), "{flag} {value}: {err}");
+    }
+    let config = dir.path().join("run.yaml");
+    std::fs::write(
+        &config,
+        "model: {network: mfnet, num_classes: 9}\nepochz: 3\n",
+    )
+    .unwrap();
+    let err = fails(&["train", "--config", s(&config), "--out", s(&run)]);
+    assert!(err.contains("run.yaml") && err.contains("epochz"), "{err}");
+    // A teacher file without its network, and a missing teacher.
+    let weights = dir.path().join("t.safetensors");
+    std::fs::write(&weights, b"x").unwrap();
+    let err = fails(&[
+        "train",
+        "--recipe",
+        "heatnet-v3",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--teacher",
+        s(&weights),
+    ]);
+    assert!(err.contains("--teacher-model"), "{err}");
+    let err = fails(&[
+        "train",
+        "--recipe",
+        "heatnet-v3",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--teacher",
+        s(&dir.path().join("nope")),
+    ]);
+    assert!(err.contains("nope"), "{err}");
+    assert!(!run.exists(), "nothing written");
+}
+
+#[test]
+fn a_finished_run_is_never_overwritten_and_odd_sizes_train() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, run) = (dir.path().join("data"), dir.path().join("run"));
+    // 97×61 is no multiple of MFNet's stride (16): training pads and crops as eval does.
+    synth_mf(&data, "6", "2", "97x61");
+    ok(&short_train(&data, &run, "1", &["--workers", "1"]));
+    std::fs::remove_file(run.join("checkpoint.safetensors")).unwrap();
+    let err = fails(&short_train(&data, &run, "1", &[]));
+    assert!(err.contains("already holds a run"), "{err}");
+    let err = fails(&short_train(
+        &data,
+        &dir.path().join("r2"),
+        "1",
+        &["--resize", "33x17"],
+    ));
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn sigterm_checkpoints_like_ctrl_c() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, run) = (dir.path().join("data"), dir.path().join("run"));
+    synth_mf(&data, "12", "4", "32x32");
+    let child = Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args([
+            "train",
+            "--data",
+            s(&data),
+            "--out",
+            s(&run),
+            "--epochs",
+            "500",
+            "--batch-size",
+            "2",
+            "--val-split",
+            "none",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    while !run.join("config.json").exists() {
+        assert!(started.elapsed().as_secs() < 60, "training did not start");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    // SAFETY: sends SIGTERM to our own child process.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{stderr}");
+    assert!(run.join("checkpoint.safetensors").exists());
+    assert!(
+        !run.join("run.lock").exists(),
+        "the lock goes with the process"
+    );
+    // A resume may extend the run, never cut it below what is done.
+    let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap_or_default();
+    if log.lines().count() >= 2 {
+        let err = fails(&["train", "--resume", s(&run), "--epochs", "1"]);
+        assert!(err.contains("--epochs"), "{err}");
+    }
+    ok(&[
+        "train",
+        "--resume",
+        s(&run),
+        "--epochs",
+        &(log.lines().count() + 1).to_string(),
+    ]);
+    assert!(run.join("final.safetensors").exists());
+}
