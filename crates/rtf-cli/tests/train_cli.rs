@@ -135,7 +135,8 @@ fn bad_recipes_configs_and_values_fail_before_anything_is_written() {
         ("--weight-decay", "-0.1", "weight_decay"),
         ("--max-steps", "0", "max_steps"),
     ] {
-        let err = fails(&["train", "--data", s(&data), "--out", s(&run), flag, value]);
+        let arg = format!("{flag}={value}");
+        let err = fails(&["train", "--data", s(&data), "--out", s(&run), &arg]);
         assert!(err.contains(field), "{flag} {value}: {err}");
     }
     let config = dir.path().join("run.yaml");
@@ -186,13 +187,12 @@ fn a_finished_run_is_never_overwritten_and_odd_sizes_train() {
     std::fs::remove_file(run.join("checkpoint.safetensors")).unwrap();
     let err = fails(&short_train(&data, &run, "1", &[]));
     assert!(err.contains("already holds a run"), "{err}");
-    let err = fails(&short_train(
+    ok(&short_train(
         &data,
         &dir.path().join("r2"),
         "1",
         &["--resize", "33x17"],
     ));
-    assert!(!err.contains("panicked"), "{err}");
 }
 
 #[test]
