@@ -47,13 +47,28 @@ where
             source,
         });
     }
+    // Durable, not only atomic: the bytes reach the disk before the rename makes them the
+    // file, and the rename itself reaches it before we return (a power cut keeps old or new).
+    let synced = std::fs::File::open(&tmp).and_then(|f| f.sync_all());
+    if let Err(source) = synced {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(AtomicWriteError::Io {
+            path: path.to_path_buf(),
+            source,
+        });
+    }
     std::fs::rename(&tmp, path).map_err(|source| {
         let _ = std::fs::remove_file(&tmp);
         AtomicWriteError::Io {
             path: path.to_path_buf(),
             source,
         }
-    })
+    })?;
+    // Directories cannot be opened for syncing everywhere; where they can, sync this one.
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+    Ok(())
 }
 
 /// Convenience for byte contents.
