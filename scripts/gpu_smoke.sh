@@ -107,6 +107,24 @@ assert abs(a - b) <= 0.002, f"Freiburg HeatNet mIoU: CPU {a} vs {gpu} {b}"
 print(f"Freiburg: HeatNet-convention mIoU CPU {100 * a:.2f} = {gpu} {100 * b:.2f}")
 PY
 
+# HeatNet's adversarial procedure on the GPU (teacher on the labelled day frames, then the
+# student with the day/night critic), resumed after a stop, and scored on CPU and GPU alike.
+step train --recipe heatnet-v5 --model mfnet --data "$work/fr" --out "$work/v5" --epochs 2 \
+    --batch-size 4 --resize 320x160 --lr 1e-3 --device "$gpu"
+grep -q '"critic_acc_night"' "$work/v5/v5/log.jsonl"
+step train --resume "$work/v5" --epochs 3
+for target in cpu "$gpu"; do
+    step eval --model mfnet --weights "$work/v5/final.safetensors" --data "$work/fr" \
+        --resize 320x160 --device "$target" --json "$work/v5_eval_$target.json"
+done
+"$python" - "$work" "$gpu" <<'PY'
+import json, sys
+work, gpu = sys.argv[1:]
+a, b = (json.load(open(f"{work}/v5_eval_{d}.json"))["heatnet"]["miou"] for d in ("cpu", gpu))
+assert abs(a - b) <= 0.002, f"adversarial HeatNet mIoU: CPU {a} vs {gpu} {b}"
+print(f"adversarial (heatnet-v5, mfnet): HeatNet-convention mIoU CPU {100 * a:.2f} = {gpu} {100 * b:.2f}")
+PY
+
 for model in mfnet rtfnet50 heatnet; do
     for precision in fp32 bf16; do
         step bench model --model "$model" --device "$gpu" --precision "$precision" --iterations 20
