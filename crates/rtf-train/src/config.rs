@@ -224,6 +224,10 @@ pub struct TargetOptions {
     /// Learn the teacher's softmax (soft cross-entropy) instead of its arg-max.
     #[serde(default)]
     pub soft: bool,
+    /// Label every frame once (un-augmented, at its own size) into `RUN/labels/`, then train on
+    /// those labels augmented with the frames, instead of running the teacher every step.
+    #[serde(default)]
+    pub cache: bool,
 }
 
 /// What the critic reads (paper: the softmax; published code: raw logits).
@@ -685,6 +689,12 @@ impl TrainConfig {
                 }
                 positive("procedure.critic.steps", critic.steps)?;
                 critic.optimizer.validate("procedure.critic.optimizer")?;
+                if critic.confidence_weighting && targets.cache {
+                    return Err(ConfigError::field(
+                        "procedure.critic.confidence_weighting",
+                        "needs the night teacher's confidence, which a label cache does not keep",
+                    ));
+                }
                 if critic.confidence_weighting && night_teacher.is_none() {
                     return Err(ConfigError::field(
                         "procedure.critic.confidence_weighting",
@@ -738,6 +748,12 @@ impl TrainConfig {
 
 impl TargetOptions {
     fn validate(&self) -> Result<(), ConfigError> {
+        if self.cache && self.soft {
+            return Err(ConfigError::field(
+                "procedure.targets.cache",
+                "a label cache holds hard labels: it cannot go with soft targets",
+            ));
+        }
         match self.threshold {
             Some(t) if !(t.is_finite() && (0.0..1.0).contains(&t)) => Err(ConfigError::field(
                 "procedure.targets.threshold",

@@ -76,6 +76,18 @@ impl PseudoTargets {
         }
     }
 
+    /// Targets read from a batch's labels (a label cache): `ignore` pixels carry none; every
+    /// other pixel has confidence 1. Hard targets only.
+    pub fn from_labels(labels: &Tensor, ignore: i64) -> Self {
+        let ids = labels.masked_fill(&labels.eq(ignore), PSEUDO_IGNORE);
+        let confidence = ids.ne(PSEUDO_IGNORE).to_kind(Kind::Float);
+        Self {
+            ids,
+            probs: Tensor::new(),
+            confidence,
+        }
+    }
+
     /// Pixels that carry a target [B, H, W] bool.
     pub fn counted(&self) -> Tensor {
         self.ids.ne(PSEUDO_IGNORE)

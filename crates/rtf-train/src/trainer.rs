@@ -222,10 +222,11 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
         false => None,
     };
     Ok(Sources {
+        // Unlabelled subsets of MF gain an ignore id: label caches mark low confidence with it.
+        ignore_id: day.class_set().ignore_id,
         main: day,
         night,
         val,
-        ignore_id,
         freiburg,
     })
 }
@@ -412,6 +413,34 @@ pub fn train_until(
         }
     }
     let input = procedure.student().net.input_convention();
+    // Teacher labels written once, if asked: the streams then carry them as labels.
+    let mut sources = sources;
+    let threshold = match &cfg.procedure {
+        crate::config::Procedure::TeacherStudent { targets, .. }
+        | crate::config::Procedure::Adversarial { targets, .. } => targets.threshold,
+        crate::config::Procedure::Supervised => None,
+    };
+    let (day_labeller, night_labeller) = procedure.labellers();
+    let streams = [
+        (day_labeller, Some(&mut sources.main), "day"),
+        (night_labeller, sources.night.as_mut(), "night"),
+    ];
+    for (labeller, stream, name) in streams {
+        let (Some(labeller), Some(stream)) = (labeller.filter(|l| l.cached.is_some()), stream)
+        else {
+            continue;
+        };
+        let dir = run_dir.join("labels").join(name);
+        crate::label_cache::write(
+            &labeller.teacher,
+            stream.clone(),
+            &dir,
+            threshold,
+            input,
+            device,
+        )?;
+        *stream = Arc::new(crate::label_cache::CachedLabels::new(stream.clone(), dir));
+    }
     let main = loader(cfg, sources.main.clone(), cfg.seed, input);
     // The night stream has its own order, and cycles when it is the shorter one.
     let night = sources.night.clone().map(|s| {

@@ -377,6 +377,7 @@ fn label_free_procedures_train_without_night_labels_and_supervised_needs_them() 
             targets: TargetOptions {
                 threshold: Some(0.05),
                 soft: true,
+                cache: false,
             },
         },
         inputs: Modality::Rgb,
@@ -456,4 +457,53 @@ fn bad_teachers_and_configs_are_refused_before_anything_is_written() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("later"), "{err}");
+}
+
+#[test]
+fn a_label_cache_trains_like_the_teacher_run_every_step() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, data) = setup();
+    let day = teacher(tmp.path(), 1);
+    let config = |cache: bool| TrainConfig {
+        procedure: Procedure::TeacherStudent {
+            day_teacher: day.clone(),
+            night_teacher: None,
+            targets: TargetOptions {
+                cache,
+                ..TargetOptions::default()
+            },
+        },
+        // No augmentation: the teacher then sees the same frames either way.
+        augment: Default::default(),
+        ..base(&data, 2)
+    };
+    let live =
+        rtf_train::train(&config(false), &tmp.path().join("live"), false, &mut |_| {}).unwrap();
+    let cached_run = tmp.path().join("cached");
+    let cached = rtf_train::train(&config(true), &cached_run, false, &mut |_| {}).unwrap();
+    let labels = std::fs::read_dir(cached_run.join("labels/day"))
+        .unwrap()
+        .count();
+    assert_eq!(labels, 4, "one label per day frame of the training split");
+    for (a, b) in live.records.iter().zip(&cached.records) {
+        let (a, b) = (a.losses["ce_day"], b.losses["ce_day"]);
+        assert!(
+            (a - b).abs() <= 1e-3 * a.abs().max(1e-6),
+            "epoch loss {a} vs {b}"
+        );
+    }
+    let soft_cache = TrainConfig {
+        procedure: Procedure::TeacherStudent {
+            day_teacher: day.clone(),
+            night_teacher: None,
+            targets: TargetOptions {
+                cache: true,
+                soft: true,
+                threshold: None,
+            },
+        },
+        ..base(&data, 1)
+    };
+    let err = soft_cache.validate().unwrap_err().to_string();
+    assert!(err.contains("procedure.targets.cache"), "{err}");
 }

@@ -17,7 +17,7 @@ use rtf_models::heatnet::{Critic, CriticConfig};
 use tch::{nn::ModuleT, Device, Kind, Tensor};
 
 use super::teacher_student::distillation_loss;
-use super::{Frozen, Procedure, StepBatches, StepReport, Student, Trained, CRITIC};
+use super::{Frozen, Labeller, Procedure, StepBatches, StepReport, Student, Trained, CRITIC};
 use crate::config::{CriticInput, CriticOptions, TargetOptions};
 use crate::loss::least_squares;
 use crate::trainer::TrainError;
@@ -30,8 +30,8 @@ pub struct Adversarial {
     pub student: Student,
     pub critic: Trained,
     critic_net: Critic,
-    day_teacher: Frozen,
-    night_teacher: Option<Frozen>,
+    day_teacher: Labeller,
+    night_teacher: Option<Labeller>,
     targets: TargetOptions,
     options: CriticOptions,
 }
@@ -39,8 +39,8 @@ pub struct Adversarial {
 impl Adversarial {
     pub fn new(
         student: Student,
-        day_teacher: Frozen,
-        night_teacher: Option<Frozen>,
+        day_teacher: Labeller,
+        night_teacher: Option<Labeller>,
         targets: TargetOptions,
         options: CriticOptions,
         device: Device,
@@ -88,7 +88,10 @@ impl Adversarial {
             ));
         };
         let student = Student::build(cfg, device)?;
-        let teacher = Frozen::load(model, path, *inputs, &cfg.model, device)?;
+        let teacher = Labeller {
+            teacher: Frozen::load(model, path, *inputs, &cfg.model, device)?,
+            cached: None,
+        };
         Self::new(
             student,
             teacher,
@@ -127,7 +130,7 @@ impl Adversarial {
         let threshold = self.targets.threshold;
         self.critic.vs.freeze();
         let day_logits = self.student.logits(&batches.main.input);
-        let day_targets = self.day_teacher.targets(&batches.main.input, threshold);
+        let day_targets = self.day_teacher.targets(&batches.main, threshold);
         let ce_day = distillation_loss(&day_logits, &day_targets, &self.targets, None);
         let night_logits = self.student.logits(&night.input);
         let mut terms = BTreeMap::new();
@@ -140,7 +143,7 @@ impl Adversarial {
         // the adversarial term by the rest.
         let mut adversarial_weights = None;
         if let Some(teacher) = &self.night_teacher {
-            let night_targets = teacher.targets(&night.input, threshold);
+            let night_targets = teacher.targets(night, threshold);
             let confidence = night_targets.confidence.shallow_clone();
             let ce_night = distillation_loss(
                 &night_logits,
@@ -221,6 +224,9 @@ impl Procedure for Adversarial {
     }
     fn student(&self) -> &Student {
         &self.student
+    }
+    fn labellers(&self) -> (Option<&Labeller>, Option<&Labeller>) {
+        (Some(&self.day_teacher), self.night_teacher.as_ref())
     }
 
     fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError> {

@@ -222,6 +222,23 @@ pub struct StepReport {
     pub metrics: BTreeMap<String, f64>,
 }
 
+/// Where a batch's targets come from: its teacher, run now, or the teacher's cached labels the
+/// batch carries.
+pub struct Labeller {
+    pub teacher: Frozen,
+    /// The ignore id of cached labels; None = run the teacher.
+    pub cached: Option<i64>,
+}
+
+impl Labeller {
+    pub fn targets(&self, batch: &Batch, threshold: Option<f64>) -> PseudoTargets {
+        match self.cached {
+            Some(ignore) => PseudoTargets::from_labels(&batch.target, ignore),
+            None => self.teacher.targets(&batch.input, threshold),
+        }
+    }
+}
+
 /// One training procedure's networks and step body.
 pub trait Procedure {
     /// The networks it trains (checkpointed under their roles), student first.
@@ -231,6 +248,10 @@ pub trait Procedure {
     fn student(&self) -> &Student;
     /// One optimisation step (inputs already on the device).
     fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError>;
+    /// The day and night labellers, for a label cache.
+    fn labellers(&self) -> (Option<&Labeller>, Option<&Labeller>) {
+        (None, None)
+    }
 }
 
 /// Builds the procedure `cfg` names, teachers resolved to weights files. The student is built
@@ -242,13 +263,21 @@ pub fn build(
     device: Device,
 ) -> Result<Box<dyn Procedure>, TrainError> {
     let student = Student::build(cfg, device)?;
-    let frozen = |teacher: &crate::config::TeacherRef| -> Result<Frozen, TrainError> {
+    let cached = match &cfg.procedure {
+        ProcedureConfig::TeacherStudent { targets, .. }
+        | ProcedureConfig::Adversarial { targets, .. } => targets.cache,
+        ProcedureConfig::Supervised => false,
+    };
+    let frozen = |teacher: &crate::config::TeacherRef| -> Result<Labeller, TrainError> {
         match teacher {
             crate::config::TeacherRef::Weights {
                 path,
                 model,
                 inputs,
-            } => Frozen::load(model, path, *inputs, &cfg.model, device),
+            } => Ok(Labeller {
+                teacher: Frozen::load(model, path, *inputs, &cfg.model, device)?,
+                cached: cached.then(|| ignore_id.map_or(crate::loss::PSEUDO_IGNORE, i64::from)),
+            }),
             crate::config::TeacherRef::Stage(name) => Err(TrainError::Config(format!(
                 "teacher stage `{name}` was not resolved to its weights (a stage teacher only \
                  works inside a multi-stage run)"

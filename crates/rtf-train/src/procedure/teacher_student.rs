@@ -7,15 +7,15 @@ use std::collections::BTreeMap;
 
 use tch::Tensor;
 
-use super::{Frozen, Procedure, StepBatches, StepReport, Student, Trained};
+use super::{Labeller, Procedure, StepBatches, StepReport, Student, Trained};
 use crate::config::TargetOptions;
 use crate::loss::{soft_cross_entropy, weighted_cross_entropy, PseudoTargets, PSEUDO_IGNORE};
 use crate::trainer::TrainError;
 
 pub struct TeacherStudent {
     pub student: Student,
-    pub day_teacher: Frozen,
-    pub night_teacher: Option<Frozen>,
+    pub day_teacher: Labeller,
+    pub night_teacher: Option<Labeller>,
     pub targets: TargetOptions,
 }
 
@@ -49,14 +49,21 @@ impl Procedure for TeacherStudent {
     fn student(&self) -> &Student {
         &self.student
     }
+    fn labellers(&self) -> (Option<&Labeller>, Option<&Labeller>) {
+        (Some(&self.day_teacher), self.night_teacher.as_ref())
+    }
 
     fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError> {
         let threshold = self.targets.threshold;
         // Day: the day teacher's labels (eq. 1).
-        let day = &batches.main.input;
+        let day = &batches.main;
         let day_targets = self.day_teacher.targets(day, threshold);
-        let ce_day =
-            distillation_loss(&self.student.logits(day), &day_targets, &self.targets, None);
+        let ce_day = distillation_loss(
+            &self.student.logits(&day.input),
+            &day_targets,
+            &self.targets,
+            None,
+        );
         let mut terms = BTreeMap::new();
         terms.insert(
             "ce_day".to_string(),
@@ -66,7 +73,7 @@ impl Procedure for TeacherStudent {
         // Night: the night teacher's labels (the thermal teacher in stage 1; the RGB-T model
         // when distilling into an RGB-only student).
         if let (Some(teacher), Some(night)) = (&self.night_teacher, &batches.night) {
-            let night_targets = teacher.targets(&night.input, threshold);
+            let night_targets = teacher.targets(night, threshold);
             let ce_night = distillation_loss(
                 &self.student.logits(&night.input),
                 &night_targets,
