@@ -266,9 +266,8 @@ fn bench(ctx: &Context, cell: &Cell, dir: &Path) -> Result<()> {
     .map(String::from)
     .to_vec();
     args.extend(ctx.budget.bench_args());
-    let out = Command::new(&ctx.rtf)
+    let out = rtf_command(ctx)
         .args(&args)
-        .current_dir(&ctx.root)
         .stderr(Stdio::inherit())
         .output()
         .context("starting rtf bench")?;
@@ -328,14 +327,25 @@ fn rtf(ctx: &Context, dir: &Path, args: &[String]) -> Result<i32> {
         .with_context(|| format!("opening {}", log_path.display()))?;
     writeln!(log, "$ rtf {}", args.join(" "))?;
     let err = log.try_clone()?;
-    let status = Command::new(&ctx.rtf)
+    let status = rtf_command(ctx)
         .args(args)
-        .current_dir(&ctx.root)
         .stdout(log.try_clone()?)
         .stderr(err)
         .status()
         .with_context(|| format!("cannot start {}", ctx.rtf.display()))?;
     Ok(status.code().unwrap_or(130))
+}
+
+/// `rtf` in the project root. OpenMP threads wait passively unless the caller chose
+/// otherwise: libgomp's default spinning made training ~10× slower on this shared 2-core
+/// machine (MFNet 0.4 vs 5–7 images/s at 128×96, measured under a load of 8–10).
+fn rtf_command(ctx: &Context) -> Command {
+    let mut c = Command::new(&ctx.rtf);
+    c.current_dir(&ctx.root);
+    if std::env::var_os("OMP_WAIT_POLICY").is_none() {
+        c.env("OMP_WAIT_POLICY", "PASSIVE");
+    }
+    c
 }
 
 /// Writes JSON through a temporary file and a rename.

@@ -562,6 +562,47 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
     Ok(())
 }
 
+/// Where `cargo xtask test` runs `reproduce all --budget smoke`.
+pub const SMOKE_OUT: &str = "target/reproduce-smoke";
+
+/// `reproduce all --budget smoke` from scratch, then checks that every table wrote its
+/// Markdown, CSV and schema-valid JSON (and Fig. 3 its PNG). Numbers are not asserted.
+pub fn smoke(root: &Path) -> Result<()> {
+    let out = root.join(SMOKE_OUT);
+    if out.exists() {
+        std::fs::remove_dir_all(&out).with_context(|| format!("removing {}", out.display()))?;
+    }
+    let args: Vec<String> = ["all", "--budget", "smoke", "--out", SMOKE_OUT]
+        .map(String::from)
+        .to_vec();
+    reproduce(root, &args)?;
+    for (id, _) in list() {
+        for ext in ["md", "json"] {
+            let path = out.join(format!("{id}.{ext}"));
+            if !path.is_file() {
+                bail!("reproduce smoke: {} was not written", path.display());
+            }
+        }
+        let path = out.join(format!("{id}.json"));
+        let v: Value = serde_json::from_slice(&std::fs::read(&path)?)
+            .with_context(|| format!("{}: not JSON", path.display()))?;
+        report::validate(&v).with_context(|| format!("{}", path.display()))?;
+        if v["budget"]["name"] != "smoke" {
+            bail!("{}: budget is not smoke", path.display());
+        }
+    }
+    for t in tables::all(false) {
+        if !out.join(format!("{}.csv", t.id)).is_file() {
+            bail!("reproduce smoke: {}.csv was not written", t.id);
+        }
+    }
+    if !out.join("rtfnet-fig3.png").is_file() {
+        bail!("reproduce smoke: rtfnet-fig3.png was not drawn");
+    }
+    eprintln!("reproduce smoke: every table written and its JSON valid ({SMOKE_OUT})");
+    Ok(())
+}
+
 fn duration(s: f64) -> String {
     let s = s.max(0.0) as u64;
     if s >= 3600 {
