@@ -386,6 +386,121 @@ mod tests {
         assert_eq!(state(&dir, true), State::Done);
     }
 
+    /// A stand-in `rtf` (shell script) that records its calls and writes the files the real
+    /// one writes; `interrupt` / `fail` files next to it make `train` stop on Ctrl-C / fail.
+    const FAKE_RTF: &str = r#"#!/bin/sh
+here=$(dirname "$0")
+echo "$*" >> "$here/calls.txt"
+arg() { key=$1; shift; while [ $# -gt 0 ]; do [ "$1" = "$key" ] && { echo "$2"; return; }; shift; done; }
+case "$1" in
+  train)
+    if [ "$2" = "--resume" ]; then out=$3; else out=$(arg --out "$@"); fi
+    mkdir -p "$out"; echo '{}' > "$out/config.json"
+    [ -f "$here/fail" ] && exit 3
+    if [ -f "$here/interrupt" ]; then echo x > "$out/checkpoint.safetensors"; exit 130; fi
+    echo x > "$out/checkpoint.safetensors"; echo x > "$out/final.safetensors"
+    echo '{"images_per_s": 10.0}' > "$out/log.jsonl" ;;
+  eval)
+    echo '{"miou": 0.5, "macc": 0.6, "miou_mfnet": 0.4, "per_class": [], "day": null, "night": null}' > "$(arg --json "$@")" ;;
+  bench)
+    echo '{"median_ms": 3.5}' ;;
+esac
+"#;
+
+    fn fake_context(tmp: &Path) -> Context {
+        use std::os::unix::fs::PermissionsExt;
+        let bin = tmp.join("bin");
+        std::fs::create_dir_all(&bin).unwrap();
+        let rtf = bin.join("rtf");
+        std::fs::write(&rtf, FAKE_RTF).unwrap();
+        std::fs::set_permissions(&rtf, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let data = tmp.join("data");
+        std::fs::create_dir_all(&data).unwrap();
+        Context {
+            root: tmp.to_path_buf(),
+            rtf,
+            out: tmp.join("out"),
+            budget: Budget::Smoke,
+            device: "cpu".into(),
+            backbone_weights: None,
+            data: BTreeMap::from([(Data::Mf, (data, false))]),
+            recipes: BTreeMap::new(),
+        }
+    }
+
+    fn calls(tmp: &Path) -> Vec<String> {
+        std::fs::read_to_string(tmp.join("bin/calls.txt"))
+            .unwrap_or_default()
+            .lines()
+            .map(|l| l.split(' ').take(2).collect::<Vec<_>>().join(" "))
+            .collect()
+    }
+
+    #[test]
+    fn cells_train_resume_skip_and_reuse() {
+        let tmp = tempfile::tempdir().unwrap();
+        let tmp = tmp.path();
+        let ctx = fake_context(tmp);
+        let tables = crate::reproduce::tables::all(false);
+        let tab3 = tables.iter().find(|t| t.id == "mfnet-tab3").unwrap();
+        let tab2 = tables.iter().find(|t| t.id == "mfnet-tab2").unwrap();
+        let mfnet3 = tab3.cell("mfnet").unwrap();
+        let dir = ctx.cell_dir(tab3, mfnet3, 0);
+
+        // Interrupted training leaves a checkpoint; the next run resumes it.
+        std::fs::write(tmp.join("bin/interrupt"), "").unwrap();
+        assert_eq!(run(&ctx, tab3, mfnet3, 0).unwrap(), Outcome::Interrupted);
+        assert_eq!(state(&dir, true), State::Resume);
+        std::fs::remove_file(tmp.join("bin/interrupt")).unwrap();
+        assert_eq!(run(&ctx, tab3, mfnet3, 0).unwrap(), Outcome::Ran);
+        assert_eq!(
+            calls(tmp),
+            [
+                "train --data",
+                "train --resume",
+                "eval --model",
+                "bench model"
+            ]
+        );
+        assert_eq!(state(&dir, true), State::Done);
+        let bench: Value =
+            serde_json::from_slice(&std::fs::read(dir.parent().unwrap().join(BENCH_FILE)).unwrap())
+                .unwrap();
+        assert_eq!(bench["median_ms"], 3.5);
+        // The eval used the final weights (no best.safetensors) on the test split.
+        let log = std::fs::read_to_string(tmp.join("bin/calls.txt")).unwrap();
+        assert!(
+            log.contains("final.safetensors") && log.contains("--split test"),
+            "{log}"
+        );
+
+        // The same network with the same recipe in another table: copied, not trained.
+        let mfnet2 = tab2.cell("mfnet").unwrap();
+        let before = calls(tmp).len();
+        let reused = run(&ctx, tab2, mfnet2, 0).unwrap();
+        assert_eq!(reused, Outcome::Reused(dir.clone()));
+        assert_eq!(calls(tmp).len(), before, "nothing ran");
+        let dir2 = ctx.cell_dir(tab2, mfnet2, 0);
+        assert_eq!(state(&dir2, false), State::Done);
+
+        // A failing cell reports the command and its log; the folder stays resumable.
+        std::fs::write(tmp.join("bin/fail"), "").unwrap();
+        let segnet = tab2.cell("segnet-3c").unwrap();
+        let err = run(&ctx, tab2, segnet, 0).unwrap_err().to_string();
+        assert!(
+            err.contains("rtf train") && err.contains("exit 3") && err.contains("xtask.log"),
+            "{err}"
+        );
+        std::fs::remove_file(tmp.join("bin/fail")).unwrap();
+        assert_eq!(run(&ctx, tab2, segnet, 0).unwrap(), Outcome::Ran);
+
+        // A finished folder written with another budget is refused.
+        let mut quick = ctx;
+        quick.budget = Budget::Quick;
+        let err = check_spec(&dir, &quick.spec(tab3, mfnet3, 0).unwrap()).unwrap_err();
+        assert!(err.to_string().contains("another recipe"), "{err}");
+    }
+
     #[test]
     fn a_folder_made_with_another_recipe_is_refused() {
         let tmp = tempfile::tempdir().unwrap();
