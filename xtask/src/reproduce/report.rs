@@ -382,8 +382,11 @@ fn measured(v: &Value, row: &str, col: &str) -> Option<f64> {
     v["rows"].as_array()?.iter().find(|r| r["label"] == row)?["measured"][col]["mean"].as_f64()
 }
 
+/// A (row label, column) of a results table.
+type Cell<'a> = (&'a str, &'a str);
+
 /// `a > b` for every pair, each a (row, column) of the results.
-fn greater(v: &Value, text: &str, pairs: &[((&str, &str), (&str, &str))]) -> Claim {
+fn greater(v: &Value, text: &str, pairs: &[(Cell, Cell)]) -> Claim {
     let mut detail = Vec::new();
     let mut held = Some(true);
     for ((ra, ca), (rb, cb)) in pairs {
@@ -456,7 +459,7 @@ pub fn claims(table: &str, v: &Value) -> Vec<Claim> {
                 .iter()
                 .map(|n| (format!("{n} (4c)"), format!("{n} (3c)")))
                 .collect();
-            let pairs: Vec<((&str, &str), (&str, &str))> = labels
+            let pairs: Vec<(Cell, Cell)> = labels
                 .iter()
                 .map(|(a, b)| ((a.as_str(), "Nighttime mIoU"), (b.as_str(), "Nighttime mIoU")))
                 .collect();
@@ -500,13 +503,14 @@ pub fn estimate(ctx: &Context, table: &Table) -> Option<Value> {
         let Train::Model(name) = cell.train else {
             continue;
         };
-        let log = ctx.cell_dir(table, cell, 0).join("log.jsonl");
+        // A reused cell's training log is in the folder it was copied from.
+        let dir = ctx.cell_dir(table, cell, 0);
+        let log = read_json(&dir.join(cells::CELL_FILE))
+            .and_then(|c| c["reused_from"].as_str().map(std::path::PathBuf::from))
+            .unwrap_or(dir)
+            .join("log.jsonl");
         let Some(rate) = std::fs::read_to_string(&log).ok().and_then(|t| {
-            let last = t
-                .lines()
-                .filter(|l| !l.trim().is_empty())
-                .last()?
-                .to_string();
+            let last = t.lines().rfind(|l| !l.trim().is_empty())?.to_string();
             serde_json::from_str::<Value>(&last).ok()?["images_per_s"].as_f64()
         }) else {
             continue;
