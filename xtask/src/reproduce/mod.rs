@@ -99,7 +99,8 @@ fn usage() -> String {
     let mut text = String::from(
         "usage: cargo xtask reproduce <table>|all [options]
        cargo xtask reproduce --list
-       cargo xtask reproduce docs [--out DIR]   write docs/src/reproduction.md from DIR's results
+       cargo xtask reproduce docs [--out DIR] [--note TEXT]   write docs/src/reproduction.md
+                                     from DIR's quick results (TEXT: why some are missing)
        cargo xtask reproduce smoke   `all --budget smoke` afresh into target/reproduce-smoke,
                                      then check every table's files (run by `cargo xtask test`)
 
@@ -441,7 +442,22 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
             );
             continue;
         }
-        let left = total - k;
+        // Cells left to train: identical ones (another table's same run) count once.
+        let mut keys: Vec<String> = jobs[k..]
+            .iter()
+            .filter(|(t, c, s)| {
+                cells::state(&ctx.cell_dir(t, c, *s), c.bench) != cells::State::Done
+            })
+            .filter_map(|(t, c, s)| ctx.spec(t, c, *s).ok())
+            .map(|v| {
+                ["budget", "train_data", "eval_data", "rtf_train", "rtf_eval"]
+                    .map(|key| v[key].to_string())
+                    .join("|")
+            })
+            .collect();
+        keys.sort();
+        keys.dedup();
+        let left = keys.len();
         let eta = if ran > 0 {
             format!(
                 ", about {} left",
@@ -531,6 +547,10 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
                 root,
                 t,
                 &speed::Options {
+                    size: match o.budget {
+                        Budget::Smoke => "96x64".into(),
+                        _ => "640x480".into(),
+                    },
                     device: o.device.clone(),
                     precision: o.precision.clone(),
                     warmup: o.warmup.unwrap_or(warmup),
@@ -720,24 +740,29 @@ fn fig3(v: &Value, png: &Path) -> Result<()> {
 /// `reproduce docs`: docs/src/reproduction.md from the results under `--out`.
 fn docs(root: &Path, args: &[String]) -> Result<()> {
     let mut out = PathBuf::from("results");
+    let mut note = String::new();
     let mut it = args.iter();
     while let Some(flag) = it.next() {
         match flag.as_str() {
             "--out" => out = PathBuf::from(it.next().context("--out needs a value")?),
+            "--note" => note = it.next().context("--note needs a value")?.clone(),
             other => bail!("reproduce docs: unknown option `{other}`"),
         }
     }
     let dir = root.join(&out);
     let mut text = String::from(DOCS_HEAD);
     let mut found = 0;
+    let mut absent = Vec::new();
     for (id, _) in list() {
         let path = dir.join(format!("{id}.json"));
         let Ok(bytes) = std::fs::read(&path) else {
+            absent.push(id);
             continue;
         };
         let v: Value = serde_json::from_slice(&bytes)
             .with_context(|| format!("{}: not JSON", path.display()))?;
         if v["budget"]["name"] != "quick" && v["budget"] != "quick" {
+            absent.push(id);
             continue;
         }
         let md = std::fs::read_to_string(dir.join(format!("{id}.md")))
@@ -748,6 +773,18 @@ fn docs(root: &Path, args: &[String]) -> Result<()> {
     }
     if found == 0 {
         bail!("{}: no quick-budget results (run `cargo xtask reproduce <table> --budget quick` first)", dir.display());
+    }
+    if !absent.is_empty() {
+        let _ = writeln!(
+            text,
+            "\n## Not run with the quick budget here\n\n{}: no quick results on this machine. \
+             {note}",
+            absent
+                .iter()
+                .map(|id| format!("`{id}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
     let path = root.join("docs/src/reproduction.md");
     cells::write_atomic(&path, text.as_bytes())?;

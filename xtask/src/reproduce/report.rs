@@ -528,7 +528,8 @@ pub fn estimate(ctx: &Context, table: &Table) -> Option<Value> {
         gpu_s += epochs * frames / gpu_rate;
         n += 1;
     }
-    if n == 0 || ctx.budget == Budget::Paper {
+    // Only the quick budget's rates mean something (smoke's are start-up costs).
+    if n == 0 || ctx.budget != Budget::Quick {
         return None;
     }
     let text = format!(

@@ -116,6 +116,8 @@ pub const TABLES: &[Table] = &[
 ];
 
 pub struct Options {
+    /// WxH of the timed input (the papers: 640x480; the smoke budget times a small one).
+    pub size: String,
     pub device: String,
     pub precision: String,
     pub warmup: usize,
@@ -206,6 +208,8 @@ pub fn run(
                 &o.warmup.to_string(),
                 "--iterations",
                 &o.iterations.to_string(),
+                "--size",
+                &o.size,
                 "--json",
             ],
         )?;
@@ -222,10 +226,15 @@ pub fn run(
     }
     let context = format!(
         "Paper columns: the paper's numbers as printed (its GPUs). Measured columns: `rtf bench \
-         model` on this machine, device {} ({} threads), {} fast path, batch 1, 480×640, random \
+         model` on this machine, device {} ({} threads), {} fast path, batch 1, {}, random \
          weights, median of {} passes after {} warm-up; parameters and f32 size from `rtf \
          models --json`. Command: `{command}`.",
-        o.device, threads, o.precision, o.iterations, o.warmup,
+        o.device,
+        threads,
+        o.precision,
+        o.size.replace('x', "×"),
+        o.iterations,
+        o.warmup,
     );
     let text = render(table, &measured, &context);
     print!("{text}");
@@ -273,7 +282,7 @@ pub fn run(
         "table": table.id,
         "title": table.title,
         "budget": {"name": budget, "warmup": o.warmup, "iterations": o.iterations,
-                   "precision": o.precision},
+                   "precision": o.precision, "size": o.size},
         "data": "none",
         "device": o.device,
         "threads": threads,
