@@ -284,7 +284,11 @@ fn bench(ctx: &Context, cell: &Cell, dir: &Path) -> Result<()> {
 fn find_identical(ctx: &Context, dir: &Path, spec: &Value) -> Option<PathBuf> {
     let seed = dir.file_name()?;
     for table in std::fs::read_dir(&ctx.out).ok()?.flatten() {
-        for cell in std::fs::read_dir(table.path()).ok()?.flatten() {
+        // Result files (`<table>.md`, …) sit beside the table folders.
+        let Ok(cells) = std::fs::read_dir(table.path()) else {
+            continue;
+        };
+        for cell in cells.flatten() {
             let other = cell.path().join(seed);
             if other == dir || state(&other, false) != State::Done {
                 continue;
@@ -475,6 +479,8 @@ esac
         );
 
         // The same network with the same recipe in another table: copied, not trained.
+        // (Result files of finished tables sit beside the table folders.)
+        std::fs::write(ctx.out.join("mfnet-tab3.md"), "x").unwrap();
         let mfnet2 = tab2.cell("mfnet").unwrap();
         let before = calls(tmp).len();
         let reused = run(&ctx, tab2, mfnet2, 0).unwrap();
