@@ -327,6 +327,14 @@ pub fn markdown(v: &Value) -> String {
             );
         }
     }
+    if let Some(f) = v.get("figure").and_then(Value::as_str) {
+        let _ = writeln!(
+            s,
+            "\nFigure `{f}`: measured mAcc (left) and mIoU (right) against the encoder \
+             (ResNet-18, 34, 50, 101, 152 from left to right), y from 0 to 100 % with a grid line \
+             every 10 %; RTFNet red, NRE blue, NTE green, NUB orange."
+        );
+    }
     if let Some(e) = v.get("estimate").and_then(|e| e["text"].as_str()) {
         let _ = writeln!(s, "\n{e}");
     }
