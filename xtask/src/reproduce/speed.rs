@@ -1,15 +1,16 @@
-//! `cargo xtask reproduce <table>`: runs the measurements behind a table of the papers with the
-//! release `rtf` binary and prints them beside the paper's own numbers, each column labelled
-//! with where it comes from. So far the speed and size tables, which need no dataset.
+//! The speed and size tables (MFNet Tab. IV, RTFNet Tab. VII): `rtf bench model` on this
+//! machine beside the paper's numbers, each column labelled with where it comes from. They
+//! need no dataset (random weights).
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
+use serde_json::json;
 use std::fmt::Write as _;
 use std::path::Path;
 
 /// A paper's table: its columns and, per row, the rtf network measured for it.
-struct Table {
-    id: &'static str,
-    title: &'static str,
+pub struct Table {
+    pub id: &'static str,
+    pub title: &'static str,
     /// Where the paper measured (GPU names), for the column labels.
     paper_columns: &'static [&'static str],
     rows: &'static [Row],
@@ -22,7 +23,7 @@ struct Row {
     paper: &'static [&'static str],
 }
 
-const TABLES: &[Table] = &[
+pub const TABLES: &[Table] = &[
     Table {
         id: "rtfnet-tab7",
         title: "RTFNet Tab. VII: inference speed, 480×640, 4-channel input",
@@ -114,54 +115,13 @@ const TABLES: &[Table] = &[
     },
 ];
 
-struct Options {
-    table: &'static Table,
-    device: String,
-    precision: String,
-    warmup: usize,
-    iterations: usize,
-    out: Option<String>,
-}
-
-fn usage() -> String {
-    let mut text = String::from(
-        "usage: cargo xtask reproduce <table> [--device cpu|cuda] [--precision fp32|bf16] \
-         [--warmup N] [--iterations N] [--out FILE.md]\n\ntables:\n",
-    );
-    for t in TABLES {
-        let _ = writeln!(text, "  {:<12} {}", t.id, t.title);
-    }
-    text
-}
-
-fn parse(args: &[String]) -> Result<Options> {
-    let Some(id) = args.first().filter(|a| !a.starts_with('-')) else {
-        bail!("{}", usage());
-    };
-    let Some(table) = TABLES.iter().find(|t| t.id == id) else {
-        bail!("unknown table `{id}`\n\n{}", usage());
-    };
-    let mut o = Options {
-        table,
-        device: "cpu".into(),
-        precision: "fp32".into(),
-        warmup: 1,
-        iterations: 5,
-        out: None,
-    };
-    let mut it = args[1..].iter();
-    while let Some(flag) = it.next() {
-        let mut value = || it.next().with_context(|| format!("{flag} needs a value"));
-        match flag.as_str() {
-            "--device" => o.device = value()?.clone(),
-            "--precision" => o.precision = value()?.clone(),
-            "--warmup" => o.warmup = value()?.parse().context("--warmup: a number")?,
-            "--iterations" => o.iterations = value()?.parse().context("--iterations: a number")?,
-            "--out" => o.out = Some(value()?.clone()),
-            other => bail!("reproduce: unknown option `{other}`\n\n{}", usage()),
-        }
-    }
-    Ok(o)
+pub struct Options {
+    /// WxH of the timed input (the papers: 640x480; the smoke budget times a small one).
+    pub size: String,
+    pub device: String,
+    pub precision: String,
+    pub warmup: usize,
+    pub iterations: usize,
 }
 
 /// What rtf measured for one network.
@@ -216,23 +176,22 @@ fn render(table: &Table, measured: &[Measured], context: &str) -> String {
     out
 }
 
-pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
-    if matches!(
-        args.first().map(String::as_str),
-        None | Some("-h" | "--help" | "help")
-    ) {
-        print!("{}", usage());
-        return Ok(());
-    }
-    let o = parse(args)?;
-    crate::setup::ensure_libtorch(root)?;
-    crate::run(root, "cargo", &["build", "--release", "-p", "rtf-cli"])?;
+/// Measures `table` and writes `<out>/<id>.md` and `.json` (paper values as printed, parsed to
+/// numbers where they are numbers).
+pub fn run(
+    root: &Path,
+    table: &Table,
+    o: &Options,
+    out: &Path,
+    command: &str,
+    budget: &str,
+) -> Result<()> {
     let models: serde_json::Value =
         serde_json::from_str(&crate::rtf_stdout(root, &["models", "--json"])?)
             .context("parsing `rtf models --json`")?;
     let mut measured = Vec::new();
     let mut threads = 0.0;
-    for row in o.table.rows {
+    for row in table.rows {
         eprintln!("reproduce: timing {} ({}) ...", row.label, row.network);
         let bench = crate::rtf_stdout(
             root,
@@ -249,6 +208,8 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
                 &o.warmup.to_string(),
                 "--iterations",
                 &o.iterations.to_string(),
+                "--size",
+                &o.size,
                 "--json",
             ],
         )?;
@@ -265,26 +226,79 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
     }
     let context = format!(
         "Paper columns: the paper's numbers as printed (its GPUs). Measured columns: `rtf bench \
-         model` on this machine, device {} ({} threads), {} fast path, batch 1, 480×640, random \
+         model` on this machine, device {} ({} threads), {} fast path, batch 1, {}, random \
          weights, median of {} passes after {} warm-up; parameters and f32 size from `rtf \
-         models --json`. Command: `cargo xtask reproduce {}{}`.",
+         models --json`. Command: `{command}`.",
         o.device,
         threads,
         o.precision,
+        o.size.replace('x', "×"),
         o.iterations,
         o.warmup,
-        o.table.id,
-        args[1..].iter().fold(String::new(), |acc, a| acc + " " + a)
     );
-    let text = render(o.table, &measured, &context);
+    let text = render(table, &measured, &context);
     print!("{text}");
-    if let Some(path) = &o.out {
-        let path = root.join(path);
-        let tmp = path.with_extension("md.tmp");
-        std::fs::write(&tmp, &text).with_context(|| format!("writing {}", tmp.display()))?;
-        std::fs::rename(&tmp, &path).with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("reproduce: wrote {}", path.display());
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let number = |s: &str| -> Option<f64> {
+        let end = s
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(s.len());
+        s[..end].parse().ok()
+    };
+    let rows: Vec<serde_json::Value> = table
+        .rows
+        .iter()
+        .zip(&measured)
+        .map(|(row, m)| {
+            let paper: serde_json::Map<String, serde_json::Value> = table
+                .paper_columns
+                .iter()
+                .zip(row.paper)
+                .filter_map(|(c, v)| Some((c.to_string(), json!(number(v)?))))
+                .collect();
+            let one = |v: f64| json!({"mean": v, "std": 0.0, "seeds": [v]});
+            json!({
+                "label": row.label,
+                "network": row.network,
+                "paper": paper,
+                "measured": {
+                    "ms": one(m.median_ms),
+                    "FPS": one(m.fps),
+                    "parameters": one(m.params as f64),
+                    "MiB (f32)": one(m.megabytes),
+                },
+            })
+        })
+        .collect();
+    let mut columns: Vec<serde_json::Value> = table
+        .paper_columns
+        .iter()
+        .map(|c| json!({"name": c, "paper": table.title, "measured": null}))
+        .collect();
+    for c in ["ms", "FPS", "parameters", "MiB (f32)"] {
+        columns.push(json!({"name": c, "paper": null, "measured": "rtf bench model / rtf models"}));
     }
+    let v = json!({
+        "table": table.id,
+        "title": table.title,
+        "budget": {"name": budget, "warmup": o.warmup, "iterations": o.iterations,
+                   "precision": o.precision, "size": o.size},
+        "data": "none",
+        "device": o.device,
+        "threads": threads,
+        "protocol": {"convention": "speed: median ms per frame, batch 1, 480×640, random weights"},
+        "columns": columns,
+        "rows": rows,
+        "claims": [],
+        "command": command,
+    });
+    super::report::validate(&v)?;
+    super::cells::write_json(&out.join(format!("{}.json", table.id)), &v)?;
+    super::cells::write_atomic(&out.join(format!("{}.md", table.id)), text.as_bytes())?;
+    eprintln!(
+        "reproduce: wrote {}",
+        out.join(format!("{}.md", table.id)).display()
+    );
     Ok(())
 }
 
@@ -293,7 +307,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn every_row_has_a_paper_cell_per_column_and_a_known_table_id() {
+    fn every_row_has_a_paper_cell_per_column() {
         for t in TABLES {
             for row in t.rows {
                 assert_eq!(
@@ -305,26 +319,6 @@ mod tests {
                 );
             }
         }
-        let args = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        assert_eq!(
-            parse(&args(&["rtfnet-tab7"])).unwrap().table.id,
-            "rtfnet-tab7"
-        );
-        let o = parse(&args(&[
-            "mfnet-tab4",
-            "--device",
-            "cuda",
-            "--iterations",
-            "9",
-        ]))
-        .unwrap();
-        assert_eq!((o.device.as_str(), o.iterations), ("cuda", 9));
-        let err = parse(&args(&["tab99"])).err().unwrap().to_string();
-        assert!(
-            err.contains("unknown table `tab99`") && err.contains("rtfnet-tab7"),
-            "{err}"
-        );
-        assert!(parse(&args(&["mfnet-tab4", "--bogus"])).is_err());
     }
 
     #[test]

@@ -1,0 +1,528 @@
+//! One cell = one trained network and its evaluation, in an ordinary `rtf train` run folder
+//! `<out>/<table>/<cell>/seed<k>/` that also holds `cell.json` (what the cell runs) and
+//! `eval.json` (`rtf eval --json`). What is on disk decides what is left to do, so a re-run
+//! skips finished cells and resumes interrupted ones (`rtf train --resume`).
+
+use super::budget::Budget;
+use super::tables::{Cell, Data, Table, Train};
+use anyhow::{bail, Context as _, Result};
+use serde_json::{json, Value};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+pub const CELL_FILE: &str = "cell.json";
+pub const EVAL_FILE: &str = "eval.json";
+pub const BENCH_FILE: &str = "bench.json";
+const LOG_FILE: &str = "xtask.log";
+
+/// What a cell folder holds, hence what is left to do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum State {
+    /// `eval.json` is there (and `bench.json` where the table times the network).
+    Done,
+    /// Training finished (`final.safetensors`); evaluate (and time).
+    Evaluate,
+    /// A checkpoint of an interrupted run: `rtf train --resume`.
+    Resume,
+    /// Nothing usable: train from the start.
+    Fresh,
+}
+
+pub fn state(dir: &Path, bench: bool) -> State {
+    let evaluated = std::fs::read(dir.join(EVAL_FILE))
+        .ok()
+        .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
+        .is_some();
+    let timed = !bench
+        || dir
+            .parent()
+            .is_some_and(|cell| cell.join(BENCH_FILE).exists());
+    if evaluated && timed {
+        State::Done
+    } else if dir.join("final.safetensors").exists() {
+        State::Evaluate
+    } else if dir.join("checkpoint.safetensors").exists() {
+        State::Resume
+    } else {
+        State::Fresh
+    }
+}
+
+/// Everything a run needs to know beyond the table.
+pub struct Context {
+    pub root: PathBuf,
+    pub rtf: PathBuf,
+    pub out: PathBuf,
+    pub budget: Budget,
+    pub device: String,
+    pub backbone_weights: Option<PathBuf>,
+    /// Dataset roots (given or synthesised) and whether they are real.
+    pub data: BTreeMap<Data, (PathBuf, bool)>,
+    /// `rtf recipes --json` entries by name (empty when rtf has no recipes yet).
+    pub recipes: BTreeMap<String, Value>,
+}
+
+impl Context {
+    pub fn cell_dir(&self, table: &Table, cell: &Cell, seed: usize) -> PathBuf {
+        self.out
+            .join(table.id)
+            .join(&cell.id)
+            .join(format!("seed{seed}"))
+    }
+
+    fn root_of(&self, data: Data) -> Result<&(PathBuf, bool)> {
+        self.data
+            .get(&data)
+            .with_context(|| format!("no {} root (give {})", data.name(), data.flag()))
+    }
+
+    /// The network `rtf eval` builds for a cell.
+    pub fn network(&self, cell: &Cell) -> Result<String> {
+        match &cell.train {
+            Train::Model(m) => Ok(m.to_string()),
+            Train::Recipe(r) => self
+                .recipes
+                .get(*r)
+                .and_then(|e| e.get("model").and_then(Value::as_str))
+                .map(String::from)
+                .with_context(|| format!("`rtf recipes --json` gives no `model` for `{r}`")),
+        }
+    }
+
+    /// What the cell runs, as written to `cell.json`: a changed recipe makes the folder
+    /// someone else's (checked before anything runs).
+    pub fn spec(&self, table: &Table, cell: &Cell, seed: usize) -> Result<Value> {
+        let (train_root, train_real) = self.root_of(cell.data)?;
+        let (eval_root, _) = self.root_of(cell.eval_on)?;
+        let mut train: Vec<String> = match &cell.train {
+            Train::Model(m) => {
+                let mut v = vec!["--model".to_string(), m.to_string()];
+                v.extend(self.budget.train_args(table.recipe, *train_real));
+                if cell.data == Data::Freiburg {
+                    // Freiburg's only labelled held-out part is its test layout: no
+                    // validation on it (the protocol never picks a checkpoint on test).
+                    v.extend(["--val-split".into(), "none".into()]);
+                }
+                if let (Some(w), true) = (&self.backbone_weights, m.contains("rtfnet")) {
+                    v.extend(["--backbone-weights".into(), w.display().to_string()]);
+                }
+                v
+            }
+            Train::Recipe(r) => {
+                let mut v = vec!["--recipe".to_string(), r.to_string()];
+                v.extend(self.budget.recipe_args());
+                v
+            }
+        };
+        train.extend(["--seed".into(), seed.to_string()]);
+        train.extend(["--device".into(), self.device.clone()]);
+        Ok(json!({
+            "table": table.id,
+            "cell": cell.id,
+            "seed": seed,
+            "budget": self.budget.name(),
+            "train_data": train_root,
+            "eval_data": eval_root,
+            "rtf_train": train,
+            "rtf_eval": self.budget.eval_args(*train_real),
+        }))
+    }
+}
+
+/// Fails when `dir` holds a cell made with another recipe (another budget or dataset).
+pub fn check_spec(dir: &Path, spec: &Value) -> Result<()> {
+    let path = dir.join(CELL_FILE);
+    let Ok(bytes) = std::fs::read(&path) else {
+        return Ok(());
+    };
+    let old: Value = serde_json::from_slice(&bytes)
+        .with_context(|| format!("{}: not valid JSON", path.display()))?;
+    let keys = ["budget", "train_data", "eval_data", "rtf_train", "rtf_eval"];
+    for k in keys {
+        if old.get(k) != spec.get(k) {
+            bail!(
+                "{} was made with another recipe ({k}: {} here, {} now); use another --out or \
+                 remove that folder",
+                path.display(),
+                old.get(k).unwrap_or(&Value::Null),
+                spec.get(k).unwrap_or(&Value::Null)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// How a cell run ended.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Outcome {
+    Ran,
+    /// Copied from an identical finished cell of another table.
+    Reused(PathBuf),
+    /// `rtf train` stopped on Ctrl-C (exit 130) after writing a checkpoint.
+    Interrupted,
+}
+
+/// Runs what is left of one cell.
+pub fn run(ctx: &Context, table: &Table, cell: &Cell, seed: usize) -> Result<Outcome> {
+    let dir = ctx.cell_dir(table, cell, seed);
+    let spec = ctx.spec(table, cell, seed)?;
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    write_json(&dir.join(CELL_FILE), &spec)?;
+    let mut st = state(&dir, cell.bench);
+    if st == State::Fresh {
+        if let Some(other) = find_identical(ctx, &dir, &spec) {
+            std::fs::copy(other.join(EVAL_FILE), dir.join(EVAL_FILE))
+                .with_context(|| format!("copying {}", other.join(EVAL_FILE).display()))?;
+            let mut spec = spec.clone();
+            spec["reused_from"] = json!(other);
+            write_json(&dir.join(CELL_FILE), &spec)?;
+            if cell.bench {
+                bench(ctx, cell, &dir)?;
+            }
+            return Ok(Outcome::Reused(other));
+        }
+    }
+    let network = ctx.network(cell)?;
+    if matches!(st, State::Fresh | State::Resume) {
+        let mut args: Vec<String> = vec!["train".into()];
+        if st == State::Resume {
+            args.extend(["--resume".into(), dir.display().to_string()]);
+        } else {
+            let train_root = spec["train_data"].as_str().context("train_data")?;
+            args.extend(["--data".into(), train_root.into()]);
+            args.extend(["--out".into(), dir.display().to_string()]);
+            args.extend(strings(&spec["rtf_train"]));
+        }
+        match rtf(ctx, &dir, &args)? {
+            0 => {}
+            130 => return Ok(Outcome::Interrupted),
+            code => bail!(
+                "`rtf {}` failed (exit {code}); its output: {}",
+                args.join(" "),
+                dir.join(LOG_FILE).display()
+            ),
+        }
+        st = State::Evaluate;
+    }
+    if st == State::Evaluate {
+        // The protocol: the checkpoint picked on validation where a validation split was
+        // used (MF), else the final weights.
+        let best = dir.join("best.safetensors");
+        let weights = if best.exists() {
+            best
+        } else {
+            dir.join("final.safetensors")
+        };
+        let mut args: Vec<String> = [
+            "eval",
+            "--model",
+            &network,
+            "--weights",
+            &weights.display().to_string(),
+            "--data",
+            spec["eval_data"].as_str().context("eval_data")?,
+            "--split",
+            "test",
+            "--json",
+            &dir.join(EVAL_FILE).display().to_string(),
+            "--device",
+            &ctx.device,
+        ]
+        .map(String::from)
+        .to_vec();
+        args.extend(strings(&spec["rtf_eval"]));
+        if rtf(ctx, &dir, &args)? != 0 {
+            bail!(
+                "`rtf {}` failed; its output: {}",
+                args.join(" "),
+                dir.join(LOG_FILE).display()
+            );
+        }
+        if cell.bench {
+            bench(ctx, cell, &dir)?;
+        }
+    }
+    Ok(Outcome::Ran)
+}
+
+/// Times the cell's network once per cell (`<cell>/bench.json`, not per seed).
+fn bench(ctx: &Context, cell: &Cell, dir: &Path) -> Result<()> {
+    let cell_dir = dir.parent().context("cell folder")?;
+    let path = cell_dir.join(BENCH_FILE);
+    if path.exists() {
+        return Ok(());
+    }
+    let network = ctx.network(cell)?;
+    let mut args: Vec<String> = [
+        "bench",
+        "model",
+        "--model",
+        &network,
+        "--device",
+        &ctx.device,
+        "--json",
+    ]
+    .map(String::from)
+    .to_vec();
+    args.extend(ctx.budget.bench_args());
+    let out = rtf_command(ctx)
+        .args(&args)
+        .stderr(Stdio::inherit())
+        .output()
+        .context("starting rtf bench")?;
+    if !out.status.success() {
+        bail!("`rtf {}` failed", args.join(" "));
+    }
+    let v: Value = serde_json::from_slice(&out.stdout).context("parsing `rtf bench --json`")?;
+    let mut v = v;
+    v["command"] = json!(format!("rtf {}", args.join(" ")));
+    write_json(&path, &v)
+}
+
+/// A finished cell elsewhere under `--out` with the same training and evaluation.
+fn find_identical(ctx: &Context, dir: &Path, spec: &Value) -> Option<PathBuf> {
+    let seed = dir.file_name()?;
+    for table in std::fs::read_dir(&ctx.out).ok()?.flatten() {
+        // Result files (`<table>.md`, …) sit beside the table folders.
+        let Ok(cells) = std::fs::read_dir(table.path()) else {
+            continue;
+        };
+        for cell in cells.flatten() {
+            let other = cell.path().join(seed);
+            if other == dir || state(&other, false) != State::Done {
+                continue;
+            }
+            let Ok(bytes) = std::fs::read(other.join(CELL_FILE)) else {
+                continue;
+            };
+            let Ok(o) = serde_json::from_slice::<Value>(&bytes) else {
+                continue;
+            };
+            let same = ["budget", "train_data", "eval_data", "rtf_train", "rtf_eval"]
+                .iter()
+                .all(|k| o.get(k) == spec.get(k));
+            if same && o.get("reused_from").is_none() {
+                return Some(other);
+            }
+        }
+    }
+    None
+}
+
+fn strings(v: &Value) -> Vec<String> {
+    v.as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|s| s.as_str().map(String::from))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Runs `rtf ARGS`, output appended to the cell's log; returns the exit code.
+fn rtf(ctx: &Context, dir: &Path, args: &[String]) -> Result<i32> {
+    use std::io::Write;
+    let log_path = dir.join(LOG_FILE);
+    let mut log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .with_context(|| format!("opening {}", log_path.display()))?;
+    writeln!(log, "$ rtf {}", args.join(" "))?;
+    let err = log.try_clone()?;
+    let status = rtf_command(ctx)
+        .args(args)
+        .stdout(log.try_clone()?)
+        .stderr(err)
+        .status()
+        .with_context(|| format!("cannot start {}", ctx.rtf.display()))?;
+    Ok(status.code().unwrap_or(130))
+}
+
+/// `rtf` in the project root. OpenMP threads wait passively unless the caller chose
+/// otherwise: libgomp's default spinning made training ~10× slower on this shared 2-core
+/// machine (MFNet 0.4 vs 5–7 images/s at 128×96, measured under a load of 8–10).
+fn rtf_command(ctx: &Context) -> Command {
+    let mut c = Command::new(&ctx.rtf);
+    c.current_dir(&ctx.root);
+    if std::env::var_os("OMP_WAIT_POLICY").is_none() {
+        c.env("OMP_WAIT_POLICY", "PASSIVE");
+    }
+    c
+}
+
+/// Writes JSON through a temporary file and a rename.
+pub fn write_json(path: &Path, v: &Value) -> Result<()> {
+    write_atomic(path, serde_json::to_string_pretty(v)?.as_bytes())
+}
+
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn state_follows_the_files_of_the_run_folder() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("cell/seed0");
+        assert_eq!(state(&dir, false), State::Fresh);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("config.json"), "{}").unwrap();
+        assert_eq!(state(&dir, false), State::Fresh, "config alone is no run");
+        std::fs::write(dir.join("checkpoint.safetensors"), "x").unwrap();
+        assert_eq!(state(&dir, false), State::Resume);
+        std::fs::write(dir.join("final.safetensors"), "x").unwrap();
+        assert_eq!(state(&dir, false), State::Evaluate);
+        std::fs::write(dir.join(EVAL_FILE), "{\"miou\": 0.").unwrap();
+        assert_eq!(state(&dir, false), State::Evaluate, "a torn eval.json");
+        std::fs::write(dir.join(EVAL_FILE), "{\"miou\": 0.5}").unwrap();
+        assert_eq!(state(&dir, false), State::Done);
+        assert_eq!(state(&dir, true), State::Evaluate, "timing missing");
+        std::fs::write(dir.parent().unwrap().join(BENCH_FILE), "{}").unwrap();
+        assert_eq!(state(&dir, true), State::Done);
+    }
+
+    /// A stand-in `rtf` (shell script) that records its calls and writes the files the real
+    /// one writes; `interrupt` / `fail` files next to it make `train` stop on Ctrl-C / fail.
+    const FAKE_RTF: &str = r#"#!/bin/sh
+here=$(dirname "$0")
+echo "$*" >> "$here/calls.txt"
+arg() { key=$1; shift; while [ $# -gt 0 ]; do [ "$1" = "$key" ] && { echo "$2"; return; }; shift; done; }
+case "$1" in
+  train)
+    if [ "$2" = "--resume" ]; then out=$3; else out=$(arg --out "$@"); fi
+    mkdir -p "$out"; echo '{}' > "$out/config.json"
+    [ -f "$here/fail" ] && exit 3
+    if [ -f "$here/interrupt" ]; then echo x > "$out/checkpoint.safetensors"; exit 130; fi
+    echo x > "$out/checkpoint.safetensors"; echo x > "$out/final.safetensors"
+    echo '{"images_per_s": 10.0}' > "$out/log.jsonl" ;;
+  eval)
+    echo '{"miou": 0.5, "macc": 0.6, "miou_mfnet": 0.4, "per_class": [], "day": null, "night": null}' > "$(arg --json "$@")" ;;
+  bench)
+    echo '{"median_ms": 3.5}' ;;
+esac
+"#;
+
+    fn fake_context(tmp: &Path) -> Context {
+        use std::os::unix::fs::PermissionsExt;
+        let bin = tmp.join("bin");
+        std::fs::create_dir_all(&bin).unwrap();
+        let rtf = bin.join("rtf");
+        std::fs::write(&rtf, FAKE_RTF).unwrap();
+        std::fs::set_permissions(&rtf, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let data = tmp.join("data");
+        std::fs::create_dir_all(&data).unwrap();
+        Context {
+            root: tmp.to_path_buf(),
+            rtf,
+            out: tmp.join("out"),
+            budget: Budget::Smoke,
+            device: "cpu".into(),
+            backbone_weights: None,
+            data: BTreeMap::from([(Data::Mf, (data, false))]),
+            recipes: BTreeMap::new(),
+        }
+    }
+
+    fn calls(tmp: &Path) -> Vec<String> {
+        std::fs::read_to_string(tmp.join("bin/calls.txt"))
+            .unwrap_or_default()
+            .lines()
+            .map(|l| l.split(' ').take(2).collect::<Vec<_>>().join(" "))
+            .collect()
+    }
+
+    #[test]
+    fn cells_train_resume_skip_and_reuse() {
+        let tmp = tempfile::tempdir().unwrap();
+        let tmp = tmp.path();
+        let ctx = fake_context(tmp);
+        let tables = crate::reproduce::tables::all(false);
+        let tab3 = tables.iter().find(|t| t.id == "mfnet-tab3").unwrap();
+        let tab2 = tables.iter().find(|t| t.id == "mfnet-tab2").unwrap();
+        let mfnet3 = tab3.cell("mfnet").unwrap();
+        let dir = ctx.cell_dir(tab3, mfnet3, 0);
+
+        // Interrupted training leaves a checkpoint; the next run resumes it.
+        std::fs::write(tmp.join("bin/interrupt"), "").unwrap();
+        assert_eq!(run(&ctx, tab3, mfnet3, 0).unwrap(), Outcome::Interrupted);
+        assert_eq!(state(&dir, true), State::Resume);
+        std::fs::remove_file(tmp.join("bin/interrupt")).unwrap();
+        assert_eq!(run(&ctx, tab3, mfnet3, 0).unwrap(), Outcome::Ran);
+        assert_eq!(
+            calls(tmp),
+            [
+                "train --data",
+                "train --resume",
+                "eval --model",
+                "bench model"
+            ]
+        );
+        assert_eq!(state(&dir, true), State::Done);
+        let bench: Value =
+            serde_json::from_slice(&std::fs::read(dir.parent().unwrap().join(BENCH_FILE)).unwrap())
+                .unwrap();
+        assert_eq!(bench["median_ms"], 3.5);
+        // The eval used the final weights (no best.safetensors) on the test split.
+        let log = std::fs::read_to_string(tmp.join("bin/calls.txt")).unwrap();
+        assert!(
+            log.contains("final.safetensors") && log.contains("--split test"),
+            "{log}"
+        );
+
+        // The same network with the same recipe in another table: copied, not trained.
+        // (Result files of finished tables sit beside the table folders.)
+        std::fs::write(ctx.out.join("mfnet-tab3.md"), "x").unwrap();
+        let mfnet2 = tab2.cell("mfnet").unwrap();
+        let before = calls(tmp).len();
+        let reused = run(&ctx, tab2, mfnet2, 0).unwrap();
+        assert_eq!(reused, Outcome::Reused(dir.clone()));
+        assert_eq!(calls(tmp).len(), before, "nothing ran");
+        let dir2 = ctx.cell_dir(tab2, mfnet2, 0);
+        assert_eq!(state(&dir2, false), State::Done);
+
+        // A failing cell reports the command and its log; the folder stays resumable.
+        std::fs::write(tmp.join("bin/fail"), "").unwrap();
+        let segnet = tab2.cell("segnet-3c").unwrap();
+        let err = run(&ctx, tab2, segnet, 0).unwrap_err().to_string();
+        assert!(
+            err.contains("rtf train") && err.contains("exit 3") && err.contains("xtask.log"),
+            "{err}"
+        );
+        std::fs::remove_file(tmp.join("bin/fail")).unwrap();
+        assert_eq!(run(&ctx, tab2, segnet, 0).unwrap(), Outcome::Ran);
+
+        // A finished folder written with another budget is refused.
+        let mut quick = ctx;
+        quick.budget = Budget::Quick;
+        let err = check_spec(&dir, &quick.spec(tab3, mfnet3, 0).unwrap()).unwrap_err();
+        assert!(err.to_string().contains("another recipe"), "{err}");
+    }
+
+    #[test]
+    fn a_folder_made_with_another_recipe_is_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        let spec = json!({"budget": "quick", "train_data": "d", "eval_data": "d",
+                          "rtf_train": ["--model", "mfnet"], "rtf_eval": []});
+        check_spec(tmp.path(), &spec).unwrap();
+        write_json(&tmp.path().join(CELL_FILE), &spec).unwrap();
+        check_spec(tmp.path(), &spec).unwrap();
+        let mut other = spec.clone();
+        other["budget"] = json!("smoke");
+        let err = check_spec(tmp.path(), &other).unwrap_err().to_string();
+        assert!(
+            err.contains("another recipe") && err.contains("budget"),
+            "{err}"
+        );
+        std::fs::write(tmp.path().join(CELL_FILE), "nope").unwrap();
+        assert!(check_spec(tmp.path(), &spec).is_err());
+    }
+}

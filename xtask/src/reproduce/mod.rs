@@ -1,0 +1,1028 @@
+//! `cargo xtask reproduce <table>|all`: orchestrates the experiments behind the papers' tables
+//! with the release `rtf` binary (`rtf synth`, `rtf train`, `rtf eval`, `rtf bench model`) and
+//! writes each table with the paper's numbers beside the measured ones (project issue 11).
+//!
+//! Every cell is an ordinary run folder `<out>/<table>/<cell>/seed<k>/`; a re-run skips
+//! finished cells and resumes interrupted ones; a failed cell is reported and the others go on.
+//! Protocol: train on train, pick the checkpoint on validation (never on test), report test.
+
+mod budget;
+mod cells;
+mod figure;
+mod report;
+mod speed;
+mod tables;
+
+use anyhow::{bail, Context as _, Result};
+use budget::Budget;
+use cells::{Context, Outcome};
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use tables::{Data, Table, Train};
+
+/// Network names `rtf models --json` lists that the tables use, compiled in so the table
+/// definitions are checked without libtorch; a test compares them with the binary's list when
+/// `target/release/rtf` exists.
+#[cfg(test)]
+pub const KNOWN_NETWORKS: &[&str] = &[
+    "duchdc-3c",
+    "duchdc-4c",
+    "enet-3c",
+    "erfnet-3c",
+    "erfnet-4c",
+    "fusenet",
+    "heatnet",
+    "mfnet",
+    "mfnet-b",
+    "mfnet-c",
+    "mfnet-d",
+    "mfnet-e",
+    "mfnet-f",
+    "mfnet-g",
+    "mfnet-h",
+    "mfnet-i",
+    "mfnet-j",
+    "mfnet-k",
+    "mfnet-l",
+    "mfnet-m",
+    "mfnet-n",
+    "pspnet-3c",
+    "pspnet-4c",
+    "rtfnet101",
+    "rtfnet101-nre",
+    "rtfnet101-nte",
+    "rtfnet101-nub",
+    "rtfnet152",
+    "rtfnet152-fci",
+    "rtfnet152-nre",
+    "rtfnet152-nte",
+    "rtfnet152-nub",
+    "rtfnet152-olf",
+    "rtfnet18",
+    "rtfnet18-nre",
+    "rtfnet18-nte",
+    "rtfnet18-nub",
+    "rtfnet34",
+    "rtfnet34-nre",
+    "rtfnet34-nte",
+    "rtfnet34-nub",
+    "rtfnet50",
+    "rtfnet50-fci",
+    "rtfnet50-nre",
+    "rtfnet50-nte",
+    "rtfnet50-nub",
+    "rtfnet50-olf",
+    "segnet-3c",
+    "segnet-4c",
+    "unet-3c",
+    "unet-4c",
+];
+
+/// The HeatNet recipes the HeatNet tables call (`rtf recipes --json`).
+#[cfg(test)]
+pub const HEATNET_RECIPES: &[&str] = &[
+    "heatnet-distill",
+    "heatnet-teacher-ir",
+    "heatnet-teacher-rgb",
+    "heatnet-v1",
+    "heatnet-v2",
+    "heatnet-v3",
+    "heatnet-v4",
+    "heatnet-v5",
+    "heatnet-v6",
+];
+
+fn usage() -> String {
+    let mut text = String::from(
+        "usage: cargo xtask reproduce <table>|all [options]
+       cargo xtask reproduce --list
+       cargo xtask reproduce docs [--out DIR] [--note TEXT]   write docs/src/reproduction.md
+                                     from DIR's quick results (TEXT: why some are missing)
+       cargo xtask reproduce smoke   `all --budget smoke` afresh into target/reproduce-smoke,
+                                     then check every table's files (run by `cargo xtask test`)
+
+options:
+  --budget smoke|quick|paper  smoke: CI pipeline check; quick: small runs for a CPU (default);
+                              paper: the papers' recipes, for a GPU (--device cuda)
+  --seeds N                   seeds 0..N-1 per cell (default 1); results as mean ± std
+  --out DIR                   results folder (default results/): <table>.md/.json/.csv, cells
+  --mf DIR | --freiburg DIR | --bdd DIR   real datasets (default: synthetic, from `rtf synth`)
+  --device cpu|cuda           (default cpu)
+  --backbone-weights FILE     ImageNet ResNet weights for RTFNet encoders (paper budget)
+  speed tables: --precision fp32|bf16, --warmup N, --iterations N
+
+tables:
+",
+    );
+    for (id, title) in list() {
+        let _ = writeln!(text, "  {id:<13} {title}");
+    }
+    text += "  all           every table above\n";
+    text
+}
+
+/// (id, title) of every table, in `all`'s order.
+fn list() -> Vec<(&'static str, &'static str)> {
+    let mut v: Vec<_> = tables::all(false).iter().map(|t| (t.id, t.title)).collect();
+    v.extend(speed::TABLES.iter().map(|t| (t.id, t.title)));
+    v
+}
+
+#[derive(Debug)]
+struct Options {
+    ids: Vec<&'static str>,
+    all: bool,
+    budget: Budget,
+    seeds: usize,
+    out: PathBuf,
+    roots: BTreeMap<Data, PathBuf>,
+    device: String,
+    backbone_weights: Option<PathBuf>,
+    precision: String,
+    warmup: Option<usize>,
+    iterations: Option<usize>,
+}
+
+fn parse(args: &[String]) -> Result<Options> {
+    let Some(first) = args.first().filter(|a| !a.starts_with('-')) else {
+        bail!("{}", usage());
+    };
+    let known = list();
+    let (ids, all) = if first == "all" {
+        (known.iter().map(|(id, _)| *id).collect(), true)
+    } else {
+        let Some((id, _)) = known.iter().find(|(id, _)| id == first) else {
+            bail!("unknown table `{first}`\n\n{}", usage());
+        };
+        (vec![*id], false)
+    };
+    let mut o = Options {
+        ids,
+        all,
+        budget: Budget::Quick,
+        seeds: 1,
+        out: PathBuf::from("results"),
+        roots: BTreeMap::new(),
+        device: "cpu".into(),
+        backbone_weights: None,
+        precision: "fp32".into(),
+        warmup: None,
+        iterations: None,
+    };
+    let mut it = args[1..].iter();
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().with_context(|| format!("{flag} needs a value"));
+        let number = |v: &String, what: &str| -> Result<usize> {
+            v.parse()
+                .with_context(|| format!("{what}: `{v}` is not a whole number"))
+        };
+        match flag.as_str() {
+            "--budget" => o.budget = Budget::parse(value()?)?,
+            "--seeds" => {
+                o.seeds = number(value()?, "--seeds")?;
+                if o.seeds == 0 {
+                    bail!("--seeds must be at least 1");
+                }
+            }
+            "--out" => o.out = PathBuf::from(value()?),
+            "--mf" => {
+                o.roots.insert(Data::Mf, PathBuf::from(value()?));
+            }
+            "--freiburg" => {
+                o.roots.insert(Data::Freiburg, PathBuf::from(value()?));
+            }
+            "--bdd" => {
+                o.roots.insert(Data::Bdd, PathBuf::from(value()?));
+            }
+            "--device" => o.device = value()?.clone(),
+            "--backbone-weights" => o.backbone_weights = Some(PathBuf::from(value()?)),
+            "--precision" => o.precision = value()?.clone(),
+            "--warmup" => o.warmup = Some(number(value()?, "--warmup")?),
+            "--iterations" => o.iterations = Some(number(value()?, "--iterations")?),
+            other => bail!("reproduce: unknown option `{other}`\n\n{}", usage()),
+        }
+    }
+    Ok(o)
+}
+
+/// Checks a dataset root's layout (the folders `rtf` recognises it by; spec §1, §6).
+fn check_root(data: Data, root: &Path) -> Result<()> {
+    if !root.is_dir() {
+        bail!("{} {}: no such folder", data.flag(), root.display());
+    }
+    match data {
+        Data::Mf => {
+            let missing: Vec<&str> = ["images/", "labels/", "train.txt", "val.txt", "test.txt"]
+                .into_iter()
+                .filter(|p| !root.join(p.trim_end_matches('/')).exists())
+                .collect();
+            if !missing.is_empty() {
+                bail!(
+                    "--mf {}: not an MF dataset root: missing {} (an MF root holds images/, \
+                     labels/ and the split files train.txt, val.txt, test.txt)",
+                    root.display(),
+                    missing.join(", ")
+                );
+            }
+        }
+        Data::Freiburg => {
+            if !has_dir_named(root, &["fl_rgb", "ImagesRGB"], 6) {
+                bail!(
+                    "--freiburg {}: not a Freiburg Thermal root: no fl_rgb/ or ImagesRGB/ folder \
+                     within 6 levels",
+                    root.display()
+                );
+            }
+        }
+        Data::Bdd => {
+            let splits = std::fs::read_dir(root.join("images"))
+                .map(|rd| {
+                    rd.flatten()
+                        .filter(|e| root.join("labels").join(e.file_name()).is_dir())
+                        .count()
+                })
+                .unwrap_or(0);
+            if splits == 0 {
+                bail!(
+                    "--bdd {}: not a BDD100K root: needs images/<split>/ with a matching \
+                     labels/<split>/",
+                    root.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+fn has_dir_named(dir: &Path, names: &[&str], depth: usize) -> bool {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    rd.flatten().filter(|e| e.path().is_dir()).any(|e| {
+        names.iter().any(|n| e.file_name() == *n)
+            || (depth > 1 && has_dir_named(&e.path(), names, depth - 1))
+    })
+}
+
+/// The checks that need no binary: roots' layouts and which tables read them.
+fn check_inputs(o: &Options, selected: &[Table]) -> Result<()> {
+    for (data, root) in &o.roots {
+        check_root(*data, root)?;
+        if o.all {
+            continue;
+        }
+        let users: Vec<&str> = selected
+            .iter()
+            .filter(|t| t.datasets().contains(data))
+            .map(|t| t.id)
+            .collect();
+        if users.is_empty() {
+            let ids: Vec<&str> = o.ids.clone();
+            let reads: Vec<String> = selected
+                .iter()
+                .map(|t| {
+                    let d: Vec<&str> = t.datasets().iter().map(|d| d.name()).collect();
+                    format!(
+                        "{} reads {}",
+                        t.id,
+                        if d.is_empty() {
+                            "no dataset".to_string()
+                        } else {
+                            d.join(", ")
+                        }
+                    )
+                })
+                .collect();
+            bail!(
+                "{} {} given, but {} does not use the {} dataset ({})",
+                data.flag(),
+                root.display(),
+                ids.join(", "),
+                data.name(),
+                if reads.is_empty() {
+                    "a speed table reads no dataset".to_string()
+                } else {
+                    reads.join("; ")
+                }
+            );
+        }
+    }
+    if let Some(w) = &o.backbone_weights {
+        if !w.is_file() {
+            bail!("--backbone-weights {}: no such file", w.display());
+        }
+    }
+    Ok(())
+}
+
+pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
+    match args.first().map(String::as_str) {
+        None | Some("-h" | "--help" | "help") => {
+            print!("{}", usage());
+            return Ok(());
+        }
+        Some("--list") => {
+            for (id, title) in list() {
+                println!("{id:<13} {title}");
+            }
+            return Ok(());
+        }
+        Some("docs") => return docs(root, &args[1..]),
+        Some("smoke") if args.len() == 1 => return smoke(root),
+        _ => {}
+    }
+    let o = parse(args)?;
+    let out = root.join(&o.out);
+    let command = format!("cargo xtask reproduce {}", args.join(" "));
+    let selected: Vec<Table> = tables::all(o.roots.contains_key(&Data::Bdd))
+        .into_iter()
+        .filter(|t| o.ids.contains(&t.id))
+        .collect();
+    check_inputs(&o, &selected)?;
+
+    crate::setup::ensure_libtorch(root)?;
+    crate::run(root, "cargo", &["build", "--release", "-p", "rtf-cli"])?;
+    let rtf = root.join("target/release/rtf");
+    check_networks(root, &selected)?;
+    let recipes = available_recipes(root);
+    let mut missing: Vec<(String, report::Missing)> = Vec::new();
+    let lacking: Vec<&str> = tables::recipes(&selected)
+        .into_iter()
+        .filter(|r| !recipes.contains_key(*r))
+        .collect();
+    if !lacking.is_empty() && !o.all {
+        bail!(
+            "{} needs the HeatNet recipes {} of `rtf train --recipe`, which this rtf does not \
+             list (`rtf recipes --json`); they land with the HeatNet-training issue",
+            o.ids.join(", "),
+            lacking.join(", ")
+        );
+    }
+
+    // Cells to run, and the ones that cannot run (reported in the results).
+    let mut jobs: Vec<(&Table, &tables::Cell, usize)> = Vec::new();
+    for t in &selected {
+        for c in &t.cells {
+            let reason = c.blocked.map(String::from).or_else(|| match c.train {
+                Train::Recipe(r) if !recipes.contains_key(r) => Some(format!(
+                    "needs the recipe `{r}` (`rtf recipes` does not list it yet)"
+                )),
+                _ => None,
+            });
+            match reason {
+                Some(reason) => missing.push((
+                    t.id.to_string(),
+                    report::Missing {
+                        cell: c.id.clone(),
+                        reason,
+                    },
+                )),
+                None => jobs.extend((0..o.seeds).map(|s| (t, c, s))),
+            }
+        }
+    }
+
+    // Datasets: the given roots, else synthetic ones for what the runnable cells read.
+    let mut data = BTreeMap::new();
+    for (d, r) in &o.roots {
+        let abs = std::fs::canonicalize(r).with_context(|| format!("{}", r.display()))?;
+        data.insert(*d, (abs, true));
+    }
+    let needed: Vec<Data> = {
+        let mut v: Vec<Data> = jobs
+            .iter()
+            .flat_map(|(_, c, _)| [c.data, c.eval_on])
+            .collect();
+        v.sort();
+        v.dedup();
+        v
+    };
+    for d in needed {
+        if data.contains_key(&d) {
+            continue;
+        }
+        if d == Data::Bdd {
+            bail!("BDD100K cannot be synthesised: give --bdd");
+        }
+        let dir = synthesise(root, &rtf, &out, o.budget, d)?;
+        data.insert(d, (dir, false));
+    }
+    let ctx = Context {
+        root: root.to_path_buf(),
+        rtf: rtf.clone(),
+        out: out.clone(),
+        budget: o.budget,
+        device: o.device.clone(),
+        backbone_weights: o.backbone_weights.clone(),
+        data,
+        recipes,
+    };
+    // A folder made with another recipe stops everything before anything runs.
+    for (t, c, s) in &jobs {
+        cells::check_spec(&ctx.cell_dir(t, c, *s), &ctx.spec(t, c, *s)?)?;
+    }
+
+    let started = Instant::now();
+    let mut ran_seconds = 0.0;
+    let mut ran = 0usize;
+    let mut interrupted = false;
+    let total = jobs.len();
+    for (k, (t, c, s)) in jobs.iter().enumerate() {
+        let dir = ctx.cell_dir(t, c, *s);
+        let st = cells::state(&dir, c.bench);
+        if st == cells::State::Done {
+            eprintln!(
+                "[{}/{total}] {}/{}/seed{s}: done, skipped",
+                k + 1,
+                t.id,
+                c.id
+            );
+            continue;
+        }
+        // Cells left to train: identical ones (another table's same run) count once.
+        let mut keys: Vec<String> = jobs[k..]
+            .iter()
+            .filter(|(t, c, s)| {
+                cells::state(&ctx.cell_dir(t, c, *s), c.bench) != cells::State::Done
+            })
+            .filter_map(|(t, c, s)| ctx.spec(t, c, *s).ok())
+            .map(|v| {
+                ["budget", "train_data", "eval_data", "rtf_train", "rtf_eval"]
+                    .map(|key| v[key].to_string())
+                    .join("|")
+            })
+            .collect();
+        keys.sort();
+        keys.dedup();
+        let left = keys.len();
+        let eta = if ran > 0 {
+            format!(
+                ", about {} left",
+                duration(ran_seconds / ran as f64 * left as f64)
+            )
+        } else {
+            String::new()
+        };
+        eprintln!(
+            "[{}/{total}] {}/{}/seed{s}: {} (elapsed {}{eta})",
+            k + 1,
+            t.id,
+            c.id,
+            match st {
+                cells::State::Resume => "resuming training",
+                cells::State::Evaluate => "evaluating",
+                _ => "training",
+            },
+            duration(started.elapsed().as_secs_f64())
+        );
+        let t0 = Instant::now();
+        match cells::run(&ctx, t, c, *s) {
+            Ok(Outcome::Ran) => {
+                ran += 1;
+                ran_seconds += t0.elapsed().as_secs_f64();
+            }
+            Ok(Outcome::Reused(from)) => {
+                eprintln!("    same training as {}: reused", from.display());
+            }
+            Ok(Outcome::Interrupted) => {
+                eprintln!(
+                    "interrupted: checkpoint written in {}; run the same command again to resume",
+                    dir.display()
+                );
+                interrupted = true;
+                break;
+            }
+            Err(e) => {
+                eprintln!("    FAILED: {e:#}");
+                missing.push((
+                    t.id.to_string(),
+                    report::Missing {
+                        cell: c.id.clone(),
+                        reason: format!("failed (seed {s}): {e:#}"),
+                    },
+                ));
+            }
+        }
+    }
+
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    for t in &selected {
+        let mine: Vec<report::Missing> = missing
+            .iter()
+            .filter(|(id, _)| id == t.id)
+            .map(|(_, m)| report::Missing {
+                cell: m.cell.clone(),
+                reason: m.reason.clone(),
+            })
+            .collect();
+        let mut v = report::collect(&ctx, t, o.seeds, &mine, &command);
+        if let Some(e) = report::estimate(&ctx, t) {
+            v["estimate"] = e;
+        }
+        if t.figure {
+            let png = out.join(format!("{}.png", t.id));
+            fig3(&v, &png)?;
+            v["figure"] = Value::String(png.display().to_string());
+        }
+        report::write(&out, &v)?;
+        eprintln!(
+            "reproduce: wrote {}",
+            out.join(format!("{}.md", t.id)).display()
+        );
+    }
+    for id in &o.ids {
+        if let Some(t) = speed::TABLES.iter().find(|t| t.id == *id) {
+            if interrupted {
+                break;
+            }
+            let (warmup, iterations) = match o.budget {
+                Budget::Smoke => (0, 1),
+                Budget::Quick => (1, 5),
+                Budget::Paper => (3, 20),
+            };
+            speed::run(
+                root,
+                t,
+                &speed::Options {
+                    size: match o.budget {
+                        Budget::Smoke => "96x64".into(),
+                        _ => "640x480".into(),
+                    },
+                    device: o.device.clone(),
+                    precision: o.precision.clone(),
+                    warmup: o.warmup.unwrap_or(warmup),
+                    iterations: o.iterations.unwrap_or(iterations),
+                },
+                &out,
+                &command,
+                o.budget.name(),
+            )?;
+        }
+    }
+    let failed: Vec<String> = missing
+        .iter()
+        .filter(|(_, m)| m.reason.starts_with("failed"))
+        .map(|(t, m)| format!("{t}/{}: {}", m.cell, m.reason))
+        .collect();
+    let unavailable = missing.len() - failed.len();
+    eprintln!(
+        "reproduce: {total} cell runs ({ran} trained or evaluated now) in {}; results in {}",
+        duration(started.elapsed().as_secs_f64()),
+        out.display()
+    );
+    if unavailable > 0 {
+        eprintln!("reproduce: {unavailable} cells cannot run with this rtf yet (see `Not measured` in the tables)");
+    }
+    if interrupted {
+        bail!("interrupted; re-run the same command to resume");
+    }
+    if !failed.is_empty() {
+        bail!("{} cells failed:\n{}", failed.len(), failed.join("\n"));
+    }
+    Ok(())
+}
+
+/// Where `cargo xtask test` runs `reproduce all --budget smoke`.
+pub const SMOKE_OUT: &str = "target/reproduce-smoke";
+
+/// `reproduce all --budget smoke` from scratch, then checks that every table wrote its
+/// Markdown, CSV and schema-valid JSON (and Fig. 3 its PNG). Numbers are not asserted.
+pub fn smoke(root: &Path) -> Result<()> {
+    let out = root.join(SMOKE_OUT);
+    if out.exists() {
+        std::fs::remove_dir_all(&out).with_context(|| format!("removing {}", out.display()))?;
+    }
+    let args: Vec<String> = ["all", "--budget", "smoke", "--out", SMOKE_OUT]
+        .map(String::from)
+        .to_vec();
+    reproduce(root, &args)?;
+    for (id, _) in list() {
+        for ext in ["md", "json"] {
+            let path = out.join(format!("{id}.{ext}"));
+            if !path.is_file() {
+                bail!("reproduce smoke: {} was not written", path.display());
+            }
+        }
+        let path = out.join(format!("{id}.json"));
+        let v: Value = serde_json::from_slice(&std::fs::read(&path)?)
+            .with_context(|| format!("{}: not JSON", path.display()))?;
+        report::validate(&v).with_context(|| format!("{}", path.display()))?;
+        if v["budget"]["name"] != "smoke" {
+            bail!("{}: budget is not smoke", path.display());
+        }
+    }
+    for t in tables::all(false) {
+        if !out.join(format!("{}.csv", t.id)).is_file() {
+            bail!("reproduce smoke: {}.csv was not written", t.id);
+        }
+    }
+    if !out.join("rtfnet-fig3.png").is_file() {
+        bail!("reproduce smoke: rtfnet-fig3.png was not drawn");
+    }
+    eprintln!("reproduce smoke: every table written and its JSON valid ({SMOKE_OUT})");
+    Ok(())
+}
+
+fn duration(s: f64) -> String {
+    let s = s.max(0.0) as u64;
+    if s >= 3600 {
+        format!("{}h{:02}m", s / 3600, s % 3600 / 60)
+    } else {
+        format!("{}m{:02}s", s / 60, s % 60)
+    }
+}
+
+/// Every network of the selected tables must be one `rtf models --json` lists.
+fn check_networks(root: &Path, selected: &[Table]) -> Result<()> {
+    let models: Value = serde_json::from_str(&crate::rtf_stdout(root, &["models", "--json"])?)
+        .context("parsing `rtf models --json`")?;
+    let names: Vec<&str> = models
+        .as_array()
+        .map(|a| a.iter().filter_map(|m| m["name"].as_str()).collect())
+        .unwrap_or_default();
+    let unknown: Vec<&str> = tables::networks(selected)
+        .into_iter()
+        .filter(|n| !names.contains(n))
+        .collect();
+    if !unknown.is_empty() {
+        bail!(
+            "`rtf models` does not list {} (used by the tables)",
+            unknown.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// `rtf recipes --json` by name; empty when this rtf has no `recipes` command yet.
+fn available_recipes(root: &Path) -> BTreeMap<String, Value> {
+    let Ok(text) = crate::rtf_stdout(root, &["recipes", "--json"]) else {
+        return BTreeMap::new();
+    };
+    let Ok(Value::Array(list)) = serde_json::from_str::<Value>(&text) else {
+        return BTreeMap::new();
+    };
+    list.into_iter()
+        .filter_map(|e| Some((e.get("name")?.as_str()?.to_string(), e)))
+        .collect()
+}
+
+/// `rtf synth` into `<out>/data/<format>-<budget>/` (written beside and renamed, so an
+/// interrupted synthesis is redone).
+fn synthesise(root: &Path, rtf: &Path, out: &Path, budget: Budget, data: Data) -> Result<PathBuf> {
+    let format = match data {
+        Data::Mf => "mf",
+        Data::Freiburg => "freiburg",
+        Data::Bdd => bail!("BDD100K cannot be synthesised"),
+    };
+    let dir = out.join("data").join(format!("{format}-{}", budget.name()));
+    if !dir.exists() {
+        let (count, size) = budget.synth(data);
+        let tmp = dir.with_extension("partial");
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
+        }
+        std::fs::create_dir_all(out.join("data"))?;
+        eprintln!(
+            "reproduce: synthesising {count} {format} frames at {size} into {}",
+            dir.display()
+        );
+        let status = std::process::Command::new(rtf)
+            .args(["synth", "--out"])
+            .arg(&tmp)
+            .args([
+                "--count",
+                &count.to_string(),
+                "--size",
+                size,
+                "--seed",
+                "0",
+                "--format",
+                format,
+            ])
+            .current_dir(root)
+            .stdout(std::process::Stdio::null())
+            .status()
+            .context("starting rtf synth")?;
+        if !status.success() {
+            bail!("`rtf synth` failed ({status})");
+        }
+        std::fs::rename(&tmp, &dir).with_context(|| format!("renaming to {}", dir.display()))?;
+    }
+    std::fs::canonicalize(&dir).with_context(|| format!("{}", dir.display()))
+}
+
+/// RTFNet Fig. 3 from the table's measured means.
+fn fig3(v: &Value, png: &Path) -> Result<()> {
+    let mut panels: [Vec<Vec<Option<f64>>>; 2] = [Vec::new(), Vec::new()];
+    for (p, col) in ["mAcc", "mIoU"].iter().enumerate() {
+        for (_, variant) in tables::FIG3_VARIANTS {
+            panels[p].push(
+                tables::FIG3_DEPTHS
+                    .iter()
+                    .map(|d| {
+                        let label = format!("{variant}, ResNet-{d}");
+                        v["rows"]
+                            .as_array()?
+                            .iter()
+                            .find(|r| r["label"] == label.as_str())?["measured"][col]["mean"]
+                            .as_f64()
+                    })
+                    .collect(),
+            );
+        }
+    }
+    figure::draw(&panels, png)
+}
+
+/// `reproduce docs`: docs/src/reproduction.md from the results under `--out`.
+fn docs(root: &Path, args: &[String]) -> Result<()> {
+    let mut out = PathBuf::from("results");
+    let mut note = String::new();
+    let mut it = args.iter();
+    while let Some(flag) = it.next() {
+        match flag.as_str() {
+            "--out" => out = PathBuf::from(it.next().context("--out needs a value")?),
+            "--note" => note = it.next().context("--note needs a value")?.clone(),
+            other => bail!("reproduce docs: unknown option `{other}`"),
+        }
+    }
+    let dir = root.join(&out);
+    let mut text = String::from(DOCS_HEAD);
+    let mut found = 0;
+    let mut absent = Vec::new();
+    for (id, _) in list() {
+        let path = dir.join(format!("{id}.json"));
+        let Ok(bytes) = std::fs::read(&path) else {
+            absent.push(id);
+            continue;
+        };
+        let v: Value = serde_json::from_slice(&bytes)
+            .with_context(|| format!("{}: not JSON", path.display()))?;
+        if v["budget"]["name"] != "quick" && v["budget"] != "quick" {
+            absent.push(id);
+            continue;
+        }
+        let md = std::fs::read_to_string(dir.join(format!("{id}.md")))
+            .with_context(|| format!("{}: no Markdown beside it", path.display()))?;
+        let _ = writeln!(text, "\n## `{id}`\n");
+        text += &md.replacen("### ", "#### ", 1);
+        found += 1;
+    }
+    if found == 0 {
+        bail!("{}: no quick-budget results (run `cargo xtask reproduce <table> --budget quick` first)", dir.display());
+    }
+    if !absent.is_empty() {
+        let _ = writeln!(
+            text,
+            "\n## Not run with the quick budget here\n\n{}: no quick results on this machine. \
+             {note}",
+            absent
+                .iter()
+                .map(|id| format!("`{id}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    let path = root.join("docs/src/reproduction.md");
+    cells::write_atomic(&path, text.as_bytes())?;
+    eprintln!(
+        "reproduce docs: wrote {} from {found} tables",
+        path.display()
+    );
+    Ok(())
+}
+
+const DOCS_HEAD: &str = "# Reproducing the papers' tables
+
+<!-- Generated by `cargo xtask reproduce docs` from the results of this machine's quick runs;
+     edit xtask/src/reproduce/mod.rs (DOCS_HEAD) or re-run the tables instead. -->
+
+`cargo xtask reproduce <table>` runs the experiments behind one table of the MFNet, RTFNet or
+HeatNet paper with the release `rtf` binary and writes it with the paper's numbers beside the
+measured ones; `cargo xtask reproduce --list` names the tables, `all` runs every one.
+
+```sh
+cargo xtask reproduce mfnet-tab3 --budget quick            # synthetic data, this CPU
+cargo xtask reproduce rtfnet-tab3 --mf /data/MF --budget paper --device cuda --seeds 3
+cargo xtask reproduce heatnet-tab1 --freiburg /data/FR --mf /data/MF --bdd /data/BDD
+cargo xtask reproduce all --budget smoke --out target/reproduce-smoke   # CI
+cargo xtask reproduce docs --out results                   # regenerate this page
+```
+
+**Data.** `--mf`, `--freiburg`, `--bdd` give the real datasets (their layout is checked first;
+a root that no selected table reads is an error). Without them the tables run on synthetic
+data from `rtf synth` and every title and JSON says so (`\"data\": \"synthetic\"`): synthetic
+numbers show the pipeline and the trends, not the papers' values.
+
+**Budgets.** `smoke` checks the pipeline (CI runs `reproduce all --budget smoke` inside `cargo
+xtask test`); `quick` trains every cell for 3 epochs of batch 4 on 96×64 frames (160
+synthetic frames, 80 for training) with SGD lr 0.01 ×0.8 per epoch — tiny, because the 2 CPU
+cores of this machine are shared with other jobs; `paper` follows the
+papers' recipes (MFNet: SGD lr 0.01 ×0.94, 80 epochs, batch 6, flips, 480×640; RTFNet: SGD lr
+0.01, momentum 0.9, weight decay 5e-4, exponential decay ×0.95, flips, 100 epochs, batch 2 —
+the paper trains \"until convergence\"; HeatNet: the `rtf recipes` procedures) and is meant
+for a GPU. The budget and each cell's exact `rtf train` / `rtf eval` flags are written into
+the results.
+
+**Protocol** (written into every result): train on the training split, pick the checkpoint
+on validation (`best.safetensors`, never on test), report the test split; MF day/night from
+the frame names; MFNet's mIoU convention for MFNet's tables, RTFNet's for RTFNet's, HeatNet's
+on Freiburg Thermal, each named in the table (spec §2). Freiburg Thermal's only labelled
+held-out part is its test layout, so Freiburg cells report their final weights.
+
+**Cells.** Each trained network is an ordinary run folder `<out>/<table>/<cell>/seed<k>/`
+(`rtf train` files plus `cell.json`, the exact commands, `eval.json`, `xtask.log`). A re-run
+skips finished cells, resumes interrupted ones (`rtf train --resume`; Ctrl-C checkpoints),
+and refuses a folder made with another budget or dataset. A cell whose training and
+evaluation equal a finished cell of another table (e.g. RTFNet Tab. VI re-uses Tab. III's
+runs) copies its `eval.json` instead of training again (`reused_from` in its `cell.json`). A
+failed cell is reported and the others go on.
+
+**Outputs** (in `--out`, default `results/`): `<table>.md`, `<table>.json` —
+`{table, budget, data, protocol, rows: [{label, paper: {COLUMN: value}, measured: {COLUMN:
+{mean, std, seeds}}}], claims, …}` with COLUMN spelled as in the paper and values in percent
+(times in ms) — `<table>.csv`, and `rtfnet-fig3.png`.
+
+Below: this machine's quick runs (2 shared CPU cores, so every time is disturbed by other jobs).
+";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn every_row_names_a_network_rtf_builds() {
+        let all = tables::all(true);
+        for n in tables::networks(&all) {
+            assert!(KNOWN_NETWORKS.contains(&n), "{n} is not a known network");
+        }
+        for r in tables::recipes(&all) {
+            assert!(HEATNET_RECIPES.contains(&r), "{r} is not a HeatNet recipe");
+        }
+        // The compiled-in list matches the binary's where it is built (release build of the
+        // same tree; CI builds it before the tests run).
+        let rtf = crate::project_root().join("target/release/rtf");
+        if rtf.exists() {
+            let out = std::process::Command::new(&rtf)
+                .args(["models", "--json"])
+                .output()
+                .unwrap();
+            assert!(out.status.success());
+            let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+            let names: Vec<&str> = v
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter_map(|m| m["name"].as_str())
+                .collect();
+            for n in KNOWN_NETWORKS {
+                assert!(names.contains(n), "`rtf models` lacks {n}");
+            }
+        }
+    }
+
+    #[test]
+    fn options_and_bad_input() {
+        let o = parse(&args(&["mfnet-tab3", "--budget", "smoke", "--seeds", "3"])).unwrap();
+        assert_eq!(
+            (o.ids.clone(), o.budget, o.seeds),
+            (vec!["mfnet-tab3"], Budget::Smoke, 3)
+        );
+        assert_eq!(o.out, PathBuf::from("results"));
+        let all = parse(&args(&["all"])).unwrap();
+        assert!(all.all && all.ids.len() == tables::ACCURACY_IDS.len() + speed::TABLES.len());
+        let err = parse(&args(&["table99"])).unwrap_err().to_string();
+        assert!(
+            err.contains("unknown table `table99`") && err.contains("mfnet-tab2"),
+            "{err}"
+        );
+        assert!(parse(&args(&["mfnet-tab2", "--budget", "huge"]))
+            .unwrap_err()
+            .to_string()
+            .contains("unknown budget"));
+        assert!(parse(&args(&["mfnet-tab2", "--seeds", "0"])).is_err());
+        assert!(parse(&args(&["mfnet-tab2", "--bogus"])).is_err());
+        assert!(parse(&args(&["mfnet-tab2", "--mf"]))
+            .unwrap_err()
+            .to_string()
+            .contains("needs a value"));
+    }
+
+    #[test]
+    fn dataset_roots_are_checked_before_anything_runs() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mf = tmp.path().join("mf");
+        std::fs::create_dir_all(mf.join("images")).unwrap();
+        std::fs::create_dir_all(mf.join("labels")).unwrap();
+        let selected = |id: &str| -> Vec<Table> {
+            tables::all(false)
+                .into_iter()
+                .filter(|t| t.id == id)
+                .collect()
+        };
+        let mut o = parse(&args(&["mfnet-tab2"])).unwrap();
+        o.roots.insert(Data::Mf, mf.clone());
+        let err = check_inputs(&o, &selected("mfnet-tab2"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("not an MF dataset root") && err.contains("train.txt"),
+            "{err}"
+        );
+        for f in ["train.txt", "val.txt", "test.txt"] {
+            std::fs::write(mf.join(f), "").unwrap();
+        }
+        check_inputs(&o, &selected("mfnet-tab2")).unwrap();
+        // A Freiburg root given to an MF-only table.
+        let fr = tmp.path().join("fr");
+        std::fs::create_dir_all(fr.join("train/seq_00_day/00/fl_rgb")).unwrap();
+        let mut o = parse(&args(&["mfnet-tab2"])).unwrap();
+        o.roots.insert(Data::Freiburg, fr.clone());
+        let err = check_inputs(&o, &selected("mfnet-tab2"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("--freiburg") && err.contains("does not use the Freiburg Thermal dataset"),
+            "{err}"
+        );
+        // Wrong layout for Freiburg; a root for a speed table.
+        let mut o = parse(&args(&["heatnet-tab2"])).unwrap();
+        o.roots.insert(Data::Freiburg, mf.clone());
+        let err = check_inputs(&o, &selected("heatnet-tab2"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("not a Freiburg Thermal root"), "{err}");
+        o.roots.insert(Data::Freiburg, fr);
+        check_inputs(&o, &selected("heatnet-tab2")).unwrap();
+        let mut o = parse(&args(&["mfnet-tab4"])).unwrap();
+        o.roots.insert(Data::Mf, mf);
+        assert!(check_inputs(&o, &[])
+            .unwrap_err()
+            .to_string()
+            .contains("speed table"));
+        let mut o = parse(&args(&["mfnet-tab2"])).unwrap();
+        o.roots.insert(Data::Mf, tmp.path().join("nowhere"));
+        assert!(check_inputs(&o, &selected("mfnet-tab2"))
+            .unwrap_err()
+            .to_string()
+            .contains("no such folder"));
+    }
+
+    #[test]
+    fn docs_page_is_made_from_quick_results_only() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path();
+        std::fs::create_dir_all(root.join("docs/src")).unwrap();
+        let res = root.join("res");
+        std::fs::create_dir_all(&res).unwrap();
+        let err = docs(root, &args(&["--out", "res"]))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("no quick-budget results"), "{err}");
+        for (id, budget) in [("mfnet-tab3", "quick"), ("rtfnet-tab4", "smoke")] {
+            let v = serde_json::json!({"table": id, "budget": {"name": budget}});
+            std::fs::write(res.join(format!("{id}.json")), v.to_string()).unwrap();
+            std::fs::write(
+                res.join(format!("{id}.md")),
+                format!("### {id} table\n\nrows\n"),
+            )
+            .unwrap();
+        }
+        docs(root, &args(&["--out", "res"])).unwrap();
+        let page = std::fs::read_to_string(root.join("docs/src/reproduction.md")).unwrap();
+        assert!(page.starts_with("# Reproducing the papers' tables"));
+        assert!(page.contains("## `mfnet-tab3`") && page.contains("#### mfnet-tab3 table"));
+        assert!(
+            !page.contains("rtfnet-tab4 table"),
+            "smoke results stay out"
+        );
+    }
+
+    #[test]
+    fn list_names_every_table_of_the_issue() {
+        let ids: Vec<&str> = list().iter().map(|(id, _)| *id).collect();
+        for id in [
+            "mfnet-tab2",
+            "mfnet-tab3",
+            "mfnet-tab4",
+            "rtfnet-tab3",
+            "rtfnet-fig3",
+            "rtfnet-tab4",
+            "rtfnet-tab5",
+            "rtfnet-tab6",
+            "rtfnet-tab7",
+            "heatnet-tab1",
+            "heatnet-tab2",
+        ] {
+            assert!(ids.contains(&id), "{id}");
+        }
+        assert!(usage().contains("all"));
+    }
+}
