@@ -269,6 +269,21 @@ pub const RECIPES: &[Recipe] = &[
     },
 ];
 
+impl Recipe {
+    /// The network the recipe ends with by default (the paper's), None when `--model` must
+    /// name it; and the channels its last stage sees.
+    pub fn final_network(&self) -> (Option<&'static str>, Modality) {
+        let last = self.stages.last().expect("a recipe has stages");
+        let name = match (last.role, last.inputs) {
+            (Role::Network, _) => None,
+            (Role::HeatNet, Rgb) => Some("heatnet-rgb"),
+            (Role::HeatNet, Thermal) => Some("heatnet-ir"),
+            (Role::HeatNet, RgbT) => Some("heatnet"),
+        };
+        (name, last.inputs)
+    }
+}
+
 /// `rtf recipes` reads this.
 pub fn recipe(name: &str) -> Result<&'static Recipe, RecipeError> {
     RECIPES.iter().find(|r| r.name == name).ok_or_else(|| {

@@ -81,6 +81,8 @@ impl Context {
     pub fn network(&self, cell: &Cell) -> Result<String> {
         match &cell.train {
             Train::Model(m) => Ok(m.to_string()),
+            // CPU budgets put one light network in every role of a recipe.
+            Train::Recipe(_) if self.budget != Budget::Paper => Ok(RECIPE_CPU_MODEL.to_string()),
             Train::Recipe(r) => self
                 .recipes
                 .get(*r)
@@ -115,6 +117,22 @@ impl Context {
                 v
             }
         };
+        let mut eval = self.budget.eval_args(*train_real);
+        if let Train::Recipe(r) = &cell.train {
+            // The recipe's last stage sees these channels; the CPU budgets' frame size.
+            let inputs = self
+                .recipes
+                .get(*r)
+                .and_then(|e| e.get("inputs").and_then(Value::as_str))
+                .unwrap_or("rgb_t");
+            eval.extend(["--inputs".to_string(), inputs.to_string()]);
+            if self.budget != Budget::Paper && !eval.iter().any(|a| a == "--resize") {
+                eval.extend([
+                    "--resize".to_string(),
+                    self.budget.synth(Data::Freiburg).1.to_string(),
+                ]);
+            }
+        }
         train.extend(["--seed".into(), seed.to_string()]);
         train.extend(["--device".into(), self.device.clone()]);
         Ok(json!({
@@ -125,10 +143,13 @@ impl Context {
             "train_data": train_root,
             "eval_data": eval_root,
             "rtf_train": train,
-            "rtf_eval": self.budget.eval_args(*train_real),
+            "rtf_eval": eval,
         }))
     }
 }
+
+/// The network every role of a HeatNet recipe uses on the CPU budgets (stated in the results).
+pub const RECIPE_CPU_MODEL: &str = "mfnet";
 
 /// Fails when `dir` holds a cell made with another recipe (another budget or dataset).
 pub fn check_spec(dir: &Path, spec: &Value) -> Result<()> {

@@ -12,7 +12,19 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     if args.json {
-        println!("{}", serde_json::to_string_pretty(RECIPES)?);
+        // Each recipe as data, plus the network its run ends with and the channels it sees
+        // (what `rtf eval --model … --inputs …` needs for its final weights).
+        let listed = RECIPES
+            .iter()
+            .map(|r| {
+                let mut value = serde_json::to_value(r)?;
+                let (model, inputs) = r.final_network();
+                value["model"] = serde_json::json!(model);
+                value["inputs"] = serde_json::json!(inputs.name());
+                Ok(value)
+            })
+            .collect::<Result<Vec<_>, serde_json::Error>>()?;
+        println!("{}", serde_json::to_string_pretty(&listed)?);
         return Ok(());
     }
     let width = RECIPES.iter().map(|r| r.name.len()).max().unwrap_or(0);
