@@ -329,7 +329,7 @@ pub fn train_until(
         if let Some(miou) = val_miou {
             if state.best_val_miou.is_none_or(|best| miou > best) {
                 state.best_val_miou = Some(miou);
-                rtf_models::weights::save_safetensors(&vs, &run_dir.join(BEST_FILE))?;
+                rtf_models::weights::save_safetensors(&vs, &cfg.model, &run_dir.join(BEST_FILE))?;
             }
         }
         checkpoint::save(&checkpoint_path, &vs, optimizer.state(), &state)?;
@@ -358,7 +358,7 @@ pub fn train_until(
         }
     }
     let final_weights = run_dir.join(FINAL_FILE);
-    rtf_models::weights::save_safetensors(&vs, &final_weights)?;
+    rtf_models::weights::save_safetensors(&vs, &cfg.model, &final_weights)?;
     Ok(TrainOutcome {
         run_dir: run_dir.to_path_buf(),
         final_weights: Some(final_weights),
