@@ -47,6 +47,10 @@ pub struct Args {
     /// the plain path.
     #[arg(long)]
     pub precision: Option<rtf_models::fast::Precision>,
+    /// Load weights whose metadata names another network (e.g. renamed or converted files);
+    /// names and shapes must still match.
+    #[arg(long)]
+    pub foreign_weights: bool,
 }
 
 /// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside
@@ -130,7 +134,9 @@ pub fn run(args: Args) -> Result<()> {
         &args.weights,
         device,
         args.precision,
+        args.foreign_weights,
     )?;
+    rtf_eval::evaluate::install_quiet_panic_hook();
     let options = EvalOptions {
         batch_size: args.batch_size,
         resize: args.resize,
