@@ -200,7 +200,9 @@ pub fn forward_guarded(network: &dyn Network, input: &Tensor) -> Result<Tensor, 
     let previous = GUARDED.with(|g| g.replace(true));
     // Unwind safety: on a panic nothing of the network's state is used again by this call,
     // and its weights are only read by an eval-mode forward.
-    let result = std::panic::catch_unwind(AssertUnwindSafe(|| network.forward_t(input, false)));
+    let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
+        tch::no_grad(|| network.forward_t(input, false))
+    }));
     GUARDED.with(|g| g.set(previous));
     let payload = match result {
         Ok(out) => return Ok(out),
@@ -222,7 +224,7 @@ pub fn forward_guarded(network: &dyn Network, input: &Tensor) -> Result<Tensor, 
             batch,
             width,
             height,
-            estimate: None,
+            estimate: estimate_forward_bytes(network, batch, height, width),
             available: available_memory(input.device()),
             detail: format!(" (libtorch: {})", first_line(&message)),
         });
@@ -246,10 +248,13 @@ fn is_allocation_failure(message: &str) -> bool {
     .any(|n| m.contains(n))
 }
 
-/// The part of a libtorch message worth showing: its first line, without tch's wrapping.
+/// The part of a libtorch message worth showing: its first line, without tch's wrapping
+/// (tch quotes libtorch's message with escaped newlines, then its C++ backtrace).
 fn first_line(message: &str) -> &str {
     let line = message.lines().next().unwrap_or(message);
-    line.split_once("Torch(\"").map_or(line, |(_, rest)| rest)
+    let line = line.split_once("Torch(\"").map_or(line, |(_, rest)| rest);
+    let line = line.split_once("\\n").map_or(line, |(head, _)| head);
+    line.trim_end_matches("\")").trim_end()
 }
 
 /// Batches above this many input pixels get their memory estimated before they run.
@@ -291,10 +296,12 @@ pub fn check_memory(
 }
 
 /// Memory of an eval forward pass on `batch` frames of `width`×`height`, extrapolated
-/// linearly in pixels from the peak resident size of a probe pass at 256×256 (Linux: the
-/// kernel's `VmHWM`, reset through `/proc/self/clear_refs`), plus the input and logits.
-/// Activations of these fully convolutional networks grow with the pixel count, so this is
-/// a fair estimate, not a bound. None where it cannot be measured.
+/// linearly in pixels from the peak resident size of two probe passes (128×128 and 256×256,
+/// after a warm-up pass that pays libtorch's one-time allocations; Linux: the kernel's
+/// `VmHWM`, reset through `/proc/self/clear_refs`). Activations of these fully
+/// convolutional networks grow with the pixel count, so this is an estimate, not a bound:
+/// for MFNet it gives 770 B/pixel, against 730 B/pixel between real 1024² and 2048² runs
+/// (docs/src/reliability.md). None where it cannot be measured.
 pub fn estimate_forward_bytes(
     network: &dyn Network,
     batch: usize,
@@ -302,19 +309,24 @@ pub fn estimate_forward_bytes(
     width: usize,
 ) -> Option<u64> {
     let m = network.size_multiple().max(1) as usize;
-    let side = 256usize.div_ceil(m) * m;
-    release_free_memory();
-    std::fs::write("/proc/self/clear_refs", "5").ok()?;
-    let before = proc_status_kib("VmHWM")?;
-    let probe =
-        Tensor::f_zeros([1, 4, side as i64, side as i64], (Kind::Float, Device::Cpu)).ok()?;
-    let out = forward_guarded(network, &probe).ok()?;
-    let probe_bytes = proc_status_kib("VmHWM")?.saturating_sub(before) * 1024;
-    let classes = out.size().get(1).copied().unwrap_or(1).max(1) as u64;
-    let pixels = (batch * height * width) as u64;
-    let scale = pixels as f64 / (side * side) as f64;
-    // Input (4 channels) and logits at the full size, float32, beside the activations.
-    Some((probe_bytes as f64 * scale) as u64 + pixels * 4 * (4 + classes))
+    let probe = |side: usize| -> Option<(f64, f64)> {
+        let side = side.div_ceil(m) * m;
+        let input =
+            Tensor::f_zeros([1, 4, side as i64, side as i64], (Kind::Float, Device::Cpu)).ok()?;
+        release_free_memory();
+        std::fs::write("/proc/self/clear_refs", "5").ok()?;
+        let before = proc_status_kib("VmRSS")?;
+        drop(forward_guarded(network, &input).ok()?);
+        let peak = proc_status_kib("VmHWM")?.saturating_sub(before) * 1024;
+        Some(((side * side) as f64, peak as f64))
+    };
+    probe(64)?; // warm-up
+    let (px1, peak1) = probe(128)?;
+    let (px2, peak2) = probe(256)?;
+    let per_pixel = ((peak2 - peak1) / (px2 - px1)).max(0.0);
+    let fixed = (peak1 - per_pixel * px1).max(0.0);
+    let pixels = (batch * height * width) as f64;
+    Some((fixed + per_pixel * pixels) as u64)
 }
 
 /// Bytes the process can still allocate on `device`: the smaller of the system's available
@@ -390,6 +402,13 @@ mod tests {
              data. DefaultCPUAllocator: can't allocate memory: you tried to allocate 1 bytes\")"
         ));
         assert!(!is_allocation_failure("shape mismatch"));
+        assert_eq!(
+            first_line(
+                "called `Result::unwrap()` on an `Err` value: Torch(\"[enforce fail] can't \
+                 allocate memory: you tried to allocate 8 bytes.\\nframe #0: c10::f\\n\")"
+            ),
+            "[enforce fail] can't allocate memory: you tried to allocate 8 bytes."
+        );
     }
 
     #[test]

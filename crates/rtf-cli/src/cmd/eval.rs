@@ -68,6 +68,8 @@ struct Report<'a> {
     night: Option<&'a Scores>,
     #[serde(skip_serializing_if = "Option::is_none")]
     heatnet: Option<HeatnetScores>,
+    /// Content hash of the data evaluated (`rtf data fingerprint`).
+    data_fingerprint: &'a rtf_data::Fingerprint,
 }
 
 /// HeatNet's convention (spec §2): mIoU over classes 0–11 with undefined classes skipped;
@@ -142,6 +144,12 @@ pub fn run(args: Args) -> Result<()> {
         resize: args.resize,
         workers: 2,
     };
+    // Hashed before the evaluation reads the frames, so the record is of what was read.
+    let data_fingerprint = args
+        .json
+        .as_ref()
+        .map(|_| rtf_data::fingerprint(&args.data))
+        .transpose()?;
     let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
 
     println!(
@@ -180,7 +188,7 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
     }
-    if let Some(path) = &args.json {
+    if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
         let json = serde_json::to_string_pretty(&Report {
             model: &args.model,
             weights: &args.weights,
@@ -191,6 +199,7 @@ pub fn run(args: Args) -> Result<()> {
             day: report.day.as_ref(),
             night: report.night.as_ref(),
             heatnet,
+            data_fingerprint,
         })?;
         rtf_core::write_bytes_atomic(path, json.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;

@@ -167,7 +167,10 @@ fn plan_outputs(
     for source in sources {
         let stem = stem(source);
         if stem.is_empty() {
-            bail!("{}: no file name to name the outputs after", source.display());
+            bail!(
+                "{}: no file name to name the outputs after",
+                source.display()
+            );
         }
         let mut names = vec![format!("{stem}.png"), format!("{stem}_color.png")];
         if logits {
@@ -241,14 +244,8 @@ pub fn run(args: Args) -> Result<()> {
     }
     // Frames larger than memory allows are refused before anything is written.
     for (frame, path) in frames.iter().zip(&sources) {
-        rtf_eval::evaluate::check_memory(
-            network.as_ref(),
-            1,
-            frame.height,
-            frame.width,
-            device,
-        )
-        .with_context(|| path.display().to_string())?;
+        rtf_eval::evaluate::check_memory(network.as_ref(), 1, frame.height, frame.width, device)
+            .with_context(|| path.display().to_string())?;
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
