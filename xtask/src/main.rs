@@ -3,6 +3,7 @@
 
 mod calib_check;
 mod convert;
+mod hostile;
 mod reproduce;
 mod setup;
 
@@ -18,6 +19,7 @@ tasks:
   demo     setup, build, synthesise a small RGB-T dataset, train MFNet, evaluate, draw predictions
   convert-pth IN.pth OUT.safetensors  convert a PyTorch checkpoint (published weights) for rtf
   calib-check  full-size accuracy/timing run of `rtf calibrate` on synthetic rigs with ground truth
+  hostile  replay bad inputs (broken files, NaN weights, huge frames...) against rtf; counts
   reproduce <table>  measure a paper's table with rtf, beside the paper's numbers (--help: list)
 ";
 
@@ -30,6 +32,7 @@ fn main() -> Result<()> {
         Some("demo") => demo(&root, &args[1..]),
         Some("convert-pth") => convert::convert_pth(&root, &args[1..]),
         Some("calib-check") => calib_check::calib_check(&root, &args[1..]),
+        Some("hostile") => hostile::hostile(&root, &args[1..]),
         Some("reproduce") => reproduce::reproduce(&root, &args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{USAGE}");

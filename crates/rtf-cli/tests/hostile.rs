@@ -266,7 +266,7 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
     c.intact = Some(nothing_written(p("o1")));
     cases.push(c);
     let mut c = case(
-        "predict: x.png and x_color.png (output of one = output of other)",
+        "predict: x.png + x_color.png (outputs overlap)",
         &[
             "predict",
             "--weights",
