@@ -482,7 +482,7 @@ fn weights_carry_their_network_and_foreign_files_are_flagged() {
     let mut header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
     header.as_object_mut().unwrap().remove("__metadata__");
     let mut text_header = serde_json::to_vec(&header).unwrap();
-    while text_header.len() % 8 != 0 {
+    while text_header.len() & 7 != 0 {
         text_header.push(b' ');
     }
     let converted = tmp.path().join("converted.safetensors");

@@ -123,7 +123,7 @@ fn edit_safetensors(
     data(&header, &mut body);
     edit(&mut header);
     let mut text = serde_json::to_vec(&header).unwrap();
-    while text.len() % 8 != 0 {
+    while text.len() & 7 != 0 {
         text.push(b' ');
     }
     let mut out = (text.len() as u64).to_le_bytes().to_vec();

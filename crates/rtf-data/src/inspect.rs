@@ -282,7 +282,7 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
     // Split files: unreadable, duplicates, names without files.
     let mut listed: HashMap<String, Vec<String>> = HashMap::new();
     // Split name -> (split file, frame names with their lines), for the leak check below.
-    let mut members: BTreeMap<String, (PathBuf, Vec<(usize, String)>)> = BTreeMap::new();
+    let mut members: SplitMembers = BTreeMap::new();
     let mut split_files: Vec<PathBuf> = std::fs::read_dir(root)
         .map(|rd| {
             rd.flatten()
@@ -380,7 +380,7 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
     // Decode every pair.
     let classes = ClassSet::mf();
     let pairs: Vec<&String> = images.iter().filter(|n| label_set.contains(n)).collect();
-    let decoded: Vec<(String, Option<[u8; 32]>, Result<(usize, usize), Problem>)> = pairs
+    let decoded: Vec<Decoded> = pairs
         .par_iter()
         .map(|name| {
             let img = root.join("images").join(format!("{name}.png"));
@@ -417,6 +417,12 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
     (pairs.len(), problems)
 }
 
+/// A decoded pair: frame name, hash of the image bytes (if read), size or the problem.
+type Decoded = (String, Option<[u8; 32]>, Result<(usize, usize), Problem>);
+
+/// Split name -> (split file, frame names with their line numbers).
+type SplitMembers = BTreeMap<String, (PathBuf, Vec<(usize, String)>)>;
+
 /// Frames whose size differs from the most common one: `rtf train` and `rtf eval` batch
 /// frames of one size only (unless told to --resize), so such a frame fails a run later.
 fn odd_sizes(root: &Path, sizes: &BTreeMap<(usize, usize), Vec<&str>>) -> Vec<Problem> {
@@ -449,7 +455,7 @@ fn odd_sizes(root: &Path, sizes: &BTreeMap<(usize, usize), Vec<&str>>) -> Vec<Pr
 fn duplicate_frames(
     root: &Path,
     hashes: &[(&str, [u8; 32])],
-    members: &BTreeMap<String, (PathBuf, Vec<(usize, String)>)>,
+    members: &SplitMembers,
 ) -> Vec<Problem> {
     let mut problems = Vec::new();
     let mut by_hash: BTreeMap<[u8; 32], Vec<&str>> = BTreeMap::new();
@@ -471,7 +477,13 @@ fn duplicate_frames(
         }
     }
     let hash_of: HashMap<&str, [u8; 32]> = hashes.iter().copied().collect();
-    let split_sets: Vec<(&String, &PathBuf, HashSet<&str>, &Vec<(usize, String)>)> = members
+    type SplitSet<'a> = (
+        &'a String,
+        &'a PathBuf,
+        HashSet<&'a str>,
+        &'a Vec<(usize, String)>,
+    );
+    let split_sets: Vec<SplitSet> = members
         .iter()
         .map(|(split, (file, names))| {
             let set = names.iter().map(|(_, n)| n.as_str()).collect();

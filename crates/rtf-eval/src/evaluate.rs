@@ -351,7 +351,7 @@ fn libc_rlimit_as() -> Option<u64> {
     };
     // SAFETY: getrlimit writes one rlimit struct we own.
     let ok = unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut limit) } == 0;
-    (ok && limit.rlim_cur != libc::RLIM_INFINITY).then_some(limit.rlim_cur as u64)
+    (ok && limit.rlim_cur != libc::RLIM_INFINITY).then_some(limit.rlim_cur)
 }
 
 /// Hands free heap pages back to the kernel, so that a probe's allocations show in the peak
