@@ -3,6 +3,7 @@
 
 mod calib_check;
 mod convert;
+mod hostile;
 mod reproduce;
 mod setup;
 
@@ -20,6 +21,7 @@ tasks:
   calib-check  full-size accuracy/timing run of `rtf calibrate` on synthetic rigs with ground truth
   reproduce <table>|all  run the experiments behind a paper's table, beside the paper's numbers
            (--list: the tables; --help: options)
+  hostile  replay bad inputs (broken files, NaN weights, huge frames...) against rtf; counts
 ";
 
 fn main() -> Result<()> {
@@ -31,6 +33,7 @@ fn main() -> Result<()> {
         Some("demo") => demo(&root, &args[1..]),
         Some("convert-pth") => convert::convert_pth(&root, &args[1..]),
         Some("calib-check") => calib_check::calib_check(&root, &args[1..]),
+        Some("hostile") => hostile::hostile(&root, &args[1..]),
         Some("reproduce") => reproduce::reproduce(&root, &args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{USAGE}");

@@ -85,6 +85,9 @@ fn synth_train_resume_eval_predict() {
     }
     let per_class = scores["per_class"].as_array().unwrap();
     assert_eq!(per_class.len(), 9);
+    // The scores say which data they came from.
+    let fingerprint = json_out(&["data", "fingerprint", s(&data), "--json"]);
+    assert_eq!(scores["data_fingerprint"], fingerprint);
     assert_eq!(per_class[0]["name"], "unlabeled");
     assert!(per_class
         .iter()
@@ -429,4 +432,69 @@ fn synth_writes_a_calibration_rig_with_ground_truth() {
     for key in ["rotation", "translation", "se3", "distortion"] {
         assert!(truth.contains(key), "{key} missing in ground_truth.yaml");
     }
+}
+
+#[test]
+fn weights_carry_their_network_and_foreign_files_are_flagged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let weights = tiny_weights(tmp.path(), "6", "4");
+    let data = tmp.path().join("data");
+    let eval = |model: &str, file: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "eval",
+            "--model",
+            model,
+            "--weights",
+            s(file),
+            "--data",
+            s(&data),
+        ];
+        args.extend_from_slice(extra);
+        rtf(&args)
+    };
+    // Same tensor names and shapes, other network: refused, naming the file and both names.
+    let out = eval("mfnet-h", &weights, &[]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = text(&out);
+    for needle in [
+        "final.safetensors",
+        "`mfnet`",
+        "`mfnet-h`",
+        "--foreign-weights",
+    ] {
+        assert!(err.contains(needle), "{needle} not in: {err}");
+    }
+    // Explicit override: loads, with a warning.
+    let out = eval("mfnet-h", &weights, &["--foreign-weights"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("loaded anyway"),
+        "{}",
+        text(&out)
+    );
+    // The right network: no warning.
+    let out = eval("mfnet", &weights, &[]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));
+    // A file without rtf metadata (converted weights): loads with a one-line warning.
+    let bytes = std::fs::read(&weights).unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let mut header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    header.as_object_mut().unwrap().remove("__metadata__");
+    let mut text_header = serde_json::to_vec(&header).unwrap();
+    while text_header.len() & 7 != 0 {
+        text_header.push(b' ');
+    }
+    let converted = tmp.path().join("converted.safetensors");
+    let mut out_bytes = (text_header.len() as u64).to_le_bytes().to_vec();
+    out_bytes.extend(text_header);
+    out_bytes.extend(&bytes[8 + n..]);
+    std::fs::write(&converted, out_bytes).unwrap();
+    let out = eval("mfnet-h", &converted, &[]);
+    assert!(out.status.success(), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("converted.safetensors") && stderr.contains("cannot be checked"),
+        "{stderr}"
+    );
 }

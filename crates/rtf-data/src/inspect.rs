@@ -9,10 +9,10 @@ use crate::{DataError, FrameSource, MfDataset};
 use rayon::prelude::*;
 use rtf_core::{ClassSet, Daytime};
 use serde::Serialize;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DatasetFormat {
     Mf,
@@ -234,6 +234,12 @@ fn stems(dir: &Path, problems: &mut Vec<Problem>) -> Vec<String> {
         Ok(entries) => {
             for e in entries.flatten() {
                 let p = e.path();
+                if p.is_dir() {
+                    if p.extension().is_some_and(|x| x == "png") {
+                        problems.push(problem(&p, "is a directory, expected a PNG file"));
+                    }
+                    continue;
+                }
                 if !p.is_file() {
                     continue;
                 }
@@ -275,6 +281,8 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
     }
     // Split files: unreadable, duplicates, names without files.
     let mut listed: HashMap<String, Vec<String>> = HashMap::new();
+    // Split name -> (split file, frame names with their lines), for the leak check below.
+    let mut members: SplitMembers = BTreeMap::new();
     let mut split_files: Vec<PathBuf> = std::fs::read_dir(root)
         .map(|rd| {
             rd.flatten()
@@ -284,7 +292,21 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
         })
         .unwrap_or_default();
     split_files.sort();
-    if split_files.is_empty() {
+    let split_dirs: Vec<PathBuf> = std::fs::read_dir(root)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_dir() && p.extension().is_some_and(|x| x == "txt"))
+                .collect()
+        })
+        .unwrap_or_default();
+    for dir in &split_dirs {
+        problems.push(problem(
+            dir,
+            "is a directory, expected a split file (one frame name per line)",
+        ));
+    }
+    if split_files.is_empty() && split_dirs.is_empty() {
         problems.push(problem(
             root,
             "no split files (<split>.txt, e.g. train.txt)",
@@ -339,6 +361,7 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
             }
             listed.entry(name.clone()).or_default().push(split.clone());
         }
+        members.insert(split.clone(), (file.clone(), names));
     }
     for name in &images {
         if !listed.contains_key(name) && !split_files.is_empty() {
@@ -357,22 +380,150 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
     // Decode every pair.
     let classes = ClassSet::mf();
     let pairs: Vec<&String> = images.iter().filter(|n| label_set.contains(n)).collect();
-    let decode_problems: Vec<Problem> = pairs
+    let decoded: Vec<Decoded> = pairs
         .par_iter()
-        .filter_map(|name| {
+        .map(|name| {
             let img = root.join("images").join(format!("{name}.png"));
             let lab = root.join("labels").join(format!("{name}.png"));
             let read = |p: &Path| std::fs::read(p).map_err(|e| DataError::io(p, e));
-            let result = read(&img)
+            let image_bytes = read(&img);
+            let hash = image_bytes
+                .as_ref()
+                .ok()
+                .map(|b| crate::fingerprint::hash_bytes(b));
+            let result = image_bytes
                 .and_then(|ib| read(&lab).map(|lb| (ib, lb)))
                 .and_then(|(ib, lb)| {
                     crate::mf::decode_mf_frame(name, &ib, &img, &lb, &lab, &classes)
-                });
-            result.err().map(|e| from_error(&img, e))
+                })
+                .map(|f| (f.width, f.height))
+                .map_err(|e| from_error(&img, e));
+            (name.to_string(), hash, result)
         })
         .collect();
-    problems.extend(decode_problems);
+    let mut sizes: BTreeMap<(usize, usize), Vec<&str>> = BTreeMap::new();
+    for (name, _, result) in &decoded {
+        match result {
+            Ok(size) => sizes.entry(*size).or_default().push(name),
+            Err(p) => problems.push(p.clone()),
+        }
+    }
+    problems.extend(odd_sizes(root, &sizes));
+    let hashes: Vec<(&str, [u8; 32])> = decoded
+        .iter()
+        .filter_map(|(n, h, _)| h.map(|h| (n.as_str(), h)))
+        .collect();
+    problems.extend(duplicate_frames(root, &hashes, &members));
     (pairs.len(), problems)
+}
+
+/// A decoded pair: frame name, hash of the image bytes (if read), size or the problem.
+type Decoded = (String, Option<[u8; 32]>, Result<(usize, usize), Problem>);
+
+/// Split name -> (split file, frame names with their line numbers).
+type SplitMembers = BTreeMap<String, (PathBuf, Vec<(usize, String)>)>;
+
+/// Frames whose size differs from the most common one: `rtf train` and `rtf eval` batch
+/// frames of one size only (unless told to --resize), so such a frame fails a run later.
+fn odd_sizes(root: &Path, sizes: &BTreeMap<(usize, usize), Vec<&str>>) -> Vec<Problem> {
+    let total: usize = sizes.values().map(Vec::len).sum();
+    let Some((&(w0, h0), common)) = sizes.iter().max_by_key(|(_, names)| names.len()) else {
+        return Vec::new();
+    };
+    sizes
+        .iter()
+        .filter(|(&size, _)| size != (w0, h0))
+        .flat_map(|(&(w, h), names)| {
+            names.iter().map(move |name| {
+                problem(
+                    root.join("images").join(format!("{name}.png")),
+                    format!(
+                        "is {w}x{h} but {} of {total} frames are {w0}x{h0}: training and \
+                         evaluation batch frames of one size (without --resize they stop at \
+                         this frame)",
+                        common.len()
+                    ),
+                )
+            })
+        })
+        .collect()
+}
+
+/// Byte-identical images under different names, and frames (by content) shared between
+/// two splits where neither split contains the other (test_day ⊂ test is by design; a frame
+/// of test also in train is a leak).
+fn duplicate_frames(
+    root: &Path,
+    hashes: &[(&str, [u8; 32])],
+    members: &SplitMembers,
+) -> Vec<Problem> {
+    let mut problems = Vec::new();
+    let mut by_hash: BTreeMap<[u8; 32], Vec<&str>> = BTreeMap::new();
+    for (name, hash) in hashes {
+        by_hash.entry(*hash).or_default().push(name);
+    }
+    let image = |name: &str| root.join("images").join(format!("{name}.png"));
+    for names in by_hash.values().filter(|n| n.len() > 1) {
+        let mut names = names.clone();
+        names.sort();
+        for other in &names[1..] {
+            problems.push(problem(
+                image(other),
+                format!(
+                    "same bytes as {}: one frame under two names",
+                    image(names[0]).display()
+                ),
+            ));
+        }
+    }
+    let hash_of: HashMap<&str, [u8; 32]> = hashes.iter().copied().collect();
+    type SplitSet<'a> = (
+        &'a String,
+        &'a PathBuf,
+        HashSet<&'a str>,
+        &'a Vec<(usize, String)>,
+    );
+    let split_sets: Vec<SplitSet> = members
+        .iter()
+        .map(|(split, (file, names))| {
+            let set = names.iter().map(|(_, n)| n.as_str()).collect();
+            (split, file, set, names)
+        })
+        .collect();
+    for (i, (a, file_a, set_a, lines_a)) in split_sets.iter().enumerate() {
+        for (b, _, set_b, lines_b) in &split_sets[i + 1..] {
+            if set_a.is_subset(set_b) || set_b.is_subset(set_a) {
+                continue;
+            }
+            let in_b: HashMap<[u8; 32], &str> = lines_b
+                .iter()
+                .filter_map(|(_, n)| hash_of.get(n.as_str()).map(|h| (*h, n.as_str())))
+                .collect();
+            for (line, name) in lines_a.iter() {
+                let shared = if set_b.contains(name.as_str()) {
+                    Some(format!("frame '{name}' is also in split '{b}'"))
+                } else {
+                    hash_of
+                        .get(name.as_str())
+                        .and_then(|h| in_b.get(h))
+                        .map(|other| {
+                            format!(
+                                "frame '{name}' has the same content as '{other}' of split '{b}'"
+                            )
+                        })
+                };
+                if let Some(what) = shared {
+                    problems.push(problem(
+                        *file_a,
+                        format!(
+                            "line {line}: {what}: a frame shared between splits '{a}' and '{b}'"
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    problems
 }
 
 fn check_freiburg(root: &Path) -> (usize, Vec<Problem>) {
@@ -391,6 +542,34 @@ fn check_freiburg(root: &Path) -> (usize, Vec<Problem>) {
         })
         .collect();
     problems.extend(decode);
+    // The same RGB image under two names (copied frames, leaks between train and test).
+    let hashed: Vec<(PathBuf, Option<[u8; 32]>)> = (0..split.len())
+        .into_par_iter()
+        .map(|i| {
+            let rgb = split.files(i).0;
+            let hash = crate::fingerprint::hash_file(&rgb).ok();
+            (rgb, hash)
+        })
+        .collect();
+    let mut by_hash: BTreeMap<[u8; 32], Vec<&PathBuf>> = BTreeMap::new();
+    for (path, hash) in &hashed {
+        if let Some(h) = hash {
+            by_hash.entry(*h).or_default().push(path);
+        }
+    }
+    for paths in by_hash.values().filter(|p| p.len() > 1) {
+        let mut paths = paths.clone();
+        paths.sort();
+        for other in &paths[1..] {
+            problems.push(problem(
+                *other,
+                format!(
+                    "same bytes as {}: one frame under two names",
+                    paths[0].display()
+                ),
+            ));
+        }
+    }
     (split.len(), problems)
 }
 
@@ -721,6 +900,87 @@ mod tests {
         assert!(
             s.classes[0].share > 0.5,
             "unlabeled is the majority, as in MF"
+        );
+    }
+
+    #[test]
+    fn odd_sized_frames_and_directories_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        mf_dataset(root, &["00001D", "00002N", "00003D"], 8, 6);
+        // One frame of another size, image and label consistent: decodes, but cannot batch.
+        write(
+            &root.join("images/00004N.png"),
+            &png_u8(10, 6, 4, &rgba(10, 6, 9)),
+        );
+        write(&root.join("labels/00004N.png"), &png_u8(10, 6, 1, &[1; 60]));
+        write(&root.join("train.txt"), b"00001D\n00002N\n00003D\n00004N\n");
+        // A split "file" that is a directory, and an image path that is a directory.
+        std::fs::create_dir_all(root.join("val.txt")).unwrap();
+        std::fs::create_dir_all(root.join("images/00005D.png")).unwrap();
+        let report = check(root);
+        let text: Vec<String> = report.problems.iter().map(|p| p.to_string()).collect();
+        let has = |needle: &[&str]| text.iter().any(|t| needle.iter().all(|n| t.contains(n)));
+        assert!(
+            has(&[
+                "images/00004N.png",
+                "is 10x6",
+                "3 of 4 frames are 8x6",
+                "--resize"
+            ]),
+            "{text:#?}"
+        );
+        assert!(
+            has(&["val.txt", "is a directory", "split file"]),
+            "{text:#?}"
+        );
+        assert!(
+            has(&["images/00005D.png", "is a directory", "PNG"]),
+            "{text:#?}"
+        );
+        assert!(
+            !text.iter().any(|t| t.contains("no split files")),
+            "no misleading message: {text:#?}"
+        );
+    }
+
+    #[test]
+    fn frames_shared_between_splits_and_duplicates_are_reported() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        mf_dataset(root, &["00001D", "00002N", "00003D", "00004N"], 8, 6);
+        // 00004N is a byte copy of 00001D under another name.
+        std::fs::copy(
+            root.join("images/00001D.png"),
+            root.join("images/00004N.png"),
+        )
+        .unwrap();
+        write(&root.join("train.txt"), b"00001D\n00002N\n");
+        // test: 00002N leaks by name, 00004N by content; test_day is a subset of test.
+        write(&root.join("test.txt"), b"00002N\n00003D\n00004N\n");
+        write(&root.join("test_day.txt"), b"00003D\n");
+        let report = check(root);
+        let text: Vec<String> = report.problems.iter().map(|p| p.to_string()).collect();
+        let has = |needle: &[&str]| text.iter().any(|t| needle.iter().all(|n| t.contains(n)));
+        assert!(
+            has(&["images/00004N.png", "same bytes as", "00001D.png"]),
+            "{text:#?}"
+        );
+        assert!(
+            has(&["test.txt", "line 1", "'00002N' is also in split 'train'"]),
+            "{text:#?}"
+        );
+        assert!(
+            has(&[
+                "test.txt",
+                "line 3",
+                "'00004N' has the same content as '00001D'"
+            ]),
+            "{text:#?}"
+        );
+        assert!(
+            !text.iter().any(|t| t.contains("test_day")),
+            "a subset split is no leak: {text:#?}"
         );
     }
 }

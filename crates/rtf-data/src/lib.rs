@@ -7,6 +7,7 @@
 pub mod augment;
 pub mod bdd;
 pub mod error;
+pub mod fingerprint;
 pub mod frame;
 pub mod freiburg;
 pub mod fuzzing;
@@ -19,6 +20,7 @@ pub mod synth;
 
 pub use augment::{resize_frame, AugmentConfig};
 pub use error::DataError;
+pub use fingerprint::{fingerprint, Fingerprint, SplitFingerprint};
 pub use frame::{Frame, FrameSource, MemorySource};
 pub use freiburg::{FreiburgPart, FreiburgPreprocess, FreiburgSplit};
 pub use loader::{Batch, Loader, LoaderConfig};

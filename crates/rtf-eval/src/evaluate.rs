@@ -1,7 +1,14 @@
 //! Evaluation of any network on any frame source: one confusion matrix for the split and one
 //! per daytime, accumulated batch by batch.
+//!
+//! Frame sizes come from outside (a 4000×3000 photo, a memory limit), so the forward pass is
+//! guarded: its memory is estimated before a large batch ([`check_memory`]) and an allocation
+//! failure inside libtorch, which tch's infallible ops turn into a panic, comes back as
+//! [`EvalError::OutOfMemory`] with the size, the estimate and a hint ([`forward_guarded`]).
 
-use std::sync::Arc;
+use std::cell::Cell;
+use std::panic::AssertUnwindSafe;
+use std::sync::{Arc, Once};
 
 use rtf_core::Daytime;
 use rtf_data::{DataError, FrameSource, Loader, LoaderConfig};
@@ -19,6 +26,33 @@ pub enum EvalError {
     Shape(String),
     #[error(transparent)]
     Torch(#[from] tch::TchError),
+    #[error(
+        "out of memory: {network} on a batch of {batch} frame(s) of {width}x{height} needs {}, \
+         {}{detail}; run at a smaller size (--resize WxH, e.g. 640x480) or with a smaller \
+         --batch-size",
+        estimate.map_or("more memory than there is".to_string(), |b| format!("about {} (estimate)", gib(b))),
+        available.map_or("memory available unknown".to_string(), |b| format!("{} available", gib(b)))
+    )]
+    OutOfMemory {
+        network: String,
+        batch: usize,
+        width: usize,
+        height: usize,
+        estimate: Option<u64>,
+        available: Option<u64>,
+        /// libtorch's own words, when it failed (empty when refused beforehand).
+        detail: String,
+    },
+    #[error("{network}: forward pass failed on input {shape:?}: {message}")]
+    Forward {
+        network: String,
+        shape: Vec<i64>,
+        message: String,
+    },
+}
+
+fn gib(bytes: u64) -> String {
+    format!("{:.2} GiB", bytes as f64 / (1u64 << 30) as f64)
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -75,6 +109,14 @@ pub fn evaluate(
         },
         network.input_convention(),
     );
+    if let Some(&(w, h)) = options.resize.as_ref() {
+        check_memory(network, options.batch_size.min(source.len()), h, w, device)?;
+    } else if !source.is_empty() {
+        // Frames of a split share one size (the loader refuses others): the first tells it.
+        let first = source.load(0)?;
+        let batch = options.batch_size.min(source.len());
+        check_memory(network, batch, first.height, first.width, device)?;
+    }
     let mut frames = 0;
     let _guard = tch::no_grad_guard();
     for batch in loader.epoch(0) {
@@ -108,7 +150,7 @@ pub fn evaluate(
 /// Class ids [B, H, W] for an input [B, C, H, W]: H and W are padded up to the network's size
 /// multiple (replicating the border) and the logits cropped back.
 pub fn predict_ids(network: &dyn Network, input: &Tensor) -> Result<Tensor, EvalError> {
-    Ok(logits(network, input)?.argmax(1, false))
+    Ok(logits(network, input)?.f_argmax(1, false)?)
 }
 
 /// Logits [B, classes, H, W] at the input's resolution, in eval mode.
@@ -128,6 +170,293 @@ pub fn logits(network: &dyn Network, input: &Tensor) -> Result<Tensor, EvalError
     } else {
         input.shallow_clone()
     };
-    let out = network.forward_t(&padded.to_kind(Kind::Float), false);
-    Ok(out.narrow(2, 0, h).narrow(3, 0, w))
+    let out = forward_guarded(network, &padded.f_to_kind(Kind::Float)?)?;
+    Ok(out.f_narrow(2, 0, h)?.f_narrow(3, 0, w)?)
+}
+
+thread_local! {
+    /// Set while [`forward_guarded`] runs a forward pass on this thread.
+    static GUARDED: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Makes the process's panic hook quiet for panics that [`forward_guarded`] catches and turns
+/// into errors (others are reported as before). Programs call it once at start; idempotent.
+pub fn install_quiet_panic_hook() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !GUARDED.with(Cell::get) {
+                previous(info);
+            }
+        }));
+    });
+}
+
+/// `network.forward_t(input, false)`, with a failure inside libtorch (which tch's infallible
+/// ops report by panicking) returned as an error: [`EvalError::OutOfMemory`] for a failed
+/// allocation, [`EvalError::Forward`] otherwise.
+pub fn forward_guarded(network: &dyn Network, input: &Tensor) -> Result<Tensor, EvalError> {
+    let previous = GUARDED.with(|g| g.replace(true));
+    // Unwind safety: on a panic nothing of the network's state is used again by this call,
+    // and its weights are only read by an eval-mode forward.
+    let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
+        tch::no_grad(|| network.forward_t(input, false))
+    }));
+    GUARDED.with(|g| g.set(previous));
+    let payload = match result {
+        Ok(out) => return Ok(out),
+        Err(payload) => payload,
+    };
+    let message = payload
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| payload.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "panic without a message".into());
+    let shape = input.size();
+    if is_allocation_failure(&message) {
+        let (batch, height, width) = match shape.as_slice() {
+            [b, _, h, w] => (*b as usize, *h as usize, *w as usize),
+            _ => (0, 0, 0),
+        };
+        return Err(EvalError::OutOfMemory {
+            network: network.name(),
+            batch,
+            width,
+            height,
+            estimate: estimate_forward_bytes(network, batch, height, width),
+            available: available_memory(input.device()),
+            detail: format!(" (libtorch: {})", first_line(&message)),
+        });
+    }
+    Err(EvalError::Forward {
+        network: network.name(),
+        shape,
+        message: first_line(&message).to_string(),
+    })
+}
+
+fn is_allocation_failure(message: &str) -> bool {
+    let m = message.to_ascii_lowercase();
+    [
+        "can't allocate",
+        "out of memory",
+        "bad_alloc",
+        "failed to allocate",
+    ]
+    .iter()
+    .any(|n| m.contains(n))
+}
+
+/// The part of a libtorch message worth showing: its first line, without tch's wrapping
+/// (tch quotes libtorch's message with escaped newlines, then its C++ backtrace).
+fn first_line(message: &str) -> &str {
+    let line = message.lines().next().unwrap_or(message);
+    let line = line.split_once("Torch(\"").map_or(line, |(_, rest)| rest);
+    let line = line.split_once("\\n").map_or(line, |(head, _)| head);
+    line.trim_end_matches("\")").trim_end()
+}
+
+/// Batches above this many input pixels get their memory estimated before they run.
+pub const ESTIMATE_ABOVE_PIXELS: usize = 1 << 22;
+
+/// Refuses, before any work, a forward pass on `batch` frames of `width`×`height` whose
+/// estimated memory ([`estimate_forward_bytes`]) exceeds what the process can still get
+/// ([`available_memory`]). Small batches are not checked (nothing to gain); neither is memory
+/// that cannot be measured (non-Linux, accelerators).
+pub fn check_memory(
+    network: &dyn Network,
+    batch: usize,
+    height: usize,
+    width: usize,
+    device: Device,
+) -> Result<(), EvalError> {
+    let pixels = batch.saturating_mul(height).saturating_mul(width);
+    if pixels <= ESTIMATE_ABOVE_PIXELS || device != Device::Cpu {
+        return Ok(());
+    }
+    let (Some(estimate), Some(available)) = (
+        estimate_forward_bytes(network, batch, height, width),
+        available_memory(device),
+    ) else {
+        return Ok(());
+    };
+    if estimate > available {
+        return Err(EvalError::OutOfMemory {
+            network: network.name(),
+            batch,
+            width,
+            height,
+            estimate: Some(estimate),
+            available: Some(available),
+            detail: String::new(),
+        });
+    }
+    Ok(())
+}
+
+/// Memory of an eval forward pass on `batch` frames of `width`×`height`, extrapolated
+/// linearly in pixels from the peak resident size of two probe passes (128×128 and 256×256,
+/// after a warm-up pass that pays libtorch's one-time allocations; Linux: the kernel's
+/// `VmHWM`, reset through `/proc/self/clear_refs`). Activations of these fully
+/// convolutional networks grow with the pixel count, so this is an estimate, not a bound:
+/// for MFNet it gives 770 B/pixel, against 730 B/pixel between real 1024² and 2048² runs
+/// (docs/src/reliability.md). None where it cannot be measured.
+pub fn estimate_forward_bytes(
+    network: &dyn Network,
+    batch: usize,
+    height: usize,
+    width: usize,
+) -> Option<u64> {
+    let m = network.size_multiple().max(1) as usize;
+    let probe = |side: usize| -> Option<(f64, f64)> {
+        let side = side.div_ceil(m) * m;
+        let input =
+            Tensor::f_zeros([1, 4, side as i64, side as i64], (Kind::Float, Device::Cpu)).ok()?;
+        release_free_memory();
+        std::fs::write("/proc/self/clear_refs", "5").ok()?;
+        let before = proc_status_kib("VmRSS")?;
+        drop(forward_guarded(network, &input).ok()?);
+        let peak = proc_status_kib("VmHWM")?.saturating_sub(before) * 1024;
+        Some(((side * side) as f64, peak as f64))
+    };
+    probe(64)?; // warm-up
+    let (px1, peak1) = probe(128)?;
+    let (px2, peak2) = probe(256)?;
+    let per_pixel = ((peak2 - peak1) / (px2 - px1)).max(0.0);
+    let fixed = (peak1 - per_pixel * px1).max(0.0);
+    let pixels = (batch * height * width) as f64;
+    Some((fixed + per_pixel * pixels) as u64)
+}
+
+/// Bytes the process can still allocate on `device`: the smaller of the system's available
+/// memory and what the address-space limit (`ulimit -v`) leaves. None off Linux or off CPU.
+pub fn available_memory(device: Device) -> Option<u64> {
+    if device != Device::Cpu {
+        return None;
+    }
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let available = field_kib(&meminfo, "MemAvailable")? * 1024;
+    let mut limit = libc_rlimit_as();
+    if let (Some(l), Some(size)) = (limit, proc_status_kib("VmSize")) {
+        limit = Some(l.saturating_sub(size * 1024));
+    }
+    Some(limit.map_or(available, |l| l.min(available)))
+}
+
+fn libc_rlimit_as() -> Option<u64> {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes one rlimit struct we own.
+    let ok = unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut limit) } == 0;
+    (ok && limit.rlim_cur != libc::RLIM_INFINITY).then_some(limit.rlim_cur)
+}
+
+/// Hands free heap pages back to the kernel, so that a probe's allocations show in the peak
+/// resident size (the CLI keeps freed memory, `rtf_models::allocator`).
+fn release_free_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns unused heap memory to the kernel.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
+fn proc_status_kib(key: &str) -> Option<u64> {
+    field_kib(&std::fs::read_to_string("/proc/self/status").ok()?, key)
+}
+
+/// `Key:   123 kB` → 123.
+fn field_kib(text: &str, key: &str) -> Option<u64> {
+    text.lines()
+        .find_map(|l| l.strip_prefix(key)?.strip_prefix(':'))?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rtf_models::{build, ModelConfig};
+
+    fn mfnet() -> (tch::nn::VarStore, Box<dyn Network>) {
+        tch::manual_seed(0);
+        let vs = tch::nn::VarStore::new(Device::Cpu);
+        let net = build(&vs.root(), &ModelConfig::from_name("mfnet", 9).unwrap()).unwrap();
+        (vs, net)
+    }
+
+    #[test]
+    fn proc_fields_parse() {
+        assert_eq!(
+            field_kib("VmHWM:\t  1234 kB\nVmRSS: 5 kB", "VmRSS"),
+            Some(5)
+        );
+        assert_eq!(field_kib("VmHWM: 1 kB", "VmSize"), None);
+        assert!(is_allocation_failure(
+            "called `Result::unwrap()` on an `Err` value: Torch(\"[enforce fail at alloc_cpu.cpp:117] \
+             data. DefaultCPUAllocator: can't allocate memory: you tried to allocate 1 bytes\")"
+        ));
+        assert!(!is_allocation_failure("shape mismatch"));
+        assert_eq!(
+            first_line(
+                "called `Result::unwrap()` on an `Err` value: Torch(\"[enforce fail] can't \
+                 allocate memory: you tried to allocate 8 bytes.\\nframe #0: c10::f\\n\")"
+            ),
+            "[enforce fail] can't allocate memory: you tried to allocate 8 bytes."
+        );
+    }
+
+    #[test]
+    fn a_failing_forward_is_an_error_not_a_panic() {
+        install_quiet_panic_hook();
+        let (_vs, net) = mfnet();
+        // Two channels where MFNet needs four: libtorch refuses inside forward_t.
+        let bad = Tensor::zeros([1, 2, 32, 32], (Kind::Float, Device::Cpu));
+        let err = forward_guarded(net.as_ref(), &bad).unwrap_err();
+        assert!(matches!(err, EvalError::Forward { .. }), "{err}");
+        assert!(err.to_string().contains("[1, 2, 32, 32]"), "{err}");
+        // The guard is released: a good input runs.
+        let good = Tensor::zeros([1, 4, 32, 32], (Kind::Float, Device::Cpu));
+        assert_eq!(
+            forward_guarded(net.as_ref(), &good).unwrap().size(),
+            [1, 9, 32, 32]
+        );
+    }
+
+    #[test]
+    fn huge_batches_are_refused_before_they_run_with_size_and_estimate() {
+        let (_vs, net) = mfnet();
+        if available_memory(Device::Cpu).is_none() {
+            return; // not Linux: nothing to compare the estimate with
+        }
+        let Some(estimate) = estimate_forward_bytes(net.as_ref(), 1, 480, 640) else {
+            eprintln!("/proc/self/clear_refs not writable here: no estimate to test");
+            return;
+        };
+        // MFNet at 480×640: the input and logits alone are 16 MB, activations add more;
+        // far from gigabytes.
+        let io = 480 * 640 * 4 * (4 + 9);
+        assert!(
+            estimate > io + (1 << 20) && estimate < 4 << 30,
+            "estimate {estimate}"
+        );
+        // 64 frames of 30000×40000 would need terabytes.
+        let err = check_memory(net.as_ref(), 64, 30_000, 40_000, Device::Cpu).unwrap_err();
+        let text = err.to_string();
+        for needle in [
+            "40000x30000",
+            "64 frame",
+            "estimate",
+            "--resize",
+            "--batch-size",
+        ] {
+            assert!(text.contains(needle), "{needle} not in: {text}");
+        }
+        check_memory(net.as_ref(), 1, 480, 640, Device::Cpu).unwrap();
+    }
 }

@@ -122,7 +122,8 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     let mut vs = nn::VarStore::new(opts.device);
     let net = rtf_models::build(&vs.root(), &cfg)?;
     if let Some(path) = &opts.weights {
-        rtf_models::weights::load_safetensors(&mut vs, path)?;
+        // Checked against the file's model metadata: timing mfnet-f with mfnet's file is refused.
+        rtf_models::weights::load_checked(&mut vs, &cfg, path, false)?;
     }
     let shape = [opts.batch, 4, opts.height, opts.width];
     net.check_input(&shape)?;

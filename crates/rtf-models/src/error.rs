@@ -43,6 +43,23 @@ pub enum ModelError {
         unexpected: Vec<String>,
         mismatched: Vec<ShapeMismatch>,
     },
+    #[error("{}: tensor `{name}`: {message}", path.display())]
+    BadTensor {
+        path: PathBuf,
+        name: String,
+        message: String,
+    },
+    #[error(
+        "{}: these weights were saved for `{saved}` but `{requested}` was asked for (variants \
+         can share tensor names, so they would load silently); pass the right --model, or \
+         --foreign-weights to load them anyway",
+        path.display()
+    )]
+    WrongModel {
+        path: PathBuf,
+        saved: String,
+        requested: String,
+    },
     #[error("{context}: {source}")]
     Torch {
         context: String,

@@ -497,7 +497,12 @@ mod tests {
         tch::manual_seed(0);
         let vs_full = nn::VarStore::new(Device::Cpu);
         let full = RtfNet::new(vs_full.root(), &Config::new(18, 9, Variant::Full)).unwrap();
-        weights::save_safetensors(&vs_full, &file).unwrap();
+        weights::save_safetensors(
+            &vs_full,
+            &crate::ModelConfig::Rtfnet(Config::new(18, 9, Variant::Full)),
+            &file,
+        )
+        .unwrap();
         let mut vs_olf = nn::VarStore::new(Device::Cpu);
         let olf = RtfNet::new(vs_olf.root(), &Config::new(18, 9, Variant::Olf)).unwrap();
         weights::load_safetensors(&mut vs_olf, &file).unwrap();

@@ -3,39 +3,342 @@
 //! Loading is strict: every network variable must be present with the same shape and the file
 //! may hold nothing else (PyTorch's `num_batches_tracked` counters carry no weights and are
 //! skipped). On any difference the error lists all missing, unexpected and misshaped names.
+//! Every weight must be a finite floating-point number: a file with one NaN or infinity, or
+//! an integer tensor where a weight belongs, is refused naming the tensor (it would otherwise
+//! load and score like an untrained network, with exit 0).
+//!
+//! Files written by [`save_safetensors`] carry the network in the safetensors header's
+//! `__metadata__` (format: <https://github.com/huggingface/safetensors#format>): `rtf.format`
+//! ([`FORMAT_VERSION`]), `rtf.model` (the canonical name) and `rtf.config` (the
+//! [`ModelConfig`] as JSON). [`load_checked`] compares it with the network asked for, because
+//! variants with the same tensor names (`mfnet`, `mfnet-f`, `-h`, `-j`) would otherwise load
+//! each other's weights silently. Files without it (converted published weights, older runs)
+//! load with [`Provenance::Unchecked`], for the caller to warn about.
+//!
+//! Library errors of the `safetensors` crate are translated into what is wrong with the file
+//! (e.g. `HeaderTooLarge` on a PyTorch `.pth` archive).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
+use safetensors::{tensor::TensorView, Dtype, SafeTensorError, SafeTensors};
 use tch::nn::VarStore;
-use tch::Tensor;
+use tch::{Kind, Tensor};
 
 use crate::error::{ModelError, ShapeMismatch};
+use crate::ModelConfig;
+
+/// Metadata key of the weights format version.
+pub const FORMAT_KEY: &str = "rtf.format";
+/// Metadata key of the canonical model name ([`ModelConfig::name`]).
+pub const MODEL_KEY: &str = "rtf.model";
+/// Metadata key of the model configuration (JSON of [`ModelConfig`]).
+pub const CONFIG_KEY: &str = "rtf.config";
+/// The weights format this build writes and reads.
+pub const FORMAT_VERSION: &str = "1";
 
 /// PyTorch BatchNorm counters; present in reference state_dicts, absent from tch's VarStore.
 pub fn is_ignored_name(name: &str) -> bool {
     name.ends_with("num_batches_tracked")
 }
 
+/// A safetensors file as read: its tensors in file order and its header metadata.
+pub struct WeightsFile {
+    pub tensors: Vec<(String, Tensor)>,
+    pub metadata: HashMap<String, String>,
+}
+
+impl WeightsFile {
+    /// The model configuration recorded by [`save_safetensors`], if the file has one.
+    pub fn saved_config(&self, path: &Path) -> Result<Option<ModelConfig>, ModelError> {
+        let Some(json) = self.metadata.get(CONFIG_KEY) else {
+            return Ok(None);
+        };
+        serde_json::from_str(json)
+            .map(Some)
+            .map_err(|e| ModelError::Read {
+                path: path.to_path_buf(),
+                message: format!(
+                    "metadata `{CONFIG_KEY}` is not a model configuration this build knows \
+                     ({e}); --foreign-weights loads the tensors regardless"
+                ),
+            })
+    }
+}
+
 /// Reads every tensor of a safetensors file, in file order.
 pub fn read_safetensors(path: &Path) -> Result<Vec<(String, Tensor)>, ModelError> {
-    if !path.is_file() {
-        return Err(ModelError::Read {
-            path: path.to_path_buf(),
-            message: "no such file".into(),
-        });
-    }
-    Tensor::read_safetensors(path).map_err(|e| ModelError::Read {
+    Ok(read_weights_file(path)?.tensors)
+}
+
+/// Reads a safetensors file: tensors (in file order) and metadata. Errors name the file and
+/// say what is wrong with it rather than quoting the parser.
+pub fn read_weights_file(path: &Path) -> Result<WeightsFile, ModelError> {
+    let read_err = |message: String| ModelError::Read {
         path: path.to_path_buf(),
-        message: e.to_string(),
+        message,
+    };
+    if path.is_dir() {
+        return Err(read_err(
+            "is a directory, expected a .safetensors file".into(),
+        ));
+    }
+    if !path.is_file() {
+        return Err(read_err("no such file".into()));
+    }
+    let bytes = std::fs::read(path).map_err(|e| read_err(e.to_string()))?;
+    let (_, header) =
+        SafeTensors::read_metadata(&bytes).map_err(|e| read_err(describe_error(&e, &bytes)))?;
+    let metadata = header.metadata().clone().unwrap_or_default();
+    let st = SafeTensors::deserialize(&bytes).map_err(|e| read_err(describe_error(&e, &bytes)))?;
+    let mut views: Vec<(String, TensorView<'_>)> = st.tensors();
+    // File order: by data offset (the header's JSON object has no order of its own).
+    let offsets: HashMap<String, usize> = header
+        .tensors()
+        .iter()
+        .map(|(n, info)| (n.clone(), info.data_offsets.0))
+        .collect();
+    views.sort_by_key(|(n, _)| offsets.get(n).copied().unwrap_or(usize::MAX));
+    let mut tensors = Vec::with_capacity(views.len());
+    for (name, view) in views {
+        let kind = kind_of(view.dtype()).ok_or_else(|| ModelError::BadTensor {
+            path: path.to_path_buf(),
+            name: name.clone(),
+            message: format!(
+                "dtype {:?} is not supported (weights are F16, BF16, F32 or F64)",
+                view.dtype()
+            ),
+        })?;
+        let shape: Vec<i64> = view.shape().iter().map(|&d| d as i64).collect();
+        let t = Tensor::f_from_data_size(view.data(), &shape, kind).map_err(|e| {
+            ModelError::BadTensor {
+                path: path.to_path_buf(),
+                name: name.clone(),
+                message: e.to_string(),
+            }
+        })?;
+        tensors.push((name, t));
+    }
+    Ok(WeightsFile { tensors, metadata })
+}
+
+fn kind_of(dtype: Dtype) -> Option<Kind> {
+    Some(match dtype {
+        Dtype::BOOL => Kind::Bool,
+        Dtype::U8 => Kind::Uint8,
+        Dtype::I8 => Kind::Int8,
+        Dtype::I16 => Kind::Int16,
+        Dtype::I32 => Kind::Int,
+        Dtype::I64 => Kind::Int64,
+        Dtype::F16 => Kind::Half,
+        Dtype::BF16 => Kind::BFloat16,
+        Dtype::F32 => Kind::Float,
+        Dtype::F64 => Kind::Double,
+        _ => return None,
     })
 }
 
-/// Loads a safetensors state_dict into `vs` (strict; see the module docs). Nothing is copied
-/// unless the whole file matches, so a refused file leaves the network untouched.
+fn dtype_of(kind: Kind) -> Option<Dtype> {
+    Some(match kind {
+        Kind::Bool => Dtype::BOOL,
+        Kind::Uint8 => Dtype::U8,
+        Kind::Int8 => Dtype::I8,
+        Kind::Int16 => Dtype::I16,
+        Kind::Int => Dtype::I32,
+        Kind::Int64 => Dtype::I64,
+        Kind::Half => Dtype::F16,
+        Kind::BFloat16 => Dtype::BF16,
+        Kind::Float => Dtype::F32,
+        Kind::Double => Dtype::F64,
+        _ => return None,
+    })
+}
+
+/// What a `safetensors` parse error means for the file `bytes` came from.
+fn describe_error(e: &SafeTensorError, bytes: &[u8]) -> String {
+    let len = bytes.len();
+    let announced = bytes
+        .get(..8)
+        .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")));
+    let looks_like = if bytes.starts_with(b"PK\x03\x04") {
+        " It is a zip archive, as PyTorch's .pth checkpoints are: convert it with \
+         `cargo xtask convert-pth IN.pth OUT.safetensors`."
+    } else if bytes.first() == Some(&0x80) {
+        " It starts like a Python pickle (a legacy PyTorch .pth): convert it with \
+         `cargo xtask convert-pth IN.pth OUT.safetensors --allow-pickle`."
+    } else {
+        ""
+    };
+    match e {
+        SafeTensorError::HeaderTooLarge => format!(
+            "not a safetensors file: its first 8 bytes announce a header of {} bytes, more \
+             than safetensors allows (100 MB).{looks_like}",
+            announced.unwrap_or(0)
+        ),
+        SafeTensorError::HeaderTooSmall => format!(
+            "not a safetensors file: {len} bytes, too short for a safetensors header \
+             (8-byte length, then JSON).{looks_like}"
+        ),
+        SafeTensorError::InvalidHeaderLength => format!(
+            "truncated or not a safetensors file: its first 8 bytes announce a header of {} \
+             bytes but the file has {len} bytes.{looks_like}",
+            announced.unwrap_or(0)
+        ),
+        SafeTensorError::InvalidHeader(_)
+        | SafeTensorError::InvalidHeaderDeserialization(_)
+        | SafeTensorError::JsonError(_) => {
+            format!("corrupt safetensors header ({e}).{looks_like}")
+        }
+        SafeTensorError::MetadataIncompleteBuffer => format!(
+            "truncated or padded: the tensors the header describes do not end where the file \
+             ends ({len} bytes); the file was probably cut short while being copied or written"
+        ),
+        SafeTensorError::InvalidOffset(name) => format!(
+            "corrupt header: the byte range of tensor `{name}` is inconsistent with the others"
+        ),
+        SafeTensorError::TensorInvalidInfo | SafeTensorError::ValidationOverflow => {
+            "corrupt header: a tensor's shape and dtype do not match its byte range".into()
+        }
+        other => format!("not a readable safetensors file: {other}"),
+    }
+}
+
+/// How a [`load_checked`] file relates to the network it was loaded into.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Provenance {
+    /// The file's metadata names this very configuration.
+    Checked,
+    /// The file has no rtf metadata (converted published weights, older builds): the tensors
+    /// matched by name and shape, but the network they were trained for cannot be checked.
+    Unchecked,
+    /// The metadata names another configuration and the caller allowed it.
+    Overridden { saved: String },
+}
+
+/// One line for the user about a load that could not be fully checked; None when checked.
+pub fn provenance_warning(path: &Path, provenance: &Provenance) -> Option<String> {
+    match provenance {
+        Provenance::Checked => None,
+        Provenance::Unchecked => Some(format!(
+            "{}: no rtf model metadata (converted or older weights): tensor names and shapes \
+             match, but the network they were trained for cannot be checked",
+            path.display()
+        )),
+        Provenance::Overridden { saved } => Some(format!(
+            "{}: saved for `{saved}`, loaded anyway (--foreign-weights)",
+            path.display()
+        )),
+    }
+}
+
+/// Loads `path` into `vs`, built from `cfg`, checking the file's model metadata first: a file
+/// saved for another configuration is refused (naming both) unless `allow_foreign`. Then the
+/// strict load of [`load_named`]. Nothing is copied unless everything passes.
+pub fn load_checked(
+    vs: &mut VarStore,
+    cfg: &ModelConfig,
+    path: &Path,
+    allow_foreign: bool,
+) -> Result<Provenance, ModelError> {
+    let file = read_weights_file(path)?;
+    let provenance = match file.metadata.get(FORMAT_KEY) {
+        Some(v) if v != FORMAT_VERSION && !allow_foreign => {
+            return Err(ModelError::Read {
+                path: path.to_path_buf(),
+                message: format!(
+                    "weights format {v}, this build reads format {FORMAT_VERSION}; \
+                     --foreign-weights loads the tensors regardless"
+                ),
+            })
+        }
+        _ => match file.saved_config(path) {
+            Ok(None) => Provenance::Unchecked,
+            Ok(Some(saved)) if &saved == cfg => Provenance::Checked,
+            Ok(Some(saved)) => {
+                let (saved, requested) = describe_pair(&saved, cfg);
+                if !allow_foreign {
+                    return Err(ModelError::WrongModel {
+                        path: path.to_path_buf(),
+                        saved,
+                        requested,
+                    });
+                }
+                Provenance::Overridden { saved }
+            }
+            Err(_) if allow_foreign => Provenance::Overridden {
+                saved: file
+                    .metadata
+                    .get(MODEL_KEY)
+                    .cloned()
+                    .unwrap_or_else(|| "an unknown configuration".into()),
+            },
+            Err(e) => return Err(e),
+        },
+    };
+    load_named(vs, file.tensors, path)?;
+    Ok(provenance)
+}
+
+/// Names two configurations so that they read differently: by name, or by their JSON where
+/// the names agree (same variant, other class count).
+fn describe_pair(saved: &ModelConfig, requested: &ModelConfig) -> (String, String) {
+    let (a, b) = (saved.name(), requested.name());
+    if a != b {
+        return (a, b);
+    }
+    let json = |c: &ModelConfig| serde_json::to_string(c).unwrap_or_default();
+    (
+        format!("{a} {}", json(saved)),
+        format!("{b} {}", json(requested)),
+    )
+}
+
+/// Loads a safetensors state_dict into `vs` without looking at its model metadata (strict;
+/// see the module docs). Nothing is copied unless the whole file matches, so a refused file
+/// leaves the network untouched. Prefer [`load_checked`] where the configuration is known.
 pub fn load_safetensors(vs: &mut VarStore, path: &Path) -> Result<(), ModelError> {
     let tensors = read_safetensors(path)?;
     load_named(vs, tensors, path)
+}
+
+/// Refuses a tensor that cannot be a weight: not floating point, or holding NaN or infinity.
+pub fn check_weight(name: &str, t: &Tensor, source: &Path) -> Result<(), ModelError> {
+    let bad = |message: String| ModelError::BadTensor {
+        path: source.to_path_buf(),
+        name: name.to_string(),
+        message,
+    };
+    let kind = t.kind();
+    if !matches!(
+        kind,
+        Kind::Half | Kind::BFloat16 | Kind::Float | Kind::Double
+    ) {
+        return Err(bad(format!(
+            "dtype {} is not floating point; weights are F16, BF16, F32 or F64",
+            dtype_of(kind).map_or(format!("{kind:?}"), |d| format!("{d:?}"))
+        )));
+    }
+    let torch = |e: tch::TchError| bad(e.to_string());
+    let finite = t.f_isfinite().map_err(torch)?;
+    let bad_count = finite
+        .f_logical_not()
+        .and_then(|m| m.f_sum(Kind::Int64))
+        .map_err(torch)?
+        .int64_value(&[]);
+    if bad_count > 0 {
+        let nan = t
+            .f_isnan()
+            .and_then(|m| m.f_sum(Kind::Int64))
+            .map_err(torch)?
+            .int64_value(&[]);
+        return Err(bad(format!(
+            "{bad_count} of {} values are not finite ({nan} NaN, {} infinite); the file is \
+             corrupt or comes from a diverged training run",
+            t.numel(),
+            bad_count - nan
+        )));
+    }
+    Ok(())
 }
 
 /// Strict load from already-read named tensors; `source` names where they came from.
@@ -78,6 +381,9 @@ pub fn load_named(
             mismatched,
         });
     }
+    for (name, t) in &file {
+        check_weight(name, t, source)?;
+    }
     tch::no_grad(|| -> Result<(), ModelError> {
         for (name, mut var) in vars {
             let src = &file[&name];
@@ -106,20 +412,61 @@ pub fn state_dict(vs: &VarStore) -> Vec<(String, Tensor)> {
     named
 }
 
-/// Writes the variables of `vs` as a safetensors state_dict with the reference names, through
-/// a temporary file renamed into place.
-pub fn save_safetensors(vs: &VarStore, path: &Path) -> Result<(), ModelError> {
-    save_named(&state_dict(vs), path)
+/// The metadata [`save_safetensors`] writes for `cfg`.
+pub fn model_metadata(cfg: &ModelConfig) -> HashMap<String, String> {
+    HashMap::from([
+        (FORMAT_KEY.to_string(), FORMAT_VERSION.to_string()),
+        (MODEL_KEY.to_string(), cfg.name()),
+        (
+            CONFIG_KEY.to_string(),
+            serde_json::to_string(cfg).expect("a model configuration serialises"),
+        ),
+    ])
 }
 
-/// Writes named tensors as safetensors, atomically.
+/// Writes the variables of `vs`, the network built from `cfg`, as a safetensors state_dict
+/// with the reference names and `cfg` in the metadata (module docs), through a temporary
+/// file renamed into place.
+pub fn save_safetensors(vs: &VarStore, cfg: &ModelConfig, path: &Path) -> Result<(), ModelError> {
+    save_named_with_metadata(&state_dict(vs), Some(model_metadata(cfg)), path)
+}
+
+/// Writes named tensors as safetensors without model metadata, atomically.
 pub fn save_named(named: &[(String, Tensor)], path: &Path) -> Result<(), ModelError> {
-    rtf_core::write_atomic(path, |tmp| Tensor::write_safetensors(named, tmp)).map_err(|e| {
-        ModelError::Write {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        }
-    })
+    save_named_with_metadata(named, None, path)
+}
+
+/// Writes named tensors (any dtype safetensors has) and optional metadata, atomically.
+pub fn save_named_with_metadata(
+    named: &[(String, Tensor)],
+    metadata: Option<HashMap<String, String>>,
+    path: &Path,
+) -> Result<(), ModelError> {
+    let write_err = |message: String| ModelError::Write {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut raw: Vec<(&str, Dtype, Vec<usize>, Vec<u8>)> = Vec::with_capacity(named.len());
+    for (name, t) in named {
+        let t = t.to_device(tch::Device::Cpu).contiguous();
+        let dtype = dtype_of(t.kind())
+            .ok_or_else(|| write_err(format!("tensor {name}: dtype {:?}", t.kind())))?;
+        let numel = t.numel();
+        let mut bytes = vec![0u8; numel * t.kind().elt_size_in_bytes()];
+        t.f_copy_data_u8(&mut bytes, numel)
+            .map_err(|e| write_err(format!("tensor {name}: {e}")))?;
+        let shape = t.size().iter().map(|&d| d as usize).collect();
+        raw.push((name, dtype, shape, bytes));
+    }
+    let views = raw
+        .iter()
+        .map(|(n, dtype, shape, bytes)| {
+            TensorView::new(*dtype, shape.clone(), bytes).map(|v| (*n, v))
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| write_err(e.to_string()))?;
+    let bytes = safetensors::serialize(views, metadata).map_err(|e| write_err(e.to_string()))?;
+    rtf_core::write_bytes_atomic(path, &bytes).map_err(|e| write_err(e.to_string()))
 }
 
 /// Total number of scalar weights (parameters and BatchNorm running statistics, as counted by
@@ -149,6 +496,10 @@ mod tests {
         (vs, net)
     }
 
+    fn mfnet_cfg(name: &str) -> ModelConfig {
+        ModelConfig::from_name(name, 9).unwrap()
+    }
+
     fn eval(net: &dyn Network, x: &Tensor) -> Tensor {
         tch::no_grad(|| net.forward_t(x, false))
     }
@@ -163,7 +514,7 @@ mod tests {
             &Tensor::rand([2, 4, 32, 32], (Kind::Float, Device::Cpu)),
             true,
         );
-        save_safetensors(&vs_a, &file).unwrap();
+        save_safetensors(&vs_a, &mfnet_cfg("mfnet"), &file).unwrap();
         assert_eq!(
             std::fs::read_dir(dir.path()).unwrap().count(),
             1,
@@ -288,5 +639,180 @@ mod tests {
         load_safetensors(&mut vs_b, &file).unwrap();
         let x = Tensor::rand([1, 4, 32, 32], (Kind::Float, Device::Cpu));
         assert!(eval(&*net, &x).allclose(&eval(&*net_b, &x), 1e-6, 1e-6, false));
+    }
+
+    /// The state_dict of a seeded MFNet with one tensor replaced by `f(tensor)`.
+    fn tampered(name: &str, f: impl Fn(&Tensor) -> Tensor) -> Vec<(String, Tensor)> {
+        let (vs, _net) = mfnet(1);
+        state_dict(&vs)
+            .into_iter()
+            .map(|(n, t)| if n == name { (n, f(&t)) } else { (n, t) })
+            .collect()
+    }
+
+    fn load_err(file: &Path) -> String {
+        let (mut vs, net) = mfnet(2);
+        let x = Tensor::rand([1, 4, 32, 32], (Kind::Float, Device::Cpu));
+        let before = eval(&*net, &x);
+        let err = load_checked(&mut vs, &mfnet_cfg("mfnet"), file, false)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            eval(&*net, &x).equal(&before),
+            "a refused file leaves the network untouched"
+        );
+        err
+    }
+
+    #[test]
+    fn one_nan_or_infinity_is_refused_naming_the_tensor() {
+        let dir = tempfile::tempdir().unwrap();
+        for (value, what) in [(f64::NAN, "1 NaN"), (f64::INFINITY, "1 infinite")] {
+            let file = dir.path().join("nonfinite.safetensors");
+            let named = tampered("decode3.bn.running_var", |t| {
+                let t = t.copy();
+                let _ = t.get(5).fill_(value);
+                t
+            });
+            save_named(&named, &file).unwrap();
+            let err = load_err(&file);
+            for needle in ["nonfinite.safetensors", "decode3.bn.running_var", what] {
+                assert!(err.contains(needle), "{needle} not in: {err}");
+            }
+        }
+    }
+
+    #[test]
+    fn integer_weights_are_refused_naming_the_tensor() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("int.safetensors");
+        let named = tampered("conv1_rgb.conv.weight", |t| t.to_kind(Kind::Int64));
+        save_named(&named, &file).unwrap();
+        let err = load_err(&file);
+        for needle in [
+            "int.safetensors",
+            "conv1_rgb.conv.weight",
+            "I64",
+            "floating",
+        ] {
+            assert!(err.contains(needle), "{needle} not in: {err}");
+        }
+        // A whole file of integers too (e.g. a label map saved under a weights name).
+        let (vs, _net) = mfnet(1);
+        let ints: Vec<(String, Tensor)> = state_dict(&vs)
+            .into_iter()
+            .map(|(n, t)| (n, t.to_kind(Kind::Uint8)))
+            .collect();
+        save_named(&ints, &file).unwrap();
+        assert!(load_err(&file).contains("U8"));
+    }
+
+    #[test]
+    fn metadata_names_the_network_and_variants_do_not_load_each_other() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("final.safetensors");
+        tch::manual_seed(3);
+        let vs = VarStore::new(Device::Cpu);
+        let _net = build(&vs.root(), &mfnet_cfg("mfnet")).unwrap();
+        save_safetensors(&vs, &mfnet_cfg("mfnet"), &file).unwrap();
+        let meta = read_weights_file(&file).unwrap().metadata;
+        assert_eq!(meta[MODEL_KEY], "mfnet");
+        assert_eq!(meta[FORMAT_KEY], FORMAT_VERSION);
+        let saved: ModelConfig = serde_json::from_str(&meta[CONFIG_KEY]).unwrap();
+        assert_eq!(saved, mfnet_cfg("mfnet"));
+
+        let mut same = VarStore::new(Device::Cpu);
+        let _n = build(&same.root(), &mfnet_cfg("mfnet")).unwrap();
+        assert_eq!(
+            load_checked(&mut same, &mfnet_cfg("mfnet"), &file, false).unwrap(),
+            Provenance::Checked
+        );
+        for variant in ["mfnet-f", "mfnet-h", "mfnet-j"] {
+            let mut other = VarStore::new(Device::Cpu);
+            let _n = build(&other.root(), &mfnet_cfg(variant)).unwrap();
+            // Same tensor names and shapes: only the metadata tells them apart.
+            load_safetensors(&mut other, &file).unwrap();
+            let err = load_checked(&mut other, &mfnet_cfg(variant), &file, false)
+                .unwrap_err()
+                .to_string();
+            for needle in ["final.safetensors", "`mfnet`", &format!("`{variant}`")] {
+                assert!(err.contains(needle), "{needle} not in: {err}");
+            }
+            assert_eq!(
+                load_checked(&mut other, &mfnet_cfg(variant), &file, true).unwrap(),
+                Provenance::Overridden {
+                    saved: "mfnet".into()
+                }
+            );
+        }
+        // Same variant, other class count: the message tells them apart by configuration.
+        let (a, b) = describe_pair(
+            &mfnet_cfg("mfnet"),
+            &ModelConfig::from_name("mfnet", 13).unwrap(),
+        );
+        assert_ne!(a, b);
+        assert!(a.contains("\"num_classes\":9") && b.contains("\"num_classes\":13"));
+    }
+
+    #[test]
+    fn files_without_metadata_load_unchecked_with_a_warning() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("converted.safetensors");
+        let (vs, _net) = mfnet(1);
+        save_named(&state_dict(&vs), &file).unwrap();
+        let (mut vs_b, _net_b) = mfnet(2);
+        let provenance = load_checked(&mut vs_b, &mfnet_cfg("mfnet-f"), &file, false).unwrap();
+        assert_eq!(provenance, Provenance::Unchecked);
+        let warning = provenance_warning(&file, &provenance).unwrap();
+        assert!(
+            warning.contains("converted.safetensors") && warning.contains("cannot be checked"),
+            "{warning}"
+        );
+        assert!(provenance_warning(&file, &Provenance::Checked).is_none());
+    }
+
+    #[test]
+    fn parser_errors_say_what_is_wrong_with_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = dir.path().join("good.safetensors");
+        let (vs, _net) = mfnet(1);
+        save_safetensors(&vs, &mfnet_cfg("mfnet"), &good).unwrap();
+        let bytes = std::fs::read(&good).unwrap();
+        let cases: Vec<(&str, Vec<u8>, &[&str])> = vec![
+            // A PyTorch zip archive: the first 8 bytes read as a huge header length.
+            (
+                "model.pth.safetensors",
+                b"PK\x03\x04\x14\x00\x00\x00\x08\x00rest of a zip".to_vec(),
+                &["not a safetensors file", "header of", "convert-pth"],
+            ),
+            ("tiny.safetensors", b"abc".to_vec(), &["too short"]),
+            (
+                "truncated.safetensors",
+                bytes[..bytes.len() - 1000].to_vec(),
+                &["truncated", "cut short"],
+            ),
+            (
+                "header_cut.safetensors",
+                bytes[..200].to_vec(),
+                &["truncated or not a safetensors file", "200 bytes"],
+            ),
+            (
+                "badjson.safetensors",
+                [&8u64.to_le_bytes()[..], b"{not json"].concat(),
+                &["corrupt safetensors header"],
+            ),
+        ];
+        for (name, content, needles) in cases {
+            let file = dir.path().join(name);
+            std::fs::write(&file, content).unwrap();
+            let err = load_err(&file);
+            assert!(err.contains(name), "{name}: {err}");
+            for needle in needles {
+                assert!(err.contains(needle), "{name}: {needle} not in: {err}");
+            }
+            assert!(!err.contains("HeaderTooLarge"), "{err}");
+        }
+        let err = load_err(dir.path());
+        assert!(err.contains("is a directory"), "{err}");
     }
 }

@@ -608,6 +608,7 @@ pub fn train_until(
                 state.best_val_miou = Some(v.selected);
                 rtf_models::weights::save_safetensors(
                     &procedure.student().trained.vs,
+                    &cfg.model,
                     &run_dir.join(BEST_FILE),
                 )?;
             }
@@ -630,7 +631,11 @@ pub fn train_until(
         }
     }
     let final_weights = run_dir.join(FINAL_FILE);
-    rtf_models::weights::save_safetensors(&procedure.student().trained.vs, &final_weights)?;
+    rtf_models::weights::save_safetensors(
+        &procedure.student().trained.vs,
+        &cfg.model,
+        &final_weights,
+    )?;
     Ok(TrainOutcome {
         run_dir: run_dir.to_path_buf(),
         final_weights: Some(final_weights),

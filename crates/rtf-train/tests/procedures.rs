@@ -78,7 +78,7 @@ fn teacher(dir: &Path, seed: i64) -> TeacherRef {
     let model = ModelConfig::from_name("mfnet", 9).unwrap();
     rtf_models::build(&vs.root(), &model).unwrap();
     let path = dir.join(format!("teacher{seed}.safetensors"));
-    rtf_models::weights::save_safetensors(&vs, &path).unwrap();
+    rtf_models::weights::save_safetensors(&vs, &model, &path).unwrap();
     TeacherRef::Weights {
         path,
         model,

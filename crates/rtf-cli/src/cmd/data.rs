@@ -1,4 +1,4 @@
-//! `rtf data check DIR` and `rtf data stats DIR [--json]`.
+//! `rtf data check DIR`, `rtf data stats DIR [--json]` and `rtf data fingerprint DIR [--json]`.
 
 use anyhow::{bail, Result};
 use rtf_data::inspect;
@@ -23,6 +23,15 @@ pub enum DataCommand {
     /// Frames per split and day/night, per-class pixel shares.
     Stats {
         /// Dataset root (MF, Freiburg Thermal or BDD100K-night layout).
+        dir: PathBuf,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// SHA-256 of every file each split reads: one hash per split and one for the dataset
+    /// (recorded by `rtf eval --json` and in a run's config.json).
+    Fingerprint {
+        /// Dataset root (MF or Freiburg Thermal layout).
         dir: PathBuf,
         /// Print JSON instead of a table.
         #[arg(long)]
@@ -54,6 +63,26 @@ pub fn run(args: Args) -> Result<()> {
             if !report.is_ok() {
                 bail!("{} problem(s) in {}", report.problems.len(), dir.display());
             }
+            Ok(())
+        }
+        DataCommand::Fingerprint { dir, json } => {
+            let fp = rtf_data::fingerprint(&dir)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&fp)?);
+                return Ok(());
+            }
+            println!(
+                "{} ({:?} layout, {} files, {} bytes)",
+                dir.display(),
+                fp.format,
+                fp.files,
+                fp.bytes
+            );
+            println!("{:<16} {:>7}  {}", "split", "frames", fp.algorithm);
+            for s in &fp.splits {
+                println!("{:<16} {:>7}  {}", s.name, s.frames, s.hash);
+            }
+            println!("{:<16} {:>7}  {}", "dataset", "", fp.hash);
             Ok(())
         }
         DataCommand::Stats { dir, json } => {

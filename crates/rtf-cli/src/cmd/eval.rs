@@ -51,6 +51,10 @@ pub struct Args {
     /// (`inputs` in its run's config.json: RGB-only and thermal-only variants of a network).
     #[arg(long, value_parser = rtf_train::Modality::parse)]
     pub inputs: Option<rtf_train::Modality>,
+    /// Load weights whose metadata names another network (e.g. renamed or converted files);
+    /// names and shapes must still match.
+    #[arg(long)]
+    pub foreign_weights: bool,
 }
 
 /// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside
@@ -68,6 +72,8 @@ struct Report<'a> {
     night: Option<&'a Scores>,
     #[serde(skip_serializing_if = "Option::is_none")]
     heatnet: Option<HeatnetScores>,
+    /// Content hash of the data evaluated (`rtf data fingerprint`).
+    data_fingerprint: &'a rtf_data::Fingerprint,
 }
 
 /// HeatNet's convention (spec §2): mIoU over classes 0–11 with undefined classes skipped;
@@ -134,6 +140,7 @@ pub fn run(args: Args) -> Result<()> {
         &args.weights,
         device,
         args.precision,
+        args.foreign_weights,
     )?;
     let network: Box<dyn rtf_models::Network> = match args.inputs {
         None | Some(rtf_train::Modality::RgbT) => network,
@@ -142,11 +149,18 @@ pub fn run(args: Args) -> Result<()> {
             inputs,
         }),
     };
+    rtf_eval::evaluate::install_quiet_panic_hook();
     let options = EvalOptions {
         batch_size: args.batch_size,
         resize: args.resize,
         workers: 2,
     };
+    // Hashed before the evaluation reads the frames, so the record is of what was read.
+    let data_fingerprint = args
+        .json
+        .as_ref()
+        .map(|_| rtf_data::fingerprint(&args.data))
+        .transpose()?;
     let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
 
     println!(
@@ -185,7 +199,7 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
     }
-    if let Some(path) = &args.json {
+    if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
         let json = serde_json::to_string_pretty(&Report {
             model: &args.model,
             weights: &args.weights,
@@ -196,6 +210,7 @@ pub fn run(args: Args) -> Result<()> {
             day: report.day.as_ref(),
             night: report.night.as_ref(),
             heatnet,
+            data_fingerprint,
         })?;
         rtf_core::write_bytes_atomic(path, json.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;

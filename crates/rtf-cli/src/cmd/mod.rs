@@ -43,19 +43,25 @@ pub fn segmentation_format(
     }
 }
 
-/// Builds a network by name and loads weights (strict, reference names). With a precision,
-/// the network is wrapped in the fast inference path (BatchNorm folded, channels-last).
+/// Builds a network by name and loads weights (strict, reference names, checked against the
+/// file's model metadata unless `foreign_weights`; a file without metadata loads with a
+/// warning on stderr). With a precision, the network is wrapped in the fast inference path
+/// (BatchNorm folded, channels-last).
 pub fn load_network(
     name: &str,
     num_classes: i64,
     weights: &std::path::Path,
     device: tch::Device,
     precision: Option<rtf_models::fast::Precision>,
+    foreign_weights: bool,
 ) -> anyhow::Result<(tch::nn::VarStore, Box<dyn rtf_models::Network>)> {
     let cfg = rtf_models::ModelConfig::from_name(name, num_classes)?;
     let mut vs = tch::nn::VarStore::new(device);
     let net = rtf_models::build(&vs.root(), &cfg)?;
-    rtf_models::weights::load_safetensors(&mut vs, weights)?;
+    let provenance = rtf_models::weights::load_checked(&mut vs, &cfg, weights, foreign_weights)?;
+    if let Some(warning) = rtf_models::weights::provenance_warning(weights, &provenance) {
+        eprintln!("warning: {warning}");
+    }
     let net = match precision {
         Some(p) => {
             Box::new(rtf_models::fast::InferenceNet::new(net, p)?) as Box<dyn rtf_models::Network>

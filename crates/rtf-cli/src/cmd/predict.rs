@@ -42,6 +42,10 @@ pub struct Args {
     /// the plain path.
     #[arg(long)]
     pub precision: Option<rtf_models::fast::Precision>,
+    /// Load weights whose metadata names another network (e.g. renamed or converted files);
+    /// names and shapes must still match.
+    #[arg(long)]
+    pub foreign_weights: bool,
     /// RGBA PNGs, thermal in the alpha channel (MF layout).
     #[arg(required_unless_present = "rgb")]
     pub images: Vec<PathBuf>,
@@ -127,7 +131,89 @@ fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Resul
     })
 }
 
+/// The files written for the inputs `sources` (one per frame, named by its stem) in `out`:
+/// `<stem>.png`, `<stem>_color.png` and, with `logits`, `<stem>.npy`. Refuses, before anything
+/// is read or written, an output that two inputs would share and an output that is one of
+/// `inputs` (every file the run reads), so that no input is overwritten.
+fn plan_outputs(
+    out: &Path,
+    sources: &[PathBuf],
+    inputs: &[&Path],
+    logits: bool,
+) -> Result<Vec<PathBuf>> {
+    if out.exists() && !out.is_dir() {
+        bail!("--out {}: exists and is not a directory", out.display());
+    }
+    for input in inputs {
+        if input.is_dir() {
+            bail!(
+                "{}: is a directory; predict takes image files (e.g. {}/*.png)",
+                input.display(),
+                input.display()
+            );
+        }
+        if !input.exists() {
+            bail!("{}: no such file", input.display());
+        }
+    }
+    // Inputs by canonical path; an output folder that does not exist yet holds none of them.
+    let canonical_inputs: Vec<(PathBuf, &Path)> = inputs
+        .iter()
+        .filter_map(|p| p.canonicalize().ok().map(|c| (c, *p)))
+        .collect();
+    let canonical_out = out.canonicalize().ok();
+    let mut writer: std::collections::HashMap<PathBuf, &Path> = Default::default();
+    let mut ids = Vec::with_capacity(sources.len());
+    for source in sources {
+        let stem = stem(source);
+        if stem.is_empty() {
+            bail!(
+                "{}: no file name to name the outputs after",
+                source.display()
+            );
+        }
+        let mut names = vec![format!("{stem}.png"), format!("{stem}_color.png")];
+        if logits {
+            names.push(format!("{stem}.npy"));
+        }
+        for name in &names {
+            let path = out.join(name);
+            if let Some(other) = writer.insert(path.clone(), source) {
+                bail!(
+                    "{} and {} would both write {}: give the inputs distinct file names or \
+                     predict them into separate --out folders (nothing was written)",
+                    other.display(),
+                    source.display(),
+                    path.display()
+                );
+            }
+            if let Some(dir) = &canonical_out {
+                let target = dir.join(name);
+                if let Some((_, input)) = canonical_inputs.iter().find(|(c, _)| *c == target) {
+                    bail!(
+                        "{} would overwrite the input {}: choose another --out (nothing was \
+                         written)",
+                        path.display(),
+                        input.display()
+                    );
+                }
+            }
+        }
+        ids.push(out.join(&names[0]));
+    }
+    Ok(ids)
+}
+
 pub fn run(args: Args) -> Result<()> {
+    let mut sources: Vec<PathBuf> = args.images.clone();
+    if let Some(rgb) = &args.rgb {
+        sources.push(rgb.clone());
+    }
+    let mut inputs: Vec<&Path> = args.images.iter().map(PathBuf::as_path).collect();
+    inputs.extend(args.rgb.as_deref());
+    inputs.extend(args.thermal.as_deref());
+    inputs.push(&args.weights);
+    let planned = plan_outputs(&args.out, &sources, &inputs, args.logits)?;
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let heatnet = args.model.starts_with("heatnet");
     let classes = match args.classes.as_deref() {
@@ -143,36 +229,41 @@ pub fn run(args: Args) -> Result<()> {
         &args.weights,
         device,
         args.precision,
+        args.foreign_weights,
     )?;
+    rtf_eval::evaluate::install_quiet_panic_hook();
     // Read every input first: a bad file stops the run before anything is written.
     let mut frames = args
         .images
         .iter()
         .map(|p| rtf_data::mf::read_mf_image(p).map_err(anyhow::Error::from))
         .collect::<Result<Vec<_>>>()?;
-    let mut sources: Vec<PathBuf> = args.images.clone();
     if let (Some(rgb), Some(thermal)) = (&args.rgb, &args.thermal) {
         let range = args.thermal_range.or(heatnet.then_some((21800, 25000)));
         frames.push(read_pair(rgb, thermal, range)?);
-        sources.push(rgb.clone());
+    }
+    // Frames larger than memory allows are refused before anything is written.
+    for (frame, path) in frames.iter().zip(&sources) {
+        rtf_eval::evaluate::check_memory(network.as_ref(), 1, frame.height, frame.width, device)
+            .with_context(|| path.display().to_string())?;
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let _guard = tch::no_grad_guard();
-    for (frame, path) in frames.iter().zip(&sources) {
+    for ((frame, path), ids_path) in frames.iter().zip(&sources).zip(&planned) {
         let input =
             rtf_eval::figure::frame_input(frame, network.input_convention()).to_device(device);
-        let logits = rtf_eval::evaluate::logits(network.as_ref(), &input)?
+        let logits = rtf_eval::evaluate::logits(network.as_ref(), &input)
+            .with_context(|| path.display().to_string())?
             .get(0)
             .to_kind(Kind::Float)
             .to_device(tch::Device::Cpu);
         let ids = Vec::<u8>::try_from(logits.argmax(0, false).to_kind(Kind::Uint8).flatten(0, -1))?;
         let (w, h) = (frame.width as u32, frame.height as u32);
-        let stem = &frame.name;
-        let ids_path = args.out.join(format!("{stem}.png"));
+        let stem = stem(path);
         let color_path = args.out.join(format!("{stem}_color.png"));
         save_png(
-            &ids_path,
+            ids_path,
             image::DynamicImage::ImageLuma8(
                 image::GrayImage::from_raw(w, h, ids.clone()).expect("sized"),
             ),

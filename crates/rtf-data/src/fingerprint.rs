@@ -1,0 +1,300 @@
+//! Content fingerprints of a dataset, so that a result says which data it came from
+//! (`rtf data fingerprint`, the `data_fingerprint` of eval JSON and of a run's config.json).
+//!
+//! Every file a split reads is hashed with SHA-256 (FIPS 180-4, via the `sha2` crate). A
+//! split's hash covers, in split order, each frame's name and the relative path and hash of
+//! each of its files; the dataset's hash covers every split's name and hash, sorted by name.
+//! Renaming, reordering, adding or editing a frame changes the hash; copying the root
+//! elsewhere does not. Layouts: MF (one split per `<split>.txt`) and Freiburg Thermal
+//! (`train`: the training tree, `test`: the test layout, as `rtf eval --split` names them).
+
+use std::collections::{BTreeMap, HashSet};
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use crate::inspect::{detect_format, DatasetFormat};
+use crate::{DataError, FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit, MfDataset};
+
+/// The hash algorithm named in every fingerprint.
+pub const ALGORITHM: &str = "sha256";
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SplitFingerprint {
+    pub name: String,
+    pub frames: usize,
+    /// Hex SHA-256 over the split's frames (module docs).
+    pub hash: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Fingerprint {
+    pub format: DatasetFormat,
+    pub algorithm: String,
+    /// Hex SHA-256 over every split's name and hash.
+    pub hash: String,
+    pub splits: Vec<SplitFingerprint>,
+    /// Distinct files hashed and their total size.
+    pub files: usize,
+    pub bytes: u64,
+}
+
+impl Fingerprint {
+    /// The split named `name`, if the dataset has it.
+    pub fn split(&self, name: &str) -> Option<&SplitFingerprint> {
+        self.splits.iter().find(|s| s.name == name)
+    }
+}
+
+/// SHA-256 of a file's bytes, streamed.
+pub fn hash_file(path: &Path) -> Result<[u8; 32], DataError> {
+    let mut file = std::fs::File::open(path).map_err(|e| DataError::io(path, e))?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = file.read(&mut buf).map_err(|e| DataError::io(path, e))?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok(hasher.finalize().into())
+}
+
+/// SHA-256 of bytes already in memory.
+pub fn hash_bytes(bytes: &[u8]) -> [u8; 32] {
+    Sha256::digest(bytes).into()
+}
+
+pub fn hex(hash: &[u8]) -> String {
+    hash.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// One frame of a split: its name and the files it reads.
+struct FrameFiles {
+    name: String,
+    files: Vec<PathBuf>,
+}
+
+/// Fingerprints the dataset under `root` (MF or Freiburg Thermal layout; module docs).
+/// Reads every file once, in parallel; a missing or unreadable file is an error naming it.
+pub fn fingerprint(root: &Path) -> Result<Fingerprint, DataError> {
+    let format = detect_format(root).ok_or_else(|| DataError::Layout {
+        root: root.to_path_buf(),
+        message: "not a dataset root (MF: images/ + labels/; Freiburg: fl_rgb/ or ImagesRGB/)"
+            .into(),
+    })?;
+    let splits: Vec<(String, Vec<FrameFiles>)> = match format {
+        DatasetFormat::Mf => {
+            let ds = MfDataset::open(root)?;
+            ds.split_names()
+                .iter()
+                .map(|name| {
+                    let split = ds.split(name)?;
+                    let frames = split
+                        .names()
+                        .iter()
+                        .map(|n| FrameFiles {
+                            name: n.clone(),
+                            files: vec![ds.image_path(n), ds.label_path(n)],
+                        })
+                        .collect();
+                    Ok((name.clone(), frames))
+                })
+                .collect::<Result<_, DataError>>()?
+        }
+        DatasetFormat::Freiburg => {
+            let all = FreiburgSplit::open(root, FreiburgPreprocess::native())?;
+            [
+                ("test", FreiburgPart::TestLayout),
+                ("train", FreiburgPart::TrainTree),
+            ]
+            .into_iter()
+            .map(|(name, part)| {
+                let split = all.clone().part(part);
+                let frames = (0..split.len())
+                    .map(|i| {
+                        let (rgb, ir, label) = split.files(i);
+                        let mut files = vec![rgb, ir];
+                        files.extend(label);
+                        FrameFiles {
+                            name: split.frame_name(i).to_string(),
+                            files,
+                        }
+                    })
+                    .collect::<Vec<_>>();
+                (name.to_string(), frames)
+            })
+            .filter(|(_, frames)| !frames.is_empty())
+            .collect()
+        }
+        DatasetFormat::Bdd => {
+            return Err(DataError::Layout {
+                root: root.to_path_buf(),
+                message: "fingerprints cover the MF and Freiburg Thermal layouts, not BDD".into(),
+            })
+        }
+    };
+    let distinct: Vec<&PathBuf> = {
+        let mut seen = HashSet::new();
+        splits
+            .iter()
+            .flat_map(|(_, frames)| frames.iter().flat_map(|f| &f.files))
+            .filter(|p| seen.insert(*p))
+            .collect()
+    };
+    let hashed: BTreeMap<&PathBuf, ([u8; 32], u64)> = distinct
+        .par_iter()
+        .map(|p| {
+            let size = std::fs::metadata(p)
+                .map_err(|e| DataError::io(*p, e))?
+                .len();
+            Ok((*p, (hash_file(p)?, size)))
+        })
+        .collect::<Result<_, DataError>>()?;
+    let mut out = Vec::with_capacity(splits.len());
+    for (name, frames) in &splits {
+        let mut h = Sha256::new();
+        for frame in frames {
+            h.update(frame.name.as_bytes());
+            h.update(b"\n");
+            for file in &frame.files {
+                let rel = file.strip_prefix(root).unwrap_or(file);
+                h.update(rel.to_string_lossy().as_bytes());
+                h.update(b"\n");
+                h.update(hashed[file].0);
+            }
+        }
+        out.push(SplitFingerprint {
+            name: name.clone(),
+            frames: frames.len(),
+            hash: hex(&h.finalize()),
+        });
+    }
+    out.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut h = Sha256::new();
+    for s in &out {
+        h.update(s.name.as_bytes());
+        h.update(b"\n");
+        h.update(s.hash.as_bytes());
+        h.update(b"\n");
+    }
+    Ok(Fingerprint {
+        format,
+        algorithm: ALGORITHM.into(),
+        hash: hex(&h.finalize()),
+        splits: out,
+        files: hashed.len(),
+        bytes: hashed.values().map(|v| v.1).sum(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{generate, SynthConfig, SynthFormat};
+
+    fn synth(dir: &Path, format: SynthFormat, seed: u64) {
+        generate(
+            dir,
+            &SynthConfig {
+                count: 8,
+                width: 64,
+                height: 48,
+                format,
+                seed,
+                ..SynthConfig::default()
+            },
+        )
+        .unwrap();
+    }
+
+    #[test]
+    fn sha256_of_known_bytes() {
+        // FIPS 180-4 test vector "abc".
+        assert_eq!(
+            hex(&hash_bytes(b"abc")),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+    }
+
+    #[test]
+    fn mf_fingerprint_follows_content_not_location() {
+        let tmp = tempfile::tempdir().unwrap();
+        let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+        synth(&a, SynthFormat::Mf, 1);
+        synth(&b, SynthFormat::Mf, 1);
+        let fa = fingerprint(&a).unwrap();
+        assert_eq!(fa, fingerprint(&b).unwrap(), "same content, other folder");
+        assert_eq!(fa.algorithm, "sha256");
+        assert_eq!(fa.hash.len(), 64);
+        let names: Vec<&str> = fa.splits.iter().map(|s| s.name.as_str()).collect();
+        assert!(
+            names.contains(&"train") && names.contains(&"test"),
+            "{names:?}"
+        );
+        assert_eq!(fa.files, 16, "8 images + 8 labels, each hashed once");
+
+        // One byte of one test label: test (and the overall hash) change, train does not.
+        let test_frame = std::fs::read_to_string(b.join("test.txt")).unwrap();
+        let name = test_frame.lines().next().unwrap().trim();
+        let label = b.join("labels").join(format!("{name}.png"));
+        let mut bytes = std::fs::read(&label).unwrap();
+        let last = bytes.len() - 1;
+        bytes[last] ^= 1;
+        std::fs::write(&label, bytes).unwrap();
+        let fb = fingerprint(&b).unwrap();
+        assert_ne!(fa.hash, fb.hash);
+        assert_ne!(
+            fa.split("test").unwrap().hash,
+            fb.split("test").unwrap().hash
+        );
+        assert_eq!(
+            fa.split("train").unwrap().hash,
+            fb.split("train").unwrap().hash
+        );
+
+        // Reordering a split file changes that split.
+        let train = std::fs::read_to_string(a.join("train.txt")).unwrap();
+        let mut lines: Vec<&str> = train.lines().collect();
+        lines.reverse();
+        std::fs::write(a.join("train.txt"), lines.join("\n")).unwrap();
+        let fr = fingerprint(&a).unwrap();
+        assert_ne!(
+            fa.split("train").unwrap().hash,
+            fr.split("train").unwrap().hash
+        );
+    }
+
+    #[test]
+    fn freiburg_fingerprint_has_train_and_test() {
+        let tmp = tempfile::tempdir().unwrap();
+        synth(tmp.path(), SynthFormat::Freiburg, 2);
+        let f = fingerprint(tmp.path()).unwrap();
+        assert_eq!(f.format, DatasetFormat::Freiburg);
+        let names: Vec<&str> = f.splits.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["test", "train"]);
+        assert_eq!(f.splits.iter().map(|s| s.frames).sum::<usize>(), 8);
+    }
+
+    #[test]
+    fn missing_files_and_non_datasets_are_errors_naming_the_path() {
+        let tmp = tempfile::tempdir().unwrap();
+        let err = fingerprint(tmp.path()).unwrap_err().to_string();
+        assert!(err.contains("not a dataset root"), "{err}");
+        synth(tmp.path(), SynthFormat::Mf, 3);
+        let name = std::fs::read_to_string(tmp.path().join("train.txt"))
+            .unwrap()
+            .lines()
+            .next()
+            .unwrap()
+            .trim()
+            .to_string();
+        std::fs::remove_file(tmp.path().join("images").join(format!("{name}.png"))).unwrap();
+        let err = fingerprint(tmp.path()).unwrap_err().to_string();
+        assert!(err.contains(&name), "{err}");
+    }
+}
