@@ -456,10 +456,7 @@ pub(crate) fn solve_spd(a: &[Vec<f64>], b: &[f64]) -> Option<Vec<f64>> {
     let mut l = vec![vec![0.0; n]; n];
     for i in 0..n {
         for j in 0..=i {
-            let mut s = a[i][j];
-            for k in 0..j {
-                s -= l[i][k] * l[j][k];
-            }
+            let s = a[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
             if i == j {
                 if s <= 0.0 || !s.is_finite() {
                     return None;
@@ -551,20 +548,16 @@ pub(crate) fn normal_equations(
         let j = Tensor::stack(&cols, 1) * sw.unsqueeze(1); // [N, n]
         let jtj_t: Vec<f64> = Vec::try_from(j.tr().matmul(&j).flatten(0, -1)).unwrap();
         let jtr_t: Vec<f64> = Vec::try_from(j.tr().matmul(&r0)).unwrap();
-        for a in 0..n {
+        for (a, row) in jtj.iter_mut().enumerate() {
             jtr[a] += jtr_t[a];
-            for b in 0..n {
-                jtj[a][b] += jtj_t[a * n + b];
+            for (b, x) in row.iter_mut().enumerate() {
+                *x += jtj_t[a * n + b];
             }
         }
     }
     let support = support.max(1.0);
-    for a in 0..n {
-        jtr[a] /= support;
-        for b in 0..n {
-            jtj[a][b] /= support;
-        }
-    }
+    jtr.iter_mut().for_each(|x| *x /= support);
+    jtj.iter_mut().flatten().for_each(|x| *x /= support);
     (jtj, jtr, sq / support)
 }
 

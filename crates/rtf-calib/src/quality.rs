@@ -203,8 +203,22 @@ pub fn assess(
         .abs()
         .max(((k.cy - h / 2.0) / w).abs());
     let [k1, k2, p1, p2] = k.distortion;
-    let at_bounds = k1.abs() > 0.5 || k2.abs() > 0.3 || p1.abs().max(p2.abs()) > 0.01;
     let aspect = (k.fx / k.fy - 1.0).abs();
+    let mut at_bounds = Vec::new();
+    if k1.abs() > 0.5 || k2.abs() > 0.3 || p1.abs().max(p2.abs()) > 0.01 {
+        at_bounds.push(format!(
+            "distortion beyond its bounds (k1 {k1:.3}, k2 {k2:.3}, p1 {p1:.4}, p2 {p2:.4})"
+        ));
+    }
+    if off_centre > 0.1 {
+        at_bounds.push(format!(
+            "principal point {:.0} % of the width off centre",
+            100.0 * off_centre
+        ));
+    }
+    if (square && aspect > 1e-6) || aspect > 0.02 {
+        at_bounds.push(format!("pixel aspect fx/fy {:.4}", k.fx / k.fy));
+    }
     let (verdict, reason) = if let Some(why) = stopped {
         (
             Verdict::Failed,
@@ -249,10 +263,10 @@ pub fn assess(
             Verdict::Uncertain,
             format!("the map moved {moved_px:.1} px from the start while the alignment score improved by only {:.1} %", 100.0 * gain / at_solution.abs().max(1e-9)),
         )
-    } else if at_bounds || off_centre > 0.1 || (square && aspect > 1e-9) || aspect > 0.02 {
+    } else if !at_bounds.is_empty() {
         (
             Verdict::Uncertain,
-            "parameters at their plausible bounds (distortion, principal point > 10 % off centre, or pixel aspect)".to_string(),
+            format!("implausible parameters: {}", at_bounds.join("; ")),
         )
     } else {
         (

@@ -405,7 +405,7 @@ fn write_rgb_gray(path: &Path, p: &Plane) -> Result<()> {
 /// Writes `rig.yaml`, frames under `f/` (grey RGB PNG, 16-bit depth in mm, 8-bit thermal) and
 /// `ground_truth.yaml` into `out`, from real MSRS scenes.
 pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5eed_12);
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x005e_ed12);
     let scale = cfg.width as f64 / 640.0;
     let rgb = RgbCamera {
         width: cfg.width,
@@ -494,9 +494,7 @@ pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
             .into_par_iter()
             .flat_map_iter(|y| {
                 let k = truth.thermal;
-                let corridor = corridor;
                 let ir = &ir;
-                let rgb = rgb;
                 (0..spec.width).map(move |x| {
                     let ray = k.ray(x as f64, y as f64);
                     let d = mat_vec(&rt, ray);
