@@ -7,6 +7,9 @@ use std::path::Path;
 use std::time::Instant;
 
 struct Options {
+    real_trials: usize,
+    real_width: usize,
+    real_frames: usize,
     seeds: Vec<u64>,
     frames: usize,
     width: usize,
@@ -16,6 +19,9 @@ struct Options {
 
 fn parse(args: &[String]) -> Result<Options> {
     let mut o = Options {
+        real_trials: 20,
+        real_width: 640,
+        real_frames: 20,
         seeds: vec![1, 2, 3],
         frames: 20,
         width: 640,
@@ -26,12 +32,15 @@ fn parse(args: &[String]) -> Result<Options> {
     while let Some(flag) = it.next() {
         let mut value = || it.next().with_context(|| format!("{flag} needs a value"));
         match flag.as_str() {
-            "--seeds" => o.seeds = value()?.split(',').map(|s| s.trim().parse()).collect::<Result<_, _>>().context("--seeds: list like 1,2,3")?,
+            "--seeds" => o.seeds = value()?.split(',').filter(|s| !s.trim().is_empty()).map(|s| s.trim().parse()).collect::<Result<_, _>>().context("--seeds: list like 1,2,3")?,
             "--frames" => o.frames = value()?.parse().context("--frames: a number")?,
             "--width" => o.width = value()?.parse().context("--width: a number")?,
             "--paper-iterations" => o.paper_iterations = value()?.parse().context("--paper-iterations: a number")?,
             "--out" => o.out = value()?.clone(),
-            other => bail!("calib-check: unknown option `{other}` (--seeds 1,2,3 --frames 20 --width 640 --paper-iterations 40 --out DIR)"),
+            "--real-trials" => o.real_trials = value()?.parse().context("--real-trials: a number")?,
+            "--real-width" => o.real_width = value()?.parse().context("--real-width: a number")?,
+            "--real-frames" => o.real_frames = value()?.parse().context("--real-frames: a number")?,
+            other => bail!("calib-check: unknown option `{other}` (--seeds 1,2,3 --frames 20 --width 640 --paper-iterations 40 --real-trials 20 --real-width 640 --real-frames 20 --out DIR; --seeds '' skips the synthetic rigs, --real-trials 0 the real ones)"),
         }
     }
     Ok(o)
@@ -53,6 +62,34 @@ fn s(v: &[&str]) -> Vec<String> {
 pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
     let o = parse(extra)?;
     crate::setup::ensure_libtorch(root)?;
+    if o.real_trials > 0 {
+        // Real-imagery rigs (MSRS frames through a known thermal camera): trials, table and
+        // the success-rate plot, from the rtf-calib example (it needs libtorch; xtask does not).
+        crate::run(
+            root,
+            "cargo",
+            &[
+                "run",
+                "--release",
+                "-p",
+                "rtf-calib",
+                "--example",
+                "real_trials",
+                "--",
+                "--trials",
+                &o.real_trials.to_string(),
+                "--width",
+                &o.real_width.to_string(),
+                "--frames",
+                &o.real_frames.to_string(),
+                "--out",
+                &format!("{}/real", o.out),
+            ],
+        )?;
+    }
+    if o.seeds.is_empty() {
+        return Ok(());
+    }
     crate::run(root, "cargo", &["build", "--release", "-p", "rtf-cli"])?;
     let (width, frames) = (o.width.to_string(), o.frames.to_string());
     let mut rows = Vec::new();

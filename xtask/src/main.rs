@@ -18,7 +18,7 @@ tasks:
   test     setup, then run the whole test suite (release build)
   demo     setup, build, synthesise a small RGB-T dataset, train MFNet, evaluate, draw predictions
   convert-pth IN.pth OUT.safetensors  convert a PyTorch checkpoint (published weights) for rtf
-  calib-check  full-size accuracy/timing run of `rtf calibrate` on synthetic rigs with ground truth
+  calib-check  full-size accuracy/timing run of `rtf calibrate` on real-imagery and synthetic rigs with ground truth
   reproduce <table>|all  run the experiments behind a paper's table, beside the paper's numbers
            (--list: the tables; --help: options)
   hostile  replay bad inputs (broken files, NaN weights, huge frames...) against rtf; counts

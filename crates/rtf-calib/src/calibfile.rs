@@ -26,13 +26,16 @@ pub struct ExtrinsicSection {
     pub se3: [f64; 6],
 }
 
+/// The `quality:` section: the optimiser's figures and the assessment a user can act on
+/// (verdict, reason, scores, agreeing frames, uncertainty; see [`crate::quality`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct Quality {
     /// Final loss of the recipe's finest stage (lower is better; comparable within a recipe).
     pub loss: f64,
     pub frames_used: usize,
     pub iterations: usize,
+    #[serde(flatten, default, skip_serializing_if = "Option::is_none")]
+    pub assessment: Option<crate::quality::Assessment>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -129,6 +132,7 @@ mod tests {
                 loss: 0.5,
                 frames_used: 3,
                 iterations: 10,
+                assessment: None,
             }),
         );
         let dir = tempfile::tempdir().unwrap();

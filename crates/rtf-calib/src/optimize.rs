@@ -110,6 +110,10 @@ pub struct Outcome {
     pub iterations: usize,
     /// Why the optimiser stopped early (NaN, divergence), if it did; the best parameters are kept.
     pub stopped: Option<String>,
+    /// Indices (into the frames given) of the frames the optimiser used.
+    pub used: Vec<usize>,
+    /// The quality assessment of the solution ([`crate::quality`]).
+    pub assessment: Option<crate::quality::Assessment>,
 }
 
 /// Eq. 8 initial parameters: K_T from f_m / l and the image centre, everything else 1e-4.
@@ -143,6 +147,10 @@ pub(crate) struct Level {
     pub sigma: f64,
     pub taps: i64,
     pub paper: bool,
+    /// Cauchy scale c of the robust loss ρ(r) = c²·ln(1 + r²/c²) (0: plain squares).
+    pub robust: f64,
+    /// Cross-correlation objective on centred features (see [`Level::into_correlation`]).
+    pub correlation: bool,
 }
 
 impl Level {
@@ -197,6 +205,8 @@ impl Level {
             sigma,
             taps,
             paper,
+            robust: 0.0,
+            correlation: false,
         }
     }
 
@@ -223,6 +233,67 @@ impl Level {
         let mask = self.mask.index_select(0, idx);
         let diff = (self.rgb_feat.index_select(0, idx) - feat_t) * &mask;
         model::gaussian_blur(&diff, self.sigma, self.taps)
+    }
+
+    /// Switches to the cross-correlation objective: features are centred (RGB over the loss
+    /// support, thermal over the whole thermal image, so the zero padding outside it is the
+    /// mean) and the per-pixel cost is a² − 2·a·t with a = G * (M·F_RGB), t = G * (M·F_T): the
+    /// squared difference without its Σt² term. That term rewarded maps that sample thermal
+    /// regions with little edge energy (or leave the thermal image): on real-imagery rigs,
+    /// where most edges exist in one band only, it biased f by +3–4 %.
+    pub fn into_correlation(mut self) -> Level {
+        let dims = &[2i64, 3][..];
+        let n = self
+            .mask
+            .sum_dim_intlist(dims, true, Kind::Float)
+            .clamp_min(1.0);
+        let mean_rgb = (&self.rgb_feat * &self.mask).sum_dim_intlist(dims, true, Kind::Float) / n;
+        self.rgb_feat = (&self.rgb_feat - mean_rgb) * &self.mask;
+        let mean_t = self.thermal_src.mean_dim(dims, true, Kind::Float);
+        self.thermal_src = &self.thermal_src - mean_t;
+        self.correlation = true;
+        self
+    }
+
+    /// Per-pixel cost [b, C, H, W] at physical parameters `p`.
+    pub fn pixel_cost(&self, p: &Tensor, idx: &Tensor) -> Tensor {
+        let r = self.residual(p, idx);
+        if self.correlation {
+            let a = self.blurred_rgb(idx);
+            let t = &a - r;
+            a.square() - a * t * 2.0
+        } else {
+            self.rho(&r)
+        }
+    }
+
+    /// G * (M·F_RGB) of frames `idx`.
+    pub fn blurred_rgb(&self, idx: &Tensor) -> Tensor {
+        let mask = self.mask.index_select(0, idx);
+        model::gaussian_blur(
+            &(self.rgb_feat.index_select(0, idx) * mask),
+            self.sigma,
+            self.taps,
+        )
+    }
+
+    /// ρ(r) elementwise: r² or the Cauchy loss c²·ln(1 + r²/c²).
+    pub fn rho(&self, r: &Tensor) -> Tensor {
+        if self.robust > 0.0 {
+            let c2 = self.robust * self.robust;
+            (r.square() / c2).log1p() * c2
+        } else {
+            r.square()
+        }
+    }
+
+    /// IRLS weights ρ'(r)/(2r): 1 for squares, 1/(1 + r²/c²) for Cauchy.
+    pub fn irls_weight(&self, r: &Tensor) -> Tensor {
+        if self.robust > 0.0 {
+            (r.square() / (self.robust * self.robust) + 1.0).reciprocal()
+        } else {
+            r.ones_like()
+        }
     }
 
     /// Normaliser of the loss: support pixels × channels of frames `idx` (fixed per frame).
@@ -269,7 +340,7 @@ impl Scaling {
     }
 }
 
-fn pyramid_factors(width: usize) -> Vec<usize> {
+pub(crate) fn pyramid_factors(width: usize) -> Vec<usize> {
     let mut factors = vec![1];
     while width / (factors.last().unwrap() * 2) >= 40 && factors.len() < 6 {
         factors.push(factors.last().unwrap() * 2);
@@ -288,31 +359,104 @@ pub fn calibrate(
     let _guard = tch::no_grad_guard();
     let p0 = initial_params(rig);
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-    match settings.recipe {
-        Recipe::Default => calibrate_default(rig, frames, settings, p0, &mut rng, progress),
-        Recipe::Paper => calibrate_paper(rig, frames, settings, p0, &mut rng, progress),
-    }
+    let mut out = match settings.recipe {
+        Recipe::Default => calibrate_default(rig, frames, settings, p0, &mut rng, progress)?,
+        Recipe::Paper => calibrate_paper(rig, frames, settings, p0, &mut rng, progress)?,
+    };
+    // Assess on (up to) 20 of the frames used, to bound the cost for the paper's 600.
+    let used: Vec<usize> = out.used.iter().copied().take(20).collect();
+    out.assessment = Some(crate::quality::assess(
+        rig,
+        frames,
+        &used,
+        &out.initial,
+        &out.calibration,
+        out.stopped.as_deref(),
+    )?);
+    Ok(out)
 }
 
 fn cost(level: &Level, scaling: &Scaling, theta: &[f64; NUM_PARAMS], idx: &Tensor) -> f64 {
-    let r = level.residual(&scaling.tensor(theta), idx);
-    r.square().sum(Kind::Double).double_value(&[]) / level.support(idx)
+    level
+        .pixel_cost(&scaling.tensor(theta), idx)
+        .sum(Kind::Double)
+        .double_value(&[])
+        / level.support(idx)
 }
 
-fn solve(
-    a: &[[f64; NUM_PARAMS]; NUM_PARAMS],
-    b: &[f64; NUM_PARAMS],
-    active: &[usize],
-) -> Option<[f64; NUM_PARAMS]> {
-    // Cholesky on the active sub-system.
-    let n = active.len();
+/// Physically motivated priors (issue 12), as residuals (p − μ)/σ in physical units: principal
+/// point near the image centre, bounded distortion. The square-pixel constraint (fx = fy) is
+/// exact instead (a tied search direction, see [`directions`]).
+#[derive(Debug, Clone)]
+pub(crate) struct Priors {
+    /// (parameter index, mean, standard deviation, free half-width): the residual is
+    /// (|p − μ| − w)₊/σ, so a bound (w > 0) costs nothing inside it.
+    pub terms: Vec<(usize, f64, f64, f64)>,
+    /// Weight in cost units: the data cost of ~1 px of misalignment (set per level).
+    pub weight: f64,
+}
+
+impl Priors {
+    pub fn new(rig: &Rig) -> Self {
+        let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
+        Self {
+            terms: vec![
+                (2, w / 2.0, 0.05 * w, 0.0),
+                (3, h / 2.0, 0.05 * w, 0.0),
+                (4, 0.0, 0.05, 0.5),
+                (5, 0.0, 0.05, 0.3),
+                (6, 0.0, 0.002, 0.01),
+                (7, 0.0, 0.002, 0.01),
+            ],
+            weight: 0.0,
+        }
+    }
+
+    fn residual(p: f64, mu: f64, sd: f64, free: f64) -> f64 {
+        let e = p - mu;
+        e.signum() * (e.abs() - free).max(0.0) / sd
+    }
+
+    pub fn cost(&self, scaling: &Scaling, theta: &[f64; NUM_PARAMS]) -> f64 {
+        let p = scaling.physical(theta);
+        self.weight
+            * self
+                .terms
+                .iter()
+                .map(|&(i, mu, sd, free)| Self::residual(p[i], mu, sd, free).powi(2))
+                .sum::<f64>()
+    }
+}
+
+/// Search directions of a stage in θ space. With square pixels fx and fy move together (one
+/// focal direction moving both by the same physical amount), otherwise each is free.
+pub(crate) fn directions(
+    params: &[usize],
+    scaling: &Scaling,
+    square: bool,
+) -> Vec<[f64; NUM_PARAMS]> {
+    let mut dirs = Vec::new();
+    for &i in params {
+        let mut d = [0.0; NUM_PARAMS];
+        if square && i == 1 {
+            continue;
+        }
+        d[i] = 1.0;
+        if square && i == 0 {
+            d[1] = scaling.scale[0] / scaling.scale[1];
+        }
+        dirs.push(d);
+    }
+    dirs
+}
+
+/// Solves the symmetric positive definite system `a x = b` (Cholesky); `None` if not SPD.
+pub(crate) fn solve_spd(a: &[Vec<f64>], b: &[f64]) -> Option<Vec<f64>> {
+    let n = b.len();
     let mut l = vec![vec![0.0; n]; n];
     for i in 0..n {
         for j in 0..=i {
-            let mut s = a[active[i]][active[j]];
-            for k in 0..j {
-                s -= l[i][k] * l[j][k];
-            }
+            let s = a[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
             if i == j {
                 if s <= 0.0 || !s.is_finite() {
                     return None;
@@ -325,31 +469,29 @@ fn solve(
     }
     let mut y = vec![0.0; n];
     for i in 0..n {
-        y[i] = (b[active[i]] - (0..i).map(|k| l[i][k] * y[k]).sum::<f64>()) / l[i][i];
+        y[i] = (b[i] - (0..i).map(|k| l[i][k] * y[k]).sum::<f64>()) / l[i][i];
     }
     let mut x = vec![0.0; n];
     for i in (0..n).rev() {
         x[i] = (y[i] - (i + 1..n).map(|k| l[k][i] * x[k]).sum::<f64>()) / l[i][i];
     }
-    let mut out = [0.0; NUM_PARAMS];
-    for (i, &p) in active.iter().enumerate() {
-        out[p] = x[i];
-    }
-    Some(out)
+    Some(x)
 }
 
-/// JᵀJ, Jᵀr and the cost at θ (Gauss-Newton, Lucas-Kanade style): ∂r/∂θ_i =
-/// −G * (M · (∂F_T/∂u · ∂u/∂θ_i + ∂F_T/∂v · ∂v/∂θ_i)), with the feature gradients warped
-/// alongside the features and ∂(u, v)/∂θ from finite differences of the (smooth) projection.
-fn normal_equations(
+/// JᵀJ, Jᵀr (normalised by the support) and the data cost at θ, along `dirs` (Gauss-Newton,
+/// Lucas-Kanade style): ∂r/∂d = −G * (M · (∂F_T/∂u · ∂u/∂d + ∂F_T/∂v · ∂v/∂d)), with the
+/// feature gradients warped alongside the features and ∂(u, v)/∂d from finite differences of
+/// the (smooth) projection.
+pub(crate) fn normal_equations(
     level: &Level,
     scaling: &Scaling,
     theta: &[f64; NUM_PARAMS],
-    active: &[usize],
+    dirs: &[[f64; NUM_PARAMS]],
     frames: &[i64],
-) -> ([[f64; NUM_PARAMS]; NUM_PARAMS], [f64; NUM_PARAMS], f64) {
-    let mut jtj = [[0.0; NUM_PARAMS]; NUM_PARAMS];
-    let mut jtr = [0.0; NUM_PARAMS];
+) -> (Vec<Vec<f64>>, Vec<f64>, f64) {
+    let n = dirs.len();
+    let mut jtj = vec![vec![0.0; n]; n];
+    let mut jtr = vec![0.0; n];
     let mut sq = 0.0;
     let mut support = 0.0;
     let hstep = 0.05;
@@ -377,13 +519,24 @@ fn normal_equations(
         let r0 = blur(&((level.rgb_feat.index_select(0, &idx) - &feat) * &mask))
             .flatten(0, -1)
             .to_kind(Kind::Double);
-        sq += r0.square().sum(Kind::Double).double_value(&[]);
+        let (sw, r0) = if level.correlation {
+            // Gradient of Σ(a² − 2a·t) is 2·Jᵀa (J = ∂r/∂θ = −∂t/∂θ); JᵀJ stays the metric.
+            let a = level.blurred_rgb(&idx).flatten(0, -1).to_kind(Kind::Double);
+            sq += (a.square() - &a * (&a - &r0) * 2.0)
+                .sum(Kind::Double)
+                .double_value(&[]);
+            (r0.ones_like(), a)
+        } else {
+            sq += level.rho(&r0).sum(Kind::Double).double_value(&[]);
+            let sw = level.irls_weight(&r0).sqrt();
+            let r = &r0 * &sw;
+            (sw, r)
+        };
         let hw = [1, 1, level.h, level.w];
-        let cols: Vec<Tensor> = active
+        let cols: Vec<Tensor> = dirs
             .iter()
-            .map(|&i| {
-                let mut t = *theta;
-                t[i] += hstep;
+            .map(|d| {
+                let t: [f64; NUM_PARAMS] = std::array::from_fn(|i| theta[i] + hstep * d[i]);
                 let (u1, v1) = model::project(&pts, &scaling.tensor(&t));
                 let du = ((u1 - &u0) * (inv_f / hstep)).view(hw);
                 let dv = ((v1 - &v0) * (inv_f / hstep)).view(hw);
@@ -392,18 +545,44 @@ fn normal_equations(
                     .to_kind(Kind::Double)
             })
             .collect();
-        let j = Tensor::stack(&cols, 1); // [N, n_active]
+        let j = Tensor::stack(&cols, 1) * sw.unsqueeze(1); // [N, n]
         let jtj_t: Vec<f64> = Vec::try_from(j.tr().matmul(&j).flatten(0, -1)).unwrap();
         let jtr_t: Vec<f64> = Vec::try_from(j.tr().matmul(&r0)).unwrap();
-        let n = active.len();
-        for a in 0..n {
-            jtr[active[a]] += jtr_t[a];
-            for b in 0..n {
-                jtj[active[a]][active[b]] += jtj_t[a * n + b];
+        for (a, row) in jtj.iter_mut().enumerate() {
+            jtr[a] += jtr_t[a];
+            for (b, x) in row.iter_mut().enumerate() {
+                *x += jtj_t[a * n + b];
             }
         }
     }
-    (jtj, jtr, sq / support.max(1.0))
+    let support = support.max(1.0);
+    jtr.iter_mut().for_each(|x| *x /= support);
+    jtj.iter_mut().flatten().for_each(|x| *x /= support);
+    (jtj, jtr, sq / support)
+}
+
+/// Adds the priors' Gauss-Newton terms (along `dirs`) to a normalised system.
+fn add_priors(
+    priors: &Priors,
+    scaling: &Scaling,
+    theta: &[f64; NUM_PARAMS],
+    dirs: &[[f64; NUM_PARAMS]],
+    jtj: &mut [Vec<f64>],
+    jtr: &mut [f64],
+) {
+    let p = scaling.physical(theta);
+    for &(i, mu, sd, free) in &priors.terms {
+        let r = Priors::residual(p[i], mu, sd, free);
+        let inside = (p[i] - mu).abs() <= free;
+        let slope = if inside { 0.0 } else { scaling.scale[i] / sd };
+        let g: Vec<f64> = dirs.iter().map(|d| d[i] * slope).collect();
+        for a in 0..dirs.len() {
+            jtr[a] += priors.weight * g[a] * r;
+            for b in 0..dirs.len() {
+                jtj[a][b] += priors.weight * g[a] * g[b];
+            }
+        }
+    }
 }
 
 fn calibrate_default(
@@ -420,6 +599,8 @@ fn calibrate_default(
     order.sort();
     let used: Vec<&Frame> = order.iter().map(|&i| &frames[i]).collect();
     let scaling = Scaling::new(&rig.rgb, p0, &used);
+    let square = rig.thermal.square_pixels.unwrap_or(true);
+    let mut priors = Priors::new(rig);
     let factors = pyramid_factors(rig.rgb.width);
     let total = factors.len() * settings.iterations + 1;
     let mut step = 0;
@@ -466,17 +647,19 @@ fn calibrate_default(
         // point and translation from both, and letting them drift along that valley leads
         // to wrong minima; so the coarsest levels fit an image-plane model (f, c, roll), the
         // next adds rotation, translation and k1, the finest everything.
-        let active: Vec<usize> = match factors.len() - 1 - li {
+        let params: Vec<usize> = match factors.len() - 1 - li {
             0 => (0..NUM_PARAMS).collect(),
             1 => vec![0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13],
             _ => vec![0, 1, 2, 3, 13],
         };
+        let dirs = directions(&params, &scaling, square);
         // Trust region: at most 2 full-resolution pixels per iteration and level factor.
         let max_step = 2.0 * factor as f64;
         let mut lambda = 1e-5 / settings.learning_rate;
         let mut current = f64::NAN;
+        priors.weight = f64::NAN;
         for _ in 0..settings.iterations {
-            let (jtj, jtr, c) = normal_equations(&level, &scaling, &theta, &active, &all);
+            let (mut jtj, mut jtr, c) = normal_equations(&level, &scaling, &theta, &dirs, &all);
             iterations += 1;
             step += 1;
             if !c.is_finite() {
@@ -485,30 +668,42 @@ fn calibrate_default(
                 ));
                 break;
             }
-            current = c;
+            let n = dirs.len();
+            let mean_diag = (0..n).map(|i| jtj[i][i]).sum::<f64>() / n as f64;
+            if priors.weight.is_nan() {
+                // One σ of prior costs as much as ~1 px of misalignment along an average
+                // direction (the data's curvature per pixel-scaled unit), fixed per level.
+                priors.weight = mean_diag.max(1e-12);
+            }
+            add_priors(&priors, &scaling, &theta, &dirs, &mut jtj, &mut jtr);
+            current = c + priors.cost(&scaling, &theta);
             let mut accepted = false;
             let mut small = false;
             while lambda < 1e8 {
-                let mut a = jtj;
+                let mut a = jtj.clone();
                 // Levenberg damping λ·mean(diag)·I: the units are commensurate (pixels), and
                 // unlike Marquardt's diag scaling it resists drift along flat valleys.
-                let mean_diag =
-                    active.iter().map(|&i| jtj[i][i]).sum::<f64>() / active.len() as f64;
-                for &i in &active {
-                    a[i][i] += lambda * mean_diag.max(1e-12) + 1e-12;
+                for (i, row) in a.iter_mut().enumerate() {
+                    row[i] += lambda * mean_diag.max(1e-12) + 1e-12;
                 }
-                let rhs = jtr.map(|x| -x);
-                let Some(mut delta) = solve(&a, &rhs, &active) else {
+                let rhs: Vec<f64> = jtr.iter().map(|x| -x).collect();
+                let Some(coef) = solve_spd(&a, &rhs) else {
                     lambda *= 10.0;
                     continue;
                 };
+                let mut delta = [0.0; NUM_PARAMS];
+                for (c, d) in coef.iter().zip(&dirs) {
+                    for i in 0..NUM_PARAMS {
+                        delta[i] += c * d[i];
+                    }
+                }
                 let biggest = delta.iter().fold(0.0f64, |m, d| m.max(d.abs()));
                 if biggest > max_step {
                     delta = delta.map(|d| d * max_step / biggest);
                 }
                 small = biggest < 1e-3 * factor as f64;
                 let trial: [f64; NUM_PARAMS] = std::array::from_fn(|i| theta[i] + delta[i]);
-                let tc = cost(&level, &scaling, &trial, &all_idx);
+                let tc = cost(&level, &scaling, &trial, &all_idx) + priors.cost(&scaling, &trial);
                 if tc.is_finite() && tc < current {
                     theta = trial;
                     current = tc;
@@ -546,6 +741,8 @@ fn calibrate_default(
         frames_used: used.len(),
         iterations,
         stopped,
+        used: order,
+        assessment: None,
     })
 }
 
@@ -657,6 +854,8 @@ fn calibrate_paper(
         calibration: model::to_calibration(&scaling.physical(&final_theta)),
         loss: final_loss,
         frames_used: used.len(),
+        used: pool.clone(),
+        assessment: None,
         iterations,
         stopped,
     })
@@ -790,6 +989,144 @@ mod tests {
         let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
         let (err, _, _, out) = run_rig(&cfg, &settings);
         assert!(err.is_finite() && out.stopped.is_none());
+    }
+
+    /// Development probe: the scale and shift that best align MSRS's own vi/ir pairs
+    /// (`RTF_CALIB_PROBE_PAIRS=1`), i.e. how well the source pairs are registered.
+    #[test]
+    fn probe_pairs() {
+        let (Some(_), Some(data)) = (
+            std::env::var_os("RTF_CALIB_PROBE_PAIRS"),
+            crate::real_rig::default_data_dir(),
+        ) else {
+            return;
+        };
+        tch::set_num_threads(1);
+        let (day, night) = crate::real_rig::scene_names(&data).unwrap();
+        let msrs = data.join("msrs-samples");
+        let mut best_scales = Vec::new();
+        for name in day.iter().chain(night.iter()) {
+            let vi = crate::imageio::read_gray(&msrs.join(format!("vi/{name}.png"))).unwrap();
+            let ir = crate::imageio::read_gray(&msrs.join(format!("ir/{name}.png"))).unwrap();
+            let (vi, ir) = (model::downsample(&vi, 2), model::downsample(&ir, 2));
+            let fa = model::edge_features(&model::plane_tensor(&vi, Device::Cpu));
+            let fb = model::edge_features(&model::plane_tensor(&ir, Device::Cpu));
+            let fa = &fa - fa.mean_dim(&[2i64, 3][..], true, Kind::Float);
+            let fb = &fb - fb.mean_dim(&[2i64, 3][..], true, Kind::Float);
+            let mut best = (f64::NEG_INFINITY, 0.0, 0.0, 0.0);
+            for si in -12..=12 {
+                let sc = 1.0 + si as f64 * 0.005;
+                for dy in -4..=4 {
+                    for dx in -4..=4 {
+                        let (tx, ty) =
+                            (dx as f64 * 0.5 * 2.0 / 320.0, dy as f64 * 0.5 * 2.0 / 240.0);
+                        let theta = Tensor::from_slice(&[
+                            sc as f32, 0.0, tx as f32, 0.0, sc as f32, ty as f32,
+                        ])
+                        .view([1, 2, 3]);
+                        let grid = Tensor::affine_grid_generator(&theta, [1, 3, 240, 320], true);
+                        let w = fb.grid_sampler_2d(&grid, 0, 0, true);
+                        let score = (&fa * &w)
+                            .narrow(2, 20, 200)
+                            .narrow(3, 20, 280)
+                            .sum(Kind::Double)
+                            .double_value(&[]);
+                        if score > best.0 {
+                            best = (score, sc, dx as f64 * 0.5, dy as f64 * 0.5);
+                        }
+                    }
+                }
+            }
+            eprintln!(
+                "PAIR {name}: scale {:.3} shift ({:.1}, {:.1}) px at 320",
+                best.1, best.2, best.3
+            );
+            best_scales.push(best.1);
+        }
+        best_scales.sort_by(f64::total_cmp);
+        eprintln!(
+            "PAIRS median scale {:.4}",
+            best_scales[best_scales.len() / 2]
+        );
+    }
+
+    /// Development probe on a real-imagery rig (`RTF_CALIB_PROBE=1 WIDTH=.. SEED=..
+    /// N_FRAMES=.. cargo test --release -p rtf-calib probe_real -- --nocapture`): the cost of
+    /// the truth and of the estimate at every level, and the map error.
+    #[test]
+    fn probe_real() {
+        let (Some(_), Some(data)) = (
+            std::env::var_os("RTF_CALIB_PROBE"),
+            crate::real_rig::default_data_dir(),
+        ) else {
+            return;
+        };
+        tch::set_num_threads(1);
+        let env = |k: &str, d: usize| -> usize {
+            std::env::var(k)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(d)
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = crate::real_rig::RealRigConfig::new(
+            &data,
+            env("SEED", 1) as u64,
+            env("WIDTH", 320),
+            env("N_FRAMES", 10),
+        );
+        let mut cfg = cfg;
+        cfg.degrade = match std::env::var("DEGRADE").as_deref() {
+            Ok("shuffle") => crate::real_rig::Degrade::ShuffleThermal,
+            Ok("textureless") => crate::real_rig::Degrade::Textureless,
+            _ => crate::real_rig::Degrade::None,
+        };
+        let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+        let rig = &real.rig;
+        let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
+        let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+        let t0 = std::time::Instant::now();
+        let out = calibrate(rig, &frames, &settings, &mut |p| {
+            if std::env::var_os("RTF_CALIB_DEBUG").is_some() {
+                eprintln!(
+                    "{:>7.2}s {} {}/{} loss {:.6}",
+                    t0.elapsed().as_secs_f64(),
+                    p.stage,
+                    p.step,
+                    p.total,
+                    p.loss
+                )
+            }
+        })
+        .unwrap();
+        let secs = t0.elapsed().as_secs_f64();
+        let used: Vec<&Frame> = frames.iter().collect();
+        let scaling = Scaling::new(&rig.rgb, initial_params(rig), &used);
+        let to_theta = |c: &Calibration| -> [f64; NUM_PARAMS] {
+            let p = model::from_calibration(c);
+            std::array::from_fn(|i| (p[i] - scaling.p0[i]) / scaling.scale[i])
+        };
+        let (tt, te) = (to_theta(&real.truth), to_theta(&out.calibration));
+        let all = Tensor::from_slice(&(0..used.len() as i64).collect::<Vec<_>>());
+        for factor in pyramid_factors(rig.rgb.width) {
+            let level = Level::build(&rig.rgb, &used, factor, false, 0.0, 1);
+            eprintln!(
+                "level 1/{factor}: cost at start {:.6} truth {:.6}, at estimate {:.6}",
+                cost(&level, &scaling, &[0.0; NUM_PARAMS], &all),
+                cost(&level, &scaling, &tt, &all),
+                cost(&level, &scaling, &te, &all)
+            );
+        }
+        eprintln!("theta truth {tt:.2?}\ntheta est   {te:.2?}");
+        eprintln!("ASSESS {:?}", out.assessment);
+        let before = mean_map_error(rig, &frames, &out.initial, &real.truth);
+        let after = mean_map_error(rig, &frames, &out.calibration, &real.truth);
+        let (deg, m) = out.calibration.extrinsic.difference(&real.truth.extrinsic);
+        let (k, kt) = (out.calibration.thermal, real.truth.thermal);
+        eprintln!(
+            "PROBE seed {} map error {before:.2} -> {after:.3} px; rot {deg:.3}°, trans {:.1} cm; fx/fy {:.4} (truth {:.4}); f {:.1} (truth {:.1}); {secs:.1} s",
+            cfg.seed, m * 100.0, k.fx / k.fy, kt.fx / kt.fy, k.fx, kt.fx
+        );
     }
 
     #[test]

@@ -14,6 +14,10 @@ pub struct ThermalSpec {
     pub height: usize,
     pub focal_length_mm: f64,
     pub pixel_pitch_mm: f64,
+    /// Square pixels (fx = fy), the default: every thermal core we know of has them. `false`
+    /// lets the calibration fit fx and fy separately.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub square_pixels: Option<bool>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -74,6 +74,8 @@ pub fn thermal_spec(width: usize) -> ThermalSpec {
         height: (512.0 * scale).round() as usize,
         focal_length_mm: 9.0,
         pixel_pitch_mm: 0.017 / scale,
+        // The synthetic truth draws fy = fx·(1 ± 1 %): this rig says its pixels are not square.
+        square_pixels: Some(false),
     }
 }
 

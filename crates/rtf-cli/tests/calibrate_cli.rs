@@ -39,9 +39,17 @@ fn calibrates_a_small_synthetic_rig_with_overlays() {
         &d("rig/ground_truth.yaml"),
         "--iterations",
         "10",
+        "--format",
+        "kalibr",
     ]);
     let log = text(&r);
     assert!(r.status.success(), "{log}");
+    assert!(log.contains("verdict: "), "the verdict is printed:\n{log}");
+    // The Kalibr camchain carries the same thermal parameters as calib.yaml.
+    let camchain = std::fs::read_to_string(dir.path().join("calib-camchain.yaml")).unwrap();
+    for key in ["cam1:", "T_cn_cnm1:", "distortion_model: radtan"] {
+        assert!(camchain.contains(key), "camchain lacks {key}:\n{camchain}");
+    }
     let calib = std::fs::read_to_string(dir.path().join("calib.yaml")).unwrap();
     for key in [
         "fx:",
@@ -50,6 +58,10 @@ fn calibrates_a_small_synthetic_rig_with_overlays() {
         "translation:",
         "se3:",
         "frames_used: 4",
+        "verdict:",
+        "frames_agreeing:",
+        "sharpness:",
+        "sigma:",
     ] {
         assert!(calib.contains(key), "calib.yaml lacks {key}:\n{calib}");
     }
@@ -102,4 +114,64 @@ fn malformed_rig_is_an_error_naming_the_field() {
         "{log}"
     );
     assert!(!out.exists(), "no calib.yaml on error");
+}
+
+#[test]
+fn refuses_to_overwrite_the_rig_or_its_inputs_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |p: &str| dir.path().join(p).to_str().unwrap().to_string();
+    ok(&[
+        "synth",
+        "--format",
+        "calibration-rig",
+        "--out",
+        &d("rig"),
+        "--size",
+        "64x48",
+        "--count",
+        "2",
+        "--rig-depth",
+        "given",
+        "--seed",
+        "1",
+    ]);
+    let rig_text = std::fs::read(dir.path().join("rig/rig.yaml")).unwrap();
+    let thermal = std::fs::read(dir.path().join("rig/f/000_thermal.png")).unwrap();
+    let rig_path = rig_text_path(&dir);
+    for (flag, target, what) in [
+        ("--out", d("rig/rig.yaml"), "rig description"),
+        ("--out", d("rig/f/../rig.yaml"), "rig description"),
+        ("--out", d("rig/f/000_thermal.png"), "frames[0].thermal"),
+        ("--overlay", d("rig/f/001_depth.png"), "frames[1].depth"),
+    ] {
+        let mut args = vec!["calibrate", "--rig", rig_path.as_str(), "--out"];
+        let out_default = d("calib.yaml");
+        if flag == "--out" {
+            args.push(target.as_str());
+        } else {
+            args.extend([out_default.as_str(), "--overlay", &target]);
+        }
+        let err = fails(&args);
+        assert!(
+            err.contains(flag) && err.contains(what) && err.contains("refusing"),
+            "{err}"
+        );
+    }
+    assert_eq!(
+        std::fs::read(dir.path().join("rig/rig.yaml")).unwrap(),
+        rig_text
+    );
+    assert_eq!(
+        std::fs::read(dir.path().join("rig/f/000_thermal.png")).unwrap(),
+        thermal
+    );
+    assert!(!dir.path().join("calib.yaml").exists());
+}
+
+fn rig_text_path(dir: &tempfile::TempDir) -> String {
+    dir.path()
+        .join("rig/rig.yaml")
+        .to_str()
+        .unwrap()
+        .to_string()
 }

@@ -2,13 +2,14 @@
 //! rig.yaml; writes calib.yaml atomically, optionally overlays and a comparison with a known
 //! calibration.
 
-use anyhow::Result;
+use anyhow::{bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use rtf_calib::calibfile::{CalibFile, Quality};
 use rtf_calib::frames::load_frames;
 use rtf_calib::optimize::{self, Recipe, Settings};
+use rtf_calib::quality::Verdict;
 use rtf_calib::rig::{OptimizerOverrides, Rig};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum RecipeArg {
@@ -16,6 +17,14 @@ pub enum RecipeArg {
     Default,
     /// The paper: full resolution, σ = 3 / 51 px gradient loss, Adam, 8000 iterations.
     Paper,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FormatArg {
+    /// calib.yaml only.
+    Yaml,
+    /// calib.yaml and a Kalibr-style camchain (`<out stem>-camchain.yaml`).
+    Kalibr,
 }
 
 #[derive(clap::Args)]
@@ -54,12 +63,67 @@ pub struct Args {
     /// Rig whose depth is used for --ground-truth (default: --rig).
     #[arg(long)]
     pub eval_rig: Option<PathBuf>,
+    /// Output format: `kalibr` also writes a Kalibr camchain YAML beside --out.
+    #[arg(long, value_enum, default_value_t = FormatArg::Yaml)]
+    pub format: FormatArg,
+}
+
+/// The path as it will be resolved on disk (parent canonicalised, so `a/../rig.yaml` and a
+/// symlinked folder compare equal to the rig's own paths).
+fn resolved(path: &Path) -> PathBuf {
+    if let Ok(p) = path.canonicalize() {
+        return p;
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    match (parent.canonicalize(), path.file_name()) {
+        (Ok(dir), Some(name)) => dir.join(name),
+        _ => path.to_path_buf(),
+    }
+}
+
+/// Refuses outputs that would overwrite the rig description or any input it lists.
+fn refuse_overwriting_inputs(rig_path: &Path, rig: &Rig, outputs: &[(&str, &Path)]) -> Result<()> {
+    let mut inputs = vec![("the rig description".to_string(), rig_path.to_path_buf())];
+    for (i, f) in rig.frames.iter().enumerate() {
+        let mut add = |what: &str, p: &Option<PathBuf>| {
+            if let Some(p) = p {
+                inputs.push((format!("frames[{i}].{what} of the rig"), p.clone()));
+            }
+        };
+        add("rgb", &Some(f.rgb.clone()));
+        add("thermal", &Some(f.thermal.clone()));
+        add("depth", &f.depth);
+        add("rgb_right", &f.rgb_right);
+    }
+    for (flag, out) in outputs {
+        let target = resolved(out);
+        if let Some((what, _)) = inputs.iter().find(|(_, p)| resolved(p) == target) {
+            bail!(
+                "{flag} {}: is {what} ({}); refusing to overwrite an input, choose another path",
+                out.display(),
+                rig_path.display()
+            );
+        }
+    }
+    Ok(())
 }
 
 pub fn run(args: Args) -> Result<()> {
     let (rig_path, out) = (args.rig.clone(), args.out.clone());
     tch::set_num_threads(args.threads.max(1));
     let rig = Rig::load(&rig_path)?;
+    let camchain = rtf_calib::kalibr::camchain_path(&out);
+    let mut outputs: Vec<(&str, &Path)> = vec![("--out", out.as_path())];
+    if let Some(dir) = &args.overlay {
+        outputs.push(("--overlay", dir.as_path()));
+    }
+    if args.format == FormatArg::Kalibr {
+        outputs.push(("--format kalibr (camchain)", camchain.as_path()));
+    }
+    refuse_overwriting_inputs(&rig_path, &rig, &outputs)?;
     let recipe = match args.recipe {
         RecipeArg::Default => Recipe::Default,
         RecipeArg::Paper => Recipe::Paper,
@@ -103,9 +167,19 @@ pub fn run(args: Args) -> Result<()> {
         loss: outcome.loss,
         frames_used: outcome.frames_used,
         iterations: outcome.iterations,
+        assessment: outcome.assessment.clone(),
     };
     let file = CalibFile::from_calibration(&outcome.calibration, Some(quality));
     file.save(&out)?;
+    if args.format == FormatArg::Kalibr {
+        rtf_calib::kalibr::Camchain::new(
+            &rig.rgb,
+            (rig.thermal.width, rig.thermal.height),
+            &outcome.calibration,
+        )
+        .save(&camchain)?;
+        println!("wrote {} (Kalibr camchain)", camchain.display());
+    }
     let k = &file.thermal;
     println!(
         "wrote {}: fx {:.2} fy {:.2} cx {:.2} cy {:.2} distortion {:?}; t {:?} m; rotation {:.3}°; loss {:.6}; {} iterations in {:.1} s",
@@ -148,6 +222,26 @@ pub fn run(args: Args) -> Result<()> {
             "vs ground truth: pixel-map error {after:.4} px (initial {before:.3} px); rotation error {deg:.4} deg; translation error {:.3} cm; time {seconds:.1} s",
             metres * 100.0
         );
+    }
+    if let Some(a) = &outcome.assessment {
+        println!(
+            "verdict: {} ({}); alignment score {:.4} (start {:.4}, ±{} px {:.4}); {:.0} % of frames agree; map moved {:.1} px",
+            a.verdict,
+            a.reason,
+            a.score.at_solution,
+            a.score.at_start,
+            a.score.delta_px,
+            a.score.perturbed_mean,
+            100.0 * a.frames_agreeing,
+            a.moved_px
+        );
+        if a.verdict == Verdict::Failed {
+            bail!(
+                "calibration failed: {} ({} kept for inspection)",
+                a.reason,
+                out.display()
+            );
+        }
     }
     Ok(())
 }

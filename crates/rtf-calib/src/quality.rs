@@ -1,0 +1,297 @@
+//! Knowing when a calibration failed (issue 12). After any recipe, the solution is assessed
+//! on the frames it used, without ground truth:
+//!
+//! - **Alignment score**: per frame, the normalised cross-correlation of the centred edge
+//!   features ([`crate::model::edge_features`]) of the RGB image and of the thermal image
+//!   warped with the solution, over the loss support; the rig's score is the mean over frames.
+//!   It is compared with the score at the nominal start and at perturbed solutions (±δ px of
+//!   image shift in u and v, of scale and of roll): `sharpness` is the relative drop of the
+//!   score from the solution to the perturbed solutions (is it a sharp optimum?).
+//! - **Frames that agree**: a frame agrees when its own score peaks within ±δ of the solution
+//!   in u and in v (a parabola through the three scores) and is positive there.
+//! - **Uncertainty**: formal standard deviations of the parameters from the Gauss-Newton
+//!   normal equations at the solution (residual variance, pixels counted as N/9 independent
+//!   observations for the 3×3 gradient footprint), and each parameter's conditioning (the
+//!   factor by which its variance is inflated by correlation with the others).
+//! - **Moved**: the mean distance between the start and the final RGB→thermal map.
+//!
+//! The verdict (`ok` / `uncertain` / `failed`) and its reason follow from these; the
+//! thresholds were set on the real-imagery trials of `cargo xtask calib-check`
+//! (docs/src/calibration.md).
+
+use crate::camera::Calibration;
+use crate::error::Result;
+use crate::frames::Frame;
+use crate::model::{self, NUM_PARAMS, PARAM_NAMES};
+use crate::optimize::{self, Level, Scaling};
+use crate::rig::Rig;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use tch::{Kind, Tensor};
+
+/// Perturbation size (full-resolution thermal pixels) for sharpness and frame agreement.
+pub const DELTA_PX: f64 = 1.5;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Verdict {
+    Ok,
+    Uncertain,
+    Failed,
+}
+
+impl std::fmt::Display for Verdict {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Verdict::Ok => "ok",
+            Verdict::Uncertain => "uncertain",
+            Verdict::Failed => "failed",
+        })
+    }
+}
+
+/// Alignment scores (mean per-frame normalised cross-correlation of edge features).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scores {
+    pub at_solution: f64,
+    pub at_start: f64,
+    /// Mean score over the perturbed solutions (±δ px in u, v, scale, roll).
+    pub perturbed_mean: f64,
+    /// Best score among the perturbed solutions.
+    pub perturbed_best: f64,
+    /// (at_solution − perturbed_mean) / |at_solution|.
+    pub sharpness: f64,
+    /// The perturbation, full-resolution thermal pixels.
+    pub delta_px: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Assessment {
+    pub verdict: Verdict,
+    pub reason: String,
+    pub score: Scores,
+    /// Share of the frames used whose own score peaks within ±δ of the solution.
+    pub frames_agreeing: f64,
+    /// Mean distance between the start and the final RGB→thermal maps (px).
+    pub moved_px: f64,
+    /// Formal 1-σ uncertainty per parameter (physical units; fx and fy are one parameter
+    /// with square pixels).
+    pub sigma: BTreeMap<String, f64>,
+    /// Variance inflation per parameter from correlation with the others (1 = independent).
+    pub conditioning: BTreeMap<String, f64>,
+}
+
+/// Per-frame score [b] of `level` (correlation mode, unblurred) at θ.
+fn frame_scores(level: &Level, scaling: &Scaling, theta: &[f64; NUM_PARAMS]) -> Vec<f64> {
+    let b = level.points.size()[0];
+    let idx = Tensor::arange(b, (Kind::Int64, tch::Device::Cpu));
+    let t = level.warp(&scaling.tensor(theta), &idx) * &level.mask;
+    let a = &level.rgb_feat;
+    let dims = &[1i64, 2, 3][..];
+    let at = (a * &t).sum_dim_intlist(dims, false, Kind::Double);
+    let aa = a.square().sum_dim_intlist(dims, false, Kind::Double);
+    let tt = t.square().sum_dim_intlist(dims, false, Kind::Double);
+    let s = at / (aa * tt).sqrt().clamp_min(1e-12);
+    Vec::try_from(s).unwrap()
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+/// Assesses `solution` (found from `initial`) on the frames `used` of `frames`.
+pub fn assess(
+    rig: &Rig,
+    frames: &[Frame],
+    used: &[usize],
+    initial: &Calibration,
+    solution: &Calibration,
+    stopped: Option<&str>,
+) -> Result<Assessment> {
+    let _guard = tch::no_grad_guard();
+    let chosen: Vec<&Frame> = used.iter().map(|&i| &frames[i]).collect();
+    let p0 = model::from_calibration(initial);
+    let scaling = Scaling::new(&rig.rgb, p0, &chosen);
+    let ps = model::from_calibration(solution);
+    let theta: [f64; NUM_PARAMS] =
+        std::array::from_fn(|i| (ps[i] - scaling.p0[i]) / scaling.scale[i]);
+    // Half resolution at 640 wide (≤ 320 px wide): δ = 1.5 px is still resolved.
+    let factor = optimize::pyramid_factors(rig.rgb.width)
+        .into_iter()
+        .filter(|&f| rig.rgb.width / f <= 320)
+        .min()
+        .unwrap_or(1);
+    let level = Level::build(&rig.rgb, &chosen, factor, false, 0.0, 1).into_correlation();
+    let square = rig.thermal.square_pixels.unwrap_or(true);
+    let focal = optimize::directions(&[0, 1], &scaling, square)[0];
+    let axis = |i: usize| {
+        let mut d = [0.0; NUM_PARAMS];
+        d[i] = 1.0;
+        d
+    };
+    // θ units move the map by ~1 px RMS, so ±δ along a unit direction is ±δ px.
+    let dirs = [axis(2), axis(3), focal, axis(13)];
+    let at = |d: &[f64; NUM_PARAMS], s: f64| -> [f64; NUM_PARAMS] {
+        std::array::from_fn(|i| theta[i] + s * DELTA_PX * d[i])
+    };
+    let s0 = frame_scores(&level, &scaling, &theta);
+    let start = frame_scores(&level, &scaling, &[0.0; NUM_PARAMS]);
+    let mut perturbed = Vec::new();
+    let mut per_dir = Vec::new();
+    for d in &dirs {
+        let minus = frame_scores(&level, &scaling, &at(d, -1.0));
+        let plus = frame_scores(&level, &scaling, &at(d, 1.0));
+        perturbed.push(mean(&minus));
+        perturbed.push(mean(&plus));
+        per_dir.push((minus, plus));
+    }
+    let at_solution = mean(&s0);
+    let perturbed_mean = mean(&perturbed);
+    let perturbed_best = perturbed.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let sharpness = (at_solution - perturbed_mean) / at_solution.abs().max(1e-9);
+    // Frame agreement in u and v: the parabola's vertex within ±δ and a maximum there.
+    let agrees = |f: usize| -> bool {
+        s0[f] > 0.0
+            && per_dir[..2].iter().all(|(m, p)| {
+                let curv = m[f] + p[f] - 2.0 * s0[f];
+                let slope = (p[f] - m[f]) / 2.0;
+                curv < 0.0 && (slope / curv).abs() <= 1.0
+            })
+    };
+    let agreeing = (0..s0.len()).filter(|&f| agrees(f)).count() as f64 / s0.len().max(1) as f64;
+    // Formal uncertainty from the normal equations (all parameters; fx = fy tied if square).
+    let all: Vec<usize> = (0..NUM_PARAMS).collect();
+    let pdirs = optimize::directions(&all, &scaling, square);
+    let frames_idx: Vec<i64> = (0..chosen.len() as i64).collect();
+    let (jtj, _, _) = optimize::normal_equations(&level, &scaling, &theta, &pdirs, &frames_idx);
+    let n = pdirs.len();
+    let idx = Tensor::from_slice(&frames_idx);
+    let r = level.residual(&scaling.tensor(&theta), &idx);
+    let support = level.support(&idx);
+    let resid_var = r.square().sum(Kind::Double).double_value(&[]) / support.max(1.0);
+    let n_eff = (support / 9.0).max(1.0);
+    let mut sigma = BTreeMap::new();
+    let mut conditioning = BTreeMap::new();
+    for k in 0..n {
+        let mut e = vec![0.0; n];
+        e[k] = 1.0;
+        let Some(col) = optimize::solve_spd(&jtj, &e) else {
+            continue;
+        };
+        let var_theta = resid_var * col[k] / n_eff;
+        let p = pdirs[k].iter().position(|&x| x != 0.0).unwrap_or(0);
+        let names: Vec<usize> = if square && p == 0 {
+            vec![0, 1]
+        } else {
+            vec![p]
+        };
+        for i in names {
+            sigma.insert(
+                PARAM_NAMES[i].to_string(),
+                var_theta.sqrt() * scaling.scale[i] * pdirs[k][i].abs(),
+            );
+            conditioning.insert(PARAM_NAMES[i].to_string(), col[k] * jtj[k][k]);
+        }
+    }
+    let moved_px = optimize::mean_map_error(rig, frames, solution, initial);
+    let gain = at_solution - mean(&start);
+    let k = &solution.thermal;
+    let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
+    let off_centre = ((k.cx - w / 2.0) / w)
+        .abs()
+        .max(((k.cy - h / 2.0) / w).abs());
+    let [k1, k2, p1, p2] = k.distortion;
+    let aspect = (k.fx / k.fy - 1.0).abs();
+    let mut at_bounds = Vec::new();
+    if k1.abs() > 0.5 || k2.abs() > 0.3 || p1.abs().max(p2.abs()) > 0.01 {
+        at_bounds.push(format!(
+            "distortion beyond its bounds (k1 {k1:.3}, k2 {k2:.3}, p1 {p1:.4}, p2 {p2:.4})"
+        ));
+    }
+    if off_centre > 0.1 {
+        at_bounds.push(format!(
+            "principal point {:.0} % of the width off centre",
+            100.0 * off_centre
+        ));
+    }
+    if (square && aspect > 1e-6) || aspect > 0.02 {
+        at_bounds.push(format!("pixel aspect fx/fy {:.4}", k.fx / k.fy));
+    }
+    let (verdict, reason) = if let Some(why) = stopped {
+        (
+            Verdict::Failed,
+            format!("the optimiser stopped early: {why}"),
+        )
+    } else if at_solution < 0.05 {
+        (
+            Verdict::Failed,
+            format!("the frames share too little edge structure: alignment score {at_solution:.3} at the solution (aligned real frames score 0.13–0.21 at 320×240)"),
+        )
+    } else if agreeing < 0.5 {
+        (
+            Verdict::Failed,
+            format!(
+                "only {:.0} % of the frames agree with the solution (their own best alignment is elsewhere): the thermal and RGB frames may not show the same scene",
+                agreeing * 100.0
+            ),
+        )
+    } else if sharpness < 0.02 {
+        (
+            Verdict::Failed,
+            format!("no clear optimum: perturbing the solution by {DELTA_PX} px lowers the alignment score by only {:.1} %", sharpness * 100.0),
+        )
+    } else if agreeing < 0.8 {
+        (
+            Verdict::Uncertain,
+            format!(
+                "only {:.0} % of the frames agree with the solution",
+                agreeing * 100.0
+            ),
+        )
+    } else if sharpness < 0.05 {
+        (
+            Verdict::Uncertain,
+            format!(
+                "a shallow optimum: perturbing by {DELTA_PX} px lowers the score by only {:.1} %",
+                sharpness * 100.0
+            ),
+        )
+    } else if moved_px > 5.0 && gain < 0.1 * at_solution.abs() {
+        (
+            Verdict::Uncertain,
+            format!("the map moved {moved_px:.1} px from the start while the alignment score improved by only {:.1} %", 100.0 * gain / at_solution.abs().max(1e-9)),
+        )
+    } else if !at_bounds.is_empty() {
+        (
+            Verdict::Uncertain,
+            format!("implausible parameters: {}", at_bounds.join("; ")),
+        )
+    } else {
+        (
+            Verdict::Ok,
+            format!(
+                "sharp optimum ({:.1} % lower score at ±{DELTA_PX} px), {:.0} % of frames agree",
+                sharpness * 100.0,
+                agreeing * 100.0
+            ),
+        )
+    };
+    Ok(Assessment {
+        verdict,
+        reason,
+        score: Scores {
+            at_solution,
+            at_start: mean(&start),
+            perturbed_mean,
+            perturbed_best,
+            sharpness,
+            delta_px: DELTA_PX,
+        },
+        frames_agreeing: agreeing,
+        moved_px,
+        sigma,
+        conditioning,
+    })
+}
