@@ -6,6 +6,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod loss;
 pub mod optim;
+pub mod tensorboard;
 pub mod trainer;
 
 pub use config::{DatasetConfig, LossConfig, OptimizerConfig, OptimizerKind, TrainConfig};
