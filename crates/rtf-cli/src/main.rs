@@ -30,6 +30,10 @@ enum Command {
     Train(cmd::train::Args),
     /// Evaluate weights on a split: per-class Acc/IoU, mAcc/mIoU, day and night.
     Eval(cmd::eval::Args),
+    /// Export a network with its weights for deployment (TorchScript or ONNX).
+    Export(cmd::export::Args),
+    /// One self-contained HTML page of runs: curves, per-class IoU, confusion, predictions.
+    Report(cmd::report::Args),
     /// Segment RGB-T images: class-id PNG, colour PNG, optional logits .npy.
     Predict(cmd::predict::Args),
     /// Targetless RGB-thermal calibration of a rig (rig.yaml → calib.yaml).
@@ -55,6 +59,8 @@ fn main() {
         Command::Bench(bench) => cmd::bench_model::run_bench(bench),
         Command::Train(args) => cmd::train::run(args),
         Command::Eval(args) => cmd::eval::run(args),
+        Command::Export(args) => cmd::export::run(args),
+        Command::Report(args) => cmd::report::run(args),
         Command::Predict(args) => cmd::predict::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),
     };
