@@ -123,7 +123,7 @@ fn add_extra_file(archive: &Path, name: &str, contents: &[u8]) -> Result<()> {
     let prefix = {
         let mut zip = zip::ZipArchive::new(&file)
             .with_context(|| format!("{}: not a TorchScript archive", archive.display()))?;
-        let first = zip.by_index(0)?.name()?.to_string();
+        let first = zip.by_index(0)?.name().to_string();
         first
             .split_once('/')
             .map(|(p, _)| p.to_string())
@@ -217,7 +217,9 @@ fn trace(
     }
     let module = traced.with_context(|| format!("{}: the JIT tracer failed", network.name()))?;
     // A second input: a graph that baked in data-dependent choices gives other logits.
-    let probe = Tensor::rand([1, in_channels, h, w], (Kind::Float, Device::Cpu)) * 2.0 - 0.5;
+    // Its values span [-0.5, 2.5] (mean 1), unlike the example's [0, 1]: a branch on the input
+    // statistics shows up.
+    let probe = Tensor::rand([1, in_channels, h, w], (Kind::Float, Device::Cpu)) * 3.0 - 0.5;
     let eager = forward(&probe);
     let traced = module.forward_ts(&[&probe])?;
     let delta = (eager - traced).abs().max().double_value(&[]);
@@ -258,7 +260,8 @@ pub fn run(args: Args) -> Result<()> {
         module
             .save(path)
             .with_context(|| format!("saving TorchScript to {}", path.display()))?;
-        add_extra_file(path, "rtf.json", &meta_bytes)
+        // `{:#}`: the whole chain, as the atomic writer shows only the top error.
+        add_extra_file(path, "rtf.json", &meta_bytes).map_err(|e| anyhow::anyhow!("{e:#}"))
     };
     match args.format {
         Format::Torchscript => {
@@ -309,6 +312,64 @@ pub fn run(args: Args) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Doubles the first two channels when the input's mean is above 0.75, else negates them:
+    /// a trace records only the branch taken.
+    #[derive(Debug)]
+    struct Branchy {
+        panic: bool,
+    }
+
+    impl tch::nn::ModuleT for Branchy {
+        fn forward_t(&self, xs: &Tensor, _train: bool) -> Tensor {
+            if self.panic {
+                panic!("this network has no forward");
+            }
+            let head = xs.narrow(1, 0, 2);
+            if xs.mean(Kind::Float).double_value(&[]) > 0.75 {
+                head * 2.0
+            } else {
+                -head
+            }
+        }
+    }
+
+    impl rtf_models::Network for Branchy {
+        fn input_convention(&self) -> rtf_core::InputConvention {
+            rtf_core::InputConvention::UnitRange
+        }
+        fn num_classes(&self) -> i64 {
+            2
+        }
+        fn size_multiple(&self) -> i64 {
+            8
+        }
+        fn name(&self) -> String {
+            "branchy".into()
+        }
+    }
+
+    #[test]
+    fn a_network_that_cannot_be_traced_is_refused() {
+        let err = trace(&Branchy { panic: false }, 4, (16, 16), Precision::Fp32)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("branchy cannot be traced"), "{err}");
+        let err = trace(&Branchy { panic: true }, 4, (16, 16), Precision::Fp32)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            err.contains("branchy cannot be traced: this network has no forward"),
+            "{err}"
+        );
+        let err = trace(&Branchy { panic: false }, 4, (12, 16), Precision::Fp32)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("--size 12x16"), "{err}");
+    }
 
     #[test]
     fn size_is_height_first() {
