@@ -107,7 +107,6 @@ fn every_family_exports_torchscript_that_python_runs_with_the_same_logits() {
         ("heatnet", 13),
         ("heatnet-critic", 13),
         ("erfnet-4c", 9),
-        ("fusenet", 9),
     ] {
         let weights = random_weights(tmp.path(), model, classes);
         let out = tmp.path().join(format!("{model}.pt"));
