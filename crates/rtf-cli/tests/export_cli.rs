@@ -32,9 +32,9 @@ fn random_weights(dir: &Path, model: &str, classes: i64) -> PathBuf {
     tch::no_grad(|| {
         for (name, mut t) in vs.variables() {
             if name.ends_with("running_var") {
-                let _ = t.copy_(&(Tensor::rand_like(&t) + 0.5));
+                t.copy_(&(Tensor::rand_like(&t) + 0.5));
             } else if name.ends_with("running_mean") {
-                let _ = t.copy_(&(Tensor::rand_like(&t) * 0.2 - 0.1));
+                t.copy_(&(Tensor::rand_like(&t) * 0.2 - 0.1));
             }
         }
     });

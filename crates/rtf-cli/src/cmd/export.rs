@@ -224,7 +224,7 @@ fn trace(
     let traced = module.forward_ts(&[&probe])?;
     let delta = (eager - traced).abs().max().double_value(&[]);
     let tolerance = if kind == Kind::Float { 1e-4 } else { 1e-2 };
-    if !(delta <= tolerance) {
+    if delta.is_nan() || delta > tolerance {
         bail!(
             "{} cannot be traced: the traced graph's logits differ from the network's by {delta:.3e} \
              on a second input (forward depends on the input's values)",

@@ -195,6 +195,9 @@ fn load_eval(path: &Path) -> Result<EvalFile> {
 // ---------------------------------------------------------------------------------------------
 // Values out of log records (old flat fields and the new nested maps).
 
+/// A class's (name, day or overall IoU, night IoU).
+type ClassRow = (String, Option<f64>, Option<f64>);
+
 /// Named series of a run's log: (tag, points).
 type Series = Vec<(String, Vec<(f64, f64)>)>;
 
@@ -265,7 +268,7 @@ fn val_series(log: &[Epoch]) -> Series {
 
 /// (class, day IoU, night IoU) of the last record with per-class IoU; day/night fall back to
 /// the overall IoU in the first column when the log has no split.
-fn last_class_iou(log: &[Epoch]) -> Option<Vec<(String, Option<f64>, Option<f64>)>> {
+fn last_class_iou(log: &[Epoch]) -> Option<Vec<ClassRow>> {
     let val = log.iter().rev().find_map(|e| {
         e.raw
             .get("val")
@@ -405,11 +408,7 @@ fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result
 }
 
 /// Horizontal bars of per-class IoU, day and night side by side (names left of the bars).
-fn class_bars(
-    title: &str,
-    rows: &[(String, Option<f64>, Option<f64>)],
-    labels: [&str; 2],
-) -> Result<String> {
+fn class_bars(title: &str, rows: &[ClassRow], labels: [&str; 2]) -> Result<String> {
     let n = rows.len().max(1);
     let height = 60 + 26 * n as u32;
     let mut svg = String::new();
@@ -750,7 +749,7 @@ fn eval_section(eval: &EvalFile, html: &mut String) -> Result<()> {
                 .collect()
         })
         .unwrap_or_default();
-    let rows: Vec<(String, Option<f64>, Option<f64>)> = if day.is_empty() && night.is_empty() {
+    let rows: Vec<ClassRow> = if day.is_empty() && night.is_empty() {
         names
             .iter()
             .map(|n| (n.clone(), all.get(n).copied().flatten(), None))
