@@ -1015,7 +1015,8 @@ mod tests {
         let lr = lr_series(&log);
         assert_eq!(
             lr.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>(),
-            ["lr", "critic", "seg"]
+            ["critic", "lr", "seg"],
+            "sorted by name; the flat `lr` only where a record has no `lrs`"
         );
         let val = val_series(&log);
         assert_eq!(best(&val, "miou"), Some(0.2));
