@@ -78,17 +78,72 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
     Ok(python)
 }
 
-/// The Python peers of our benchmarks (`scripts/bench_*.py`) need NumPy and Pillow.
+/// Python packages the scripts and tests use, as (import name, PyPI name): the benchmark peers
+/// (`scripts/bench_*.py`) need NumPy and Pillow; the TensorBoard test reads event files back
+/// with TensorBoard's reader; `rtf export --format onnx` and its test use PyTorch's ONNX
+/// exporter (`onnx`, `onnxscript`) and check the result with onnxruntime.
+const SCRIPT_PACKAGES: [(&str, &str); 6] = [
+    ("numpy", "numpy"),
+    ("PIL", "pillow"),
+    ("tensorboard", "tensorboard"),
+    ("onnx", "onnx"),
+    ("onnxscript", "onnxscript"),
+    ("onnxruntime", "onnxruntime"),
+];
+
 fn ensure_script_packages(python: &Path) -> Result<()> {
-    let importable = Command::new(python)
-        .args(["-c", "import numpy, PIL"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if importable {
+    let missing: Vec<&str> = SCRIPT_PACKAGES
+        .iter()
+        .filter(|(module, _)| {
+            !Command::new(python)
+                .args(["-c", &format!("import {module}")])
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+        .map(|&(_, package)| package)
+        .collect();
+    if !missing.is_empty() {
+        println!(
+            "setup: installing {} into .venv (scripts and tests)",
+            missing.join(", ")
+        );
+        pip_install(python, &missing)?;
+    }
+    ensure_protoc()
+}
+
+/// The `tboard` crate (TensorBoard event files) compiles TensorBoard's protos at build time
+/// with `protoc`: use `$PROTOC` or the one on PATH, else install Debian's `protobuf-compiler`.
+fn ensure_protoc() -> Result<()> {
+    let works = |cmd: &std::ffi::OsStr| {
+        Command::new(cmd)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    if let Some(protoc) = std::env::var_os("PROTOC") {
+        if works(&protoc) {
+            return Ok(());
+        }
+        bail!("PROTOC={} does not run", protoc.to_string_lossy());
+    }
+    if works("protoc".as_ref()) {
         return Ok(());
     }
-    println!("setup: installing numpy and pillow into .venv (benchmark scripts)");
-    pip_install(python, &["numpy", "pillow"])
+    println!("setup: installing protobuf-compiler (protoc, needed to build the tboard crate)");
+    let apt = |args: &[&str]| {
+        Command::new("apt-get")
+            .args(args)
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    if !(apt(&["update", "-qq"]) && apt(&["install", "-y", "-qq", "protobuf-compiler"])) {
+        bail!(
+            "protoc not found and `apt-get install protobuf-compiler` failed: install protoc \
+             (Debian/Ubuntu: protobuf-compiler) or point PROTOC at one"
+        );
+    }
+    Ok(())
 }
 
 /// `pip install --quiet <args>` with the venv's Python.

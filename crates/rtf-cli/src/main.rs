@@ -33,6 +33,10 @@ enum Command {
     Recipes(cmd::recipes::Args),
     /// Evaluate weights on a split: per-class Acc/IoU, mAcc/mIoU, day and night.
     Eval(cmd::eval::Args),
+    /// Export a network with its weights for deployment (TorchScript or ONNX).
+    Export(cmd::export::Args),
+    /// One self-contained HTML page of runs: curves, per-class IoU, confusion, predictions.
+    Report(cmd::report::Args),
     /// Segment RGB-T images: class-id PNG, colour PNG, optional logits .npy.
     Predict(cmd::predict::Args),
     /// Targetless RGB-thermal calibration of a rig (rig.yaml → calib.yaml).
@@ -59,6 +63,8 @@ fn main() {
         Command::Train(args) => cmd::train::run(args),
         Command::Recipes(args) => cmd::recipes::run(args),
         Command::Eval(args) => cmd::eval::run(args),
+        Command::Export(args) => cmd::export::run(args),
+        Command::Report(args) => cmd::report::run(args),
         Command::Predict(args) => cmd::predict::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),
     };

@@ -5,6 +5,11 @@
 //! guarded: its memory is estimated before a large batch ([`check_memory`]) and an allocation
 //! failure inside libtorch, which tch's infallible ops turn into a panic, comes back as
 //! [`EvalError::OutOfMemory`] with the size, the estimate and a hint ([`forward_guarded`]).
+//!
+//! Missing-modality robustness ([`evaluate_with_drop`]): the RGB or the thermal channels of
+//! every input are replaced before the network, by zero (a black / coldest image) or by the
+//! split's mean of that modality, as in the modality-dropout protocols of the RGB-T literature
+//! (e.g. HeatNet's single-modality ablations, spec §3); the labels are unchanged.
 
 use std::cell::Cell;
 use std::panic::AssertUnwindSafe;
@@ -73,6 +78,61 @@ impl Default for EvalOptions {
     }
 }
 
+/// A modality of the 4-channel input (R, G, B, T).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Modality {
+    Rgb,
+    Thermal,
+}
+
+impl Modality {
+    /// (first channel, channel count) in the network input.
+    pub fn channels(self) -> (usize, usize) {
+        match self {
+            Self::Rgb => (0, 3),
+            Self::Thermal => (3, 1),
+        }
+    }
+}
+
+/// What replaces a dropped modality.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DropFill {
+    /// Pixel value 0 in every channel of the modality (then the network's input convention).
+    Zero,
+    /// The split's per-channel mean of the modality (then the input convention).
+    Mean,
+}
+
+/// A modality replaced in every input of an evaluation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ModalityDrop {
+    pub modality: Modality,
+    pub fill: DropFill,
+}
+
+/// Per-channel mean (R, G, B, T, in [0, 1]) over every frame of `source`.
+pub fn channel_means(source: &dyn FrameSource) -> Result<[f64; 4], EvalError> {
+    let mut sums = [0f64; 4];
+    let mut pixels = 0u64;
+    for i in 0..source.len() {
+        let frame = source.load(i)?;
+        for px in frame.rgb.chunks_exact(3) {
+            for c in 0..3 {
+                sums[c] += px[c] as f64 / 255.0;
+            }
+        }
+        sums[3] += frame.thermal.iter().map(|&t| t as f64).sum::<f64>();
+        pixels += (frame.width * frame.height) as u64;
+    }
+    if pixels == 0 {
+        return Err(EvalError::Shape("no pixels to average".into()));
+    }
+    Ok(sums.map(|s| s / pixels as f64))
+}
+
 /// Scores of a split, its day and night frames separately, and the raw matrices.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct EvalReport {
@@ -90,6 +150,34 @@ pub fn evaluate(
     options: &EvalOptions,
     device: Device,
 ) -> Result<EvalReport, EvalError> {
+    evaluate_with_drop(network, source, options, None, device)
+}
+
+/// [`evaluate`] with one modality replaced in every input (see the module docs).
+pub fn evaluate_with_drop(
+    network: &dyn Network,
+    source: Arc<dyn FrameSource>,
+    options: &EvalOptions,
+    drop: Option<ModalityDrop>,
+    device: Device,
+) -> Result<EvalReport, EvalError> {
+    let convention = network.input_convention();
+    // Values (already in the network's input scale) of the dropped channels.
+    let fill: Option<(usize, Vec<f64>)> = match drop {
+        None => None,
+        Some(d) => {
+            let (first, count) = d.modality.channels();
+            let unit = match d.fill {
+                DropFill::Zero => vec![0.0; count],
+                DropFill::Mean => channel_means(source.as_ref())?[first..first + count].to_vec(),
+            };
+            let values = unit
+                .iter()
+                .map(|&u| convention.apply(u as f32) as f64)
+                .collect();
+            Some((first, values))
+        }
+    };
     let classes = source.class_set().clone();
     let n = classes.len();
     let mut day = ConfusionMatrix::new(n, classes.ignore_id);
@@ -121,7 +209,13 @@ pub fn evaluate(
     let _guard = tch::no_grad_guard();
     for batch in loader.epoch(0) {
         let batch = batch?;
-        let prediction = predict_ids(network, &batch.input.to_device(device))?;
+        let input = batch.input.to_device(device);
+        if let Some((first, values)) = &fill {
+            for (c, &v) in values.iter().enumerate() {
+                let _ = input.narrow(1, (first + c) as i64, 1).fill_(v);
+            }
+        }
+        let prediction = predict_ids(network, &input)?;
         let target = batch.target.to_device(device);
         for (i, daytime) in batch.daytimes.iter().enumerate() {
             let matrix = match daytime {
@@ -458,5 +552,100 @@ mod tests {
             assert!(text.contains(needle), "{needle} not in: {text}");
         }
         check_memory(net.as_ref(), 1, 480, 640, Device::Cpu).unwrap();
+    }
+}
+
+#[cfg(test)]
+mod drop_tests {
+    use super::*;
+    use rtf_core::ClassSet;
+    use tch::nn::ModuleT;
+
+    /// Predicts class 1 where the thermal channel is above 0.5, else class 0 (RGB ignored).
+    #[derive(Debug)]
+    struct ThermalThreshold;
+
+    impl ModuleT for ThermalThreshold {
+        fn forward_t(&self, xs: &Tensor, _train: bool) -> Tensor {
+            let t = xs.narrow(1, 3, 1);
+            let one = t.gt(0.5).to_kind(Kind::Float);
+            Tensor::cat(&[one.ones_like() - &one, one], 1)
+        }
+    }
+
+    impl Network for ThermalThreshold {
+        fn input_convention(&self) -> rtf_core::InputConvention {
+            rtf_core::InputConvention::UnitRange
+        }
+        fn num_classes(&self) -> i64 {
+            2
+        }
+        fn size_multiple(&self) -> i64 {
+            1
+        }
+        fn name(&self) -> String {
+            "thermal-threshold".into()
+        }
+    }
+
+    /// Two 2x2 frames whose label is "thermal > 0.5" (class 1), one day, one night.
+    fn frames() -> rtf_data::MemorySource {
+        let frame = |index: usize| {
+            let thermal: Vec<f32> = if index == 0 {
+                vec![0.9, 0.1, 0.9, 0.1]
+            } else {
+                vec![0.1, 0.1, 0.9, 0.9]
+            };
+            rtf_data::Frame {
+                name: format!("f{index}"),
+                daytime: Some(if index == 0 {
+                    Daytime::Day
+                } else {
+                    Daytime::Night
+                }),
+                width: 2,
+                height: 2,
+                rgb: vec![200; 12],
+                label: Some(thermal.iter().map(|&t| (t > 0.5) as u8).collect()),
+                thermal,
+            }
+        };
+        rtf_data::MemorySource {
+            frames: vec![frame(0), frame(1)],
+            class_set: ClassSet::mf(),
+        }
+    }
+
+    #[test]
+    fn dropping_a_modality_changes_only_what_uses_it() {
+        let net = ThermalThreshold;
+        let source: Arc<dyn FrameSource> = Arc::new(frames());
+        let options = EvalOptions {
+            batch_size: 2,
+            resize: None,
+            workers: 1,
+        };
+        let run =
+            |drop| evaluate_with_drop(&net, source.clone(), &options, drop, Device::Cpu).unwrap();
+        let full = run(None);
+        assert_eq!(full.all.pixel_acc, 1.0);
+        let no_rgb = run(Some(ModalityDrop {
+            modality: Modality::Rgb,
+            fill: DropFill::Zero,
+        }));
+        assert_eq!(no_rgb.all.pixel_acc, 1.0);
+        assert_eq!(no_rgb.day.unwrap().pixel_acc, 1.0);
+        for fill in [DropFill::Zero, DropFill::Mean] {
+            let no_t = run(Some(ModalityDrop {
+                modality: Modality::Thermal,
+                fill,
+            }));
+            // Every pixel predicted cold: half the pixels right.
+            assert_eq!(no_t.all.pixel_acc, 0.5, "{fill:?}");
+            assert_eq!(no_t.confusion.get(1, 0), 4, "{fill:?}");
+        }
+        let means = channel_means(source.as_ref()).unwrap();
+        assert!((means[0] - 200.0 / 255.0).abs() < 1e-9);
+        assert!((means[3] - 0.5).abs() < 1e-6);
     }
 }

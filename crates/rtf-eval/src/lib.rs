@@ -6,5 +6,8 @@ pub mod figure;
 pub mod metrics;
 pub mod speed;
 
-pub use evaluate::{evaluate, EvalError, EvalOptions, EvalReport};
+pub use evaluate::{
+    evaluate, evaluate_with_drop, DropFill, EvalError, EvalOptions, EvalReport, Modality,
+    ModalityDrop,
+};
 pub use metrics::{ClassScore, ConfusionMatrix, Scores};

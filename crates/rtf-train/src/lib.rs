@@ -14,6 +14,7 @@ pub mod pipeline;
 pub mod procedure;
 pub mod recipe;
 pub mod run;
+pub mod tensorboard;
 pub mod trainer;
 
 pub use config::{

@@ -30,7 +30,8 @@ pub struct Args {
     /// Also write the scores as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Write a PNG grid (RGB | thermal | ground truth | prediction) of the first frames.
+    /// Write a PNG grid (RGB | thermal | ground truth | prediction) of the first frames, with
+    /// column titles and a class legend.
     #[arg(long)]
     pub figure: Option<PathBuf>,
     /// Frames in the --figure grid (half day, half night where the split has both).
@@ -43,6 +44,13 @@ pub struct Args {
     pub batch_size: usize,
     #[arg(long, default_value = "cpu")]
     pub device: String,
+    /// Also score with this modality missing (repeatable: `--drop rgb --drop thermal`); the
+    /// JSON gains a `dropped` list beside the normal scores, each with all / day / night.
+    #[arg(long, value_enum)]
+    pub drop: Vec<DropArg>,
+    /// What replaces a dropped modality: pixel value 0, or the split's per-channel mean.
+    #[arg(long, value_enum, default_value = "zero")]
+    pub drop_fill: FillArg,
     /// Run the fast inference path (BatchNorm folded, channels-last) in fp32 or bf16; default:
     /// the plain path.
     #[arg(long)]
@@ -57,10 +65,37 @@ pub struct Args {
     pub foreign_weights: bool,
 }
 
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum DropArg {
+    Rgb,
+    Thermal,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum FillArg {
+    Zero,
+    Mean,
+}
+
+/// Scores with one modality missing (`--drop`).
+#[derive(Serialize)]
+struct DroppedScores {
+    #[serde(flatten)]
+    drop: rtf_eval::ModalityDrop,
+    #[serde(flatten)]
+    all: Scores,
+    day: Option<Scores>,
+    night: Option<Scores>,
+}
+
+/// Schema tag of the `--json` file (`rtf report` checks it).
+pub const EVAL_SCHEMA: &str = "rtf-eval/1";
+
 /// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside
 /// it; for Freiburg Thermal also HeatNet's convention.
 #[derive(Serialize)]
 struct Report<'a> {
+    schema: &'static str,
     model: &'a str,
     weights: &'a PathBuf,
     data: &'a PathBuf,
@@ -74,6 +109,11 @@ struct Report<'a> {
     heatnet: Option<HeatnetScores>,
     /// Content hash of the data evaluated (`rtf data fingerprint`).
     data_fingerprint: &'a rtf_data::Fingerprint,
+    /// Class names, then the split's pixel counts, rows = truth, columns = prediction.
+    class_names: Vec<&'a str>,
+    confusion: Vec<Vec<u64>>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    dropped: Vec<DroppedScores>,
 }
 
 /// HeatNet's convention (spec §2): mIoU over classes 0–11 with undefined classes skipped;
@@ -101,7 +141,10 @@ impl HeatnetScores {
 }
 
 /// The frames of `split` under `root`, by the root's layout.
-fn open_split(root: &Path, split: &str) -> Result<(Arc<dyn FrameSource>, DatasetFormat)> {
+pub(crate) fn open_split(
+    root: &Path,
+    split: &str,
+) -> Result<(Arc<dyn FrameSource>, DatasetFormat)> {
     match super::segmentation_format(root, "an evaluation")? {
         DatasetFormat::Mf => Ok((
             Arc::new(MfDataset::open(root)?.split(split)?),
@@ -199,8 +242,54 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
     }
+    let mut dropped = Vec::new();
+    for modality in &args.drop {
+        let drop = rtf_eval::ModalityDrop {
+            modality: match modality {
+                DropArg::Rgb => rtf_eval::Modality::Rgb,
+                DropArg::Thermal => rtf_eval::Modality::Thermal,
+            },
+            fill: match args.drop_fill {
+                FillArg::Zero => rtf_eval::DropFill::Zero,
+                FillArg::Mean => rtf_eval::DropFill::Mean,
+            },
+        };
+        let r = rtf_eval::evaluate_with_drop(
+            network.as_ref(),
+            split.clone(),
+            &options,
+            Some(drop),
+            device,
+        )?;
+        let pct = |s: &Option<Scores>| {
+            s.as_ref()
+                .map_or("-".into(), |s| format!("{:.1}", 100.0 * s.miou))
+        };
+        println!(
+            "{:?} missing ({:?} fill): mAcc {:.1}  mIoU {:.1}  day mIoU {}  night mIoU {}",
+            drop.modality,
+            drop.fill,
+            100.0 * r.all.macc,
+            100.0 * r.all.miou,
+            pct(&r.day),
+            pct(&r.night)
+        );
+        dropped.push(DroppedScores {
+            drop,
+            all: r.all,
+            day: r.day,
+            night: r.night,
+        });
+    }
     if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
+        let n = report.confusion.num_classes();
         let json = serde_json::to_string_pretty(&Report {
+            schema: EVAL_SCHEMA,
+            class_names: classes.names(),
+            confusion: (0..n)
+                .map(|t| (0..n).map(|p| report.confusion.get(t, p)).collect())
+                .collect(),
+            dropped,
             model: &args.model,
             weights: &args.weights,
             data: &args.data,
@@ -223,7 +312,11 @@ pub fn run(args: Args) -> Result<()> {
             args.resize,
             device,
         )?;
-        let grid = rtf_eval::figure::prediction_grid(&rows, &classes);
+        let column = rtf_eval::figure::PredictionColumn {
+            title: args.model.clone(),
+            ids: rows.iter().map(|r| r.prediction.clone()).collect(),
+        };
+        let grid = rtf_eval::figure::annotated_grid(&rows, &[column], &classes);
         rtf_eval::figure::save_png(&grid, path)?;
         println!("figure: {}", path.display());
     }

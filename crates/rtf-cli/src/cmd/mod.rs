@@ -5,9 +5,11 @@ pub mod bench_model;
 pub mod calibrate;
 pub mod data;
 pub mod eval;
+pub mod export;
 pub mod models;
 pub mod predict;
 pub mod recipes;
+pub mod report;
 pub mod synth;
 pub mod train;
 

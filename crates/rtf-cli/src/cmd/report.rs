@@ -1,0 +1,1051 @@
+//! `rtf report RUN… [--eval SCORES.json…] --out report.html`: one self-contained HTML page
+//! (every image embedded as a `data:` URI) summarising training runs and evaluations.
+//!
+//! Per run (and per stage of a multi-stage run, `RUN/<stage>/`): the configuration, training
+//! curves (each loss term, learning rates, validation mIoU / mAcc, day and night) and the last
+//! epoch's per-class IoU, day and night, when the log has them. Per `rtf eval --json` file: the
+//! scores (all / day / night, missing-modality rows), per-class IoU bars (day / night) and the
+//! confusion matrix as a heat map (rows = truth, normalised per row). Several runs: a
+//! side-by-side table. With weights in the run folders and a dataset (`--data`, else the first
+//! run's validation split), a prediction grid: RGB | thermal | truth | each run's prediction,
+//! column titles and class legend ([`rtf_eval::figure::annotated_grid`]).
+//!
+//! Charts are drawn with `plotters` (SVG backend: text is laid out by the browser, no font
+//! files needed); the grid is a PNG.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+use base64::Engine;
+use plotters::prelude::*;
+use serde_json::Value;
+
+use super::eval::EVAL_SCHEMA;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run folders (written by `rtf train`).
+    #[arg(required = true)]
+    pub runs: Vec<PathBuf>,
+    /// Score files written by `rtf eval --json` (repeatable).
+    #[arg(long = "eval")]
+    pub evals: Vec<PathBuf>,
+    /// The HTML page to write.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Dataset root for the prediction grid (default: the first run's dataset, if present).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Split of --data for the prediction grid.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Frames in the prediction grid (0: no grid).
+    #[arg(long, default_value_t = 4)]
+    pub frames: usize,
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
+}
+
+/// One epoch line of `log.jsonl`, old or new schema.
+struct Epoch {
+    epoch: f64,
+    raw: Value,
+}
+
+/// A run folder or one stage of it.
+struct Run {
+    label: String,
+    dir: PathBuf,
+    config: Value,
+    log: Vec<Epoch>,
+}
+
+/// An `rtf eval --json` file.
+struct EvalFile {
+    path: PathBuf,
+    json: Value,
+}
+
+fn read_json(path: &Path) -> Result<Value> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: not valid JSON", path.display()))
+}
+
+fn read_log(path: &Path) -> Result<Vec<Epoch>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let raw: Value = serde_json::from_str(line)
+            .with_context(|| format!("{}:{}: not a JSON line", path.display(), i + 1))?;
+        let epoch = raw.get("epoch").and_then(Value::as_f64).ok_or_else(|| {
+            anyhow!(
+                "{}:{}: a log record without a numeric `epoch`",
+                path.display(),
+                i + 1
+            )
+        })?;
+        out.push(Epoch { epoch, raw });
+    }
+    Ok(out)
+}
+
+/// The run at `dir` and, for a multi-stage run, each stage (`config.json` `"stages"`).
+fn load_runs(dir: &Path) -> Result<Vec<Run>> {
+    let config_path = dir.join("config.json");
+    let log_path = dir.join("log.jsonl");
+    if !dir.is_dir() {
+        bail!("{}: not a run folder (no such directory)", dir.display());
+    }
+    let config = if config_path.exists() {
+        read_json(&config_path)?
+    } else {
+        Value::Null
+    };
+    let label = dir.file_name().map_or_else(
+        || dir.display().to_string(),
+        |n| n.to_string_lossy().to_string(),
+    );
+    let stages: Vec<String> = config
+        .get("stages")
+        .and_then(Value::as_array)
+        .map(|stages| {
+            stages
+                .iter()
+                .filter_map(|s| {
+                    s.as_str()
+                        .or_else(|| s.get("name").and_then(Value::as_str))
+                        .map(str::to_string)
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut runs = Vec::new();
+    if log_path.exists() || stages.is_empty() {
+        if !log_path.exists() {
+            bail!(
+                "{}: not a run folder: {} is missing (written by `rtf train`)",
+                dir.display(),
+                log_path.display()
+            );
+        }
+        if config.is_null() {
+            bail!(
+                "{}: missing (written by `rtf train`)",
+                config_path.display()
+            );
+        }
+        runs.push(Run {
+            label: label.clone(),
+            dir: dir.to_path_buf(),
+            log: read_log(&log_path)?,
+            config: config.clone(),
+        });
+    }
+    for stage in stages {
+        let sub = dir.join(&stage);
+        let sub_log = sub.join("log.jsonl");
+        if !sub_log.exists() {
+            bail!(
+                "{}: stage `{stage}` listed in {} has no log",
+                sub_log.display(),
+                config_path.display()
+            );
+        }
+        let sub_config = sub.join("config.json");
+        runs.push(Run {
+            label: format!("{label} / {stage}"),
+            dir: sub.clone(),
+            config: if sub_config.exists() {
+                read_json(&sub_config)?
+            } else {
+                Value::Null
+            },
+            log: read_log(&sub_log)?,
+        });
+    }
+    Ok(runs)
+}
+
+fn load_eval(path: &Path) -> Result<EvalFile> {
+    let json = read_json(path)?;
+    let schema = json.get("schema").and_then(Value::as_str);
+    let legacy = schema.is_none()
+        && json.get("per_class").is_some_and(Value::is_array)
+        && json.get("miou").is_some_and(Value::is_number);
+    if schema != Some(EVAL_SCHEMA) && !legacy {
+        bail!(
+            "{}: not an `rtf eval --json` score file (schema {}, expected `{EVAL_SCHEMA}`)",
+            path.display(),
+            schema.map_or("missing".to_string(), |s| format!("`{s}`"))
+        );
+    }
+    Ok(EvalFile {
+        path: path.to_path_buf(),
+        json,
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Values out of log records (old flat fields and the new nested maps).
+
+/// A class's (name, day or overall IoU, night IoU).
+type ClassRow = (String, Option<f64>, Option<f64>);
+
+/// Named series of a run's log: (tag, points).
+type Series = Vec<(String, Vec<(f64, f64)>)>;
+
+fn series_of(log: &[Epoch], pick: impl Fn(&Value) -> Vec<(String, f64)>) -> Series {
+    let mut map: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    for e in log {
+        for (name, v) in pick(&e.raw) {
+            if v.is_finite() {
+                map.entry(name).or_default().push((e.epoch, v));
+            }
+        }
+    }
+    map.into_iter().collect()
+}
+
+fn numbers_of(map: Option<&Value>, prefix: &str) -> Vec<(String, f64)> {
+    map.and_then(Value::as_object)
+        .map(|m| {
+            m.iter()
+                .filter_map(|(k, v)| v.as_f64().map(|v| (format!("{prefix}{k}"), v)))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn loss_series(log: &[Epoch]) -> Series {
+    series_of(log, |r| {
+        let mut out = numbers_of(r.get("losses"), "");
+        if let Some(v) = r.get("train_loss").and_then(Value::as_f64) {
+            out.push(("total".into(), v));
+        }
+        out
+    })
+}
+
+fn lr_series(log: &[Epoch]) -> Series {
+    series_of(log, |r| {
+        let mut out = numbers_of(r.get("lrs"), "");
+        if out.is_empty() {
+            if let Some(v) = r.get("lr").and_then(Value::as_f64) {
+                out.push(("lr".into(), v));
+            }
+        }
+        out
+    })
+}
+
+fn val_series(log: &[Epoch]) -> Series {
+    series_of(log, |r| {
+        let val = r.get("val");
+        let mut out = Vec::new();
+        for key in ["miou", "macc", "miou_day", "miou_night", "miou_heatnet"] {
+            if let Some(v) = val.and_then(|v| v.get(key)).and_then(Value::as_f64) {
+                out.push((key.to_string(), v));
+            }
+        }
+        for (flat, key) in [("val_miou", "miou"), ("val_macc", "macc")] {
+            if !out.iter().any(|(k, _)| k == key) {
+                if let Some(v) = r.get(flat).and_then(Value::as_f64) {
+                    out.push((key.to_string(), v));
+                }
+            }
+        }
+        out.extend(numbers_of(r.get("metrics"), ""));
+        out
+    })
+}
+
+/// (class, day IoU, night IoU) of the last record with per-class IoU; day/night fall back to
+/// the overall IoU in the first column when the log has no split.
+fn last_class_iou(log: &[Epoch]) -> Option<Vec<ClassRow>> {
+    let val = log.iter().rev().find_map(|e| {
+        e.raw
+            .get("val")
+            .filter(|v| v.get("per_class_iou").is_some() || v.get("per_class_iou_day").is_some())
+    })?;
+    let get = |key: &str| val.get(key).and_then(Value::as_object);
+    let (first, second) = match (get("per_class_iou_day"), get("per_class_iou_night")) {
+        (Some(d), n) => (d, n),
+        (None, _) => (get("per_class_iou")?, None),
+    };
+    Some(
+        first
+            .iter()
+            .map(|(k, v)| {
+                (
+                    k.clone(),
+                    v.as_f64(),
+                    second.and_then(|n| n.get(k)).and_then(Value::as_f64),
+                )
+            })
+            .collect(),
+    )
+}
+
+// ---------------------------------------------------------------------------------------------
+// Charts (plotters, SVG).
+
+const W: u32 = 560;
+const H: u32 = 300;
+
+fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow!("drawing a chart: {e:?}")
+}
+
+fn colour(i: usize) -> RGBColor {
+    const C: [RGBColor; 8] = [
+        RGBColor(31, 119, 180),
+        RGBColor(255, 127, 14),
+        RGBColor(44, 160, 44),
+        RGBColor(214, 39, 40),
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        RGBColor(227, 119, 194),
+        RGBColor(127, 127, 127),
+    ];
+    C[i % C.len()]
+}
+
+/// A line chart of `series` against epoch.
+fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result<String> {
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (W, H)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        let points = || series.iter().flat_map(|(_, p)| p.iter());
+        let (x0, x1) = points().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+        let (x0, x1) = if x0 < x1 {
+            (x0, x1)
+        } else {
+            (x0 - 1.0, x0 + 1.0)
+        };
+        let mut chart_builder = ChartBuilder::on(&root);
+        chart_builder
+            .caption(title, ("sans-serif", 16))
+            .margin(10)
+            .x_label_area_size(32)
+            .y_label_area_size(56);
+        if log_y {
+            let positive = || points().map(|p| p.1).filter(|v| *v > 0.0);
+            let lo = positive().fold(f64::MAX, f64::min);
+            let hi = positive().fold(f64::MIN, f64::max);
+            let (lo, hi) = if lo <= hi {
+                (lo / 1.5, hi * 1.5)
+            } else {
+                (1e-6, 1.0)
+            };
+            let mut chart = chart_builder
+                .build_cartesian_2d(x0..x1, (lo..hi).log_scale())
+                .map_err(plot_err)?;
+            chart
+                .configure_mesh()
+                .x_desc("epoch")
+                .y_desc(y_desc)
+                .y_label_formatter(&|v| format!("{v:.0e}"))
+                .draw()
+                .map_err(plot_err)?;
+            for (i, (name, pts)) in series.iter().enumerate() {
+                let c = colour(i);
+                let pts: Vec<(f64, f64)> = pts.iter().copied().filter(|p| p.1 > 0.0).collect();
+                chart
+                    .draw_series(LineSeries::new(pts, c.stroke_width(2)))
+                    .map_err(plot_err)?
+                    .label(name.as_str())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
+                    });
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .draw()
+                .map_err(plot_err)?;
+        } else {
+            let lo = points().map(|p| p.1).fold(f64::MAX, f64::min).min(0.0);
+            let hi = points().map(|p| p.1).fold(f64::MIN, f64::max);
+            let hi = if hi > lo { hi * 1.05 } else { lo + 1.0 };
+            let mut chart = chart_builder
+                .build_cartesian_2d(x0..x1, lo..hi)
+                .map_err(plot_err)?;
+            chart
+                .configure_mesh()
+                .x_desc("epoch")
+                .y_desc(y_desc)
+                .draw()
+                .map_err(plot_err)?;
+            for (i, (name, pts)) in series.iter().enumerate() {
+                let c = colour(i);
+                chart
+                    .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
+                    .map_err(plot_err)?
+                    .label(name.as_str())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
+                    });
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .draw()
+                .map_err(plot_err)?;
+        }
+        root.present().map_err(plot_err)?;
+    }
+    Ok(svg)
+}
+
+/// Horizontal bars of per-class IoU, day and night side by side (names left of the bars).
+fn class_bars(title: &str, rows: &[ClassRow], labels: [&str; 2]) -> Result<String> {
+    let n = rows.len().max(1);
+    let height = 60 + 26 * n as u32;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (W, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 16))
+            .margin(10)
+            .x_label_area_size(28)
+            .y_label_area_size(4)
+            .build_cartesian_2d(-0.4f64..1.0f64, 0f64..n as f64)
+            .map_err(plot_err)?;
+        chart
+            .configure_mesh()
+            .disable_y_mesh()
+            .y_labels(0)
+            .x_desc("IoU")
+            .x_label_formatter(&|x| {
+                if *x < 0.0 {
+                    String::new()
+                } else {
+                    format!("{x:.1}")
+                }
+            })
+            .draw()
+            .map_err(plot_err)?;
+        let has_second = rows.iter().any(|r| r.2.is_some());
+        for (i, (name, a, b)) in rows.iter().enumerate() {
+            let y = (n - 1 - i) as f64;
+            let (h0, h1) = if has_second { (0.5, 0.9) } else { (0.15, 0.85) };
+            if let Some(a) = a {
+                chart
+                    .draw_series([Rectangle::new(
+                        [
+                            (0.0, y + h0 - if has_second { 0.4 } else { 0.0 }),
+                            (*a, y + h1 - if has_second { 0.4 } else { 0.0 }),
+                        ],
+                        colour(0).filled(),
+                    )])
+                    .map_err(plot_err)?;
+            }
+            if let Some(b) = b {
+                chart
+                    .draw_series([Rectangle::new(
+                        [(0.0, y + 0.5), (*b, y + 0.9)],
+                        colour(1).filled(),
+                    )])
+                    .map_err(plot_err)?;
+            }
+            let value =
+                |v: &Option<f64>| v.map_or("-".to_string(), |v| format!("{:.1}", 100.0 * v));
+            let text = if has_second {
+                format!("{name} {}/{}", value(a), value(b))
+            } else {
+                format!("{name} {}", value(a))
+            };
+            chart
+                .draw_series([Text::new(text, (-0.39, y + 0.7), ("sans-serif", 12))])
+                .map_err(plot_err)?;
+        }
+        // Legend of the two bar colours.
+        for (k, label) in labels
+            .iter()
+            .enumerate()
+            .take(if has_second { 2 } else { 1 })
+        {
+            let x = 0.55 + 0.22 * k as f64;
+            chart
+                .draw_series([Rectangle::new(
+                    [(x, n as f64 - 0.05), (x + 0.04, n as f64 - 0.3)],
+                    colour(k).filled(),
+                )])
+                .map_err(plot_err)?;
+            chart
+                .draw_series([Text::new(
+                    label.to_string(),
+                    (x + 0.05, n as f64 - 0.05),
+                    ("sans-serif", 12),
+                )])
+                .map_err(plot_err)?;
+        }
+        root.present().map_err(plot_err)?;
+    }
+    Ok(svg)
+}
+
+/// Row-normalised confusion matrix as a heat map (rows = truth, columns = prediction).
+fn heat_map(title: &str, names: &[String], counts: &[Vec<u64>]) -> Result<String> {
+    let n = names.len().max(1) as u32;
+    let cell = (420 / n).clamp(18, 40);
+    let (left, top) = (110u32, 40u32);
+    let bottom = 100u32;
+    let (width, height) = (left + n * cell + 20, top + n * cell + bottom);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        root.draw(&Text::new(title.to_string(), (10, 10), ("sans-serif", 16)))
+            .map_err(plot_err)?;
+        for (t, row) in counts.iter().enumerate() {
+            let total: u64 = row.iter().sum();
+            for (p, &c) in row.iter().enumerate() {
+                let frac = if total > 0 {
+                    c as f64 / total as f64
+                } else {
+                    0.0
+                };
+                let shade = |full: u8| (255.0 - frac * (255.0 - full as f64)).round() as u8;
+                let colour = RGBColor(shade(8), shade(48), shade(107));
+                let (x, y) = (left + p as u32 * cell, top + t as u32 * cell);
+                root.draw(&Rectangle::new(
+                    [(x as i32, y as i32), ((x + cell) as i32, (y + cell) as i32)],
+                    colour.filled(),
+                ))
+                .map_err(plot_err)?;
+                if cell >= 26 && total > 0 {
+                    let text_colour = if frac > 0.5 { WHITE } else { BLACK };
+                    root.draw(&Text::new(
+                        format!("{:.0}", 100.0 * frac),
+                        (x as i32 + 3, y as i32 + cell as i32 / 2 - 5),
+                        ("sans-serif", 10).into_font().color(&text_colour),
+                    ))
+                    .map_err(plot_err)?;
+                }
+            }
+        }
+        for (i, name) in names.iter().enumerate() {
+            let y = top + i as u32 * cell + cell / 2 - 6;
+            root.draw(&Text::new(name.clone(), (6, y as i32), ("sans-serif", 12)))
+                .map_err(plot_err)?;
+            let x = left + i as u32 * cell + cell / 2 - 6;
+            root.draw(&Text::new(
+                name.clone(),
+                (x as i32, (top + n * cell + 6) as i32),
+                ("sans-serif", 12)
+                    .into_font()
+                    .transform(FontTransform::Rotate90),
+            ))
+            .map_err(plot_err)?;
+        }
+        root.draw(&Text::new(
+            "rows: truth, columns: prediction, % of the row".to_string(),
+            (10, (height - 16) as i32),
+            ("sans-serif", 12),
+        ))
+        .map_err(plot_err)?;
+        root.present().map_err(plot_err)?;
+    }
+    Ok(svg)
+}
+
+// ---------------------------------------------------------------------------------------------
+// HTML.
+
+fn esc(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+fn img(mime: &str, bytes: &[u8], alt: &str) -> String {
+    format!(
+        "<img alt=\"{}\" src=\"data:{mime};base64,{}\">",
+        esc(alt),
+        base64::engine::general_purpose::STANDARD.encode(bytes)
+    )
+}
+
+fn svg_img(svg: &str, alt: &str) -> String {
+    img("image/svg+xml", svg.as_bytes(), alt)
+}
+
+fn pct(v: Option<f64>) -> String {
+    v.map_or("–".to_string(), |v| format!("{:.1}", 100.0 * v))
+}
+
+/// Scalar leaves of a JSON value as `a.b.c = v` rows (arrays of more than 8 items elided).
+fn flatten_config(prefix: &str, value: &Value, out: &mut Vec<(String, String)>) {
+    match value {
+        Value::Object(map) => {
+            for (k, v) in map {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                flatten_config(&key, v, out);
+            }
+        }
+        Value::Array(items) if items.len() > 8 => {
+            out.push((prefix.into(), format!("[{} items]", items.len())))
+        }
+        Value::Null => {}
+        other => out.push((prefix.into(), other.to_string())),
+    }
+}
+
+fn best(series: &Series, name: &str) -> Option<f64> {
+    series
+        .iter()
+        .find(|(n, _)| n == name)
+        .and_then(|(_, p)| p.iter().map(|p| p.1).reduce(f64::max))
+}
+
+fn last(series: &Series, name: &str) -> Option<f64> {
+    series
+        .iter()
+        .find(|(n, _)| n == name)
+        .and_then(|(_, p)| p.last().map(|p| p.1))
+}
+
+fn run_section(run: &Run, html: &mut String) -> Result<()> {
+    writeln!(
+        html,
+        "<section class=\"run\"><h2>Run {}</h2>",
+        esc(&run.label)
+    )?;
+    writeln!(
+        html,
+        "<p class=\"path\">{}</p>",
+        esc(&run.dir.display().to_string())
+    )?;
+    let mut rows = Vec::new();
+    flatten_config("", &run.config, &mut rows);
+    if !rows.is_empty() {
+        writeln!(
+            html,
+            "<details open><summary>Configuration</summary><table class=\"config\">"
+        )?;
+        for (k, v) in rows {
+            writeln!(html, "<tr><th>{}</th><td>{}</td></tr>", esc(&k), esc(&v))?;
+        }
+        writeln!(html, "</table></details>")?;
+    }
+    if run.log.is_empty() {
+        writeln!(html, "<p>No epoch finished yet (empty log).</p></section>")?;
+        return Ok(());
+    }
+    writeln!(html, "<div class=\"charts\">")?;
+    let losses = loss_series(&run.log);
+    if !losses.is_empty() {
+        let svg = line_chart("Training loss", "loss", &losses, false)?;
+        writeln!(html, "{}", svg_img(&svg, "training loss curves"))?;
+    }
+    let lrs = lr_series(&run.log);
+    if !lrs.is_empty() {
+        let svg = line_chart("Learning rate", "lr", &lrs, true)?;
+        writeln!(html, "{}", svg_img(&svg, "learning rate"))?;
+    }
+    let val = val_series(&run.log);
+    if !val.is_empty() {
+        let svg = line_chart("Validation", "score", &val, false)?;
+        writeln!(html, "{}", svg_img(&svg, "validation mIoU curves"))?;
+    }
+    if let Some(classes) = last_class_iou(&run.log) {
+        let svg = class_bars(
+            "Per-class IoU (last validation), %",
+            &classes,
+            ["day", "night"],
+        )?;
+        writeln!(html, "{}", svg_img(&svg, "per-class IoU bars"))?;
+    }
+    writeln!(html, "</div></section>")?;
+    Ok(())
+}
+
+fn scores_row(label: &str, s: &Value) -> String {
+    let get = |k: &str| s.get(k).and_then(Value::as_f64);
+    let day = s.get("day").filter(|d| !d.is_null());
+    let night = s.get("night").filter(|d| !d.is_null());
+    let miou = |d: Option<&Value>| d.and_then(|d| d.get("miou")).and_then(Value::as_f64);
+    format!(
+        "<tr><th>{}</th><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+        esc(label),
+        pct(get("miou")),
+        pct(get("macc")),
+        pct(miou(day)),
+        pct(miou(night))
+    )
+}
+
+fn class_iou(scores: Option<&Value>) -> BTreeMap<String, Option<f64>> {
+    scores
+        .and_then(|s| s.get("per_class"))
+        .and_then(Value::as_array)
+        .map(|a| {
+            a.iter()
+                .filter_map(|c| {
+                    Some((
+                        c.get("name")?.as_str()?.to_string(),
+                        c.get("iou").and_then(Value::as_f64),
+                    ))
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn eval_section(eval: &EvalFile, html: &mut String) -> Result<()> {
+    let j = &eval.json;
+    let s = |k: &str| j.get(k).and_then(Value::as_str).unwrap_or("?").to_string();
+    writeln!(
+        html,
+        "<section class=\"eval\"><h2>Evaluation {}</h2><p>{} on <code>{}</code> split <code>{}</code>, {} frames</p>",
+        esc(&eval.path.file_name().unwrap_or_default().to_string_lossy()),
+        esc(&s("model")),
+        esc(&s("data")),
+        esc(&s("split")),
+        j.get("frames").and_then(Value::as_u64).unwrap_or(0)
+    )?;
+    writeln!(html, "<table class=\"scores\"><tr><th></th><th>mIoU</th><th>mAcc</th><th>mIoU day</th><th>mIoU night</th></tr>")?;
+    writeln!(html, "{}", scores_row("all modalities", j))?;
+    for d in j
+        .get("dropped")
+        .and_then(Value::as_array)
+        .into_iter()
+        .flatten()
+    {
+        let label = format!(
+            "{} missing ({} fill)",
+            d.get("modality").and_then(Value::as_str).unwrap_or("?"),
+            d.get("fill").and_then(Value::as_str).unwrap_or("?")
+        );
+        writeln!(html, "{}", scores_row(&label, d))?;
+    }
+    writeln!(html, "</table><div class=\"charts\">")?;
+    let all = class_iou(Some(j));
+    let day = class_iou(j.get("day"));
+    let night = class_iou(j.get("night"));
+    let names: Vec<String> = j
+        .get("per_class")
+        .and_then(Value::as_array)
+        .map(|a| {
+            a.iter()
+                .filter_map(|c| c.get("name")?.as_str().map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default();
+    let rows: Vec<ClassRow> = if day.is_empty() && night.is_empty() {
+        names
+            .iter()
+            .map(|n| (n.clone(), all.get(n).copied().flatten(), None))
+            .collect()
+    } else {
+        names
+            .iter()
+            .map(|n| {
+                (
+                    n.clone(),
+                    day.get(n).copied().flatten(),
+                    night.get(n).copied().flatten(),
+                )
+            })
+            .collect()
+    };
+    if !rows.is_empty() {
+        let labels = if day.is_empty() && night.is_empty() {
+            ["all", ""]
+        } else {
+            ["day", "night"]
+        };
+        let svg = class_bars("Per-class IoU, %", &rows, labels)?;
+        writeln!(html, "{}", svg_img(&svg, "per-class IoU bars"))?;
+    }
+    if let (Some(names), Some(matrix)) = (j.get("class_names"), j.get("confusion")) {
+        let names: Vec<String> = serde_json::from_value(names.clone()).with_context(|| {
+            format!(
+                "{}: `class_names` is not a list of names",
+                eval.path.display()
+            )
+        })?;
+        let matrix: Vec<Vec<u64>> = serde_json::from_value(matrix.clone()).with_context(|| {
+            format!(
+                "{}: `confusion` is not a matrix of counts",
+                eval.path.display()
+            )
+        })?;
+        if matrix.len() != names.len() || matrix.iter().any(|r| r.len() != names.len()) {
+            bail!(
+                "{}: `confusion` is not {n}×{n} like `class_names`",
+                eval.path.display(),
+                n = names.len()
+            );
+        }
+        let svg = heat_map("Confusion matrix", &names, &matrix)?;
+        writeln!(html, "{}", svg_img(&svg, "confusion matrix heat map"))?;
+    }
+    writeln!(html, "</div></section>")?;
+    Ok(())
+}
+
+fn comparison_table(runs: &[Run], html: &mut String) -> Result<()> {
+    writeln!(html, "<section><h2>Side by side</h2><table class=\"compare\"><tr><th>run</th><th>model</th><th>epochs</th><th>last loss</th><th>best val mIoU</th><th>last val mIoU</th><th>day</th><th>night</th><th>images/s</th></tr>")?;
+    for run in runs {
+        let val = val_series(&run.log);
+        let loss = loss_series(&run.log);
+        let model = run
+            .config
+            .pointer("/model/network")
+            .or_else(|| run.config.get("model"))
+            .map(|v| v.as_str().map_or_else(|| v.to_string(), str::to_string))
+            .unwrap_or_else(|| "?".into());
+        let speed = run
+            .log
+            .last()
+            .and_then(|e| e.raw.get("images_per_s"))
+            .and_then(Value::as_f64)
+            .map_or("–".into(), |v| format!("{v:.1}"));
+        writeln!(
+            html,
+            "<tr><th>{}</th><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            esc(&run.label),
+            esc(&model),
+            run.log.len(),
+            last(&loss, "total").map_or("–".into(), |v| format!("{v:.4}")),
+            pct(best(&val, "miou")),
+            pct(last(&val, "miou")),
+            pct(last(&val, "miou_day")),
+            pct(last(&val, "miou_night")),
+            speed
+        )?;
+    }
+    writeln!(html, "</table></section>")?;
+    Ok(())
+}
+
+/// The prediction grid as PNG bytes, or why there is none.
+fn prediction_grid(args: &Args, runs: &[Run]) -> Result<Option<Vec<u8>>, String> {
+    if args.frames == 0 {
+        return Ok(None);
+    }
+    let with_weights: Vec<(&Run, PathBuf)> = runs
+        .iter()
+        .filter_map(|r| {
+            ["final.safetensors", "best.safetensors"]
+                .iter()
+                .map(|f| r.dir.join(f))
+                .find(|p| p.exists())
+                .map(|p| (r, p))
+        })
+        .collect();
+    if with_weights.is_empty() {
+        return Err("no run folder holds final.safetensors or best.safetensors".into());
+    }
+    let (root, split) = match &args.data {
+        Some(root) => (root.clone(), args.split.clone()),
+        None => {
+            let ds = &with_weights[0].0.config["dataset"];
+            let root = ds
+                .get("root")
+                .and_then(Value::as_str)
+                .ok_or("no --data and the run's config names no dataset root")?;
+            let split = ds
+                .get("val_split")
+                .and_then(Value::as_str)
+                .unwrap_or(&args.split);
+            (PathBuf::from(root), split.to_string())
+        }
+    };
+    if !root.exists() {
+        return Err(format!(
+            "dataset {} not found (give --data)",
+            root.display()
+        ));
+    }
+    let grid = (|| -> Result<Vec<u8>> {
+        let device =
+            rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
+        let (source, _) = super::eval::open_split(&root, &split)?;
+        let classes = source.class_set().clone();
+        let mut rows = None;
+        let mut columns = Vec::new();
+        for (run, weights) in &with_weights {
+            let cfg: rtf_models::ModelConfig = serde_json::from_value(run.config["model"].clone())
+                .with_context(|| {
+                    format!(
+                        "{}: `model` is not a network configuration",
+                        run.dir.join("config.json").display()
+                    )
+                })?;
+            let mut vs = tch::nn::VarStore::new(device);
+            let net = rtf_models::build(&vs.root(), &cfg)?;
+            rtf_models::weights::load_safetensors(&mut vs, weights)?;
+            let resize = run
+                .config
+                .get("resize")
+                .and_then(|r| serde_json::from_value(r.clone()).ok())
+                .flatten();
+            let rows = match &mut rows {
+                Some(rows) => rows,
+                None => rows.insert(rtf_eval::figure::rows_for(
+                    net.as_ref(),
+                    source.as_ref(),
+                    args.frames,
+                    resize,
+                    device,
+                )?),
+            };
+            let ids = rows
+                .iter()
+                .map(|row| rtf_eval::figure::predict_row(net.as_ref(), row, device))
+                .collect::<Result<Vec<_>, _>>()?;
+            columns.push(rtf_eval::figure::PredictionColumn {
+                title: run.label.clone(),
+                ids,
+            });
+        }
+        let image =
+            rtf_eval::figure::annotated_grid(rows.as_deref().unwrap_or(&[]), &columns, &classes);
+        let mut png = Vec::new();
+        image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+        Ok(png)
+    })();
+    grid.map(Some).map_err(|e| format!("{e:#}"))
+}
+
+const STYLE: &str = "body{font-family:sans-serif;margin:24px;color:#222;max-width:1300px}
+h1{margin-bottom:4px}h2{border-bottom:1px solid #ccc;padding-bottom:4px}
+table{border-collapse:collapse;margin:8px 0}td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}
+th{background:#f4f4f4;text-align:left}table.config td{text-align:left;font-family:monospace}
+.charts img{margin:6px;border:1px solid #eee;vertical-align:top}.path{color:#777;font-family:monospace}
+img.grid{max-width:100%;border:1px solid #eee}";
+
+pub fn run(args: Args) -> Result<()> {
+    let mut runs = Vec::new();
+    for dir in &args.runs {
+        runs.extend(load_runs(dir)?);
+    }
+    let evals = args
+        .evals
+        .iter()
+        .map(|p| load_eval(p))
+        .collect::<Result<Vec<_>>>()?;
+    let mut html = String::new();
+    writeln!(html, "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>rtf report</title><style>{STYLE}</style></head><body>")?;
+    writeln!(
+        html,
+        "<h1>rtf report</h1><p>{} run(s){}, written by rtf {}.</p>",
+        runs.len(),
+        if evals.is_empty() {
+            String::new()
+        } else {
+            format!(", {} evaluation(s)", evals.len())
+        },
+        env!("CARGO_PKG_VERSION")
+    )?;
+    if runs.len() > 1 {
+        comparison_table(&runs, &mut html)?;
+    }
+    for run in &runs {
+        run_section(run, &mut html)?;
+    }
+    for eval in &evals {
+        eval_section(eval, &mut html)?;
+    }
+    match prediction_grid(&args, &runs) {
+        Ok(Some(png)) => writeln!(
+            html,
+            "<section><h2>Predictions</h2>{}</section>",
+            img("image/png", &png, "prediction grid").replace("<img ", "<img class=\"grid\" ")
+        )?,
+        Ok(None) => {}
+        Err(why) => {
+            eprintln!("report: no prediction grid: {why}");
+            writeln!(
+                html,
+                "<section><h2>Predictions</h2><p>No prediction grid: {}</p></section>",
+                esc(&why)
+            )?;
+        }
+    }
+    writeln!(html, "</body></html>")?;
+    rtf_core::write_bytes_atomic(&args.out, html.as_bytes())
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    println!("report: {}", args.out.display());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn old_and_new_log_records_give_series() {
+        let log: Vec<Epoch> = [
+            serde_json::json!({"epoch": 1, "lr": 0.01, "train_loss": 2.0, "val_miou": 0.1}),
+            serde_json::json!({"epoch": 2, "lr": 0.01, "train_loss": 1.0, "losses": {"ce": 0.9},
+                               "lrs": {"seg": 0.01, "critic": 0.001},
+                               "val": {"miou": 0.2, "miou_day": 0.3, "miou_night": 0.1,
+                                       "per_class_iou_day": {"car": 0.5, "person": null},
+                                       "per_class_iou_night": {"car": 0.25}}}),
+        ]
+        .into_iter()
+        .map(|raw| Epoch {
+            epoch: raw["epoch"].as_f64().unwrap(),
+            raw,
+        })
+        .collect();
+        let loss = loss_series(&log);
+        assert_eq!(last(&loss, "total"), Some(1.0));
+        assert_eq!(last(&loss, "ce"), Some(0.9));
+        let lr = lr_series(&log);
+        assert_eq!(
+            lr.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>(),
+            ["critic", "lr", "seg"],
+            "sorted by name; the flat `lr` only where a record has no `lrs`"
+        );
+        let val = val_series(&log);
+        assert_eq!(best(&val, "miou"), Some(0.2));
+        assert_eq!(last(&val, "miou_night"), Some(0.1));
+        let classes = last_class_iou(&log).unwrap();
+        assert_eq!(classes[0], ("car".to_string(), Some(0.5), Some(0.25)));
+        assert_eq!(classes[1], ("person".to_string(), None, None));
+    }
+
+    #[test]
+    fn charts_are_svg_with_their_titles() {
+        let series = vec![("total".to_string(), vec![(1.0, 2.0), (2.0, 1.0)])];
+        let svg = line_chart("Training loss", "loss", &series, false).unwrap();
+        assert!(
+            svg.starts_with("<svg") && svg.contains("Training loss") && svg.contains("<polyline")
+        );
+        let bars = class_bars(
+            "IoU",
+            &[("car".into(), Some(0.5), Some(0.25))],
+            ["day", "night"],
+        )
+        .unwrap();
+        assert!(bars.contains("car 50.0/25.0"));
+        let heat = heat_map(
+            "Confusion",
+            &["a".into(), "b".into()],
+            &[vec![3, 1], vec![0, 4]],
+        )
+        .unwrap();
+        assert!(heat.contains("Confusion") && heat.matches("<rect").count() >= 4);
+    }
+}
