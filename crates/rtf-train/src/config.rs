@@ -48,6 +48,9 @@ pub struct TrainConfig {
     /// (HeatNet's day/night mIoU on Freiburg, mIoU on MF).
     #[serde(default)]
     pub select_by: Option<SelectMetric>,
+    /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub data_fingerprint: Option<rtf_data::Fingerprint>,
 }
 
 /// Which input channels a network sees; the others are set to 0 in the network's input space
@@ -737,6 +740,7 @@ impl TrainConfig {
             inputs: Modality::RgbT,
             init_from: None,
             select_by: None,
+            data_fingerprint: None,
         }
     }
 

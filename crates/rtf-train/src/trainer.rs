@@ -373,7 +373,26 @@ pub fn train_until(
         )));
     }
     procedure::check_teachers(cfg)?;
-    rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), cfg)?;
+    // Which data the run used: its content hash, in config.json (a resume on changed data says so).
+    let mut cfg_written = cfg.clone();
+    let root = match &cfg.dataset {
+        DatasetConfig::Mf { root, .. } | DatasetConfig::Freiburg { root, .. } => root,
+    };
+    let fingerprint = rtf_data::fingerprint(root)?;
+    if let Some(before) = cfg
+        .data_fingerprint
+        .as_ref()
+        .filter(|f| f.hash != fingerprint.hash)
+    {
+        eprintln!(
+            "warning: {} changed since this run started (data hash {} then, {} now)",
+            root.display(),
+            &before.hash[..12.min(before.hash.len())],
+            &fingerprint.hash[..12.min(fingerprint.hash.len())]
+        );
+    }
+    cfg_written.data_fingerprint = Some(fingerprint);
+    rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &cfg_written)?;
 
     tch::manual_seed(cfg.seed as i64);
     let mut procedure = procedure::build(cfg, sources.ignore_id, device)?;
@@ -441,6 +460,8 @@ pub fn train_until(
         )?;
         *stream = Arc::new(crate::label_cache::CachedLabels::new(stream.clone(), dir));
     }
+    let mut tb = crate::tensorboard::TbWriter::create(run_dir)
+        .map_err(|e| run_error(&run_dir.join("tb"), format!("TensorBoard: {e}")))?;
     let main = loader(cfg, sources.main.clone(), cfg.seed, input);
     // The night stream has its own order, and cycles when it is the shorter one.
     let night = sources.night.clone().map(|s| {
@@ -618,6 +639,13 @@ pub fn train_until(
             .push(serde_json::to_value(&record).expect("record serialises"));
         save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
         rundir::append_log(run_dir, &record)?;
+        // TensorBoard: every scalar of the record (loss terms, rates, validation, critic).
+        let written = tb
+            .record(&serde_json::to_value(&record).expect("record serialises"))
+            .and_then(|_| tb.flush());
+        if let Err(e) = written {
+            return Err(run_error(&run_dir.join("tb"), format!("TensorBoard: {e}")));
+        }
         on_epoch(&record);
         records.push(record);
         if stop.load(Ordering::Relaxed) && state.epochs_done < cfg.epochs {
