@@ -97,6 +97,11 @@ fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole()
         record["metrics"]["critic_acc_night"].is_number(),
         "{record}"
     );
+    // TensorBoard events beside the log, and the data's fingerprint in each stage's config.
+    let events = std::fs::read_dir(run.join("v5/tb")).unwrap().count();
+    assert!(events >= 1, "an event file in v5/tb");
+    let stage = json_file(&run.join("v5/config.json"));
+    assert!(stage["data_fingerprint"]["hash"].is_string(), "{stage}");
     assert!(record["val"]["miou_heatnet"].is_number() || record["val"]["miou_heatnet"].is_null());
     // The same folder again without --resume: refused. With it: nothing left to do.
     let err = fails(&args);
