@@ -303,6 +303,32 @@ fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("drawing a chart: {e:?}")
 }
 
+/// plotters lays text out with a registered TrueType font (the workspace builds it with
+/// `ab_glyph` for the calibration plots): register the system's DejaVu Sans as "sans-serif",
+/// once.
+fn register_font() -> Result<()> {
+    static REGISTERED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    REGISTERED
+        .get_or_init(|| {
+            let font = [
+                "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+                "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+                "/usr/share/fonts/TTF/DejaVuSans.ttf",
+            ]
+            .iter()
+            .find_map(|p| std::fs::read(p).ok())
+            .ok_or("no TrueType font for the charts (install DejaVu Sans: fonts-dejavu-core)")?;
+            plotters::style::register_font(
+                "sans-serif",
+                plotters::style::FontStyle::Normal,
+                Box::leak(font.into_boxed_slice()),
+            )
+            .map_err(|_| "cannot register DejaVu Sans for the charts".to_string())
+        })
+        .clone()
+        .map_err(anyhow::Error::msg)
+}
+
 fn colour(i: usize) -> RGBColor {
     const C: [RGBColor; 8] = [
         RGBColor(31, 119, 180),
@@ -319,6 +345,7 @@ fn colour(i: usize) -> RGBColor {
 
 /// A line chart of `series` against epoch.
 fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result<String> {
+    register_font()?;
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (W, H)).into_drawing_area();
@@ -409,6 +436,7 @@ fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result
 
 /// Horizontal bars of per-class IoU, day and night side by side (names left of the bars).
 fn class_bars(title: &str, rows: &[ClassRow], labels: [&str; 2]) -> Result<String> {
+    register_font()?;
     let n = rows.len().max(1);
     let height = 60 + 26 * n as u32;
     let mut svg = String::new();
@@ -498,6 +526,7 @@ fn class_bars(title: &str, rows: &[ClassRow], labels: [&str; 2]) -> Result<Strin
 
 /// Row-normalised confusion matrix as a heat map (rows = truth, columns = prediction).
 fn heat_map(title: &str, names: &[String], counts: &[Vec<u64>]) -> Result<String> {
+    register_font()?;
     let n = names.len().max(1) as u32;
     let cell = (420 / n).clamp(18, 40);
     let (left, top) = (110u32, 40u32);
