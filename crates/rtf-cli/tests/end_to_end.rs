@@ -2,7 +2,6 @@
 //! synthetic dataset, checking what each step writes; and the CLI's bad-input contract.
 
 use std::path::Path;
-use std::process::Command;
 
 mod common;
 use common::*;
@@ -266,33 +265,7 @@ fn ctrl_c_checkpoints_and_resume_finishes_the_run() {
     let dir = tempfile::tempdir().unwrap();
     let (data, run) = (dir.path().join("data"), dir.path().join("run"));
     synth_mf(&data, "12", "4", "32x32");
-    let child = Command::new(env!("CARGO_BIN_EXE_rtf"))
-        .args([
-            "train",
-            "--data",
-            s(&data),
-            "--out",
-            s(&run),
-            "--epochs",
-            "500",
-            "--batch-size",
-            "2",
-            "--val-split",
-            "none",
-        ])
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // config.json is written after the handler is installed and before the first step.
-    let started = std::time::Instant::now();
-    while !run.join("config.json").exists() {
-        assert!(started.elapsed().as_secs() < 60, "training did not start");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    std::thread::sleep(std::time::Duration::from_millis(300));
-    // SAFETY: sends SIGINT to our own child process.
-    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
-    let out = child.wait_with_output().unwrap();
+    let out = train_then_signal(&data, &run, libc::SIGINT);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{stderr}");
     assert!(stderr.contains("--resume"), "{stderr}");

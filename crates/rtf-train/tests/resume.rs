@@ -249,3 +249,58 @@ fn backbone_weights_are_loaded_before_the_first_step() {
     let err = rtf_train::train(&missing, &tmp.path().join("run2"), false, &mut |_| {}).unwrap_err();
     assert!(err.to_string().contains("nope.safetensors"), "{err}");
 }
+
+#[test]
+fn a_log_line_lost_to_a_kill_comes_back_on_resume() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    write_dataset(&data);
+    let run = tmp.path().join("run");
+    rtf_train::train(&config(&data, 1), &run, false, &mut |_| {}).unwrap();
+    // A kill between the checkpoint's rename and the log's append: the line is missing.
+    std::fs::write(run.join("log.jsonl"), "").unwrap();
+    rtf_train::train(&config(&data, 2), &run, true, &mut |_| {}).unwrap();
+    let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
+    let epochs: Vec<u64> = log
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(epochs, [0, 1]);
+}
+
+#[test]
+fn a_diverging_run_stops_and_never_writes_non_finite_weights() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    write_dataset(&data);
+    let mut cfg = config(&data, 3);
+    cfg.optimizer.lr = 1e12;
+    let run = tmp.path().join("run");
+    let err = rtf_train::train(&cfg, &run, false, &mut |_| {}).unwrap_err();
+    assert!(err.to_string().contains("diverged"), "{err}");
+    for file in [
+        "checkpoint.safetensors",
+        "best.safetensors",
+        "final.safetensors",
+    ] {
+        let path = run.join(file);
+        if !path.exists() {
+            continue;
+        }
+        let bytes = std::fs::read(&path).unwrap();
+        let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        for (name, view) in st.tensors() {
+            let finite = view
+                .data()
+                .chunks_exact(4)
+                .all(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite());
+            assert!(finite, "{file}: `{name}` holds a non-finite value");
+        }
+    }
+}

@@ -91,3 +91,35 @@ pub fn short_train<'a>(
     args.extend_from_slice(extra);
     args
 }
+
+/// Starts a long `rtf train` on `data` into `run`, waits until it has written its config
+/// (signal handlers are installed by then), lets it take a step, sends `signal`, and returns
+/// its output.
+pub fn train_then_signal(data: &Path, run: &Path, signal: i32) -> Output {
+    let child = Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args([
+            "train",
+            "--data",
+            s(data),
+            "--out",
+            s(run),
+            "--epochs",
+            "500",
+            "--batch-size",
+            "2",
+            "--val-split",
+            "none",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    while !run.join("config.json").exists() {
+        assert!(started.elapsed().as_secs() < 60, "training did not start");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    // SAFETY: sends a signal to our own child process.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
+    child.wait_with_output().unwrap()
+}
