@@ -111,6 +111,7 @@ pub fn fingerprint(root: &Path) -> Result<Fingerprint, DataError> {
             [
                 ("test", FreiburgPart::TestLayout),
                 ("train", FreiburgPart::TrainTree),
+                ("val", FreiburgPart::Validation),
             ]
             .into_iter()
             .map(|(name, part)| {
@@ -276,7 +277,7 @@ mod tests {
         let f = fingerprint(tmp.path()).unwrap();
         assert_eq!(f.format, DatasetFormat::Freiburg);
         let names: Vec<&str> = f.splits.iter().map(|s| s.name.as_str()).collect();
-        assert_eq!(names, ["test", "train"]);
+        assert_eq!(names, ["test", "train", "val"]);
         assert_eq!(f.splits.iter().map(|s| s.frames).sum::<usize>(), 8);
     }
 

@@ -747,7 +747,10 @@ mod tests {
         );
         let tree = all.clone().part(FreiburgPart::TrainTree);
         let test_layout = all.clone().part(FreiburgPart::TestLayout);
-        assert_eq!((tree.len(), test_layout.len()), (6, 2));
+        let val = all.clone().part(FreiburgPart::Validation);
+        // Validation frames (day and night, labelled) sit in `val/`, apart from test.
+        assert_eq!((tree.len(), val.len(), test_layout.len()), (4, 2, 2));
+        assert!((0..val.len()).all(|i| val.is_labelled(i)));
         assert!((0..tree.len()).all(|i| tree.frame_name(i).starts_with("train")));
         assert!((0..test_layout.len()).all(|i| test_layout.is_labelled(i)));
         let test = FreiburgSplit::open(
@@ -810,7 +813,8 @@ mod tests {
             },
         );
         let batch = loader.epoch(0).next().unwrap().unwrap();
-        assert_eq!(batch.input.size(), [6, 4, 32, 64]);
+        // The 4 frames of the training tree (val and test frames live in their own layouts).
+        assert_eq!(batch.input.size(), [4, 4, 32, 64]);
         let (lo, hi) = (
             batch.input.min().double_value(&[]),
             batch.input.max().double_value(&[]),

@@ -48,6 +48,10 @@ pub struct TrainConfig {
     /// (HeatNet's day/night mIoU on Freiburg, mIoU on MF).
     #[serde(default)]
     pub select_by: Option<SelectMetric>,
+    /// Every this many epochs a prediction grid of validation frames goes to TensorBoard
+    /// (`val/predictions`); None or 0 = never.
+    #[serde(default)]
+    pub tb_images_every: Option<usize>,
     /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub data_fingerprint: Option<rtf_data::Fingerprint>,
@@ -740,6 +744,7 @@ impl TrainConfig {
             inputs: Modality::RgbT,
             init_from: None,
             select_by: None,
+            tb_images_every: None,
             data_fingerprint: None,
         }
     }

@@ -639,9 +639,20 @@ pub fn train_until(
             .push(serde_json::to_value(&record).expect("record serialises"));
         save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
         rundir::append_log(run_dir, &record)?;
-        // TensorBoard: every scalar of the record (loss terms, rates, validation, critic).
+        // TensorBoard: every scalar of the record (loss terms, rates, validation, critic), and
+        // every N epochs a prediction grid of validation frames.
+        let grid = match (&sources.val, cfg.tb_images_every) {
+            (Some(val), Some(every)) if every > 0 && (epoch + 1) % every == 0 => Some(
+                prediction_grid_png(procedure.student(), val.as_ref(), cfg, device)?,
+            ),
+            _ => None,
+        };
         let written = tb
             .record(&serde_json::to_value(&record).expect("record serialises"))
+            .and_then(|_| match &grid {
+                Some(png) => tb.image_png("val/predictions", epoch as i64, png),
+                None => Ok(()),
+            })
             .and_then(|_| tb.flush());
         if let Err(e) = written {
             return Err(run_error(&run_dir.join("tb"), format!("TensorBoard: {e}")));
@@ -670,6 +681,26 @@ pub fn train_until(
         records,
         state,
     })
+}
+
+/// A titled grid (RGB | thermal | truth | prediction) of four validation frames, as PNG.
+fn prediction_grid_png(
+    student: &procedure::Student,
+    val: &dyn FrameSource,
+    cfg: &TrainConfig,
+    device: tch::Device,
+) -> Result<Vec<u8>, TrainError> {
+    let rows = rtf_eval::figure::rows_for(&student.net, val, 4, cfg.resize, device)?;
+    let column = rtf_eval::figure::PredictionColumn {
+        title: cfg.model.name(),
+        ids: rows.iter().map(|r| r.prediction.clone()).collect(),
+    };
+    let grid = rtf_eval::figure::annotated_grid(&rows, &[column], val.class_set());
+    let mut png = Vec::new();
+    image::DynamicImage::ImageRgb8(grid)
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .map_err(|e| TrainError::Config(format!("encoding the prediction grid: {e}")))?;
+    Ok(png)
 }
 
 /// Refuses to keep weights with a non-finite value (a diverged run would otherwise leave Inf

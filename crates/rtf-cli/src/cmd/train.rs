@@ -132,6 +132,9 @@ pub struct Args {
     /// cpu, cuda or cuda:N.
     #[arg(long)]
     pub device: Option<String>,
+    /// Every N epochs, a prediction grid of validation frames in TensorBoard (0: never).
+    #[arg(long, default_value_t = 5)]
+    pub tb_images_every: usize,
     /// ImageNet ResNet weights (torchvision names, safetensors; see `cargo xtask convert-pth`)
     /// for the encoders of RTFNet and the ResNet-based baselines.
     #[arg(long)]
@@ -489,6 +492,7 @@ fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Res
     if args.select_by.is_some() {
         cfg.select_by = args.select_by;
     }
+    cfg.tb_images_every = Some(args.tb_images_every);
     match &mut cfg.procedure {
         Procedure::Supervised => {}
         Procedure::TeacherStudent { targets, .. } => {
