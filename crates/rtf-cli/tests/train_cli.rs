@@ -72,6 +72,8 @@ fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole()
         "64x32",
         "--workers",
         "1",
+        "--tb-images-every",
+        "1",
     ];
     let stdout = ok(&args);
     assert!(stdout.trim().ends_with("final.safetensors"), "{stdout}");
