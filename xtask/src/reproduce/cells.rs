@@ -264,7 +264,25 @@ pub fn run(ctx: &Context, table: &Table, cell: &Cell, seed: usize) -> Result<Out
             bench(ctx, cell, &dir)?;
         }
     }
+    if ctx.budget == Budget::Smoke {
+        // Smoke checks the pipeline, not the weights: a finished cell keeps its logs and
+        // scores but not its weights and checkpoints (RTFNet-152's alone take gigabytes).
+        remove_weights(&dir)?;
+    }
     Ok(Outcome::Ran)
+}
+
+/// Removes every `.safetensors` file under `dir` (stage folders included).
+fn remove_weights(dir: &Path) -> Result<()> {
+    for entry in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
+        let path = entry?.path();
+        if path.is_dir() {
+            remove_weights(&path)?;
+        } else if path.extension().is_some_and(|e| e == "safetensors") {
+            std::fs::remove_file(&path).with_context(|| format!("removing {}", path.display()))?;
+        }
+    }
+    Ok(())
 }
 
 /// Times the cell's network once per cell (`<cell>/bench.json`, not per seed).
