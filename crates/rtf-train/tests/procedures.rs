@@ -3,6 +3,8 @@
 //! stage 2), each step updates only its own network, label-free procedures never open a night
 //! label, and bad teachers or configs are refused before anything is written.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
@@ -19,36 +21,9 @@ static TORCH_RNG: Mutex<()> = Mutex::new(());
 /// A tiny MF-layout dataset, 32×32, day and night frames ("hot pixel = person"); night label
 /// files are garbage, so any attempt to decode one fails the run.
 fn write_dataset(root: &Path) {
-    std::fs::create_dir_all(root.join("images")).unwrap();
-    std::fs::create_dir_all(root.join("labels")).unwrap();
-    let mut state = 777u32;
-    let mut next = move || {
-        state = state.wrapping_mul(1664525).wrapping_add(1013904223);
-        (state >> 24) as u8
-    };
-    let names: Vec<String> = (0..10)
-        .map(|i| format!("{i:05}{}", if i % 2 == 0 { 'D' } else { 'N' }))
-        .collect();
-    for name in &names {
-        let mut image = image::RgbaImage::new(32, 32);
-        let mut label = image::GrayImage::new(32, 32);
-        for (x, y, p) in image.enumerate_pixels_mut() {
-            *p = image::Rgba([next(), next(), next(), next()]);
-            label.put_pixel(x, y, image::Luma([if p.0[3] > 128 { 2 } else { 0 }]));
-        }
-        image
-            .save(root.join("images").join(format!("{name}.png")))
-            .unwrap();
-        let label_path = root.join("labels").join(format!("{name}.png"));
-        match name.ends_with('N') {
-            true => {
-                std::fs::write(&label_path, b"not a png: night labels must not be read").unwrap()
-            }
-            false => label.save(&label_path).unwrap(),
-        }
-    }
+    let names = common::write_frames(root, 10, 777, true);
     std::fs::write(root.join("train.txt"), names[..8].join("\n")).unwrap();
-    // Validation and test keep real labels for both day and night.
+    // Validation keeps real labels for both day and night.
     std::fs::write(root.join("val.txt"), "00008D").unwrap();
 }
 

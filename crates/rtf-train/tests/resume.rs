@@ -1,5 +1,7 @@
 //! A run stopped after one epoch and resumed ends bit-identical to an uninterrupted run.
 
+mod common;
+
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::Mutex;
@@ -8,30 +10,7 @@ use rtf_train::{DatasetConfig, OptimizerConfig, TrainConfig};
 
 /// A tiny MF-layout dataset: random RGBA frames whose label is "hot pixel = person".
 fn write_dataset(root: &Path) {
-    std::fs::create_dir_all(root.join("images")).unwrap();
-    std::fs::create_dir_all(root.join("labels")).unwrap();
-    let mut state = 12345u32;
-    let mut next = move || {
-        state = state.wrapping_mul(1664525).wrapping_add(1013904223);
-        (state >> 24) as u8
-    };
-    let names: Vec<String> = (0..6)
-        .map(|i| format!("{i:05}{}", if i % 2 == 0 { 'D' } else { 'N' }))
-        .collect();
-    for name in &names {
-        let mut image = image::RgbaImage::new(32, 32);
-        let mut label = image::GrayImage::new(32, 32);
-        for (x, y, p) in image.enumerate_pixels_mut() {
-            *p = image::Rgba([next(), next(), next(), next()]);
-            label.put_pixel(x, y, image::Luma([if p.0[3] > 128 { 2 } else { 0 }]));
-        }
-        image
-            .save(root.join("images").join(format!("{name}.png")))
-            .unwrap();
-        label
-            .save(root.join("labels").join(format!("{name}.png")))
-            .unwrap();
-    }
+    let names = common::write_frames(root, 6, 12345, false);
     std::fs::write(root.join("train.txt"), names[..4].join("\n")).unwrap();
     std::fs::write(root.join("val.txt"), names[4..].join("\n")).unwrap();
 }

@@ -1,0 +1,43 @@
+//! The tiny dataset the training tests share.
+
+use std::path::Path;
+
+/// Writes `count` random 32×32 MF-layout frames (RGBA, thermal in alpha; label "hot pixel =
+/// person"), even indices day (`D`), odd night (`N`), from `seed`; returns their names. With
+/// `undecodable_night_labels` the night label files are not PNGs, so a run that decodes one
+/// fails. The caller writes the split files.
+pub fn write_frames(
+    root: &Path,
+    count: usize,
+    seed: u32,
+    undecodable_night_labels: bool,
+) -> Vec<String> {
+    std::fs::create_dir_all(root.join("images")).unwrap();
+    std::fs::create_dir_all(root.join("labels")).unwrap();
+    let mut state = seed;
+    let mut next = move || {
+        state = state.wrapping_mul(1664525).wrapping_add(1013904223);
+        (state >> 24) as u8
+    };
+    let names: Vec<String> = (0..count)
+        .map(|i| format!("{i:05}{}", if i % 2 == 0 { 'D' } else { 'N' }))
+        .collect();
+    for name in &names {
+        let mut image = image::RgbaImage::new(32, 32);
+        let mut label = image::GrayImage::new(32, 32);
+        for (x, y, p) in image.enumerate_pixels_mut() {
+            *p = image::Rgba([next(), next(), next(), next()]);
+            label.put_pixel(x, y, image::Luma([if p.0[3] > 128 { 2 } else { 0 }]));
+        }
+        image
+            .save(root.join("images").join(format!("{name}.png")))
+            .unwrap();
+        let label_path = root.join("labels").join(format!("{name}.png"));
+        if undecodable_night_labels && name.ends_with('N') {
+            std::fs::write(&label_path, b"not a png: night labels must not be read").unwrap();
+        } else {
+            label.save(&label_path).unwrap();
+        }
+    }
+    names
+}
