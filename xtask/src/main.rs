@@ -86,6 +86,11 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
     setup::ensure_libtorch(root)?;
     let mut args = vec!["test", "--workspace", "--release"];
     args.extend(extra.iter().map(String::as_str));
+    // The ONNX export check (PyTorch exporter + onnxruntime, which `setup` installs) runs in
+    // the whole suite; a plain `cargo test` skips it (about 40 s).
+    if std::env::var_os("RTF_TEST_ONNX").is_none() {
+        std::env::set_var("RTF_TEST_ONNX", "1");
+    }
     run(root, "cargo", &args)?;
     // Issue 11: every table's pipeline end to end on a tiny budget (files and JSON schema are
     // checked; no number is asserted). Skipped when the suite is filtered.

@@ -334,8 +334,22 @@ mod tests {
         assert!(err.to_string().contains("epoch"), "{err}");
     }
 
-    fn venv_python() -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python")
+    /// The folder as TensorBoard's own reader sees it (`scripts/tb_read.py` in the .venv).
+    fn read_back(tb: &Path) -> Value {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let python = root.join(".venv/bin/python");
+        let output = Command::new(&python)
+            .arg(root.join("scripts/tb_read.py"))
+            .arg(tb)
+            .output()
+            .unwrap_or_else(|e| panic!("{}: {e}; run `cargo xtask setup`", python.display()));
+        assert!(
+            output.status.success(),
+            "TensorBoard's reader failed (is `tensorboard` in .venv? `cargo xtask setup` \
+             installs it): {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        serde_json::from_slice(&output.stdout).unwrap()
     }
 
     /// Writes an old-schema and a new-schema run across two writers (a resume), then reads
@@ -362,31 +376,7 @@ mod tests {
         let files = std::fs::read_dir(dir.path().join(TB_DIR)).unwrap().count();
         assert_eq!(files, 2, "one event file per writer");
 
-        let python = venv_python();
-        let script = r#"
-import json, sys
-from tensorboard.backend.event_processing import event_accumulator as ea
-acc = ea.EventAccumulator(sys.argv[1], size_guidance={ea.SCALARS: 0, ea.IMAGES: 0})
-acc.Reload()
-tags = acc.Tags()
-out = {"scalars": {t: [[e.step, e.value] for e in acc.Scalars(t)] for t in tags["scalars"]},
-       "images": {t: [[e.step, e.width, e.height, len(e.encoded_image_string)]
-                      for e in acc.Images(t)] for t in tags["images"]}}
-print(json.dumps(out))
-"#;
-        let output = Command::new(&python)
-            .arg("-c")
-            .arg(script)
-            .arg(dir.path().join(TB_DIR))
-            .output()
-            .unwrap_or_else(|e| panic!("{}: {e}; run `cargo xtask setup`", python.display()));
-        assert!(
-            output.status.success(),
-            "TensorBoard's reader failed (is `tensorboard` in .venv? `cargo xtask setup` \
-             installs it): {}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-        let read: Value = serde_json::from_slice(&output.stdout).unwrap();
+        let read = read_back(&dir.path().join(TB_DIR));
 
         let mut expected: BTreeMap<String, Vec<(i64, f64)>> = BTreeMap::new();
         for r in &records {
