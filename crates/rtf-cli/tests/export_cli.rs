@@ -39,7 +39,7 @@ fn random_weights(dir: &Path, model: &str, classes: i64) -> PathBuf {
         }
     });
     let path = dir.join(format!("{model}.safetensors"));
-    rtf_models::weights::save_safetensors(&vs, &cfg, &path).unwrap();
+    rtf_models::weights::save_safetensors(&vs, &cfg, rtf_models::Modality::RgbT, &path).unwrap();
     path
 }
 
@@ -180,6 +180,8 @@ fn published_mfnet_on_a_real_frame_matches_in_python() {
     assert!(delta <= 1e-4, "max |delta| {delta}");
     assert_eq!(meta["class_names"][2], "person");
     assert_eq!(meta["input"]["convention"]["kind"], "unit_range");
+    // Published weights carry no inputs record: all four channels.
+    assert_eq!(meta["input"]["sees"], "rgb_t");
     assert!(meta["input"]["scaling"]
         .as_str()
         .unwrap()

@@ -282,3 +282,95 @@ fn tensorboard_matches_log(run: &std::path::Path) {
         "a prediction grid image: {read}"
     );
 }
+
+/// An RGB-only network carries its inputs in its weights: `rtf eval` and `rtf predict` mask
+/// the thermal channel without being told, and an `--inputs` that contradicts the file is
+/// refused rather than scored.
+#[test]
+fn a_network_trained_on_one_modality_is_evaluated_on_it_without_a_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, run) = (dir.path().join("data"), dir.path().join("rgb"));
+    synth_mf(&data, "8", "3", "64x48");
+    ok(&short_train(&data, &run, "2", &["--inputs", "rgb"]));
+    let weights = run.join("final.safetensors");
+    let eval = |extra: &[&str], json: &str| -> serde_json::Value {
+        let path = dir.path().join(json);
+        let mut args = vec![
+            "eval",
+            "--model",
+            "mfnet",
+            "--weights",
+            s(&weights),
+            "--data",
+            s(&data),
+            "--split",
+            "test",
+            "--json",
+            s(&path),
+        ];
+        args.extend_from_slice(extra);
+        ok(&args);
+        json_file(&path)
+    };
+    let implicit = eval(&[], "implicit.json");
+    let explicit = eval(&["--inputs", "rgb"], "explicit.json");
+    assert_eq!(implicit["inputs"], "rgb");
+    assert_eq!(implicit["miou"], explicit["miou"]);
+    assert_eq!(implicit["confusion"], explicit["confusion"]);
+    // Forced onto all four channels it is another (wrong) measurement: refused by default.
+    let err = fails(&[
+        "eval",
+        "--model",
+        "mfnet",
+        "--weights",
+        s(&weights),
+        "--data",
+        s(&data),
+        "--inputs",
+        "rgb_t",
+    ]);
+    assert!(
+        err.contains("final.safetensors") && err.contains("trained on `rgb` inputs"),
+        "{err}"
+    );
+    // Changing the thermal channel does not change an RGB-only network's prediction.
+    let frame = std::fs::read_dir(data.join("images"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .min()
+        .unwrap();
+    let mut image = image::open(&frame).unwrap().to_rgba8();
+    let predict = |input: &std::path::Path, out: &str| -> Vec<u8> {
+        let out = dir.path().join(out);
+        ok(&[
+            "predict",
+            "--model",
+            "mfnet",
+            "--weights",
+            s(&weights),
+            "--out",
+            s(&out),
+            s(input),
+        ]);
+        // Every file predict wrote (class ids, colours), in name order.
+        let mut files: Vec<_> = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        files.sort();
+        files
+            .iter()
+            .flat_map(|p| image::open(p).unwrap().into_bytes())
+            .collect()
+    };
+    let first = predict(&frame, "pred-a");
+    for px in image.pixels_mut() {
+        px.0[3] = 255 - px.0[3];
+    }
+    let flipped = dir.path().join("flipped.png");
+    image.save(&flipped).unwrap();
+    assert!(
+        first == predict(&flipped, "pred-b"),
+        "the thermal channel changed an RGB-only network's prediction"
+    );
+}

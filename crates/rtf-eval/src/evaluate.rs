@@ -78,23 +78,9 @@ impl Default for EvalOptions {
     }
 }
 
-/// A modality of the 4-channel input (R, G, B, T).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Modality {
-    Rgb,
-    Thermal,
-}
-
-impl Modality {
-    /// (first channel, channel count) in the network input.
-    pub fn channels(self) -> (usize, usize) {
-        match self {
-            Self::Rgb => (0, 3),
-            Self::Thermal => (3, 1),
-        }
-    }
-}
+/// A modality of the 4-channel input (R, G, B, T): the one type the training masks
+/// (`--inputs`) and the robustness drops (`--drop`) share.
+pub use rtf_models::Modality;
 
 /// What replaces a dropped modality.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -11,6 +11,7 @@ pub mod baselines;
 pub mod error;
 pub mod fast;
 pub mod heatnet;
+pub mod inputs;
 pub mod kernels;
 pub mod layers;
 pub mod mfnet;
@@ -23,6 +24,7 @@ use serde::{Deserialize, Serialize};
 use tch::nn;
 
 pub use error::{ModelError, ShapeMismatch};
+pub use inputs::{masked, Masked, Modality};
 
 /// What every segmentation network offers beyond its forward pass.
 pub trait Network: nn::ModuleT {

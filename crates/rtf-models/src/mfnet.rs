@@ -802,8 +802,13 @@ mod tests {
         // The NCHW layout gives the same result, in NCHW.
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("w.safetensors");
-        weights::save_safetensors(&vs, &crate::ModelConfig::Mfnet(Config::reference(9)), &file)
-            .unwrap();
+        weights::save_safetensors(
+            &vs,
+            &crate::ModelConfig::Mfnet(Config::reference(9)),
+            crate::Modality::RgbT,
+            &file,
+        )
+        .unwrap();
         let (mut vs2, net2) = build(&Config::reference(9));
         weights::load_safetensors(&mut vs2, &file).unwrap();
         let nchw =

@@ -500,6 +500,7 @@ mod tests {
         weights::save_safetensors(
             &vs_full,
             &crate::ModelConfig::Rtfnet(Config::new(18, 9, Variant::Full)),
+            crate::Modality::RgbT,
             &file,
         )
         .unwrap();

@@ -10,9 +10,11 @@
 //! Files written by [`save_safetensors`] carry the network in the safetensors header's
 //! `__metadata__` (format: <https://github.com/huggingface/safetensors#format>): `rtf.format`
 //! ([`FORMAT_VERSION`]), `rtf.model` (the canonical name) and `rtf.config` (the
-//! [`ModelConfig`] as JSON). [`load_checked`] compares it with the network asked for, because
+//! [`ModelConfig`] as JSON) and `rtf.inputs` (the [`Modality`] the network was trained to
+//! see). [`load_checked`] compares the configuration with the network asked for, because
 //! variants with the same tensor names (`mfnet`, `mfnet-f`, `-h`, `-j`) would otherwise load
-//! each other's weights silently. Files without it (converted published weights, older runs)
+//! each other's weights silently, and returns the inputs, because an RGB-only network scored
+//! on RGB-T input gives a wrong score just as silently. Files without it (converted published weights, older runs)
 //! load with [`Provenance::Unchecked`], for the caller to warn about.
 //!
 //! Library errors of the `safetensors` crate are translated into what is wrong with the file
@@ -26,6 +28,7 @@ use tch::nn::VarStore;
 use tch::{Kind, Tensor};
 
 use crate::error::{ModelError, ShapeMismatch};
+use crate::inputs::Modality;
 use crate::ModelConfig;
 
 /// Metadata key of the weights format version.
@@ -34,6 +37,8 @@ pub const FORMAT_KEY: &str = "rtf.format";
 pub const MODEL_KEY: &str = "rtf.model";
 /// Metadata key of the model configuration (JSON of [`ModelConfig`]).
 pub const CONFIG_KEY: &str = "rtf.config";
+/// Metadata key of the inputs the network sees ([`Modality::name`]; absent = unknown).
+pub const INPUTS_KEY: &str = "rtf.inputs";
 /// The weights format this build writes and reads.
 pub const FORMAT_VERSION: &str = "1";
 
@@ -64,11 +69,57 @@ impl WeightsFile {
                 ),
             })
     }
+
+    /// The inputs recorded by [`save_safetensors`], if the file has them.
+    pub fn saved_inputs(&self, path: &Path) -> Result<Option<Modality>, ModelError> {
+        let Some(name) = self.metadata.get(INPUTS_KEY) else {
+            return Ok(None);
+        };
+        Modality::parse(name)
+            .map(Some)
+            .map_err(|e| ModelError::Read {
+                path: path.to_path_buf(),
+                message: format!("metadata `{INPUTS_KEY}`: {e}"),
+            })
+    }
 }
 
 /// Reads every tensor of a safetensors file, in file order.
 pub fn read_safetensors(path: &Path) -> Result<Vec<(String, Tensor)>, ModelError> {
     Ok(read_weights_file(path)?.tensors)
+}
+
+/// Reads only the header metadata of a safetensors file (the tensors list comes back empty):
+/// what a caller needs to learn which network a file holds without reading gigabytes. A file
+/// whose header does not parse is read whole, for [`read_weights_file`]'s error.
+pub fn read_weights_metadata(path: &Path) -> Result<WeightsFile, ModelError> {
+    use std::io::Read;
+    let header = || -> Option<HashMap<String, String>> {
+        let mut file = std::fs::File::open(path).ok()?;
+        let mut len = [0u8; 8];
+        file.read_exact(&mut len).ok()?;
+        let len = u64::from_le_bytes(len);
+        if len > file.metadata().ok()?.len().saturating_sub(8) {
+            return None;
+        }
+        let mut json = vec![0u8; usize::try_from(len).ok()?];
+        file.read_exact(&mut json).ok()?;
+        let header: serde_json::Value = serde_json::from_slice(&json).ok()?;
+        match header.get("__metadata__") {
+            None => Some(HashMap::new()),
+            Some(meta) => serde_json::from_value(meta.clone()).ok(),
+        }
+    };
+    match header() {
+        Some(metadata) => Ok(WeightsFile {
+            tensors: Vec::new(),
+            metadata,
+        }),
+        None => read_weights_file(path).map(|file| WeightsFile {
+            tensors: Vec::new(),
+            metadata: file.metadata,
+        }),
+    }
 }
 
 /// Reads a safetensors file: tensors (in file order) and metadata. Errors name the file and
@@ -231,6 +282,16 @@ pub fn provenance_warning(path: &Path, provenance: &Provenance) -> Option<String
     }
 }
 
+/// What [`load_checked`] learnt of a file besides its tensors.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Loaded {
+    pub provenance: Provenance,
+    /// The inputs the network was trained to see; None for files without it (converted
+    /// published weights, older builds), which are RGB-T networks unless the user says
+    /// otherwise.
+    pub inputs: Option<Modality>,
+}
+
 /// Loads `path` into `vs`, built from `cfg`, checking the file's model metadata first: a file
 /// saved for another configuration is refused (naming both) unless `allow_foreign`. Then the
 /// strict load of [`load_named`]. Nothing is copied unless everything passes.
@@ -239,8 +300,12 @@ pub fn load_checked(
     cfg: &ModelConfig,
     path: &Path,
     allow_foreign: bool,
-) -> Result<Provenance, ModelError> {
+) -> Result<Loaded, ModelError> {
     let file = read_weights_file(path)?;
+    let inputs = match file.saved_inputs(path) {
+        Err(_) if allow_foreign => None,
+        other => other?,
+    };
     let provenance = match file.metadata.get(FORMAT_KEY) {
         Some(v) if v != FORMAT_VERSION && !allow_foreign => {
             return Err(ModelError::Read {
@@ -276,7 +341,7 @@ pub fn load_checked(
         },
     };
     load_named(vs, file.tensors, path)?;
-    Ok(provenance)
+    Ok(Loaded { provenance, inputs })
 }
 
 /// Names two configurations so that they read differently: by name, or by their JSON where
@@ -412,8 +477,8 @@ pub fn state_dict(vs: &VarStore) -> Vec<(String, Tensor)> {
     named
 }
 
-/// The metadata [`save_safetensors`] writes for `cfg`.
-pub fn model_metadata(cfg: &ModelConfig) -> HashMap<String, String> {
+/// The metadata [`save_safetensors`] writes for `cfg` seeing `inputs`.
+pub fn model_metadata(cfg: &ModelConfig, inputs: Modality) -> HashMap<String, String> {
     HashMap::from([
         (FORMAT_KEY.to_string(), FORMAT_VERSION.to_string()),
         (MODEL_KEY.to_string(), cfg.name()),
@@ -421,14 +486,20 @@ pub fn model_metadata(cfg: &ModelConfig) -> HashMap<String, String> {
             CONFIG_KEY.to_string(),
             serde_json::to_string(cfg).expect("a model configuration serialises"),
         ),
+        (INPUTS_KEY.to_string(), inputs.name().to_string()),
     ])
 }
 
-/// Writes the variables of `vs`, the network built from `cfg`, as a safetensors state_dict
-/// with the reference names and `cfg` in the metadata (module docs), through a temporary
-/// file renamed into place.
-pub fn save_safetensors(vs: &VarStore, cfg: &ModelConfig, path: &Path) -> Result<(), ModelError> {
-    save_named_with_metadata(&state_dict(vs), Some(model_metadata(cfg)), path)
+/// Writes the variables of `vs`, the network built from `cfg` and trained on `inputs`, as a
+/// safetensors state_dict with the reference names and both in the metadata (module docs),
+/// through a temporary file renamed into place.
+pub fn save_safetensors(
+    vs: &VarStore,
+    cfg: &ModelConfig,
+    inputs: Modality,
+    path: &Path,
+) -> Result<(), ModelError> {
+    save_named_with_metadata(&state_dict(vs), Some(model_metadata(cfg, inputs)), path)
 }
 
 /// Writes named tensors as safetensors without model metadata, atomically.
@@ -514,7 +585,7 @@ mod tests {
             &Tensor::rand([2, 4, 32, 32], (Kind::Float, Device::Cpu)),
             true,
         );
-        save_safetensors(&vs_a, &mfnet_cfg("mfnet"), &file).unwrap();
+        save_safetensors(&vs_a, &mfnet_cfg("mfnet"), Modality::RgbT, &file).unwrap();
         assert_eq!(
             std::fs::read_dir(dir.path()).unwrap().count(),
             1,
@@ -714,9 +785,10 @@ mod tests {
         tch::manual_seed(3);
         let vs = VarStore::new(Device::Cpu);
         let _net = build(&vs.root(), &mfnet_cfg("mfnet")).unwrap();
-        save_safetensors(&vs, &mfnet_cfg("mfnet"), &file).unwrap();
+        save_safetensors(&vs, &mfnet_cfg("mfnet"), Modality::Thermal, &file).unwrap();
         let meta = read_weights_file(&file).unwrap().metadata;
         assert_eq!(meta[MODEL_KEY], "mfnet");
+        assert_eq!(meta[INPUTS_KEY], "thermal");
         assert_eq!(meta[FORMAT_KEY], FORMAT_VERSION);
         let saved: ModelConfig = serde_json::from_str(&meta[CONFIG_KEY]).unwrap();
         assert_eq!(saved, mfnet_cfg("mfnet"));
@@ -725,7 +797,10 @@ mod tests {
         let _n = build(&same.root(), &mfnet_cfg("mfnet")).unwrap();
         assert_eq!(
             load_checked(&mut same, &mfnet_cfg("mfnet"), &file, false).unwrap(),
-            Provenance::Checked
+            Loaded {
+                provenance: Provenance::Checked,
+                inputs: Some(Modality::Thermal)
+            }
         );
         for variant in ["mfnet-f", "mfnet-h", "mfnet-j"] {
             let mut other = VarStore::new(Device::Cpu);
@@ -739,7 +814,9 @@ mod tests {
                 assert!(err.contains(needle), "{needle} not in: {err}");
             }
             assert_eq!(
-                load_checked(&mut other, &mfnet_cfg(variant), &file, true).unwrap(),
+                load_checked(&mut other, &mfnet_cfg(variant), &file, true)
+                    .unwrap()
+                    .provenance,
                 Provenance::Overridden {
                     saved: "mfnet".into()
                 }
@@ -755,14 +832,36 @@ mod tests {
     }
 
     #[test]
+    fn the_header_alone_names_the_network_and_its_inputs() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("rgb.safetensors");
+        let (vs, _net) = mfnet(1);
+        save_safetensors(&vs, &mfnet_cfg("mfnet"), Modality::Rgb, &file).unwrap();
+        let meta = read_weights_metadata(&file).unwrap();
+        assert!(meta.tensors.is_empty());
+        assert_eq!(meta.saved_config(&file).unwrap(), Some(mfnet_cfg("mfnet")));
+        assert_eq!(meta.saved_inputs(&file).unwrap(), Some(Modality::Rgb));
+        // A file that is no safetensors file: the full reader's message.
+        let bad = dir.path().join("bad.safetensors");
+        std::fs::write(&bad, b"abc").unwrap();
+        let err = read_weights_metadata(&bad).err().unwrap().to_string();
+        assert!(
+            err.contains("bad.safetensors") && err.contains("too short"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn files_without_metadata_load_unchecked_with_a_warning() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("converted.safetensors");
         let (vs, _net) = mfnet(1);
         save_named(&state_dict(&vs), &file).unwrap();
         let (mut vs_b, _net_b) = mfnet(2);
-        let provenance = load_checked(&mut vs_b, &mfnet_cfg("mfnet-f"), &file, false).unwrap();
+        let loaded = load_checked(&mut vs_b, &mfnet_cfg("mfnet-f"), &file, false).unwrap();
+        let provenance = loaded.provenance;
         assert_eq!(provenance, Provenance::Unchecked);
+        assert_eq!(loaded.inputs, None);
         let warning = provenance_warning(&file, &provenance).unwrap();
         assert!(
             warning.contains("converted.safetensors") && warning.contains("cannot be checked"),
@@ -776,7 +875,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let good = dir.path().join("good.safetensors");
         let (vs, _net) = mfnet(1);
-        save_safetensors(&vs, &mfnet_cfg("mfnet"), &good).unwrap();
+        save_safetensors(&vs, &mfnet_cfg("mfnet"), Modality::RgbT, &good).unwrap();
         let bytes = std::fs::read(&good).unwrap();
         let cases: Vec<(&str, Vec<u8>, &[&str])> = vec![
             // A PyTorch zip archive: the first 8 bytes read as a huge header length.

@@ -57,52 +57,9 @@ pub struct TrainConfig {
     pub data_fingerprint: Option<rtf_data::Fingerprint>,
 }
 
-/// Which input channels a network sees; the others are set to 0 in the network's input space
-/// (after its input convention). Works with any network, so the unimodal variants of the
-/// papers can be trained with a light network on a CPU budget.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Modality {
-    #[default]
-    RgbT,
-    Rgb,
-    Thermal,
-}
-
-impl Modality {
-    pub fn name(self) -> &'static str {
-        match self {
-            Modality::RgbT => "rgb_t",
-            Modality::Rgb => "rgb",
-            Modality::Thermal => "thermal",
-        }
-    }
-
-    pub fn parse(text: &str) -> Result<Self, String> {
-        match text {
-            "rgb_t" | "rgbt" | "rgb-t" => Ok(Modality::RgbT),
-            "rgb" => Ok(Modality::Rgb),
-            "thermal" | "ir" => Ok(Modality::Thermal),
-            other => Err(format!(
-                "unknown inputs `{other}` (expected rgb_t, rgb or thermal)"
-            )),
-        }
-    }
-
-    /// `x` [B, 4, H, W] with the channels this modality does not see set to 0.
-    pub fn apply(self, x: &tch::Tensor) -> tch::Tensor {
-        let (keep_rgb, keep_t) = match self {
-            Modality::RgbT => return x.shallow_clone(),
-            Modality::Rgb => (1.0, 0.0),
-            Modality::Thermal => (0.0, 1.0),
-        };
-        let mask = tch::Tensor::from_slice(&[keep_rgb, keep_rgb, keep_rgb, keep_t])
-            .to_kind(x.kind())
-            .to_device(x.device())
-            .view([1, 4, 1, 1]);
-        x * mask
-    }
-}
+/// Which input channels a network sees (defined beside the networks, and recorded in their
+/// weights files, so that evaluation applies the same mask).
+pub use rtf_models::Modality;
 
 /// How a network learns.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]

@@ -630,6 +630,7 @@ pub fn train_until(
                 rtf_models::weights::save_safetensors(
                     &procedure.student().trained.vs,
                     &cfg.model,
+                    cfg.inputs,
                     &run_dir.join(BEST_FILE),
                 )?;
             }
@@ -673,6 +674,7 @@ pub fn train_until(
     rtf_models::weights::save_safetensors(
         &procedure.student().trained.vs,
         &cfg.model,
+        cfg.inputs,
         &final_weights,
     )?;
     Ok(TrainOutcome {

@@ -53,7 +53,7 @@ fn teacher(dir: &Path, seed: i64) -> TeacherRef {
     let model = ModelConfig::from_name("mfnet", 9).unwrap();
     rtf_models::build(&vs.root(), &model).unwrap();
     let path = dir.join(format!("teacher{seed}.safetensors"));
-    rtf_models::weights::save_safetensors(&vs, &model, &path).unwrap();
+    rtf_models::weights::save_safetensors(&vs, &model, Modality::Rgb, &path).unwrap();
     TeacherRef::Weights {
         path,
         model,
@@ -400,6 +400,24 @@ fn bad_teachers_and_configs_are_refused_before_anything_is_written() {
                 inputs: Modality::RgbT,
             },
             "input",
+        ),
+        // The file says its network saw RGB only; labelling with all four channels would be
+        // silently wrong.
+        (
+            TeacherRef::Weights {
+                path: path.clone(),
+                model: ModelConfig::from_name("mfnet", 9).unwrap(),
+                inputs: Modality::RgbT,
+            },
+            "trained on `rgb` inputs",
+        ),
+        (
+            TeacherRef::Weights {
+                path: path.clone(),
+                model: ModelConfig::from_name("mfnet-f", 9).unwrap(),
+                inputs: Modality::Rgb,
+            },
+            "holds a mfnet network",
         ),
     ];
     for (i, (bad, expected)) in cases.into_iter().enumerate() {

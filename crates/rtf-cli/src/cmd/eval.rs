@@ -55,10 +55,10 @@ pub struct Args {
     /// the plain path.
     #[arg(long)]
     pub precision: Option<rtf_models::fast::Precision>,
-    /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed), as it was trained
-    /// (`inputs` in its run's config.json: RGB-only and thermal-only variants of a network).
-    #[arg(long, value_parser = rtf_train::Modality::parse)]
-    pub inputs: Option<rtf_train::Modality>,
+    /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed). Default: what the
+    /// weights file records (rtf writes it), else all four; needed only for files without it.
+    #[arg(long, value_parser = rtf_models::Modality::parse)]
+    pub inputs: Option<rtf_models::Modality>,
     /// Load weights whose metadata names another network (e.g. renamed or converted files);
     /// names and shapes must still match.
     #[arg(long)]
@@ -97,6 +97,8 @@ pub const EVAL_SCHEMA: &str = "rtf-eval/1";
 struct Report<'a> {
     schema: &'static str,
     model: &'a str,
+    /// The channels the network saw (its weights' record or --inputs).
+    inputs: rtf_models::Modality,
     weights: &'a PathBuf,
     data: &'a PathBuf,
     split: &'a str,
@@ -177,21 +179,16 @@ pub fn run(args: Args) -> Result<()> {
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let (split, format) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();
-    let (_vs, network) = load_network(
+    let loaded = load_network(
         &args.model,
         classes.len() as i64,
         &args.weights,
         device,
         args.precision,
         args.foreign_weights,
+        args.inputs,
     )?;
-    let network: Box<dyn rtf_models::Network> = match args.inputs {
-        None | Some(rtf_train::Modality::RgbT) => network,
-        Some(inputs) => Box::new(rtf_train::procedure::Masked {
-            inner: network,
-            inputs,
-        }),
-    };
+    let network = loaded.net;
     rtf_eval::evaluate::install_quiet_panic_hook();
     let options = EvalOptions {
         batch_size: args.batch_size,
@@ -207,11 +204,12 @@ pub fn run(args: Args) -> Result<()> {
     let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
 
     println!(
-        "{} on {} `{}` ({} frames)",
+        "{} on {} `{}` ({} frames, inputs {})",
         args.model,
         args.data.display(),
         args.split,
-        report.frames
+        report.frames,
+        loaded.inputs
     );
     println!("{}", report.all.table());
     let heatnet = (format == DatasetFormat::Freiburg).then(|| HeatnetScores::of(&report));
@@ -246,8 +244,8 @@ pub fn run(args: Args) -> Result<()> {
     for modality in &args.drop {
         let drop = rtf_eval::ModalityDrop {
             modality: match modality {
-                DropArg::Rgb => rtf_eval::Modality::Rgb,
-                DropArg::Thermal => rtf_eval::Modality::Thermal,
+                DropArg::Rgb => rtf_models::Modality::Rgb,
+                DropArg::Thermal => rtf_models::Modality::Thermal,
             },
             fill: match args.drop_fill {
                 FillArg::Zero => rtf_eval::DropFill::Zero,
@@ -291,6 +289,7 @@ pub fn run(args: Args) -> Result<()> {
                 .collect(),
             dropped,
             model: &args.model,
+            inputs: loaded.inputs,
             weights: &args.weights,
             data: &args.data,
             split: &args.split,

@@ -49,6 +49,10 @@ pub struct Args {
     /// Class count of the weights (default: the network's usual count, see `rtf models`).
     #[arg(long)]
     pub classes: Option<i64>,
+    /// Channels the network sees (rgb_t, rgb, thermal; the others are zeroed inside the
+    /// graph). Default: what the weights file records, else all four.
+    #[arg(long, value_parser = rtf_models::Modality::parse)]
+    pub inputs: Option<rtf_models::Modality>,
 }
 
 /// Parses `HxW` (height first).
@@ -64,6 +68,7 @@ fn metadata(
     network: &dyn rtf_models::Network,
     classes: i64,
     in_channels: i64,
+    inputs: rtf_models::Modality,
     size: (usize, usize),
     precision: Precision,
 ) -> serde_json::Value {
@@ -106,6 +111,9 @@ fn metadata(
             "layout": layout,
             "convention": convention,
             "scaling": scaling,
+            // A network trained on one modality: the graph zeroes the channels it does not
+            // see, so every input is fed the same 4-channel way.
+            "sees": inputs.name(),
         },
         "output": {"name": "logits", "shape": [1, outputs, size.0, size.1],
                    "dtype": "float32", "meaning": "class scores; argmax over dim 1 = class id"},
@@ -238,13 +246,18 @@ pub fn run(args: Args) -> Result<()> {
     let classes = args
         .classes
         .unwrap_or_else(|| rtf_models::default_num_classes(&args.model));
-    let (mut vs, network) = load_network(
+    let super::LoadedNetwork {
+        mut vs,
+        net: network,
+        inputs,
+    } = load_network(
         &args.model,
         classes,
         &args.weights,
         Device::Cpu,
         None,
         false,
+        args.inputs,
     )
     .with_context(|| format!("loading {} into {}", args.weights.display(), args.model))?;
     // Weights become constants of the graph: no autograd on them.
@@ -257,7 +270,14 @@ pub fn run(args: Args) -> Result<()> {
     // Every segmentation network reads R, G, B, T.
     let in_channels = 4;
     let module = trace(network, in_channels, args.size, args.precision)?;
-    let meta = metadata(network, classes, in_channels, args.size, args.precision);
+    let meta = metadata(
+        network,
+        classes,
+        in_channels,
+        inputs,
+        args.size,
+        args.precision,
+    );
     let meta_bytes = serde_json::to_vec_pretty(&meta)?;
     let save_torchscript = |path: &Path| -> Result<()> {
         module

@@ -42,6 +42,10 @@ pub struct Args {
     /// the plain path.
     #[arg(long)]
     pub precision: Option<rtf_models::fast::Precision>,
+    /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed). Default: what the
+    /// weights file records (rtf writes it), else all four; needed only for files without it.
+    #[arg(long, value_parser = rtf_models::Modality::parse)]
+    pub inputs: Option<rtf_models::Modality>,
     /// Load weights whose metadata names another network (e.g. renamed or converted files);
     /// names and shapes must still match.
     #[arg(long)]
@@ -223,14 +227,16 @@ pub fn run(args: Args) -> Result<()> {
         None if heatnet => ClassSet::freiburg(),
         None => ClassSet::mf(),
     };
-    let (_vs, network) = load_network(
+    let network = load_network(
         &args.model,
         classes.len() as i64,
         &args.weights,
         device,
         args.precision,
         args.foreign_weights,
-    )?;
+        args.inputs,
+    )?
+    .net;
     rtf_eval::evaluate::install_quiet_panic_hook();
     // Read every input first: a bad file stops the run before anything is written.
     let mut frames = args

@@ -923,6 +923,13 @@ fn prediction_grid(args: &Args, runs: &[Run]) -> Result<Option<Vec<u8>>, String>
             let mut vs = tch::nn::VarStore::new(device);
             let net = rtf_models::build(&vs.root(), &cfg)?;
             rtf_models::weights::load_safetensors(&mut vs, weights)?;
+            // Behind the mask it was trained with (RGB-only, thermal-only runs).
+            let inputs = run
+                .config
+                .get("inputs")
+                .and_then(|i| serde_json::from_value(i.clone()).ok())
+                .unwrap_or_default();
+            let net = rtf_models::masked(net, inputs);
             let resize = run
                 .config
                 .get("resize")

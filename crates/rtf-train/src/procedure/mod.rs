@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use rtf_data::Batch;
-use rtf_models::{ModelConfig, Network};
+use rtf_models::{Masked, ModelConfig, Network};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
 pub use adversarial::Adversarial;
@@ -51,34 +51,6 @@ impl Trained {
         self.optimizer.zero_grad(&self.vs);
         loss.backward();
         self.optimizer.step(&self.vs, self.schedule.lr_at(epoch));
-    }
-}
-
-/// A network behind its input mask: it sees only the channels of `inputs`.
-#[derive(Debug)]
-pub struct Masked {
-    pub inner: Box<dyn Network>,
-    pub inputs: Modality,
-}
-
-impl tch::nn::ModuleT for Masked {
-    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
-        self.inner.forward_t(&self.inputs.apply(xs), train)
-    }
-}
-
-impl Network for Masked {
-    fn input_convention(&self) -> rtf_core::InputConvention {
-        self.inner.input_convention()
-    }
-    fn num_classes(&self) -> i64 {
-        self.inner.num_classes()
-    }
-    fn size_multiple(&self) -> i64 {
-        self.inner.size_multiple()
-    }
-    fn name(&self) -> String {
-        self.inner.name()
     }
 }
 
@@ -141,10 +113,10 @@ impl Frozen {
         student: &ModelConfig,
         device: Device,
     ) -> Result<Self, TrainError> {
-        check_teacher(model, weights, student)?;
+        check_teacher(model, weights, inputs, student)?;
         let mut vs = VarStore::new(device);
         let inner = rtf_models::build(&vs.root(), model)?;
-        rtf_models::weights::load_safetensors(&mut vs, weights)?;
+        rtf_models::weights::load_checked(&mut vs, model, weights, false)?;
         vs.freeze();
         Ok(Self {
             _vs: vs,
@@ -163,8 +135,13 @@ impl Frozen {
 /// student (stage teachers are checked by their stage).
 pub fn check_teachers(cfg: &TrainConfig) -> Result<(), TrainError> {
     for teacher in cfg.procedure.teachers() {
-        if let crate::config::TeacherRef::Weights { path, model, .. } = teacher {
-            check_teacher(model, path, &cfg.model)?;
+        if let crate::config::TeacherRef::Weights {
+            path,
+            model,
+            inputs,
+        } = teacher
+        {
+            check_teacher(model, path, *inputs, &cfg.model)?;
         }
     }
     Ok(())
@@ -173,6 +150,7 @@ pub fn check_teachers(cfg: &TrainConfig) -> Result<(), TrainError> {
 fn check_teacher(
     model: &ModelConfig,
     weights: &Path,
+    inputs: Modality,
     student: &ModelConfig,
 ) -> Result<(), TrainError> {
     {
@@ -201,6 +179,22 @@ fn check_teacher(
         }
         if !weights.is_file() {
             return Err(bad("teacher weights not found".into()));
+        }
+        // The file's own record of its network and inputs (absent in converted weights): a
+        // teacher behind another mask than it was trained with labels garbage, silently.
+        let meta = rtf_models::weights::read_weights_metadata(weights)?;
+        if let Some(saved) = meta.saved_config(weights)?.filter(|saved| saved != model) {
+            return Err(bad(format!(
+                "the file holds a {} network, the teacher is declared as {}",
+                saved.name(),
+                model.name()
+            )));
+        }
+        if let Some(saved) = meta.saved_inputs(weights)?.filter(|saved| *saved != inputs) {
+            return Err(bad(format!(
+                "the teacher was trained on `{saved}` inputs and would label frames seeing \
+                 `{inputs}`; give it its own inputs (`inputs: {saved}`, --teacher-inputs {saved})"
+            )));
         }
         Ok(())
     }
