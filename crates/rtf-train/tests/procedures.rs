@@ -211,7 +211,7 @@ fn each_adversarial_step_updates_only_its_own_network() {
 
     // The halves alone: the segmentation step leaves the critic untouched, the critic step the
     // student.
-    let mut halves = rtf_train::procedure::Adversarial::for_test(&cfg).unwrap();
+    let mut halves = rtf_train::procedure::build_adversarial(&cfg, None, tch::Device::Cpu).unwrap();
     let critic0 = halves
         .critic
         .vs

@@ -17,7 +17,7 @@ use rtf_models::heatnet::{Critic, CriticConfig};
 use tch::{nn::ModuleT, Device, Kind, Tensor};
 
 use super::teacher_student::distillation_loss;
-use super::{Frozen, Labeller, Procedure, StepBatches, StepReport, Student, Trained, CRITIC};
+use super::{Labeller, Procedure, StepBatches, StepReport, Student, Trained, CRITIC};
 use crate::config::{CriticInput, CriticOptions, TargetOptions};
 use crate::loss::least_squares;
 use crate::trainer::TrainError;
@@ -61,45 +61,6 @@ impl Adversarial {
             targets,
             options,
         })
-    }
-
-    /// The procedure `cfg` describes (tests reach its two step halves through it).
-    pub fn for_test(cfg: &crate::config::TrainConfig) -> Result<Self, TrainError> {
-        let device = Device::Cpu;
-        let crate::config::Procedure::Adversarial {
-            day_teacher,
-            targets,
-            critic,
-            ..
-        } = &cfg.procedure
-        else {
-            return Err(TrainError::Config(
-                "not an adversarial configuration".into(),
-            ));
-        };
-        let crate::config::TeacherRef::Weights {
-            path,
-            model,
-            inputs,
-        } = day_teacher
-        else {
-            return Err(TrainError::Config(
-                "the day teacher must be a weights file".into(),
-            ));
-        };
-        let student = Student::build(cfg, device)?;
-        let teacher = Labeller {
-            teacher: Frozen::load(model, path, *inputs, &cfg.model, device)?,
-            cached: None,
-        };
-        Self::new(
-            student,
-            teacher,
-            None,
-            targets.clone(),
-            critic.clone(),
-            device,
-        )
     }
 
     /// The critic's score map [B, 1, H, W] of segmentation logits [B, C, H, W].

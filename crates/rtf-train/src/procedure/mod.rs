@@ -256,55 +256,87 @@ pub fn build(
     ignore_id: Option<u8>,
     device: Device,
 ) -> Result<Box<dyn Procedure>, TrainError> {
-    let student = Student::build(cfg, device)?;
-    let cached = match &cfg.procedure {
-        ProcedureConfig::TeacherStudent { targets, .. }
-        | ProcedureConfig::Adversarial { targets, .. } => targets.cache,
-        ProcedureConfig::Supervised => false,
-    };
-    let frozen = |teacher: &crate::config::TeacherRef| -> Result<Labeller, TrainError> {
-        match teacher {
-            crate::config::TeacherRef::Weights {
-                path,
-                model,
-                inputs,
-            } => Ok(Labeller {
-                teacher: Frozen::load(model, path, *inputs, &cfg.model, device)?,
-                cached: cached.then(|| ignore_id.map_or(crate::loss::PSEUDO_IGNORE, i64::from)),
-            }),
-            crate::config::TeacherRef::Stage(name) => Err(TrainError::Config(format!(
-                "teacher stage `{name}` was not resolved to its weights (a stage teacher only \
-                 works inside a multi-stage run)"
-            ))),
-        }
-    };
     Ok(match &cfg.procedure {
         ProcedureConfig::Supervised => Box::new(Supervised {
-            student,
+            student: Student::build(cfg, device)?,
             loss: cfg.loss.build(ignore_id),
         }),
         ProcedureConfig::TeacherStudent {
             day_teacher,
             night_teacher,
             targets,
-        } => Box::new(TeacherStudent {
-            student,
-            day_teacher: frozen(day_teacher)?,
-            night_teacher: night_teacher.as_ref().map(frozen).transpose()?,
-            targets: targets.clone(),
-        }),
-        ProcedureConfig::Adversarial {
-            day_teacher,
-            night_teacher,
-            targets,
-            critic,
-        } => Box::new(Adversarial::new(
-            student,
-            frozen(day_teacher)?,
-            night_teacher.as_ref().map(frozen).transpose()?,
-            targets.clone(),
-            critic.clone(),
-            device,
-        )?),
+        } => {
+            let student = Student::build(cfg, device)?;
+            Box::new(TeacherStudent {
+                student,
+                day_teacher: labeller(cfg, day_teacher, ignore_id, device)?,
+                night_teacher: night_teacher
+                    .as_ref()
+                    .map(|t| labeller(cfg, t, ignore_id, device))
+                    .transpose()?,
+                targets: targets.clone(),
+            })
+        }
+        ProcedureConfig::Adversarial { .. } => Box::new(build_adversarial(cfg, ignore_id, device)?),
     })
+}
+
+/// [`build`] of an adversarial `cfg`, as its own type (whose two step halves can be driven
+/// one at a time).
+pub fn build_adversarial(
+    cfg: &TrainConfig,
+    ignore_id: Option<u8>,
+    device: Device,
+) -> Result<Adversarial, TrainError> {
+    let ProcedureConfig::Adversarial {
+        day_teacher,
+        night_teacher,
+        targets,
+        critic,
+    } = &cfg.procedure
+    else {
+        return Err(TrainError::Config(
+            "not an adversarial configuration".into(),
+        ));
+    };
+    let student = Student::build(cfg, device)?;
+    Adversarial::new(
+        student,
+        labeller(cfg, day_teacher, ignore_id, device)?,
+        night_teacher
+            .as_ref()
+            .map(|t| labeller(cfg, t, ignore_id, device))
+            .transpose()?,
+        targets.clone(),
+        critic.clone(),
+        device,
+    )
+}
+
+/// A teacher of `cfg` loaded to label its frames (live, or into the label cache).
+fn labeller(
+    cfg: &TrainConfig,
+    teacher: &crate::config::TeacherRef,
+    ignore_id: Option<u8>,
+    device: Device,
+) -> Result<Labeller, TrainError> {
+    let cached = match &cfg.procedure {
+        ProcedureConfig::TeacherStudent { targets, .. }
+        | ProcedureConfig::Adversarial { targets, .. } => targets.cache,
+        ProcedureConfig::Supervised => false,
+    };
+    match teacher {
+        crate::config::TeacherRef::Weights {
+            path,
+            model,
+            inputs,
+        } => Ok(Labeller {
+            teacher: Frozen::load(model, path, *inputs, &cfg.model, device)?,
+            cached: cached.then(|| ignore_id.map_or(crate::loss::PSEUDO_IGNORE, i64::from)),
+        }),
+        crate::config::TeacherRef::Stage(name) => Err(TrainError::Config(format!(
+            "teacher stage `{name}` was not resolved to its weights (a stage teacher only \
+             works inside a multi-stage run)"
+        ))),
+    }
 }
