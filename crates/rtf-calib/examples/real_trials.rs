@@ -55,8 +55,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     tch::set_num_threads(1);
     std::fs::create_dir_all(&out)?;
     let mut results = Vec::new();
+    // `--only 2,5`: run just these seeds of the set (same thermal lens and frames as in the
+    // full run, so single trials can be repeated).
+    let only: Option<Vec<u64>> =
+        get("--only").map(|s| s.split(',').filter_map(|x| x.trim().parse().ok()).collect());
     for k in 0..trials {
         let seed = first + k as u64;
+        if only.as_ref().is_some_and(|o| !o.contains(&seed)) {
+            continue;
+        }
         let mut cfg = RealRigConfig::new(&data, seed, width, frames);
         let ratio = 0.75 + 0.6 * (k as f64 + 0.5) / trials as f64;
         cfg.focal_ratio = Some(ratio);
