@@ -27,6 +27,12 @@ struct Trial {
     seconds: f64,
     verdict: String,
     reason: String,
+    /// Quality figures (no ground truth), for setting the verdict's thresholds.
+    score: f64,
+    sharpness: f64,
+    frames_agreeing: f64,
+    moved_px: f64,
+    split_px: f64,
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -49,8 +55,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     tch::set_num_threads(1);
     std::fs::create_dir_all(&out)?;
     let mut results = Vec::new();
+    // `--only 2,5`: run just these seeds of the set (same thermal lens and frames as in the
+    // full run, so single trials can be repeated).
+    let only: Option<Vec<u64>> =
+        get("--only").map(|s| s.split(',').filter_map(|x| x.trim().parse().ok()).collect());
     for k in 0..trials {
         let seed = first + k as u64;
+        if only.as_ref().is_some_and(|o| !o.contains(&seed)) {
+            continue;
+        }
         let mut cfg = RealRigConfig::new(&data, seed, width, frames);
         let ratio = 0.75 + 0.6 * (k as f64 + 0.5) / trials as f64;
         cfg.focal_ratio = Some(ratio);
@@ -79,11 +92,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             seconds,
             verdict: a.verdict.to_string(),
             reason: a.reason.clone(),
+            score: a.score.at_solution,
+            sharpness: a.score.sharpness,
+            frames_agreeing: a.frames_agreeing,
+            moved_px: a.moved_px,
+            split_px: a.split_px,
         };
         println!(
-            "trial seed {seed} ({}, thermal f/rgb f {ratio:.2}): map error {start_px:.2} -> {final_px:.3} px, fx/fy error {:.3} %, {seconds:.1} s, verdict {} ({})",
+            "trial seed {seed} ({}, thermal f/rgb f {ratio:.2}): map error {start_px:.2} -> {final_px:.3} px, fx/fy error {:.3} %, {seconds:.1} s, score {:.3}, sharpness {:.3}, agree {:.2}, moved {:.1} px, split {:.3} px, verdict {} ({})",
             t.daylight,
             100.0 * t.aspect_error,
+            t.score,
+            t.sharpness,
+            t.frames_agreeing,
+            t.moved_px,
+            t.split_px,
             t.verdict,
             t.reason
         );
@@ -99,14 +122,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .filter(|t| t.final_px >= 1.0 && t.verdict == "ok")
         .count();
     let mut md = format!(
-        "{ok}/{} trials < 1 px; failures flagged uncertain/failed: {}/{}\n\n| seed | frames | thermal f / RGB f | start px | final px | fx/fy error | s | verdict |\n|---|---|---|---|---|---|---|---|\n",
+        "{ok}/{} trials < 1 px; failures flagged uncertain/failed: {}/{}\n\n| seed | frames | thermal f / RGB f | start px | final px | fx/fy error | s | sharpness | agree | split px | verdict |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
         results.len(),
         results.len() - ok - silent,
         results.len() - ok
     );
     for t in &results {
         md += &format!(
-            "| {} | {} | {:.2} | {:.2} | {:.3} | {:.3} % | {:.1} | {} |\n",
+            "| {} | {} | {:.2} | {:.2} | {:.3} | {:.3} % | {:.1} | {:.3} | {:.2} | {:.3} | {} |\n",
             t.seed,
             t.daylight,
             t.focal_ratio,
@@ -114,6 +137,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             t.final_px,
             100.0 * t.aspect_error,
             t.seconds,
+            t.sharpness,
+            t.frames_agreeing,
+            t.split_px,
             t.verdict
         );
     }

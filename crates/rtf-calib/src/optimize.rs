@@ -399,17 +399,15 @@ pub(crate) struct Priors {
 impl Priors {
     pub fn new(rig: &Rig) -> Self {
         let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
-        Self {
-            terms: vec![
-                (2, w / 2.0, 0.05 * w, 0.0),
-                (3, h / 2.0, 0.05 * w, 0.0),
-                (4, 0.0, 0.05, 0.5),
-                (5, 0.0, 0.05, 0.3),
-                (6, 0.0, 0.002, 0.01),
-                (7, 0.0, 0.002, 0.01),
-            ],
-            weight: 0.0,
-        }
+        let terms = vec![
+            (2, w / 2.0, 0.05 * w, 0.0),
+            (3, h / 2.0, 0.05 * w, 0.0),
+            (4, 0.0, 0.05, 0.5),
+            (5, 0.0, 0.05, 0.3),
+            (6, 0.0, 0.002, 0.01),
+            (7, 0.0, 0.002, 0.01),
+        ];
+        Self { terms, weight: 0.0 }
     }
 
     fn residual(p: f64, mu: f64, sd: f64, free: f64) -> f64 {
@@ -585,6 +583,101 @@ fn add_priors(
     }
 }
 
+/// Result of [`lm_level`].
+pub(crate) struct LmRun {
+    pub theta: [f64; NUM_PARAMS],
+    pub cost: f64,
+    pub iterations: usize,
+    pub non_finite: bool,
+}
+
+/// Levenberg-Marquardt on one pyramid level along `dirs` from `theta`, over frames `frames`,
+/// with the priors (their weight is set here: one σ costs as much as ~1 px of misalignment,
+/// the data's mean curvature per pixel-scaled unit at the first iteration), Levenberg damping
+/// λ·mean(diag)·I from `lambda0` and a step limit of 2 px × the level's factor.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn lm_level(
+    level: &Level,
+    scaling: &Scaling,
+    priors: &mut Priors,
+    mut theta: [f64; NUM_PARAMS],
+    dirs: &[[f64; NUM_PARAMS]],
+    frames: &[i64],
+    max_iterations: usize,
+    lambda0: f64,
+    on_iteration: &mut dyn FnMut(f64),
+) -> LmRun {
+    let idx = Tensor::from_slice(frames);
+    // Trust region: at most 2 full-resolution pixels per iteration and level factor.
+    let max_step = 2.0 * level.factor as f64;
+    let mut lambda = lambda0;
+    let mut current = f64::NAN;
+    let mut iterations = 0;
+    let mut non_finite = false;
+    priors.weight = f64::NAN;
+    for _ in 0..max_iterations {
+        let (mut jtj, mut jtr, c) = normal_equations(level, scaling, &theta, dirs, frames);
+        iterations += 1;
+        if !c.is_finite() {
+            non_finite = true;
+            break;
+        }
+        let n = dirs.len();
+        let mean_diag = (0..n).map(|i| jtj[i][i]).sum::<f64>() / n as f64;
+        if priors.weight.is_nan() {
+            priors.weight = mean_diag.max(1e-12);
+        }
+        add_priors(priors, scaling, &theta, dirs, &mut jtj, &mut jtr);
+        current = c + priors.cost(scaling, &theta);
+        let mut accepted = false;
+        let mut small = false;
+        while lambda < 1e8 {
+            let mut a = jtj.clone();
+            // Levenberg damping λ·mean(diag)·I: the units are commensurate (pixels), and
+            // unlike Marquardt's diag scaling it resists drift along flat valleys.
+            for (i, row) in a.iter_mut().enumerate() {
+                row[i] += lambda * mean_diag.max(1e-12) + 1e-12;
+            }
+            let rhs: Vec<f64> = jtr.iter().map(|x| -x).collect();
+            let Some(coef) = solve_spd(&a, &rhs) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut delta = [0.0; NUM_PARAMS];
+            for (c, d) in coef.iter().zip(dirs) {
+                for i in 0..NUM_PARAMS {
+                    delta[i] += c * d[i];
+                }
+            }
+            let biggest = delta.iter().fold(0.0f64, |m, d| m.max(d.abs()));
+            if biggest > max_step {
+                delta = delta.map(|d| d * max_step / biggest);
+            }
+            small = biggest < 1e-3 * level.factor as f64;
+            let trial: [f64; NUM_PARAMS] = std::array::from_fn(|i| theta[i] + delta[i]);
+            let tc = cost(level, scaling, &trial, &idx) + priors.cost(scaling, &trial);
+            if tc.is_finite() && tc < current {
+                theta = trial;
+                current = tc;
+                lambda = (lambda / 3.0).max(1e-7);
+                accepted = true;
+                break;
+            }
+            lambda *= 4.0;
+        }
+        on_iteration(current);
+        if !accepted || small {
+            break;
+        }
+    }
+    LmRun {
+        theta,
+        cost: current,
+        iterations,
+        non_finite,
+    }
+}
+
 fn calibrate_default(
     rig: &Rig,
     frames: &[Frame],
@@ -653,75 +746,32 @@ fn calibrate_default(
             _ => vec![0, 1, 2, 3, 13],
         };
         let dirs = directions(&params, &scaling, square);
-        // Trust region: at most 2 full-resolution pixels per iteration and level factor.
-        let max_step = 2.0 * factor as f64;
-        let mut lambda = 1e-5 / settings.learning_rate;
-        let mut current = f64::NAN;
-        priors.weight = f64::NAN;
-        for _ in 0..settings.iterations {
-            let (mut jtj, mut jtr, c) = normal_equations(&level, &scaling, &theta, &dirs, &all);
-            iterations += 1;
-            step += 1;
-            if !c.is_finite() {
-                stopped = Some(format!(
-                    "non-finite loss at level 1/{factor}; keeping the best parameters"
-                ));
-                break;
-            }
-            let n = dirs.len();
-            let mean_diag = (0..n).map(|i| jtj[i][i]).sum::<f64>() / n as f64;
-            if priors.weight.is_nan() {
-                // One σ of prior costs as much as ~1 px of misalignment along an average
-                // direction (the data's curvature per pixel-scaled unit), fixed per level.
-                priors.weight = mean_diag.max(1e-12);
-            }
-            add_priors(&priors, &scaling, &theta, &dirs, &mut jtj, &mut jtr);
-            current = c + priors.cost(&scaling, &theta);
-            let mut accepted = false;
-            let mut small = false;
-            while lambda < 1e8 {
-                let mut a = jtj.clone();
-                // Levenberg damping λ·mean(diag)·I: the units are commensurate (pixels), and
-                // unlike Marquardt's diag scaling it resists drift along flat valleys.
-                for (i, row) in a.iter_mut().enumerate() {
-                    row[i] += lambda * mean_diag.max(1e-12) + 1e-12;
-                }
-                let rhs: Vec<f64> = jtr.iter().map(|x| -x).collect();
-                let Some(coef) = solve_spd(&a, &rhs) else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let mut delta = [0.0; NUM_PARAMS];
-                for (c, d) in coef.iter().zip(&dirs) {
-                    for i in 0..NUM_PARAMS {
-                        delta[i] += c * d[i];
-                    }
-                }
-                let biggest = delta.iter().fold(0.0f64, |m, d| m.max(d.abs()));
-                if biggest > max_step {
-                    delta = delta.map(|d| d * max_step / biggest);
-                }
-                small = biggest < 1e-3 * factor as f64;
-                let trial: [f64; NUM_PARAMS] = std::array::from_fn(|i| theta[i] + delta[i]);
-                let tc = cost(&level, &scaling, &trial, &all_idx) + priors.cost(&scaling, &trial);
-                if tc.is_finite() && tc < current {
-                    theta = trial;
-                    current = tc;
-                    lambda = (lambda / 3.0).max(1e-7);
-                    accepted = true;
-                    break;
-                }
-                lambda *= 4.0;
-            }
-            progress(&Progress {
-                stage: format!("level 1/{factor}"),
-                step,
-                total,
-                loss: current,
-            });
-            if !accepted || small {
-                break;
-            }
+        let run = lm_level(
+            &level,
+            &scaling,
+            &mut priors,
+            theta,
+            &dirs,
+            &all,
+            settings.iterations,
+            1e-5 / settings.learning_rate,
+            &mut |loss| {
+                step += 1;
+                progress(&Progress {
+                    stage: format!("level 1/{factor}"),
+                    step,
+                    total,
+                    loss,
+                });
+            },
+        );
+        theta = run.theta;
+        iterations += run.iterations;
+        let current = run.cost;
+        if run.non_finite {
+            stopped = Some(format!(
+                "non-finite loss at level 1/{factor}; keeping the best parameters"
+            ));
         }
         final_loss = current;
         if stopped.is_some() {
@@ -1050,6 +1100,108 @@ mod tests {
         );
     }
 
+    /// Development probe: re-registers MSRS's vi/ir pairs with a scale, a radial term, a
+    /// rotation and a shift (`RTF_CALIB_PROBE_REG=1`, full 640×480, coordinate search on the
+    /// centred edge-feature correlation); prints the `MSRS_REGISTRATION` table.
+    #[test]
+    fn probe_registration() {
+        let (Some(_), Some(data)) = (
+            std::env::var_os("RTF_CALIB_PROBE_REG"),
+            crate::real_rig::default_data_dir(),
+        ) else {
+            return;
+        };
+        tch::set_num_threads(1);
+        let (day, night) = crate::real_rig::scene_names(&data).unwrap();
+        let msrs = data.join("msrs-samples");
+        let factor: usize = std::env::var("REG_FACTOR")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(1);
+        let mut rows = Vec::new();
+        for name in day.iter().chain(night.iter()) {
+            let vi = crate::imageio::read_gray(&msrs.join(format!("vi/{name}.png"))).unwrap();
+            let ir = crate::imageio::read_gray(&msrs.join(format!("ir/{name}.png"))).unwrap();
+            let (vi, ir) = (
+                model::downsample(&vi, factor),
+                model::downsample(&ir, factor),
+            );
+            let (w, h) = (vi.width as i64, vi.height as i64);
+            let fa = model::edge_features(&model::plane_tensor(&vi, Device::Cpu));
+            let fb = model::edge_features(&model::plane_tensor(&ir, Device::Cpu));
+            let fa = &fa - fa.mean_dim(&[2i64, 3][..], true, Kind::Float);
+            let fb = &fb - fb.mean_dim(&[2i64, 3][..], true, Kind::Float);
+            let (cu, cv) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+            let us = Tensor::arange(w, (Kind::Double, Device::Cpu)).view([1, w]) - cu;
+            let vs = Tensor::arange(h, (Kind::Double, Device::Cpu)).view([h, 1]) - cv;
+            let margin = (8 / factor) as i64;
+            // p = [s, k (radial, r normalised by the half width), rot (deg), du, dv (px at 640), k2]
+            let score = |p: &[f64; 6]| -> f64 {
+                let (sn, cs) = p[2].to_radians().sin_cos();
+                let r2 = (&us * &us + &vs * &vs) / (cu * cu);
+                let g = (&r2 * p[1] + r2.square() * p[5] + 1.0) * p[0];
+                let su = (&us * cs - &vs * sn) * &g + cu + p[3] / factor as f64;
+                let sv = (&us * sn + &vs * cs) * &g + cv + p[4] / factor as f64;
+                let grid = Tensor::stack(&[su / cu - 1.0, sv / cv - 1.0], 2)
+                    .unsqueeze(0)
+                    .to_kind(Kind::Float);
+                let warped = fb.grid_sampler_2d(&grid, 0, 0, true);
+                (&fa * warped)
+                    .narrow(2, margin, h - 2 * margin)
+                    .narrow(3, margin, w - 2 * margin)
+                    .sum(Kind::Double)
+                    .double_value(&[])
+            };
+            let mut p = [1.027, -0.026, 0.0, 0.0, 2.0, 0.0];
+            let n_par = if std::env::var_os("REG_K2").is_some() {
+                6
+            } else {
+                5
+            };
+            let mut steps = [0.004, 0.004, 0.1, 1.0, 1.0, 0.004];
+            let mut best = score(&p);
+            for _round in 0..6 {
+                for _sweep in 0..3 {
+                    for i in 0..n_par {
+                        loop {
+                            let mut improved = false;
+                            for sign in [-1.0, 1.0] {
+                                let mut q = p;
+                                q[i] += sign * steps[i];
+                                let sc = score(&q);
+                                if sc > best {
+                                    best = sc;
+                                    p = q;
+                                    improved = true;
+                                    break;
+                                }
+                            }
+                            if !improved {
+                                break;
+                            }
+                        }
+                    }
+                }
+                steps = steps.map(|x| x / 2.0);
+            }
+            eprintln!(
+                "    (\"{name}\", {:.4}, {:.4}, {:.4}, {:.3}, {:.2}, {:.2}),",
+                p[0], p[1], p[5], p[2], p[3], p[4]
+            );
+            rows.push(p);
+        }
+        for i in 0..6 {
+            let mut v: Vec<f64> = rows.iter().map(|r| r[i]).collect();
+            v.sort_by(f64::total_cmp);
+            eprintln!(
+                "REG param {i}: median {:.4}, range {:.4}..{:.4}",
+                v[v.len() / 2],
+                v[0],
+                v[v.len() - 1]
+            );
+        }
+    }
+
     /// Development probe on a real-imagery rig (`RTF_CALIB_PROBE=1 WIDTH=.. SEED=..
     /// N_FRAMES=.. cargo test --release -p rtf-calib probe_real -- --nocapture`): the cost of
     /// the truth and of the estimate at every level, and the map error.
@@ -1127,6 +1279,88 @@ mod tests {
             "PROBE seed {} map error {before:.2} -> {after:.3} px; rot {deg:.3}°, trans {:.1} cm; fx/fy {:.4} (truth {:.4}); f {:.1} (truth {:.1}); {secs:.1} s",
             cfg.seed, m * 100.0, k.fx / k.fy, kt.fx / kt.fy, k.fx, kt.fx
         );
+    }
+
+    /// Development probe of the objective's bias on real-imagery rigs (`RTF_CALIB_BIAS=1
+    /// WIDTH=320 N_FRAMES=10 SEEDS=1,2,3 SOURCE=ir|vi cargo test --release -p rtf-calib --lib
+    /// probe_bias -- --nocapture`): at every pyramid level, the cost along each parameter
+    /// direction through the truth (±3 px in steps of 0.25), and where its minimum lies.
+    #[test]
+    fn probe_bias() {
+        let (Some(_), Some(data)) = (
+            std::env::var_os("RTF_CALIB_BIAS"),
+            crate::real_rig::default_data_dir(),
+        ) else {
+            return;
+        };
+        tch::set_num_threads(1);
+        let env = |k: &str, d: usize| -> usize {
+            std::env::var(k)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(d)
+        };
+        let seeds: Vec<u64> = std::env::var("SEEDS")
+            .unwrap_or_else(|_| "1,2,3".into())
+            .split(',')
+            .map(|s| s.trim().parse().unwrap())
+            .collect();
+        let variant = std::env::var("VARIANT").unwrap_or_default();
+        for seed in seeds {
+            let dir = tempfile::tempdir().unwrap();
+            let mut cfg = crate::real_rig::RealRigConfig::new(
+                &data,
+                seed,
+                env("WIDTH", 320),
+                env("N_FRAMES", 10),
+            );
+            if std::env::var("SOURCE").as_deref() == Ok("vi") {
+                cfg.degrade = crate::real_rig::Degrade::RgbAsThermal;
+            }
+            let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+            let rig = &real.rig;
+            let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
+            let used: Vec<&Frame> = frames.iter().collect();
+            let scaling = Scaling::new(&rig.rgb, initial_params(rig), &used);
+            let pt = model::from_calibration(&real.truth);
+            let tt: [f64; NUM_PARAMS] =
+                std::array::from_fn(|i| (pt[i] - scaling.p0[i]) / scaling.scale[i]);
+            let all = Tensor::from_slice(&(0..used.len() as i64).collect::<Vec<_>>());
+            let names = ["f", "cx", "cy", "roll", "pan", "tilt", "k1", "tz"];
+            let mut dirs = vec![directions(&[0], &scaling, true)[0]];
+            for i in [2usize, 3, 13, 12, 11, 4, 10] {
+                let mut d = [0.0; NUM_PARAMS];
+                d[i] = 1.0;
+                dirs.push(d);
+            }
+            let ratio = real.truth.thermal.fx / rig.rgb.fx;
+            for factor in pyramid_factors(rig.rgb.width) {
+                let mut level = Level::build(&rig.rgb, &used, factor, false, 0.0, 1);
+                if variant == "corr" {
+                    level = level.into_correlation();
+                }
+                let mut line = format!("BIAS seed {seed} ratio {ratio:.2} 1/{factor}:");
+                for (name, d) in names.iter().zip(&dirs) {
+                    let steps: Vec<f64> = (-12..=12).map(|k| k as f64 * 0.25).collect();
+                    let costs: Vec<f64> = steps
+                        .iter()
+                        .map(|s| {
+                            let t: [f64; NUM_PARAMS] = std::array::from_fn(|i| tt[i] + s * d[i]);
+                            cost(&level, &scaling, &t, &all)
+                        })
+                        .collect();
+                    let k = (0..costs.len())
+                        .min_by(|&a, &b| costs[a].total_cmp(&costs[b]))
+                        .unwrap();
+                    let k = k.clamp(1, costs.len() - 2);
+                    let (a, b, c) = (costs[k - 1], costs[k], costs[k + 1]);
+                    let off = steps[k] + 0.25 * 0.5 * (a - c) / (a - 2.0 * b + c);
+                    let depth = (costs[0] + costs[24]) / 2.0 / b - 1.0;
+                    line += &format!(" {name} {off:+.2} ({:.1}%)", depth * 100.0);
+                }
+                eprintln!("{line}");
+            }
+        }
     }
 
     #[test]

@@ -14,6 +14,9 @@
 //!   observations for the 3×3 gradient footprint), and each parameter's conditioning (the
 //!   factor by which its variance is inflated by correlation with the others).
 //! - **Moved**: the mean distance between the start and the final RGB→thermal map.
+//! - **Split-half**: the solution refined on the even and on the odd frames alone; half the
+//!   distance between the two maps estimates the error due to the frames' disagreement. It
+//!   cannot see a bias common to all frames.
 //!
 //! The verdict (`ok` / `uncertain` / `failed`) and its reason follow from these; the
 //! thresholds were set on the real-imagery trials of `cargo xtask calib-check`
@@ -76,6 +79,11 @@ pub struct Assessment {
     pub frames_agreeing: f64,
     /// Mean distance between the start and the final RGB→thermal maps (px).
     pub moved_px: f64,
+    /// Split-half consistency (px): half the mean distance between the maps refined from the
+    /// solution on the even and on the odd frames alone — an estimate of the solution's map
+    /// error from the frames' disagreement (0 with fewer than 4 frames).
+    #[serde(default)]
+    pub split_px: f64,
     /// Formal 1-σ uncertainty per parameter (physical units; fx and fy are one parameter
     /// with square pixels).
     pub sigma: BTreeMap<String, f64>,
@@ -100,6 +108,58 @@ fn frame_scores(level: &Level, scaling: &Scaling, theta: &[f64; NUM_PARAMS]) -> 
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
 }
+
+/// Split-half consistency: refines the solution (all parameters, a few Levenberg-Marquardt
+/// iterations on `level`) on the even and on the odd frames alone and returns half the mean
+/// distance between the two maps, over the frames used. If the frames' own best alignments
+/// scatter (scene content that differs between the bands, too little structure), the halves
+/// disagree; for independent halves the full solution's error is about half their distance.
+#[allow(clippy::too_many_arguments)]
+fn split_half(
+    rig: &Rig,
+    frames: &[Frame],
+    used: &[usize],
+    chosen: &[&Frame],
+    factor: usize,
+    scaling: &Scaling,
+    theta: &[f64; NUM_PARAMS],
+    square: bool,
+) -> f64 {
+    if used.len() < 4 {
+        return 0.0;
+    }
+    // The calibrator's own objective (squared feature differences, no blur) at this level.
+    let level = Level::build(&rig.rgb, chosen, factor, false, 0.0, 1);
+    let all: Vec<usize> = (0..NUM_PARAMS).collect();
+    let dirs = optimize::directions(&all, scaling, square);
+    let solve = |parity: usize| -> Calibration {
+        let idx: Vec<i64> = (0..used.len() as i64)
+            .filter(|i| *i as usize % 2 == parity)
+            .collect();
+        let mut priors = optimize::Priors::new(rig);
+        let run = optimize::lm_level(
+            &level,
+            scaling,
+            &mut priors,
+            *theta,
+            &dirs,
+            &idx,
+            SPLIT_ITERATIONS,
+            1e-3,
+            &mut |_| {},
+        );
+        model::to_calibration(&scaling.physical(&run.theta))
+    };
+    let (even, odd) = (solve(0), solve(1));
+    let chosen: Vec<Frame> = used.iter().map(|&i| frames[i].clone()).collect();
+    0.5 * optimize::mean_map_error(rig, &chosen, &even, &odd)
+}
+
+/// Split-half estimate (px) above which the verdict is `uncertain`.
+pub const SPLIT_UNCERTAIN_PX: f64 = 0.5;
+
+/// Levenberg-Marquardt iterations of each half in [`split_half`].
+const SPLIT_ITERATIONS: usize = 8;
 
 /// Assesses `solution` (found from `initial`) on the frames `used` of `frames`.
 pub fn assess(
@@ -196,6 +256,7 @@ pub fn assess(
         }
     }
     let moved_px = optimize::mean_map_error(rig, frames, solution, initial);
+    let split_px = split_half(rig, frames, used, &chosen, factor, &scaling, &theta, square);
     let gain = at_solution - mean(&start);
     let k = &solution.thermal;
     let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
@@ -258,6 +319,14 @@ pub fn assess(
                 sharpness * 100.0
             ),
         )
+    } else if split_px > SPLIT_UNCERTAIN_PX {
+        (
+            Verdict::Uncertain,
+            format!(
+                "the frames disagree: solved on the even and on the odd frames alone, the maps differ by {:.2} px, so the solution is likely off by about {split_px:.2} px (more frames, or frames with more structure seen by both cameras, help)",
+                2.0 * split_px
+            ),
+        )
     } else if moved_px > 5.0 && gain < 0.1 * at_solution.abs() {
         (
             Verdict::Uncertain,
@@ -291,6 +360,7 @@ pub fn assess(
         },
         frames_agreeing: agreeing,
         moved_px,
+        split_px,
         sigma,
         conditioning,
     })

@@ -42,6 +42,10 @@ pub enum Degrade {
     ShuffleThermal,
     /// Both bands box-blurred (radius width / 20) plus faint noise: nearly textureless.
     Textureless,
+    /// Control rig: the "thermal" is rendered from the RGB image itself (same pipeline, no
+    /// cross-modal differences, no MSRS registration error), to separate the method's own bias
+    /// from the data's.
+    RgbAsThermal,
 }
 
 /// The thermal camera of a trial, relative to the RGB camera.
@@ -104,83 +108,99 @@ impl RealRigConfig {
     }
 }
 
-/// MSRS's vi/ir pairs are not perfectly registered: the thermal image matches the RGB edges
-/// best when sampled at `c + s·(x − c) + shift`, with s = 1.000–1.025 (median 1.015) and
-/// shifts up to 4 px at 640×480 (median (0, +2) px), per scene. Measured with the
-/// `probe_pairs` development test of `optimize.rs` (a grid search at 320×240: s in steps of
-/// 0.005, shifts in steps of 1 px at 640). A rig built on the raw pairs would put a ~1.5 %
-/// scale error into its "truth"; [`write_real_rig`] re-registers each pair first. The grid
-/// steps leave up to ±0.25 % scale and ±0.5 px: the rigs' truth is that good, no better.
-/// (scene, s, shift u, shift v at 640×480).
-pub const MSRS_REGISTRATION: [(&str, f64, f64, f64); 48] = [
-    ("00055D", 1.01, 0e+00, 2e+00),
-    ("00107D", 1.01, -1e+00, 4e+00),
-    ("00135D", 1.01, 0e+00, 0e+00),
-    ("00174D", 1.01, 0e+00, 4e+00),
-    ("00204D", 1.02, -1e+00, 4e+00),
-    ("00241D", 1.01, -1e+00, 2e+00),
-    ("00279D", 1.01, 1e+00, 3e+00),
-    ("00315D", 1.02, 2e+00, 2e+00),
-    ("00345D", 1.01, -1e+00, 2e+00),
-    ("00379D", 1.01, 1e+00, 1e+00),
-    ("00408D", 1.02, -1e+00, 2e+00),
-    ("00444D", 1.0, -4e+00, 0e+00),
-    ("00486D", 1.01, 0e+00, 1e+00),
-    ("00516D", 1.01, 0e+00, 1e+00),
-    ("00559D", 1.01, 0e+00, 1e+00),
-    ("00596D", 1.02, 0e+00, 4e+00),
-    ("00638D", 1.02, 0e+00, -1e+00),
-    ("00676D", 1.01, 1e+00, 2e+00),
-    ("01409D", 1.01, -1e+00, 1e+00),
-    ("01441D", 1.01, 1e+00, 3e+00),
-    ("01474D", 1.02, 0e+00, 2e+00),
-    ("01506D", 1.01, 0e+00, 2e+00),
-    ("01543D", 1.01, 0e+00, 1e+00),
-    ("01574D", 1.02, -1e+00, 2e+00),
-    ("00004N", 1.01, -3e+00, 1e+00),
-    ("00032N", 1.01, 0e+00, 4e+00),
-    ("00695N", 1.02, 0e+00, 2e+00),
-    ("00726N", 1.01, 0e+00, 3e+00),
-    ("00758N", 1.01, 1e+00, 2e+00),
-    ("00786N", 1.02, 0e+00, 3e+00),
-    ("00819N", 1.02, 1e+00, 3e+00),
-    ("00854N", 1.01, 0e+00, 2e+00),
-    ("00882N", 1.01, 0e+00, 1e+00),
-    ("00914N", 1.0, -1e+00, 2e+00),
-    ("00943N", 1.01, -1e+00, 3e+00),
-    ("00976N", 1.0, 1e+00, 1e+00),
-    ("01008N", 1.02, -1e+00, 3e+00),
-    ("01037N", 1.02, 0e+00, 2e+00),
-    ("01070N", 1.02, -1e+00, 2e+00),
-    ("01098N", 1.01, -1e+00, 3e+00),
-    ("01130N", 1.01, 0e+00, 1e+00),
-    ("01162N", 1.0, 0e+00, 1e+00),
-    ("01194N", 1.01, 0e+00, 0e+00),
-    ("01226N", 1.01, -2e+00, 1e+00),
-    ("01254N", 1.0, 1e+00, 4e+00),
-    ("01286N", 1.01, -1e+00, 1e+00),
-    ("01315N", 1.02, -1e+00, 3e+00),
-    ("01348N", 1.02, 0e+00, 2e+00),
+/// MSRS's vi/ir pairs are not perfectly registered: the ir image matches the vi edges best
+/// when sampled at `c + s·(1 + k·r² + k₂·r⁴)·R(α)·(x − c) + shift` (r = |x − c| / half the
+/// width), with s = 1.030 and k = −0.031 (medians over the 48 scenes; s 1.007–1.038, k
+/// −0.041…−0.017), k₂ ≈ 0 (median 0.0006, −0.016…0.012), α within ±0.6° and shifts of a few
+/// pixels at 640×480 (median (−0.1, +2.3) px). So the thermal image is ~3 % magnified at the
+/// centre and hardly at the border: a radial difference between MF's thermal and RGB imaging
+/// that a single scale cannot undo (the previous, scale-only registration found s = 1.000–1.025
+/// as a compromise). Measured with the `probe_registration` development test of `optimize.rs`
+/// (`RTF_CALIB_PROBE_REG=1 REG_K2=1 cargo test --release -p rtf-calib --lib
+/// probe_registration -- --nocapture`: per scene, a coordinate search at full 640×480
+/// resolution maximising the correlation of the centred edge features over the image less an
+/// 8 px border, steps refined to 0.0001 in s, k, k₂, 0.003° and 0.03 px). A rig built on the
+/// raw pairs puts this difference into its "truth" (the calibrator then finds f 2–4 % above it
+/// and k1 more negative: the real image geometry); [`write_real_rig`] re-registers each pair
+/// first. The registration uses the same edge features as the calibrator, so a cross-modal
+/// bias common to both would not show.
+/// (scene, s, k, k₂, α degrees, shift u, shift v at 640×480).
+pub const MSRS_REGISTRATION: [(&str, f64, f64, f64, f64, f64, f64); 48] = [
+    ("00055D", 1.0281, -0.0263, -0.0025, -0.094, 0.50, 1.34),
+    ("00107D", 1.0334, -0.0374, 0.0020, 0.028, -0.25, 4.22),
+    ("00135D", 1.0264, -0.0260, -0.0009, -0.419, 1.12, 0.88),
+    ("00174D", 1.0336, -0.0384, 0.0026, 0.409, 0.00, 7.94),
+    ("00204D", 1.0341, -0.0320, 0.0020, 0.266, -1.28, 3.00),
+    ("00241D", 1.0271, -0.0292, 0.0020, -0.134, -0.62, 1.94),
+    ("00279D", 1.0309, -0.0373, 0.0048, -0.013, 0.66, 2.97),
+    ("00315D", 1.0325, -0.0405, 0.0120, -0.134, 2.12, 1.50),
+    ("00345D", 1.0281, -0.0375, 0.0051, -0.006, -1.44, 1.84),
+    ("00379D", 1.0304, -0.0315, 0.0011, 0.113, 0.06, 1.16),
+    ("00408D", 1.0289, -0.0334, 0.0046, 0.109, -1.09, 2.38),
+    ("00444D", 1.0316, -0.0370, 0.0092, -0.163, -7.22, -0.03),
+    ("00486D", 1.0291, -0.0278, -0.0026, -0.178, 0.50, 1.28),
+    ("00516D", 1.0201, -0.0200, -0.0003, 0.131, -0.22, 1.66),
+    ("00559D", 1.0315, -0.0286, -0.0015, 0.231, -0.28, 1.75),
+    ("00596D", 1.0272, -0.0238, 0.0018, 0.238, -0.19, 2.88),
+    ("00638D", 1.0364, -0.0325, -0.0020, 0.284, -0.56, -1.44),
+    ("00676D", 1.0301, -0.0297, 0.0021, -0.125, 0.50, 1.81),
+    ("01409D", 1.0250, -0.0271, -0.0004, 0.084, -0.38, 1.12),
+    ("01441D", 1.0317, -0.0330, -0.0004, -0.106, -0.09, 2.84),
+    ("01474D", 1.0312, -0.0257, -0.0040, 0.250, 0.00, 1.62),
+    ("01506D", 1.0282, -0.0274, -0.0008, -0.278, 0.47, 1.66),
+    ("01543D", 1.0301, -0.0311, 0.0000, 0.125, 0.06, 2.00),
+    ("01574D", 1.0299, -0.0266, 0.0006, -0.141, -0.03, 1.53),
+    ("00004N", 1.0315, -0.0226, -0.0158, -0.144, -2.72, 0.84),
+    ("00032N", 1.0352, -0.0396, 0.0050, 0.209, 0.66, 5.31),
+    ("00695N", 1.0327, -0.0325, -0.0008, 0.044, -0.41, 3.00),
+    ("00726N", 1.0290, -0.0316, 0.0020, -0.319, 1.31, 2.88),
+    ("00758N", 1.0327, -0.0297, -0.0041, 0.097, -0.03, 2.69),
+    ("00786N", 1.0300, -0.0302, -0.0005, -0.003, -0.19, 2.25),
+    ("00819N", 1.0332, -0.0323, -0.0019, 0.150, 0.09, 3.38),
+    ("00854N", 1.0249, -0.0259, -0.0010, -0.288, 0.69, 2.09),
+    ("00882N", 1.0235, -0.0172, 0.0010, 0.197, 0.19, 2.50),
+    ("00914N", 1.0229, -0.0302, 0.0035, -0.109, -0.06, 2.00),
+    ("00943N", 1.0291, -0.0301, 0.0037, 0.119, -0.50, 3.44),
+    ("00976N", 1.0285, -0.0316, 0.0035, -0.141, 0.00, 2.88),
+    ("01008N", 1.0314, -0.0311, 0.0005, 0.041, -0.31, 2.38),
+    ("01037N", 1.0377, -0.0380, -0.0025, 0.244, -0.16, 2.28),
+    ("01070N", 1.0299, -0.0309, 0.0040, -0.206, -0.94, 2.00),
+    ("01098N", 1.0272, -0.0270, 0.0034, -0.100, -0.88, 2.59),
+    ("01130N", 1.0277, -0.0212, -0.0036, 0.134, -1.31, 1.91),
+    ("01162N", 1.0071, -0.0336, 0.0013, 0.188, 3.31, 1.81),
+    ("01194N", 1.0237, -0.0225, -0.0003, 0.606, -1.06, 0.50),
+    ("01226N", 1.0324, -0.0339, -0.0041, 0.359, -1.25, 3.06),
+    ("01254N", 1.0349, -0.0363, -0.0056, 0.122, 0.09, 3.41),
+    ("01286N", 1.0301, -0.0321, 0.0023, 0.259, -1.00, 2.47),
+    ("01315N", 1.0375, -0.0373, 0.0084, -0.122, -0.28, 3.44),
+    ("01348N", 1.0334, -0.0255, 0.0003, 0.106, 0.00, 2.34),
 ];
 
 /// Re-registers the MSRS ir image of `scene` onto its vi image (see [`MSRS_REGISTRATION`];
 /// unknown scenes get the median correction).
 pub fn register_msrs_ir(scene: &str, ir: &Plane) -> Plane {
-    let (_, scale, shift_u, shift_v) = MSRS_REGISTRATION
+    let (_, scale, k, k2, alpha, shift_u, shift_v) = MSRS_REGISTRATION
         .iter()
         .copied()
         .find(|r| r.0 == scene)
-        .unwrap_or(("", 1.015, 0.0, 2.0));
+        .unwrap_or(("", 1.030, -0.031, 0.0, 0.0, 0.0, 2.0));
     let (cu, cv) = (
         (ir.width as f64 - 1.0) / 2.0,
         (ir.height as f64 - 1.0) / 2.0,
     );
-    let k = ir.width as f64 / 640.0;
-    let (su, sv) = (shift_u * k, shift_v * k);
+    let px = ir.width as f64 / 640.0;
+    let (su, sv) = (shift_u * px, shift_v * px);
+    let (sn, cs) = alpha.to_radians().sin_cos();
     let data = (0..ir.width * ir.height)
         .map(|i| {
-            let (u, v) = ((i % ir.width) as f64, (i / ir.width) as f64);
-            bilinear_clamped(ir, cu + scale * (u - cu) + su, cv + scale * (v - cv) + sv)
+            let (x, y) = ((i % ir.width) as f64 - cu, (i / ir.width) as f64 - cv);
+            let r2 = (x * x + y * y) / (cu * cu);
+            let g = scale * (1.0 + k * r2 + k2 * r2 * r2);
+            bilinear_clamped(
+                ir,
+                cu + g * (cs * x - sn * y) + su,
+                cv + g * (sn * x + cs * y) + sv,
+            )
         })
         .collect();
     Plane::new(ir.width, ir.height, data)
@@ -468,7 +488,12 @@ pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
             Degrade::ShuffleThermal => &scenes[(i + 1) % scenes.len()],
             _ => name,
         };
-        let (_, ir) = load(thermal_source)?;
+        let (vi_src, ir) = load(thermal_source)?;
+        let ir = if cfg.degrade == Degrade::RgbAsThermal {
+            vi_src
+        } else {
+            ir
+        };
         let noise_seed = rng.random::<u64>();
         if cfg.degrade == Degrade::Textureless {
             let mut nrng = ChaCha8Rng::seed_from_u64(noise_seed);

@@ -225,7 +225,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     if let Some(a) = &outcome.assessment {
         println!(
-            "verdict: {} ({}); alignment score {:.4} (start {:.4}, ±{} px {:.4}); {:.0} % of frames agree; map moved {:.1} px",
+            "verdict: {} ({}); alignment score {:.4} (start {:.4}, ±{} px {:.4}); {:.0} % of frames agree; split-half {:.2} px; map moved {:.1} px",
             a.verdict,
             a.reason,
             a.score.at_solution,
@@ -233,6 +233,7 @@ pub fn run(args: Args) -> Result<()> {
             a.score.delta_px,
             a.score.perturbed_mean,
             100.0 * a.frames_agreeing,
+            a.split_px,
             a.moved_px
         );
         if a.verdict == Verdict::Failed {
