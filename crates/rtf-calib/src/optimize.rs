@@ -1012,9 +1012,12 @@ mod tests {
         (after, deg, metres, out)
     }
 
+    /// Development aid, run with RTF_CALIB_DEBUG=1 [WIDTH=.. SEED=.. N_FRAMES=..].
     #[test]
-    #[ignore = "development aid: RTF_CALIB_DEBUG=1 WIDTH=.. SEED=.. N_FRAMES=.."]
     fn explore() {
+        if std::env::var_os("RTF_CALIB_DEBUG").is_none() {
+            return;
+        }
         tch::set_num_threads(1);
         let frames: usize = std::env::var("N_FRAMES")
             .ok()
