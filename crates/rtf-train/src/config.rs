@@ -55,6 +55,10 @@ pub struct TrainConfig {
     /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub data_fingerprint: Option<rtf_data::Fingerprint>,
+    /// Processes of a data-parallel run (`torchrun`), recorded by rank 0 when the run starts; a
+    /// resume needs as many. None = a single-process run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world_size: Option<usize>,
 }
 
 /// Which input channels a network sees; the others are set to 0 in the network's input space
@@ -746,6 +750,7 @@ impl TrainConfig {
             select_by: None,
             tb_images_every: None,
             data_fingerprint: None,
+            world_size: None,
         }
     }
 
