@@ -26,14 +26,22 @@ fn main() {
         .flag("-DGLOG_USE_GLOG_EXPORT")
         .file("shim/c10d_shim.cpp");
     if std::env::var_os("CARGO_FEATURE_NCCL").is_some() {
-        // The wheel's CUDA and NCCL headers live in the venv's nvidia packages, beside torch.
-        let nvidia = lib.join("../../nvidia");
+        // ProcessGroupNCCL.hpp needs a CUDA toolkit's headers (the runtime wheels lack nvcc's
+        // `crt/` and CCCL's `nv/`): RTF_DIST_CUDA_INCLUDE, else /usr/local/cuda/include. NCCL's
+        // header comes from the venv's nvidia-nccl wheel beside torch, or RTF_DIST_NCCL_INCLUDE.
         let cuda = std::env::var("RTF_DIST_CUDA_INCLUDE")
             .map(PathBuf::from)
-            .unwrap_or_else(|_| nvidia.join("cu13/include"));
+            .unwrap_or_else(|_| PathBuf::from("/usr/local/cuda/include"));
         let nccl = std::env::var("RTF_DIST_NCCL_INCLUDE")
             .map(PathBuf::from)
-            .unwrap_or_else(|_| nvidia.join("nccl/include"));
+            .unwrap_or_else(|_| lib.join("../../nvidia/nccl/include"));
+        if !cuda.join("crt/host_config.h").exists() {
+            panic!(
+                "the `nccl` feature needs a CUDA toolkit's headers: {} has no crt/host_config.h \
+                 (set RTF_DIST_CUDA_INCLUDE)",
+                cuda.display()
+            );
+        }
         build
             .define("RTF_DIST_NCCL", "1")
             .include(cuda)

@@ -22,6 +22,7 @@
 
 #ifdef RTF_DIST_NCCL
 #define USE_C10D_NCCL 1
+#include <c10/cuda/CUDAFunctions.h>
 #include <torch/csrc/distributed/c10d/ProcessGroupNCCL.hpp>
 #endif
 

@@ -170,6 +170,7 @@ pub struct ProcessGroup {
     rank: usize,
     world: usize,
     backend: Backend,
+    device: Device,
 }
 
 // SAFETY: the group is a heap object of the shim owned by this value alone; c10d process
@@ -248,6 +249,10 @@ impl ProcessGroup {
             rank: env.rank,
             world: env.world_size,
             backend,
+            device: match backend {
+                Backend::Gloo => Device::Cpu,
+                Backend::Nccl => device,
+            },
         })
     }
 
@@ -300,17 +305,14 @@ impl ProcessGroup {
     /// Whether any rank raised `flag` (an all-reduced stop flag: Ctrl-C on one rank stops
     /// every rank at the same step).
     pub fn any(&self, flag: bool) -> Result<bool, DistError> {
-        let mut t = Tensor::from_slice(&[flag as i64]).to_device(self.flat_device());
+        let mut t = Tensor::from_slice(&[flag as i64]).to_device(self.device);
         self.all_reduce_sum(&mut t)?;
         Ok(t.int64_value(&[0]) > 0)
     }
 
-    /// Where small control tensors live: CPU for gloo, the current CUDA device for NCCL.
-    fn flat_device(&self) -> Device {
-        match self.backend {
-            Backend::Gloo => Device::Cpu,
-            Backend::Nccl => Device::cuda_if_available(),
-        }
+    /// Where tensors of collectives live: CPU for gloo, this rank's GPU for NCCL.
+    pub fn device(&self) -> Device {
+        self.device
     }
 
     /// DDP's gradient averaging: the defined gradients of `vars`, in order, packed into flat

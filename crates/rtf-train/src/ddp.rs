@@ -104,9 +104,11 @@ impl Ddp {
     pub fn agree(&self, stop: bool, values: &[f64]) -> Result<(bool, Vec<f64>), TrainError> {
         let mut all = vec![stop as u8 as f64];
         all.extend_from_slice(values);
-        let mut t = Tensor::from_slice(&all);
-        self.group().all_reduce_sum(&mut t)?;
-        let summed = Vec::<f64>::try_from(&t)
+        let group = self.group();
+        let mut t = Tensor::from_slice(&all).to_device(group.device());
+        group.all_reduce_sum(&mut t)?;
+        drop(group);
+        let summed = Vec::<f64>::try_from(&t.to_device(tch::Device::Cpu))
             .map_err(|e| TrainError::Config(format!("reading an all-reduced tensor: {e}")))?;
         Ok((summed[0] > 0.0, summed[1..].to_vec()))
     }
@@ -120,9 +122,12 @@ impl Ddp {
     ) -> Result<u64, TrainError> {
         let digest = weights_digest(procedure.trained().iter().map(|t| &t.vs));
         // Two exact halves: all-reduced values are i64 tensors.
-        let mut t = Tensor::from_slice(&[(digest >> 32) as i64, (digest & 0xffff_ffff) as i64]);
-        self.group().broadcast(&mut t, 0)?;
-        let root = Vec::<i64>::try_from(&t)
+        let group = self.group();
+        let mut t = Tensor::from_slice(&[(digest >> 32) as i64, (digest & 0xffff_ffff) as i64])
+            .to_device(group.device());
+        group.broadcast(&mut t, 0)?;
+        drop(group);
+        let root = Vec::<i64>::try_from(&t.to_device(tch::Device::Cpu))
             .map_err(|e| TrainError::Config(format!("reading a broadcast tensor: {e}")))?;
         let root = ((root[0] as u64) << 32) | root[1] as u64;
         let (differs, _) = self.agree(root != digest, &[])?;
