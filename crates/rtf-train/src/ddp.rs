@@ -283,3 +283,28 @@ pub fn shard_loader(
     );
     Ok((loader, shard))
 }
+
+/// A folder of this process's own under the system's temporary folder, removed on drop (the
+/// label caches of ranks other than 0, which never write the run folder).
+pub struct ScratchDir(std::path::PathBuf);
+
+impl ScratchDir {
+    pub fn new() -> Self {
+        Self(std::env::temp_dir().join(format!("rtf-rank-labels-{}", std::process::id())))
+    }
+    pub fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl Default for ScratchDir {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}

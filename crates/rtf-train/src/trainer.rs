@@ -496,6 +496,8 @@ pub fn train_distributed(
         crate::config::Procedure::Supervised => None,
     };
     let (day_labeller, night_labeller) = procedure.labellers();
+    // Label caches of ranks other than 0, removed when the run returns.
+    let mut scratch: Option<crate::ddp::ScratchDir> = None;
     let streams = [
         (day_labeller, Some(&mut sources.main), "day"),
         (night_labeller, sources.night.as_mut(), "night"),
@@ -508,8 +510,9 @@ pub fn train_distributed(
         // Other ranks than 0 never write the run folder: they label into a folder of their own.
         let dir = match is_root {
             true => run_dir.join("labels").join(name),
-            false => std::env::temp_dir()
-                .join(format!("rtf-labels-{}", std::process::id()))
+            false => scratch
+                .get_or_insert_with(crate::ddp::ScratchDir::new)
+                .path()
                 .join(name),
         };
         crate::label_cache::write(

@@ -294,3 +294,64 @@ fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
         other => panic!("unknown phase {other:?}"),
     }
 }
+
+/// HeatNet's adversarial procedure on 2 ranks (teacher labels cached, so rank 1 labels into a
+/// scratch folder of its own): both the segmentation network's and the critic's gradients are
+/// averaged, so both networks end identical on both ranks (the trainer compares every trained
+/// network bit for bit and fails the run otherwise; the ranks see different frames).
+#[test]
+fn two_rank_adversarial_run_keeps_both_networks_identical() {
+    let test = "two_rank_adversarial_run_keeps_both_networks_identical";
+    let Some((ddp, dir, _)) = rank() else {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        let names = common::write_frames(&dir.join("data"), 10, 99, false);
+        std::fs::write(dir.join("data/train.txt"), names[..8].join("\n")).unwrap();
+        std::fs::write(dir.join("data/val.txt"), names[8..].join("\n")).unwrap();
+        tch::manual_seed(21);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let model = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
+        rtf_models::build(&vs.root(), &model).unwrap();
+        rtf_models::weights::save_safetensors(&vs, &model, &dir.join("teacher.safetensors"))
+            .unwrap();
+        if !launch(test, dir, "") {
+            return;
+        }
+        let read = |name: &str| std::fs::read_to_string(dir.join(name)).expect(name);
+        assert_eq!(read("adv.rank0"), read("adv.rank1"));
+        let log = read("run/log.jsonl");
+        assert_eq!(log.lines().count(), 2);
+        assert!(log.contains("critic_acc"), "the critic trained: {log}");
+        assert!(dir.join("run/labels").exists(), "rank 0 cached the labels");
+        return;
+    };
+    let mut cfg = mfnet(&dir.join("data"));
+    cfg.procedure = rtf_train::Procedure::Adversarial {
+        day_teacher: rtf_train::config::TeacherRef::Weights {
+            path: dir.join("teacher.safetensors"),
+            model: rtf_models::ModelConfig::from_name("mfnet", 9).unwrap(),
+            inputs: rtf_train::Modality::Rgb,
+        },
+        night_teacher: None,
+        targets: rtf_train::config::TargetOptions {
+            cache: true,
+            ..Default::default()
+        },
+        critic: Default::default(),
+    };
+    let r = ddp.rank();
+    let out = rtf_train::trainer::train_distributed(
+        &cfg,
+        &dir.join("run"),
+        false,
+        &mut |_| {},
+        &AtomicBool::new(false),
+        Some(ddp),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join(format!("adv.rank{r}")),
+        format!("{:?}", out.weights_digest.expect("a data-parallel run")),
+    )
+    .unwrap();
+}
