@@ -222,8 +222,7 @@ fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
             &mut |_| {},
             &AtomicBool::new(false),
         )
-        .err()
-        .expect("refused");
+        .expect_err("refused");
         assert!(err.to_string().contains("trained by 2 process"), "{err}");
         launch(test, dir, "resume");
         assert_eq!(read("resume.rank0"), read("resume.rank1"));
