@@ -480,7 +480,7 @@ pub fn train_distributed(
         }
     }
     if let Some(d) = &ddp {
-        // DDP's start: rank 0's weights (and optimiser-free state) on every rank, and every
+        // DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every
         // trained network's gradients averaged from now on.
         for t in procedure.trained_mut() {
             d.broadcast_all(&t.vs)?;
