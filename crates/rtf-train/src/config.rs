@@ -55,6 +55,10 @@ pub struct TrainConfig {
     /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub data_fingerprint: Option<rtf_data::Fingerprint>,
+    /// Processes of a data-parallel run (`torchrun`), recorded by rank 0 when the run starts; a
+    /// resume needs as many. None = a single-process run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world_size: Option<usize>,
 }
 
 /// Which input channels a network sees (defined beside the networks, and recorded in their
@@ -703,6 +707,7 @@ impl TrainConfig {
             select_by: None,
             tb_images_every: None,
             data_fingerprint: None,
+            world_size: None,
         }
     }
 

@@ -7,6 +7,7 @@
 
 pub mod checkpoint;
 pub mod config;
+pub mod ddp;
 pub mod label_cache;
 pub mod loss;
 pub mod optim;

@@ -41,6 +41,8 @@ pub enum TrainError {
     Config(String),
     #[error("invalid configuration: {0}")]
     Invalid(#[from] ConfigError),
+    #[error(transparent)]
+    Distributed(#[from] rtf_dist::DistError),
     #[error("training diverged at epoch {epoch}, step {step}: {what}")]
     Diverged {
         epoch: usize,
@@ -112,6 +114,9 @@ pub struct TrainOutcome {
     pub final_weights: Option<PathBuf>,
     pub records: Vec<EpochRecord>,
     pub state: TrainState,
+    /// Data-parallel runs: the digest of every trained variable at the end, checked equal on
+    /// every rank ([`crate::ddp::Ddp::check_identical`]).
+    pub weights_digest: Option<u64>,
 }
 
 /// Reads the configuration of an existing run (for `--resume`), checked.
@@ -322,12 +327,7 @@ pub fn train(
     train_until(cfg, run_dir, resume, on_epoch, &AtomicBool::new(false))
 }
 
-/// Trains `cfg` into `run_dir`. With `resume`, continues from its checkpoint (every trained
-/// network, optimiser state, epoch and, for a mid-epoch checkpoint, the batch; data order and
-/// augmentation depend only on (seed, stream, epoch), and libtorch's generator is reseeded from
-/// (seed, epoch, batch) before every step, so the continuation equals an uninterrupted run).
-/// Stops cleanly once `stop` is set (Ctrl-C, SIGTERM): it finishes the step in flight, writes a
-/// mid-epoch checkpoint and returns with `final_weights` None.
+/// [`train_distributed`] as a single process.
 pub fn train_until(
     cfg: &TrainConfig,
     run_dir: &Path,
@@ -335,20 +335,59 @@ pub fn train_until(
     on_epoch: &mut dyn FnMut(&EpochRecord),
     stop: &AtomicBool,
 ) -> Result<TrainOutcome, TrainError> {
+    train_distributed(cfg, run_dir, resume, on_epoch, stop, None)
+}
+
+/// Trains `cfg` into `run_dir`. With `resume`, continues from its checkpoint (every trained
+/// network, optimiser state, epoch and, for a mid-epoch checkpoint, the batch; data order and
+/// augmentation depend only on (seed, stream, epoch), and libtorch's generator is reseeded from
+/// (seed, epoch, batch) before every step, so the continuation equals an uninterrupted run).
+/// Stops cleanly once `stop` is set (Ctrl-C, SIGTERM): it finishes the step in flight, writes a
+/// mid-epoch checkpoint and returns with `final_weights` None.
+///
+/// With `ddp`, this process is one rank of a data-parallel run ([`crate::ddp`]): it trains on
+/// its shard of every epoch, gradients are averaged over the ranks, a stop on any rank stops
+/// every rank at the same step, and only rank 0 writes `run_dir` (the other ranks read it on
+/// resume: a multi-node run needs it on a shared filesystem to resume).
+pub fn train_distributed(
+    cfg: &TrainConfig,
+    run_dir: &Path,
+    resume: bool,
+    on_epoch: &mut dyn FnMut(&EpochRecord),
+    stop: &AtomicBool,
+    ddp: Option<Arc<crate::ddp::Ddp>>,
+) -> Result<TrainOutcome, TrainError> {
     cfg.validate()?;
     let device = cfg.device().map_err(TrainError::Config)?;
     let checkpoint_path = run_dir.join(CHECKPOINT_FILE);
-    if !resume && rundir::holds_run(run_dir) {
+    let is_root = ddp.as_ref().is_none_or(|d| d.is_root());
+    let world = ddp.as_ref().map(|d| d.world_size());
+    if cfg.world_size.unwrap_or(1) != world.unwrap_or(1) && resume {
+        return Err(TrainError::Config(format!(
+            "{}: the run was trained by {} process(es), this is {}; resume it with as many \
+             (torchrun --nproc-per-node ...) so that it continues exactly",
+            run_dir.display(),
+            cfg.world_size.unwrap_or(1),
+            world.unwrap_or(1)
+        )));
+    }
+    if is_root && !resume && rundir::holds_run(run_dir) {
         return Err(run_error(
             run_dir,
             "already holds a run; use --resume to continue it or choose another output folder",
         ));
     }
     procedure::check_teachers(cfg)?;
-    std::fs::create_dir_all(run_dir)
-        .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
-    let _lock = rundir::RunLock::acquire(run_dir)?;
-    rundir::remove_orphan_temp_files(run_dir);
+    let _lock = match is_root {
+        true => {
+            std::fs::create_dir_all(run_dir)
+                .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
+            let lock = rundir::RunLock::acquire(run_dir)?;
+            rundir::remove_orphan_temp_files(run_dir);
+            Some(lock)
+        }
+        false => None,
+    };
     // A resume of a run killed before its first checkpoint starts it over.
     let resume = resume && checkpoint_path.exists();
     if resume {
@@ -392,7 +431,12 @@ pub fn train_until(
         );
     }
     cfg_written.data_fingerprint = Some(fingerprint);
-    rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &cfg_written)?;
+    if world.is_some() {
+        cfg_written.world_size = world;
+    }
+    if is_root {
+        rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &cfg_written)?;
+    }
 
     tch::manual_seed(cfg.seed as i64);
     let mut procedure = procedure::build(cfg, sources.ignore_id, device)?;
@@ -414,9 +458,13 @@ pub fn train_until(
                 .set_state(optimizers.remove(t.role).unwrap_or_default());
         }
         state = saved;
-        rundir::rewrite_log(run_dir, &state.records)?;
+        if is_root {
+            rundir::rewrite_log(run_dir, &state.records)?;
+        }
     } else {
-        let _ = std::fs::remove_file(run_dir.join(LOG_FILE));
+        if is_root {
+            let _ = std::fs::remove_file(run_dir.join(LOG_FILE));
+        }
         let student = &mut procedure.trained_mut()[0].vs;
         if let Some(path) = &cfg.backbone_weights {
             rtf_models::backbone::load_backbone_weights(student, &cfg.model, path)?;
@@ -431,6 +479,14 @@ pub fn train_until(
             None => {}
         }
     }
+    if let Some(d) = &ddp {
+        // DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every
+        // trained network's gradients averaged from now on.
+        for t in procedure.trained_mut() {
+            d.broadcast_all(&t.vs)?;
+            t.ddp = Some(d.clone());
+        }
+    }
     let input = procedure.student().net.input_convention();
     // Teacher labels written once, if asked: the streams then carry them as labels.
     let mut sources = sources;
@@ -440,6 +496,8 @@ pub fn train_until(
         crate::config::Procedure::Supervised => None,
     };
     let (day_labeller, night_labeller) = procedure.labellers();
+    // Label caches of ranks other than 0, removed when the run returns.
+    let mut scratch: Option<crate::ddp::ScratchDir> = None;
     let streams = [
         (day_labeller, Some(&mut sources.main), "day"),
         (night_labeller, sources.night.as_mut(), "night"),
@@ -449,7 +507,14 @@ pub fn train_until(
         else {
             continue;
         };
-        let dir = run_dir.join("labels").join(name);
+        // Other ranks than 0 never write the run folder: they label into a folder of their own.
+        let dir = match is_root {
+            true => run_dir.join("labels").join(name),
+            false => scratch
+                .get_or_insert_with(crate::ddp::ScratchDir::new)
+                .path()
+                .join(name),
+        };
         crate::label_cache::write(
             &labeller.teacher,
             stream.clone(),
@@ -460,8 +525,13 @@ pub fn train_until(
         )?;
         *stream = Arc::new(crate::label_cache::CachedLabels::new(stream.clone(), dir));
     }
-    let mut tb = crate::tensorboard::TbWriter::create(run_dir)
-        .map_err(|e| run_error(&run_dir.join("tb"), format!("TensorBoard: {e}")))?;
+    let mut tb = match is_root {
+        true => Some(
+            crate::tensorboard::TbWriter::create(run_dir)
+                .map_err(|e| run_error(&run_dir.join("tb"), format!("TensorBoard: {e}")))?,
+        ),
+        false => None,
+    };
     let main = loader(cfg, sources.main.clone(), cfg.seed, input);
     // The night stream has its own order, and cycles when it is the shorter one.
     let night = sources.night.clone().map(|s| {
@@ -472,6 +542,23 @@ pub fn train_until(
             input,
         )
     });
+    // A data-parallel rank loads only its shard of each stream.
+    let (main, main_shard, night, night_shard) = match &ddp {
+        None => (main, None, night, None),
+        Some(d) => {
+            let (main, shard) =
+                crate::ddp::shard_loader(main.source().clone(), main.config().clone(), input, d)?;
+            let (night, night_shard) = match night {
+                Some(n) => {
+                    let (l, s) =
+                        crate::ddp::shard_loader(n.source().clone(), n.config().clone(), input, d)?;
+                    (Some(l), Some(s))
+                }
+                None => (None, None),
+            };
+            (main, Some(shard), night, night_shard)
+        }
+    };
     let select = cfg
         .select_by
         .unwrap_or_else(|| default_select_metric(&cfg.dataset));
@@ -479,9 +566,14 @@ pub fn train_until(
         .max_steps_per_epoch
         .map_or(main.num_batches(), |m| m.min(main.num_batches()));
     let mut records = Vec::new();
+    // Data-parallel: the stop every rank agreed on at the last step.
+    let mut stop_agreed = false;
     for epoch in state.epochs_done..cfg.epochs {
         let lr = cfg.optimizer.lr_at(epoch);
-        let bar = progress_bar(steps_per_epoch, epoch, cfg.epochs);
+        let bar = match is_root {
+            true => progress_bar(steps_per_epoch, epoch, cfg.epochs),
+            false => ProgressBar::hidden(),
+        };
         // A mid-epoch checkpoint resumes at its batch with the epoch's sums so far.
         let done = state.partial.take().unwrap_or(PartialEpoch {
             batches: 0,
@@ -502,6 +594,9 @@ pub fn train_until(
             Duration::from_secs_f64(done.wait_seconds),
             done.term_sums,
         );
+        if let Some(shard) = &main_shard {
+            shard.set_epoch(epoch as u64);
+        }
         let batches = main
             .epoch_from(epoch as u64, first)
             .take(steps_per_epoch - first);
@@ -510,7 +605,11 @@ pub fn train_until(
             let per_epoch = n.num_batches().max(1);
             let global = epoch * steps_per_epoch + first;
             let (start_epoch, start_batch) = (global / per_epoch, global % per_epoch);
+            let shard = night_shard.clone();
             (start_epoch..).flat_map(move |e| {
+                if let Some(shard) = &shard {
+                    shard.set_epoch(e as u64);
+                }
                 n.epoch_from(e as u64, if e == start_epoch { start_batch } else { 0 })
             })
         });
@@ -536,7 +635,72 @@ pub fn train_until(
                 main: on_device(batch),
                 night: night_batch.map(on_device),
             };
-            let report = procedure.step(&batches, epoch)?;
+            let mut report = procedure.step(&batches, epoch)?;
+            // Data-parallel: rank 0's BatchNorm statistics everywhere, and one all-reduce that
+            // agrees on stopping and averages the losses to log over every rank's batch.
+            let mut interrupted = stop.load(Ordering::Relaxed);
+            if let Some(d) = &ddp {
+                // A collective that failed (a dead rank, a timeout) stops every rank; rank 0
+                // checkpoints where the step left its weights: before it when the gradient
+                // all-reduce failed (the update was skipped), after it otherwise.
+                let keys: Vec<String> = report
+                    .terms
+                    .keys()
+                    .chain(report.metrics.keys())
+                    .cloned()
+                    .collect();
+                let values: Vec<f64> = std::iter::once(report.total)
+                    .chain(report.terms.values().copied())
+                    .chain(report.metrics.values().copied())
+                    .collect();
+                let synced = match d.check() {
+                    Err(e) => Err((e, step)),
+                    Ok(()) => procedure
+                        .trained()
+                        .iter()
+                        .try_for_each(|t| d.broadcast_buffers(&t.vs))
+                        .and_then(|_| d.agree(interrupted, &values))
+                        .map_err(|e| (e, step + 1)),
+                };
+                let (any_stop, sums) = match synced {
+                    Ok(agreed) => agreed,
+                    Err((error, batches)) => {
+                        let mut message = format!("{error}; every rank stops");
+                        if is_root {
+                            let after = batches > step;
+                            state.steps_done += after as u64;
+                            state.partial = Some(PartialEpoch {
+                                batches,
+                                loss_sum: loss_sum + if after { report.total } else { 0.0 },
+                                images: images + if after { count * world.unwrap_or(1) } else { 0 },
+                                seconds: elapsed().as_secs_f64(),
+                                wait_seconds: waited.as_secs_f64(),
+                                term_sums: term_sums.clone(),
+                            });
+                            save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
+                            message += &format!(
+                                "; rank 0 wrote a checkpoint at epoch {}, batch {batches}: \
+                                 continue with `rtf train --resume {}` under torchrun with as \
+                                 many processes",
+                                epoch + 1,
+                                run_dir.display()
+                            );
+                        }
+                        return Err(TrainError::Config(message));
+                    }
+                };
+                interrupted = any_stop;
+                stop_agreed = any_stop;
+                let n = d.world_size() as f64;
+                report.total = sums[0] / n;
+                for (key, sum) in keys.iter().zip(&sums[1..]) {
+                    if let Some(v) = report.terms.get_mut(key) {
+                        *v = sum / n;
+                    } else if let Some(v) = report.metrics.get_mut(key) {
+                        *v = sum / n;
+                    }
+                }
+            }
             if !report.total.is_finite() {
                 return Err(TrainError::Diverged {
                     epoch,
@@ -549,14 +713,13 @@ pub fn train_until(
             for (name, value) in report.terms.iter().chain(&report.metrics) {
                 *term_sums.entry(name.clone()).or_default() += value;
             }
-            images += count;
+            images += count * world.unwrap_or(1);
             let rate = images as f64 / elapsed().as_secs_f64().max(1e-9);
             bar.set_message(format!(
                 "loss {:.4} | {rate:.1} img/s",
                 loss_sum / (step + 1) as f64
             ));
             bar.inc(1);
-            let interrupted = stop.load(Ordering::Relaxed);
             let scheduled = cfg
                 .checkpoint_every
                 .is_some_and(|every| every > 0 && state.steps_done % every as u64 == 0);
@@ -570,7 +733,10 @@ pub fn train_until(
                     wait_seconds: waited.as_secs_f64(),
                     term_sums: term_sums.clone(),
                 });
-                save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
+                match is_root {
+                    true => save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?,
+                    false => check_finite(procedure.as_ref(), epoch, state.steps_done)?,
+                }
                 if interrupted {
                     bar.abandon();
                     return Ok(TrainOutcome {
@@ -578,6 +744,7 @@ pub fn train_until(
                         final_weights: None,
                         records,
                         state,
+                        weights_digest: None,
                     });
                 }
                 state.partial = None;
@@ -627,17 +794,34 @@ pub fn train_until(
             if state.best_val_miou.is_none_or(|best| v.selected > best) {
                 check_finite(procedure.as_ref(), epoch, state.steps_done)?;
                 state.best_val_miou = Some(v.selected);
-                rtf_models::weights::save_safetensors(
-                    &procedure.student().trained.vs,
-                    &cfg.model,
-                    cfg.inputs,
-                    &run_dir.join(BEST_FILE),
-                )?;
+                if is_root {
+                    rtf_models::weights::save_safetensors(
+                        &procedure.student().trained.vs,
+                        &cfg.model,
+                        cfg.inputs,
+                        &run_dir.join(BEST_FILE),
+                    )?;
+                }
             }
         }
         state
             .records
             .push(serde_json::to_value(&record).expect("record serialises"));
+        if !is_root {
+            // Rank 0 writes the checkpoint, the log and TensorBoard.
+            check_finite(procedure.as_ref(), epoch, state.steps_done)?;
+            records.push(record);
+            if stop_agreed && state.epochs_done < cfg.epochs {
+                return Ok(TrainOutcome {
+                    run_dir: run_dir.to_path_buf(),
+                    final_weights: None,
+                    records,
+                    state,
+                    weights_digest: None,
+                });
+            }
+            continue;
+        }
         save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
         rundir::append_log(run_dir, &record)?;
         // TensorBoard: every scalar of the record (loss terms, rates, validation, critic), and
@@ -648,6 +832,7 @@ pub fn train_until(
             ),
             _ => None,
         };
+        let tb = tb.as_mut().expect("rank 0 has its TensorBoard writer");
         let written = tb
             .record(&serde_json::to_value(&record).expect("record serialises"))
             .and_then(|_| match &grid {
@@ -660,28 +845,40 @@ pub fn train_until(
         }
         on_epoch(&record);
         records.push(record);
-        if stop.load(Ordering::Relaxed) && state.epochs_done < cfg.epochs {
+        let stopping = match ddp {
+            Some(_) => stop_agreed,
+            None => stop.load(Ordering::Relaxed),
+        };
+        if stopping && state.epochs_done < cfg.epochs {
             // Stopped on an epoch's last step: its checkpoint is the epoch-end one.
             return Ok(TrainOutcome {
                 run_dir: run_dir.to_path_buf(),
                 final_weights: None,
                 records,
                 state,
+                weights_digest: None,
             });
         }
     }
     let final_weights = run_dir.join(FINAL_FILE);
-    rtf_models::weights::save_safetensors(
-        &procedure.student().trained.vs,
-        &cfg.model,
-        cfg.inputs,
-        &final_weights,
-    )?;
+    let weights_digest = match &ddp {
+        Some(d) => Some(d.check_identical(procedure.as_ref())?),
+        None => None,
+    };
+    if is_root {
+        rtf_models::weights::save_safetensors(
+            &procedure.student().trained.vs,
+            &cfg.model,
+            cfg.inputs,
+            &final_weights,
+        )?;
+    }
     Ok(TrainOutcome {
         run_dir: run_dir.to_path_buf(),
         final_weights: Some(final_weights),
         records,
         state,
+        weights_digest,
     })
 }
 

@@ -135,6 +135,10 @@ pub struct Args {
     /// Every N epochs, a prediction grid of validation frames in TensorBoard (0: never).
     #[arg(long, default_value_t = 5)]
     pub tb_images_every: usize,
+    /// Under torchrun (RANK, WORLD_SIZE, MASTER_ADDR, MASTER_PORT set): seconds a collective
+    /// may wait for the other ranks before the run stops with an error.
+    #[arg(long, default_value_t = 300)]
+    pub dist_timeout: u64,
     /// ImageNet ResNet weights (torchvision names, safetensors; see `cargo xtask convert-pth`)
     /// for the encoders of RTFNet and the ResNet-based baselines.
     #[arg(long)]
@@ -142,7 +146,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let (cfg, run_dir, resume) = match &args.resume {
+    let (mut cfg, run_dir, resume) = match &args.resume {
         Some(run_dir) => {
             let mut cfg = rtf_train::trainer::read_config(run_dir)?;
             if let Some(epochs) = args.epochs {
@@ -157,6 +161,8 @@ pub fn run(args: Args) -> Result<()> {
             (cfg, out, false)
         }
     };
+    let ddp = join_job(&mut cfg, args.dist_timeout)?;
+    let root = ddp.as_ref().is_none_or(|d| d.is_root());
     for (_, stage) in cfg.stages() {
         available_device(&stage.device).map_err(anyhow::Error::msg)?;
     }
@@ -173,22 +179,26 @@ pub fn run(args: Args) -> Result<()> {
     };
     match &cfg {
         RunConfig::Single(single) => {
-            eprintln!(
-                "training {} ({}) for {} epochs into {}",
-                single.model.name(),
-                single.procedure.name(),
-                single.epochs,
-                run_dir.display()
-            );
-            let outcome = rtf_train::trainer::train_until(
+            if root {
+                eprintln!(
+                    "training {} ({}) for {} epochs into {}",
+                    single.model.name(),
+                    single.procedure.name(),
+                    single.epochs,
+                    run_dir.display()
+                );
+            }
+            let outcome = rtf_train::trainer::train_distributed(
                 single,
                 &run_dir,
                 resume,
                 &mut print_epoch(""),
                 stop,
+                ddp,
             )?;
             match &outcome.final_weights {
-                Some(path) => println!("{}", path.display()),
+                Some(path) if root => println!("{}", path.display()),
+                Some(_) => {}
                 None => interrupted("", &outcome.state),
             }
         }
@@ -221,6 +231,44 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Under a launcher (torchrun, Slurm, a PyTorchJob: `WORLD_SIZE` set), joins the job's c10d
+/// group: gloo on CPU, NCCL on CUDA, each rank on the GPU of its `LOCAL_RANK`.
+fn join_job(
+    cfg: &mut RunConfig,
+    timeout_s: u64,
+) -> Result<Option<std::sync::Arc<rtf_train::ddp::Ddp>>> {
+    let Some(env) = rtf_dist::DistEnv::from_env()? else {
+        return Ok(None);
+    };
+    let RunConfig::Single(single) = cfg else {
+        bail!(
+            "multi-stage runs are not data-parallel yet; train each stage as its own run \
+             (rtf train --config <stage>.yaml) under torchrun"
+        );
+    };
+    if single.device.starts_with("cuda") {
+        single.device = format!("cuda:{}", env.local_rank);
+    }
+    let device = available_device(&single.device).map_err(anyhow::Error::msg)?;
+    let backend = rtf_dist::Backend::for_device(device);
+    let group = rtf_dist::ProcessGroup::new(
+        &env,
+        backend,
+        device,
+        std::time::Duration::from_secs(timeout_s.max(1)),
+    )?;
+    if env.rank == 0 {
+        eprintln!(
+            "data-parallel: {} processes ({}, store {}:{})",
+            env.world_size,
+            backend.name(),
+            env.master_addr,
+            env.master_port
+        );
+    }
+    Ok(Some(rtf_train::ddp::Ddp::new(group)))
 }
 
 fn print_epoch(stage: &str) -> impl FnMut(&rtf_train::EpochRecord) + '_ {

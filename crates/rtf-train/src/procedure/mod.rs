@@ -34,6 +34,8 @@ pub struct Trained {
     pub vs: VarStore,
     pub optimizer: Optimizer,
     pub schedule: OptimizerConfig,
+    /// In a data-parallel run, the group whose ranks average this network's gradients.
+    pub ddp: Option<std::sync::Arc<crate::ddp::Ddp>>,
 }
 
 impl Trained {
@@ -43,13 +45,23 @@ impl Trained {
             vs: VarStore::new(device),
             optimizer: Optimizer::new(schedule),
             schedule: schedule.clone(),
+            ddp: None,
         }
     }
 
-    /// Gradients of `loss` into this network's variables, then one update at `epoch`'s rate.
+    /// Gradients of `loss` into this network's variables (averaged over the ranks of a
+    /// data-parallel run), then one update at `epoch`'s rate.
     pub fn minimise(&mut self, loss: &Tensor, epoch: usize) {
         self.optimizer.zero_grad(&self.vs);
         loss.backward();
+        // A failed all-reduce (a dead rank) skips the update; the trainer then stops.
+        if self
+            .ddp
+            .as_ref()
+            .is_some_and(|d| !d.average_gradients(&self.vs))
+        {
+            return;
+        }
         self.optimizer.step(&self.vs, self.schedule.lr_at(epoch));
     }
 }

@@ -1,0 +1,361 @@
+//! Data-parallel training on 2 processes over gloo on loopback, launched by the venv's
+//! torchrun as users launch it (`torchrun --nproc-per-node 2 --no-python <this test binary>
+//! <test> --exact`): each test is the launcher when no `WORLD_SIZE` is set and a rank under
+//! torchrun. Without the venv they say so and skip (CI has it: `cargo xtask setup`).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use rtf_dist::{Backend, DistEnv, ProcessGroup};
+use rtf_train::ddp::Ddp;
+use rtf_train::procedure::Trained;
+use rtf_train::{DatasetConfig, OptimizerConfig, RunConfig, TrainConfig};
+use tch::nn::{self, Module};
+use tch::{Device, Kind, Tensor};
+
+fn torchrun() -> Option<PathBuf> {
+    if let Some(p) = std::env::var_os("RTF_TORCHRUN") {
+        return Some(PathBuf::from(p));
+    }
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/torchrun");
+    p.exists().then_some(p)
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Runs `test` of this binary on 2 ranks with `RTF_DDP_DIR=dir` and `RTF_DDP_PHASE=phase`;
+/// false (with a message) when there is no torchrun.
+fn launch(test: &str, dir: &Path, phase: &str) -> bool {
+    let Some(torchrun) = torchrun() else {
+        eprintln!(
+            "SKIP {test}: no .venv/bin/torchrun (run `cargo xtask setup`, or set RTF_TORCHRUN)"
+        );
+        return false;
+    };
+    let output = Command::new(torchrun)
+        .args(["--nproc-per-node", "2", "--master-addr", "127.0.0.1"])
+        .args(["--master-port", &free_port().to_string()])
+        .arg("--no-python")
+        .arg(std::env::current_exe().unwrap())
+        .args([test, "--exact", "--nocapture", "--test-threads", "1"])
+        .env("RTF_DDP_DIR", dir)
+        .env("RTF_DDP_PHASE", phase)
+        .env("OMP_NUM_THREADS", "1")
+        .env("GLOO_SOCKET_IFNAME", "lo")
+        .output()
+        .expect("torchrun runs");
+    assert!(
+        output.status.success(),
+        "torchrun ({phase}) failed ({:?}):\n{}\n{}",
+        output.status,
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    true
+}
+
+/// Under torchrun: this rank's DDP handle, the test folder and phase.
+fn rank() -> Option<(std::sync::Arc<Ddp>, PathBuf, String)> {
+    let env = DistEnv::from_env().unwrap()?;
+    let group =
+        ProcessGroup::new(&env, Backend::Gloo, Device::Cpu, Duration::from_secs(120)).unwrap();
+    let dir = PathBuf::from(std::env::var_os("RTF_DDP_DIR").expect("launched by a test"));
+    let phase = std::env::var("RTF_DDP_PHASE").unwrap_or_default();
+    Some((Ddp::new(group), dir, phase))
+}
+
+/// `Trained::minimise` on 2 ranks, each on half of a batch, takes the step a single process
+/// takes on the whole batch: same gradients and same updated weights (tolerance 1e-5), for a
+/// network without train-mode BatchNorm.
+#[test]
+fn a_step_on_two_ranks_equals_the_single_process_step_on_the_whole_batch() {
+    let test = "a_step_on_two_ranks_equals_the_single_process_step_on_the_whole_batch";
+    let Some((ddp, dir, _)) = rank() else {
+        let dir = tempfile::tempdir().unwrap();
+        if !launch(test, dir.path(), "") {
+            return;
+        }
+        for r in 0..2 {
+            let text = std::fs::read_to_string(dir.path().join(format!("rank{r}")))
+                .expect("each rank reports");
+            let diff: f64 = text.trim().parse().unwrap();
+            eprintln!("rank {r}: max |difference| to the single process {diff:e}");
+            assert!(diff < 1e-5, "rank {r}: {diff}");
+        }
+        return;
+    };
+    let (r, world) = (ddp.rank() as i64, ddp.world_size() as i64);
+    tch::manual_seed(3);
+    let x = Tensor::randn([8, 4, 16, 16], (Kind::Float, Device::Cpu));
+    let y = Tensor::randint(3, [8, 16, 16], (Kind::Int64, Device::Cpu));
+    let schedule = OptimizerConfig::mfnet_paper();
+    let build = || {
+        tch::manual_seed(11);
+        let trained = Trained::new("student", Device::Cpu, &schedule);
+        let root = trained.vs.root();
+        let net = nn::seq()
+            .add(nn::conv2d(&root / "c1", 4, 8, 3, padding(1)))
+            .add_fn(|t| t.relu())
+            .add(nn::conv2d(&root / "c2", 8, 3, 3, padding(1)));
+        (trained, net)
+    };
+    // Two ranks, each a half.
+    let (mut trained, net) = build();
+    trained.ddp = Some(ddp.clone());
+    let share = 8 / world;
+    let loss = net
+        .forward(&x.narrow(0, r * share, share))
+        .cross_entropy_loss::<Tensor>(
+            &y.narrow(0, r * share, share),
+            None,
+            tch::Reduction::Mean,
+            -100,
+            0.0,
+        );
+    trained.minimise(&loss, 0);
+    ddp.check().unwrap();
+    // One process, the whole batch.
+    let (mut single, net1) = build();
+    let loss1 =
+        net1.forward(&x)
+            .cross_entropy_loss::<Tensor>(&y, None, tch::Reduction::Mean, -100, 0.0);
+    single.minimise(&loss1, 0);
+    let mut max = 0f64;
+    let (a, b) = (trained.vs.variables(), single.vs.variables());
+    assert!(!a.is_empty());
+    for (name, t) in &a {
+        let u = &b[name];
+        max = max.max((t - u).abs().max().double_value(&[]));
+        max = max.max((t.grad() - u.grad()).abs().max().double_value(&[]));
+    }
+    std::fs::write(dir.join(format!("rank{r}")), format!("{max:e}")).unwrap();
+}
+
+fn padding(p: i64) -> nn::ConvConfig {
+    nn::ConvConfig {
+        padding: p,
+        ..Default::default()
+    }
+}
+
+/// Every tensor of a safetensors file, by name (the metadata, which holds the run's config,
+/// left out).
+fn weights(path: &Path) -> Vec<(String, Vec<u8>)> {
+    let bytes = std::fs::read(path).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let mut named: Vec<_> = st
+        .tensors()
+        .into_iter()
+        .map(|(n, v)| (n, v.data().to_vec()))
+        .collect();
+    named.sort_by(|a, b| a.0.cmp(&b.0));
+    named
+}
+
+fn write_dataset(root: &Path) {
+    let names = common::write_frames(root, 10, 4242, false);
+    std::fs::write(root.join("train.txt"), names[..8].join("\n")).unwrap();
+    std::fs::write(root.join("val.txt"), names[8..].join("\n")).unwrap();
+}
+
+/// MFNet (train-mode BatchNorm, per rank) on the tiny dataset, 2 epochs.
+fn mfnet(root: &Path) -> TrainConfig {
+    let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
+    cfg.dataset = DatasetConfig::Mf {
+        root: root.to_path_buf(),
+        train_split: "train".into(),
+        val_split: Some("val".into()),
+    };
+    cfg.epochs = 2;
+    cfg.batch_size = 2;
+    cfg.seed = 5;
+    cfg.workers = 1;
+    cfg
+}
+
+/// A 2-process MFNet run ends with identical weights on both ranks (checked bit for bit by the
+/// trainer, and by their digests here); a Ctrl-C on rank 1 alone stops both ranks after the
+/// same step with a checkpoint from rank 0; resumed on 2 processes, the run ends bit-identical
+/// to the uninterrupted one. Only rank 0 writes the run folder, whose config.json records
+/// `world_size`; a resume on another number of processes is refused.
+#[test]
+fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
+    let test = "two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly";
+    let Some((ddp, dir, phase)) = rank() else {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        write_dataset(&dir.join("data"));
+        if !launch(test, dir, "straight") {
+            return;
+        }
+        let read = |name: &str| std::fs::read_to_string(dir.join(name)).expect(name);
+        assert_eq!(read("straight.rank0"), read("straight.rank1"));
+        let config: serde_json::Value =
+            serde_json::from_str(&read("straight/config.json")).unwrap();
+        assert_eq!(config["world_size"], 2);
+        assert_eq!(read("straight/log.jsonl").lines().count(), 2);
+        // Rank 1 is asked to stop before its first step: both ranks stop after it.
+        launch(test, dir, "stop");
+        assert_eq!(read("stop.rank0"), "stopped at batch 1");
+        assert_eq!(read("stop.rank1"), "stopped at batch 1");
+        assert!(dir.join("stopped/checkpoint.safetensors").exists());
+        assert!(!dir.join("stopped/final.safetensors").exists());
+        // One process cannot continue a 2-process run exactly: refused.
+        let RunConfig::Single(cfg) = rtf_train::trainer::read_config(&dir.join("stopped")).unwrap()
+        else {
+            panic!("a single run")
+        };
+        let err = rtf_train::trainer::train_until(
+            &cfg,
+            &dir.join("stopped"),
+            true,
+            &mut |_| {},
+            &AtomicBool::new(false),
+        )
+        .expect_err("refused");
+        assert!(err.to_string().contains("trained by 2 process"), "{err}");
+        launch(test, dir, "resume");
+        assert_eq!(read("resume.rank0"), read("resume.rank1"));
+        assert_eq!(read("resume.rank0"), read("straight.rank0"));
+        assert!(
+            weights(&dir.join("straight/final.safetensors"))
+                == weights(&dir.join("stopped/final.safetensors")),
+            "stopped and resumed on 2 ranks = uninterrupted"
+        );
+        return;
+    };
+    let r = ddp.rank();
+    let cfg = mfnet(&dir.join("data"));
+    let write = |name: String, text: String| std::fs::write(dir.join(name), text).unwrap();
+    match phase.as_str() {
+        "straight" => {
+            let out = rtf_train::trainer::train_distributed(
+                &cfg,
+                &dir.join("straight"),
+                false,
+                &mut |_| {},
+                &AtomicBool::new(false),
+                Some(ddp),
+            )
+            .unwrap();
+            assert!(out.final_weights.is_some());
+            write(
+                format!("straight.rank{r}"),
+                format!("{:?}", out.weights_digest),
+            );
+        }
+        "stop" => {
+            let out = rtf_train::trainer::train_distributed(
+                &cfg,
+                &dir.join("stopped"),
+                false,
+                &mut |_| {},
+                &AtomicBool::new(r == 1),
+                Some(ddp),
+            )
+            .unwrap();
+            assert!(out.final_weights.is_none());
+            let batches = out.state.partial.as_ref().map_or(0, |p| p.batches);
+            write(
+                format!("stop.rank{r}"),
+                format!("stopped at batch {batches}"),
+            );
+        }
+        "resume" => {
+            let run = dir.join("stopped");
+            let RunConfig::Single(cfg) = rtf_train::trainer::read_config(&run).unwrap() else {
+                panic!("a single run")
+            };
+            let out = rtf_train::trainer::train_distributed(
+                &cfg,
+                &run,
+                true,
+                &mut |_| {},
+                &AtomicBool::new(false),
+                Some(ddp),
+            )
+            .unwrap();
+            write(
+                format!("resume.rank{r}"),
+                format!("{:?}", out.weights_digest),
+            );
+        }
+        other => panic!("unknown phase {other:?}"),
+    }
+}
+
+/// HeatNet's adversarial procedure on 2 ranks (teacher labels cached, so rank 1 labels into a
+/// scratch folder of its own): both the segmentation network's and the critic's gradients are
+/// averaged, so both networks end identical on both ranks (the trainer compares every trained
+/// network bit for bit and fails the run otherwise; the ranks see different frames).
+#[test]
+fn two_rank_adversarial_run_keeps_both_networks_identical() {
+    let test = "two_rank_adversarial_run_keeps_both_networks_identical";
+    let Some((ddp, dir, _)) = rank() else {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        let names = common::write_frames(&dir.join("data"), 10, 99, false);
+        std::fs::write(dir.join("data/train.txt"), names[..8].join("\n")).unwrap();
+        std::fs::write(dir.join("data/val.txt"), names[8..].join("\n")).unwrap();
+        tch::manual_seed(21);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let model = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
+        rtf_models::build(&vs.root(), &model).unwrap();
+        rtf_models::weights::save_safetensors(
+            &vs,
+            &model,
+            rtf_train::Modality::Rgb,
+            &dir.join("teacher.safetensors"),
+        )
+        .unwrap();
+        if !launch(test, dir, "") {
+            return;
+        }
+        let read = |name: &str| std::fs::read_to_string(dir.join(name)).expect(name);
+        assert_eq!(read("adv.rank0"), read("adv.rank1"));
+        let log = read("run/log.jsonl");
+        assert_eq!(log.lines().count(), 2);
+        assert!(log.contains("critic_acc"), "the critic trained: {log}");
+        assert!(dir.join("run/labels").exists(), "rank 0 cached the labels");
+        return;
+    };
+    let mut cfg = mfnet(&dir.join("data"));
+    cfg.procedure = rtf_train::Procedure::Adversarial {
+        day_teacher: rtf_train::config::TeacherRef::Weights {
+            path: dir.join("teacher.safetensors"),
+            model: rtf_models::ModelConfig::from_name("mfnet", 9).unwrap(),
+            inputs: rtf_train::Modality::Rgb,
+        },
+        night_teacher: None,
+        targets: rtf_train::config::TargetOptions {
+            cache: true,
+            ..Default::default()
+        },
+        critic: Default::default(),
+    };
+    let r = ddp.rank();
+    let out = rtf_train::trainer::train_distributed(
+        &cfg,
+        &dir.join("run"),
+        false,
+        &mut |_| {},
+        &AtomicBool::new(false),
+        Some(ddp),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join(format!("adv.rank{r}")),
+        format!("{:?}", out.weights_digest.expect("a data-parallel run")),
+    )
+    .unwrap();
+}
