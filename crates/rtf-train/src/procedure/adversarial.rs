@@ -54,6 +54,7 @@ impl Adversarial {
                 in_channels: student.net.inner.num_classes(),
             },
         )?;
+        critic.channels_last_weights();
         Ok(Self {
             student,
             critic,

@@ -68,6 +68,24 @@ impl Trained {
         Ok(self)
     }
 
+    /// Under mixed precision, lays the 4-D weights (convolution kernels) out channels-last:
+    /// libtorch's reduced-precision convolutions on the CPU take oneDNN's fast path only for
+    /// channels-last operands, as PyTorch users get with `model.to(memory_format=channels_last)`
+    /// (the weights' values, their checkpoints and fp32 runs are unchanged).
+    pub fn channels_last_weights(&self) {
+        if self.precision == Precision::Fp32 {
+            return;
+        }
+        tch::no_grad(|| {
+            for (_, mut var) in self.vs.variables() {
+                if var.dim() == 4 {
+                    let laid_out = rtf_models::layers::to_channels_last(&var);
+                    var.set_data(&laid_out);
+                }
+            }
+        });
+    }
+
     /// `f` (forward passes) in this network's arithmetic: as is in fp32, else inside an
     /// autocast region to bf16 / fp16 on the network's device.
     pub fn autocast<T>(&self, f: impl FnOnce() -> T) -> T {
@@ -129,6 +147,7 @@ impl Student {
     pub fn build(cfg: &TrainConfig, device: Device) -> Result<Self, TrainError> {
         let trained = Trained::new(STUDENT, device, &cfg.optimizer).mixed(cfg.precision)?;
         let inner = rtf_models::build(&trained.vs.root(), &cfg.model)?;
+        trained.channels_last_weights();
         Ok(Self {
             trained,
             net: Masked {
@@ -145,9 +164,12 @@ impl Student {
     pub fn logits(&self, input: &Tensor) -> Tensor {
         match self.trained.precision {
             Precision::Fp32 => forward_padded(&self.net, input, true),
-            _ => self
-                .trained
-                .autocast(|| forward_padded(&self.net, input, true).to_kind(Kind::Float)),
+            _ => self.trained.autocast(|| {
+                // Channels-last activations from the first layer on (see
+                // `Trained::channels_last_weights`).
+                let input = rtf_models::layers::to_channels_last(input);
+                forward_padded(&self.net, &input, true).to_kind(Kind::Float)
+            }),
         }
     }
 }
