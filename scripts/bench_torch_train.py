@@ -108,6 +108,8 @@ def main():
     ap.add_argument("--precisions", default="fp32,bf16")
     ap.add_argument("--rtf", default="target/release/rtf", help="the rtf binary")
     ap.add_argument("--json-out", help="also write every sample here")
+    ap.add_argument("--skip", default="", help="comma-separated PyTorch configurations to leave out (e.g. "
+                    "'torch bf16 NCHW', which on CPUs without native bf16 is by far the slowest)")
     ap.add_argument("--worker", choices=sorted(TORCH_CONFIGS), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
@@ -118,12 +120,19 @@ def main():
           f"PyTorch {torch.__version__}, {args.rounds} interleaved rounds of {args.steps} timed steps "
           f"after {args.warmup} warm-up, a fresh process per configuration", flush=True)
     samples = {}
+    skip = {s.strip() for s in args.skip.split(",") if s.strip()}
+
+    def record(label, sample):
+        samples.setdefault(label, []).append(sample)
+        print(f"  {label}: {sample['images_per_s']:.3f} images/s, peak RSS {sample['peak_rss_mb']:.0f} MiB",
+              flush=True)
+
     for _ in range(args.rounds):
         for label, (_, bf16) in TORCH_CONFIGS.items():
-            if ("bf16" if bf16 else "fp32") in precisions:
-                samples.setdefault(label, []).append(run_torch(args, label))
+            if ("bf16" if bf16 else "fp32") in precisions and label not in skip:
+                record(label, run_torch(args, label))
         for precision in precisions:
-            samples.setdefault(f"rtf {precision}", []).append(run_rtf(args, precision))
+            record(f"rtf {precision}", run_rtf(args, precision))
     if args.json_out:
         with open(args.json_out, "w") as f:
             json.dump(samples, f, indent=1)
