@@ -52,6 +52,11 @@ pub struct TrainConfig {
     /// (`val/predictions`); None or 0 = never.
     #[serde(default)]
     pub tb_images_every: Option<usize>,
+    /// Arithmetic of the training step: fp32, or autocast mixed precision (bf16; fp16 on CUDA,
+    /// with loss scaling) over fp32 master weights and optimiser state. fp32 for configs
+    /// written before there was a choice.
+    #[serde(default)]
+    pub precision: Precision,
     /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub data_fingerprint: Option<rtf_data::Fingerprint>,
@@ -64,6 +69,69 @@ pub struct TrainConfig {
 /// Which input channels a network sees (defined beside the networks, and recorded in their
 /// weights files, so that evaluation applies the same mask).
 pub use rtf_models::Modality;
+
+/// The arithmetic of a training step (PyTorch's automatic mixed precision): the forward passes
+/// and losses run inside an autocast region of the given type (convolutions and matrix
+/// products in it, reductions, losses and BatchNorm statistics in fp32); weights, gradients
+/// and optimiser state stay fp32. fp16 also scales the loss (a dynamic loss scale, PyTorch's
+/// `GradScaler`) so small gradients do not flush to zero; bf16 has fp32's exponent range and
+/// needs none.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Precision {
+    #[default]
+    Fp32,
+    Bf16,
+    Fp16,
+}
+
+impl Precision {
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::Fp32 => "fp32",
+            Precision::Bf16 => "bf16",
+            Precision::Fp16 => "fp16",
+        }
+    }
+
+    pub fn parse(text: &str) -> Result<Self, String> {
+        match text {
+            "fp32" | "float32" => Ok(Precision::Fp32),
+            "bf16" | "bfloat16" => Ok(Precision::Bf16),
+            "fp16" | "float16" | "half" => Ok(Precision::Fp16),
+            other => Err(format!(
+                "unknown precision `{other}` (expected fp32, bf16 or fp16)"
+            )),
+        }
+    }
+
+    /// The autocast type; None = fp32, no autocast region.
+    pub fn autocast_kind(self) -> Option<tch::Kind> {
+        match self {
+            Precision::Fp32 => None,
+            Precision::Bf16 => Some(tch::Kind::BFloat16),
+            Precision::Fp16 => Some(tch::Kind::Half),
+        }
+    }
+
+    /// Whether the loss is scaled (fp16 only).
+    pub fn scales_loss(self) -> bool {
+        self == Precision::Fp16
+    }
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Precision {
+    type Err = String;
+    fn from_str(text: &str) -> Result<Self, String> {
+        Self::parse(text)
+    }
+}
 
 /// How a network learns.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -623,7 +691,13 @@ impl TrainConfig {
                 return Err(ConfigError::field("resize", "width and height must be ≥ 1"));
             }
         }
-        parse_device(&self.device).map_err(|m| ConfigError::field("device", &m))?;
+        let device = parse_device(&self.device).map_err(|m| ConfigError::field("device", &m))?;
+        if self.precision == Precision::Fp16 && device == tch::Device::Cpu {
+            return Err(ConfigError::field(
+                "precision",
+                "fp16 needs a CUDA device (libtorch's CPU autocast is bf16 only); use bf16 on the CPU",
+            ));
+        }
         self.optimizer.validate("optimizer")?;
         let LossConfig::CrossEntropy { class_weights } = &self.loss;
         if let Some(w) = class_weights {
@@ -706,6 +780,7 @@ impl TrainConfig {
             init_from: None,
             select_by: None,
             tb_images_every: None,
+            precision: Precision::Fp32,
             data_fingerprint: None,
             world_size: None,
         }

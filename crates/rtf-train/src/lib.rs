@@ -5,6 +5,7 @@
 //! ([`recipe`]). Every run folder has its full config before the first step, a JSON-lines log,
 //! atomic checkpoints, and `--resume` continues it exactly.
 
+pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod ddp;

@@ -1,6 +1,14 @@
 //! The optimisers of the papers with PyTorch's update rules and state that can be saved: SGD
 //! with momentum (MFNet, RTFNet) and RMSprop (HeatNet). tch's `nn::Optimizer` cannot export
 //! its buffers, which an exact `--resume` needs.
+//!
+//! Under fp16 mixed precision the optimiser also owns the dynamic loss scale (PyTorch's
+//! `torch.amp.GradScaler`; Micikevicius et al., "Mixed Precision Training", ICLR 2018, §3.2):
+//! the loss is multiplied by the scale before backward, the gradients divided by it before the
+//! update; a step whose gradients hold an inf or NaN is skipped and the scale halved, and after
+//! [`SCALE_GROWTH_INTERVAL`] clean steps in a row it doubles. The scale and the count of clean
+//! steps are state like the momentum buffers (keys [`SCALE_KEY`], [`GROWTH_KEY`]), so a resume
+//! continues with them.
 
 use std::collections::BTreeMap;
 
@@ -8,12 +16,23 @@ use tch::{nn::VarStore, Tensor};
 
 use crate::config::{OptimizerConfig, OptimizerKind};
 
+/// State key of the loss scale (a one-element fp32 tensor).
+pub const SCALE_KEY: &str = "amp/loss_scale";
+/// State key of the count of clean steps since the scale last changed.
+pub const GROWTH_KEY: &str = "amp/growth_tracker";
+/// The first loss scale, 2¹⁶ (GradScaler's `init_scale`).
+pub const INITIAL_SCALE: f64 = 65536.0;
+/// Clean steps in a row before the scale doubles (GradScaler's `growth_interval`).
+pub const SCALE_GROWTH_INTERVAL: f64 = 2000.0;
+
 /// An optimiser and its per-parameter state, keyed `momentum/<parameter>` and
-/// `square_avg/<parameter>` (the names checkpoints store them under).
+/// `square_avg/<parameter>` (the names checkpoints store them under), plus the loss scale when
+/// it scales the loss.
 #[derive(Debug)]
 pub struct Optimizer {
     config: OptimizerConfig,
     state: BTreeMap<String, Tensor>,
+    scaling: bool,
 }
 
 impl Optimizer {
@@ -21,7 +40,69 @@ impl Optimizer {
         Self {
             config: config.clone(),
             state: BTreeMap::new(),
+            scaling: false,
         }
+    }
+
+    /// Turns dynamic loss scaling on or off (on for fp16 mixed precision).
+    pub fn set_loss_scaling(&mut self, on: bool) {
+        self.scaling = on;
+    }
+
+    /// The current loss scale (1 when the loss is not scaled).
+    pub fn loss_scale(&self) -> f64 {
+        match self.scaling {
+            false => 1.0,
+            true => self.scalar(SCALE_KEY).unwrap_or(INITIAL_SCALE),
+        }
+    }
+
+    fn scalar(&self, key: &str) -> Option<f64> {
+        self.state
+            .get(key)
+            .and_then(|t| f64::try_from(t.reshape([-1]).get(0)).ok())
+    }
+
+    fn set_scalar(&mut self, key: &str, value: f64) {
+        self.state
+            .insert(key.to_string(), Tensor::from_slice(&[value as f32]));
+    }
+
+    /// The tensor to call `backward` on: `loss` times the loss scale when scaling, else `loss`
+    /// itself.
+    pub fn scale_loss(&self, loss: &Tensor) -> Tensor {
+        match self.scaling {
+            false => loss.shallow_clone(),
+            true => loss * self.loss_scale(),
+        }
+    }
+
+    /// Divides the gradients of `vs` by the loss scale and updates the scale; false when a
+    /// gradient holds an inf or NaN (the step must be skipped).
+    fn unscale(&mut self, vs: &VarStore) -> bool {
+        let scale = self.loss_scale();
+        let mut finite = true;
+        tch::no_grad(|| {
+            for (_, param) in trainable(vs) {
+                let mut grad = param.grad();
+                if !grad.defined() {
+                    continue;
+                }
+                let _ = grad.g_mul_scalar_(1.0 / scale);
+                if finite && !bool::try_from(grad.isfinite().all()).unwrap_or(false) {
+                    finite = false;
+                }
+            }
+        });
+        let growth = self.scalar(GROWTH_KEY).unwrap_or(0.0);
+        let (scale, growth) = match (finite, growth + 1.0 >= SCALE_GROWTH_INTERVAL) {
+            (false, _) => (scale * 0.5, 0.0),
+            (true, true) => (scale * 2.0, 0.0),
+            (true, false) => (scale, growth + 1.0),
+        };
+        self.set_scalar(SCALE_KEY, scale);
+        self.set_scalar(GROWTH_KEY, growth);
+        finite
     }
 
     /// One update of every trainable variable of `vs` that has a gradient, PyTorch's rules:
@@ -29,7 +110,13 @@ impl Optimizer {
     /// - SGD: b = μ·b + g (b = g on the first step), p −= lr·b;
     /// - RMSprop: v = α·v + (1 − α)·g² (v starts at 0), d = g / (√v + ε);
     ///   with momentum b = μ·b + d (b starts at 0), p −= lr·b; else p −= lr·d.
+    ///
+    /// When scaling the loss, the gradients are first divided by the scale, and the update is
+    /// skipped if one of them is not finite.
     pub fn step(&mut self, vs: &VarStore, lr: f64) {
+        if self.scaling && !self.unscale(vs) {
+            return;
+        }
         let cfg = self.config.clone();
         tch::no_grad(|| {
             for (name, mut param) in trainable(vs) {
@@ -186,6 +273,62 @@ mod tests {
             assert_close(&got, &expected);
             assert_eq!(state, if momentum > 0.0 { 2 } else { 1 });
         }
+    }
+
+    /// The dynamic loss scale: a clean step unscales the gradients (the update equals the
+    /// unscaled one) and counts; an overflowing step is skipped and halves the scale.
+    #[test]
+    fn loss_scaling_unscales_and_skips_overflowing_steps() {
+        let cfg = OptimizerConfig {
+            momentum: 0.0,
+            weight_decay: 0.0,
+            ..OptimizerConfig::mfnet_paper()
+        };
+        let vs = VarStore::new(Device::Cpu);
+        let w = vs
+            .root()
+            .var_copy("w", &Tensor::from_slice(&[1.0f32, -2.0]));
+        let mut optimizer = Optimizer::new(&cfg);
+        optimizer.set_loss_scaling(true);
+        assert_eq!(optimizer.loss_scale(), INITIAL_SCALE);
+        // Clean step: grad = 2w, scaled by 2^16 in backward, divided back before the update.
+        optimizer.zero_grad(&vs);
+        optimizer.scale_loss(&(&w * &w).sum(Kind::Float)).backward();
+        optimizer.step(&vs, 0.25);
+        assert_close(&Vec::<f32>::try_from(&w).unwrap(), &[0.5, -1.0]);
+        assert_eq!(optimizer.loss_scale(), INITIAL_SCALE);
+        assert_eq!(optimizer.scalar(GROWTH_KEY), Some(1.0));
+        // Overflow: an infinite gradient skips the update and halves the scale.
+        optimizer.zero_grad(&vs);
+        optimizer
+            .scale_loss(&(&w * f64::INFINITY).sum(Kind::Float))
+            .backward();
+        optimizer.step(&vs, 0.25);
+        assert_close(&Vec::<f32>::try_from(&w).unwrap(), &[0.5, -1.0]);
+        assert_eq!(optimizer.loss_scale(), INITIAL_SCALE / 2.0);
+        assert_eq!(optimizer.scalar(GROWTH_KEY), Some(0.0));
+        // The scale is state a checkpoint carries.
+        assert!(optimizer.state().contains_key(SCALE_KEY));
+        // Without scaling nothing of this exists.
+        let plain = Optimizer::new(&cfg);
+        assert_eq!(plain.loss_scale(), 1.0);
+    }
+
+    /// The scale doubles after SCALE_GROWTH_INTERVAL clean steps in a row.
+    #[test]
+    fn loss_scale_grows_after_the_interval() {
+        let vs = VarStore::new(Device::Cpu);
+        let w = vs.root().var_copy("w", &Tensor::from_slice(&[1.0f32]));
+        let mut optimizer = Optimizer::new(&OptimizerConfig::mfnet_paper());
+        optimizer.set_loss_scaling(true);
+        optimizer.set_scalar(GROWTH_KEY, SCALE_GROWTH_INTERVAL - 1.0);
+        optimizer.zero_grad(&vs);
+        optimizer
+            .scale_loss(&(&w * 1.0).sum(Kind::Float))
+            .backward();
+        optimizer.step(&vs, 0.0);
+        assert_eq!(optimizer.loss_scale(), 2.0 * INITIAL_SCALE);
+        assert_eq!(optimizer.scalar(GROWTH_KEY), Some(0.0));
     }
 
     #[test]

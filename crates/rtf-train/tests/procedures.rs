@@ -46,21 +46,6 @@ fn base(root: &Path, epochs: usize) -> TrainConfig {
     cfg
 }
 
-/// A randomly initialised MFNet saved as a teacher.
-fn teacher(dir: &Path, seed: i64) -> TeacherRef {
-    tch::manual_seed(seed);
-    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
-    let model = ModelConfig::from_name("mfnet", 9).unwrap();
-    rtf_models::build(&vs.root(), &model).unwrap();
-    let path = dir.join(format!("teacher{seed}.safetensors"));
-    rtf_models::weights::save_safetensors(&vs, &model, Modality::Rgb, &path).unwrap();
-    TeacherRef::Weights {
-        path,
-        model,
-        inputs: Modality::Rgb,
-    }
-}
-
 fn adversarial(root: &Path, epochs: usize, day: TeacherRef) -> TrainConfig {
     TrainConfig {
         procedure: Procedure::Adversarial {
@@ -104,7 +89,7 @@ fn setup() -> (tempfile::TempDir, PathBuf) {
 fn adversarial_runs_and_resumes_exactly_after_an_epoch_and_inside_one() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let (tmp, data) = setup();
-    let cfg = adversarial(&data, 2, teacher(tmp.path(), 1));
+    let cfg = adversarial(&data, 2, common::teacher(tmp.path(), 1));
     let straight = tmp.path().join("straight");
     let expected = rtf_train::train(&cfg, &straight, false, &mut |_| {}).unwrap();
     let record = &expected.records[1];
@@ -164,7 +149,7 @@ fn adversarial_runs_and_resumes_exactly_after_an_epoch_and_inside_one() {
 fn each_adversarial_step_updates_only_its_own_network() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let (tmp, data) = setup();
-    let cfg = adversarial(&data, 1, teacher(tmp.path(), 1));
+    let cfg = adversarial(&data, 1, common::teacher(tmp.path(), 1));
     let mut procedure = rtf_train::procedure::build(&cfg, None, tch::Device::Cpu).unwrap();
     let student_of = |p: &dyn rtf_train::procedure::Procedure, i: usize| {
         p.trained()[i]
@@ -261,8 +246,8 @@ fn each_adversarial_step_updates_only_its_own_network() {
 fn two_stage_run_stopped_in_stage_two_resumes_exactly() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let (tmp, data) = setup();
-    let day = teacher(tmp.path(), 1);
-    let night = teacher(tmp.path(), 2);
+    let day = common::teacher(tmp.path(), 1);
+    let night = common::teacher(tmp.path(), 2);
     let stage1 = TrainConfig {
         procedure: Procedure::TeacherStudent {
             day_teacher: day.clone(),
@@ -347,8 +332,8 @@ fn label_free_procedures_train_without_night_labels_and_supervised_needs_them() 
     let (tmp, data) = setup();
     let cfg = TrainConfig {
         procedure: Procedure::TeacherStudent {
-            day_teacher: teacher(tmp.path(), 1),
-            night_teacher: Some(teacher(tmp.path(), 2)),
+            day_teacher: common::teacher(tmp.path(), 1),
+            night_teacher: Some(common::teacher(tmp.path(), 2)),
             targets: TargetOptions {
                 threshold: Some(0.05),
                 soft: true,
@@ -372,7 +357,7 @@ fn label_free_procedures_train_without_night_labels_and_supervised_needs_them() 
 fn bad_teachers_and_configs_are_refused_before_anything_is_written() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let (tmp, data) = setup();
-    let good = teacher(tmp.path(), 1);
+    let good = common::teacher(tmp.path(), 1);
     let TeacherRef::Weights { path, .. } = &good else {
         unreachable!()
     };
@@ -456,7 +441,7 @@ fn bad_teachers_and_configs_are_refused_before_anything_is_written() {
 fn a_label_cache_trains_like_the_teacher_run_every_step() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let (tmp, data) = setup();
-    let day = teacher(tmp.path(), 1);
+    let day = common::teacher(tmp.path(), 1);
     let config = |cache: bool| TrainConfig {
         procedure: Procedure::TeacherStudent {
             day_teacher: day.clone(),

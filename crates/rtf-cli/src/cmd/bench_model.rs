@@ -116,11 +116,14 @@ pub enum Bench {
     Model(Args),
     /// Input-pipeline throughput: decode + flip + crop + tensor of MF frames, frames/s.
     Data(super::bench_data::Args),
+    /// Training-step throughput (forward, loss, backward, optimiser): images/s, peak RSS.
+    Train(super::bench_train::Args),
 }
 
 pub fn run_bench(bench: Bench) -> Result<()> {
     match bench {
         Bench::Model(args) => run(args),
         Bench::Data(args) => super::bench_data::run(args),
+        Bench::Train(args) => super::bench_train::run(args),
     }
 }

@@ -2,6 +2,7 @@
 
 pub mod bench_data;
 pub mod bench_model;
+pub mod bench_train;
 pub mod calibrate;
 pub mod data;
 pub mod eval;

@@ -6,7 +6,7 @@ use rtf_core::ClassSet;
 use rtf_data::inspect::DatasetFormat;
 use rtf_models::ModelConfig;
 use rtf_train::config::{
-    available_device, CriticInput, Procedure, SelectMetric, TeacherRef, TrainConfig,
+    available_device, CriticInput, Precision, Procedure, SelectMetric, TeacherRef, TrainConfig,
 };
 use rtf_train::recipe::{self, RecipeInputs};
 use rtf_train::{DatasetConfig, Modality, OptimizerConfig, OptimizerKind, RunConfig};
@@ -36,7 +36,7 @@ pub struct Args {
     pub out: Option<PathBuf>,
     /// Continue the run in this folder exactly where it stopped (its config.json is used;
     /// --epochs may extend it).
-    #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config"])]
+    #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config", "precision"])]
     pub resume: Option<PathBuf>,
     /// The day teacher (HeatNet's RGB teacher): a run folder, or a weights file with
     /// --teacher-model. Without it, recipes train the teacher first.
@@ -132,6 +132,11 @@ pub struct Args {
     /// cpu, cuda or cuda:N.
     #[arg(long)]
     pub device: Option<String>,
+    /// Arithmetic of the training step: fp32, bf16 or fp16 (CUDA only): autocast mixed
+    /// precision over fp32 weights and optimiser state, the loss scaled under fp16. Recorded in
+    /// config.json (a resume keeps it).
+    #[arg(long, value_parser = Precision::parse)]
+    pub precision: Option<Precision>,
     /// Every N epochs, a prediction grid of validation frames in TensorBoard (0: never).
     #[arg(long, default_value_t = 5)]
     pub tb_images_every: usize,
@@ -530,6 +535,9 @@ fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Res
     }
     if let Some(v) = &args.device {
         cfg.device = v.clone();
+    }
+    if let Some(v) = args.precision {
+        cfg.precision = v;
     }
     if args.backbone_weights.is_some() {
         cfg.backbone_weights = args.backbone_weights.clone();

@@ -45,13 +45,16 @@ impl Adversarial {
         options: CriticOptions,
         device: Device,
     ) -> Result<Self, TrainError> {
-        let critic = Trained::new(CRITIC, device, &options.optimizer);
+        // The critic trains in the student's arithmetic.
+        let critic =
+            Trained::new(CRITIC, device, &options.optimizer).mixed(student.trained.precision)?;
         let critic_net = Critic::new(
             critic.vs.root(),
             &CriticConfig {
                 in_channels: student.net.inner.num_classes(),
             },
         )?;
+        critic.channels_last_weights();
         Ok(Self {
             student,
             critic,
@@ -69,12 +72,19 @@ impl Adversarial {
             CriticInput::Softmax => logits.softmax(1, Kind::Float),
             CriticInput::Logits => logits.to_kind(Kind::Float),
         };
-        let scores = self.critic_net.forward_t(&x, true);
         let (h, w) = (logits.size()[2], logits.size()[3]);
-        match scores.size()[2..] == [h, w] {
-            true => scores,
-            // Sizes that are not multiples of the critic's stride (32) come back resized.
-            false => scores.upsample_bilinear2d([h, w], false, None, None),
+        let scores = self.critic.autocast(|| {
+            let scores = self.critic_net.forward_t(&x, true);
+            match scores.size()[2..] == [h, w] {
+                true => scores,
+                // Sizes that are not multiples of the critic's stride (32) come back resized.
+                false => scores.upsample_bilinear2d([h, w], false, None, None),
+            }
+        });
+        // fp32 scores under mixed precision (a no-op in fp32), so the losses are fp32.
+        match self.critic.precision {
+            crate::config::Precision::Fp32 => scores,
+            _ => scores.to_kind(Kind::Float),
         }
     }
 

@@ -18,7 +18,9 @@ pub use adversarial::Adversarial;
 pub use supervised::Supervised;
 pub use teacher_student::TeacherStudent;
 
-use crate::config::{Modality, OptimizerConfig, Procedure as ProcedureConfig, TrainConfig};
+use crate::config::{
+    Modality, OptimizerConfig, Precision, Procedure as ProcedureConfig, TrainConfig,
+};
 use crate::loss::PseudoTargets;
 use crate::optim::Optimizer;
 use crate::trainer::TrainError;
@@ -28,32 +30,85 @@ pub const STUDENT: &str = "student";
 /// Role of HeatNet's day/night critic.
 pub const CRITIC: &str = "critic";
 
-/// A network being trained: its variables, optimiser and learning-rate schedule.
+/// A network being trained: its variables, optimiser and learning-rate schedule, and the
+/// arithmetic of its forward passes.
 pub struct Trained {
     pub role: &'static str,
     pub vs: VarStore,
     pub optimizer: Optimizer,
     pub schedule: OptimizerConfig,
+    pub precision: Precision,
     /// In a data-parallel run, the group whose ranks average this network's gradients.
     pub ddp: Option<std::sync::Arc<crate::ddp::Ddp>>,
 }
 
 impl Trained {
+    /// An fp32 network (see [`mixed`](Self::mixed)).
     pub fn new(role: &'static str, device: Device, schedule: &OptimizerConfig) -> Self {
         Self {
             role,
             vs: VarStore::new(device),
             optimizer: Optimizer::new(schedule),
             schedule: schedule.clone(),
+            precision: Precision::Fp32,
             ddp: None,
         }
     }
 
+    /// The same network trained in `precision`: its forward passes ([`autocast`](Self::autocast))
+    /// in an autocast region, its loss scaled under fp16. Weights and optimiser state stay fp32.
+    /// Fails where libtorch has no autocast of that type on the device (fp16 on a CPU).
+    pub fn mixed(mut self, precision: Precision) -> Result<Self, TrainError> {
+        if let Some(kind) = precision.autocast_kind() {
+            // Entered once here, so the regions of the steps cannot fail later.
+            drop(
+                rtf_amp::AutocastGuard::enter(self.vs.device(), kind)
+                    .map_err(|e| TrainError::Config(format!("--precision {precision}: {e}")))?,
+            );
+        }
+        self.precision = precision;
+        self.optimizer.set_loss_scaling(precision.scales_loss());
+        Ok(self)
+    }
+
+    /// Under mixed precision, lays the 4-D weights (convolution kernels) out channels-last:
+    /// libtorch's reduced-precision convolutions on the CPU take oneDNN's fast path only for
+    /// channels-last operands, as PyTorch users get with `model.to(memory_format=channels_last)`
+    /// (the weights' values, their checkpoints and fp32 runs are unchanged).
+    pub fn channels_last_weights(&self) {
+        if self.precision == Precision::Fp32 {
+            return;
+        }
+        tch::no_grad(|| {
+            for (_, mut var) in self.vs.variables() {
+                if var.dim() == 4 {
+                    let laid_out = rtf_models::layers::to_channels_last(&var);
+                    var.set_data(&laid_out);
+                }
+            }
+        });
+    }
+
+    /// `f` (forward passes) in this network's arithmetic: as is in fp32, else inside an
+    /// autocast region to bf16 / fp16 on the network's device.
+    pub fn autocast<T>(&self, f: impl FnOnce() -> T) -> T {
+        match self.precision.autocast_kind() {
+            None => f(),
+            Some(kind) => {
+                let _region = rtf_amp::AutocastGuard::enter(self.vs.device(), kind)
+                    .expect("autocast on this device was entered once in Trained::mixed");
+                f()
+            }
+        }
+    }
+
     /// Gradients of `loss` into this network's variables (averaged over the ranks of a
-    /// data-parallel run), then one update at `epoch`'s rate.
+    /// data-parallel run), then one update at `epoch`'s rate (under fp16 the loss is scaled,
+    /// and a step whose gradients overflowed is skipped; the scaled gradients are averaged and
+    /// unscaled in the step).
     pub fn minimise(&mut self, loss: &Tensor, epoch: usize) {
         self.optimizer.zero_grad(&self.vs);
-        loss.backward();
+        self.optimizer.scale_loss(loss).backward();
         // A failed all-reduce (a dead rank) skips the update; the trainer then stops.
         if self
             .ddp
@@ -75,8 +130,9 @@ pub struct Student {
 impl Student {
     /// Built under `seed` as the supervised loop always did (same initial weights).
     pub fn build(cfg: &TrainConfig, device: Device) -> Result<Self, TrainError> {
-        let trained = Trained::new(STUDENT, device, &cfg.optimizer);
+        let trained = Trained::new(STUDENT, device, &cfg.optimizer).mixed(cfg.precision)?;
         let inner = rtf_models::build(&trained.vs.root(), &cfg.model)?;
+        trained.channels_last_weights();
         Ok(Self {
             trained,
             net: Masked {
@@ -88,8 +144,18 @@ impl Student {
 
     /// Training-mode logits for `input` [B, 4, H, W]; sizes that are not a multiple of the
     /// network's stride are padded (replicating the border) and the logits cropped back.
+    /// Under mixed precision the forward pass runs in its autocast region and the logits come
+    /// back as fp32, so every loss is computed in fp32.
     pub fn logits(&self, input: &Tensor) -> Tensor {
-        forward_padded(&self.net, input, true)
+        match self.trained.precision {
+            Precision::Fp32 => forward_padded(&self.net, input, true),
+            _ => self.trained.autocast(|| {
+                // Channels-last activations from the first layer on (see
+                // `Trained::channels_last_weights`).
+                let input = rtf_models::layers::to_channels_last(input);
+                forward_padded(&self.net, &input, true).to_kind(Kind::Float)
+            }),
+        }
     }
 }
 
@@ -350,5 +416,64 @@ fn labeller(
             "teacher stage `{name}` was not resolved to its weights (a stage teacher only \
              works inside a multi-stage run)"
         ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn student(precision: Precision) -> Student {
+        tch::manual_seed(5);
+        let mut cfg = TrainConfig::mfnet_paper("unused".into());
+        cfg.precision = precision;
+        Student::build(&cfg, Device::Cpu).unwrap()
+    }
+
+    /// Under bf16 the forward pass runs in bf16 (its logits differ from fp32's by bf16's
+    /// rounding, not more), the logits come back fp32, and the BatchNorm statistics it updates
+    /// stay fp32.
+    #[test]
+    fn bf16_logits_are_fp32_and_close_to_fp32_logits() {
+        let (fp32, bf16) = (student(Precision::Fp32), student(Precision::Bf16));
+        tch::manual_seed(6);
+        let x = Tensor::rand([2, 4, 32, 32], (Kind::Float, Device::Cpu));
+        let (a, b) = (fp32.logits(&x), bf16.logits(&x));
+        assert_eq!(b.kind(), Kind::Float);
+        assert!(b.requires_grad());
+        let diff = f64::try_from((&a - &b).abs().max()).unwrap();
+        let scale = f64::try_from(a.abs().max()).unwrap();
+        assert!(diff > 0.0, "bf16 arithmetic leaves a trace");
+        assert!(diff < 0.1 * scale, "max |Δ| {diff} vs max |logit| {scale}");
+        let stats: Vec<_> = bf16
+            .trained
+            .vs
+            .variables()
+            .into_iter()
+            .filter(|(n, _)| n.ends_with("running_mean") || n.ends_with("running_var"))
+            .collect();
+        assert!(!stats.is_empty());
+        for (name, t) in stats {
+            assert_eq!(t.kind(), Kind::Float, "{name}");
+        }
+        // Gradients reach the fp32 master weights.
+        b.sum(Kind::Float).backward();
+        let grads = optim_grads(&bf16.trained.vs);
+        assert!(grads > 0 && grads == crate::optim::trainable(&bf16.trained.vs).len());
+    }
+
+    fn optim_grads(vs: &VarStore) -> usize {
+        crate::optim::trainable(vs)
+            .into_iter()
+            .filter(|(_, t)| t.grad().defined() && t.grad().kind() == Kind::Float)
+            .count()
+    }
+
+    #[test]
+    fn fp16_student_on_a_cpu_is_refused() {
+        let mut cfg = TrainConfig::mfnet_paper("unused".into());
+        cfg.precision = Precision::Fp16;
+        let err = Student::build(&cfg, Device::Cpu).err().unwrap().to_string();
+        assert!(err.contains("fp16"), "{err}");
     }
 }

@@ -41,3 +41,19 @@ pub fn write_frames(
     }
     names
 }
+
+/// A randomly initialised MFNet saved as an RGB teacher (its file records the inputs).
+#[allow(dead_code)] // not every test binary has a teacher
+pub fn teacher(dir: &Path, seed: i64) -> rtf_train::config::TeacherRef {
+    tch::manual_seed(seed);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    let model = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
+    rtf_models::build(&vs.root(), &model).unwrap();
+    let path = dir.join(format!("teacher{seed}.safetensors"));
+    rtf_models::weights::save_safetensors(&vs, &model, rtf_train::Modality::Rgb, &path).unwrap();
+    rtf_train::config::TeacherRef::Weights {
+        path,
+        model,
+        inputs: rtf_train::Modality::Rgb,
+    }
+}

@@ -1,0 +1,206 @@
+//! Training-step throughput: steady-state images/s of full supervised steps (forward, loss,
+//! backward, optimiser update) of a network on random frames, the step the trainer runs
+//! ([`crate::procedure::Student`], the configured loss, [`crate::procedure::Trained`]'s
+//! update), and the process's peak resident memory. The frames are made once, in memory, so
+//! no data pipeline is timed (`rtf bench data` times that). `scripts/bench_torch_train.py`
+//! runs the same step in PyTorch.
+
+use std::time::Instant;
+
+use serde::Serialize;
+use tch::{Device, Kind, Tensor};
+
+use crate::config::{OptimizerConfig, Precision, TrainConfig};
+use crate::procedure::Student;
+use crate::trainer::TrainError;
+
+/// What to time.
+#[derive(Debug, Clone)]
+pub struct TrainBenchOptions {
+    pub model: String,
+    pub batch: usize,
+    /// (width, height).
+    pub size: (usize, usize),
+    pub precision: Precision,
+    pub device: Device,
+    /// Untimed steps first (allocator and oneDNN caches warm up).
+    pub warmup: usize,
+    /// Timed steps.
+    pub steps: usize,
+    pub optimizer: OptimizerConfig,
+}
+
+/// Timings of the steps (the `rtf bench train --json` record).
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainBenchReport {
+    pub model: String,
+    pub batch: usize,
+    /// "WxH".
+    pub size: String,
+    pub precision: String,
+    pub device: String,
+    pub threads: i32,
+    /// Images per second over all timed steps.
+    pub images_per_s: f64,
+    /// Median seconds of one step, and of its parts.
+    pub step_s: f64,
+    pub forward_s: f64,
+    pub backward_s: f64,
+    pub optimizer_s: f64,
+    /// Peak resident memory of the process (Linux `VmHWM`), MiB; None where unknown.
+    pub peak_rss_mb: Option<f64>,
+    pub steps: usize,
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(f64::total_cmp);
+    match values.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => values[n / 2],
+        n => 0.5 * (values[n / 2 - 1] + values[n / 2]),
+    }
+}
+
+/// Peak resident set size of this process in MiB (`VmHWM` of /proc/self/status).
+pub fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// Waits for the device's queued work (a no-op on the CPU), so step times are real.
+fn sync(device: Device) {
+    if let Device::Cuda(i) = device {
+        tch::Cuda::synchronize(i as i64);
+    }
+}
+
+/// Times `opts.steps` training steps after `opts.warmup` untimed ones.
+pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainError> {
+    if opts.batch == 0 || opts.steps == 0 || opts.size.0 == 0 || opts.size.1 == 0 {
+        return Err(TrainError::Config(
+            "bench train: batch, steps, width and height must be at least 1".into(),
+        ));
+    }
+    let model = rtf_models::ModelConfig::from_name(&opts.model, 9)?;
+    let mut cfg = TrainConfig::mfnet_paper("unused".into());
+    cfg.model = model;
+    cfg.optimizer = opts.optimizer.clone();
+    cfg.precision = opts.precision;
+    cfg.batch_size = opts.batch;
+    cfg.device = match opts.device {
+        Device::Cpu => "cpu".into(),
+        Device::Cuda(i) => format!("cuda:{i}"),
+        other => {
+            return Err(TrainError::Config(format!(
+                "bench train: unsupported device {other:?}"
+            )))
+        }
+    };
+    cfg.validate()?;
+    tch::manual_seed(0);
+    let mut student = Student::build(&cfg, opts.device)?;
+    let loss_fn = cfg.loss.build(None);
+    let (w, h) = (opts.size.0 as i64, opts.size.1 as i64);
+    let b = opts.batch as i64;
+    let input = Tensor::rand([b, 4, h, w], (Kind::Float, opts.device));
+    let target = Tensor::randint(9, [b, h, w], (Kind::Int64, opts.device));
+    let lr = cfg.optimizer.lr_at(0);
+    let (mut fwd, mut bwd, mut opt, mut total) = (vec![], vec![], vec![], 0.0);
+    for i in 0..opts.warmup + opts.steps {
+        // The body of `Supervised::step`, timed part by part.
+        let t0 = Instant::now();
+        let logits = student.logits(&input);
+        let loss = loss_fn.compute(&logits, &target);
+        sync(opts.device);
+        let t1 = Instant::now();
+        let trained = &mut student.trained;
+        trained.optimizer.zero_grad(&trained.vs);
+        trained.optimizer.scale_loss(&loss).backward();
+        sync(opts.device);
+        let t2 = Instant::now();
+        trained.optimizer.step(&trained.vs, lr);
+        let value = f64::try_from(&loss).unwrap_or(f64::NAN);
+        sync(opts.device);
+        let t3 = Instant::now();
+        if !value.is_finite() {
+            return Err(TrainError::Diverged {
+                epoch: 0,
+                step: i as u64,
+                what: format!("loss is {value}"),
+            });
+        }
+        if i >= opts.warmup {
+            fwd.push((t1 - t0).as_secs_f64());
+            bwd.push((t2 - t1).as_secs_f64());
+            opt.push((t3 - t2).as_secs_f64());
+            total += (t3 - t0).as_secs_f64();
+        }
+    }
+    let mut steps: Vec<f64> = (0..fwd.len()).map(|i| fwd[i] + bwd[i] + opt[i]).collect();
+    Ok(TrainBenchReport {
+        model: opts.model.clone(),
+        batch: opts.batch,
+        size: format!("{}x{}", opts.size.0, opts.size.1),
+        precision: opts.precision.name().into(),
+        device: cfg.device.clone(),
+        threads: tch::get_num_threads(),
+        images_per_s: (opts.steps * opts.batch) as f64 / total,
+        step_s: median(&mut steps),
+        forward_s: median(&mut fwd),
+        backward_s: median(&mut bwd),
+        optimizer_s: median(&mut opt),
+        peak_rss_mb: peak_rss_mb(),
+        steps: opts.steps,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn options(precision: Precision) -> TrainBenchOptions {
+        TrainBenchOptions {
+            model: "mfnet".into(),
+            batch: 2,
+            size: (64, 32),
+            precision,
+            device: Device::Cpu,
+            warmup: 1,
+            steps: 2,
+            optimizer: OptimizerConfig::mfnet_paper(),
+        }
+    }
+
+    #[test]
+    fn reports_consistent_numbers_on_a_small_input() {
+        for precision in [Precision::Fp32, Precision::Bf16] {
+            let report = bench_train(&options(precision)).unwrap();
+            assert_eq!(report.size, "64x32");
+            assert_eq!(report.precision, precision.name());
+            assert!(report.images_per_s > 0.0 && report.images_per_s.is_finite());
+            let parts = report.forward_s + report.backward_s + report.optimizer_s;
+            assert!(parts > 0.0 && report.step_s > 0.0);
+            assert!(report.peak_rss_mb.is_some_and(|m| m > 1.0));
+        }
+    }
+
+    #[test]
+    fn bad_options_are_refused() {
+        let err = bench_train(&TrainBenchOptions {
+            steps: 0,
+            ..options(Precision::Fp32)
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("steps"), "{err}");
+        let err = bench_train(&TrainBenchOptions {
+            model: "nonet".into(),
+            ..options(Precision::Fp32)
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("nonet"), "{err}");
+        let err = bench_train(&options(Precision::Fp16)).unwrap_err();
+        assert!(err.to_string().contains("fp16"), "{err}");
+    }
+}
