@@ -4,27 +4,15 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{json_file, s, synth_mf};
 
-fn torchrun() -> Option<PathBuf> {
-    if let Some(p) = std::env::var_os("RTF_TORCHRUN") {
-        return Some(PathBuf::from(p));
-    }
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/torchrun");
-    p.exists().then_some(p)
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+#[path = "../../rtf-dist/tests/launcher/mod.rs"]
+mod launcher;
+use launcher::{free_port, torchrun};
 
 fn spawn(torchrun: &Path, args: &[&str]) -> Child {
     Command::new(torchrun)

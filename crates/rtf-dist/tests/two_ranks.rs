@@ -2,7 +2,7 @@
 //! users launch jobs (`torchrun --nproc-per-node 2 --no-python <this test binary> ...`): each
 //! test is both the launcher (when no `WORLD_SIZE` is set) and the worker (under torchrun).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -10,22 +10,8 @@ use rtf_dist::{Backend, DistEnv, ProcessGroup};
 use tch::nn::{self, Module, OptimizerConfig};
 use tch::{Device, Kind, Tensor};
 
-/// The venv's torchrun (`cargo xtask setup` creates it), or RTF_TORCHRUN.
-fn torchrun() -> Option<PathBuf> {
-    if let Some(p) = std::env::var_os("RTF_TORCHRUN") {
-        return Some(PathBuf::from(p));
-    }
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/torchrun");
-    p.exists().then_some(p)
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+mod launcher;
+use launcher::{free_port, torchrun};
 
 /// Runs `test` of this binary on 2 ranks; returns the folder the ranks wrote to, or None (with
 /// a message) when the venv is missing.

@@ -17,21 +17,9 @@ use rtf_train::{DatasetConfig, OptimizerConfig, RunConfig, TrainConfig};
 use tch::nn::{self, Module};
 use tch::{Device, Kind, Tensor};
 
-fn torchrun() -> Option<PathBuf> {
-    if let Some(p) = std::env::var_os("RTF_TORCHRUN") {
-        return Some(PathBuf::from(p));
-    }
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/torchrun");
-    p.exists().then_some(p)
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+#[path = "../../rtf-dist/tests/launcher/mod.rs"]
+mod launcher;
+use launcher::{free_port, torchrun};
 
 /// Runs `test` of this binary on 2 ranks with `RTF_DDP_DIR=dir` and `RTF_DDP_PHASE=phase`;
 /// false (with a message) when there is no torchrun.
@@ -148,26 +136,6 @@ fn padding(p: i64) -> nn::ConvConfig {
     }
 }
 
-/// Every tensor of a safetensors file, by name (the metadata, which holds the run's config,
-/// left out).
-fn weights(path: &Path) -> Vec<(String, Vec<u8>)> {
-    let bytes = std::fs::read(path).unwrap();
-    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
-    let mut named: Vec<_> = st
-        .tensors()
-        .into_iter()
-        .map(|(n, v)| (n, v.data().to_vec()))
-        .collect();
-    named.sort_by(|a, b| a.0.cmp(&b.0));
-    named
-}
-
-fn write_dataset(root: &Path) {
-    let names = common::write_frames(root, 10, 4242, false);
-    std::fs::write(root.join("train.txt"), names[..8].join("\n")).unwrap();
-    std::fs::write(root.join("val.txt"), names[8..].join("\n")).unwrap();
-}
-
 /// MFNet (train-mode BatchNorm, per rank) on the tiny dataset, 2 epochs.
 fn mfnet(root: &Path) -> TrainConfig {
     let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
@@ -194,7 +162,7 @@ fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
     let Some((ddp, dir, phase)) = rank() else {
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path();
-        write_dataset(&dir.join("data"));
+        common::write_split_dataset(&dir.join("data"), 10, 4242, 8);
         if !launch(test, dir, "straight") {
             return;
         }
@@ -228,8 +196,8 @@ fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
         assert_eq!(read("resume.rank0"), read("resume.rank1"));
         assert_eq!(read("resume.rank0"), read("straight.rank0"));
         assert!(
-            weights(&dir.join("straight/final.safetensors"))
-                == weights(&dir.join("stopped/final.safetensors")),
+            common::weights(&dir.join("straight/final.safetensors"))
+                == common::weights(&dir.join("stopped/final.safetensors")),
             "stopped and resumed on 2 ranks = uninterrupted"
         );
         return;

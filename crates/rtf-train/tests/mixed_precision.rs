@@ -15,12 +15,6 @@ use rtf_train::{DatasetConfig, Modality, OptimizerConfig, Procedure, TrainConfig
 /// libtorch's random generator is process-global: tests that compare runs must not interleave.
 static TORCH_RNG: Mutex<()> = Mutex::new(());
 
-fn write_dataset(root: &Path) {
-    let names = common::write_frames(root, 10, 4242, false);
-    std::fs::write(root.join("train.txt"), names[..8].join("\n")).unwrap();
-    std::fs::write(root.join("val.txt"), names[8..].join("\n")).unwrap();
-}
-
 fn config(root: &Path, epochs: usize, precision: Precision) -> TrainConfig {
     let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
     cfg.dataset = DatasetConfig::Mf {
@@ -116,7 +110,7 @@ fn bf16_supervised_run_resumes_exactly_and_keeps_fp32_master_weights() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 10, 4242, 8);
     let bf16 = config(&data, 2, Precision::Bf16);
     let outcome = assert_resumes_exactly(&bf16, &tmp.path().join("bf16"));
     assert!(outcome.records.iter().all(|r| r.val_miou.is_some()));
@@ -152,7 +146,7 @@ fn bf16_teacher_student_and_adversarial_runs_resume_exactly() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 10, 4242, 8);
     let optimizer = OptimizerConfig {
         lr: 1e-3,
         momentum: 0.5,
@@ -198,7 +192,7 @@ fn bf16_teacher_student_and_adversarial_runs_resume_exactly() {
 fn fp16_on_a_cpu_is_refused_before_anything_is_written() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 10, 4242, 8);
     let run = tmp.path().join("run");
     let err = rtf_train::train(&config(&data, 1, Precision::Fp16), &run, false, &mut |_| {})
         .unwrap_err()

@@ -9,12 +9,6 @@ use std::sync::Mutex;
 use rtf_train::{DatasetConfig, OptimizerConfig, TrainConfig};
 
 /// A tiny MF-layout dataset: random RGBA frames whose label is "hot pixel = person".
-fn write_dataset(root: &Path) {
-    let names = common::write_frames(root, 6, 12345, false);
-    std::fs::write(root.join("train.txt"), names[..4].join("\n")).unwrap();
-    std::fs::write(root.join("val.txt"), names[4..].join("\n")).unwrap();
-}
-
 /// libtorch's random generator is process-global: tests that compare runs must not interleave.
 static TORCH_RNG: Mutex<()> = Mutex::new(());
 
@@ -32,24 +26,12 @@ fn config(root: &Path, epochs: usize) -> TrainConfig {
     cfg
 }
 
-fn weights(path: &Path) -> Vec<(String, Vec<u8>)> {
-    let bytes = std::fs::read(path).unwrap();
-    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
-    let mut named: Vec<_> = st
-        .tensors()
-        .into_iter()
-        .map(|(n, v)| (n, v.data().to_vec()))
-        .collect();
-    named.sort_by(|a, b| a.0.cmp(&b.0));
-    named
-}
-
 #[test]
 fn resumed_run_equals_uninterrupted_run() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 6, 12345, 4);
     // SGD's momentum buffers, and RMSprop's square averages plus momentum, must all resume.
     let optimizers = [
         ("sgd", OptimizerConfig::mfnet_paper()),
@@ -81,8 +63,8 @@ fn resumed_run_equals_uninterrupted_run() {
         assert_eq!(resumed.state.epochs_done, 2);
         assert_eq!(resumed.state.steps_done, outcome.state.steps_done);
 
-        let a = weights(&straight.join("final.safetensors"));
-        let b = weights(&split.join("final.safetensors"));
+        let a = common::weights(&straight.join("final.safetensors"));
+        let b = common::weights(&split.join("final.safetensors"));
         assert_eq!(a.len(), b.len());
         for ((na, da), (nb, db)) in a.iter().zip(&b) {
             assert_eq!(na, nb);
@@ -101,7 +83,7 @@ fn run_stopped_inside_an_epoch_resumes_exactly() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 6, 12345, 4);
     // HeatNet's optimiser with momentum: its state must survive a mid-epoch stop too.
     let cfg = TrainConfig {
         optimizer: OptimizerConfig {
@@ -143,8 +125,8 @@ fn run_stopped_inside_an_epoch_resumes_exactly() {
         );
     }
     assert_eq!(
-        weights(&straight.join("final.safetensors")),
-        weights(&stopped.join("final.safetensors")),
+        common::weights(&straight.join("final.safetensors")),
+        common::weights(&stopped.join("final.safetensors")),
         "stopped and resumed inside an epoch = uninterrupted"
     );
 }
@@ -154,7 +136,7 @@ fn training_lowers_the_loss() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 6, 12345, 4);
     let mut cfg = config(&data, 20);
     cfg.optimizer.lr = 0.05;
     cfg.dataset = DatasetConfig::Mf {
@@ -173,7 +155,7 @@ fn backbone_weights_are_loaded_before_the_first_step() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 6, 12345, 4);
     // A torchvision-named ResNet-18 (tch's own resnet uses torchvision's names).
     let imagenet = tch::nn::VarStore::new(tch::Device::Cpu);
     let _ = tch::vision::resnet::resnet18_no_final_layer(&imagenet.root());
@@ -195,7 +177,7 @@ fn backbone_weights_are_loaded_before_the_first_step() {
     cfg.max_steps_per_epoch = Some(1);
     let run = tmp.path().join("run");
     rtf_train::train(&cfg, &run, false, &mut |_| {}).unwrap();
-    let written = weights(&run.join("final.safetensors"));
+    let written = common::weights(&run.join("final.safetensors"));
     let get = |name: &str| {
         written
             .iter()
@@ -234,7 +216,7 @@ fn a_log_line_lost_to_a_kill_comes_back_on_resume() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 6, 12345, 4);
     let run = tmp.path().join("run");
     rtf_train::train(&config(&data, 1), &run, false, &mut |_| {}).unwrap();
     // A kill between the checkpoint's rename and the log's append: the line is missing.
@@ -257,7 +239,7 @@ fn a_diverging_run_stops_and_never_writes_non_finite_weights() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    write_dataset(&data);
+    common::write_split_dataset(&data, 6, 12345, 4);
     let mut cfg = config(&data, 3);
     cfg.optimizer.lr = 1e12;
     let run = tmp.path().join("run");

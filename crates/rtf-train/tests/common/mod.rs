@@ -57,3 +57,27 @@ pub fn teacher(dir: &Path, seed: i64) -> rtf_train::config::TeacherRef {
         inputs: rtf_train::Modality::Rgb,
     }
 }
+
+/// `count` frames from `seed` in `root`, the first `train` of them the `train` split and the
+/// rest `val`.
+#[allow(dead_code)]
+pub fn write_split_dataset(root: &Path, count: usize, seed: u32, train: usize) {
+    let names = write_frames(root, count, seed, false);
+    std::fs::write(root.join("train.txt"), names[..train].join("\n")).unwrap();
+    std::fs::write(root.join("val.txt"), names[train..].join("\n")).unwrap();
+}
+
+/// Every tensor of a safetensors file as bytes, by name (the metadata, which holds the run's
+/// config, left out): two runs are bit-identical when these are equal.
+#[allow(dead_code)]
+pub fn weights(path: &Path) -> Vec<(String, Vec<u8>)> {
+    let bytes = std::fs::read(path).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let mut named: Vec<_> = st
+        .tensors()
+        .into_iter()
+        .map(|(n, v)| (n, v.data().to_vec()))
+        .collect();
+    named.sort_by(|a, b| a.0.cmp(&b.0));
+    named
+}
