@@ -23,7 +23,9 @@ pub enum State {
     Done,
     /// Training finished (`final.safetensors`); evaluate (and time).
     Evaluate,
-    /// A checkpoint of an interrupted run: `rtf train --resume`.
+    /// An interrupted run (a checkpoint, or only the config of a run killed before its first
+    /// checkpoint, which `rtf train` refuses to start over without `--resume`):
+    /// `rtf train --resume`, which continues it or starts it again from its saved config.
     Resume,
     /// Nothing usable: train from the start.
     Fresh,
@@ -42,7 +44,12 @@ pub fn state(dir: &Path, bench: bool) -> State {
         State::Done
     } else if dir.join("final.safetensors").exists() {
         State::Evaluate
-    } else if dir.join("checkpoint.safetensors").exists() {
+    } else if ["checkpoint.safetensors", "config.json", "log.jsonl"]
+        .iter()
+        .any(|f| dir.join(f).exists())
+    {
+        // The files by which `rtf train` says a folder "already holds a run" (a pipeline
+        // keeps its checkpoints in its stage folders and only config.json at the top).
         State::Resume
     } else {
         State::Fresh
@@ -414,8 +421,11 @@ mod tests {
         let dir = tmp.path().join("cell/seed0");
         assert_eq!(state(&dir, false), State::Fresh);
         std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join(CELL_FILE), "{}").unwrap();
+        assert_eq!(state(&dir, false), State::Fresh, "the cell spec alone is no run");
+        // Killed before its first checkpoint: `rtf train` would refuse a fresh start there.
         std::fs::write(dir.join("config.json"), "{}").unwrap();
-        assert_eq!(state(&dir, false), State::Fresh, "config alone is no run");
+        assert_eq!(state(&dir, false), State::Resume);
         std::fs::write(dir.join("checkpoint.safetensors"), "x").unwrap();
         assert_eq!(state(&dir, false), State::Resume);
         std::fs::write(dir.join("final.safetensors"), "x").unwrap();
@@ -437,7 +447,8 @@ echo "$*" >> "$here/calls.txt"
 arg() { key=$1; shift; while [ $# -gt 0 ]; do [ "$1" = "$key" ] && { echo "$2"; return; }; shift; done; }
 case "$1" in
   train)
-    if [ "$2" = "--resume" ]; then out=$3; else out=$(arg --out "$@"); fi
+    if [ "$2" = "--resume" ]; then out=$3; else out=$(arg --out "$@")
+      [ -f "$out/config.json" ] && { echo "$out: already holds a run" >&2; exit 1; }; fi
     mkdir -p "$out"; echo '{}' > "$out/config.json"
     [ -f "$here/fail" ] && exit 3
     if [ -f "$here/interrupt" ]; then echo x > "$out/checkpoint.safetensors"; exit 130; fi
@@ -536,8 +547,12 @@ esac
             err.contains("rtf train") && err.contains("exit 3") && err.contains("xtask.log"),
             "{err}"
         );
+        // It failed before its first checkpoint, leaving config.json: the re-run resumes it
+        // (a fresh `rtf train` would refuse the folder).
         std::fs::remove_file(tmp.join("bin/fail")).unwrap();
+        let before = calls(tmp).len();
         assert_eq!(run(&ctx, tab2, segnet, 0).unwrap(), Outcome::Ran);
+        assert_eq!(calls(tmp)[before], "train --resume");
 
         // A finished folder written with another budget is refused.
         let mut quick = ctx;
