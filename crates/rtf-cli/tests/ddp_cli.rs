@@ -54,8 +54,9 @@ fn worker_pid(parent: u32, rank: usize) -> Option<i32> {
 }
 
 /// A 2-process run whose rank 1 is killed mid-run stops rank 0 with an error and a checkpoint
-/// (never a hang); the run folder is rank 0's alone and records `world_size`; resumed under
-/// torchrun it finishes.
+/// (never a hang), also with synchronised BatchNorm's collectives inside every forward and
+/// backward; the run folder is rank 0's alone and records `world_size` and `sync_batch_norm`;
+/// resumed under torchrun it finishes.
 #[test]
 fn a_two_process_run_survives_a_killed_rank_and_resumes() {
     let Some(torchrun) = torchrun() else {
@@ -77,6 +78,8 @@ fn a_two_process_run_survives_a_killed_rank_and_resumes() {
             "400",
             "--batch-size",
             "2",
+            // BatchNorm's collectives in the forward and backward too must not hang.
+            "--sync-bn",
         ],
     );
     let started = Instant::now();
@@ -108,7 +111,9 @@ fn a_two_process_run_survives_a_killed_rank_and_resumes() {
     assert!(all.contains("rank 0 wrote a checkpoint"), "{all}");
     assert!(run.join("checkpoint.safetensors").exists());
     assert!(!run.join("final.safetensors").exists());
-    assert_eq!(json_file(&run.join("config.json"))["world_size"], 2);
+    let config = json_file(&run.join("config.json"));
+    assert_eq!(config["world_size"], 2);
+    assert_eq!(config["sync_batch_norm"], true);
     let done = std::fs::read_to_string(&log).unwrap().lines().count();
     assert!(done < 400, "killed before the end");
     // Resumed by 2 processes, it runs to (a shortened) end.

@@ -3,13 +3,16 @@
 // is in torch-sys's C++ (libtch/torch_api.h). Every entry point catches every C++ exception and
 // returns it as a malloc'd message (NULL = success): nothing unwinds across the FFI boundary.
 
+#include <atomic>
 #include <chrono>
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <mutex>
 #include <string>
 #include <vector>
 
+#include <torch/autograd.h>
 #include <torch/torch.h>
 
 #define USE_C10D_GLOO 1
@@ -32,6 +35,13 @@ struct Group {
   c10::intrusive_ptr<c10d::Store> store;
   c10::intrusive_ptr<c10d::Backend> backend;
   std::chrono::milliseconds timeout;
+  // A collective that failed inside autograd's backward (which cannot return an error to
+  // Rust): the first message, taken by `rtf_c10d_take_backward_error`. Once set, the
+  // differentiable all-reduce stops communicating, so a dead peer costs one timeout, not one
+  // per layer.
+  std::atomic<bool> broken{false};
+  std::mutex error_mutex;
+  std::string backward_error;
 };
 
 char* message(const std::string& what) {
@@ -58,6 +68,56 @@ void finish(const c10::intrusive_ptr<c10d::Work>& work, std::chrono::millisecond
     throw std::runtime_error("collective did not complete within the timeout");
   }
 }
+
+void allreduce_sum(Group* g, at::Tensor& t) {
+  std::vector<at::Tensor> tensors{t};
+  c10d::AllreduceOptions opts;
+  opts.reduceOp = c10d::ReduceOp::SUM;
+  opts.timeout = g->timeout;
+  finish(g->backend->allreduce(tensors, opts), g->timeout);
+}
+
+// y = Σ_ranks x, differentiable: every rank's y depends on every rank's x, so the gradient of
+// x is the sum over the ranks of the gradients of y (the backward is an all-reduce too). This is
+// what synchronised BatchNorm's statistics need (torch.nn.SyncBatchNorm reduces them the same
+// way, in its own backward).
+struct AllReduceSum : public torch::autograd::Function<AllReduceSum> {
+  static at::Tensor forward(torch::autograd::AutogradContext* ctx, at::Tensor x, int64_t group) {
+    ctx->saved_data["group"] = group;
+    auto g = reinterpret_cast<Group*>(group);
+    auto y = x.contiguous().clone();
+    if (g->broken.load()) {
+      throw std::runtime_error("an earlier collective of this step failed");
+    }
+    try {
+      allreduce_sum(g, y);
+    } catch (...) {
+      // The backward of the all-reduces already in the graph must not wait on the peers.
+      g->broken.store(true);
+      throw;
+    }
+    return y;
+  }
+
+  static torch::autograd::variable_list backward(
+      torch::autograd::AutogradContext* ctx,
+      torch::autograd::variable_list grads) {
+    auto g = reinterpret_cast<Group*>(ctx->saved_data["group"].toInt());
+    auto grad = grads[0].contiguous().clone();
+    if (!g->broken.load()) {
+      try {
+        allreduce_sum(g, grad);
+      } catch (const std::exception& e) {
+        // Keep the local gradient; the step is abandoned once Rust reads the error.
+        std::lock_guard<std::mutex> lock(g->error_mutex);
+        if (!g->broken.exchange(true)) {
+          g->backward_error = e.what();
+        }
+      }
+    }
+    return {grad, at::Tensor()};
+  }
+};
 
 } // namespace
 
@@ -141,6 +201,27 @@ char* rtf_c10d_broadcast(void* group, torch::Tensor* tensor, int root) {
     opts.timeout = g->timeout;
     finish(g->backend->broadcast(tensors, opts), g->timeout);
   });
+}
+
+// `*out` = Σ_ranks `tensor` as a new tensor whose gradient is all-reduced in the backward.
+char* rtf_c10d_allreduce_sum_autograd(void* group, torch::Tensor* tensor, torch::Tensor** out) {
+  return guarded([&] {
+    *out = nullptr;
+    auto y = AllReduceSum::apply(*tensor, reinterpret_cast<int64_t>(group));
+    *out = new torch::Tensor(y);
+  });
+}
+
+// The first failure of a collective inside a backward pass since the last call (NULL: none).
+char* rtf_c10d_take_backward_error(void* group) {
+  auto g = static_cast<Group*>(group);
+  std::lock_guard<std::mutex> lock(g->error_mutex);
+  if (!g->broken.load() || g->backward_error.empty()) {
+    return nullptr;
+  }
+  auto error = message(g->backward_error);
+  g->backward_error.clear();
+  return error;
 }
 
 char* rtf_c10d_barrier(void* group) {

@@ -46,6 +46,12 @@ mod ffi {
             root: c_int,
         ) -> *mut c_char;
         pub fn rtf_c10d_barrier(group: *mut c_void) -> *mut c_char;
+        pub fn rtf_c10d_allreduce_sum_autograd(
+            group: *mut c_void,
+            t: *mut torch_sys::C_tensor,
+            out: *mut *mut torch_sys::C_tensor,
+        ) -> *mut c_char;
+        pub fn rtf_c10d_take_backward_error(group: *mut c_void) -> *mut c_char;
     }
 }
 
@@ -294,6 +300,37 @@ impl ProcessGroup {
             ffi::rtf_c10d_broadcast(self.raw.as_ptr(), tensor.as_mut_ptr(), root as c_int)
         };
         self.check("broadcast", error)
+    }
+
+    /// Σ over every rank of `tensor`, as a new tensor in the autograd graph: its backward sums
+    /// the gradient over the ranks too (every rank must then run the same backward). For
+    /// statistics of a data-parallel batch, as synchronised BatchNorm needs. A failure of the
+    /// backward's all-reduce is kept for [`Self::take_backward_error`] (the local gradient is
+    /// used meanwhile, and every later differentiable all-reduce fails at once).
+    pub fn all_reduce_sum_differentiable(&self, tensor: &Tensor) -> Result<Tensor, DistError> {
+        let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
+        // SAFETY: `as_ptr` is a live `torch::Tensor*` for the call (the borrow); the shim copies
+        // the handle and, on success, stores a new heap `torch::Tensor*` in `out`, which
+        // `Tensor::from_ptr` then owns (tch frees it with `delete`, as it was made by `new`).
+        // The autograd node keeps the group's address for the backward: the group must outlive
+        // the graph, which it does as the trainer holds it for the whole run.
+        let error = unsafe {
+            ffi::rtf_c10d_allreduce_sum_autograd(
+                self.raw.as_ptr(),
+                tensor.as_ptr() as *mut torch_sys::C_tensor,
+                &mut out,
+            )
+        };
+        self.check("all_reduce (differentiable)", error)?;
+        // SAFETY: success means `out` is the shim's new tensor (see above).
+        Ok(unsafe { Tensor::from_ptr(out) })
+    }
+
+    /// The first failure of a collective inside a backward pass since the last call.
+    pub fn take_backward_error(&self) -> Option<DistError> {
+        // SAFETY: the group pointer is live while `self` is.
+        let error = unsafe { ffi::rtf_c10d_take_backward_error(self.raw.as_ptr()) };
+        self.check("all_reduce (in the backward)", error).err()
     }
 
     pub fn barrier(&self) -> Result<(), DistError> {

@@ -9,7 +9,7 @@ use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
-use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, InitScheme};
+use crate::layers::{Act, BatchNorm, ConvBnAct, ConvSpec, Fuse, InitScheme};
 use crate::resnet::{self, BlockGeometry, BlockKind, ResLayer};
 use crate::Network;
 
@@ -582,7 +582,7 @@ impl nn::Module for RectConv {
     }
 }
 
-fn bn(p: nn::Path, c: i64) -> nn::BatchNorm {
+fn bn(p: nn::Path, c: i64) -> BatchNorm {
     crate::layers::bn2d_init(p, c, nn::Init::Const(1.0))
 }
 
@@ -591,7 +591,7 @@ fn bn(p: nn::Path, c: i64) -> nn::BatchNorm {
 #[derive(Debug)]
 struct Downsampler {
     conv: ConvBnAct,
-    bn: nn::BatchNorm,
+    bn: BatchNorm,
 }
 
 fn downsampler(p: nn::Path, c_in: i64, c_out: i64) -> Downsampler {
@@ -617,8 +617,8 @@ impl ModuleT for Downsampler {
 #[derive(Debug)]
 struct NonBottleneck1d {
     convs: [RectConv; 4],
-    bn1: nn::BatchNorm,
-    bn2: nn::BatchNorm,
+    bn1: BatchNorm,
+    bn2: BatchNorm,
     dropout: f64,
 }
 
@@ -654,7 +654,7 @@ impl ModuleT for NonBottleneck1d {
 #[derive(Debug)]
 struct Upsampler {
     conv: nn::ConvTranspose2D,
-    bn: nn::BatchNorm,
+    bn: BatchNorm,
 }
 
 fn upsampler(p: nn::Path, c_in: i64, c_out: i64) -> Upsampler {
@@ -767,7 +767,7 @@ impl EnetAct {
 struct EnetConv {
     conv: Option<RectConv>,
     strided: Option<ConvBnAct>,
-    bn: nn::BatchNorm,
+    bn: BatchNorm,
     act: Option<EnetAct>,
 }
 
@@ -823,7 +823,7 @@ enum EnetBlock {
         main: EnetConv,
         ext1: EnetConv,
         tconv: nn::ConvTranspose2D,
-        tbn: nn::BatchNorm,
+        tbn: BatchNorm,
         tact: EnetAct,
         ext2: EnetConv,
         out_act: EnetAct,
@@ -928,7 +928,7 @@ fn enet_up(p: nn::Path, c_in: i64, c_out: i64, dropout: f64) -> EnetBlock {
 #[derive(Debug)]
 struct Enet {
     initial_conv: ConvBnAct,
-    initial_bn: nn::BatchNorm,
+    initial_bn: BatchNorm,
     initial_act: EnetAct,
     blocks: Vec<EnetBlock>,
     fullconv: nn::ConvTranspose2D,

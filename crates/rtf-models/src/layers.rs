@@ -9,25 +9,30 @@
 
 use tch::{nn, Kind, Tensor};
 
+pub use crate::sync_bn::BatchNorm;
+
 use crate::onednn::{conv_add_with_post_op, conv_with_post_op, Geometry, PostOp};
 
 /// BatchNorm epsilon of every reference network (PyTorch's default).
 pub const BN_EPS: f64 = 1e-5;
+/// BatchNorm momentum of every reference network (PyTorch's default).
+pub const BN_MOMENTUM: f64 = 0.1;
 
 /// BatchNorm2d initialised as PyTorch's (weight 1, bias 0; tch's default weight is U(0, 1)).
-pub fn bn2d(p: nn::Path, c: i64) -> nn::BatchNorm {
+pub fn bn2d(p: nn::Path, c: i64) -> BatchNorm {
     bn2d_init(p, c, nn::Init::Const(1.0))
 }
 
 /// BatchNorm2d with a given weight initialisation and bias 0.
-pub fn bn2d_init(p: nn::Path, c: i64, weight: nn::Init) -> nn::BatchNorm {
+pub fn bn2d_init(p: nn::Path, c: i64, weight: nn::Init) -> BatchNorm {
     let cfg = nn::BatchNormConfig {
         eps: BN_EPS,
+        momentum: BN_MOMENTUM,
         ws_init: effective_init(weight),
         bs_init: nn::Init::Const(0.0),
         ..Default::default()
     };
-    nn::batch_norm2d(p, c, cfg)
+    BatchNorm(nn::batch_norm2d(p, c, cfg))
 }
 
 /// LeakyReLU with a given slope (tch's `leaky_relu` fixes it at 0.01). For 0 < slope < 1,
@@ -360,7 +365,7 @@ pub struct ConvBnAct {
     weight: Tensor,
     bias: Option<Tensor>,
     spec: ConvSpec,
-    bn: Option<nn::BatchNorm>,
+    bn: Option<BatchNorm>,
     act: Act,
     fused: Option<Fused>,
 }

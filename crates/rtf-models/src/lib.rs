@@ -18,6 +18,7 @@ pub mod mfnet;
 pub mod onednn;
 pub mod resnet;
 pub mod rtfnet;
+pub mod sync_bn;
 pub mod weights;
 
 use serde::{Deserialize, Serialize};
@@ -25,6 +26,7 @@ use tch::nn;
 
 pub use error::{ModelError, ShapeMismatch};
 pub use inputs::{masked, Masked, Modality};
+pub use sync_bn::{StatsAllReduce, SyncBatchNorm};
 
 /// What every segmentation network offers beyond its forward pass.
 pub trait Network: nn::ModuleT {

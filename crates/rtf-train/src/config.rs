@@ -57,6 +57,11 @@ pub struct TrainConfig {
     /// written before there was a choice.
     #[serde(default)]
     pub precision: Precision,
+    /// Under data-parallel training, BatchNorm normalises with the statistics of the whole
+    /// batch of every rank (`torch.nn.SyncBatchNorm`) instead of each rank's own (DDP's
+    /// default). No effect on a single process.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub sync_batch_norm: bool,
     /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub data_fingerprint: Option<rtf_data::Fingerprint>,
@@ -781,6 +786,7 @@ impl TrainConfig {
             select_by: None,
             tb_images_every: None,
             precision: Precision::Fp32,
+            sync_batch_norm: false,
             data_fingerprint: None,
             world_size: None,
         }

@@ -65,10 +65,14 @@ impl Ddp {
         if failed.is_some() {
             return false;
         }
-        match self
-            .group()
-            .average_gradients(&vs.trainable_variables(), BUCKET_BYTES)
-        {
+        let group = self.group();
+        // A collective of synchronised BatchNorm's backward that failed (autograd could not
+        // say so) fails the step here.
+        if let Some(e) = group.take_backward_error() {
+            *failed = Some(e);
+            return false;
+        }
+        match group.average_gradients(&vs.trainable_variables(), BUCKET_BYTES) {
             Ok(()) => true,
             Err(e) => {
                 *failed = Some(e);
@@ -77,7 +81,8 @@ impl Ddp {
         }
     }
 
-    /// The error of a collective inside a step, if any.
+    /// The error of a collective inside a step, if any (gradient averaging, or synchronised
+    /// BatchNorm's statistics in the forward or backward).
     pub fn check(&self) -> Result<(), TrainError> {
         match self.failed.lock().unwrap_or_else(|e| e.into_inner()).take() {
             Some(e) => Err(e.into()),
@@ -143,6 +148,24 @@ impl Ddp {
 
     pub fn barrier(&self) -> Result<(), TrainError> {
         Ok(self.group().barrier()?)
+    }
+}
+
+/// Synchronised BatchNorm's sum over the ranks ([`rtf_models::SyncBatchNorm`]). A failed
+/// collective is kept for [`Ddp::check`] (the step is then abandoned) and the local value used.
+impl rtf_models::StatsAllReduce for Ddp {
+    fn all_reduce_sum(&self, t: &Tensor) -> Tensor {
+        let mut failed = self.failed.lock().unwrap_or_else(|e| e.into_inner());
+        if failed.is_some() {
+            return t.shallow_clone();
+        }
+        match self.group().all_reduce_sum_differentiable(t) {
+            Ok(sum) => sum,
+            Err(e) => {
+                *failed = Some(e);
+                t.shallow_clone()
+            }
+        }
     }
 }
 

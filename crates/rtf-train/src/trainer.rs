@@ -487,6 +487,12 @@ pub fn train_distributed(
             t.ddp = Some(d.clone());
         }
     }
+    // Synchronised BatchNorm: the training-mode forwards of this thread (every step runs here)
+    // use the whole data-parallel batch's statistics until the run returns.
+    let _sync_batch_norm = match &ddp {
+        Some(d) if cfg.sync_batch_norm => Some(rtf_models::SyncBatchNorm::install(d.clone())),
+        _ => None,
+    };
     let input = procedure.student().net.input_convention();
     // Teacher labels written once, if asked: the streams then carry them as labels.
     let mut sources = sources;

@@ -129,6 +129,81 @@ fn a_step_on_two_ranks_equals_the_single_process_step_on_the_whole_batch() {
     std::fs::write(dir.join(format!("rank{r}")), format!("{max:e}")).unwrap();
 }
 
+/// Synchronised BatchNorm (`--sync-bn`): MFNet, whose BatchNorm layers are in training mode,
+/// on 2 ranks each a half of the batch takes the step one process takes on the whole batch —
+/// gradients, updated weights and BatchNorm running statistics (tolerance 1e-5). Without the
+/// synchronisation the ranks normalise with their own halves' statistics and differ.
+#[test]
+fn synchronised_batch_norm_makes_two_ranks_step_like_one_process() {
+    let test = "synchronised_batch_norm_makes_two_ranks_step_like_one_process";
+    let Some((ddp, dir, _)) = rank() else {
+        let dir = tempfile::tempdir().unwrap();
+        if !launch(test, dir.path(), "") {
+            return;
+        }
+        for r in 0..2 {
+            let read = |name: &str| {
+                let text = std::fs::read_to_string(dir.path().join(format!("{name}{r}")))
+                    .expect("each rank reports");
+                text.trim().parse::<f64>().unwrap()
+            };
+            let (synced, per_rank) = (read("synced"), read("per_rank"));
+            eprintln!(
+                "rank {r}: max |difference| to the single process: synchronised {synced:e}, \
+                 per-rank statistics {per_rank:e}"
+            );
+            assert!(synced < 1e-5, "rank {r}: {synced}");
+            assert!(
+                per_rank > 1e-3,
+                "rank {r}: per-rank BatchNorm should differ: {per_rank}"
+            );
+        }
+        return;
+    };
+    let (r, world) = (ddp.rank() as i64, ddp.world_size() as i64);
+    tch::manual_seed(3);
+    let x = Tensor::randn([4, 4, 32, 48], (Kind::Float, Device::Cpu));
+    let y = Tensor::randint(9, [4, 32, 48], (Kind::Int64, Device::Cpu));
+    let schedule = OptimizerConfig::mfnet_paper();
+    let model = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
+    let build = || {
+        tch::manual_seed(11);
+        let trained = Trained::new("student", Device::Cpu, &schedule);
+        let net = rtf_models::build(&trained.vs.root(), &model).unwrap();
+        (trained, net)
+    };
+    let ce = |logits: Tensor, y: &Tensor| {
+        logits.cross_entropy_loss::<Tensor>(y, None, tch::Reduction::Mean, -100, 0.0)
+    };
+    // One process, the whole batch.
+    let (mut single, net1) = build();
+    single.minimise(&ce(net1.forward_t(&x, true), &y), 0);
+    // Two ranks, each a half, with and without synchronised statistics.
+    let share = 4 / world;
+    let (xr, yr) = (x.narrow(0, r * share, share), y.narrow(0, r * share, share));
+    let difference = |sync: bool| {
+        let (mut trained, net) = build();
+        trained.ddp = Some(ddp.clone());
+        let _sync = sync.then(|| rtf_models::SyncBatchNorm::install(ddp.clone()));
+        trained.minimise(&ce(net.forward_t(&xr, true), &yr), 0);
+        ddp.check().unwrap();
+        let (a, b) = (trained.vs.variables(), single.vs.variables());
+        let mut max = 0f64;
+        for (name, t) in &a {
+            let u = &b[name];
+            max = max.max((t - u).abs().max().double_value(&[]));
+            if t.requires_grad() {
+                max = max.max((t.grad() - u.grad()).abs().max().double_value(&[]));
+            }
+        }
+        max
+    };
+    let synced = difference(true);
+    let per_rank = difference(false);
+    std::fs::write(dir.join(format!("synced{r}")), format!("{synced:e}")).unwrap();
+    std::fs::write(dir.join(format!("per_rank{r}")), format!("{per_rank:e}")).unwrap();
+}
+
 fn padding(p: i64) -> nn::ConvConfig {
     nn::ConvConfig {
         padding: p,

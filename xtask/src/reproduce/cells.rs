@@ -422,7 +422,11 @@ mod tests {
         assert_eq!(state(&dir, false), State::Fresh);
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join(CELL_FILE), "{}").unwrap();
-        assert_eq!(state(&dir, false), State::Fresh, "the cell spec alone is no run");
+        assert_eq!(
+            state(&dir, false),
+            State::Fresh,
+            "the cell spec alone is no run"
+        );
         // Killed before its first checkpoint: `rtf train` would refuse a fresh start there.
         std::fs::write(dir.join("config.json"), "{}").unwrap();
         assert_eq!(state(&dir, false), State::Resume);

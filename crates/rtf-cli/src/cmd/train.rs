@@ -36,7 +36,7 @@ pub struct Args {
     pub out: Option<PathBuf>,
     /// Continue the run in this folder exactly where it stopped (its config.json is used;
     /// --epochs may extend it).
-    #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config", "precision"])]
+    #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config", "precision", "sync_bn"])]
     pub resume: Option<PathBuf>,
     /// The day teacher (HeatNet's RGB teacher): a run folder, or a weights file with
     /// --teacher-model. Without it, recipes train the teacher first.
@@ -137,6 +137,10 @@ pub struct Args {
     /// config.json (a resume keeps it).
     #[arg(long, value_parser = Precision::parse)]
     pub precision: Option<Precision>,
+    /// Under torchrun: BatchNorm normalises with the statistics of every rank's batch together
+    /// (PyTorch's SyncBatchNorm) instead of each rank's own. Recorded in config.json.
+    #[arg(long)]
+    pub sync_bn: bool,
     /// Every N epochs, a prediction grid of validation frames in TensorBoard (0: never).
     #[arg(long, default_value_t = 5)]
     pub tb_images_every: usize,
@@ -538,6 +542,9 @@ fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Res
     }
     if let Some(v) = args.precision {
         cfg.precision = v;
+    }
+    if args.sync_bn {
+        cfg.sync_batch_norm = true;
     }
     if args.backbone_weights.is_some() {
         cfg.backbone_weights = args.backbone_weights.clone();

@@ -1,0 +1,214 @@
+//! Synchronised BatchNorm for data-parallel training (`torch.nn.SyncBatchNorm`, Peng et al.,
+//! "MegDet", CVPR 2018): in training mode every [`BatchNorm`] normalises with the mean and
+//! variance of the *whole* data-parallel batch, all ranks' shards together, and updates its
+//! running statistics with them, so that N processes of batch b train like one process of
+//! batch N·b (the default, as in PyTorch DDP, is per-rank statistics).
+//!
+//! The networks need no change: every BatchNorm of rtf-models is a [`BatchNorm`], which asks
+//! the thread's [`StatsAllReduce`] (installed by the trainer with [`SyncBatchNorm::install`] for
+//! the length of a run) to sum its statistics over the ranks. The sum must be differentiable
+//! (its backward sums the gradients over the ranks too), which is how the gradient of one
+//! rank's samples reaches the others through the shared statistics.
+
+use std::cell::RefCell;
+use std::sync::Arc;
+
+use tch::nn::{self, ModuleT};
+use tch::{Kind, Tensor};
+
+use crate::layers::{BN_EPS, BN_MOMENTUM};
+
+/// A differentiable sum over every process of a data-parallel job.
+pub trait StatsAllReduce: Send + Sync {
+    /// Σ over the ranks of `t` (same shape on every rank), in the autograd graph: the backward
+    /// sums the gradient over the ranks. On a failed collective, return `t` itself and keep the
+    /// error for the trainer, which stops after the step (a forward cannot return an error).
+    fn all_reduce_sum(&self, t: &Tensor) -> Tensor;
+}
+
+thread_local! {
+    static SYNC: RefCell<Option<Arc<dyn StatsAllReduce>>> = const { RefCell::new(None) };
+}
+
+/// While alive, training-mode [`BatchNorm`] forwards on this thread use the statistics of the
+/// whole data-parallel batch. Dropping it restores the previous state.
+#[must_use = "synchronisation lasts as long as the guard"]
+pub struct SyncBatchNorm {
+    previous: Option<Arc<dyn StatsAllReduce>>,
+}
+
+impl SyncBatchNorm {
+    pub fn install(reduce: Arc<dyn StatsAllReduce>) -> Self {
+        let previous = SYNC.with(|s| s.borrow_mut().replace(reduce));
+        Self { previous }
+    }
+
+    fn current() -> Option<Arc<dyn StatsAllReduce>> {
+        SYNC.with(|s| s.borrow().clone())
+    }
+}
+
+impl Drop for SyncBatchNorm {
+    fn drop(&mut self) {
+        let previous = self.previous.take();
+        SYNC.with(|s| *s.borrow_mut() = previous);
+    }
+}
+
+/// BatchNorm (tch's, with its variables under the reference names, momentum
+/// [`BN_MOMENTUM`]) that synchronises its training-mode statistics under [`SyncBatchNorm`].
+/// Made by [`crate::layers::bn2d`].
+#[derive(Debug)]
+pub struct BatchNorm(pub(crate) nn::BatchNorm);
+
+impl std::ops::Deref for BatchNorm {
+    type Target = nn::BatchNorm;
+    fn deref(&self) -> &nn::BatchNorm {
+        &self.0
+    }
+}
+
+impl ModuleT for BatchNorm {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        match SyncBatchNorm::current() {
+            Some(reduce) if train => synchronised(&self.0, xs, &*reduce),
+            _ => self.0.forward_t(xs, train),
+        }
+    }
+}
+
+/// Training-mode BatchNorm over the whole data-parallel batch. Two passes, as a single
+/// process computes them (mean, then the mean squared deviation), each summed over the ranks,
+/// in fp32 whatever the input's precision; running statistics take the unbiased variance with
+/// the layer's momentum, as `torch.nn.SyncBatchNorm`.
+fn synchronised(bn: &nn::BatchNorm, xs: &Tensor, reduce: &dyn StatsAllReduce) -> Tensor {
+    let c = bn.running_mean.size()[0];
+    // Per-channel shape for broadcasting: [1, C, 1, ...].
+    let mut shape = vec![1i64; xs.dim()];
+    shape[1] = c;
+    let reduced: Vec<i64> = (0..xs.dim() as i64).filter(|&d| d != 1).collect();
+    let x = xs.to_kind(Kind::Float);
+    let local = (x.numel() as i64 / c) as f64;
+    // [C] sums + the count: one all-reduce for the mean.
+    let sum_count = Tensor::cat(
+        &[
+            x.sum_dim_intlist(reduced.as_slice(), false, Kind::Float),
+            Tensor::from_slice(&[local as f32]).to_device(x.device()),
+        ],
+        0,
+    );
+    let sum_count = reduce.all_reduce_sum(&sum_count);
+    let count = sum_count.narrow(0, c, 1);
+    let mean = sum_count.narrow(0, 0, c) / &count;
+    let centred = &x - mean.view(shape.as_slice());
+    let squares = centred
+        .square()
+        .sum_dim_intlist(reduced.as_slice(), false, Kind::Float);
+    let var = reduce.all_reduce_sum(&squares) / &count;
+    tch::no_grad(|| {
+        let n = count.double_value(&[0]);
+        let momentum = BN_MOMENTUM;
+        let unbiased = &var * (n / (n - 1.0).max(1.0));
+        let mut running_mean = bn.running_mean.shallow_clone();
+        let mut running_var = bn.running_var.shallow_clone();
+        running_mean.copy_(&(&running_mean * (1.0 - momentum) + mean.detach() * momentum));
+        running_var.copy_(&(&running_var * (1.0 - momentum) + unbiased.detach() * momentum));
+    });
+    let mut ys = centred * (var + BN_EPS).rsqrt().view(shape.as_slice());
+    if let Some(w) = &bn.ws {
+        ys = ys * w.view(shape.as_slice());
+    }
+    if let Some(b) = &bn.bs {
+        ys = ys + b.view(shape.as_slice());
+    }
+    ys.to_kind(xs.kind())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::Device;
+
+    /// One process: the sum over the ranks is the identity.
+    struct Alone;
+    impl StatsAllReduce for Alone {
+        fn all_reduce_sum(&self, t: &Tensor) -> Tensor {
+            t.shallow_clone()
+        }
+    }
+
+    fn layer(vs: &nn::VarStore) -> BatchNorm {
+        let bn = crate::layers::bn2d_init(
+            vs.root() / "bn",
+            3,
+            nn::Init::Randn {
+                mean: 1.0,
+                stdev: 0.3,
+            },
+        );
+        tch::no_grad(|| {
+            let _ = bn.bs.as_ref().unwrap().shallow_clone().fill_(0.2);
+        });
+        bn
+    }
+
+    /// With one rank the synchronised path is ordinary training-mode BatchNorm: output,
+    /// gradients of the input and the affine parameters, and running statistics.
+    #[test]
+    fn one_rank_synchronised_batch_norm_equals_batch_norm() {
+        tch::manual_seed(4);
+        let x = Tensor::randn([4, 3, 5, 6], (Kind::Float, Device::Cpu)) * 3.0 + 1.5;
+        let run = |sync: bool| {
+            tch::manual_seed(9);
+            let vs = nn::VarStore::new(Device::Cpu);
+            let bn = layer(&vs);
+            let x = x.copy().set_requires_grad(true);
+            let _guard = sync.then(|| SyncBatchNorm::install(Arc::new(Alone)));
+            let y = bn.forward_t(&x, true);
+            (y.square() * x.ones_like().cumsum(3, Kind::Float))
+                .sum(Kind::Float)
+                .backward();
+            let eval = bn.forward_t(&x, false);
+            (
+                y.detach(),
+                x.grad(),
+                bn.ws.as_ref().unwrap().grad(),
+                eval.detach(),
+            )
+        };
+        let (a, b) = (run(false), run(true));
+        let close = |u: &Tensor, v: &Tensor| (u - v).abs().max().double_value(&[]);
+        assert!(close(&a.0, &b.0) < 1e-5, "outputs {}", close(&a.0, &b.0));
+        assert!(
+            close(&a.1, &b.1) < 1e-4,
+            "input gradients {}",
+            close(&a.1, &b.1)
+        );
+        assert!(
+            close(&a.2, &b.2) < 1e-3,
+            "weight gradients {}",
+            close(&a.2, &b.2)
+        );
+        // Eval mode reads the running statistics the training forward updated.
+        assert!(
+            close(&a.3, &b.3) < 1e-5,
+            "running statistics {}",
+            close(&a.3, &b.3)
+        );
+    }
+
+    /// The guard restores what was installed before it, and synchronises only training mode.
+    #[test]
+    fn the_guard_nests_and_restores() {
+        assert!(SyncBatchNorm::current().is_none());
+        {
+            let _outer = SyncBatchNorm::install(Arc::new(Alone));
+            {
+                let _inner = SyncBatchNorm::install(Arc::new(Alone));
+                assert!(SyncBatchNorm::current().is_some());
+            }
+            assert!(SyncBatchNorm::current().is_some());
+        }
+        assert!(SyncBatchNorm::current().is_none());
+    }
+}
