@@ -6,8 +6,10 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 
 use crate::config::{PipelineConfig, RunConfig, TeacherRef, TrainConfig, WeightsRef};
+use crate::ddp::Ddp;
 use crate::run::{self as rundir, run_error, BEST_FILE, CONFIG_FILE, FINAL_FILE};
 use crate::trainer::{self, EpochRecord, TrainError, TrainOutcome};
 
@@ -69,8 +71,26 @@ pub fn run_pipeline(
     on_epoch: &mut dyn FnMut(&str, &EpochRecord),
     stop: &AtomicBool,
 ) -> Result<PipelineOutcome, TrainError> {
+    run_pipeline_distributed(cfg, run_dir, resume, on_epoch, stop, None)
+}
+
+/// [`run_pipeline`] as one rank of a data-parallel job: every stage is trained data-parallel
+/// ([`trainer::train_distributed`]); rank 0 alone writes the run folder, and the other ranks
+/// read it (which stages are done, the earlier stages' weights a later one starts from or
+/// learns from), so on several machines it must be on a shared filesystem. Barriers around
+/// each stage keep those reads and rank 0's writes apart.
+pub fn run_pipeline_distributed(
+    cfg: &PipelineConfig,
+    run_dir: &Path,
+    resume: bool,
+    on_epoch: &mut dyn FnMut(&str, &EpochRecord),
+    stop: &AtomicBool,
+    ddp: Option<Arc<Ddp>>,
+) -> Result<PipelineOutcome, TrainError> {
     let run = RunConfig::Pipeline(cfg.clone());
     run.validate()?;
+    let is_root = ddp.as_ref().is_none_or(|d| d.is_root());
+    let barrier = || ddp.as_ref().map_or(Ok(()), |d| d.barrier());
     if !resume && rundir::holds_run(run_dir) {
         return Err(run_error(
             run_dir,
@@ -80,32 +100,55 @@ pub fn run_pipeline(
     for stage in &cfg.stages {
         crate::procedure::check_teachers(&stage.config)?;
     }
-    std::fs::create_dir_all(run_dir)
-        .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
-    let lock = rundir::RunLock::acquire(run_dir)?;
-    rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &run)?;
+    // Every rank has looked at the folder before rank 0 writes to it.
+    barrier()?;
+    let lock = match is_root {
+        true => {
+            std::fs::create_dir_all(run_dir)
+                .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
+            let lock = rundir::RunLock::acquire(run_dir)?;
+            rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &run)?;
+            Some(lock)
+        }
+        false => None,
+    };
     let mut trained = Vec::new();
     for stage in &cfg.stages {
         let dir = run_dir.join(&stage.name);
-        if dir.join(FINAL_FILE).is_file() {
+        let (done, started) = (dir.join(FINAL_FILE).is_file(), rundir::holds_run(&dir));
+        // Every rank has read the stage's state before rank 0 starts writing it.
+        barrier()?;
+        if done {
             continue;
         }
-        let resolved = resolve(&stage.config, run_dir, &cfg.stages)?;
-        eprintln!(
-            "stage {} ({}, {}): {} epochs into {}",
-            stage.name,
-            resolved.procedure.name(),
-            resolved.model.name(),
-            resolved.epochs,
-            dir.display()
-        );
-        let outcome = trainer::train_until(
+        let mut resolved = resolve(&stage.config, run_dir, &cfg.stages)?;
+        if started {
+            // The stage's own config.json says how many processes trained it (the trainer
+            // refuses to continue it exactly with another number).
+            if let Ok(RunConfig::Single(saved)) = trainer::read_config(&dir) {
+                resolved.world_size = saved.world_size;
+            }
+        }
+        if is_root {
+            eprintln!(
+                "stage {} ({}, {}): {} epochs into {}",
+                stage.name,
+                resolved.procedure.name(),
+                resolved.model.name(),
+                resolved.epochs,
+                dir.display()
+            );
+        }
+        let outcome = trainer::train_distributed(
             &resolved,
             &dir,
-            rundir::holds_run(&dir),
+            started,
             &mut |r| on_epoch(&stage.name, r),
             stop,
+            ddp.clone(),
         )?;
+        // Rank 0 has written the stage's weights before any rank reads them.
+        barrier()?;
         trained.push(stage.name.clone());
         if outcome.final_weights.is_none() {
             return Ok(PipelineOutcome {
@@ -118,7 +161,7 @@ pub fn run_pipeline(
     }
     let last = run_dir.join(&cfg.stages.last().expect("validated: a stage").name);
     for file in [FINAL_FILE, BEST_FILE] {
-        if last.join(file).is_file() {
+        if is_root && last.join(file).is_file() {
             let bytes = std::fs::read(last.join(file))
                 .map_err(|e| run_error(&last.join(file), format!("cannot read: {e}")))?;
             rtf_core::write_bytes_atomic(&run_dir.join(file), &bytes)

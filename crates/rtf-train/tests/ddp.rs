@@ -337,6 +337,120 @@ fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
     }
 }
 
+/// A multi-stage run (a teacher stage, then a student learning from it) on 2 ranks: every
+/// stage is data-parallel, rank 0 alone writes the run folder and the other rank reads the
+/// teacher's weights from it; a stop in the second stage stops both ranks, a 1-process resume is
+/// refused (the stage's config.json records 2 processes), and the 2-process resume skips the
+/// finished stage and ends bit-identical to the uninterrupted run.
+#[test]
+fn two_rank_pipeline_trains_every_stage_data_parallel_and_resumes_exactly() {
+    let test = "two_rank_pipeline_trains_every_stage_data_parallel_and_resumes_exactly";
+    let Some((ddp, dir, phase)) = rank() else {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        common::write_split_dataset(&dir.join("data"), 10, 4242, 8);
+        if !launch(test, dir, "straight") {
+            return;
+        }
+        let read = |name: &str| std::fs::read_to_string(dir.join(name)).expect(name);
+        assert_eq!(read("straight.rank0"), "trained [\"teacher\", \"student\"]");
+        assert_eq!(read("straight.rank1"), read("straight.rank0"));
+        for stage in ["teacher", "student"] {
+            let config: serde_json::Value =
+                serde_json::from_str(&read(&format!("straight/{stage}/config.json"))).unwrap();
+            assert_eq!(config["world_size"], 2, "{stage}");
+        }
+        assert!(dir.join("straight/final.safetensors").is_file());
+        launch(test, dir, "stop");
+        // The student's epoch is one step per rank here: the stop lands on the end of epoch 1.
+        assert_eq!(read("stop.rank0"), "stopped in student at epoch 2 batch 0");
+        assert_eq!(read("stop.rank1"), read("stop.rank0"));
+        assert!(dir.join("stopped/teacher/final.safetensors").is_file());
+        assert!(dir.join("stopped/student/checkpoint.safetensors").is_file());
+        assert!(!dir.join("stopped/final.safetensors").exists());
+        let err = rtf_train::pipeline::run_pipeline(
+            &pipeline(&dir.join("data")),
+            &dir.join("stopped"),
+            true,
+            &mut |_, _| {},
+            &AtomicBool::new(false),
+        )
+        .expect_err("refused");
+        assert!(err.to_string().contains("trained by 2 process"), "{err}");
+        launch(test, dir, "resume");
+        assert_eq!(read("resume.rank0"), "trained [\"student\"]");
+        assert_eq!(read("resume.rank1"), read("resume.rank0"));
+        assert!(
+            common::weights(&dir.join("straight/final.safetensors"))
+                == common::weights(&dir.join("stopped/final.safetensors")),
+            "stopped and resumed on 2 ranks = uninterrupted"
+        );
+        return;
+    };
+    let r = ddp.rank();
+    let stop = AtomicBool::new(false);
+    let (out, resume) = match phase.as_str() {
+        "straight" => ("straight", false),
+        "stop" => ("stopped", false),
+        "resume" => ("stopped", true),
+        other => panic!("unknown phase {other:?}"),
+    };
+    let outcome = rtf_train::pipeline::run_pipeline_distributed(
+        &pipeline(&dir.join("data")),
+        &dir.join(out),
+        resume,
+        // Only rank 0 sees the epochs; its stop flag stops both ranks at the same step.
+        &mut |stage, _| {
+            if phase == "stop" && stage == "teacher" {
+                stop.store(true, std::sync::atomic::Ordering::SeqCst)
+            }
+        },
+        &stop,
+        Some(ddp),
+    )
+    .unwrap();
+    let report = match &outcome.interrupted {
+        Some((stage, o)) => format!(
+            "stopped in {stage} at epoch {} batch {}",
+            o.state.epochs_done + 1,
+            o.state.partial.as_ref().map_or(0, |p| p.batches)
+        ),
+        None => format!("trained {:?}", outcome.trained),
+    };
+    std::fs::write(dir.join(format!("{phase}.rank{r}")), report).unwrap();
+}
+
+/// MFNet teacher (RGB only, 1 epoch), then an MFNet student labelled by it (2 epochs).
+fn pipeline(data: &Path) -> rtf_train::PipelineConfig {
+    use rtf_train::config::{StageConfig, TeacherRef};
+    let teacher = TrainConfig {
+        epochs: 1,
+        inputs: rtf_train::Modality::Rgb,
+        ..mfnet(data)
+    };
+    let student = TrainConfig {
+        procedure: rtf_train::Procedure::TeacherStudent {
+            day_teacher: TeacherRef::Stage("teacher".into()),
+            night_teacher: None,
+            targets: Default::default(),
+        },
+        ..mfnet(data)
+    };
+    rtf_train::PipelineConfig {
+        recipe: None,
+        stages: vec![
+            StageConfig {
+                name: "teacher".into(),
+                config: teacher,
+            },
+            StageConfig {
+                name: "student".into(),
+                config: student,
+            },
+        ],
+    }
+}
+
 /// HeatNet's adversarial procedure on 2 ranks (teacher labels cached, so rank 1 labels into a
 /// scratch folder of its own): both the segmentation network's and the critic's gradients are
 /// averaged, so both networks end identical on both ranks (the trainer compares every trained

@@ -213,27 +213,25 @@ pub fn run(args: Args) -> Result<()> {
         }
         RunConfig::Pipeline(pipeline) => {
             let names: Vec<&str> = pipeline.stages.iter().map(|s| s.name.as_str()).collect();
-            eprintln!(
-                "training {} stage(s) ({}) into {}",
-                names.len(),
-                names.join(" → "),
-                run_dir.display()
-            );
-            let mut current = String::new();
-            let outcome = rtf_train::pipeline::run_pipeline(
+            if root {
+                eprintln!(
+                    "training {} stage(s) ({}) into {}",
+                    names.len(),
+                    names.join(" → "),
+                    run_dir.display()
+                );
+            }
+            let outcome = rtf_train::pipeline::run_pipeline_distributed(
                 pipeline,
                 &run_dir,
                 resume,
-                &mut |stage, r| {
-                    if stage != current {
-                        current = stage.to_string();
-                    }
-                    print_epoch(stage)(r)
-                },
+                &mut |stage, r| print_epoch(stage)(r),
                 stop,
+                ddp,
             )?;
             match (&outcome.final_weights, &outcome.interrupted) {
-                (Some(path), _) => println!("{}", path.display()),
+                (Some(path), _) if root => println!("{}", path.display()),
+                (Some(_), _) => {}
                 (None, Some((stage, o))) => interrupted(&format!(" (stage {stage})"), &o.state),
                 (None, None) => bail!("the run stopped without final weights"),
             }
@@ -251,16 +249,19 @@ fn join_job(
     let Some(env) = rtf_dist::DistEnv::from_env()? else {
         return Ok(None);
     };
-    let RunConfig::Single(single) = cfg else {
-        bail!(
-            "multi-stage runs are not data-parallel yet; train each stage as its own run \
-             (rtf train --config <stage>.yaml) under torchrun"
-        );
-    };
-    if single.device.starts_with("cuda") {
-        single.device = format!("cuda:{}", env.local_rank);
+    // Each rank on the GPU of its LOCAL_RANK; every stage of a pipeline on the same kind of
+    // device (one process group serves them all).
+    let mut devices = Vec::new();
+    for stage in cfg.stages_mut() {
+        if stage.device.starts_with("cuda") {
+            stage.device = format!("cuda:{}", env.local_rank);
+        }
+        devices.push(available_device(&stage.device).map_err(anyhow::Error::msg)?);
     }
-    let device = available_device(&single.device).map_err(anyhow::Error::msg)?;
+    let device = devices[0];
+    if devices.iter().any(|d| d.is_cuda() != device.is_cuda()) {
+        bail!("a data-parallel multi-stage run needs every stage on the same kind of device");
+    }
     let backend = rtf_dist::Backend::for_device(device);
     let group = rtf_dist::ProcessGroup::new(
         &env,
