@@ -12,7 +12,8 @@ Usage (from the repo root):
     .venv/bin/python scripts/bench_torch.py --model mfnet [--threads 2] [--iterations 10]
     .venv/bin/python scripts/bench_torch.py --model rtfnet50 --iterations 5
 
-The PyTorch networks below follow the published MFNet and RTFNet code (spec §3, §4); their
+The PyTorch networks below follow the published MFNet, RTFNet and HeatNet (PSPNet) code
+(spec §3, §4, §5); their
 parameter counts are printed and checked against the rtf model of the same name.
 """
 import argparse
@@ -96,12 +97,12 @@ class MFNet(nn.Module):
 class Bottleneck(nn.Module):
     expansion = 4
 
-    def __init__(self, c_in, planes, stride=1):
+    def __init__(self, c_in, planes, stride=1, dilation=1):
         super().__init__()
         out = planes * 4
         self.conv1 = nn.Conv2d(c_in, planes, 1, bias=False)
         self.bn1 = nn.BatchNorm2d(planes)
-        self.conv2 = nn.Conv2d(planes, planes, 3, stride, 1, bias=False)
+        self.conv2 = nn.Conv2d(planes, planes, 3, stride, dilation, dilation, bias=False)
         self.bn2 = nn.BatchNorm2d(planes)
         self.conv3 = nn.Conv2d(planes, out, 1, bias=False)
         self.bn3 = nn.BatchNorm2d(out)
@@ -209,12 +210,68 @@ class RTFNet(nn.Module):
         return rgb
 
 
+def resnet50_front(c_in):
+    """Stem, layer1 and layer2 of a ResNet-50: [B, c_in, H, W] -> [B, 512, H/8, W/8]."""
+    def layer(c, planes, blocks, stride):
+        return nn.Sequential(*[Bottleneck(c if j == 0 else planes * 4, planes, stride if j == 0 else 1)
+                               for j in range(blocks)])
+    return nn.Sequential(nn.Conv2d(c_in, 64, 7, 2, 3, bias=False), nn.BatchNorm2d(64), nn.ReLU(inplace=True),
+                         nn.MaxPool2d(3, 2, 1), layer(64, 64, 3, 1), layer(256, 128, 4, 2))
+
+
+def dilated_layer(c_in, planes, blocks, dilation):
+    """HeatNet's layer3/layer4: no stride, the first block dilation 1, the others `dilation`."""
+    return nn.Sequential(*[Bottleneck(c_in if j == 0 else planes * 4, planes, 1, 1 if j == 0 else dilation)
+                           for j in range(blocks)])
+
+
+class PSPUpsample(nn.Module):
+    def __init__(self, c_in, c_out):
+        super().__init__()
+        self.conv = nn.Sequential(nn.Conv2d(c_in, c_out, 3, padding=1), nn.BatchNorm2d(c_out), nn.PReLU())
+
+    def forward(self, x):
+        h, w = 2 * x.size(2), 2 * x.size(3)
+        return self.conv(F.interpolate(x, size=(h, w), mode="bilinear", align_corners=False))
+
+
+class HeatNet(nn.Module):
+    """HeatNet's segmentation network (spec §5, published models/pspnet.py): late fusion of an
+    RGB and a thermal ResNet-50 front (stem, layer1, layer2), shared dilated layer3/layer4
+    (output stride 8), the PSP module (bins 1, 2, 3, 6), three bilinear ×2 up blocks with
+    PReLU, channel dropout 0.3 / 0.15. Input [B, 4, H, W] (RGB, T)."""
+
+    def __init__(self, n_class=13):
+        super().__init__()
+        self.rgb, self.ir = resnet50_front(3), resnet50_front(1)
+        self.layer3 = dilated_layer(1024, 256, 6, 2)
+        self.layer4 = dilated_layer(1024, 512, 3, 4)
+        self.stages = nn.ModuleList(
+            nn.Sequential(nn.AdaptiveAvgPool2d(b), nn.Conv2d(2048, 2048, 1, bias=False)) for b in (1, 2, 3, 6))
+        self.bottleneck = nn.Sequential(nn.Conv2d(2048 * 5, 1024, 1), nn.ReLU())
+        self.drop_1, self.drop_2 = nn.Dropout2d(0.3), nn.Dropout2d(0.15)
+        self.up = nn.ModuleList([PSPUpsample(1024, 256), PSPUpsample(256, 64), PSPUpsample(64, 64)])
+        self.final = nn.Conv2d(64, n_class, 1)
+
+    def forward(self, x):
+        f = torch.cat([self.rgb(x[:, :3]), self.ir(x[:, 3:])], 1)
+        f = self.layer4(self.layer3(f))
+        h, w = f.shape[2:]
+        priors = [F.interpolate(s(f), size=(h, w), mode="bilinear", align_corners=False) for s in self.stages]
+        p = self.drop_1(self.bottleneck(torch.cat(priors + [f], 1)))
+        for up in self.up:
+            p = self.drop_2(up(p))
+        return self.final(p)
+
+
 def build(name):
     if name == "mfnet":
         return MFNet()
     if name.startswith("rtfnet") and name[6:].isdigit():
         return RTFNet(int(name[6:]))
-    sys.exit(f"bench_torch.py: no PyTorch definition for {name!r} (mfnet, rtfnet18..152)")
+    if name == "heatnet":
+        return HeatNet()
+    sys.exit(f"bench_torch.py: no PyTorch definition for {name!r} (mfnet, rtfnet18..152, heatnet)")
 
 
 def time_torch(net, x, warmup, iterations, channels_last=False, bf16=False):
