@@ -13,8 +13,8 @@ Usage (from the repo root):
     .venv/bin/python scripts/bench_torch.py --model rtfnet50 --iterations 5
 
 The PyTorch networks below follow the published MFNet, RTFNet and HeatNet (PSPNet) code
-(spec §3, §4, §5); their
-parameter counts are printed and checked against the rtf model of the same name.
+(spec §3, §4, §5); their parameter counts are printed and checked against the rtf model of the
+same name.
 """
 import argparse
 import json
