@@ -35,10 +35,54 @@ pub fn bn2d_init(p: nn::Path, c: i64, weight: nn::Init) -> BatchNorm {
     BatchNorm(nn::batch_norm2d(p, c, cfg))
 }
 
-/// LeakyReLU with a given slope (tch's `leaky_relu` fixes it at 0.01). For 0 < slope < 1,
-/// max(x, slope·x) equals the piecewise definition, and autograd handles it.
+mod ffi {
+    use std::ffi::{c_char, c_int};
+    extern "C" {
+        pub fn rtf_leaky_relu(
+            x: *mut torch_sys::C_tensor,
+            slope: f64,
+            in_place: c_int,
+            out: *mut *mut torch_sys::C_tensor,
+        ) -> *mut c_char;
+        pub fn rtf_ops_free_error(error: *mut c_char);
+    }
+}
+
+/// ATen's `leaky_relu(x, slope)` (one pass forward, one backward; tch's binding fixes the
+/// slope at 0.01), through csrc/ops.cpp; differentiable. With `in_place` it overwrites `xs`,
+/// which autograd allows when nothing saved `xs` for its backward (BatchNorm's and a
+/// convolution's outputs: their backwards read their inputs).
+fn aten_leaky_relu(xs: &Tensor, slope: f64, in_place: bool) -> Tensor {
+    let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
+    // SAFETY: `as_ptr` is a live `at::Tensor*` for the call; on success the shim stores a new
+    // heap `at::Tensor*` in `out`, which `Tensor::from_ptr` then owns (tch deletes it).
+    let error = unsafe {
+        ffi::rtf_leaky_relu(
+            xs.as_ptr() as *mut torch_sys::C_tensor,
+            slope,
+            in_place as std::ffi::c_int,
+            &mut out,
+        )
+    };
+    if !error.is_null() {
+        // SAFETY: a non-null return is a NUL-terminated string the shim malloc'd; read once,
+        // freed by the shim. A failure here is a programming error (as in tch's own ops).
+        let message = unsafe {
+            let m = std::ffi::CStr::from_ptr(error)
+                .to_string_lossy()
+                .into_owned();
+            ffi::rtf_ops_free_error(error);
+            m
+        };
+        panic!("leaky_relu: {message}");
+    }
+    // SAFETY: success: `out` is the shim's new tensor (see above).
+    unsafe { Tensor::from_ptr(out) }
+}
+
+/// LeakyReLU with a given slope (ATen's, differentiable).
 pub fn leaky_relu(xs: &Tensor, slope: f64) -> Tensor {
-    xs.maximum(&(xs * slope))
+    aten_leaky_relu(xs, slope, false)
 }
 
 /// LeakyReLU in place, for inference: tch exposes no slope on the forward op, but
@@ -87,6 +131,20 @@ impl Act {
             Act::Identity => xs,
             Act::Relu => xs.relu(),
             Act::LeakyRelu(slope) => leaky_relu(&xs, slope),
+        }
+    }
+
+    /// Training activation of a tensor this unit just made (a convolution's or BatchNorm's
+    /// output, which their backwards do not read): in place, saving a copy of every activation
+    /// map (PyTorch's `inplace=True`).
+    fn apply_fresh(self, mut xs: Tensor) -> Tensor {
+        match self {
+            Act::Identity => xs,
+            Act::Relu => {
+                let _ = xs.relu_();
+                xs
+            }
+            Act::LeakyRelu(slope) => aten_leaky_relu(&xs, slope, true),
         }
     }
 
@@ -508,11 +566,13 @@ impl ConvBnAct {
         }
     }
 
+    /// Every caller hands over a tensor it just made (a convolution's, BatchNorm's, pool's or
+    /// residual sum's output), so the activation may overwrite it.
     fn activate(&self, ys: Tensor, train: bool) -> Tensor {
         if self.fused.is_some() && !train {
             self.act.apply_inference(ys)
         } else {
-            self.act.apply(ys)
+            self.act.apply_fresh(ys)
         }
     }
 
@@ -793,6 +853,27 @@ mod tests {
         let out = leaky_relu_inference(y.shallow_clone(), 0.2);
         assert!(out.equal(&expected));
         assert!(y.equal(&expected), "computed in place");
+    }
+
+    /// The training activations (ATen's leaky_relu, out of place and in place on a unit's fresh
+    /// output) have the definition's values and gradients: slope·grad below 0, grad above.
+    #[test]
+    fn training_leaky_relu_has_the_definitions_values_and_gradients() {
+        let x = Tensor::randn([2, 3, 8, 8], (Kind::Float, Device::Cpu)).set_requires_grad(true);
+        let expected = x.where_self(&x.gt(0.0), &(&x * 0.1)).detach();
+        let grad_expected = (x.gt(0.0).to_kind(Kind::Float) * 0.9 + 0.1).detach();
+        let y = leaky_relu(&x, 0.1);
+        assert!(y.equal(&expected));
+        y.sum(Kind::Float).backward();
+        assert!(x.grad().allclose(&grad_expected, 0.0, 1e-7, false));
+        // In place on an intermediate (what ConvBnAct does with its BatchNorm output).
+        let x2 = x.detach().copy().set_requires_grad(true);
+        let fresh = &x2 * 1.0;
+        let y2 = Act::LeakyRelu(0.1).apply_fresh(fresh.shallow_clone());
+        assert!(y2.equal(&expected));
+        assert_eq!(fresh.data_ptr(), y2.data_ptr(), "overwrote its input");
+        y2.sum(Kind::Float).backward();
+        assert!(x2.grad().allclose(&grad_expected, 0.0, 1e-7, false));
     }
 
     #[test]
