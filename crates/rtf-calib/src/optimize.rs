@@ -678,6 +678,172 @@ pub(crate) fn lm_level(
     }
 }
 
+/// The default recipe's coarse-to-fine pipeline over a fixed set of frames: the pyramid
+/// levels (built once), the parameter scaling and the staging, so that the main run and the
+/// restarts of the wrong-basin check ([`crate::quality`]) share them.
+pub(crate) struct Pipeline<'a> {
+    pub rig: &'a Rig,
+    pub used: Vec<&'a Frame>,
+    pub scaling: Scaling,
+    pub square: bool,
+    pub factors: Vec<usize>,
+    pub levels: Vec<Level>,
+    pub iterations: usize,
+    pub lambda0: f64,
+}
+
+/// Result of [`Pipeline::refine`].
+pub(crate) struct Refined {
+    pub theta: [f64; NUM_PARAMS],
+    /// Final cost (data + priors) at the last level run.
+    pub cost: f64,
+    pub iterations: usize,
+    /// The level factor where the loss became non-finite, if it did.
+    pub non_finite: Option<usize>,
+}
+
+impl<'a> Pipeline<'a> {
+    pub fn new(
+        rig: &'a Rig,
+        used: Vec<&'a Frame>,
+        p0: [f64; NUM_PARAMS],
+        settings: &Settings,
+    ) -> Self {
+        let scaling = Scaling::new(&rig.rgb, p0, &used);
+        let factors = pyramid_factors(rig.rgb.width);
+        let levels = factors
+            .iter()
+            .enumerate()
+            .map(|(li, &factor)| {
+                // A wide blur only where the basin must be wide (the coarsest level, after the
+                // shift search); finer levels use the features unblurred, since blur lets edges
+                // present in one band only pull on shared edges (σ = 1 / 0.6 / 0 at full and
+                // half resolution: 0.32 / 0.22 / 0.18 px mean map error on a 160×120 rig).
+                let (sigma, taps) = if li == 0 { (2.0, 13) } else { (0.0, 1) };
+                Level::build(&rig.rgb, &used, factor, false, sigma, taps)
+            })
+            .collect();
+        Self {
+            rig,
+            used,
+            scaling,
+            square: rig.thermal.square_pixels.unwrap_or(true),
+            factors,
+            levels,
+            iterations: settings.iterations,
+            lambda0: 1e-5 / settings.learning_rate,
+        }
+    }
+
+    fn all(&self) -> Vec<i64> {
+        (0..self.used.len() as i64).collect()
+    }
+
+    /// Exhaustive search at the coarsest level over an image shift (cx, cy) around `theta`:
+    /// the largest, most non-convex part of the initial misalignment (rotation and
+    /// principal-point offsets). Returns the `k` best shifts that are local minima of the
+    /// search grid, best first, with their costs.
+    pub fn search(&self, theta: [f64; NUM_PARAMS], k: usize) -> Vec<(f64, [f64; NUM_PARAMS])> {
+        let level = &self.levels[0];
+        let factor = level.factor;
+        let idx = Tensor::from_slice(&self.all());
+        let range = (0.1 * self.rig.thermal.width as f64 / factor as f64).ceil() as i64;
+        let n = (2 * range + 1) as usize;
+        let mut grid = vec![f64::INFINITY; n * n];
+        for dy in -range..=range {
+            for dx in -range..=range {
+                let mut t = theta;
+                t[2] += (dx * factor as i64) as f64;
+                t[3] += (dy * factor as i64) as f64;
+                grid[(dy + range) as usize * n + (dx + range) as usize] =
+                    cost(level, &self.scaling, &t, &idx);
+            }
+        }
+        let mut minima: Vec<(f64, [f64; NUM_PARAMS])> = Vec::new();
+        for y in 0..n {
+            for x in 0..n {
+                let c = grid[y * n + x];
+                let is_min = (-1i64..=1).all(|ey| {
+                    (-1i64..=1).all(|ex| {
+                        let (yy, xx) = (y as i64 + ey, x as i64 + ex);
+                        (ey == 0 && ex == 0)
+                            || yy < 0
+                            || xx < 0
+                            || yy >= n as i64
+                            || xx >= n as i64
+                            || grid[yy as usize * n + xx as usize] >= c
+                    })
+                });
+                if is_min && c.is_finite() {
+                    let mut t = theta;
+                    t[2] += ((x as i64 - range) * factor as i64) as f64;
+                    t[3] += ((y as i64 - range) * factor as i64) as f64;
+                    minima.push((c, t));
+                }
+            }
+        }
+        minima.sort_by(|a, b| a.0.total_cmp(&b.0));
+        if minima.is_empty() {
+            minima.push((cost(level, &self.scaling, &theta, &idx), theta));
+        }
+        minima.truncate(k.max(1));
+        minima
+    }
+
+    /// Staged parameters of level `li`: at coarse levels pan/tilt are indistinguishable from
+    /// the principal point and translation from both, and letting them drift along that
+    /// valley leads to wrong minima; so the coarsest levels fit an image-plane model (f, c,
+    /// roll), the next adds rotation, translation and k1, the finest everything.
+    pub fn params(&self, li: usize) -> Vec<usize> {
+        match self.factors.len() - 1 - li {
+            0 => (0..NUM_PARAMS).collect(),
+            1 => vec![0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13],
+            _ => vec![0, 1, 2, 3, 13],
+        }
+    }
+
+    /// Levenberg-Marquardt from `theta` at levels `from..` (coarse to fine).
+    pub fn refine(
+        &self,
+        mut theta: [f64; NUM_PARAMS],
+        from: usize,
+        on_iteration: &mut dyn FnMut(usize, f64),
+    ) -> Refined {
+        let all = self.all();
+        let mut out = Refined {
+            theta,
+            cost: f64::NAN,
+            iterations: 0,
+            non_finite: None,
+        };
+        for li in from..self.levels.len() {
+            let level = &self.levels[li];
+            let dirs = directions(&self.params(li), &self.scaling, self.square);
+            let mut priors = Priors::new(self.rig);
+            let run = lm_level(
+                level,
+                &self.scaling,
+                &mut priors,
+                theta,
+                &dirs,
+                &all,
+                self.iterations,
+                self.lambda0,
+                &mut |loss| on_iteration(level.factor, loss),
+            );
+            theta = run.theta;
+            out.theta = theta;
+            out.cost = run.cost;
+            out.iterations += run.iterations;
+            if run.non_finite {
+                out.non_finite = Some(level.factor);
+                break;
+            }
+        }
+        out
+    }
+}
+
 fn calibrate_default(
     rig: &Rig,
     frames: &[Frame],
@@ -691,105 +857,41 @@ fn calibrate_default(
     order.truncate(settings.batch_size.min(frames.len()));
     order.sort();
     let used: Vec<&Frame> = order.iter().map(|&i| &frames[i]).collect();
-    let scaling = Scaling::new(&rig.rgb, p0, &used);
-    let square = rig.thermal.square_pixels.unwrap_or(true);
-    let mut priors = Priors::new(rig);
-    let factors = pyramid_factors(rig.rgb.width);
-    let total = factors.len() * settings.iterations + 1;
+    let pipe = Pipeline::new(rig, used, p0, settings);
+    let total = pipe.factors.len() * settings.iterations + 1;
     let mut step = 0;
-    let mut theta = [0.0; NUM_PARAMS];
-    let all: Vec<i64> = (0..used.len() as i64).collect();
-    let all_idx = Tensor::from_slice(&all);
-    let mut final_loss = f64::NAN;
-    let mut stopped = None;
-    let mut iterations = 0;
-    for (li, &factor) in factors.iter().enumerate() {
-        let coarsest = li == 0;
-        // A wide blur only where the basin must be wide (the coarsest level, after the shift
-        // search); finer levels use the features unblurred, since blur lets edges present in
-        // one band only pull on shared edges (σ = 1 / 0.6 / 0 at full and half resolution:
-        // 0.32 / 0.22 / 0.18 px mean map error on a 160×120 rig).
-        let (sigma, taps) = if coarsest { (2.0, 13) } else { (0.0, 1) };
-        let level = Level::build(&rig.rgb, &used, factor, false, sigma, taps);
-        if coarsest {
-            // Exhaustive search over an image shift (cx, cy): the largest, most non-convex
-            // part of the initial misalignment (rotation and principal-point offsets).
-            let range = (0.1 * rig.thermal.width as f64 / factor as f64).ceil() as i64;
-            let mut best = (cost(&level, &scaling, &theta, &all_idx), theta);
-            for dy in -range..=range {
-                for dx in -range..=range {
-                    let mut t = theta;
-                    t[2] += (dx * factor as i64) as f64;
-                    t[3] += (dy * factor as i64) as f64;
-                    let c = cost(&level, &scaling, &t, &all_idx);
-                    if c < best.0 {
-                        best = (c, t);
-                    }
-                }
-            }
-            theta = best.1;
-            step += 1;
-            progress(&Progress {
-                stage: format!("search 1/{}", factor),
-                step,
-                total,
-                loss: best.0,
-            });
-        }
-        // Staged parameters: at coarse levels pan/tilt are indistinguishable from the principal
-        // point and translation from both, and letting them drift along that valley leads
-        // to wrong minima; so the coarsest levels fit an image-plane model (f, c, roll), the
-        // next adds rotation, translation and k1, the finest everything.
-        let params: Vec<usize> = match factors.len() - 1 - li {
-            0 => (0..NUM_PARAMS).collect(),
-            1 => vec![0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13],
-            _ => vec![0, 1, 2, 3, 13],
-        };
-        let dirs = directions(&params, &scaling, square);
-        let run = lm_level(
-            &level,
-            &scaling,
-            &mut priors,
-            theta,
-            &dirs,
-            &all,
-            settings.iterations,
-            1e-5 / settings.learning_rate,
-            &mut |loss| {
-                step += 1;
-                progress(&Progress {
-                    stage: format!("level 1/{factor}"),
-                    step,
-                    total,
-                    loss,
-                });
-            },
-        );
-        theta = run.theta;
-        iterations += run.iterations;
-        let current = run.cost;
-        if run.non_finite {
-            stopped = Some(format!(
-                "non-finite loss at level 1/{factor}; keeping the best parameters"
-            ));
-        }
-        final_loss = current;
-        if stopped.is_some() {
-            break;
-        }
-    }
+    let (best, start) = pipe.search([0.0; NUM_PARAMS], 1)[0];
+    step += 1;
+    progress(&Progress {
+        stage: format!("search 1/{}", pipe.factors[0]),
+        step,
+        total,
+        loss: best,
+    });
+    let run = pipe.refine(start, 0, &mut |factor, loss| {
+        step += 1;
+        progress(&Progress {
+            stage: format!("level 1/{factor}"),
+            step,
+            total,
+            loss,
+        });
+    });
+    let stopped = run
+        .non_finite
+        .map(|factor| format!("non-finite loss at level 1/{factor}; keeping the best parameters"));
     progress(&Progress {
         stage: "done".into(),
         step: total,
         total,
-        loss: final_loss,
+        loss: run.cost,
     });
     Ok(Outcome {
         initial: model::to_calibration(&p0),
-        calibration: model::to_calibration(&scaling.physical(&theta)),
-        loss: final_loss,
-        frames_used: used.len(),
-        iterations,
+        calibration: model::to_calibration(&pipe.scaling.physical(&run.theta)),
+        loss: run.cost,
+        frames_used: pipe.used.len(),
+        iterations: run.iterations,
         stopped,
         used: order,
         assessment: None,
