@@ -114,6 +114,8 @@ pub struct Outcome {
     pub used: Vec<usize>,
     /// The quality assessment of the solution ([`crate::quality`]).
     pub assessment: Option<crate::quality::Assessment>,
+    /// The wrong-basin check of the default recipe ([`Pipeline::restart`]).
+    pub restarts: Option<crate::quality::Restarts>,
 }
 
 /// Eq. 8 initial parameters: K_T from f_m / l and the image centre, everything else 1e-4.
@@ -208,6 +210,49 @@ impl Level {
             robust: 0.0,
             correlation: false,
         }
+    }
+
+    /// Keeps `n` pixels per frame (a seeded random subset of the loss support, padded with
+    /// pixels outside it if a frame has fewer), as a 1×n "image": the cost of a level then
+    /// grows with `n`, not with the resolution, while the thermal features keep their full
+    /// resolution. Only for unblurred levels (the blur needs the pixel grid).
+    pub fn subsample(mut self, n: usize, seed: u64) -> Level {
+        assert!(
+            self.taps <= 1 && !self.paper,
+            "subsampling needs an unblurred level"
+        );
+        let hw = (self.h * self.w) as usize;
+        if n >= hw {
+            return self;
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let b = self.points.size()[0];
+        let mut picks = Vec::new();
+        for f in 0..b {
+            let m: Vec<f32> = Vec::try_from(self.mask.get(f).flatten(0, -1)).unwrap();
+            let (mut inside, mut outside): (Vec<i64>, Vec<i64>) =
+                (0..hw as i64).partition(|&i| m[i as usize] > 0.0);
+            inside.shuffle(&mut rng);
+            outside.shuffle(&mut rng);
+            let mut pick: Vec<i64> = inside.into_iter().chain(outside).take(n).collect();
+            pick.sort();
+            picks.push(Tensor::from_slice(&pick));
+        }
+        let idx = Tensor::stack(&picks, 0); // [B, n]
+        let gather = |t: &Tensor| {
+            let c = t.size()[1];
+            t.reshape([b, c, -1])
+                .gather(2, &idx.unsqueeze(1).expand([b, c, n as i64], false), false)
+                .view([b, c, 1, n as i64])
+        };
+        self.points =
+            self.points
+                .gather(1, &idx.unsqueeze(2).expand([b, n as i64, 3], false), false);
+        self.mask = gather(&self.mask);
+        self.rgb_feat = gather(&self.rgb_feat);
+        self.h = 1;
+        self.w = n as i64;
+        self
     }
 
     /// Warps the thermal source of frames `idx` into the RGB view: [b, Ct, H, W].
@@ -315,19 +360,9 @@ pub(crate) struct Scaling {
 
 impl Scaling {
     pub fn new(rgb: &RgbCamera, p0: [f64; NUM_PARAMS], frames: &[&Frame]) -> Self {
-        let mut samples = Vec::new();
-        for f in frames {
-            let step = ((f.depth.width * f.depth.height) / 400).max(1);
-            for i in (0..f.depth.data.len()).step_by(step) {
-                let d = f.depth.data[i] as f64;
-                if d > 0.0 {
-                    samples.push(((i % f.depth.width) as f64, (i / f.depth.width) as f64, d));
-                }
-            }
-        }
         Self {
             p0,
-            scale: model::pixel_scales(rgb, &p0, &samples),
+            scale: model::pixel_scales(rgb, &p0, &depth_samples(frames)),
         }
     }
 
@@ -372,6 +407,7 @@ pub fn calibrate(
         &out.initial,
         &out.calibration,
         out.stopped.as_deref(),
+        out.restarts.clone(),
     )?);
     Ok(out)
 }
@@ -690,6 +726,8 @@ pub(crate) struct Pipeline<'a> {
     pub levels: Vec<Level>,
     pub iterations: usize,
     pub lambda0: f64,
+    /// RGB pixels with depth (u, v, metres), ~400 per frame, for map distances.
+    pub samples: Vec<(f64, f64, f64)>,
 }
 
 /// Result of [`Pipeline::refine`].
@@ -709,7 +747,11 @@ impl<'a> Pipeline<'a> {
         p0: [f64; NUM_PARAMS],
         settings: &Settings,
     ) -> Self {
-        let scaling = Scaling::new(&rig.rgb, p0, &used);
+        let samples = depth_samples(&used);
+        let scaling = Scaling {
+            p0,
+            scale: model::pixel_scales(&rig.rgb, &p0, &samples),
+        };
         let factors = pyramid_factors(rig.rgb.width);
         let levels = factors
             .iter()
@@ -720,7 +762,14 @@ impl<'a> Pipeline<'a> {
                 // present in one band only pull on shared edges (σ = 1 / 0.6 / 0 at full and
                 // half resolution: 0.32 / 0.22 / 0.18 px mean map error on a 160×120 rig).
                 let (sigma, taps) = if li == 0 { (2.0, 13) } else { (0.0, 1) };
-                Level::build(&rig.rgb, &used, factor, false, sigma, taps)
+                let level = Level::build(&rig.rgb, &used, factor, false, sigma, taps);
+                // Levels larger than 320×240 (the finest at 640×480) use a random subset of
+                // that many pixels per frame: their cost then stays that of the 320×240 level.
+                if li > 0 && (level.h * level.w) as usize > MAX_LEVEL_PIXELS {
+                    level.subsample(MAX_LEVEL_PIXELS, settings.seed ^ factor as u64)
+                } else {
+                    level
+                }
             })
             .collect();
         Self {
@@ -732,7 +781,164 @@ impl<'a> Pipeline<'a> {
             levels,
             iterations: settings.iterations,
             lambda0: 1e-5 / settings.learning_rate,
+            samples,
         }
+    }
+
+    /// Mean distance (full-resolution thermal px) between the RGB→thermal maps of θ `a` and
+    /// `b` over the sample pixels that `a` maps into the thermal image.
+    pub fn distance(&self, a: &[f64; NUM_PARAMS], b: &[f64; NUM_PARAMS]) -> f64 {
+        let (ca, cb) = (
+            model::to_calibration(&self.scaling.physical(a)),
+            model::to_calibration(&self.scaling.physical(b)),
+        );
+        let (tw, th) = (
+            self.rig.thermal.width as f64,
+            self.rig.thermal.height as f64,
+        );
+        let (mut sum, mut n) = (0.0, 0usize);
+        for &(u, v, d) in &self.samples {
+            let Some((au, av)) = ca.map_pixel(&self.rig.rgb, u, v, d) else {
+                continue;
+            };
+            if au < -0.5 || av < -0.5 || au > tw - 0.5 || av > th - 0.5 {
+                continue;
+            }
+            sum += match cb.map_pixel(&self.rig.rgb, u, v, d) {
+                Some((bu, bv)) => ((au - bu).powi(2) + (av - bv).powi(2)).sqrt(),
+                None => tw,
+            };
+            n += 1;
+        }
+        if n == 0 {
+            f64::INFINITY
+        } else {
+            sum / n as f64
+        }
+    }
+
+    /// Index of the finest level at most 320 px wide (where restarts and the quality
+    /// assessment run).
+    pub fn check_level(&self) -> usize {
+        (0..self.levels.len())
+            .filter(|&li| self.rig.rgb.width / self.factors[li] <= RESTART_MAX_WIDTH)
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Cost at level `li` (data + priors at a fixed weight), comparable between solutions.
+    fn total_cost(&self, li: usize, theta: &[f64; NUM_PARAMS], priors: &Priors) -> f64 {
+        let idx = Tensor::from_slice(&self.all());
+        cost(&self.levels[li], &self.scaling, theta, &idx) + priors.cost(&self.scaling, theta)
+    }
+
+    /// The wrong-basin check (issue 12). On real imagery most edges exist in one band only and
+    /// the objective has several optima a few pixels apart; the main run can stop in one that
+    /// is not the best (on the 160×120 real-imagery trials, seeds 3 and 12 ended 2–3 px off
+    /// with every other quality figure as good as a success). So the solution is perturbed by
+    /// ±`RESTART_FRACTION` of the thermal width in cx, cy and f and each start refined again
+    /// at the two levels up to [`Pipeline::check_level`] (plus one restart from the solution
+    /// itself); the best-scoring solution wins (never the truth: the objective decides) and,
+    /// if it is not the main run's, a second round restarts around it, then it is refined at
+    /// the finer levels. Returns the chosen θ and the figures the verdict reads: how far the
+    /// restarts moved the solution and how far apart solutions of about the same cost lie.
+    pub fn restart(
+        &self,
+        main: [f64; NUM_PARAMS],
+        on_iteration: &mut dyn FnMut(usize, f64),
+    ) -> ([f64; NUM_PARAMS], crate::quality::Restarts) {
+        let q = self.check_level();
+        let from = q.saturating_sub(1);
+        let delta = RESTART_FRACTION * self.rig.thermal.width as f64;
+        let mut priors = Priors::new(self.rig);
+        let all_dirs = directions(
+            &(0..NUM_PARAMS).collect::<Vec<_>>(),
+            &self.scaling,
+            self.square,
+        );
+        let (jtj, _, _) = normal_equations(
+            &self.levels[q],
+            &self.scaling,
+            &main,
+            &all_dirs,
+            &self.all(),
+        );
+        priors.weight =
+            ((0..jtj.len()).map(|i| jtj[i][i]).sum::<f64>() / jtj.len() as f64).max(1e-12);
+        let focal = directions(&[0, 1], &self.scaling, self.square)[0];
+        let axis =
+            |i: usize| -> [f64; NUM_PARAMS] { std::array::from_fn(|k| (k == i) as u8 as f64) };
+        let perturbations = [axis(2), axis(3), focal];
+        let main_cost = self.total_cost(q, &main, &priors);
+        // (θ, cost at level q, refined at level q?)
+        let mut solutions: Vec<([f64; NUM_PARAMS], f64)> = Vec::new();
+        let continued = self.refine_between(main, q, q, on_iteration);
+        let continued_cost = self.total_cost(q, &continued, &priors);
+        solutions.push((continued, continued_cost));
+        let mut best = (continued, continued_cost);
+        let mut centre = continued;
+        let mut rounds = 0;
+        let mut settled = false;
+        for _round in 0..RESTART_ROUNDS {
+            rounds += 1;
+            let before = best.1;
+            for d in &perturbations {
+                for sign in [-1.0, 1.0] {
+                    let start: [f64; NUM_PARAMS] =
+                        std::array::from_fn(|i| centre[i] + sign * delta * d[i]);
+                    let t = self.refine_between(start, from, q, on_iteration);
+                    let c = self.total_cost(q, &t, &priors);
+                    solutions.push((t, c));
+                    if c < best.1 {
+                        best = (t, c);
+                    }
+                }
+            }
+            // Another round only around a clearly better, distinct solution.
+            if !(best.1 < before * (1.0 - RESTART_TIE)
+                && self.distance(&best.0, &centre) > delta / 4.0)
+            {
+                settled = true;
+                break;
+            }
+            centre = best.0;
+        }
+        let mut chosen = if best.0 == continued && q + 1 == self.levels.len() {
+            continued
+        } else if best.0 == continued {
+            main
+        } else {
+            best.0
+        };
+        if chosen != main && q + 1 < self.levels.len() {
+            chosen = self.refine_between(chosen, q + 1, self.levels.len() - 1, on_iteration);
+        }
+        let spread_px = solutions
+            .iter()
+            .filter(|(_, c)| *c <= best.1 * (1.0 + RESTART_TIE))
+            .map(|(t, _)| self.distance(&best.0, t))
+            .fold(0.0, f64::max);
+        let summary = crate::quality::Restarts {
+            count: solutions.len(),
+            rounds,
+            perturbation_px: delta,
+            improved_px: self.distance(&main, &chosen),
+            cost_drop: (main_cost - best.1) / main_cost.abs().max(1e-12),
+            spread_px,
+            settled,
+        };
+        (chosen, summary)
+    }
+
+    /// [`Pipeline::refine`] over levels `from..=to` only.
+    fn refine_between(
+        &self,
+        theta: [f64; NUM_PARAMS],
+        from: usize,
+        to: usize,
+        on_iteration: &mut dyn FnMut(usize, f64),
+    ) -> [f64; NUM_PARAMS] {
+        self.refine_levels(theta, from, to + 1, on_iteration).theta
     }
 
     fn all(&self) -> Vec<i64> {
@@ -805,8 +1011,18 @@ impl<'a> Pipeline<'a> {
     /// Levenberg-Marquardt from `theta` at levels `from..` (coarse to fine).
     pub fn refine(
         &self,
+        theta: [f64; NUM_PARAMS],
+        from: usize,
+        on_iteration: &mut dyn FnMut(usize, f64),
+    ) -> Refined {
+        self.refine_levels(theta, from, self.levels.len(), on_iteration)
+    }
+
+    fn refine_levels(
+        &self,
         mut theta: [f64; NUM_PARAMS],
         from: usize,
+        to: usize,
         on_iteration: &mut dyn FnMut(usize, f64),
     ) -> Refined {
         let all = self.all();
@@ -816,7 +1032,7 @@ impl<'a> Pipeline<'a> {
             iterations: 0,
             non_finite: None,
         };
-        for li in from..self.levels.len() {
+        for li in from..to {
             let level = &self.levels[li];
             let dirs = directions(&self.params(li), &self.scaling, self.square);
             let mut priors = Priors::new(self.rig);
@@ -842,6 +1058,32 @@ impl<'a> Pipeline<'a> {
         }
         out
     }
+}
+
+/// Pixels per frame of the finest levels at most (320×240; larger levels use a random subset).
+pub const MAX_LEVEL_PIXELS: usize = 320 * 240;
+/// Restarts run at the finest level at most this wide (and the level before it).
+pub const RESTART_MAX_WIDTH: usize = 320;
+/// Restart perturbation, as a fraction of the thermal width (3.2 px at 160 px wide).
+pub const RESTART_FRACTION: f64 = 0.02;
+/// Restart rounds at most (a round: 6 perturbed starts around the best solution so far).
+pub const RESTART_ROUNDS: usize = 2;
+/// Relative cost difference below which two solutions score "about the same".
+pub const RESTART_TIE: f64 = 0.002;
+
+/// RGB pixels with depth (u, v, z-depth), ~400 per frame.
+fn depth_samples(frames: &[&Frame]) -> Vec<(f64, f64, f64)> {
+    let mut samples = Vec::new();
+    for f in frames {
+        let step = ((f.depth.width * f.depth.height) / 400).max(1);
+        for i in (0..f.depth.data.len()).step_by(step) {
+            let d = f.depth.data[i] as f64;
+            if d > 0.0 {
+                samples.push(((i % f.depth.width) as f64, (i / f.depth.width) as f64, d));
+            }
+        }
+    }
+    samples
 }
 
 fn calibrate_default(
@@ -880,16 +1122,32 @@ fn calibrate_default(
     let stopped = run
         .non_finite
         .map(|factor| format!("non-finite loss at level 1/{factor}; keeping the best parameters"));
+    let (theta, restarts) = if stopped.is_none() {
+        let (t, r) = pipe.restart(run.theta, &mut |factor, loss| {
+            progress(&Progress {
+                stage: format!("restarts 1/{factor}"),
+                step,
+                total,
+                loss,
+            });
+        });
+        (t, Some(r))
+    } else {
+        (run.theta, None)
+    };
+    let idx = Tensor::from_slice(&pipe.all());
+    let loss = cost(pipe.levels.last().unwrap(), &pipe.scaling, &theta, &idx);
     progress(&Progress {
         stage: "done".into(),
         step: total,
         total,
-        loss: run.cost,
+        loss,
     });
     Ok(Outcome {
         initial: model::to_calibration(&p0),
-        calibration: model::to_calibration(&pipe.scaling.physical(&run.theta)),
-        loss: run.cost,
+        calibration: model::to_calibration(&pipe.scaling.physical(&theta)),
+        restarts,
+        loss,
         frames_used: pipe.used.len(),
         iterations: run.iterations,
         stopped,
@@ -1008,6 +1266,7 @@ fn calibrate_paper(
         frames_used: used.len(),
         used: pool.clone(),
         assessment: None,
+        restarts: None,
         iterations,
         stopped,
     })
@@ -1384,6 +1643,133 @@ mod tests {
             "PROBE seed {} map error {before:.2} -> {after:.3} px; rot {deg:.3}°, trans {:.1} cm; fx/fy {:.4} (truth {:.4}); f {:.1} (truth {:.1}); {secs:.1} s",
             cfg.seed, m * 100.0, k.fx / k.fy, kt.fx / kt.fy, k.fx, kt.fx
         );
+    }
+
+    /// Development probe of wrong basins on the `real_trials` rigs (`RTF_CALIB_RESTARTS=1
+    /// TRIALS=20 WIDTH=160 N_FRAMES=6 SEEDS=3,12,7 cargo test --release -p rtf-calib --lib
+    /// probe_restarts -- --nocapture`): the main solution against restarts (from the truth,
+    /// the coarse search's other minima, other focal starts, perturbed solutions), with each
+    /// one's cost, alignment score, distance to the main solution and error.
+    #[test]
+    fn probe_restarts() {
+        let (Some(_), Some(data)) = (
+            std::env::var_os("RTF_CALIB_RESTARTS"),
+            crate::real_rig::default_data_dir(),
+        ) else {
+            return;
+        };
+        tch::set_num_threads(1);
+        let env = |k: &str, d: usize| -> usize {
+            std::env::var(k)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(d)
+        };
+        let trials = env("TRIALS", 20);
+        let seeds: Vec<u64> = std::env::var("SEEDS")
+            .unwrap_or_else(|_| "3,12,7".into())
+            .split(',')
+            .map(|s| s.trim().parse().unwrap())
+            .collect();
+        for seed in seeds {
+            let k = (seed - 1) as usize;
+            let dir = tempfile::tempdir().unwrap();
+            let mut cfg = crate::real_rig::RealRigConfig::new(
+                &data,
+                seed,
+                env("WIDTH", 160),
+                env("N_FRAMES", 6),
+            );
+            cfg.focal_ratio = Some(0.75 + 0.6 * (k as f64 + 0.5) / trials as f64);
+            cfg.daylight = [
+                crate::real_rig::Daylight::Day,
+                crate::real_rig::Daylight::Night,
+                crate::real_rig::Daylight::Mixed,
+            ][k % 3];
+            let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+            let rig = &real.rig;
+            let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
+            let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+            let used: Vec<&Frame> = frames.iter().collect();
+            let pipe = Pipeline::new(rig, used.clone(), initial_params(rig), &settings);
+            let sc = &pipe.scaling;
+            let to_theta = |c: &Calibration| -> [f64; NUM_PARAMS] {
+                let p = model::from_calibration(c);
+                std::array::from_fn(|i| (p[i] - sc.p0[i]) / sc.scale[i])
+            };
+            let calib = |t: &[f64; NUM_PARAMS]| model::to_calibration(&sc.physical(t));
+            let qlevel = Level::build(&rig.rgb, &used, 1, false, 0.0, 1).into_correlation();
+            let fine = pipe.levels.len() - 1;
+            let all = Tensor::from_slice(&(0..used.len() as i64).collect::<Vec<_>>());
+            let main = {
+                let (_, s) = pipe.search([0.0; NUM_PARAMS], 1)[0];
+                pipe.refine(s, 0, &mut |_, _| {}).theta
+            };
+            let report = |name: &str, t: &[f64; NUM_PARAMS]| {
+                let c = cost(&pipe.levels[fine], sc, t, &all);
+                let mut pr = Priors::new(rig);
+                pr.weight = 1.0;
+                let ncc = crate::quality::frame_scores(&qlevel, sc, t);
+                let nccm = ncc.iter().sum::<f64>() / ncc.len() as f64;
+                eprintln!(
+                    "RESTART seed {seed} {name:<14} cost {c:.6} prior {:.3} ncc {nccm:.4} d_main {:.3} err {:.3}",
+                    pr.cost(sc, t),
+                    mean_map_error(rig, &frames, &calib(t), &calib(&main)),
+                    mean_map_error(rig, &frames, &calib(t), &real.truth),
+                );
+            };
+            let tt = to_theta(&real.truth);
+            report("main", &main);
+            let mut its = Vec::new();
+            let _ = pipe.refine(main, 0, &mut |f, _| its.push(f));
+            eprintln!("RESTART seed {seed} iterations per level factor {its:?}");
+            let mut t = main;
+            for round in 0..3 {
+                let r = pipe.refine(t, fine, &mut |_, _| {});
+                t = r.theta;
+                report(&format!("main->fine{round}"), &t);
+            }
+            report("truth", &tt);
+            report("truth->fine", &pipe.refine(tt, fine, &mut |_, _| {}).theta);
+            report(
+                "truth->2",
+                &pipe
+                    .refine(tt, fine.saturating_sub(1), &mut |_, _| {})
+                    .theta,
+            );
+            for (i, (c0, s)) in pipe.search([0.0; NUM_PARAMS], 5).iter().enumerate() {
+                let r = pipe.refine(*s, 0, &mut |_, _| {});
+                report(&format!("search#{i} {c0:.4}"), &r.theta);
+            }
+            for df in [-8.0, -4.0, 4.0, 8.0] {
+                let mut t0 = [0.0; NUM_PARAMS];
+                t0[0] = df;
+                t0[1] = df * sc.scale[0] / sc.scale[1];
+                let (_, s) = pipe.search(t0, 1)[0];
+                report(
+                    &format!("f{df:+}"),
+                    &pipe.refine(s, 0, &mut |_, _| {}).theta,
+                );
+            }
+            for (i, d) in [
+                (2usize, 3.0),
+                (2, -3.0),
+                (3, 3.0),
+                (3, -3.0),
+                (0, 3.0),
+                (0, -3.0),
+            ] {
+                let mut t = main;
+                t[i] += d;
+                if i == 0 {
+                    t[1] += d * sc.scale[0] / sc.scale[1];
+                }
+                report(
+                    &format!("pert{i}{d:+}"),
+                    &pipe.refine(t, fine.saturating_sub(1), &mut |_, _| {}).theta,
+                );
+            }
+        }
     }
 
     /// Development probe of the objective's bias on real-imagery rigs (`RTF_CALIB_BIAS=1
