@@ -567,6 +567,45 @@ pub(crate) fn normal_equations(
             (sw, r)
         };
         let hw = [1, 1, level.h, level.w];
+        if level.taps <= 1 && !level.correlation && level.robust == 0.0 {
+            // Unblurred squares (the finer levels of the default recipe): J = −M·(F_u·du +
+            // F_v·dv) per channel, so JᵀJ and Jᵀr reduce over the channels first — a 2×2
+            // structure tensor and a 2-vector per pixel — and only the 2·n motion columns
+            // (du, dv per direction) enter the products (3–4× fewer operations than forming
+            // the [C·N, n] Jacobian).
+            let (mut dus, mut dvs) = (Vec::new(), Vec::new());
+            for d in dirs {
+                let t: [f64; NUM_PARAMS] = std::array::from_fn(|i| theta[i] + hstep * d[i]);
+                let (u1, v1) = model::project(&pts, &scaling.tensor(&t));
+                dus.push(((u1 - &u0) * (inv_f / hstep)).flatten(0, -1));
+                dvs.push(((v1 - &v0) * (inv_f / hstep)).flatten(0, -1));
+            }
+            let du = Tensor::stack(&dus, 1).to_kind(Kind::Double); // [N, n]
+            let dv = Tensor::stack(&dvs, 1).to_kind(Kind::Double);
+            let m = mask.flatten(0, -1).to_kind(Kind::Double); // M² = M (0/1)
+            let chan = |x: Tensor| x.sum_dim_intlist(1, false, Kind::Double).flatten(0, -1);
+            let suu = chan(du_feat.square()) * &m;
+            let suv = chan(&du_feat * &dv_feat) * &m;
+            let svv = chan(dv_feat.square()) * &m;
+            let r = r0.view_as(&feat).to_kind(Kind::Float);
+            let gu = chan(&du_feat * &r) * &m;
+            let gv = chan(&dv_feat * &r) * &m;
+            let cross = du.tr().matmul(&(&dv * suv.unsqueeze(1)));
+            let a = du.tr().matmul(&(&du * suu.unsqueeze(1)))
+                + &cross
+                + cross.tr()
+                + dv.tr().matmul(&(&dv * svv.unsqueeze(1)));
+            let b = -(du.tr().matmul(&gu) + dv.tr().matmul(&gv));
+            let jtj_t: Vec<f64> = Vec::try_from(a.flatten(0, -1)).unwrap();
+            let jtr_t: Vec<f64> = Vec::try_from(b).unwrap();
+            for (a, row) in jtj.iter_mut().enumerate() {
+                jtr[a] += jtr_t[a];
+                for (b, x) in row.iter_mut().enumerate() {
+                    *x += jtj_t[a * n + b];
+                }
+            }
+            continue;
+        }
         let cols: Vec<Tensor> = dirs
             .iter()
             .map(|d| {
@@ -763,8 +802,8 @@ impl<'a> Pipeline<'a> {
                 // half resolution: 0.32 / 0.22 / 0.18 px mean map error on a 160×120 rig).
                 let (sigma, taps) = if li == 0 { (2.0, 13) } else { (0.0, 1) };
                 let level = Level::build(&rig.rgb, &used, factor, false, sigma, taps);
-                // Levels larger than 320×240 (the finest at 640×480) use a random subset of
-                // that many pixels per frame: their cost then stays that of the 320×240 level.
+                // Levels larger than MAX_LEVEL_PIXELS use a random subset of that many pixels
+                // per frame, at full feature resolution.
                 if li > 0 && (level.h * level.w) as usize > MAX_LEVEL_PIXELS {
                     level.subsample(MAX_LEVEL_PIXELS, settings.seed ^ factor as u64)
                 } else {
@@ -817,8 +856,8 @@ impl<'a> Pipeline<'a> {
         }
     }
 
-    /// Index of the finest level at most 320 px wide (where restarts and the quality
-    /// assessment run).
+    /// Index of the finest level at most `RESTART_MAX_WIDTH` px wide (where restarts run;
+    /// the quality assessment uses the level ≤ 320 px wide).
     pub fn check_level(&self) -> usize {
         (0..self.levels.len())
             .filter(|&li| self.rig.rgb.width / self.factors[li] <= RESTART_MAX_WIDTH)
@@ -1060,10 +1099,14 @@ impl<'a> Pipeline<'a> {
     }
 }
 
-/// Pixels per frame of the finest levels at most (320×240; larger levels use a random subset).
-pub const MAX_LEVEL_PIXELS: usize = 320 * 240;
-/// Restarts run at the finest level at most this wide (and the level before it).
-pub const RESTART_MAX_WIDTH: usize = 320;
+/// Pixels per frame of a level at most (half of 320×240; larger levels, from 320×240 up, use
+/// a random subset: at 640×480 one normal-equation evaluation of 20 frames took 28.5 s at
+/// full resolution and 3.0 s on a 76800-pixel subset, load ≈ 5 on 2 cores).
+pub const MAX_LEVEL_PIXELS: usize = 160 * 240;
+/// Restarts run at the finest level at most this wide (and the level before it), then the
+/// chosen solution is refined at the finer levels: at 640×480 restarts at the 320-wide level
+/// would cost several times the main run.
+pub const RESTART_MAX_WIDTH: usize = 160;
 /// Restart perturbation, as a fraction of the thermal width (3.2 px at 160 px wide).
 pub const RESTART_FRACTION: f64 = 0.02;
 /// Restart rounds at most (a round: 6 perturbed starts around the best solution so far).
@@ -1772,6 +1815,59 @@ mod tests {
         }
     }
 
+    /// Development probe of the cost per Levenberg-Marquardt iteration at each level of a
+    /// real-imagery rig (`RTF_CALIB_SPEED=1 WIDTH=640 N_FRAMES=20 cargo test --release -p
+    /// rtf-calib --lib probe_speed -- --nocapture`): one normal-equation evaluation (all
+    /// parameters) and one cost evaluation, full levels against the subsampled finest level.
+    #[test]
+    fn probe_speed() {
+        let (Some(_), Some(data)) = (
+            std::env::var_os("RTF_CALIB_SPEED"),
+            crate::real_rig::default_data_dir(),
+        ) else {
+            return;
+        };
+        tch::set_num_threads(1);
+        let env = |k: &str, d: usize| -> usize {
+            std::env::var(k)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(d)
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let cfg =
+            crate::real_rig::RealRigConfig::new(&data, 1, env("WIDTH", 640), env("N_FRAMES", 20));
+        let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+        let rig = &real.rig;
+        let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
+        let used: Vec<&Frame> = frames.iter().collect();
+        let scaling = Scaling::new(&rig.rgb, initial_params(rig), &used);
+        let dirs = directions(&(0..NUM_PARAMS).collect::<Vec<_>>(), &scaling, true);
+        let all: Vec<i64> = (0..used.len() as i64).collect();
+        let idx = Tensor::from_slice(&all);
+        let theta = [0.5; NUM_PARAMS];
+        for factor in pyramid_factors(rig.rgb.width) {
+            let full = Level::build(&rig.rgb, &used, factor, false, 0.0, 1);
+            let mut variants = vec![("full", full)];
+            if (variants[0].1.h * variants[0].1.w) as usize > MAX_LEVEL_PIXELS {
+                let sub = Level::build(&rig.rgb, &used, factor, false, 0.0, 1)
+                    .subsample(MAX_LEVEL_PIXELS, 1);
+                variants.push(("subsampled", sub));
+            }
+            for (name, level) in &variants {
+                let t0 = std::time::Instant::now();
+                let _ = normal_equations(level, &scaling, &theta, &dirs, &all);
+                let ne = t0.elapsed().as_secs_f64();
+                let t0 = std::time::Instant::now();
+                let c = cost(level, &scaling, &theta, &idx);
+                let ce = t0.elapsed().as_secs_f64();
+                eprintln!(
+                    "SPEED 1/{factor} {name}: normal equations {ne:.2} s, cost {ce:.3} s (cost {c:.5})"
+                );
+            }
+        }
+    }
+
     /// Development probe of the objective's bias on real-imagery rigs (`RTF_CALIB_BIAS=1
     /// WIDTH=320 N_FRAMES=10 SEEDS=1,2,3 SOURCE=ir|vi cargo test --release -p rtf-calib --lib
     /// probe_bias -- --nocapture`): at every pyramid level, the cost along each parameter
@@ -1852,6 +1948,76 @@ mod tests {
                 eprintln!("{line}");
             }
         }
+    }
+
+    #[test]
+    fn structure_tensor_normal_equations_match_the_full_jacobian() {
+        tch::set_num_threads(1);
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = RigSynthConfig {
+            width: 64,
+            height: 48,
+            frames: 2,
+            depth: DepthSource::Given,
+            seed: 5,
+            ..Default::default()
+        };
+        let synth = write_rig(dir.path(), &cfg).unwrap();
+        let frames = load_frames(&synth.rig, &mut |_| {}).unwrap();
+        let used: Vec<&Frame> = frames.iter().collect();
+        let scaling = Scaling::new(&synth.rig.rgb, initial_params(&synth.rig), &used);
+        let dirs = directions(&(0..NUM_PARAMS).collect::<Vec<_>>(), &scaling, false);
+        let theta: [f64; NUM_PARAMS] = std::array::from_fn(|i| 0.3 * (i as f64 - 6.0));
+        let fast = Level::build(&synth.rig.rgb, &used, 1, false, 0.0, 1);
+        // A robust scale far above any residual: the general path, the same squares.
+        let mut general = Level::build(&synth.rig.rgb, &used, 1, false, 0.0, 1);
+        general.robust = 1e6;
+        let (a1, b1, c1) = normal_equations(&fast, &scaling, &theta, &dirs, &[0, 1]);
+        let (a2, b2, c2) = normal_equations(&general, &scaling, &theta, &dirs, &[0, 1]);
+        assert!((c1 - c2).abs() <= 1e-6 * c2.abs(), "{c1} vs {c2}");
+        let scale = a2.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
+        for (r1, r2) in a1.iter().zip(&a2) {
+            for (x, y) in r1.iter().zip(r2) {
+                assert!((x - y).abs() <= 1e-4 * scale, "JᵀJ {x} vs {y}");
+            }
+        }
+        let scale = b2.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        for (x, y) in b1.iter().zip(&b2) {
+            assert!((x - y).abs() <= 1e-4 * scale, "Jᵀr {x} vs {y}");
+        }
+    }
+
+    #[test]
+    fn subsampled_level_keeps_the_cost_of_its_pixels() {
+        tch::set_num_threads(1);
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = RigSynthConfig {
+            width: 64,
+            height: 48,
+            frames: 2,
+            depth: DepthSource::Given,
+            seed: 5,
+            ..Default::default()
+        };
+        let synth = write_rig(dir.path(), &cfg).unwrap();
+        let frames = load_frames(&synth.rig, &mut |_| {}).unwrap();
+        let used: Vec<&Frame> = frames.iter().collect();
+        let scaling = Scaling::new(&synth.rig.rgb, initial_params(&synth.rig), &used);
+        let theta = [0.7; NUM_PARAMS];
+        let idx = Tensor::from_slice(&[0i64, 1]);
+        let full = Level::build(&synth.rig.rgb, &used, 1, false, 0.0, 1);
+        let n = (full.h * full.w) as usize;
+        // All pixels, reordered: the same cost; a subset: its own pixels' cost.
+        let same = Level::build(&synth.rig.rgb, &used, 1, false, 0.0, 1).subsample(n - 1, 3);
+        assert_eq!((same.h, same.w), (1, n as i64 - 1));
+        let (cf, cs) = (
+            cost(&full, &scaling, &theta, &idx),
+            cost(&same, &scaling, &theta, &idx),
+        );
+        assert!((cf - cs).abs() < 0.02 * cf, "{cf} vs {cs}");
+        let half = Level::build(&synth.rig.rgb, &used, 1, false, 0.0, 1).subsample(n / 2, 3);
+        let ch = cost(&half, &scaling, &theta, &idx);
+        assert!(ch > 0.0 && (ch - cf).abs() < 0.25 * cf, "{ch} vs {cf}");
     }
 
     #[test]

@@ -18,7 +18,7 @@
 //!   distance between the two maps estimates the error due to the frames' disagreement. It
 //!   cannot see a bias common to all frames.
 //! - **Restarts** (default recipe, the wrong-basin check): the solution perturbed by ±2 % of
-//!   the thermal width in cx, cy and f and refined again at the levels up to 320 px wide; the
+//!   the thermal width in cx, cy and f and refined again at the levels up to 160 px wide; the
 //!   best-scoring solution is kept (the objective decides, never the truth). The result is
 //!   `uncertain` if solutions scoring within 0.2 % of each other lie more than
 //!   [`SPREAD_UNCERTAIN_PX`] apart, or if the last round still found a better, distinct one.
