@@ -255,6 +255,18 @@ impl Level {
         self
     }
 
+    /// A copy sharing the tensors' storage (read-only use from another thread).
+    pub fn shallow(&self) -> Level {
+        Level {
+            points: self.points.shallow_clone(),
+            mask: self.mask.shallow_clone(),
+            rgb_feat: self.rgb_feat.shallow_clone(),
+            thermal_src: self.thermal_src.shallow_clone(),
+            thermal_grad: self.thermal_grad.shallow_clone(),
+            ..*self
+        }
+    }
+
     /// Warps the thermal source of frames `idx` into the RGB view: [b, Ct, H, W].
     pub fn warp(&self, p: &Tensor, idx: &Tensor) -> Tensor {
         let (u, v) = model::project(&self.points.index_select(0, idx), p);
@@ -921,16 +933,18 @@ impl<'a> Pipeline<'a> {
         for _round in 0..RESTART_ROUNDS {
             rounds += 1;
             let before = best.1;
-            for d in &perturbations {
-                for sign in [-1.0, 1.0] {
-                    let start: [f64; NUM_PARAMS] =
-                        std::array::from_fn(|i| centre[i] + sign * delta * d[i]);
-                    let t = self.refine_between(start, from, q, on_iteration);
-                    let c = self.total_cost(q, &t, &priors);
-                    solutions.push((t, c));
-                    if c < best.1 {
-                        best = (t, c);
-                    }
+            let starts: Vec<[f64; NUM_PARAMS]> = perturbations
+                .iter()
+                .flat_map(|d| {
+                    [-1.0, 1.0].map(|sign| -> [f64; NUM_PARAMS] {
+                        std::array::from_fn(|i| centre[i] + sign * delta * d[i])
+                    })
+                })
+                .collect();
+            for (t, c) in self.refine_all(&starts, from, q, &priors, on_iteration) {
+                solutions.push((t, c));
+                if c < best.1 {
+                    best = (t, c);
                 }
             }
             // Another round only around a clearly better, distinct solution.
@@ -967,6 +981,79 @@ impl<'a> Pipeline<'a> {
             settled,
         };
         (chosen, summary)
+    }
+
+    /// Refines each start over levels `from..=to` and scores it at level `to`, on up to
+    /// `available_parallelism` OS threads (each with shallow copies of the levels, libtorch
+    /// single-threaded in each; the restarts are independent, so the result does not depend
+    /// on the thread count).
+    fn refine_all(
+        &self,
+        starts: &[[f64; NUM_PARAMS]],
+        from: usize,
+        to: usize,
+        priors: &Priors,
+        on_iteration: &mut dyn FnMut(usize, f64),
+    ) -> Vec<([f64; NUM_PARAMS], f64)> {
+        let workers = std::thread::available_parallelism()
+            .map_or(1, |n| n.get())
+            .min(starts.len());
+        if workers <= 1 {
+            return starts
+                .iter()
+                .map(|s| {
+                    let t = self.refine_between(*s, from, to, on_iteration);
+                    (t, self.total_cost(to, &t, priors))
+                })
+                .collect();
+        }
+        let chunk = starts.len().div_ceil(workers);
+        let copies: Vec<Pipeline> = (0..workers).map(|_| self.shallow()).collect();
+        let mut out = std::thread::scope(|scope| {
+            let handles: Vec<_> = copies
+                .into_iter()
+                .zip(starts.chunks(chunk))
+                .map(|(pipe, part)| {
+                    let priors = priors.clone();
+                    scope.spawn(move || {
+                        let _guard = tch::no_grad_guard();
+                        part.iter()
+                            .map(|s| {
+                                let t = pipe.refine_between(*s, from, to, &mut |_, _| {});
+                                (t, pipe.total_cost(to, &t, &priors))
+                            })
+                            .collect::<Vec<_>>()
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .flat_map(|h| h.join().expect("restart thread panicked"))
+                .collect::<Vec<_>>()
+        });
+        if let Some((_, c)) = out.last() {
+            on_iteration(self.levels[to].factor, *c);
+        }
+        out.truncate(starts.len());
+        out
+    }
+
+    /// A copy sharing the level tensors (for other threads).
+    fn shallow(&self) -> Pipeline<'a> {
+        Pipeline {
+            rig: self.rig,
+            used: self.used.clone(),
+            scaling: Scaling {
+                p0: self.scaling.p0,
+                scale: self.scaling.scale,
+            },
+            square: self.square,
+            factors: self.factors.clone(),
+            levels: self.levels.iter().map(Level::shallow).collect(),
+            iterations: self.iterations,
+            lambda0: self.lambda0,
+            samples: self.samples.clone(),
+        }
     }
 
     /// [`Pipeline::refine`] over levels `from..=to` only.

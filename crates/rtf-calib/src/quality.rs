@@ -169,7 +169,8 @@ fn split_half(
         return 0.0;
     }
     // The calibrator's own objective (squared feature differences, no blur) at this level.
-    let level = Level::build(&rig.rgb, chosen, factor, false, 0.0, 1);
+    let level = Level::build(&rig.rgb, chosen, factor, false, 0.0, 1)
+        .subsample(optimize::MAX_LEVEL_PIXELS, 0);
     let all: Vec<usize> = (0..NUM_PARAMS).collect();
     let dirs = optimize::directions(&all, scaling, square);
     let solve = |parity: usize| -> Calibration {
@@ -224,7 +225,11 @@ pub fn assess(
         .filter(|&f| rig.rgb.width / f <= 320)
         .min()
         .unwrap_or(1);
-    let level = Level::build(&rig.rgb, &chosen, factor, false, 0.0, 1).into_correlation();
+    // Above MAX_LEVEL_PIXELS per frame (the 320×240 level of a 640×480 rig) on a random
+    // subset of the support, as in the optimiser.
+    let level = Level::build(&rig.rgb, &chosen, factor, false, 0.0, 1)
+        .subsample(optimize::MAX_LEVEL_PIXELS, 0)
+        .into_correlation();
     let square = rig.thermal.square_pixels.unwrap_or(true);
     let focal = optimize::directions(&[0, 1], &scaling, square)[0];
     let axis = |i: usize| {
