@@ -33,6 +33,11 @@ struct Trial {
     frames_agreeing: f64,
     moved_px: f64,
     split_px: f64,
+    /// Wrong-basin check: how far the restarts moved the main run's solution, and how far
+    /// apart solutions of about the same cost lie (px).
+    restart_improved_px: f64,
+    restart_spread_px: f64,
+    restart_cost_drop: f64,
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -74,7 +79,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let loaded = load_frames(&real.rig, &mut |w| eprintln!("warning: {w}"))?;
         let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0)?;
         let t0 = std::time::Instant::now();
-        let outcome = optimize::calibrate(&real.rig, &loaded, &settings, &mut |_| {})?;
+        // `RTF_CALIB_PROFILE=1`: time per stage (pyramid level, restarts) and iterations.
+        let profile = std::env::var_os("RTF_CALIB_PROFILE").is_some();
+        let mut stages: Vec<(String, usize, f64)> = Vec::new();
+        let mut last = std::time::Instant::now();
+        let outcome = optimize::calibrate(&real.rig, &loaded, &settings, &mut |p| {
+            if profile {
+                let dt = last.elapsed().as_secs_f64();
+                last = std::time::Instant::now();
+                match stages.last_mut() {
+                    Some(s) if s.0 == p.stage => {
+                        s.1 += 1;
+                        s.2 += dt;
+                    }
+                    _ => stages.push((p.stage.clone(), 1, dt)),
+                }
+            }
+        })?;
+        if profile {
+            for (stage, n, secs) in &stages {
+                println!("profile seed {seed}: {stage}: {n} iterations, {secs:.1} s");
+            }
+        }
         let seconds = t0.elapsed().as_secs_f64();
         let start_px = optimize::mean_map_error(&real.rig, &loaded, &outcome.initial, &real.truth);
         let final_px =
@@ -97,9 +123,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             frames_agreeing: a.frames_agreeing,
             moved_px: a.moved_px,
             split_px: a.split_px,
+            restart_improved_px: a.restarts.as_ref().map_or(0.0, |r| r.improved_px),
+            restart_spread_px: a.restarts.as_ref().map_or(0.0, |r| r.spread_px),
+            restart_cost_drop: a.restarts.as_ref().map_or(0.0, |r| r.cost_drop),
         };
         println!(
-            "trial seed {seed} ({}, thermal f/rgb f {ratio:.2}): map error {start_px:.2} -> {final_px:.3} px, fx/fy error {:.3} %, {seconds:.1} s, score {:.3}, sharpness {:.3}, agree {:.2}, moved {:.1} px, split {:.3} px, verdict {} ({})",
+            "trial seed {seed} ({}, thermal f/rgb f {ratio:.2}): map error {start_px:.2} -> {final_px:.3} px, fx/fy error {:.3} %, {seconds:.1} s, score {:.3}, sharpness {:.3}, agree {:.2}, moved {:.1} px, split {:.3} px, restarts improved {:.2} px (cost -{:.2} %) spread {:.2} px, verdict {} ({})",
             t.daylight,
             100.0 * t.aspect_error,
             t.score,
@@ -107,6 +136,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             t.frames_agreeing,
             t.moved_px,
             t.split_px,
+            t.restart_improved_px,
+            100.0 * t.restart_cost_drop,
+            t.restart_spread_px,
             t.verdict,
             t.reason
         );

@@ -701,6 +701,46 @@ mod calibration_tests {
         assert_ne!(out.assessment.unwrap().verdict, Verdict::Failed);
     }
 
+    /// Trial 3 of `real_trials` (20 trials, 160×120, 6 views; mixed day/night frames, thermal
+    /// f = 0.82 × the RGB f): the coarse-to-fine run alone stops in a wrong basin (2.8 px off
+    /// with every other quality figure as good as a success). The restarts must either find
+    /// the true basin or say the result is not `ok` — never a silent wrong answer.
+    #[test]
+    fn wrong_basin_rig_is_never_a_silent_ok() {
+        let Some(data) = default_data_dir() else {
+            return;
+        };
+        tch::set_num_threads(1);
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = RealRigConfig::new(&data, 3, 160, 6);
+        cfg.focal_ratio = Some(0.75 + 0.6 * 2.5 / 20.0);
+        cfg.daylight = Daylight::Mixed;
+        let real = write_real_rig(dir.path(), &cfg).unwrap();
+        let frames = load_frames(&real.rig, &mut |w| eprintln!("{w}")).unwrap();
+        let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+        // The main run alone (no restarts) is in a wrong basin.
+        let used: Vec<&crate::frames::Frame> = frames.iter().collect();
+        let p0 = crate::optimize::initial_params(&real.rig);
+        let pipe = crate::optimize::Pipeline::new(&real.rig, used, p0, &settings);
+        let start = pipe.search([0.0; crate::model::NUM_PARAMS], 1)[0].1;
+        let main = pipe.refine(start, 0, &mut |_, _| {}).theta;
+        let main = crate::model::to_calibration(&pipe.scaling.physical(&main));
+        let wrong = mean_map_error(&real.rig, &frames, &main, &real.truth);
+        assert!(wrong > 1.5, "the main run alone ends {wrong} px off");
+        let out = calibrate(&real.rig, &frames, &settings, &mut |_| {}).unwrap();
+        let after = mean_map_error(&real.rig, &frames, &out.calibration, &real.truth);
+        let a = out.assessment.unwrap();
+        eprintln!("wrong basin {wrong:.3} px -> {after:.3} px; {a:?}");
+        assert!(
+            after < 1.0 || a.verdict != Verdict::Ok,
+            "{after} px off but verdict ok: {a:?}"
+        );
+        let r = a
+            .restarts
+            .expect("the default recipe runs the restart check");
+        assert!(r.count >= 7 && r.improved_px > 1.0, "{r:?}");
+    }
+
     #[test]
     fn verdict_flags_shuffled_thermal_frames() {
         let Some((_, _, out)) = run(Degrade::ShuffleThermal, 2) else {

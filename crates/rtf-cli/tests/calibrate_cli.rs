@@ -45,6 +45,10 @@ fn calibrates_a_small_synthetic_rig_with_overlays() {
     let log = text(&r);
     assert!(r.status.success(), "{log}");
     assert!(log.contains("verdict: "), "the verdict is printed:\n{log}");
+    assert!(
+        log.contains("restarts (wrong-basin check):"),
+        "the wrong-basin check is printed:\n{log}"
+    );
     // The Kalibr camchain carries the same thermal parameters as calib.yaml.
     let camchain = std::fs::read_to_string(dir.path().join("calib-camchain.yaml")).unwrap();
     for key in ["cam1:", "T_cn_cnm1:", "distortion_model: radtan"] {
@@ -62,6 +66,9 @@ fn calibrates_a_small_synthetic_rig_with_overlays() {
         "frames_agreeing:",
         "sharpness:",
         "sigma:",
+        "restarts:",
+        "spread_px:",
+        "improved_px:",
     ] {
         assert!(calib.contains(key), "calib.yaml lacks {key}:\n{calib}");
     }

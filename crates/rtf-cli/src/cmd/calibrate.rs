@@ -236,6 +236,12 @@ pub fn run(args: Args) -> Result<()> {
             a.split_px,
             a.moved_px
         );
+        if let Some(r) = &a.restarts {
+            println!(
+                "restarts (wrong-basin check): {} solutions from starts perturbed by {:.1} px; the best moved the first run's map {:.2} px; equal-scoring solutions within {:.2} px of each other",
+                r.count, r.perturbation_px, r.improved_px, r.spread_px
+            );
+        }
         if a.verdict == Verdict::Failed {
             bail!(
                 "calibration failed: {} ({} kept for inspection)",
