@@ -1696,23 +1696,30 @@ mod tests {
         }
     }
 
+    /// A development probe's set-up: the real data folder when `gate` is set and the data is
+    /// there (else the probe does nothing), libtorch on one thread.
+    fn probe_data(gate: &str) -> Option<std::path::PathBuf> {
+        std::env::var_os(gate)?;
+        let data = crate::real_rig::default_data_dir()?;
+        tch::set_num_threads(1);
+        Some(data)
+    }
+
+    /// A probe's numeric setting from the environment, `default` when unset or unreadable.
+    fn env(key: &str, default: usize) -> usize {
+        std::env::var(key)
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(default)
+    }
+
     /// Development probe on a real-imagery rig (`RTF_CALIB_PROBE=1 WIDTH=.. SEED=..
     /// N_FRAMES=.. cargo test --release -p rtf-calib probe_real -- --nocapture`): the cost of
     /// the truth and of the estimate at every level, and the map error.
     #[test]
     fn probe_real() {
-        let (Some(_), Some(data)) = (
-            std::env::var_os("RTF_CALIB_PROBE"),
-            crate::real_rig::default_data_dir(),
-        ) else {
+        let Some(data) = probe_data("RTF_CALIB_PROBE") else {
             return;
-        };
-        tch::set_num_threads(1);
-        let env = |k: &str, d: usize| -> usize {
-            std::env::var(k)
-                .ok()
-                .and_then(|s| s.parse().ok())
-                .unwrap_or(d)
         };
         let dir = tempfile::tempdir().unwrap();
         let cfg = crate::real_rig::RealRigConfig::new(
@@ -1782,18 +1789,8 @@ mod tests {
     /// one's cost, alignment score, distance to the main solution and error.
     #[test]
     fn probe_restarts() {
-        let (Some(_), Some(data)) = (
-            std::env::var_os("RTF_CALIB_RESTARTS"),
-            crate::real_rig::default_data_dir(),
-        ) else {
+        let Some(data) = probe_data("RTF_CALIB_RESTARTS") else {
             return;
-        };
-        tch::set_num_threads(1);
-        let env = |k: &str, d: usize| -> usize {
-            std::env::var(k)
-                .ok()
-                .and_then(|s| s.parse().ok())
-                .unwrap_or(d)
         };
         let trials = env("TRIALS", 20);
         let seeds: Vec<u64> = std::env::var("SEEDS")
@@ -1908,18 +1905,8 @@ mod tests {
     /// parameters) and one cost evaluation, full levels against the subsampled finest level.
     #[test]
     fn probe_speed() {
-        let (Some(_), Some(data)) = (
-            std::env::var_os("RTF_CALIB_SPEED"),
-            crate::real_rig::default_data_dir(),
-        ) else {
+        let Some(data) = probe_data("RTF_CALIB_SPEED") else {
             return;
-        };
-        tch::set_num_threads(1);
-        let env = |k: &str, d: usize| -> usize {
-            std::env::var(k)
-                .ok()
-                .and_then(|s| s.parse().ok())
-                .unwrap_or(d)
         };
         let dir = tempfile::tempdir().unwrap();
         let cfg =
@@ -1961,18 +1948,8 @@ mod tests {
     /// direction through the truth (±3 px in steps of 0.25), and where its minimum lies.
     #[test]
     fn probe_bias() {
-        let (Some(_), Some(data)) = (
-            std::env::var_os("RTF_CALIB_BIAS"),
-            crate::real_rig::default_data_dir(),
-        ) else {
+        let Some(data) = probe_data("RTF_CALIB_BIAS") else {
             return;
-        };
-        tch::set_num_threads(1);
-        let env = |k: &str, d: usize| -> usize {
-            std::env::var(k)
-                .ok()
-                .and_then(|s| s.parse().ok())
-                .unwrap_or(d)
         };
         let seeds: Vec<u64> = std::env::var("SEEDS")
             .unwrap_or_else(|_| "1,2,3".into())
