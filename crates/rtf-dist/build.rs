@@ -2,29 +2,20 @@
 //! `DEP_TCH_LIBTORCH_LIB`, and the same C++ ABI flag), and embeds the libtorch rpath like the
 //! workspace's other crates that link libtorch.
 use std::path::PathBuf;
+include!("../torch_cpp.rs");
 
 fn main() {
     println!("cargo:rerun-if-changed=shim");
-    println!("cargo:rerun-if-env-changed=LIBTORCH_CXX11_ABI");
     println!("cargo:rerun-if-env-changed=RTF_DIST_CUDA_INCLUDE");
     println!("cargo:rerun-if-env-changed=RTF_DIST_NCCL_INCLUDE");
-    let lib = PathBuf::from(
-        std::env::var("DEP_TCH_LIBTORCH_LIB").expect("torch-sys gives the libtorch lib directory"),
-    );
+    let lib = libtorch_lib();
     let include = lib.parent().expect("libtorch root").join("include");
-    let abi = std::env::var("LIBTORCH_CXX11_ABI").unwrap_or_else(|_| "1".into());
-    let mut build = cc::Build::new();
+    let mut build = libtorch_cpp("shim/c10d_shim.cpp");
     build
-        .cpp(true)
         .pic(true)
-        .warnings(false)
         .include("shim/gloo_decl")
-        .include(&include)
         .include(include.join("torch/csrc/api/include"))
-        .flag("-std=c++17")
-        .flag(format!("-D_GLIBCXX_USE_CXX11_ABI={abi}"))
-        .flag("-DGLOG_USE_GLOG_EXPORT")
-        .file("shim/c10d_shim.cpp");
+        .flag("-DGLOG_USE_GLOG_EXPORT");
     if std::env::var_os("CARGO_FEATURE_NCCL").is_some() {
         // ProcessGroupNCCL.hpp needs a CUDA toolkit's headers (the runtime wheels lack nvcc's
         // `crt/` and CCCL's `nv/`): RTF_DIST_CUDA_INCLUDE, else /usr/local/cuda/include. NCCL's

@@ -1,5 +1,6 @@
 //! `rtf`: train, evaluate, run and calibrate RGB-thermal segmentation networks.
 
+mod allocator;
 mod cmd;
 
 use clap::{Parser, Subcommand};
@@ -53,8 +54,8 @@ fn main() {
     }
     let cli = Cli::parse();
     // Every command repeats the same tensor work; keeping freed memory avoids page-faulting
-    // activations in again on every pass (rtf_models::allocator).
-    rtf_models::allocator::retain_freed_memory();
+    // activations in again on every pass, and mimalloc keeps it without fragmenting (allocator).
+    allocator::keep_freed_memory();
     let result = match cli.command {
         Command::Synth(args) => cmd::synth::run(args),
         Command::Data(args) => cmd::data::run(args),

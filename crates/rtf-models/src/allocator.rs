@@ -6,6 +6,10 @@
 //! measured on MFNet at 480×640 (2 cores, fp32 fast path), 66 ms per frame with glibc's
 //! defaults against 45 ms with freed memory kept (docs/src/models.md). PyTorch's CPU
 //! performance guides reach for jemalloc/tcmalloc for the same reason.
+//!
+//! This is the policy for library users on glibc. The `rtf` binary goes further: it links
+//! mimalloc in place of `malloc` (rtf-cli's `allocator` module), which keeps freed memory
+//! without the fragmentation that this policy lets a training step build up in glibc's heap.
 
 /// Keeps freed memory in the process for reuse: no `mmap`-served blocks, no trimming of
 /// the heap. The resident size then stays at its peak, which suits a tool that repeats the
