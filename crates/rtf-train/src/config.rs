@@ -119,6 +119,21 @@ impl Precision {
         }
     }
 
+    /// A warning when this precision is emulated on `device` and will train far slower than
+    /// fp32: bf16 on a CPU without native bf16 arithmetic (rtf_amp::cpu_has_native_bf16).
+    pub fn slow_on(self, device: tch::Device) -> Option<String> {
+        (self == Precision::Bf16
+            && device == tch::Device::Cpu
+            && rtf_amp::cpu_has_native_bf16() == Some(false))
+        .then(|| {
+            "this CPU has no native bf16 arithmetic (no avx512_bf16, amx_bf16 or bf16 in \
+             /proc/cpuinfo): bf16 mixed precision is emulated here and trains several times \
+             slower than fp32 (MFNet at 640x480: about 10x, docs/src/benchmarks.md); it only \
+             saves activation memory"
+                .to_owned()
+        })
+    }
+
     /// Whether the loss is scaled (fp16 only).
     pub fn scales_loss(self) -> bool {
         self == Precision::Fp16

@@ -62,12 +62,16 @@ pub fn run(args: Args) -> Result<()> {
         OptimizerKind::Sgd => OptimizerConfig::mfnet_paper(),
         OptimizerKind::Rmsprop => OptimizerConfig::heatnet_paper(),
     };
+    let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
+    if let Some(warning) = args.precision.slow_on(device) {
+        eprintln!("warning: {warning}");
+    }
     let report = bench_train(&TrainBenchOptions {
         model: args.model,
         batch: args.batch,
         size: args.size,
         precision: args.precision,
-        device: rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?,
+        device,
         warmup: args.warmup,
         steps: args.steps,
         optimizer,

@@ -175,6 +175,15 @@ pub fn run(args: Args) -> Result<()> {
     for (_, stage) in cfg.stages() {
         available_device(&stage.device).map_err(anyhow::Error::msg)?;
     }
+    if root {
+        let slow = cfg.stages().into_iter().find_map(|(_, stage)| {
+            let device = rtf_train::config::parse_device(&stage.device).ok()?;
+            stage.precision.slow_on(device)
+        });
+        if let Some(warning) = slow {
+            eprintln!("warning: {warning}");
+        }
+    }
     let stop = stop_on_signals();
     let interrupted = |stage: &str, state: &rtf_train::checkpoint::TrainState| -> ! {
         let batch = state.partial.as_ref().map_or(0, |p| p.batches);
