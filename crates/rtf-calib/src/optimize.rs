@@ -258,6 +258,7 @@ impl Level {
     /// Keeps in the loss support only the pixels that `theta` maps inside the thermal image
     /// (`tw`×`th` full-resolution pixels) with `margin` px to spare. Fixed for a level run, so
     /// the support still does not depend on the parameters being optimised.
+    #[cfg(test)]
     pub fn restrict_support(
         mut self,
         scaling: &Scaling,
@@ -282,6 +283,7 @@ impl Level {
     /// β = Σ M·a·t / Σ M·t² at `theta` (clamped to [0.05, 1]): the squared difference
     /// Σ(a − β·t)² then weighs the Σt² term by β² against the cross term's β, so thermal edge
     /// energy that matches nothing in the RGB image pulls less on the map.
+    #[cfg(test)]
     pub fn with_gain(mut self, scaling: &Scaling, theta: &[f64; NUM_PARAMS]) -> Level {
         let b = self.points.size()[0];
         let idx = Tensor::arange(b, (Kind::Int64, Device::Cpu));
