@@ -160,9 +160,9 @@ pub fn disparity(left: &Plane, right: &Plane, max_disparity: usize, prm: &SgmPar
             let x = i % w;
             let valid = nd.min(x + 1);
             let (mut best, mut bd) = (u16::MAX, 0);
-            for d in 0..valid {
-                if s[d] < best {
-                    best = s[d];
+            for (d, &cost) in s.iter().enumerate().take(valid) {
+                if cost < best {
+                    best = cost;
                     bd = d;
                 }
             }
