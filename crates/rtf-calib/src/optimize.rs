@@ -1638,7 +1638,8 @@ mod tests {
 
     /// Development probe: re-registers MSRS's vi/ir pairs with a scale, a radial term, a
     /// rotation and a shift (`RTF_CALIB_PROBE_REG=1`, full 640×480, coordinate search on the
-    /// centred edge-feature correlation); prints the `MSRS_REGISTRATION` table.
+    /// centred edge-feature correlation, `REG_NCC=1` normalised by the warped thermal energy);
+    /// prints the `MSRS_REGISTRATION` table and each scene's distance to it.
     #[test]
     fn probe_registration() {
         let (Some(_), Some(data)) = (
@@ -1654,7 +1655,9 @@ mod tests {
             .ok()
             .and_then(|s| s.parse().ok())
             .unwrap_or(1);
+        let ncc = std::env::var_os("REG_NCC").is_some();
         let mut rows = Vec::new();
+        let mut moved = Vec::new();
         for name in day.iter().chain(night.iter()) {
             let vi = crate::imageio::read_gray(&msrs.join(format!("vi/{name}.png"))).unwrap();
             let ir = crate::imageio::read_gray(&msrs.join(format!("ir/{name}.png"))).unwrap();
@@ -1681,12 +1684,23 @@ mod tests {
                 let grid = Tensor::stack(&[su / cu - 1.0, sv / cv - 1.0], 2)
                     .unsqueeze(0)
                     .to_kind(Kind::Float);
-                let warped = fb.grid_sampler_2d(&grid, 0, 0, true);
-                (&fa * warped)
+                let warped = fb
+                    .grid_sampler_2d(&grid, 0, 0, true)
                     .narrow(2, margin, h - 2 * margin)
-                    .narrow(3, margin, w - 2 * margin)
-                    .sum(Kind::Double)
-                    .double_value(&[])
+                    .narrow(3, margin, w - 2 * margin);
+                let cross =
+                    (&fa.narrow(2, margin, h - 2 * margin)
+                        .narrow(3, margin, w - 2 * margin)
+                        * &warped)
+                        .sum(Kind::Double)
+                        .double_value(&[]);
+                // `REG_NCC=1`: normalised by the warped thermal energy, so a scale that brings
+                // more (or less) thermal edge energy into the frame gains nothing by it.
+                if ncc {
+                    cross / warped.square().sum(Kind::Double).double_value(&[]).sqrt()
+                } else {
+                    cross
+                }
             };
             let mut p = [1.027, -0.026, 0.0, 0.0, 2.0, 0.0];
             let n_par = if std::env::var_os("REG_K2").is_some() {
@@ -1720,11 +1734,46 @@ mod tests {
                 }
                 steps = steps.map(|x| x / 2.0);
             }
+            // Mean distance (px at 640×480) between this registration's sampling map and the
+            // table's (`MSRS_REGISTRATION`) over the image less the margin.
+            let map = |q: &[f64; 6]| {
+                let (sn, cs) = q[2].to_radians().sin_cos();
+                let r2 = (&us * &us + &vs * &vs) / (cu * cu);
+                let g = (&r2 * q[1] + r2.square() * q[5] + 1.0) * q[0];
+                (
+                    (&us * cs - &vs * sn) * &g + q[3] / factor as f64,
+                    (&us * sn + &vs * cs) * &g + q[4] / factor as f64,
+                )
+            };
+            let table = crate::real_rig::MSRS_REGISTRATION
+                .iter()
+                .find(|r| r.0 == name.as_str())
+                .map(|r| [r.1, r.2, r.4, r.5, r.6, r.3]);
+            let d = table.map(|t| {
+                let ((a, b), (c, e)) = (map(&p), map(&t));
+                ((a - c).square() + (b - e).square())
+                    .sqrt()
+                    .narrow(0, margin, h - 2 * margin)
+                    .narrow(1, margin, w - 2 * margin)
+                    .mean(Kind::Double)
+                    .double_value(&[])
+                    * factor as f64
+            });
             eprintln!(
-                "    (\"{name}\", {:.4}, {:.4}, {:.4}, {:.3}, {:.2}, {:.2}),",
-                p[0], p[1], p[5], p[2], p[3], p[4]
+                "    (\"{name}\", {:.4}, {:.4}, {:.4}, {:.3}, {:.2}, {:.2}), // {:.2} px from the table",
+                p[0], p[1], p[5], p[2], p[3], p[4], d.unwrap_or(f64::NAN)
             );
+            moved.extend(d);
             rows.push(p);
+        }
+        moved.sort_by(f64::total_cmp);
+        if !moved.is_empty() {
+            eprintln!(
+                "REG distance to the table's maps: median {:.2} px, range {:.2}..{:.2} px (at 640×480)",
+                moved[moved.len() / 2],
+                moved[0],
+                moved[moved.len() - 1]
+            );
         }
         for i in 0..6 {
             let mut v: Vec<f64> = rows.iter().map(|r| r[i]).collect();
