@@ -53,9 +53,10 @@ fn main() {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse();
-    // Every command repeats the same tensor work; keeping freed memory avoids page-faulting
-    // activations in again on every pass, and mimalloc keeps it without fragmenting (allocator).
-    allocator::keep_freed_memory();
+    // Every command repeats the same tensor work; keeping freed memory a while avoids
+    // page-faulting activations in again on every pass, and mimalloc keeps it without
+    // fragmenting (allocator).
+    allocator::set_purge_delay();
     let result = match cli.command {
         Command::Synth(args) => cmd::synth::run(args),
         Command::Data(args) => cmd::data::run(args),
