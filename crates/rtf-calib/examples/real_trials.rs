@@ -14,7 +14,7 @@
 use plotters::prelude::*;
 use rtf_calib::frames::load_frames;
 use rtf_calib::optimize::{self, Recipe, Settings};
-use rtf_calib::real_rig::{write_real_rig, Daylight, RealRigConfig};
+use rtf_calib::real_rig::{write_real_rig, RealRigConfig};
 use std::path::PathBuf;
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -88,10 +88,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         if only.as_ref().is_some_and(|o| !o.contains(&seed)) {
             continue;
         }
-        let mut cfg = RealRigConfig::new(&data, seed, width, frames);
-        let ratio = 0.75 + 0.6 * (k as f64 + 0.5) / trials as f64;
-        cfg.focal_ratio = Some(ratio);
-        cfg.daylight = [Daylight::Day, Daylight::Night, Daylight::Mixed][k % 3];
+        let cfg = RealRigConfig::new(&data, seed, width, frames).in_trial_set(k, trials);
+        let ratio = cfg.focal_ratio.expect("set by in_trial_set");
         let dir = out.join(format!("rig-{seed}"));
         let _ = std::fs::remove_dir_all(&dir);
         let real = write_real_rig(&dir, &cfg)?;

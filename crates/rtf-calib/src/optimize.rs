@@ -424,6 +424,18 @@ impl Scaling {
         std::array::from_fn(|i| self.p0[i] + self.scale[i] * theta[i])
     }
 
+    /// The calibration at pixel-scaled parameters `theta`.
+    pub fn calibration(&self, theta: &[f64; NUM_PARAMS]) -> Calibration {
+        model::to_calibration(&self.physical(theta))
+    }
+
+    /// The pixel-scaled parameters of calibration `c` (inverse of [`Scaling::calibration`]).
+    #[cfg(test)]
+    pub fn theta_of(&self, c: &Calibration) -> [f64; NUM_PARAMS] {
+        let p = model::from_calibration(c);
+        std::array::from_fn(|i| (p[i] - self.p0[i]) / self.scale[i])
+    }
+
     pub fn tensor(&self, theta: &[f64; NUM_PARAMS]) -> Tensor {
         Tensor::from_slice(&self.physical(theta).map(|x| x as f32))
     }
@@ -881,10 +893,7 @@ impl<'a> Pipeline<'a> {
     /// Mean distance (full-resolution thermal px) between the RGB→thermal maps of θ `a` and
     /// `b` over the sample pixels that `a` maps into the thermal image.
     pub fn distance(&self, a: &[f64; NUM_PARAMS], b: &[f64; NUM_PARAMS]) -> f64 {
-        let (ca, cb) = (
-            model::to_calibration(&self.scaling.physical(a)),
-            model::to_calibration(&self.scaling.physical(b)),
-        );
+        let (ca, cb) = (self.scaling.calibration(a), self.scaling.calibration(b));
         let (tw, th) = (
             self.rig.thermal.width as f64,
             self.rig.thermal.height as f64,
@@ -1317,7 +1326,7 @@ fn calibrate_default(
     });
     Ok(Outcome {
         initial: model::to_calibration(&p0),
-        calibration: model::to_calibration(&pipe.scaling.physical(&theta)),
+        calibration: pipe.scaling.calibration(&theta),
         restarts,
         loss,
         frames_used: pipe.used.len(),
@@ -1433,7 +1442,7 @@ fn calibrate_paper(
     let final_loss = sq / support.max(1.0);
     Ok(Outcome {
         initial: model::to_calibration(&p0),
-        calibration: model::to_calibration(&scaling.physical(&final_theta)),
+        calibration: scaling.calibration(&final_theta),
         loss: final_loss,
         frames_used: used.len(),
         used: pool.clone(),
@@ -1894,13 +1903,8 @@ mod tests {
             seed,
             env("WIDTH", 640),
             env("N_FRAMES", 20),
-        );
-        cfg.focal_ratio = Some(0.75 + 0.6 * (k as f64 + 0.5) / trials as f64);
-        cfg.daylight = [
-            crate::real_rig::Daylight::Day,
-            crate::real_rig::Daylight::Night,
-            crate::real_rig::Daylight::Mixed,
-        ][k % 3];
+        )
+        .in_trial_set(k, trials);
         if std::env::var_os("CONTROL").is_some() {
             cfg.degrade = crate::real_rig::Degrade::RgbAsThermal;
         }
@@ -1914,11 +1918,8 @@ mod tests {
         let used: Vec<&Frame> = out.used.iter().map(|&i| &frames[i]).collect();
         let pipe = Pipeline::new(rig, used.clone(), initial_params(rig), &settings);
         let sc = &pipe.scaling;
-        let to_theta = |c: &Calibration| -> [f64; NUM_PARAMS] {
-            let p = model::from_calibration(c);
-            std::array::from_fn(|i| (p[i] - sc.p0[i]) / sc.scale[i])
-        };
-        let calib = |t: &[f64; NUM_PARAMS]| model::to_calibration(&sc.physical(t));
+        let to_theta = |c: &Calibration| sc.theta_of(c);
+        let calib = |t: &[f64; NUM_PARAMS]| sc.calibration(t);
         let (tt, te) = (to_theta(&real.truth), to_theta(&out.calibration));
         let all_i: Vec<i64> = (0..used.len() as i64).collect();
         let all = Tensor::from_slice(&all_i);
@@ -2005,18 +2006,13 @@ mod tests {
         for seed in seeds {
             let k = (seed - 1) as usize;
             let dir = tempfile::tempdir().unwrap();
-            let mut cfg = crate::real_rig::RealRigConfig::new(
+            let cfg = crate::real_rig::RealRigConfig::new(
                 &data,
                 seed,
                 env("WIDTH", 160),
                 env("N_FRAMES", 6),
-            );
-            cfg.focal_ratio = Some(0.75 + 0.6 * (k as f64 + 0.5) / trials as f64);
-            cfg.daylight = [
-                crate::real_rig::Daylight::Day,
-                crate::real_rig::Daylight::Night,
-                crate::real_rig::Daylight::Mixed,
-            ][k % 3];
+            )
+            .in_trial_set(k, trials);
             let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
             let rig = &real.rig;
             let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
@@ -2024,11 +2020,8 @@ mod tests {
             let used: Vec<&Frame> = frames.iter().collect();
             let pipe = Pipeline::new(rig, used.clone(), initial_params(rig), &settings);
             let sc = &pipe.scaling;
-            let to_theta = |c: &Calibration| -> [f64; NUM_PARAMS] {
-                let p = model::from_calibration(c);
-                std::array::from_fn(|i| (p[i] - sc.p0[i]) / sc.scale[i])
-            };
-            let calib = |t: &[f64; NUM_PARAMS]| model::to_calibration(&sc.physical(t));
+            let to_theta = |c: &Calibration| sc.theta_of(c);
+            let calib = |t: &[f64; NUM_PARAMS]| sc.calibration(t);
             let qlevel = Level::build(&rig.rgb, &used, 1, false, 0.0, 1).into_correlation();
             let fine = pipe.levels.len() - 1;
             let all = Tensor::from_slice(&(0..used.len() as i64).collect::<Vec<_>>());

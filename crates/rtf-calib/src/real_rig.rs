@@ -106,6 +106,14 @@ impl RealRigConfig {
             focal_ratio: None,
         }
     }
+
+    /// Trial `index` (0-based) of a set of `trials` as `examples/real_trials.rs` spans the range:
+    /// thermal f / RGB f from 0.75 to 1.35 across the set, day, night and mixed frames in turn.
+    pub fn in_trial_set(mut self, index: usize, trials: usize) -> Self {
+        self.focal_ratio = Some(0.75 + 0.6 * (index as f64 + 0.5) / trials as f64);
+        self.daylight = [Daylight::Day, Daylight::Night, Daylight::Mixed][index % 3];
+        self
+    }
 }
 
 /// MSRS's vi/ir pairs are not perfectly registered: the ir image matches the vi edges best
@@ -712,9 +720,7 @@ mod calibration_tests {
         };
         tch::set_num_threads(1);
         let dir = tempfile::tempdir().unwrap();
-        let mut cfg = RealRigConfig::new(&data, 3, 160, 6);
-        cfg.focal_ratio = Some(0.75 + 0.6 * 2.5 / 20.0);
-        cfg.daylight = Daylight::Mixed;
+        let cfg = RealRigConfig::new(&data, 3, 160, 6).in_trial_set(2, 20);
         let real = write_real_rig(dir.path(), &cfg).unwrap();
         let frames = load_frames(&real.rig, &mut |w| eprintln!("{w}")).unwrap();
         let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
