@@ -77,7 +77,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if t.verdict == "ok" && t.sharpness < rtf_calib::quality::SHARPNESS_UNCERTAIN {
                 t.verdict = "uncertain".into();
                 t.reason = format!(
-                    "a shallow optimum: perturbing by 1.5 px lowers the score by only {:.1} % (rejudged from the recorded figures)",
+                    "a shallow optimum: perturbing by {} px lowers the score by only {:.1} % (rejudged from the recorded figures)",
+                    rtf_calib::quality::DELTA_PX,
                     100.0 * t.sharpness
                 );
             }
