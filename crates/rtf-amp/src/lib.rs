@@ -188,19 +188,19 @@ pub fn autocast<T>(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+    use tch::Tensor;
+
     #[test]
     fn native_bf16_is_read_from_the_cpu_flags() {
         let x86 = "processor\t: 0\nflags\t\t: fpu sse2 avx2 fma\n";
-        assert_eq!(super::cpuinfo_has_native_bf16(x86), Some(false));
+        assert_eq!(cpuinfo_has_native_bf16(x86), Some(false));
         let zen5 = "flags\t\t: fpu avx2 avx512f avx512_bf16 avx512_vnni\n";
-        assert_eq!(super::cpuinfo_has_native_bf16(zen5), Some(true));
+        assert_eq!(cpuinfo_has_native_bf16(zen5), Some(true));
         let arm = "processor\t: 0\nFeatures\t: fp asimd sve bf16 i8mm\n";
-        assert_eq!(super::cpuinfo_has_native_bf16(arm), Some(true));
-        assert_eq!(super::cpuinfo_has_native_bf16("processor\t: 0\n"), None);
+        assert_eq!(cpuinfo_has_native_bf16(arm), Some(true));
+        assert_eq!(cpuinfo_has_native_bf16("processor\t: 0\n"), None);
     }
-
-    use super::*;
-    use tch::Tensor;
 
     fn conv_output_kind() -> Kind {
         let x = Tensor::ones([1, 2, 5, 5], (Kind::Float, Device::Cpu));

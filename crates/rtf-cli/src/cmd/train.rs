@@ -172,17 +172,13 @@ pub fn run(args: Args) -> Result<()> {
     };
     let ddp = join_job(&mut cfg, args.dist_timeout)?;
     let root = ddp.as_ref().is_none_or(|d| d.is_root());
+    let mut slow = None;
     for (_, stage) in cfg.stages() {
-        available_device(&stage.device).map_err(anyhow::Error::msg)?;
+        let device = available_device(&stage.device).map_err(anyhow::Error::msg)?;
+        slow = slow.or_else(|| stage.precision.slow_on(device));
     }
-    if root {
-        let slow = cfg.stages().into_iter().find_map(|(_, stage)| {
-            let device = rtf_train::config::parse_device(&stage.device).ok()?;
-            stage.precision.slow_on(device)
-        });
-        if let Some(warning) = slow {
-            eprintln!("warning: {warning}");
-        }
+    if let Some(warning) = slow.filter(|_| root) {
+        eprintln!("warning: {warning}");
     }
     let stop = stop_on_signals();
     let interrupted = |stage: &str, state: &rtf_train::checkpoint::TrainState| -> ! {
