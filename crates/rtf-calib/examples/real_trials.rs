@@ -71,8 +71,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // table and the plot.
     let rejudge = args.iter().any(|a| a == "--rejudge");
     if rejudge {
-        let text = std::fs::read_to_string(out.join("trials.json"))?;
-        results = serde_json::from_str(&text)?;
+        let path = out.join("trials.json");
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| format!("--rejudge reads {}: {e}", path.display()))?;
+        results = serde_json::from_str(&text)
+            .map_err(|e| format!("{}: not a real_trials result: {e}", path.display()))?;
         for t in results.iter_mut() {
             if t.verdict == "ok" && t.sharpness < rtf_calib::quality::SHARPNESS_UNCERTAIN {
                 t.verdict = "uncertain".into();
