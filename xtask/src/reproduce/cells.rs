@@ -194,6 +194,18 @@ pub enum Outcome {
 /// Runs what is left of one cell.
 pub fn run(ctx: &Context, table: &Table, cell: &Cell, seed: usize) -> Result<Outcome> {
     let dir = ctx.cell_dir(table, cell, seed);
+    let outcome = run_cell(ctx, table, cell, seed, &dir);
+    if outcome.is_err() && ctx.budget == Budget::Smoke && dir.is_dir() {
+        // A failed smoke cell must not keep its gigabytes either: a full disk would otherwise
+        // fail every cell after it. Its config.json and logs stay, so it still resumes.
+        if let Err(e) = remove_weights(&dir) {
+            eprintln!("    (could not remove the failed cell's weights: {e:#})");
+        }
+    }
+    outcome
+}
+
+fn run_cell(ctx: &Context, table: &Table, cell: &Cell, seed: usize, dir: &Path) -> Result<Outcome> {
     let spec = ctx.spec(table, cell, seed)?;
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     write_json(&dir.join(CELL_FILE), &spec)?;
@@ -223,12 +235,13 @@ pub fn run(ctx: &Context, table: &Table, cell: &Cell, seed: usize) -> Result<Out
             args.extend(strings(&spec["rtf_train"]));
         }
         match rtf(ctx, &dir, &args)? {
-            0 => {}
-            130 => return Ok(Outcome::Interrupted),
-            code => bail!(
-                "`rtf {}` failed (exit {code}); its output: {}",
+            Ended::Exit(0) => {}
+            Ended::Exit(130) | Ended::Signal(SIGINT) => return Ok(Outcome::Interrupted),
+            ended => bail!(
+                "`rtf {}` failed ({ended}); its output: {}{}",
                 args.join(" "),
-                dir.join(LOG_FILE).display()
+                dir.join(LOG_FILE).display(),
+                log_tail(&dir)
             ),
         }
         st = State::Evaluate;
@@ -260,11 +273,13 @@ pub fn run(ctx: &Context, table: &Table, cell: &Cell, seed: usize) -> Result<Out
         .map(String::from)
         .to_vec();
         args.extend(strings(&spec["rtf_eval"]));
-        if rtf(ctx, &dir, &args)? != 0 {
+        let ended = rtf(ctx, &dir, &args)?;
+        if ended != Ended::Exit(0) {
             bail!(
-                "`rtf {}` failed; its output: {}",
+                "`rtf {}` failed ({ended}); its output: {}{}",
                 args.join(" "),
-                dir.join(LOG_FILE).display()
+                dir.join(LOG_FILE).display(),
+                log_tail(&dir)
             );
         }
         if cell.bench {
@@ -367,7 +382,42 @@ fn strings(v: &Value) -> Vec<String> {
 }
 
 /// Runs `rtf ARGS`, output appended to the cell's log; returns the exit code.
-fn rtf(ctx: &Context, dir: &Path, args: &[String]) -> Result<i32> {
+/// How an `rtf` process ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Ended {
+    Exit(i32),
+    /// Killed by a signal: the kernel's out-of-memory killer sends SIGKILL.
+    Signal(i32),
+}
+
+const SIGINT: i32 = 2;
+const SIGKILL: i32 = 9;
+
+impl std::fmt::Display for Ended {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            Ended::Exit(code) => write!(f, "exit {code}"),
+            Ended::Signal(SIGKILL) => {
+                write!(f, "killed by signal 9, as the out-of-memory killer does")
+            }
+            Ended::Signal(sig) => write!(f, "killed by signal {sig}"),
+        }
+    }
+}
+
+/// The last lines of a cell's `xtask.log`, so that a failure says why where it is printed
+/// (a CI log, say) without the folder at hand.
+fn log_tail(dir: &Path) -> String {
+    const LINES: usize = 6;
+    let Ok(text) = std::fs::read_to_string(dir.join(LOG_FILE)) else {
+        return String::new();
+    };
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    let tail = &lines[lines.len().saturating_sub(LINES)..];
+    tail.iter().map(|l| format!("\n      | {l}")).collect()
+}
+
+fn rtf(ctx: &Context, dir: &Path, args: &[String]) -> Result<Ended> {
     use std::io::Write;
     let log_path = dir.join(LOG_FILE);
     let mut log = std::fs::OpenOptions::new()
@@ -383,7 +433,12 @@ fn rtf(ctx: &Context, dir: &Path, args: &[String]) -> Result<i32> {
         .stderr(err)
         .status()
         .with_context(|| format!("cannot start {}", ctx.rtf.display()))?;
-    Ok(status.code().unwrap_or(130))
+    use std::os::unix::process::ExitStatusExt;
+    Ok(match (status.code(), status.signal()) {
+        (Some(code), _) => Ended::Exit(code),
+        (None, Some(sig)) => Ended::Signal(sig),
+        (None, None) => Ended::Exit(-1),
+    })
 }
 
 /// `rtf` in the project root. OpenMP threads wait passively unless the caller chose
@@ -444,7 +499,8 @@ mod tests {
     }
 
     /// A stand-in `rtf` (shell script) that records its calls and writes the files the real
-    /// one writes; `interrupt` / `fail` files next to it make `train` stop on Ctrl-C / fail.
+    /// one writes; `interrupt` / `fail` / `oom` files next to it make `train` stop on Ctrl-C /
+    /// fail / be killed.
     const FAKE_RTF: &str = r#"#!/bin/sh
 here=$(dirname "$0")
 echo "$*" >> "$here/calls.txt"
@@ -454,7 +510,8 @@ case "$1" in
     if [ "$2" = "--resume" ]; then out=$3; else out=$(arg --out "$@")
       [ -f "$out/config.json" ] && { echo "$out: already holds a run" >&2; exit 1; }; fi
     mkdir -p "$out"; echo '{}' > "$out/config.json"
-    [ -f "$here/fail" ] && exit 3
+    [ -f "$here/fail" ] && { echo x > "$out/checkpoint.safetensors"; echo "$out: No space left on device" >&2; exit 3; }
+    [ -f "$here/oom" ] && kill -9 $$
     if [ -f "$here/interrupt" ]; then echo x > "$out/checkpoint.safetensors"; exit 130; fi
     echo x > "$out/checkpoint.safetensors"; echo x > "$out/final.safetensors"
     echo '{"images_per_s": 10.0}' > "$out/log.jsonl" ;;
@@ -543,17 +600,31 @@ esac
         let dir2 = ctx.cell_dir(tab2, mfnet2, 0);
         assert_eq!(state(&dir2, false), State::Done);
 
-        // A failing cell reports the command and its log; the folder stays resumable.
+        // A failing cell reports the command, its log and the log's last lines; a smoke
+        // cell's weights go (a full disk must not fail the cells after it); the folder stays
+        // resumable.
         std::fs::write(tmp.join("bin/fail"), "").unwrap();
         let segnet = tab2.cell("segnet-3c").unwrap();
         let err = run(&ctx, tab2, segnet, 0).unwrap_err().to_string();
         assert!(
-            err.contains("rtf train") && err.contains("exit 3") && err.contains("xtask.log"),
+            err.contains("rtf train")
+                && err.contains("exit 3")
+                && err.contains("xtask.log")
+                && err.contains("No space left on device"),
             "{err}"
         );
+        let seg_dir = ctx.cell_dir(tab2, segnet, 0);
+        assert!(!seg_dir.join("checkpoint.safetensors").exists());
+        assert_eq!(state(&seg_dir, false), State::Resume);
+        // Killed by a signal (the OOM killer's SIGKILL): a failure that says so, not an
+        // interruption.
+        std::fs::remove_file(tmp.join("bin/fail")).unwrap();
+        std::fs::write(tmp.join("bin/oom"), "").unwrap();
+        let err = run(&ctx, tab2, segnet, 0).unwrap_err().to_string();
+        assert!(err.contains("signal 9"), "{err}");
         // It failed before its first checkpoint, leaving config.json: the re-run resumes it
         // (a fresh `rtf train` would refuse the folder).
-        std::fs::remove_file(tmp.join("bin/fail")).unwrap();
+        std::fs::remove_file(tmp.join("bin/oom")).unwrap();
         let before = calls(tmp).len();
         assert_eq!(run(&ctx, tab2, segnet, 0).unwrap(), Outcome::Ran);
         assert_eq!(calls(tmp)[before], "train --resume");
