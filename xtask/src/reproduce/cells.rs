@@ -207,18 +207,18 @@ pub fn run(ctx: &Context, table: &Table, cell: &Cell, seed: usize) -> Result<Out
 
 fn run_cell(ctx: &Context, table: &Table, cell: &Cell, seed: usize, dir: &Path) -> Result<Outcome> {
     let spec = ctx.spec(table, cell, seed)?;
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     write_json(&dir.join(CELL_FILE), &spec)?;
-    let mut st = state(&dir, cell.bench);
+    let mut st = state(dir, cell.bench);
     if st == State::Fresh {
-        if let Some(other) = find_identical(ctx, &dir, &spec) {
+        if let Some(other) = find_identical(ctx, dir, &spec) {
             std::fs::copy(other.join(EVAL_FILE), dir.join(EVAL_FILE))
                 .with_context(|| format!("copying {}", other.join(EVAL_FILE).display()))?;
             let mut spec = spec.clone();
             spec["reused_from"] = json!(other);
             write_json(&dir.join(CELL_FILE), &spec)?;
             if cell.bench {
-                bench(ctx, cell, &dir)?;
+                bench(ctx, cell, dir)?;
             }
             return Ok(Outcome::Reused(other));
         }
@@ -234,14 +234,14 @@ fn run_cell(ctx: &Context, table: &Table, cell: &Cell, seed: usize, dir: &Path) 
             args.extend(["--out".into(), dir.display().to_string()]);
             args.extend(strings(&spec["rtf_train"]));
         }
-        match rtf(ctx, &dir, &args)? {
+        match rtf(ctx, dir, &args)? {
             Ended::Exit(0) => {}
             Ended::Exit(130) | Ended::Signal(SIGINT) => return Ok(Outcome::Interrupted),
             ended => bail!(
                 "`rtf {}` failed ({ended}); its output: {}{}",
                 args.join(" "),
                 dir.join(LOG_FILE).display(),
-                log_tail(&dir)
+                log_tail(dir)
             ),
         }
         st = State::Evaluate;
@@ -273,23 +273,23 @@ fn run_cell(ctx: &Context, table: &Table, cell: &Cell, seed: usize, dir: &Path) 
         .map(String::from)
         .to_vec();
         args.extend(strings(&spec["rtf_eval"]));
-        let ended = rtf(ctx, &dir, &args)?;
+        let ended = rtf(ctx, dir, &args)?;
         if ended != Ended::Exit(0) {
             bail!(
                 "`rtf {}` failed ({ended}); its output: {}{}",
                 args.join(" "),
                 dir.join(LOG_FILE).display(),
-                log_tail(&dir)
+                log_tail(dir)
             );
         }
         if cell.bench {
-            bench(ctx, cell, &dir)?;
+            bench(ctx, cell, dir)?;
         }
     }
     if ctx.budget == Budget::Smoke {
         // Smoke checks the pipeline, not the weights: a finished cell keeps its logs and
         // scores but not its weights and checkpoints (RTFNet-152's alone take gigabytes).
-        remove_weights(&dir)?;
+        remove_weights(dir)?;
     }
     Ok(Outcome::Ran)
 }
