@@ -1796,6 +1796,261 @@ mod tests {
         }
     }
 
+    /// Bands without a measurement take the linear interpolation of their measured
+    /// neighbours (the nearest one past the first or last; 0 when none was measured).
+    fn fill_bands(shifts: &[Option<f64>]) -> Vec<f64> {
+        let known: Vec<(usize, f64)> = shifts
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| s.map(|v| (i, v)))
+            .collect();
+        (0..shifts.len())
+            .map(|i| {
+                let before = known.iter().rev().find(|k| k.0 <= i);
+                let after = known.iter().find(|k| k.0 >= i);
+                match (before, after) {
+                    (Some(&(i0, v0)), Some(&(i1, v1))) if i1 > i0 => {
+                        v0 + (v1 - v0) * (i - i0) as f64 / (i1 - i0) as f64
+                    }
+                    (Some(&(_, v)), _) | (None, Some(&(_, v))) => v,
+                    (None, None) => 0.0,
+                }
+            })
+            .collect()
+    }
+
+    /// The centred edge features [3, 480, 640] of MSRS scene `name`'s RGB image and of its
+    /// thermal image re-registered by [`crate::real_rig::register_msrs_ir`] (`parallax`:
+    /// with the per-band vertical correction, else the global 2-D model only).
+    fn registered_features(data: &std::path::Path, name: &str, parallax: bool) -> (Tensor, Tensor) {
+        let msrs = data.join("msrs-samples");
+        let vi = crate::imageio::read_gray(&msrs.join(format!("vi/{name}.png"))).unwrap();
+        let raw = crate::imageio::read_thermal_raw(&msrs.join(format!("ir/{name}.png"))).unwrap();
+        let raw = crate::imageio::Plane::new(
+            raw.width,
+            raw.height,
+            raw.data.iter().map(|v| v / 255.0).collect(),
+        );
+        let ir = crate::real_rig::warp_msrs_ir(name, &raw, parallax);
+        assert_eq!((vi.width, vi.height), (640, 480), "{name}");
+        let centred = |p: &crate::imageio::Plane| {
+            let f = model::edge_features(&model::plane_tensor(p, Device::Cpu));
+            (&f - f.mean_dim(&[2i64, 3][..], true, Kind::Float)).squeeze_dim(0)
+        };
+        (centred(&vi), centred(&ir))
+    }
+
+    /// Development probe that measures `MSRS_PARALLAX` (`RTF_CALIB_PROBE_BANDS=1 cargo test
+    /// --release -p rtf-calib --lib probe_parallax_bands -- --nocapture`): per scene and per
+    /// band of 60 rows at 640×480, the vertical shift of the registered thermal edge features
+    /// that best correlates (normalised) with the RGB ones over the band less a 16 px border,
+    /// searched over ±6 px with a parabolic sub-pixel peak; a band whose peak is weak (< 0.15)
+    /// or on the search border is left at 0. Prints the table's rows.
+    #[test]
+    fn probe_parallax_bands() {
+        let Some(data) = probe_data("RTF_CALIB_PROBE_BANDS") else {
+            return;
+        };
+        let (day, night) = crate::real_rig::scene_names(&data).unwrap();
+        let (radius, bands, rows, border) = (8i64, 8i64, 60i64, 16i64);
+        for name in day.iter().chain(night.iter()) {
+            let (fa, fb) = registered_features(&data, name, false);
+            let mut shifts = Vec::new();
+            for band in 0..bands {
+                // Keep every shifted band inside the image.
+                let y0 = (band * rows).clamp(radius, 480 - rows - radius);
+                let a = fa.narrow(1, y0, rows).narrow(2, border, 640 - 2 * border);
+                let ea = a.square().sum(Kind::Double).double_value(&[]);
+                let score: Vec<f64> = (-radius..=radius)
+                    .map(|dy| {
+                        let b = fb
+                            .narrow(1, y0 + dy, rows)
+                            .narrow(2, border, 640 - 2 * border);
+                        let eb = b.square().sum(Kind::Double).double_value(&[]);
+                        (&a * &b).sum(Kind::Double).double_value(&[]) / (ea * eb).sqrt()
+                    })
+                    .collect();
+                let best = (0..score.len())
+                    .max_by(|&i, &j| score[i].total_cmp(&score[j]))
+                    .unwrap();
+                if best == 0 || best == score.len() - 1 || score[best] < 0.15 {
+                    shifts.push(None);
+                    continue;
+                }
+                let (m, c, p) = (score[best - 1], score[best], score[best + 1]);
+                let den = m - 2.0 * c + p;
+                let sub = if den < 0.0 { 0.5 * (m - p) / den } else { 0.0 };
+                shifts.push(Some(best as f64 - radius as f64 + sub));
+            }
+            let cells: Vec<String> = fill_bands(&shifts)
+                .iter()
+                .map(|v| format!("{v:.2}"))
+                .collect();
+            eprintln!("    (\"{name}\", [{}]),", cells.join(", "));
+        }
+    }
+
+    /// Development probe of the parallax hypothesis (`RTF_CALIB_PROBE_FIELD=1 cargo test
+    /// --release -p rtf-calib --lib probe_residual_field -- --nocapture`): what the per-scene
+    /// 2-D registration of `MSRS_REGISTRATION` leaves. Each registered pair at 640×480 is cut
+    /// into 8×6 blocks of 76×76 px; in each block the shift of the thermal edge features that
+    /// best correlates (normalised) with the RGB ones is searched over ±`FIELD_RADIUS` px
+    /// (parabolic sub-pixel peak). A per-scene residual that is random averages out over the
+    /// scenes; one shared by them (a radial pattern) survives in the mean field, which is
+    /// fitted with d = a·x + b·|x|²·x + t (x from the centre, normalised by the half width).
+    /// `FIELD_SCENES=a,b,..` restricts the scenes (a trial's frames); `FIELD_GLOBAL_ONLY=1`
+    /// leaves out `MSRS_PARALLAX` (what the global model alone leaves).
+    #[test]
+    fn probe_residual_field() {
+        let Some(data) = probe_data("RTF_CALIB_PROBE_FIELD") else {
+            return;
+        };
+        let (day, night) = crate::real_rig::scene_names(&data).unwrap();
+        let only: Option<Vec<String>> = std::env::var("FIELD_SCENES")
+            .ok()
+            .map(|s| s.split(',').map(str::to_string).collect());
+        let scenes: Vec<String> = day
+            .into_iter()
+            .chain(night)
+            .filter(|n| only.as_ref().is_none_or(|o| o.contains(n)))
+            .collect();
+        let radius = env("FIELD_RADIUS", 5) as i64;
+        let (bw, nx, ny) = (76i64, 8i64, 6i64);
+        let (x0, y0) = ((640 - nx * bw) / 2, (480 - ny * bw) / 2);
+        assert!(x0 >= radius && y0 >= radius, "FIELD_RADIUS too large");
+        // Per block: sum of weighted shifts, sum of weights, per-scene shifts for the spread.
+        let mut fields: Vec<Vec<Option<(f64, f64, f64)>>> = Vec::new();
+        let parallax = std::env::var_os("FIELD_GLOBAL_ONLY").is_none();
+        for name in &scenes {
+            let (fa, fb) = registered_features(&data, name, parallax);
+            // The blocks sit inside a border wider than `radius`: every shift stays in the image.
+            let (h, w) = (ny * bw, nx * bw);
+            let block_sums = |t: &Tensor| -> Tensor {
+                // [C, h, w] → [ny, nx]
+                t.sum_dim_intlist(&[0i64][..], false, Kind::Double)
+                    .view([ny, bw, nx, bw])
+                    .sum_dim_intlist(&[1i64, 3][..], false, Kind::Double)
+            };
+            let a = fa.narrow(1, y0, h).narrow(2, x0, w);
+            let ea = block_sums(&a.square());
+            let side = 2 * radius + 1;
+            let mut scores = Vec::with_capacity((side * side) as usize);
+            for dy in -radius..=radius {
+                for dx in -radius..=radius {
+                    let b = fb.narrow(1, y0 + dy, h).narrow(2, x0 + dx, w);
+                    let eb = block_sums(&b.square());
+                    scores.push(block_sums(&(&a * &b)) / (&ea * eb).sqrt());
+                }
+            }
+            let scores = Tensor::stack(&scores, 0).view([side, side, ny, nx]);
+            let mut field = Vec::new();
+            for j in 0..ny {
+                for i in 0..nx {
+                    let s = scores.select(3, i).select(2, j);
+                    let flat = s.view([-1]);
+                    let best = flat.argmax(0, false).int64_value(&[]);
+                    let (by, bx) = (best / side, best % side);
+                    let at = |y: i64, x: i64| s.double_value(&[y, x]);
+                    let peak = at(by, bx);
+                    // A peak on the search border, or a weak one, says nothing.
+                    if by == 0 || bx == 0 || by == side - 1 || bx == side - 1 || peak < 0.2 {
+                        field.push(None);
+                        continue;
+                    }
+                    let sub = |m: f64, c: f64, p: f64| {
+                        let den = m - 2.0 * c + p;
+                        if den < 0.0 {
+                            0.5 * (m - p) / den
+                        } else {
+                            0.0
+                        }
+                    };
+                    let sx = (bx - radius) as f64 + sub(at(by, bx - 1), peak, at(by, bx + 1));
+                    let sy = (by - radius) as f64 + sub(at(by - 1, bx), peak, at(by + 1, bx));
+                    field.push(Some((sx, sy, peak)));
+                }
+            }
+            let ok: Vec<_> = field.iter().flatten().collect();
+            let mean = |f: fn(&&(f64, f64, f64)) -> f64| {
+                ok.iter().map(f).sum::<f64>() / ok.len().max(1) as f64
+            };
+            eprintln!(
+                "FIELD {name}: {} of {} blocks, mean shift ({:+.2}, {:+.2}) px, mean |shift| {:.2} px",
+                ok.len(),
+                field.len(),
+                mean(|b| b.0),
+                mean(|b| b.1),
+                mean(|b| b.0.hypot(b.1))
+            );
+            fields.push(field);
+        }
+        // The mean field over the scenes, block by block, and its spread.
+        let (cu, cv) = (319.5, 239.5);
+        let mut rows = Vec::new();
+        eprintln!(
+            "FIELD mean over {} scenes (u, v px; n scenes):",
+            scenes.len()
+        );
+        for j in 0..ny as usize {
+            let mut line = String::new();
+            for i in 0..nx as usize {
+                let k = j * nx as usize + i;
+                let got: Vec<(f64, f64)> = fields
+                    .iter()
+                    .filter_map(|f| f[k].map(|b| (b.0, b.1)))
+                    .collect();
+                if got.len() < 3 {
+                    line.push_str("      ---       ");
+                    continue;
+                }
+                let n = got.len() as f64;
+                let (mu, mv) = (
+                    got.iter().map(|g| g.0).sum::<f64>() / n,
+                    got.iter().map(|g| g.1).sum::<f64>() / n,
+                );
+                line.push_str(&format!("({mu:+.2},{mv:+.2};{:2}) ", got.len()));
+                let half = bw as f64 / 2.0;
+                let x = (x0 as f64 + half + (bw as usize * i) as f64 - cu) / cu;
+                let y = (y0 as f64 + half + (bw as usize * j) as f64 - cv) / cu;
+                rows.push((x, y, mu, mv, n));
+            }
+            eprintln!("  {line}");
+        }
+        // Weighted least squares for (a, b, tu, tv): du = a·x + b·r²·x + tu, dv = a·y + b·r²·y + tv.
+        let mut ata = vec![vec![0.0f64; 4]; 4];
+        let mut atb = vec![0.0f64; 4];
+        for &(x, y, du, dv, n) in &rows {
+            let r2 = x * x + y * y;
+            for (row, d) in [([x, r2 * x, 1.0, 0.0], du), ([y, r2 * y, 0.0, 1.0], dv)] {
+                for p in 0..4 {
+                    atb[p] += n * row[p] * d;
+                    for q in 0..4 {
+                        ata[p][q] += n * row[p] * row[q];
+                    }
+                }
+            }
+        }
+        let sol = solve_spd(&ata, &atb).expect("enough blocks for the fit");
+        let residual: f64 = rows
+            .iter()
+            .map(|&(x, y, du, dv, _)| {
+                let r2 = x * x + y * y;
+                let (pu, pv) = (
+                    sol[0] * x + sol[1] * r2 * x + sol[2],
+                    sol[0] * y + sol[1] * r2 * y + sol[3],
+                );
+                (du - pu).hypot(dv - pv)
+            })
+            .sum::<f64>()
+            / rows.len() as f64;
+        let magnitude: f64 = rows.iter().map(|r| r.2.hypot(r.3)).sum::<f64>() / rows.len() as f64;
+        eprintln!(
+            "FIELD fit: a {:+.4} (×{:.1} px at the border), b {:+.4}, t ({:+.2}, {:+.2}) px; \
+             mean |mean field| {:.2} px, mean |fit residual| {:.2} px",
+            sol[0], cu, sol[1], sol[2], sol[3], magnitude, residual
+        );
+    }
+
     /// A development probe's set-up: the real data folder when `gate` is set and the data is
     /// there (else the probe does nothing), libtorch on one thread.
     fn probe_data(gate: &str) -> Option<std::path::PathBuf> {

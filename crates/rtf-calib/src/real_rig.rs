@@ -7,7 +7,10 @@
 //! renders the real thermal image through a known thermal camera (intrinsics, distortion,
 //! extrinsic drawn over the range users meet) by ray casting: each thermal pixel's ray meets
 //! the corridor, the point is projected into the RGB view and the real thermal image is
-//! sampled there (bilinear, clamped at the border). The thermal edges are therefore real
+//! sampled there (bilinear, clamped at the border). MSRS's pairs are not perfectly registered
+//! (a radial magnification, and a vertical parallax that grows with nearness): each is
+//! re-registered first ([`MSRS_REGISTRATION`], [`MSRS_PARALLAX`]), since what the pair leaves
+//! misaligned becomes an error of the rig's truth. The thermal edges are therefore real
 //! thermal edges, not renderings of the RGB image, and the RGB-only edges (lights, paint,
 //! texture, night noise) are real too. Spec §6 conventions throughout.
 //!
@@ -130,7 +133,7 @@ impl RealRigConfig {
 /// 8 px border, steps refined to 0.0001 in s, k, k₂, 0.003° and 0.03 px). A rig built on the
 /// raw pairs puts this difference into its "truth" (the calibrator then finds f 2–4 % above it
 /// and k1 more negative: the real image geometry); [`write_real_rig`] re-registers each pair
-/// first. The registration uses the same edge features as the calibrator, so a cross-modal
+/// first, with this model and then the per-band parallax correction of [`MSRS_PARALLAX`]. The registration uses the same edge features as the calibrator, so a cross-modal
 /// bias common to both would not show.
 /// (scene, s, k, k₂, α degrees, shift u, shift v at 640×480).
 pub const MSRS_REGISTRATION: [(&str, f64, f64, f64, f64, f64, f64); 48] = [
@@ -184,9 +187,195 @@ pub const MSRS_REGISTRATION: [(&str, f64, f64, f64, f64, f64, f64); 48] = [
     ("01348N", 1.0334, -0.0255, 0.0003, 0.106, 0.00, 2.34),
 ];
 
-/// Re-registers the MSRS ir image of `scene` onto its vi image (see [`MSRS_REGISTRATION`];
-/// unknown scenes get the median correction).
+/// Rows per band of [`MSRS_PARALLAX`] at 640×480.
+const PARALLAX_BAND_ROWS: f64 = 60.0;
+
+/// What the per-scene 2-D model of [`MSRS_REGISTRATION`] leaves: the vertical shift (px at
+/// 640×480, added to the sampled row) that best aligns each band of 60 rows, top to bottom,
+/// after it. MF's two cameras sit one above the other, so a pair's parallax is vertical and
+/// grows with nearness: in day scenes the far middle of the image (bands 2–4) needs +1…+3 px,
+/// the near ground (band 6) −2…−5 px and the top −1…−5 px against the scene's mean shift,
+/// the same pattern in scene after scene. Over the 48 scenes that pattern averaged ±1–1.5 px
+/// (8×6 blocks; `probe_residual_field` with `FIELD_GLOBAL_ONLY=1`), enough to pull a
+/// calibration from 20 such frames about a pixel off the rigs' truth at 640×480 (f +1.4 %,
+/// k1 more negative). Measured with the `probe_parallax_bands` development test of
+/// `optimize.rs` (`RTF_CALIB_PROBE_BANDS=1 cargo test --release -p rtf-calib --lib
+/// probe_parallax_bands -- --nocapture`): normalised correlation of the edge features over
+/// the band less a 16 px border, ±8 px, parabolic sub-pixel peak; bands whose peak is weak
+/// (< 0.15: sky, dark night areas) take the interpolation of their neighbours; the top and
+/// bottom bands are measured 8 px inside the image. Between band
+/// centres the shift is interpolated linearly. Like the global model, it is measured with the
+/// calibrator's own edge features, so a cross-modal bias common to both would not show.
+/// (scene, shift of bands 0..8).
+pub const MSRS_PARALLAX: [(&str, [f64; 8]); 48] = [
+    (
+        "00055D",
+        [-0.86, 0.12, 1.21, 2.25, 2.00, 0.79, -5.43, -5.32],
+    ),
+    (
+        "00107D",
+        [-2.79, -0.54, 1.37, 2.40, 0.15, 1.26, -5.43, -6.87],
+    ),
+    (
+        "00135D",
+        [1.37, 1.37, 1.37, 0.68, -0.91, -0.91, -0.91, -0.91],
+    ),
+    (
+        "00174D",
+        [-5.96, -5.96, -5.96, 0.40, 2.41, 0.18, 1.73, 1.73],
+    ),
+    (
+        "00204D",
+        [-1.05, -0.51, 0.03, 0.57, 1.09, -0.58, -0.58, -0.58],
+    ),
+    (
+        "00241D",
+        [-0.55, -0.55, 0.85, 1.74, 1.69, -0.90, -3.61, -6.31],
+    ),
+    (
+        "00279D",
+        [-4.18, -1.93, -0.41, 1.04, 0.92, -0.71, -4.39, -7.35],
+    ),
+    (
+        "00315D",
+        [-1.74, -1.34, 0.58, 0.94, 1.48, 0.49, -3.75, -3.75],
+    ),
+    (
+        "00345D",
+        [-0.53, 0.71, 0.36, 1.45, 1.92, -0.32, -3.01, -6.09],
+    ),
+    (
+        "00379D",
+        [-1.49, -0.52, 0.95, 2.43, 2.22, -0.25, -2.77, -2.77],
+    ),
+    ("00408D", [1.50, 1.50, 1.50, 1.50, 2.18, -0.75, -2.35, 5.40]),
+    (
+        "00444D",
+        [-0.91, -0.29, 0.40, 2.14, 3.48, 0.10, -0.91, -1.03],
+    ),
+    (
+        "00486D",
+        [-0.40, -1.77, 0.32, 0.48, 1.05, -1.90, -1.90, -1.90],
+    ),
+    (
+        "00516D",
+        [-3.04, -0.78, 0.22, 1.27, 3.03, -0.30, -0.30, -0.30],
+    ),
+    ("00559D", [0.43, 0.43, 0.43, 0.43, 0.62, 0.62, 0.62, 0.62]),
+    ("00596D", [-0.62, 0.22, 2.21, 3.14, 3.14, 3.14, 3.14, 3.14]),
+    ("00638D", [-0.68, -0.68, 0.26, 0.26, 3.69, 3.69, 3.69, 3.69]),
+    (
+        "00676D",
+        [-0.54, -0.54, 0.01, 0.87, 1.72, 1.45, -2.24, -2.24],
+    ),
+    (
+        "01409D",
+        [-0.19, 0.27, 0.71, -2.24, 0.13, -0.53, -2.73, -4.93],
+    ),
+    (
+        "01441D",
+        [0.25, 0.25, 0.25, 0.19, 0.50, -0.70, -2.84, -6.14],
+    ),
+    (
+        "01474D",
+        [-1.12, -0.24, 0.37, 0.58, 1.31, -7.12, -3.16, -3.16],
+    ),
+    (
+        "01506D",
+        [-0.93, -0.08, 0.49, 1.32, 1.88, -2.60, -3.13, -3.13],
+    ),
+    (
+        "01543D",
+        [-0.24, -0.24, 0.13, 1.02, 1.45, -0.27, -0.27, -0.27],
+    ),
+    (
+        "01574D",
+        [-0.78, -0.17, 0.68, 1.52, 1.74, -0.64, -3.01, -5.39],
+    ),
+    ("00004N", [-0.03, -0.01, 0.00, 0.02, 0.68, 0.68, 0.68, 0.68]),
+    ("00032N", [-1.30, -0.22, 0.62, 1.26, 1.90, 1.90, 1.90, 1.90]),
+    ("00695N", [-0.42, -0.42, 0.14, 0.40, 0.40, 0.40, 0.40, 0.40]),
+    ("00726N", [0.00, 0.00, 0.00, 0.00, 0.00, 0.00, 0.00, 0.00]),
+    (
+        "00758N",
+        [-1.62, -0.30, -1.17, 0.45, 0.27, 0.27, 0.27, 0.27],
+    ),
+    (
+        "00786N",
+        [-1.44, -1.44, -1.44, -1.44, -1.44, -1.44, -1.44, -1.44],
+    ),
+    ("00819N", [1.67, 1.67, 1.67, 1.67, 0.01, 0.01, 0.01, 0.01]),
+    ("00854N", [0.23, 0.23, 0.23, 0.23, 0.23, 0.23, 0.23, 0.23]),
+    ("00882N", [-2.63, -0.80, 1.04, 2.87, 2.87, 2.87, 2.87, 2.87]),
+    (
+        "00914N",
+        [-0.99, 0.37, 0.19, 0.02, -0.15, -0.33, -0.33, -0.33],
+    ),
+    (
+        "00943N",
+        [-3.00, -3.12, -1.19, 0.54, 0.54, 0.54, 0.54, 0.54],
+    ),
+    ("00976N", [-0.74, -0.74, 0.06, 0.27, 0.27, 0.27, 0.27, 0.27]),
+    ("01008N", [0.00, 0.00, 0.00, 0.00, 0.00, 0.00, 0.00, 0.00]),
+    (
+        "01037N",
+        [-0.09, -0.09, -0.09, 0.46, -0.01, -0.01, -0.01, -0.01],
+    ),
+    ("01070N", [0.20, 0.20, 0.20, 0.20, 0.20, 0.20, 0.20, 0.20]),
+    (
+        "01098N",
+        [-1.52, -1.09, 0.81, 1.26, 0.16, -0.94, -2.04, -2.04],
+    ),
+    (
+        "01130N",
+        [-0.40, -0.40, 0.03, 0.12, 0.21, 0.30, -4.25, -4.50],
+    ),
+    (
+        "01162N",
+        [-0.77, -0.77, -0.77, 2.01, 1.17, 0.33, -0.22, -0.77],
+    ),
+    ("01194N", [1.90, 1.90, 1.90, 1.90, 1.90, 1.90, 1.90, 1.90]),
+    ("01226N", [1.62, 1.62, 1.62, 1.62, 0.26, 0.26, 0.26, 0.26]),
+    (
+        "01254N",
+        [-1.69, -1.95, 0.58, -0.04, 1.58, 1.58, 1.58, 1.58],
+    ),
+    (
+        "01286N",
+        [-0.10, -0.87, -0.11, 0.92, 1.95, 0.04, 0.04, 0.04],
+    ),
+    (
+        "01315N",
+        [-1.03, -1.03, -0.22, 0.49, -0.15, -0.15, -0.15, -0.15],
+    ),
+    (
+        "01348N",
+        [-1.36, -0.76, -0.16, 0.43, 0.68, 0.68, 0.68, 0.68],
+    ),
+];
+
+/// Re-registers the MSRS ir image of `scene` onto its vi image: [`MSRS_REGISTRATION`]'s 2-D
+/// model, then [`MSRS_PARALLAX`]'s per-band vertical correction (unknown scenes get the
+/// median 2-D correction and no band correction).
 pub fn register_msrs_ir(scene: &str, ir: &Plane) -> Plane {
+    warp_msrs_ir(scene, ir, true)
+}
+
+/// The vertical correction of [`MSRS_PARALLAX`] at row `y` of a 640×480 image.
+fn parallax_shift(bands: &[f64; 8], y: f64) -> f64 {
+    let t = (y + 0.5) / PARALLAX_BAND_ROWS - 0.5;
+    let i = t.floor().clamp(0.0, 6.0) as usize;
+    let w = (t - i as f64).clamp(0.0, 1.0);
+    bands[i] + (bands[i + 1] - bands[i]) * w
+}
+
+/// [`register_msrs_ir`], with (`parallax`) or without the per-band vertical correction.
+pub fn warp_msrs_ir(scene: &str, ir: &Plane, parallax: bool) -> Plane {
+    let bands = MSRS_PARALLAX
+        .iter()
+        .find(|r| r.0 == scene && parallax)
+        .map(|r| r.1)
+        .unwrap_or([0.0; 8]);
     let (_, scale, k, k2, alpha, shift_u, shift_v) = MSRS_REGISTRATION
         .iter()
         .copied()
@@ -201,7 +390,9 @@ pub fn register_msrs_ir(scene: &str, ir: &Plane) -> Plane {
     let (sn, cs) = alpha.to_radians().sin_cos();
     let data = (0..ir.width * ir.height)
         .map(|i| {
-            let (x, y) = ((i % ir.width) as f64 - cu, (i / ir.width) as f64 - cv);
+            let row = (i / ir.width) as f64;
+            let row = row + px * parallax_shift(&bands, row / px);
+            let (x, y) = ((i % ir.width) as f64 - cu, row - cv);
             let r2 = (x * x + y * y) / (cu * cu);
             let g = scale * (1.0 + k * r2 + k2 * r2 * r2);
             bilinear_clamped(
@@ -589,6 +780,23 @@ pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn parallax_shift_interpolates_between_band_centres() {
+        let bands = [0.0, 1.0, 3.0, -1.0, 0.0, 0.0, 2.0, 4.0];
+        // Band b's centre is row 60·b + 29.5.
+        assert_eq!(parallax_shift(&bands, 89.5), 1.0);
+        assert_eq!(parallax_shift(&bands, 119.5), 2.0);
+        assert_eq!(parallax_shift(&bands, 179.5), 1.0);
+        assert_eq!(parallax_shift(&bands, 449.5), 4.0);
+        // Constant past the first and last centres.
+        assert_eq!(parallax_shift(&bands, 0.0), 0.0);
+        assert_eq!(parallax_shift(&bands, 479.0), 4.0);
+        // Every table row names a registered scene.
+        for (scene, _) in MSRS_PARALLAX {
+            assert!(MSRS_REGISTRATION.iter().any(|r| r.0 == scene), "{scene}");
+        }
+    }
 
     #[test]
     fn corridor_rays_hit_the_nearest_wall() {
