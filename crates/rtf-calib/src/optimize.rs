@@ -1844,8 +1844,9 @@ mod tests {
     /// --release -p rtf-calib --lib probe_parallax_bands -- --nocapture`): per scene and per
     /// band of 60 rows at 640×480, the vertical shift of the registered thermal edge features
     /// that best correlates (normalised) with the RGB ones over the band less a 16 px border,
-    /// searched over ±6 px with a parabolic sub-pixel peak; a band whose peak is weak (< 0.15)
-    /// or on the search border is left at 0. Prints the table's rows.
+    /// searched over ±8 px with a parabolic sub-pixel peak; a band whose peak is weak (< 0.15)
+    /// or on the search border takes the interpolation of its neighbours. Prints the table's
+    /// rows.
     #[test]
     fn probe_parallax_bands() {
         let Some(data) = probe_data("RTF_CALIB_PROBE_BANDS") else {
@@ -1853,9 +1854,16 @@ mod tests {
         };
         let (day, night) = crate::real_rig::scene_names(&data).unwrap();
         let (radius, bands, rows, border) = (8i64, 8i64, 60i64, 16i64);
+        // `BANDS_MIN_PEAK=x`: another weak-peak threshold; `BANDS_PEAKS=1` prints the peaks.
+        let min_peak: f64 = std::env::var("BANDS_MIN_PEAK")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0.15);
+        let show_peaks = std::env::var_os("BANDS_PEAKS").is_some();
         for name in day.iter().chain(night.iter()) {
             let (fa, fb) = registered_features(&data, name, false);
             let mut shifts = Vec::new();
+            let mut peaks = Vec::new();
             for band in 0..bands {
                 // Keep every shifted band inside the image.
                 let y0 = (band * rows).clamp(radius, 480 - rows - radius);
@@ -1873,7 +1881,8 @@ mod tests {
                 let best = (0..score.len())
                     .max_by(|&i, &j| score[i].total_cmp(&score[j]))
                     .unwrap();
-                if best == 0 || best == score.len() - 1 || score[best] < 0.15 {
+                peaks.push(format!("{:.2}", score[best]));
+                if best == 0 || best == score.len() - 1 || score[best] < min_peak {
                     shifts.push(None);
                     continue;
                 }
@@ -1886,7 +1895,12 @@ mod tests {
                 .iter()
                 .map(|v| format!("{v:.2}"))
                 .collect();
-            eprintln!("    (\"{name}\", [{}]),", cells.join(", "));
+            let peaks = if show_peaks {
+                format!(" // peaks {}", peaks.join(" "))
+            } else {
+                String::new()
+            };
+            eprintln!("    (\"{name}\", [{}]),{peaks}", cells.join(", "));
         }
     }
 
