@@ -1796,6 +1796,17 @@ mod tests {
         }
     }
 
+    /// Sub-pixel offset of a peak `c` between its neighbours `m` and `p` (parabola through
+    /// the three; 0 where they do not make a peak).
+    fn parabolic_offset(m: f64, c: f64, p: f64) -> f64 {
+        let den = m - 2.0 * c + p;
+        if den < 0.0 {
+            0.5 * (m - p) / den
+        } else {
+            0.0
+        }
+    }
+
     /// Bands without a measurement take the linear interpolation of their measured
     /// neighbours (the nearest one past the first or last; 0 when none was measured).
     fn fill_bands(shifts: &[Option<f64>]) -> Vec<f64> {
@@ -1823,15 +1834,8 @@ mod tests {
     /// thermal image re-registered by [`crate::real_rig::register_msrs_ir`] (`parallax`:
     /// with the per-band vertical correction, else the global 2-D model only).
     fn registered_features(data: &std::path::Path, name: &str, parallax: bool) -> (Tensor, Tensor) {
-        let msrs = data.join("msrs-samples");
-        let vi = crate::imageio::read_gray(&msrs.join(format!("vi/{name}.png"))).unwrap();
-        let raw = crate::imageio::read_thermal_raw(&msrs.join(format!("ir/{name}.png"))).unwrap();
-        let raw = crate::imageio::Plane::new(
-            raw.width,
-            raw.height,
-            raw.data.iter().map(|v| v / 255.0).collect(),
-        );
-        let ir = crate::real_rig::warp_msrs_ir(name, &raw, parallax);
+        let (vi, ir) =
+            crate::real_rig::load_msrs_pair(&data.join("msrs-samples"), name, parallax).unwrap();
         assert_eq!((vi.width, vi.height), (640, 480), "{name}");
         let centred = |p: &crate::imageio::Plane| {
             let f = model::edge_features(&model::plane_tensor(p, Device::Cpu));
@@ -1886,9 +1890,7 @@ mod tests {
                     shifts.push(None);
                     continue;
                 }
-                let (m, c, p) = (score[best - 1], score[best], score[best + 1]);
-                let den = m - 2.0 * c + p;
-                let sub = if den < 0.0 { 0.5 * (m - p) / den } else { 0.0 };
+                let sub = parabolic_offset(score[best - 1], score[best], score[best + 1]);
                 shifts.push(Some(best as f64 - radius as f64 + sub));
             }
             let cells: Vec<String> = fill_bands(&shifts)
@@ -1910,8 +1912,9 @@ mod tests {
     /// into 8×6 blocks of 76×76 px; in each block the shift of the thermal edge features that
     /// best correlates (normalised) with the RGB ones is searched over ±`FIELD_RADIUS` px
     /// (parabolic sub-pixel peak). A per-scene residual that is random averages out over the
-    /// scenes; one shared by them (a radial pattern) survives in the mean field, which is
-    /// fitted with d = a·x + b·|x|²·x + t (x from the centre, normalised by the half width).
+    /// scenes; one shared by them (the parallax of street scenes' common layout) survives in
+    /// the mean field. The field is also fitted with a radial model, d = a·x + b·|x|²·x + t
+    /// (x from the centre, normalised by the half width), to tell a radial pattern apart.
     /// `FIELD_SCENES=a,b,..` restricts the scenes (a trial's frames); `FIELD_GLOBAL_ONLY=1`
     /// leaves out `MSRS_PARALLAX` (what the global model alone leaves).
     #[test]
@@ -1932,19 +1935,19 @@ mod tests {
         let (bw, nx, ny) = (76i64, 8i64, 6i64);
         let (x0, y0) = ((640 - nx * bw) / 2, (480 - ny * bw) / 2);
         assert!(x0 >= radius && y0 >= radius, "FIELD_RADIUS too large");
-        // Per block: sum of weighted shifts, sum of weights, per-scene shifts for the spread.
+        // Per scene, per block: the shift (u, v) and its peak, or None.
         let mut fields: Vec<Vec<Option<(f64, f64, f64)>>> = Vec::new();
         let parallax = std::env::var_os("FIELD_GLOBAL_ONLY").is_none();
+        // The blocks sit inside a border wider than `radius`: every shift stays in the image.
+        let (h, w) = (ny * bw, nx * bw);
+        let block_sums = |t: &Tensor| -> Tensor {
+            // [C, h, w] → [ny, nx]
+            t.sum_dim_intlist(&[0i64][..], false, Kind::Double)
+                .view([ny, bw, nx, bw])
+                .sum_dim_intlist(&[1i64, 3][..], false, Kind::Double)
+        };
         for name in &scenes {
             let (fa, fb) = registered_features(&data, name, parallax);
-            // The blocks sit inside a border wider than `radius`: every shift stays in the image.
-            let (h, w) = (ny * bw, nx * bw);
-            let block_sums = |t: &Tensor| -> Tensor {
-                // [C, h, w] → [ny, nx]
-                t.sum_dim_intlist(&[0i64][..], false, Kind::Double)
-                    .view([ny, bw, nx, bw])
-                    .sum_dim_intlist(&[1i64, 3][..], false, Kind::Double)
-            };
             let a = fa.narrow(1, y0, h).narrow(2, x0, w);
             let ea = block_sums(&a.square());
             let side = 2 * radius + 1;
@@ -1971,16 +1974,10 @@ mod tests {
                         field.push(None);
                         continue;
                     }
-                    let sub = |m: f64, c: f64, p: f64| {
-                        let den = m - 2.0 * c + p;
-                        if den < 0.0 {
-                            0.5 * (m - p) / den
-                        } else {
-                            0.0
-                        }
-                    };
-                    let sx = (bx - radius) as f64 + sub(at(by, bx - 1), peak, at(by, bx + 1));
-                    let sy = (by - radius) as f64 + sub(at(by - 1, bx), peak, at(by + 1, bx));
+                    let sx = (bx - radius) as f64
+                        + parabolic_offset(at(by, bx - 1), peak, at(by, bx + 1));
+                    let sy = (by - radius) as f64
+                        + parabolic_offset(at(by - 1, bx), peak, at(by + 1, bx));
                     field.push(Some((sx, sy, peak)));
                 }
             }
@@ -1998,7 +1995,7 @@ mod tests {
             );
             fields.push(field);
         }
-        // The mean field over the scenes, block by block, and its spread.
+        // The mean field over the scenes, block by block (blocks measured in ≥ 3 scenes).
         let (cu, cv) = (319.5, 239.5);
         let mut rows = Vec::new();
         eprintln!(
@@ -2059,9 +2056,9 @@ mod tests {
             / rows.len() as f64;
         let magnitude: f64 = rows.iter().map(|r| r.2.hypot(r.3)).sum::<f64>() / rows.len() as f64;
         eprintln!(
-            "FIELD fit: a {:+.4} (×{:.1} px at the border), b {:+.4}, t ({:+.2}, {:+.2}) px; \
-             mean |mean field| {:.2} px, mean |fit residual| {:.2} px",
-            sol[0], cu, sol[1], sol[2], sol[3], magnitude, residual
+            "FIELD radial fit (px; x = 1 at the left and right borders): a {:+.4}, b {:+.4}, \
+             t ({:+.2}, {:+.2}); mean |mean field| {:.2} px, mean |fit residual| {:.2} px",
+            sol[0], sol[1], sol[2], sol[3], magnitude, residual
         );
     }
 

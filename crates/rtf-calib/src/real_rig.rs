@@ -277,6 +277,19 @@ fn parallax_shift(bands: &[f64; 8], y: f64) -> f64 {
     bands[i] + (bands[i + 1] - bands[i]) * w
 }
 
+/// MSRS scene `name` from `msrs` (the `msrs-samples` folder) at its 640×480: the RGB image
+/// and the thermal image (0–1) re-registered onto it by [`warp_msrs_ir`].
+pub(crate) fn load_msrs_pair(msrs: &Path, name: &str, parallax: bool) -> Result<(Plane, Plane)> {
+    let vi = read_gray(&msrs.join("vi").join(format!("{name}.png")))?;
+    let raw = read_thermal_raw(&msrs.join("ir").join(format!("{name}.png")))?;
+    let raw = Plane::new(
+        raw.width,
+        raw.height,
+        raw.data.iter().map(|v| v / 255.0).collect(),
+    );
+    Ok((vi, warp_msrs_ir(name, &raw, parallax)))
+}
+
 /// [`register_msrs_ir`], with (`parallax`) or without the per-band vertical correction.
 pub fn warp_msrs_ir(scene: &str, ir: &Plane, parallax: bool) -> Plane {
     let bands = MSRS_PARALLAX
@@ -564,16 +577,7 @@ pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
     std::fs::create_dir_all(&dir).map_err(|e| CalibError::io(&dir, e))?;
     let msrs = cfg.data_dir.join("msrs-samples");
     let load = |name: &str| -> Result<(Plane, Plane)> {
-        let vi = read_gray(&msrs.join("vi").join(format!("{name}.png")))?;
-        let ir_raw = read_thermal_raw(&msrs.join("ir").join(format!("{name}.png")))?;
-        let ir = register_msrs_ir(
-            name,
-            &Plane::new(
-                ir_raw.width,
-                ir_raw.height,
-                ir_raw.data.iter().map(|v| v / 255.0).collect(),
-            ),
-        );
+        let (vi, ir) = load_msrs_pair(&msrs, name, true)?;
         let (mut vi, mut ir) = (
             resample(&vi, cfg.width, cfg.height),
             resample(&ir, cfg.width, cfg.height),
