@@ -1175,12 +1175,15 @@ impl<'a> Pipeline<'a> {
 
     /// Staged parameters of level `li`: at coarse levels pan/tilt are indistinguishable from
     /// the principal point and translation from both, and letting them drift along that
-    /// valley leads to wrong minima; so the coarsest levels fit an image-plane model (f, c,
-    /// roll), the next adds rotation, translation and k1, the finest everything.
+    /// valley leads to wrong minima; so levels under 80 px wide fit an image-plane model
+    /// (f, c, roll), those under 160 px add rotation, translation and k1, and from 160 px
+    /// on every parameter is free. By width, not by position in the pyramid: a 640-wide rig
+    /// frees the translation at the same 80-px level as a 160-wide one, so the restarts at
+    /// the 160-px level ([`Pipeline::check_level`]) search the full model at every size.
     pub fn params(&self, li: usize) -> Vec<usize> {
-        match self.factors.len() - 1 - li {
-            0 => (0..NUM_PARAMS).collect(),
-            1 => vec![0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13],
+        match self.rig.rgb.width / self.factors[li] {
+            w if w >= 160 => (0..NUM_PARAMS).collect(),
+            w if w >= 80 => vec![0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13],
             _ => vec![0, 1, 2, 3, 13],
         }
     }
@@ -2251,6 +2254,62 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Development probe of where the default pipeline leaves the truth's basin
+    /// (`RTF_CALIB_STAGES=1 SEED=6 WIDTH=640 N_FRAMES=20 cargo test --release -p rtf-calib
+    /// --lib probe_stages -- --nocapture`): the map error after the search and after each
+    /// level of the main run, with the cost of the solution and of the truth at that level.
+    #[test]
+    fn probe_stages() {
+        let Some(data) = probe_data("RTF_CALIB_STAGES") else {
+            return;
+        };
+        let seed = env("SEED", 6) as u64;
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = crate::real_rig::RealRigConfig::new(
+            &data,
+            seed,
+            env("WIDTH", 640),
+            env("N_FRAMES", 20),
+        )
+        .in_trial_set((seed - 1) as usize, env("TRIALS", 20));
+        let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+        let rig = &real.rig;
+        let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
+        let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+        let used: Vec<&Frame> = frames.iter().collect();
+        let pipe = Pipeline::new(rig, used, initial_params(rig), &settings);
+        let sc = &pipe.scaling;
+        let tt = sc.theta_of(&real.truth);
+        let all = Tensor::from_slice(&(0..frames.len() as i64).collect::<Vec<_>>());
+        let err = |t: &[f64; NUM_PARAMS]| mean_map_error(rig, &frames, &sc.calibration(t), &real.truth);
+        let show = |stage: &str, li: usize, t: &[f64; NUM_PARAMS]| {
+            let c = sc.calibration(t);
+            eprintln!(
+                "{stage:>12}: {:.3} px, cost {:.6} (truth {:.6}), f {:.2}, c ({:.1}, {:.1}), k1 {:.4}, t ({:.3}, {:.3}, {:.3})",
+                err(t),
+                cost(&pipe.levels[li], sc, t, &all),
+                cost(&pipe.levels[li], sc, &tt, &all),
+                c.thermal.fx,
+                c.thermal.cx,
+                c.thermal.cy,
+                c.thermal.distortion[0],
+                c.extrinsic.translation[0],
+                c.extrinsic.translation[1],
+                c.extrinsic.translation[2],
+            );
+        };
+        show("truth", pipe.levels.len() - 1, &tt);
+        let (_, mut theta) = pipe.search([0.0; NUM_PARAMS], 1)[0];
+        show("search", 0, &theta);
+        for li in 0..pipe.levels.len() {
+            theta = pipe.refine_between(theta, li, li, &mut |_, _| {});
+            show(&format!("level 1/{}", pipe.factors[li]), li, &theta);
+        }
+        let (chosen, r) = pipe.restart(theta, &mut |_, _| {});
+        show("restarts", pipe.levels.len() - 1, &chosen);
+        eprintln!("restarts: {r:?}");
     }
 
     /// Development probe of wrong basins on the `real_trials` rigs (`RTF_CALIB_RESTARTS=1
