@@ -833,6 +833,23 @@ pub(crate) struct Pipeline<'a> {
     pub lambda0: f64,
     /// RGB pixels with depth (u, v, metres), ~400 per frame, for map distances.
     pub samples: Vec<(f64, f64, f64)>,
+    pub staging: Staging,
+}
+
+/// How [`Pipeline::params`] frees the parameters over the coarse levels. Both fit the
+/// image-plane model (f, c, roll) at the coarsest levels, add rotation, translation and k1 at
+/// the level before the finest and free everything at the finest; they differ in when the
+/// translation is freed. On the 640×480 real-imagery trials neither is right for every rig:
+/// a rig whose thermal camera sits 10–17 cm to the side ends 3–4 px off when the translation
+/// stays fixed down to the 320-px level (the principal point absorbs the parallax), while on
+/// night rigs with little shared structure a translation freed at 80 px wanders off. So
+/// [`calibrate_default`] runs both up to the check level and keeps the lower cost there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Staging {
+    /// Rotation, translation and k1 from the first level at least 80 px wide.
+    Early,
+    /// Rotation, translation and k1 only from the level before the finest.
+    Late,
 }
 
 /// Result of [`Pipeline::refine`].
@@ -887,6 +904,7 @@ impl<'a> Pipeline<'a> {
             iterations: settings.iterations,
             lambda0: 1e-5 / settings.learning_rate,
             samples,
+            staging: Staging::Late,
         }
     }
 
@@ -1104,6 +1122,7 @@ impl<'a> Pipeline<'a> {
             iterations: self.iterations,
             lambda0: self.lambda0,
             samples: self.samples.clone(),
+            staging: self.staging,
         }
     }
 
@@ -1173,19 +1192,28 @@ impl<'a> Pipeline<'a> {
         minima
     }
 
-    /// Staged parameters of level `li`: at coarse levels pan/tilt are indistinguishable from
-    /// the principal point and translation from both, and letting them drift along that
-    /// valley leads to wrong minima; so levels under 80 px wide fit an image-plane model
-    /// (f, c, roll), those under 160 px add rotation, translation and k1, and from 160 px
-    /// on every parameter is free. By width, not by position in the pyramid: a 640-wide rig
-    /// frees the translation at the same 80-px level as a 160-wide one, so the restarts at
-    /// the 160-px level ([`Pipeline::check_level`]) search the full model at every size.
+    /// Staged parameters of level `li` ([`Staging`]): at coarse levels pan/tilt are
+    /// indistinguishable from the principal point and translation from both, and letting
+    /// them drift along that valley leads to wrong minima; so the coarsest levels fit an
+    /// image-plane model (f, c, roll), then rotation, translation and k1 are added, and the
+    /// finest level frees everything.
     pub fn params(&self, li: usize) -> Vec<usize> {
-        match self.rig.rgb.width / self.factors[li] {
-            w if w >= 160 => (0..NUM_PARAMS).collect(),
-            w if w >= 80 => vec![0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13],
-            _ => vec![0, 1, 2, 3, 13],
+        let image_plane = vec![0, 1, 2, 3, 13];
+        let middle = vec![0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13];
+        match (self.factors.len() - 1 - li, self.staging) {
+            (0, _) => (0..NUM_PARAMS).collect(),
+            (1, _) => middle,
+            (_, Staging::Early) if self.rig.rgb.width / self.factors[li] >= 80 => middle,
+            _ => image_plane,
         }
+    }
+
+    /// Whether the two stagings free the same parameters at every level up to `to`.
+    fn stagings_agree(&self, to: usize) -> bool {
+        let (mut early, mut late) = (self.shallow(), self.shallow());
+        early.staging = Staging::Early;
+        late.staging = Staging::Late;
+        (0..=to).all(|li| early.params(li) == late.params(li))
     }
 
     /// Levenberg-Marquardt from `theta` at levels `from..` (coarse to fine).
@@ -1283,8 +1311,11 @@ fn calibrate_default(
     order.truncate(settings.batch_size.min(frames.len()));
     order.sort();
     let used: Vec<&Frame> = order.iter().map(|&i| &frames[i]).collect();
-    let pipe = Pipeline::new(rig, used, p0, settings);
-    let total = pipe.factors.len() * settings.iterations + 1;
+    let mut pipe = Pipeline::new(rig, used, p0, settings);
+    // Both stagings up to the check level where they differ; the lower cost there goes on.
+    let q = pipe.check_level();
+    let both = !pipe.stagings_agree(q);
+    let total = (pipe.factors.len() + if both { q + 1 } else { 0 }) * settings.iterations + 1;
     let mut step = 0;
     let (best, start) = pipe.search([0.0; NUM_PARAMS], 1)[0];
     step += 1;
@@ -1294,7 +1325,7 @@ fn calibrate_default(
         total,
         loss: best,
     });
-    let run = pipe.refine(start, 0, &mut |factor, loss| {
+    let mut on_level = |factor: usize, loss: f64| {
         step += 1;
         progress(&Progress {
             stage: format!("level 1/{factor}"),
@@ -1302,7 +1333,28 @@ fn calibrate_default(
             total,
             loss,
         });
-    });
+    };
+    let mut coarse = pipe.refine_levels(start, 0, q + 1, &mut on_level);
+    if coarse.non_finite.is_none() && both {
+        pipe.staging = Staging::Early;
+        let early = pipe.refine_levels(start, 0, q + 1, &mut on_level);
+        let all = Tensor::from_slice(&pipe.all());
+        let cost_at_q = |t: &[f64; NUM_PARAMS]| cost(&pipe.levels[q], &pipe.scaling, t, &all);
+        if early.non_finite.is_none() && cost_at_q(&early.theta) < cost_at_q(&coarse.theta) {
+            coarse = early;
+        } else {
+            pipe.staging = Staging::Late;
+        }
+    }
+    let run = if coarse.non_finite.is_some() || q + 1 == pipe.levels.len() {
+        coarse
+    } else {
+        let fine = pipe.refine(coarse.theta, q + 1, &mut on_level);
+        Refined {
+            iterations: coarse.iterations + fine.iterations,
+            ..fine
+        }
+    };
     let stopped = run
         .non_finite
         .map(|factor| format!("non-finite loss at level 1/{factor}; keeping the best parameters"));
@@ -2259,7 +2311,8 @@ mod tests {
     /// Development probe of where the default pipeline leaves the truth's basin
     /// (`RTF_CALIB_STAGES=1 SEED=6 WIDTH=640 N_FRAMES=20 cargo test --release -p rtf-calib
     /// --lib probe_stages -- --nocapture`): the map error after the search and after each
-    /// level of the main run, with the cost of the solution and of the truth at that level.
+    /// level of a run in each [`Staging`], with the time of each level and the cost of the
+    /// solution and of the truth at that level; then the whole calibration.
     #[test]
     fn probe_stages() {
         let Some(data) = probe_data("RTF_CALIB_STAGES") else {
@@ -2301,15 +2354,31 @@ mod tests {
             );
         };
         show("truth", pipe.levels.len() - 1, &tt);
-        let (_, mut theta) = pipe.search([0.0; NUM_PARAMS], 1)[0];
-        show("search", 0, &theta);
-        for li in 0..pipe.levels.len() {
-            theta = pipe.refine_between(theta, li, li, &mut |_, _| {});
-            show(&format!("level 1/{}", pipe.factors[li]), li, &theta);
+        let (_, start) = pipe.search([0.0; NUM_PARAMS], 1)[0];
+        show("search", 0, &start);
+        let q = pipe.check_level();
+        let mut early = pipe.shallow();
+        early.staging = Staging::Early;
+        for p in [&pipe, &early] {
+            eprintln!("staging {:?}", p.staging);
+            let mut theta = start;
+            for li in 0..p.levels.len() {
+                let t0 = std::time::Instant::now();
+                theta = p.refine_between(theta, li, li, &mut |_, _| {});
+                let secs = t0.elapsed().as_secs_f64();
+                show(&format!("level 1/{} {secs:.1} s", p.factors[li]), li, &theta);
+                if li == q {
+                    eprintln!("cost at the check level {:.6}", cost(&p.levels[q], sc, &theta, &all));
+                }
+            }
         }
-        let (chosen, r) = pipe.restart(theta, &mut |_, _| {});
-        show("restarts", pipe.levels.len() - 1, &chosen);
-        eprintln!("restarts: {r:?}");
+        let t0 = std::time::Instant::now();
+        let out = calibrate(rig, &frames, &settings, &mut |_| {}).unwrap();
+        eprintln!(
+            "calibrate: {:.3} px in {:.1} s",
+            mean_map_error(rig, &frames, &out.calibration, &real.truth),
+            t0.elapsed().as_secs_f64()
+        );
     }
 
     /// Development probe of wrong basins on the `real_trials` rigs (`RTF_CALIB_RESTARTS=1
