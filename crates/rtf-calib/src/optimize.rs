@@ -1328,7 +1328,7 @@ fn calibrate_default(
     order.sort();
     let used: Vec<&Frame> = order.iter().map(|&i| &frames[i]).collect();
     let mut pipe = Pipeline::new(rig, used, p0, settings);
-    // Both stagings up to the check level where they differ; the lower cost there goes on.
+    // Both stagings up to the check level where they differ ([`Staging`]).
     let q = pipe.check_level();
     let both = !pipe.stagings_agree(q);
     let total = (pipe.factors.len() + if both { q + 1 } else { 0 }) * settings.iterations + 1;
@@ -1356,8 +1356,8 @@ fn calibrate_default(
         let early = pipe.refine_levels(start, 0, q + 1, &mut on_level);
         let all = Tensor::from_slice(&pipe.all());
         let cost_at_q = |t: &[f64; NUM_PARAMS]| cost(&pipe.levels[q], &pipe.scaling, t, &all);
-        // Early only where the data clearly favour it: on a tie the more constrained
-        // schedule (on the 640×480 trials, ties went 0.6 px / 0.7 px further off with early).
+        // Early only where the data clearly favour it; on a tie, the more constrained
+        // schedule.
         if early.non_finite.is_none()
             && cost_at_q(&early.theta) < cost_at_q(&coarse.theta) * (1.0 - RESTART_TIE)
         {
