@@ -150,21 +150,32 @@ pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
     // Paper recipe: a short run timed, extrapolated to the recipe's 8000 iterations.
     let dir = format!("{}/rig-{}-given-{}", o.out, width, seed);
     let start = Instant::now();
-    crate::rtf_stdout(
-        root,
-        &s(&[
-            "calibrate",
-            "--recipe",
-            "paper",
-            "--iterations",
-            &o.paper_iterations.to_string(),
-            "--rig",
-            &format!("{dir}/rig.yaml"),
-            "--out",
-            &format!("{dir}/calib-paper-short.yaml"),
-        ]),
-    )?;
+    let paper = s(&[
+        "calibrate",
+        "--recipe",
+        "paper",
+        "--iterations",
+        &o.paper_iterations.to_string(),
+        "--rig",
+        &format!("{dir}/rig.yaml"),
+        "--out",
+        &format!("{dir}/calib-paper-short.yaml"),
+    ]);
+    let output = crate::rtf_output(root, &paper)?;
     let secs = start.elapsed().as_secs_f64();
+    // This run only times the recipe: a few dozen of its 8000 iterations do not align the
+    // rig, so `rtf calibrate` judges the result `failed` (exit 1, file kept); anything else
+    // that fails is an error.
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    if !output.status.success() {
+        if !stderr.contains("calibration failed:") {
+            bail!("`rtf {}` failed:\n{stderr}", paper.join(" "));
+        }
+        println!(
+            "paper recipe: verdict `failed` after {} iterations, as expected of a short run (timing only)",
+            o.paper_iterations
+        );
+    }
     let per_iter = secs / o.paper_iterations as f64;
     println!(
         "paper recipe: {} iterations (batch 10, {}x{}) in {secs:.1} s = {:.2} s/iteration -> 8000 iterations ≈ {:.1} h (extrapolated)",

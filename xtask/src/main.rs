@@ -51,14 +51,20 @@ fn project_root() -> PathBuf {
         .to_path_buf()
 }
 
-/// Runs the release `rtf` binary and returns its stdout, failing with its stderr.
-fn rtf_stdout<S: AsRef<str>>(root: &Path, args: &[S]) -> Result<String> {
+/// Runs the release `rtf` binary to the end and returns what it printed and its status.
+fn rtf_output<S: AsRef<str>>(root: &Path, args: &[S]) -> Result<std::process::Output> {
     let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
-    let output = Command::new(root.join("target/release/rtf"))
+    Command::new(root.join("target/release/rtf"))
         .args(&args)
         .current_dir(root)
         .output()
-        .context("cannot start target/release/rtf")?;
+        .context("cannot start target/release/rtf")
+}
+
+/// Runs the release `rtf` binary and returns its stdout, failing with its stderr.
+fn rtf_stdout<S: AsRef<str>>(root: &Path, args: &[S]) -> Result<String> {
+    let args: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
+    let output = rtf_output(root, &args)?;
     if !output.status.success() {
         bail!(
             "`rtf {}` failed:\n{}",
