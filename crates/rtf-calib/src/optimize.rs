@@ -501,9 +501,19 @@ pub(crate) struct Priors {
 impl Priors {
     pub fn new(rig: &Rig) -> Self {
         let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
+        // Development probes only: `RTF_CALIB_PP_FREE=x` leaves the principal point free
+        // within ±x·width of the centre (probe_calibrate_rig).
+        #[cfg(test)]
+        let pp_free = std::env::var("RTF_CALIB_PP_FREE")
+            .ok()
+            .and_then(|s| s.parse::<f64>().ok())
+            .unwrap_or(0.0)
+            * w;
+        #[cfg(not(test))]
+        let pp_free = 0.0;
         let terms = vec![
-            (2, w / 2.0, 0.05 * w, 0.0),
-            (3, h / 2.0, 0.05 * w, 0.0),
+            (2, w / 2.0, 0.05 * w, pp_free),
+            (3, h / 2.0, 0.05 * w, pp_free),
             (4, 0.0, 0.05, 0.5),
             (5, 0.0, 0.05, 0.3),
             (6, 0.0, 0.002, 0.01),
@@ -2332,7 +2342,9 @@ mod tests {
     fn stagings_differ_only_where_a_level_of_80_px_lies_above_the_last_two() {
         let widths = |w: usize| -> Vec<(usize, usize)> {
             let f = pyramid_factors(w);
-            (0..f.len()).map(|li| (f.len() - 1 - li, w / f[li])).collect()
+            (0..f.len())
+                .map(|li| (f.len() - 1 - li, w / f[li]))
+                .collect()
         };
         let plan = |s: Staging, w: usize| -> Vec<usize> {
             widths(w)
@@ -2354,9 +2366,55 @@ mod tests {
             );
             // Focal length, principal point and roll are free everywhere; translation
             // (8..=10) never in the image-plane model.
-            assert!([0, 1, 2, 3, 13].iter().all(|p| early.contains(p) && late.contains(p)));
+            assert!([0, 1, 2, 3, 13]
+                .iter()
+                .all(|p| early.contains(p) && late.contains(p)));
             assert_eq!(late.contains(&8), above <= 1);
         }
+    }
+
+    /// Development probe on a rig with a ground truth on disk (`RTF_CALIB_RIG=dir
+    /// [RTF_CALIB_PP_FREE=0.05] cargo test --release -p rtf-calib --lib probe_calibrate_rig --
+    /// --nocapture`, `dir` holding rig.yaml and ground_truth.yaml): the default recipe's map
+    /// error, rotation error and principal point against the truth's.
+    #[test]
+    fn probe_calibrate_rig() {
+        let Some(dir) = std::env::var_os("RTF_CALIB_RIG").map(std::path::PathBuf::from) else {
+            return;
+        };
+        tch::set_num_threads(1);
+        let rig = Rig::load(&dir.join("rig.yaml")).unwrap();
+        let truth = crate::calibfile::CalibFile::load(&dir.join("ground_truth.yaml")).unwrap();
+        let truth = Calibration {
+            thermal: crate::camera::ThermalIntrinsics {
+                fx: truth.thermal.fx,
+                fy: truth.thermal.fy,
+                cx: truth.thermal.cx,
+                cy: truth.thermal.cy,
+                distortion: truth.thermal.distortion,
+            },
+            extrinsic: crate::se3::Rigid {
+                rotation: truth.extrinsic.rotation,
+                translation: truth.extrinsic.translation,
+            },
+        };
+        let frames = load_frames(&rig, &mut |w| eprintln!("{w}")).unwrap();
+        let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+        let out = calibrate(&rig, &frames, &settings, &mut |_| {}).unwrap();
+        let (a, b) = (out.calibration.extrinsic.rotation, truth.extrinsic.rotation);
+        let trace: f64 = (0..3)
+            .flat_map(|i| (0..3).map(move |k| (i, k)))
+            .map(|(i, k)| a[k][i] * b[k][i])
+            .sum();
+        eprintln!(
+            "map error {:.4} px, rotation error {:.3} deg, c ({:.2}, {:.2}) truth ({:.2}, {:.2})",
+            mean_map_error(&rig, &frames, &out.calibration, &truth),
+            ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees(),
+            out.calibration.thermal.cx,
+            out.calibration.thermal.cy,
+            truth.thermal.cx,
+            truth.thermal.cy,
+        );
     }
 
     /// Development probe of where the default pipeline leaves the truth's basin
@@ -2387,7 +2445,8 @@ mod tests {
         let sc = &pipe.scaling;
         let tt = sc.theta_of(&real.truth);
         let all = Tensor::from_slice(&(0..frames.len() as i64).collect::<Vec<_>>());
-        let err = |t: &[f64; NUM_PARAMS]| mean_map_error(rig, &frames, &sc.calibration(t), &real.truth);
+        let err =
+            |t: &[f64; NUM_PARAMS]| mean_map_error(rig, &frames, &sc.calibration(t), &real.truth);
         let show = |stage: &str, li: usize, t: &[f64; NUM_PARAMS]| {
             let c = sc.calibration(t);
             eprintln!(
@@ -2417,9 +2476,16 @@ mod tests {
                 let t0 = std::time::Instant::now();
                 theta = p.refine_between(theta, li, li, &mut |_, _| {});
                 let secs = t0.elapsed().as_secs_f64();
-                show(&format!("level 1/{} {secs:.1} s", p.factors[li]), li, &theta);
+                show(
+                    &format!("level 1/{} {secs:.1} s", p.factors[li]),
+                    li,
+                    &theta,
+                );
                 if li == q {
-                    eprintln!("cost at the check level {:.6}", cost(&p.levels[q], sc, &theta, &all));
+                    eprintln!(
+                        "cost at the check level {:.6}",
+                        cost(&p.levels[q], sc, &theta, &all)
+                    );
                 }
             }
         }
