@@ -2164,6 +2164,23 @@ mod tests {
             .unwrap_or(default)
     }
 
+    /// The `real_trials` rig of trial `seed` (thermal lens and frames as in the trial set of
+    /// `TRIALS`, default 20), at `WIDTH` and `N_FRAMES` or the given defaults.
+    fn trial_config(
+        data: &std::path::Path,
+        seed: u64,
+        width: usize,
+        frames: usize,
+    ) -> crate::real_rig::RealRigConfig {
+        crate::real_rig::RealRigConfig::new(
+            data,
+            seed,
+            env("WIDTH", width),
+            env("N_FRAMES", frames),
+        )
+        .in_trial_set((seed - 1) as usize, env("TRIALS", 20))
+    }
+
     /// Development probe on a real-imagery rig (`RTF_CALIB_PROBE=1 WIDTH=.. SEED=..
     /// N_FRAMES=.. cargo test --release -p rtf-calib probe_real -- --nocapture`): the cost of
     /// the truth and of the estimate at every level, and the map error.
@@ -2245,17 +2262,9 @@ mod tests {
         let Some(data) = probe_data("RTF_CALIB_TRIAL") else {
             return;
         };
-        let trials = env("TRIALS", 20);
         let seed = env("SEED", 1) as u64;
-        let k = (seed - 1) as usize;
         let dir = tempfile::tempdir().unwrap();
-        let mut cfg = crate::real_rig::RealRigConfig::new(
-            &data,
-            seed,
-            env("WIDTH", 640),
-            env("N_FRAMES", 20),
-        )
-        .in_trial_set(k, trials);
+        let mut cfg = trial_config(&data, seed, 640, 20);
         if std::env::var_os("CONTROL").is_some() {
             cfg.degrade = crate::real_rig::Degrade::RgbAsThermal;
         }
@@ -2429,13 +2438,7 @@ mod tests {
         };
         let seed = env("SEED", 6) as u64;
         let dir = tempfile::tempdir().unwrap();
-        let cfg = crate::real_rig::RealRigConfig::new(
-            &data,
-            seed,
-            env("WIDTH", 640),
-            env("N_FRAMES", 20),
-        )
-        .in_trial_set((seed - 1) as usize, env("TRIALS", 20));
+        let cfg = trial_config(&data, seed, 640, 20);
         let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
         let rig = &real.rig;
         let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
@@ -2508,22 +2511,14 @@ mod tests {
         let Some(data) = probe_data("RTF_CALIB_RESTARTS") else {
             return;
         };
-        let trials = env("TRIALS", 20);
         let seeds: Vec<u64> = std::env::var("SEEDS")
             .unwrap_or_else(|_| "3,12,7".into())
             .split(',')
             .map(|s| s.trim().parse().unwrap())
             .collect();
         for seed in seeds {
-            let k = (seed - 1) as usize;
             let dir = tempfile::tempdir().unwrap();
-            let cfg = crate::real_rig::RealRigConfig::new(
-                &data,
-                seed,
-                env("WIDTH", 160),
-                env("N_FRAMES", 6),
-            )
-            .in_trial_set(k, trials);
+            let cfg = trial_config(&data, seed, 160, 6);
             let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
             let rig = &real.rig;
             let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
