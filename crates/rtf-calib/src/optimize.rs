@@ -486,8 +486,15 @@ fn cost(level: &Level, scaling: &Scaling, theta: &[f64; NUM_PARAMS], idx: &Tenso
         / level.support(idx)
 }
 
+/// Half-width of the principal point's free zone around the image centre, in thermal widths:
+/// inside it the prior costs nothing, outside it grows with σ = 5 % of the width. A centred
+/// Gaussian (no free zone) pulled the synthetic rigs' principal points (truth within 1.5 %
+/// of the width from the centre) 1.3–3.6 px inwards and the rotation 0.3–0.5° along the flat principal-point /
+/// pan valley at 640×480 (docs/src/calibration.md, round 7).
+const PRINCIPAL_POINT_FREE: f64 = 0.05;
+
 /// Physically motivated priors (issue 12), as residuals (p − μ)/σ in physical units: principal
-/// point near the image centre, bounded distortion. The square-pixel constraint (fx = fy) is
+/// point near the image centre (free within [`PRINCIPAL_POINT_FREE`]), bounded distortion. The square-pixel constraint (fx = fy) is
 /// exact instead (a tied search direction, see [`directions`]).
 #[derive(Debug, Clone)]
 pub(crate) struct Priors {
@@ -501,16 +508,15 @@ pub(crate) struct Priors {
 impl Priors {
     pub fn new(rig: &Rig) -> Self {
         let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
-        // Development probes only: `RTF_CALIB_PP_FREE=x` leaves the principal point free
-        // within ±x·width of the centre (probe_calibrate_rig).
+        // Development probes only: `RTF_CALIB_PP_FREE=x` sets another free zone.
         #[cfg(test)]
         let pp_free = std::env::var("RTF_CALIB_PP_FREE")
             .ok()
             .and_then(|s| s.parse::<f64>().ok())
-            .unwrap_or(0.0)
+            .unwrap_or(PRINCIPAL_POINT_FREE)
             * w;
         #[cfg(not(test))]
-        let pp_free = 0.0;
+        let pp_free = PRINCIPAL_POINT_FREE * w;
         let terms = vec![
             (2, w / 2.0, 0.05 * w, pp_free),
             (3, h / 2.0, 0.05 * w, pp_free),
@@ -1915,6 +1921,72 @@ mod tests {
             .collect()
     }
 
+    /// The street scenes' common parallax profile: per band, the median over the scenes of
+    /// the measured shift less the scene's mean over its measured middle bands (2–4), the far
+    /// part of the image that every scene measures best (0 where no scene measured the band).
+    fn parallax_profile(scenes: &[Vec<Option<f64>>]) -> Vec<f64> {
+        let bands = scenes.first().map_or(0, Vec::len);
+        (0..bands)
+            .map(|i| {
+                let mut rel: Vec<f64> = scenes
+                    .iter()
+                    .filter_map(|s| {
+                        let mid: Vec<f64> = s[2..=4].iter().flatten().copied().collect();
+                        let v = s[i]?;
+                        (!mid.is_empty()).then(|| v - mid.iter().sum::<f64>() / mid.len() as f64)
+                    })
+                    .collect();
+                rel.sort_by(f64::total_cmp);
+                match rel.len() {
+                    0 => 0.0,
+                    n if n % 2 == 1 => rel[n / 2],
+                    n => (rel[n / 2 - 1] + rel[n / 2]) / 2.0,
+                }
+            })
+            .collect()
+    }
+
+    /// A scene's bands: the profile plus the scene's own departure from it, measured where
+    /// the band was measured and filled in between by [`fill_bands`] (so an unmeasured band
+    /// follows the profile, offset like its measured neighbours).
+    fn bands_from_profile(shifts: &[Option<f64>], profile: &[f64]) -> Vec<f64> {
+        let departure: Vec<Option<f64>> = shifts
+            .iter()
+            .zip(profile)
+            .map(|(s, p)| s.map(|v| v - p))
+            .collect();
+        fill_bands(&departure)
+            .iter()
+            .zip(profile)
+            .map(|(d, p)| d + p)
+            .collect()
+    }
+
+    #[test]
+    fn unmeasured_bands_follow_the_common_profile() {
+        let m = |v: &[f64], known: &[usize]| -> Vec<Option<f64>> {
+            (0..v.len())
+                .map(|i| known.contains(&i).then_some(v[i]))
+                .collect()
+        };
+        let day = [-3.0, -2.0, -1.0, 0.0, 1.0, -1.0, -4.0, -7.0];
+        let scenes = vec![
+            m(&day, &[0, 1, 2, 3, 4, 5, 6, 7]),
+            m(&day.map(|v| v + 2.0), &[0, 1, 2, 3, 4, 5, 6, 7]),
+            // A night scene measured at the top only, 1 px above the profile.
+            m(&day.map(|v| v + 1.0), &[0, 1, 2, 3]),
+        ];
+        let profile = parallax_profile(&scenes);
+        // Relative to the middle bands' mean (0).
+        assert_eq!(profile, day.to_vec());
+        let night = bands_from_profile(&scenes[2], &profile);
+        for (got, want) in night.iter().zip(day.map(|v| v + 1.0)) {
+            assert!((got - want).abs() < 1e-12, "{night:?}");
+        }
+        // Nothing measured: the profile itself.
+        assert_eq!(bands_from_profile(&[None; 8], &profile), day.to_vec());
+    }
+
     /// The centred edge features [3, 480, 640] of MSRS scene `name`'s RGB image and of its
     /// thermal image re-registered by [`crate::real_rig::register_msrs_ir`] (`parallax`:
     /// with the per-band vertical correction, else the global 2-D model only).
@@ -1934,8 +2006,9 @@ mod tests {
     /// band of 60 rows at 640×480, the vertical shift of the registered thermal edge features
     /// that best correlates (normalised) with the RGB ones over the band less a 16 px border,
     /// searched over ±8 px with a parabolic sub-pixel peak; a band whose peak is weak (< 0.15)
-    /// or on the search border takes the interpolation of its neighbours. Prints the table's
-    /// rows.
+    /// or on the search border follows the scenes' common profile ([`parallax_profile`]),
+    /// offset like its measured neighbours ([`bands_from_profile`]). Prints the profile and the
+    /// table's rows.
     #[test]
     fn probe_parallax_bands() {
         let Some(data) = probe_data("RTF_CALIB_PROBE_BANDS") else {
@@ -1949,6 +2022,7 @@ mod tests {
             .and_then(|s| s.parse().ok())
             .unwrap_or(0.15);
         let show_peaks = std::env::var_os("BANDS_PEAKS").is_some();
+        let mut measured = Vec::new();
         for name in day.iter().chain(night.iter()) {
             let (fa, fb) = registered_features(&data, name, false);
             let mut shifts = Vec::new();
@@ -1978,7 +2052,12 @@ mod tests {
                 let sub = parabolic_offset(score[best - 1], score[best], score[best + 1]);
                 shifts.push(Some(best as f64 - radius as f64 + sub));
             }
-            let cells: Vec<String> = fill_bands(&shifts)
+            measured.push((name, shifts, peaks));
+        }
+        let profile = parallax_profile(&measured.iter().map(|m| m.1.clone()).collect::<Vec<_>>());
+        eprintln!("profile {profile:.2?}");
+        for (name, shifts, peaks) in &measured {
+            let cells: Vec<String> = bands_from_profile(shifts, &profile)
                 .iter()
                 .map(|v| format!("{v:.2}"))
                 .collect();
@@ -2319,6 +2398,8 @@ mod tests {
                     .restrict_support(sc, &te, tw, th, 0.03 * tw)
                     .into_correlation(),
                 "gain" => level.with_gain(sc, &te),
+                // The finest level without the pipeline's pixel subset.
+                "full" => Level::build(&rig.rgb, &used, pipe.factors[fine], false, 0.0, 1),
                 _ => level,
             };
             for (name, from) in [("truth", tt), ("estimate", te)] {
@@ -2380,6 +2461,80 @@ mod tests {
                 .all(|p| early.contains(p) && late.contains(p)));
             assert_eq!(late.contains(&8), above <= 1);
         }
+    }
+
+    /// Development probe of where each frame of a `real_trials` rig pulls at the truth
+    /// (`RTF_CALIB_PULLS=1 SEED=20 [WIDTH=640 N_FRAMES=20] cargo test --release -p rtf-calib
+    /// --lib probe_frame_pulls -- --nocapture`): per frame, the vertex of the parabola
+    /// through its alignment score at the truth and at ±δ px in u and v (the quality
+    /// figures' level and score), i.e. the image shift that frame prefers, and its curvature.
+    /// A shift shared by the frames is a bias of the data or of the objective; a scatter
+    /// averages out. No calibration is run.
+    #[test]
+    fn probe_frame_pulls() {
+        let Some(data) = probe_data("RTF_CALIB_PULLS") else {
+            return;
+        };
+        let seed = env("SEED", 20) as u64;
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = trial_config(&data, seed, 640, 20);
+        let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+        let rig = &real.rig;
+        let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
+        let used: Vec<&Frame> = frames.iter().collect();
+        let scaling = Scaling::new(&rig.rgb, initial_params(rig), &used);
+        let theta = scaling.theta_of(&real.truth);
+        let factor = pyramid_factors(rig.rgb.width)
+            .into_iter()
+            .filter(|&f| rig.rgb.width / f <= 320)
+            .min()
+            .unwrap_or(1);
+        let level = Level::build(&rig.rgb, &used, factor, false, 0.0, 1)
+            .subsample(MAX_LEVEL_PIXELS, 0)
+            .into_correlation();
+        let delta = crate::quality::DELTA_PX;
+        let s0 = crate::quality::frame_scores(&level, &scaling, &theta);
+        let mut pulls = Vec::new();
+        for axis in [2usize, 3] {
+            let at = |s: f64| {
+                let mut t = theta;
+                t[axis] += s * delta;
+                crate::quality::frame_scores(&level, &scaling, &t)
+            };
+            let (m, p) = (at(-1.0), at(1.0));
+            pulls.push(
+                (0..s0.len())
+                    .map(|f| {
+                        let curv = m[f] + p[f] - 2.0 * s0[f];
+                        let slope = (p[f] - m[f]) / 2.0;
+                        (-slope / curv * delta, curv)
+                    })
+                    .collect::<Vec<_>>(),
+            );
+        }
+        let mut sum = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for (f, scene) in real.scenes.iter().enumerate() {
+            let ((u, cu), (v, cv)) = (pulls[0][f], pulls[1][f]);
+            eprintln!(
+                "PULL {scene}: score {:.3}, u {u:+.2} px (curv {cu:.4}), v {v:+.2} px (curv {cv:.4})",
+                s0[f]
+            );
+            // Curvature-weighted mean (a sharp frame counts more), peaks only.
+            if cu < 0.0 && cv < 0.0 {
+                sum.0 += -cu * u.clamp(-3.0, 3.0);
+                sum.1 += -cv * v.clamp(-3.0, 3.0);
+                sum.2 += -cu;
+                sum.3 += -cv;
+                sum.4 += 1.0;
+            }
+        }
+        eprintln!(
+            "PULL seed {seed}: {} of {} frames peaked; curvature-weighted mean pull u {:+.2} px, v {:+.2} px",
+            sum.4,
+            s0.len(),
+            sum.0 / sum.2.max(1e-12),
+            sum.1 / sum.3.max(1e-12)
+        );
     }
 
     /// Development probe on a rig with a ground truth on disk (`RTF_CALIB_RIG=dir
