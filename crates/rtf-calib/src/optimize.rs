@@ -488,14 +488,15 @@ fn cost(level: &Level, scaling: &Scaling, theta: &[f64; NUM_PARAMS], idx: &Tenso
 
 /// Half-width of the principal point's free zone around the image centre, in thermal widths:
 /// inside it the prior costs nothing, outside it grows with σ = 5 % of the width. A centred
-/// Gaussian (no free zone) pulled the synthetic rigs' principal points (truth within 1.5 %
-/// of the width from the centre) 1.3–3.6 px inwards and the rotation 0.3–0.5° along the flat principal-point /
-/// pan valley at 640×480 (docs/src/calibration.md, round 7).
+/// Gaussian (no free zone) pulled the synthetic rigs' principal points (truth within 1.5 % of
+/// the width from the centre) 1.3–3.6 px inwards and the rotation 0.3–0.5° off along the flat
+/// principal-point / pan valley at 640×480 (docs/src/calibration.md, round 7).
 const PRINCIPAL_POINT_FREE: f64 = 0.05;
 
 /// Physically motivated priors (issue 12), as residuals (p − μ)/σ in physical units: principal
-/// point near the image centre (free within [`PRINCIPAL_POINT_FREE`]), bounded distortion. The square-pixel constraint (fx = fy) is
-/// exact instead (a tied search direction, see [`directions`]).
+/// point near the image centre (free within [`PRINCIPAL_POINT_FREE`]), bounded distortion.
+/// The square-pixel constraint (fx = fy) is exact instead (a tied search direction, see
+/// [`directions`]).
 #[derive(Debug, Clone)]
 pub(crate) struct Priors {
     /// (parameter index, mean, standard deviation, free half-width): the residual is
