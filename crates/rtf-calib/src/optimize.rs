@@ -2261,6 +2261,17 @@ mod tests {
         .in_trial_set((seed - 1) as usize, env("TRIALS", 20))
     }
 
+    /// A trial-set rig written to a temporary folder (kept alive by the returned guard) and
+    /// its frames loaded.
+    fn trial_rig(
+        cfg: &crate::real_rig::RealRigConfig,
+    ) -> (tempfile::TempDir, crate::real_rig::RealRig, Vec<Frame>) {
+        let dir = tempfile::tempdir().unwrap();
+        let real = crate::real_rig::write_real_rig(dir.path(), cfg).unwrap();
+        let frames = load_frames(&real.rig, &mut |w| eprintln!("{w}")).unwrap();
+        (dir, real, frames)
+    }
+
     /// Development probe on a real-imagery rig (`RTF_CALIB_PROBE=1 WIDTH=.. SEED=..
     /// N_FRAMES=.. cargo test --release -p rtf-calib probe_real -- --nocapture`): the cost of
     /// the truth and of the estimate at every level, and the map error.
@@ -2343,14 +2354,12 @@ mod tests {
             return;
         };
         let seed = env("SEED", 1) as u64;
-        let dir = tempfile::tempdir().unwrap();
         let mut cfg = trial_config(&data, seed, 640, 20);
         if std::env::var_os("CONTROL").is_some() {
             cfg.degrade = crate::real_rig::Degrade::RgbAsThermal;
         }
-        let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+        let (_dir, real, frames) = trial_rig(&cfg);
         let rig = &real.rig;
-        let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
         let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
         let t0 = std::time::Instant::now();
         let out = calibrate(rig, &frames, &settings, &mut |_| {}).unwrap();
@@ -2477,11 +2486,8 @@ mod tests {
             return;
         };
         let seed = env("SEED", 20) as u64;
-        let dir = tempfile::tempdir().unwrap();
-        let cfg = trial_config(&data, seed, 640, 20);
-        let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+        let (_dir, real, frames) = trial_rig(&trial_config(&data, seed, 640, 20));
         let rig = &real.rig;
-        let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
         let used: Vec<&Frame> = frames.iter().collect();
         let scaling = Scaling::new(&rig.rgb, initial_params(rig), &used);
         let theta = scaling.theta_of(&real.truth);
@@ -2593,11 +2599,8 @@ mod tests {
             return;
         };
         let seed = env("SEED", 6) as u64;
-        let dir = tempfile::tempdir().unwrap();
-        let cfg = trial_config(&data, seed, 640, 20);
-        let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+        let (_dir, real, frames) = trial_rig(&trial_config(&data, seed, 640, 20));
         let rig = &real.rig;
-        let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
         let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
         let used: Vec<&Frame> = frames.iter().collect();
         let pipe = Pipeline::new(rig, used, initial_params(rig), &settings);
@@ -2673,11 +2676,8 @@ mod tests {
             .map(|s| s.trim().parse().unwrap())
             .collect();
         for seed in seeds {
-            let dir = tempfile::tempdir().unwrap();
-            let cfg = trial_config(&data, seed, 160, 6);
-            let real = crate::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
+            let (_dir, real, frames) = trial_rig(&trial_config(&data, seed, 160, 6));
             let rig = &real.rig;
-            let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
             let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
             let used: Vec<&Frame> = frames.iter().collect();
             let pipe = Pipeline::new(rig, used.clone(), initial_params(rig), &settings);
