@@ -1230,8 +1230,13 @@ impl<'a> Pipeline<'a> {
     /// image-plane model (f, c, roll), then rotation, translation and k1 are added, and the
     /// finest level frees everything.
     pub fn params(&self, li: usize) -> Vec<usize> {
-        staged_params(
-            self.staging,
+        let (above_finest, width) = self.level_place(li);
+        staged_params(self.staging, above_finest, width)
+    }
+
+    /// Level `li`'s place for [`staged_params`]: levels above the finest, width in px.
+    fn level_place(&self, li: usize) -> (usize, usize) {
+        (
             self.factors.len() - 1 - li,
             self.rig.rgb.width / self.factors[li],
         )
@@ -1240,10 +1245,7 @@ impl<'a> Pipeline<'a> {
     /// Whether the two stagings free the same parameters at every level up to `to`.
     fn stagings_agree(&self, to: usize) -> bool {
         (0..=to).all(|li| {
-            let (above_finest, width) = (
-                self.factors.len() - 1 - li,
-                self.rig.rgb.width / self.factors[li],
-            );
+            let (above_finest, width) = self.level_place(li);
             staged_params(Staging::Early, above_finest, width)
                 == staged_params(Staging::Late, above_finest, width)
         })
@@ -2491,14 +2493,7 @@ mod tests {
         let used: Vec<&Frame> = frames.iter().collect();
         let scaling = Scaling::new(&rig.rgb, initial_params(rig), &used);
         let theta = scaling.theta_of(&real.truth);
-        let factor = pyramid_factors(rig.rgb.width)
-            .into_iter()
-            .filter(|&f| rig.rgb.width / f <= 320)
-            .min()
-            .unwrap_or(1);
-        let level = Level::build(&rig.rgb, &used, factor, false, 0.0, 1)
-            .subsample(MAX_LEVEL_PIXELS, 0)
-            .into_correlation();
+        let (_, level) = crate::quality::assessment_level(rig, &used);
         let delta = crate::quality::DELTA_PX;
         let s0 = crate::quality::frame_scores(&level, &scaling, &theta);
         let mut pulls = Vec::new();

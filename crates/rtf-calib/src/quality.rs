@@ -314,6 +314,22 @@ pub(crate) fn decide(f: &Figures) -> (Verdict, String) {
     }
 }
 
+/// The level the figures are computed on, and its downsampling factor: half resolution at
+/// 640 wide (≤ 320 px wide), where δ = 1.5 px is still resolved; above MAX_LEVEL_PIXELS per
+/// frame (the 320×240 level of a 640×480 rig) on a random subset of the support, as in the
+/// optimiser; correlation mode, unblurred.
+pub(crate) fn assessment_level(rig: &Rig, chosen: &[&Frame]) -> (usize, Level) {
+    let factor = optimize::pyramid_factors(rig.rgb.width)
+        .into_iter()
+        .filter(|&f| rig.rgb.width / f <= 320)
+        .min()
+        .unwrap_or(1);
+    let level = Level::build(&rig.rgb, chosen, factor, false, 0.0, 1)
+        .subsample(optimize::MAX_LEVEL_PIXELS, 0)
+        .into_correlation();
+    (factor, level)
+}
+
 /// Assesses `solution` (found from `initial`) on the frames `used` of `frames`.
 pub fn assess(
     rig: &Rig,
@@ -331,17 +347,7 @@ pub fn assess(
     let ps = model::from_calibration(solution);
     let theta: [f64; NUM_PARAMS] =
         std::array::from_fn(|i| (ps[i] - scaling.p0[i]) / scaling.scale[i]);
-    // Half resolution at 640 wide (≤ 320 px wide): δ = 1.5 px is still resolved.
-    let factor = optimize::pyramid_factors(rig.rgb.width)
-        .into_iter()
-        .filter(|&f| rig.rgb.width / f <= 320)
-        .min()
-        .unwrap_or(1);
-    // Above MAX_LEVEL_PIXELS per frame (the 320×240 level of a 640×480 rig) on a random
-    // subset of the support, as in the optimiser.
-    let level = Level::build(&rig.rgb, &chosen, factor, false, 0.0, 1)
-        .subsample(optimize::MAX_LEVEL_PIXELS, 0)
-        .into_correlation();
+    let (factor, level) = assessment_level(rig, &chosen);
     let square = rig.thermal.square_pixels.unwrap_or(true);
     let focal = optimize::directions(&[0, 1], &scaling, square)[0];
     let axis = |i: usize| {
