@@ -29,6 +29,8 @@ pub enum AmpError {
     Refused(&'static str),
     #[error("autocast to {kind:?} is not supported on {device:?} (CPU: bf16; CUDA: bf16, fp16)")]
     Unsupported { device: Device, kind: Kind },
+    #[error("environment variable {BF16_CONVOLUTIONS_VAR}=`{0}`: expected `native` or `emulated`")]
+    BadConvolutionChoice(String),
 }
 
 /// c10::DeviceType code of `device` (c10/core/DeviceType.h: CPU = 0, CUDA = 1, MPS = 13,
@@ -133,6 +135,68 @@ fn cpuinfo_has_native_bf16(info: &str) -> Option<bool> {
     )
 }
 
+/// The environment variable that overrides [`cpu_bf16_convolutions`]'s choice.
+pub const BF16_CONVOLUTIONS_VAR: &str = "RTF_BF16_CONVOLUTIONS";
+
+/// How convolutions inside a CPU bf16 autocast region are computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Bf16Convolutions {
+    /// libtorch's own bf16 kernels (oneDNN's where the CPU has bf16 arithmetic).
+    Native,
+    /// Operands rounded to bf16, multiply-accumulated by fp32 kernels, outputs and operand
+    /// gradients rounded to bf16: a native kernel's numbers (bf16 products are exact in fp32,
+    /// native kernels accumulate in fp32) at fp32 kernels' speed, on CPUs whose libtorch bf16
+    /// kernels are generic (no avx512_bf16 / AMX: ~10× slower than fp32). rtf's networks route
+    /// their convolutions through it (rtf-models `layers`).
+    Emulated,
+}
+
+impl Bf16Convolutions {
+    pub fn name(self) -> &'static str {
+        match self {
+            Bf16Convolutions::Native => "native",
+            Bf16Convolutions::Emulated => "emulated",
+        }
+    }
+}
+
+/// The choice for this process: `RTF_BF16_CONVOLUTIONS=native|emulated` if set, else emulated
+/// exactly where the CPU is known to lack bf16 arithmetic ([`cpu_has_native_bf16`]). Read once.
+pub fn cpu_bf16_convolutions() -> Result<Bf16Convolutions, AmpError> {
+    static CHOICE: std::sync::OnceLock<Result<Bf16Convolutions, String>> =
+        std::sync::OnceLock::new();
+    CHOICE
+        .get_or_init(|| {
+            let var = std::env::var(BF16_CONVOLUTIONS_VAR).ok();
+            choose_bf16_convolutions(var.as_deref(), cpu_has_native_bf16())
+        })
+        .clone()
+        .map_err(AmpError::BadConvolutionChoice)
+}
+
+/// [`cpu_bf16_convolutions`] from the variable's value and the CPU's bf16 flag.
+fn choose_bf16_convolutions(
+    var: Option<&str>,
+    native_bf16: Option<bool>,
+) -> Result<Bf16Convolutions, String> {
+    match var.map(str::trim) {
+        Some("native") => Ok(Bf16Convolutions::Native),
+        Some("emulated") => Ok(Bf16Convolutions::Emulated),
+        Some(other) => Err(other.to_owned()),
+        None if native_bf16 == Some(false) => Ok(Bf16Convolutions::Emulated),
+        None => Ok(Bf16Convolutions::Native),
+    }
+}
+
+/// Whether a convolution of an input on `device` made now, on this thread, should be the
+/// emulated bf16 one: a CPU input inside a bf16 autocast region, with
+/// [`Bf16Convolutions::Emulated`] chosen.
+pub fn emulates_bf16_convolution(device: Device) -> bool {
+    device == Device::Cpu
+        && matches!(cpu_bf16_convolutions(), Ok(Bf16Convolutions::Emulated))
+        && state(Device::Cpu).is_ok_and(|s| s.enabled && s.dtype == Kind::BFloat16)
+}
+
 /// An open autocast region on one device type; dropping it leaves the region and restores the
 /// state before it (the weight-cast cache is dropped when the outermost region ends).
 #[derive(Debug)]
@@ -200,6 +264,30 @@ mod tests {
         let arm = "processor\t: 0\nFeatures\t: fp asimd sve bf16 i8mm\n";
         assert_eq!(cpuinfo_has_native_bf16(arm), Some(true));
         assert_eq!(cpuinfo_has_native_bf16("processor\t: 0\n"), None);
+    }
+
+    #[test]
+    fn bf16_convolutions_are_emulated_where_the_cpu_lacks_bf16_unless_told() {
+        use Bf16Convolutions::*;
+        assert_eq!(choose_bf16_convolutions(None, Some(false)), Ok(Emulated));
+        assert_eq!(choose_bf16_convolutions(None, Some(true)), Ok(Native));
+        assert_eq!(choose_bf16_convolutions(None, None), Ok(Native));
+        assert_eq!(choose_bf16_convolutions(Some("native"), Some(false)), Ok(Native));
+        assert_eq!(choose_bf16_convolutions(Some("emulated"), Some(true)), Ok(Emulated));
+        let err = choose_bf16_convolutions(Some("fast"), None).unwrap_err();
+        let message = AmpError::BadConvolutionChoice(err).to_string();
+        assert!(message.contains("RTF_BF16_CONVOLUTIONS=`fast`"), "{message}");
+    }
+
+    #[test]
+    fn only_cpu_bf16_regions_emulate_and_only_if_chosen() {
+        let chosen = cpu_bf16_convolutions().unwrap() == Bf16Convolutions::Emulated;
+        assert!(!emulates_bf16_convolution(Device::Cpu), "no region open");
+        autocast(Device::Cpu, Some(Kind::BFloat16), || {
+            assert_eq!(emulates_bf16_convolution(Device::Cpu), chosen);
+            assert!(!emulates_bf16_convolution(Device::Cuda(0)));
+        })
+        .unwrap();
     }
 
     fn conv_output_kind() -> Kind {

@@ -44,7 +44,80 @@ mod ffi {
             in_place: c_int,
             out: *mut *mut torch_sys::C_tensor,
         ) -> *mut c_char;
+        pub fn rtf_bf16_emulated_convolution(
+            x: *mut torch_sys::C_tensor,
+            w: *mut torch_sys::C_tensor,
+            b: *mut torch_sys::C_tensor,
+            stride: *const i64,
+            padding: *const i64,
+            dilation: *const i64,
+            transposed: c_int,
+            output_padding: *const i64,
+            groups: i64,
+            out: *mut *mut torch_sys::C_tensor,
+        ) -> *mut c_char;
         pub fn rtf_ops_free_error(error: *mut c_char);
+    }
+}
+
+/// Takes a shim's result: the new tensor in `out`, or panics with the shim's message (a
+/// failure is a programming error, as in tch's own ops).
+///
+/// # Safety
+/// `error` is null or a NUL-terminated string the shim malloc'd; on null, `out` is a new heap
+/// `at::Tensor*` the shim made, which the returned `Tensor` then owns (tch deletes it).
+unsafe fn shim_result(op: &str, error: *mut std::ffi::c_char, out: *mut torch_sys::C_tensor) -> Tensor {
+    if !error.is_null() {
+        // SAFETY: per the contract above; read once, freed by the shim.
+        let message = unsafe {
+            let m = std::ffi::CStr::from_ptr(error)
+                .to_string_lossy()
+                .into_owned();
+            ffi::rtf_ops_free_error(error);
+            m
+        };
+        panic!("{op}: {message}");
+    }
+    // SAFETY: success: `out` is the shim's new tensor (see above).
+    unsafe { Tensor::from_ptr(out) }
+}
+
+/// The bf16 convolution of `xs` with `weight` (+ `bias`), computed by fp32 kernels over
+/// bf16-rounded operands, its output and operand gradients rounded to bf16: a native bf16
+/// kernel's numbers at fp32 kernels' speed (csrc/ops.cpp `Bf16EmulatedConvolution`;
+/// [`rtf_amp::Bf16Convolutions::Emulated`]). Differentiable; output bf16, operand gradients in
+/// the operands' own types. Units call it inside a CPU bf16 autocast region where
+/// [`rtf_amp::emulates_bf16_convolution`] says so.
+pub fn bf16_emulated_convolution(
+    xs: &Tensor,
+    weight: &Tensor,
+    bias: Option<&Tensor>,
+    geometry: Geometry,
+) -> Tensor {
+    let g = geometry;
+    let pair = |v: i64| [v, v];
+    let (stride, padding, dilation) = (pair(g.stride), pair(g.padding), pair(g.dilation));
+    let output_padding = [0i64, 0];
+    let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
+    let bias_ptr = bias.map_or(std::ptr::null_mut(), |b| {
+        b.as_ptr() as *mut torch_sys::C_tensor
+    });
+    // SAFETY: the tensors' `as_ptr` are live `at::Tensor*` for the call (bias may be null, which
+    // the shim reads as no bias); the geometry arrays hold two values each, as the shim reads.
+    unsafe {
+        let error = ffi::rtf_bf16_emulated_convolution(
+            xs.as_ptr() as *mut torch_sys::C_tensor,
+            weight.as_ptr() as *mut torch_sys::C_tensor,
+            bias_ptr,
+            stride.as_ptr(),
+            padding.as_ptr(),
+            dilation.as_ptr(),
+            std::ffi::c_int::from(g.transposed),
+            output_padding.as_ptr(),
+            g.groups,
+            &mut out,
+        );
+        shim_result("bf16 emulated convolution", error, out)
     }
 }
 
@@ -54,30 +127,17 @@ mod ffi {
 /// convolution's outputs: their backwards read their inputs).
 fn aten_leaky_relu(xs: &Tensor, slope: f64, in_place: bool) -> Tensor {
     let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
-    // SAFETY: `as_ptr` is a live `at::Tensor*` for the call; on success the shim stores a new
-    // heap `at::Tensor*` in `out`, which `Tensor::from_ptr` then owns (tch deletes it).
-    let error = unsafe {
-        ffi::rtf_leaky_relu(
+    // SAFETY: `as_ptr` is a live `at::Tensor*` for the call; the shim's result is taken as
+    // `shim_result` requires.
+    unsafe {
+        let error = ffi::rtf_leaky_relu(
             xs.as_ptr() as *mut torch_sys::C_tensor,
             slope,
             in_place as std::ffi::c_int,
             &mut out,
-        )
-    };
-    if !error.is_null() {
-        // SAFETY: a non-null return is a NUL-terminated string the shim malloc'd; read once,
-        // freed by the shim. A failure here is a programming error (as in tch's own ops).
-        let message = unsafe {
-            let m = std::ffi::CStr::from_ptr(error)
-                .to_string_lossy()
-                .into_owned();
-            ffi::rtf_ops_free_error(error);
-            m
-        };
-        panic!("leaky_relu: {message}");
+        );
+        shim_result("leaky_relu", error, out)
     }
-    // SAFETY: success: `out` is the shim's new tensor (see above).
-    unsafe { Tensor::from_ptr(out) }
 }
 
 /// LeakyReLU with a given slope (ATen's, differentiable).
@@ -496,6 +556,9 @@ impl ConvBnAct {
 
     fn conv(&self, xs: &Tensor, weight: &Tensor, bias: Option<&Tensor>) -> Tensor {
         let s = &self.spec;
+        if rtf_amp::emulates_bf16_convolution(xs.device()) {
+            return bf16_emulated_convolution(xs, weight, bias, self.geometry());
+        }
         if s.transposed {
             xs.conv_transpose2d(
                 weight,
@@ -730,6 +793,95 @@ mod tests {
     use super::*;
     use nn::ModuleT;
     use tch::Device;
+
+    /// (output, input gradient, weight gradient, bias gradient) of `conv` on fresh leaves
+    /// copied from `x`, `w`, `b`, with a fixed upstream gradient.
+    fn conv_and_gradients(
+        x: &Tensor,
+        w: &Tensor,
+        b: &Tensor,
+        conv: impl Fn(&Tensor, &Tensor, &Tensor) -> Tensor,
+    ) -> [Tensor; 4] {
+        let leaf = |t: &Tensor| t.detach().copy().set_requires_grad(true);
+        let (x, w, b) = (leaf(x), leaf(w), leaf(b));
+        let y = conv(&x, &w, &b);
+        let upstream = Tensor::linspace(-1.0, 1.0, y.numel() as i64, (Kind::Float, Device::Cpu))
+            .reshape(y.size());
+        (y.to_kind(Kind::Float) * upstream).sum(Kind::Float).backward();
+        [y.detach(), x.grad(), w.grad(), b.grad()]
+    }
+
+    #[test]
+    fn emulated_bf16_convolution_has_a_native_kernels_numbers() {
+        tch::manual_seed(3);
+        for (transposed, stride, dilation, groups) in
+            [(false, 1, 1, 1), (false, 2, 2, 2), (true, 2, 1, 1)]
+        {
+            let g = Geometry {
+                stride,
+                padding: 1,
+                dilation,
+                groups,
+                transposed,
+            };
+            let x = Tensor::randn([2, 4, 9, 11], (Kind::Float, Device::Cpu));
+            let w_dims = match transposed {
+                false => [6, 4 / groups, 3, 3],
+                true => [4, 6, 3, 3],
+            };
+            let w = Tensor::randn(w_dims, (Kind::Float, Device::Cpu)) * 0.3;
+            let b = Tensor::randn([6], (Kind::Float, Device::Cpu));
+            let plain = |x: &Tensor, w: &Tensor, b: &Tensor| match transposed {
+                false => x.conv2d(w, Some(b), [stride], [1], [dilation], groups),
+                true => x.conv_transpose2d(w, Some(b), [stride], [1], [0], groups, [dilation]),
+            };
+            let emulated = conv_and_gradients(&x, &w, &b, |x, w, b| {
+                bf16_emulated_convolution(x, w, Some(b), g)
+            });
+            // Its definition: fp32 kernels over bf16-rounded operands, output and operand
+            // gradients rounded to bf16 (autograd through explicit casts): bit for bit.
+            let round = |t: &Tensor| t.to_kind(Kind::BFloat16).to_kind(Kind::Float);
+            let defined = conv_and_gradients(&x, &w, &b, |x, w, b| {
+                plain(&round(x), &round(w), &round(b)).to_kind(Kind::BFloat16)
+            });
+            assert_eq!(emulated[0].kind(), Kind::BFloat16);
+            for (e, d) in emulated.iter().zip(&defined) {
+                assert_eq!(e.kind(), d.kind());
+                assert!(e.equal(d), "{g:?}: differs from its definition");
+            }
+            // libtorch's own bf16 kernels under autocast: the same up to the order of the fp32
+            // sums and one bf16 rounding (relative 2^-8 of the magnitudes involved).
+            let native = conv_and_gradients(&x, &w, &b, |x, w, b| {
+                rtf_amp::autocast(Device::Cpu, Some(Kind::BFloat16), || plain(x, w, b)).unwrap()
+            });
+            for (i, (e, n)) in emulated.iter().zip(&native).enumerate() {
+                assert_eq!(e.kind(), n.kind(), "tensor {i}");
+                let (e, n) = (e.to_kind(Kind::Float), n.to_kind(Kind::Float));
+                let scale = n.abs().max().double_value(&[]);
+                let worst = (&e - &n).abs().max().double_value(&[]);
+                assert!(worst <= scale / 64.0, "{g:?} tensor {i}: {worst} against {scale}");
+            }
+        }
+    }
+
+    #[test]
+    fn emulated_bf16_convolution_takes_bf16_inputs_and_no_bias() {
+        let x = Tensor::randn([1, 3, 6, 6], (Kind::Float, Device::Cpu)).to_kind(Kind::BFloat16);
+        let w = Tensor::randn([2, 3, 3, 3], (Kind::Float, Device::Cpu)).set_requires_grad(true);
+        let g = Geometry {
+            stride: 1,
+            padding: 0,
+            dilation: 1,
+            groups: 1,
+            transposed: false,
+        };
+        let y = bf16_emulated_convolution(&x, &w, None, g);
+        assert_eq!((y.kind(), y.size()), (Kind::BFloat16, vec![1, 2, 4, 4]));
+        y.to_kind(Kind::Float).sum(Kind::Float).backward();
+        // The master weight's gradient in its own type; the input needed none.
+        assert_eq!(w.grad().kind(), Kind::Float);
+        assert!(!x.grad().defined());
+    }
 
     fn randomise_bn(vs: &nn::VarStore) {
         tch::no_grad(|| {

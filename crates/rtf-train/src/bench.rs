@@ -38,6 +38,8 @@ pub struct TrainBenchReport {
     /// "WxH".
     pub size: String,
     pub precision: String,
+    /// The convolutions' arithmetic ("fp32", "bf16 emulated", "bf16 native", ...).
+    pub convolutions: String,
     pub device: String,
     pub threads: i32,
     /// Images per second over all timed steps.
@@ -144,6 +146,7 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         batch: opts.batch,
         size: format!("{}x{}", opts.size.0, opts.size.1),
         precision: opts.precision.name().into(),
+        convolutions: opts.precision.convolutions_on(opts.device),
         device: cfg.device.clone(),
         threads: tch::get_num_threads(),
         images_per_s: (opts.steps * opts.batch) as f64 / total,

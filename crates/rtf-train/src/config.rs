@@ -119,19 +119,33 @@ impl Precision {
         }
     }
 
-    /// A warning when this precision is emulated on `device` and will train far slower than
-    /// fp32: bf16 on a CPU without native bf16 arithmetic (rtf_amp::cpu_has_native_bf16).
+    /// A warning when this precision will train far slower than fp32 on `device`: bf16 on a CPU
+    /// without native bf16 arithmetic (rtf_amp::cpu_has_native_bf16) where libtorch's own bf16
+    /// convolutions were chosen (`RTF_BF16_CONVOLUTIONS=native`) over rtf's emulated ones.
     pub fn slow_on(self, device: tch::Device) -> Option<String> {
         (self == Precision::Bf16
             && device == tch::Device::Cpu
-            && rtf_amp::cpu_has_native_bf16() == Some(false))
+            && rtf_amp::cpu_has_native_bf16() == Some(false)
+            && matches!(rtf_amp::cpu_bf16_convolutions(), Ok(rtf_amp::Bf16Convolutions::Native)))
         .then(|| {
             "this CPU has no native bf16 arithmetic (no avx512_bf16, amx_bf16 or bf16 in \
-             /proc/cpuinfo): bf16 mixed precision is emulated here and trains several times \
-             slower than fp32 (MFNet at 640x480: about 10x, docs/src/benchmarks.md); it only \
-             saves activation memory"
+             /proc/cpuinfo) and RTF_BF16_CONVOLUTIONS=native picks libtorch's generic bf16 \
+             convolutions: several times slower than fp32 (MFNet at 640x480: about 10x, \
+             docs/src/benchmarks.md); unset it for rtf's emulated bf16 convolutions"
                 .to_owned()
         })
+    }
+
+    /// The convolution arithmetic of this precision on `device`, for reports: "fp32", "bf16
+    /// emulated" / "bf16 native" on a CPU ([`rtf_amp::cpu_bf16_convolutions`]), else the type.
+    pub fn convolutions_on(self, device: tch::Device) -> String {
+        match (self, device) {
+            (Precision::Bf16, tch::Device::Cpu) => match rtf_amp::cpu_bf16_convolutions() {
+                Ok(choice) => format!("bf16 {}", choice.name()),
+                Err(_) => "bf16 (bad RTF_BF16_CONVOLUTIONS)".to_owned(),
+            },
+            _ => self.name().to_owned(),
+        }
     }
 
     /// Whether the loss is scaled (fp16 only).

@@ -60,23 +60,31 @@ impl Trained {
     /// Fails where libtorch has no autocast of that type on the device (fp16 on a CPU).
     pub fn mixed(mut self, precision: Precision) -> Result<Self, TrainError> {
         if let Some(kind) = precision.autocast_kind() {
+            let refused = |e: rtf_amp::AmpError| TrainError::Config(format!("--precision {precision}: {e}"));
             // Entered once here, so the regions of the steps cannot fail later.
-            drop(
-                rtf_amp::AutocastGuard::enter(self.vs.device(), kind)
-                    .map_err(|e| TrainError::Config(format!("--precision {precision}: {e}")))?,
-            );
+            drop(rtf_amp::AutocastGuard::enter(self.vs.device(), kind).map_err(refused)?);
+            rtf_amp::cpu_bf16_convolutions().map_err(refused)?;
         }
         self.precision = precision;
         self.optimizer.set_loss_scaling(precision.scales_loss());
         Ok(self)
     }
 
-    /// Under mixed precision, lays the 4-D weights (convolution kernels) out channels-last:
-    /// libtorch's reduced-precision convolutions on the CPU take oneDNN's fast path only for
-    /// channels-last operands, as PyTorch users get with `model.to(memory_format=channels_last)`
-    /// (the weights' values, their checkpoints and fp32 runs are unchanged).
+    /// Whether this network's convolutions run channels-last: under mixed precision with
+    /// libtorch's own reduced-precision kernels, which on the CPU take oneDNN's fast path only
+    /// for channels-last operands (PyTorch users: `model.to(memory_format=channels_last)`).
+    /// Not in fp32, nor with emulated bf16 convolutions (fp32 kernels: NCHW measured faster).
+    pub fn channels_last(&self) -> bool {
+        let emulated = self.vs.device() == tch::Device::Cpu
+            && self.precision == Precision::Bf16
+            && matches!(rtf_amp::cpu_bf16_convolutions(), Ok(rtf_amp::Bf16Convolutions::Emulated));
+        self.precision != Precision::Fp32 && !emulated
+    }
+
+    /// Where [`channels_last`](Self::channels_last), lays the 4-D weights (convolution
+    /// kernels) out channels-last (the weights' values and their checkpoints are unchanged).
     pub fn channels_last_weights(&self) {
-        if self.precision == Precision::Fp32 {
+        if !self.channels_last() {
             return;
         }
         tch::no_grad(|| {
@@ -150,9 +158,12 @@ impl Student {
         match self.trained.precision {
             Precision::Fp32 => forward_padded(&self.net, input, true),
             _ => self.trained.autocast(|| {
-                // Channels-last activations from the first layer on (see
-                // `Trained::channels_last_weights`).
-                let input = rtf_models::layers::to_channels_last(input);
+                // Channels-last activations from the first layer on where the kernels want them
+                // (`Trained::channels_last`).
+                let input = match self.trained.channels_last() {
+                    true => rtf_models::layers::to_channels_last(input),
+                    false => input.shallow_clone(),
+                };
                 forward_padded(&self.net, &input, true).to_kind(Kind::Float)
             }),
         }
