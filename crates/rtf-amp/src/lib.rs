@@ -272,11 +272,20 @@ mod tests {
         assert_eq!(choose_bf16_convolutions(None, Some(false)), Ok(Emulated));
         assert_eq!(choose_bf16_convolutions(None, Some(true)), Ok(Native));
         assert_eq!(choose_bf16_convolutions(None, None), Ok(Native));
-        assert_eq!(choose_bf16_convolutions(Some("native"), Some(false)), Ok(Native));
-        assert_eq!(choose_bf16_convolutions(Some("emulated"), Some(true)), Ok(Emulated));
+        assert_eq!(
+            choose_bf16_convolutions(Some("native"), Some(false)),
+            Ok(Native)
+        );
+        assert_eq!(
+            choose_bf16_convolutions(Some("emulated"), Some(true)),
+            Ok(Emulated)
+        );
         let err = choose_bf16_convolutions(Some("fast"), None).unwrap_err();
         let message = AmpError::BadConvolutionChoice(err).to_string();
-        assert!(message.contains("RTF_BF16_CONVOLUTIONS=`fast`"), "{message}");
+        assert!(
+            message.contains("RTF_BF16_CONVOLUTIONS=`fast`"),
+            "{message}"
+        );
     }
 
     #[test]

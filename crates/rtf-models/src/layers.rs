@@ -66,7 +66,11 @@ mod ffi {
 /// # Safety
 /// `error` is null or a NUL-terminated string the shim malloc'd; on null, `out` is a new heap
 /// `at::Tensor*` the shim made, which the returned `Tensor` then owns (tch deletes it).
-unsafe fn shim_result(op: &str, error: *mut std::ffi::c_char, out: *mut torch_sys::C_tensor) -> Tensor {
+unsafe fn shim_result(
+    op: &str,
+    error: *mut std::ffi::c_char,
+    out: *mut torch_sys::C_tensor,
+) -> Tensor {
     if !error.is_null() {
         // SAFETY: per the contract above; read once, freed by the shim.
         let message = unsafe {
@@ -477,6 +481,25 @@ fn nearest_up2_conv3x3_as_phases(weight: &Tensor) -> Tensor {
     .reshape([4 * c_out, c_in, 2, 2])
 }
 
+/// [`crate::kernels::interleave_phases`] in libtorch ops, differentiable, in the phases' kind:
+/// `out[n, c, 2i + a, 2j + b] = phases[n, (2a + b)·C + c, i + a, j + b]`.
+/// [B, 4C, H + 1, W + 1] -> [B, C, 2H, 2W]
+fn interleave_phases_differentiably(phases: &Tensor) -> Tensor {
+    let size = phases.size();
+    let (b, c, h, w) = (size[0], size[1] / 4, size[2] - 1, size[3] - 1);
+    let phase = |a: i64, col: i64| {
+        phases
+            .narrow(1, (2 * a + col) * c, c)
+            .narrow(2, a, h)
+            .narrow(3, col, w)
+    };
+    // 4 × [B, C, H, W] -> [B, C, H, W, 2 (a), 2 (b)] -> [B, C, H, a, W, b] -> [B, C, 2H, 2W]
+    Tensor::stack(&[phase(0, 0), phase(0, 1), phase(1, 0), phase(1, 1)], -1)
+        .view([b, c, h, w, 2, 2])
+        .permute([0, 1, 2, 4, 3, 5])
+        .reshape([b, c, 2 * h, 2 * w])
+}
+
 /// Convolution → optional BatchNorm → activation.
 #[derive(Debug)]
 pub struct ConvBnAct {
@@ -645,7 +668,22 @@ impl ConvBnAct {
     /// materialising the upsampled map. That result is float32 and NCHW-contiguous whatever the
     /// inference precision: it is meant for a network's last unit (MFNet's `decode1`), whose
     /// logits are wanted in that form, and writing them so directly saves a pass.
+    /// Training takes the same phase form, differentiably (the phase weights are sums of the
+    /// 3×3 weights, so the same function up to the order of the sums): MFNet's `decode1` at
+    /// 640×480 is 2.2× fewer multiply-adds, in 36 output channels instead of 9.
     pub fn forward_upsampled(&self, xs: &Tensor, train: bool) -> Tensor {
+        if train && self.spec.nearest_upsampled_input {
+            let weight = nearest_up2_conv3x3_as_phases(&self.weight);
+            let bias = self.bias.as_ref().map(|b| b.repeat([4]));
+            // [B, c_in, H, W] -> [B, 4·c_out, H + 1, W + 1] -> [B, c_out, 2H, 2W]
+            let phases = self.conv(xs, &weight, bias.as_ref());
+            let ys = interleave_phases_differentiably(&phases);
+            let ys = match &self.bn {
+                Some(bn) => ys.apply_t(bn, train),
+                None => ys,
+            };
+            return self.activate(ys, train);
+        }
         if let (
             Some(Fused {
                 upsampled: Some(PhaseConv { weight, bias }),
@@ -807,7 +845,9 @@ mod tests {
         let y = conv(&x, &w, &b);
         let upstream = Tensor::linspace(-1.0, 1.0, y.numel() as i64, (Kind::Float, Device::Cpu))
             .reshape(y.size());
-        (y.to_kind(Kind::Float) * upstream).sum(Kind::Float).backward();
+        (y.to_kind(Kind::Float) * upstream)
+            .sum(Kind::Float)
+            .backward();
         [y.detach(), x.grad(), w.grad(), b.grad()]
     }
 
@@ -859,7 +899,10 @@ mod tests {
                 let (e, n) = (e.to_kind(Kind::Float), n.to_kind(Kind::Float));
                 let scale = n.abs().max().double_value(&[]);
                 let worst = (&e - &n).abs().max().double_value(&[]);
-                assert!(worst <= scale / 64.0, "{g:?} tensor {i}: {worst} against {scale}");
+                assert!(
+                    worst <= scale / 64.0,
+                    "{g:?} tensor {i}: {worst} against {scale}"
+                );
             }
         }
     }
@@ -931,6 +974,49 @@ mod tests {
                     tch::no_grad(|| unit.forward_add(&bf16(&x), &bf16(&residual), false));
                 assert!(close(&plain_add, &fused_add), "{spec:?} bf16 + residual");
             }
+        }
+    }
+
+    #[test]
+    fn training_on_an_upsampled_input_takes_the_phase_form_with_the_same_values_and_gradients() {
+        tch::manual_seed(9);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let spec = ConvSpec::new(3).bias(true).nearest_upsampled_input();
+        let unit = ConvBnAct::new(
+            vs.root() / "c",
+            Some(vs.root() / "bn"),
+            5,
+            3,
+            spec,
+            Act::LeakyRelu(0.1),
+        );
+        let x = Tensor::randn([2, 5, 6, 7], (Kind::Float, Device::Cpu));
+        let upstream = Tensor::randn([2, 3, 12, 14], (Kind::Float, Device::Cpu));
+        let run = |phases: bool| {
+            for mut v in vs.trainable_variables() {
+                v.zero_grad();
+            }
+            let x = x.copy().set_requires_grad(true);
+            let y = match phases {
+                true => unit.forward_upsampled(&x, true),
+                false => {
+                    let up = x.upsample_nearest2d([12, 14], 2.0, 2.0);
+                    nn::ModuleT::forward_t(&unit, &up, true)
+                }
+            };
+            (&y * &upstream).sum(Kind::Float).backward();
+            let bias = unit.bias.as_ref().expect("built with a bias");
+            [
+                y.detach(),
+                x.grad(),
+                unit.weight.grad().copy(),
+                bias.grad().copy(),
+            ]
+        };
+        let (phase_form, direct) = (run(true), run(false));
+        for (i, (p, d)) in phase_form.iter().zip(&direct).enumerate() {
+            assert_eq!(p.size(), d.size(), "tensor {i}");
+            assert!(p.allclose(d, 1e-4, 1e-5, false), "tensor {i}");
         }
     }
 

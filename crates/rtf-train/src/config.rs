@@ -126,7 +126,10 @@ impl Precision {
         (self == Precision::Bf16
             && device == tch::Device::Cpu
             && rtf_amp::cpu_has_native_bf16() == Some(false)
-            && matches!(rtf_amp::cpu_bf16_convolutions(), Ok(rtf_amp::Bf16Convolutions::Native)))
+            && matches!(
+                rtf_amp::cpu_bf16_convolutions(),
+                Ok(rtf_amp::Bf16Convolutions::Native)
+            ))
         .then(|| {
             "this CPU has no native bf16 arithmetic (no avx512_bf16, amx_bf16 or bf16 in \
              /proc/cpuinfo) and RTF_BF16_CONVOLUTIONS=native picks libtorch's generic bf16 \

@@ -60,7 +60,8 @@ impl Trained {
     /// Fails where libtorch has no autocast of that type on the device (fp16 on a CPU).
     pub fn mixed(mut self, precision: Precision) -> Result<Self, TrainError> {
         if let Some(kind) = precision.autocast_kind() {
-            let refused = |e: rtf_amp::AmpError| TrainError::Config(format!("--precision {precision}: {e}"));
+            let refused =
+                |e: rtf_amp::AmpError| TrainError::Config(format!("--precision {precision}: {e}"));
             // Entered once here, so the regions of the steps cannot fail later.
             drop(rtf_amp::AutocastGuard::enter(self.vs.device(), kind).map_err(refused)?);
             rtf_amp::cpu_bf16_convolutions().map_err(refused)?;
@@ -77,7 +78,10 @@ impl Trained {
     pub fn channels_last(&self) -> bool {
         let emulated = self.vs.device() == tch::Device::Cpu
             && self.precision == Precision::Bf16
-            && matches!(rtf_amp::cpu_bf16_convolutions(), Ok(rtf_amp::Bf16Convolutions::Emulated));
+            && matches!(
+                rtf_amp::cpu_bf16_convolutions(),
+                Ok(rtf_amp::Bf16Convolutions::Emulated)
+            );
         self.precision != Precision::Fp32 && !emulated
     }
 
