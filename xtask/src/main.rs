@@ -98,9 +98,31 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
         std::env::set_var("RTF_TEST_ONNX", "1");
     }
     run(root, "cargo", &args)?;
-    // Issue 11: every table's pipeline end to end on a tiny budget (files and JSON schema are
-    // checked; no number is asserted). Skipped when the suite is filtered.
+    // Skipped when the suite is filtered: the mixed-precision tests once more with each CPU
+    // bf16 convolution choice (rtf-amp picks emulated where the CPU lacks bf16 arithmetic,
+    // else native; the main run covered that one), so both are trained, stopped and resumed
+    // exactly wherever the suite runs; and issue 11's smoke reproduction: every table's
+    // pipeline end to end on a tiny budget (files and JSON schema are checked; no number is
+    // asserted).
     if extra.is_empty() {
+        for choice in ["emulated", "native"] {
+            let status = Command::new("cargo")
+                .args([
+                    "test",
+                    "--release",
+                    "-p",
+                    "rtf-train",
+                    "--test",
+                    "mixed_precision",
+                ])
+                .env("RTF_BF16_CONVOLUTIONS", choice)
+                .current_dir(root)
+                .status()
+                .context("cannot start `cargo`")?;
+            if !status.success() {
+                bail!("the mixed-precision tests with RTF_BF16_CONVOLUTIONS={choice} failed ({status})");
+            }
+        }
         reproduce::smoke(root)?;
     }
     Ok(())

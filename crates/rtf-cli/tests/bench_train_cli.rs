@@ -2,6 +2,7 @@
 
 mod common;
 use common::*;
+use std::process::Command;
 
 #[test]
 fn bench_train_reports_the_issue_fields() {
@@ -29,6 +30,14 @@ fn bench_train_reports_the_issue_fields() {
         assert_eq!(report["batch"], 1);
         assert_eq!(report["size"], "32x32");
         assert_eq!(report["precision"], precision);
+        let convolutions = report["convolutions"].as_str().unwrap();
+        match precision {
+            "fp32" => assert_eq!(convolutions, "fp32"),
+            _ => assert!(
+                ["bf16 native", "bf16 emulated"].contains(&convolutions),
+                "{report}"
+            ),
+        }
         assert!(report["images_per_s"].as_f64().unwrap() > 0.0, "{report}");
         assert!(report["peak_rss_mb"].as_f64().unwrap() > 0.0, "{report}");
     }
@@ -49,4 +58,44 @@ fn bad_precisions_are_refused_with_the_reason() {
         "32x32",
     ]);
     assert!(err.contains("fp16") && err.contains("CUDA"), "{err}");
+}
+
+#[test]
+fn emulated_bf16_convolutions_are_chosen_by_the_variable_and_a_bad_value_is_refused() {
+    let args = [
+        "bench",
+        "train",
+        "--model",
+        "mfnet",
+        "--batch",
+        "1",
+        "--size",
+        "32x32",
+        "--precision",
+        "bf16",
+        "--warmup",
+        "0",
+        "--steps",
+        "1",
+        "--threads",
+        "1",
+        "--json",
+    ];
+    let run = |value: &str| {
+        Command::new(env!("CARGO_BIN_EXE_rtf"))
+            .args(args)
+            .env("RTF_BF16_CONVOLUTIONS", value)
+            .output()
+            .expect("rtf runs")
+    };
+    for choice in ["native", "emulated"] {
+        let out = run(choice);
+        assert!(out.status.success(), "{}", text(&out));
+        let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(report["convolutions"], format!("bf16 {choice}"));
+    }
+    let out = run("fast");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("RTF_BF16_CONVOLUTIONS=`fast`"), "{err}");
 }

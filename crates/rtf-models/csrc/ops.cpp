@@ -4,6 +4,8 @@
 //   uses 0.1. Calling ATen here goes through the dispatcher, autograd included, so the result is
 //   differentiable exactly like `torch.nn.functional.leaky_relu(x, slope, inplace)`.
 // - A bf16 convolution for CPUs without bf16 arithmetic (below, `Bf16EmulatedConvolution`).
+// - ATen's fused SGD update (one pass over parameter, gradient and momentum buffer), which tch
+//   does not bind (list arguments).
 // Tensors arrive as `at::Tensor*`, which is what tch's `C_tensor*` is. Every C++ exception is
 // caught and returned as a malloc'd message (NULL = success).
 
@@ -141,6 +143,27 @@ char* rtf_bf16_emulated_convolution(at::Tensor* x, at::Tensor* w, at::Tensor* b,
     return strdup(e.what());
   } catch (...) {
     return strdup("unknown C++ exception in rtf_bf16_emulated_convolution");
+  }
+}
+
+// One SGD step of `param` (PyTorch's rules, no dampening or Nesterov) in one fused pass:
+// g = grad + weight_decay·param; buf = g on the first step, else momentum·buf + g;
+// param -= lr·buf. `buf` must be shaped like `param`; with momentum 0 it is left alone.
+char* rtf_fused_sgd(at::Tensor* param, at::Tensor* grad, at::Tensor* buf, double weight_decay,
+                    double momentum, double lr, int is_first_step) {
+  try {
+    at::NoGradGuard no_grad;
+    std::vector<at::Tensor> params{*param}, grads{*grad}, bufs;
+    if (momentum != 0.0) {
+      bufs.push_back(*buf);
+    }
+    at::_fused_sgd_(params, grads, bufs, weight_decay, momentum, lr, /*dampening=*/0.0,
+                    /*nesterov=*/false, /*maximize=*/false, is_first_step != 0);
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_fused_sgd");
   }
 }
 

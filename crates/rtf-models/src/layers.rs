@@ -11,6 +11,7 @@ use tch::{nn, Kind, Tensor};
 
 pub use crate::sync_bn::BatchNorm;
 
+use crate::aten::{ffi, shim_result};
 use crate::onednn::{conv_add_with_post_op, conv_with_post_op, Geometry, PostOp};
 
 /// BatchNorm epsilon of every reference network (PyTorch's default).
@@ -33,57 +34,6 @@ pub fn bn2d_init(p: nn::Path, c: i64, weight: nn::Init) -> BatchNorm {
         ..Default::default()
     };
     BatchNorm(nn::batch_norm2d(p, c, cfg))
-}
-
-mod ffi {
-    use std::ffi::{c_char, c_int};
-    extern "C" {
-        pub fn rtf_leaky_relu(
-            x: *mut torch_sys::C_tensor,
-            slope: f64,
-            in_place: c_int,
-            out: *mut *mut torch_sys::C_tensor,
-        ) -> *mut c_char;
-        pub fn rtf_bf16_emulated_convolution(
-            x: *mut torch_sys::C_tensor,
-            w: *mut torch_sys::C_tensor,
-            b: *mut torch_sys::C_tensor,
-            stride: *const i64,
-            padding: *const i64,
-            dilation: *const i64,
-            transposed: c_int,
-            output_padding: *const i64,
-            groups: i64,
-            out: *mut *mut torch_sys::C_tensor,
-        ) -> *mut c_char;
-        pub fn rtf_ops_free_error(error: *mut c_char);
-    }
-}
-
-/// Takes a shim's result: the new tensor in `out`, or panics with the shim's message (a
-/// failure is a programming error, as in tch's own ops).
-///
-/// # Safety
-/// `error` is null or a NUL-terminated string the shim malloc'd; on null, `out` is a new heap
-/// `at::Tensor*` the shim made, which the returned `Tensor` then owns (tch deletes it).
-unsafe fn shim_result(
-    op: &str,
-    error: *mut std::ffi::c_char,
-    out: *mut torch_sys::C_tensor,
-) -> Tensor {
-    if !error.is_null() {
-        // SAFETY: per the contract above; read once, freed by the shim.
-        let message = unsafe {
-            let m = std::ffi::CStr::from_ptr(error)
-                .to_string_lossy()
-                .into_owned();
-            ffi::rtf_ops_free_error(error);
-            m
-        };
-        panic!("{op}: {message}");
-    }
-    // SAFETY: success: `out` is the shim's new tensor (see above).
-    unsafe { Tensor::from_ptr(out) }
 }
 
 /// The bf16 convolution of `xs` with `weight` (+ `bias`), computed by fp32 kernels over

@@ -6,6 +6,7 @@
 //! Output: logits `[B, num_classes, H, W]`.
 
 pub mod allocator;
+pub mod aten;
 pub mod backbone;
 pub mod baselines;
 pub mod error;

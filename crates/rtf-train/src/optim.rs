@@ -124,6 +124,39 @@ impl Optimizer {
                 if !grad.defined() {
                     continue;
                 }
+                if cfg.kind == OptimizerKind::Sgd && fusable(&param, &grad) {
+                    // The same update in ATen's fused kernel: one pass, no temporaries.
+                    let key = format!("momentum/{name}");
+                    let (buffer, first_step) = match self.state.get(&key) {
+                        _ if cfg.momentum == 0.0 => (grad.shallow_clone(), false),
+                        Some(buffer) if buffer.stride() == param.stride() => {
+                            (buffer.shallow_clone(), false)
+                        }
+                        Some(_) => {
+                            // A buffer restored with another layout (a checkpoint is laid out
+                            // contiguous): re-laid like the parameter, same values.
+                            let mut buffer = param.empty_like();
+                            buffer.copy_(&self.state[&key]);
+                            self.state.insert(key, buffer.shallow_clone());
+                            (buffer, false)
+                        }
+                        None => {
+                            let buffer = param.zeros_like();
+                            self.state.insert(key, buffer.shallow_clone());
+                            (buffer, true)
+                        }
+                    };
+                    rtf_models::aten::fused_sgd_(
+                        &param,
+                        &grad,
+                        &buffer,
+                        cfg.weight_decay,
+                        cfg.momentum,
+                        lr,
+                        first_step,
+                    );
+                    continue;
+                }
                 let grad = if cfg.weight_decay != 0.0 {
                     grad + &param * cfg.weight_decay
                 } else {
@@ -189,6 +222,17 @@ impl Optimizer {
     }
 }
 
+/// Whether ATen's fused SGD kernel may update `param` with `grad`: both on the CPU or CUDA,
+/// fp32, dense in the same layout (the kernel walks their memory in step).
+fn fusable(param: &Tensor, grad: &Tensor) -> bool {
+    let dense = param.is_contiguous() || rtf_models::layers::is_channels_last(param);
+    matches!(param.device(), tch::Device::Cpu | tch::Device::Cuda(_))
+        && param.kind() == tch::Kind::Float
+        && grad.kind() == tch::Kind::Float
+        && param.stride() == grad.stride()
+        && dense
+}
+
 /// Trainable variables sorted by name (BatchNorm running statistics excluded).
 pub fn trainable(vs: &VarStore) -> Vec<(String, Tensor)> {
     let mut vars: Vec<_> = vs
@@ -246,6 +290,55 @@ mod tests {
         let (got, state) = quadratic_steps(&cfg, 2, 0.5);
         assert_close(&got, &expected);
         assert_eq!(state, 1, "one momentum buffer");
+    }
+
+    /// The fused SGD kernel on a channels-last 4-D parameter (bf16 runs lay kernels out so),
+    /// with and without momentum, and after its momentum buffer came back from a checkpoint laid
+    /// out contiguous: the update rule, element for element.
+    #[test]
+    fn fused_sgd_follows_the_rule_in_any_layout_and_after_a_restore() {
+        for momentum in [0.9, 0.0] {
+            let cfg = OptimizerConfig {
+                momentum,
+                weight_decay: 0.05,
+                ..OptimizerConfig::mfnet_paper()
+            };
+            let vs = VarStore::new(Device::Cpu);
+            let start = Tensor::randn([3, 4, 2, 5], (Kind::Float, Device::Cpu));
+            let mut w = vs.root().var_copy("w", &start);
+            tch::no_grad(|| w.set_data(&rtf_models::layers::to_channels_last(&w)));
+            assert!(rtf_models::layers::is_channels_last(&w));
+            let target = Tensor::randn([3, 4, 2, 5], (Kind::Float, Device::Cpu));
+            let mut optimizer = Optimizer::new(&cfg);
+            let (mut expected, mut buffer) = (start.copy(), start.zeros_like());
+            for step in 0..4 {
+                if step == 2 {
+                    // A resume: the state as a checkpoint hands it back, contiguous.
+                    let restored = optimizer
+                        .state()
+                        .iter()
+                        .map(|(k, v)| (k.clone(), v.contiguous()))
+                        .collect();
+                    optimizer = Optimizer::new(&cfg);
+                    optimizer.set_state(restored);
+                }
+                optimizer.zero_grad(&vs);
+                (&w - &target).square().sum(Kind::Float).backward(); // grad = 2(w − target)
+                optimizer.step(&vs, 0.1);
+                let g = (&expected - &target) * 2.0 + &expected * 0.05;
+                buffer = match (momentum, step) {
+                    (0.0, _) => g.shallow_clone(),
+                    (_, 0) => g.shallow_clone(),
+                    _ => &buffer * momentum + &g,
+                };
+                expected = &expected - &buffer * 0.1;
+                assert!(
+                    w.allclose(&expected, 1e-5, 1e-6, false),
+                    "momentum {momentum}, step {step}"
+                );
+            }
+            assert_eq!(optimizer.state().len(), usize::from(momentum != 0.0));
+        }
     }
 
     /// Three RMSprop steps (PyTorch's `torch.optim.RMSprop` rule), with and without momentum.
