@@ -32,16 +32,40 @@ const MI_OPTION_PURGE_DELAY: mi_option_t = 15;
 /// Milliseconds freed memory stays mapped before mimalloc returns it (module docs).
 pub const PURGE_DELAY_MS: i64 = 5000;
 
+/// The delay for bf16 training on a CPU (`rtf train`, `rtf bench train`). A ResNet-50 network's
+/// bf16 pass is 6–13 s on 2 cores, and with 5 s the memory a pass freed was returned and
+/// faulted back in by the next (PSPNet-50: 20–45 % of the samples at each step's start in the
+/// kernel's page zeroing). 640×480, batch 4, 2 threads, avx512_bf16 EPYC, one step each
+/// (docs/src/benchmarks.md, round 5): RTFNet-50 0.22 images/s at 7260 MiB with 5 s, 0.24 at
+/// 7453 with 20 s, 0.26 at 7851 (above PyTorch's 7830) with purging off; PSPNet-50 0.15 at
+/// 6431, 0.21 at 6504, 0.20 at 7278. fp32 keeps 5 s (longer delays raised both networks' fp32
+/// peaks above PyTorch's, round 3).
+pub const BF16_TRAINING_PURGE_DELAY_MS: i64 = 20_000;
+
 /// Sets mimalloc's purge delay to [`PURGE_DELAY_MS`] unless the user set
 /// `MIMALLOC_PURGE_DELAY` (mimalloc's own variable; `-1` never returns memory, `0` at once).
 /// Call once, at the start of `main`, before the tensor work. Returns the delay in force.
 pub fn set_purge_delay() -> i64 {
+    set_purge_delay_ms(PURGE_DELAY_MS)
+}
+
+/// Sets mimalloc's purge delay to `ms` unless the user set `MIMALLOC_PURGE_DELAY`; returns the
+/// delay in force. mimalloc reads the option each time it considers a purge, so a command may
+/// change it once it knows its work (before that work starts).
+pub fn set_purge_delay_ms(ms: i64) -> i64 {
     if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
         // SAFETY: mi_option_set only stores an option value; mimalloc reads it atomically.
-        unsafe { mi_option_set(MI_OPTION_PURGE_DELAY, PURGE_DELAY_MS as std::ffi::c_long) };
+        unsafe { mi_option_set(MI_OPTION_PURGE_DELAY, ms as std::ffi::c_long) };
     }
     // SAFETY: reading an option value has no preconditions.
     unsafe { mi_option_get(MI_OPTION_PURGE_DELAY) as i64 }
+}
+
+/// Training in `precision` on `device`: the bf16-on-CPU delay where it applies.
+pub fn set_purge_delay_for_training(precision: rtf_train::config::Precision, device: tch::Device) {
+    if precision == rtf_train::config::Precision::Bf16 && device == tch::Device::Cpu {
+        set_purge_delay_ms(BF16_TRAINING_PURGE_DELAY_MS);
+    }
 }
 
 #[cfg(test)]
@@ -59,6 +83,13 @@ mod tests {
                 before, 1000,
                 "option {MI_OPTION_PURGE_DELAY} is not purge_delay"
             );
+            assert_eq!(set_purge_delay(), PURGE_DELAY_MS);
+            set_purge_delay_for_training(rtf_train::config::Precision::Fp32, tch::Device::Cpu);
+            assert_eq!(set_purge_delay(), PURGE_DELAY_MS, "fp32 keeps the default");
+            set_purge_delay_for_training(rtf_train::config::Precision::Bf16, tch::Device::Cpu);
+            // SAFETY: as in set_purge_delay.
+            let bf16 = unsafe { mi_option_get(MI_OPTION_PURGE_DELAY) as i64 };
+            assert_eq!(bf16, BF16_TRAINING_PURGE_DELAY_MS);
             assert_eq!(set_purge_delay(), PURGE_DELAY_MS);
         }
     }

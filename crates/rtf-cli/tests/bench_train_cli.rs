@@ -4,28 +4,20 @@ mod common;
 use common::*;
 use std::process::Command;
 
+/// `rtf bench train --json` of one MFNet step on one 32×32 frame in `precision`.
+fn tiny_bench(precision: &str) -> Vec<&str> {
+    let mut args = vec![
+        "bench", "train", "--model", "mfnet", "--batch", "1", "--size", "32x32",
+    ];
+    args.extend(["--precision", precision, "--warmup", "0", "--steps", "1"]);
+    args.extend(["--threads", "1", "--json"]);
+    args
+}
+
 #[test]
 fn bench_train_reports_the_issue_fields() {
     for precision in ["fp32", "bf16"] {
-        let report = json_out(&[
-            "bench",
-            "train",
-            "--model",
-            "mfnet",
-            "--batch",
-            "1",
-            "--size",
-            "32x32",
-            "--precision",
-            precision,
-            "--warmup",
-            "0",
-            "--steps",
-            "1",
-            "--threads",
-            "1",
-            "--json",
-        ]);
+        let report = json_out(&tiny_bench(precision));
         assert_eq!(report["model"], "mfnet");
         assert_eq!(report["batch"], 1);
         assert_eq!(report["size"], "32x32");
@@ -62,28 +54,9 @@ fn bad_precisions_are_refused_with_the_reason() {
 
 #[test]
 fn emulated_bf16_convolutions_are_chosen_by_the_variable_and_a_bad_value_is_refused() {
-    let args = [
-        "bench",
-        "train",
-        "--model",
-        "mfnet",
-        "--batch",
-        "1",
-        "--size",
-        "32x32",
-        "--precision",
-        "bf16",
-        "--warmup",
-        "0",
-        "--steps",
-        "1",
-        "--threads",
-        "1",
-        "--json",
-    ];
     let run = |value: &str| {
         Command::new(env!("CARGO_BIN_EXE_rtf"))
-            .args(args)
+            .args(tiny_bench("bf16"))
             .env("RTF_BF16_CONVOLUTIONS", value)
             .output()
             .expect("rtf runs")

@@ -66,6 +66,7 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(warning) = args.precision.slow_on(device) {
         eprintln!("warning: {warning}");
     }
+    crate::allocator::set_purge_delay_for_training(args.precision, device);
     let report = bench_train(&TrainBenchOptions {
         model: args.model,
         batch: args.batch,

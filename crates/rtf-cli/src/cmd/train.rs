@@ -173,9 +173,13 @@ pub fn run(args: Args) -> Result<()> {
     let ddp = join_job(&mut cfg, args.dist_timeout)?;
     let root = ddp.as_ref().is_none_or(|d| d.is_root());
     let mut slow = None;
-    for (_, stage) in cfg.stages() {
+    for (i, (_, stage)) in cfg.stages().into_iter().enumerate() {
         let device = available_device(&stage.device).map_err(anyhow::Error::msg)?;
         slow = slow.or_else(|| stage.precision.slow_on(device));
+        // The allocator's policy follows the first stage's arithmetic (process-wide).
+        if i == 0 {
+            crate::allocator::set_purge_delay_for_training(stage.precision, device);
+        }
     }
     if let Some(warning) = slow.filter(|_| root) {
         eprintln!("warning: {warning}");
