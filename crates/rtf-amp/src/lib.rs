@@ -188,12 +188,17 @@ fn choose_bf16_convolutions(
     }
 }
 
-/// Whether a convolution of an input on `device` made now, on this thread, should be the
-/// emulated bf16 one: a CPU input inside a bf16 autocast region, with
+/// Whether bf16 convolutions on `device` are the emulated ones: a CPU, with
 /// [`Bf16Convolutions::Emulated`] chosen.
+pub fn emulates_bf16_convolutions_on(device: Device) -> bool {
+    device == Device::Cpu && matches!(cpu_bf16_convolutions(), Ok(Bf16Convolutions::Emulated))
+}
+
+/// Whether a convolution of an input on `device` made now, on this thread, should be the
+/// emulated bf16 one: [`emulates_bf16_convolutions_on`] that device, inside a bf16 autocast
+/// region.
 pub fn emulates_bf16_convolution(device: Device) -> bool {
-    device == Device::Cpu
-        && matches!(cpu_bf16_convolutions(), Ok(Bf16Convolutions::Emulated))
+    emulates_bf16_convolutions_on(device)
         && state(Device::Cpu).is_ok_and(|s| s.enabled && s.dtype == Kind::BFloat16)
 }
 

@@ -592,13 +592,15 @@ impl ConvBnAct {
     fn conv_bn(&self, xs: &Tensor, train: bool) -> Tensor {
         match (&self.fused, train) {
             (Some(f), false) => self.conv(xs, &f.weight, f.bias.as_ref()),
-            _ => {
-                let ys = self.conv(xs, &self.weight, self.bias.as_ref());
-                match &self.bn {
-                    Some(bn) => ys.apply_t(bn, train),
-                    None => ys,
-                }
-            }
+            _ => self.batch_norm(self.conv(xs, &self.weight, self.bias.as_ref()), train),
+        }
+    }
+
+    /// This unit's BatchNorm of a convolution's output, if it has one (unfolded path).
+    fn batch_norm(&self, ys: Tensor, train: bool) -> Tensor {
+        match &self.bn {
+            Some(bn) => ys.apply_t(bn, train),
+            None => ys,
         }
     }
 
@@ -628,11 +630,7 @@ impl ConvBnAct {
             // [B, c_in, H, W] -> [B, 4·c_out, H + 1, W + 1] -> [B, c_out, 2H, 2W]
             let phases = self.conv(xs, &weight, bias.as_ref());
             let ys = interleave_phases_differentiably(&phases);
-            let ys = match &self.bn {
-                Some(bn) => ys.apply_t(bn, train),
-                None => ys,
-            };
-            return self.activate(ys, train);
+            return self.activate(self.batch_norm(ys, train), train);
         }
         if let (
             Some(Fused {

@@ -76,12 +76,8 @@ impl Trained {
     /// for channels-last operands (PyTorch users: `model.to(memory_format=channels_last)`).
     /// Not in fp32, nor with emulated bf16 convolutions (fp32 kernels: NCHW measured faster).
     pub fn channels_last(&self) -> bool {
-        let emulated = self.vs.device() == tch::Device::Cpu
-            && self.precision == Precision::Bf16
-            && matches!(
-                rtf_amp::cpu_bf16_convolutions(),
-                Ok(rtf_amp::Bf16Convolutions::Emulated)
-            );
+        let emulated = self.precision == Precision::Bf16
+            && rtf_amp::emulates_bf16_convolutions_on(self.vs.device());
         self.precision != Precision::Fp32 && !emulated
     }
 
