@@ -98,10 +98,10 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
         std::env::set_var("RTF_TEST_ONNX", "1");
     }
     run(root, "cargo", &args)?;
-    // Skipped when the suite is filtered: the mixed-precision tests once more with each CPU
-    // bf16 convolution choice (rtf-amp picks emulated where the CPU lacks bf16 arithmetic,
-    // else native; the main run covered that one), so both are trained, stopped and resumed
-    // exactly wherever the suite runs; and issue 11's smoke reproduction: every table's
+    // Skipped when the suite is filtered: the mixed-precision tests (synthetic and real
+    // frames) once more with each CPU bf16 convolution choice (rtf-amp picks emulated where
+    // the CPU lacks bf16 arithmetic, else native; the main run covered that one), so both are
+    // trained, stopped, resumed and checked on real imagery wherever the suite runs; and issue 11's smoke reproduction: every table's
     // pipeline end to end on a tiny budget (files and JSON schema are checked; no number is
     // asserted).
     if extra.is_empty() {
@@ -114,6 +114,8 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
                     "rtf-train",
                     "--test",
                     "mixed_precision",
+                    "--test",
+                    "real_frames_bf16",
                 ])
                 .env("RTF_BF16_CONVOLUTIONS", choice)
                 .current_dir(root)
