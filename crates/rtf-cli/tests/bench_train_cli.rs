@@ -71,4 +71,29 @@ fn emulated_bf16_convolutions_are_chosen_by_the_variable_and_a_bad_value_is_refu
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("RTF_BF16_CONVOLUTIONS=`fast`"), "{err}");
+    // `rtf train` refuses it before writing its run folder.
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, run_dir) = (tmp.path().join("data"), tmp.path().join("run"));
+    synth_mf(&data, "6", "0", "32x32");
+    let out = Command::new(env!("CARGO_BIN_EXE_rtf"))
+        .args([
+            "train",
+            "--model",
+            "mfnet",
+            "--epochs",
+            "1",
+            "--precision",
+            "bf16",
+        ])
+        .args(["--data", s(&data), "--out", s(&run_dir)])
+        .env("RTF_BF16_CONVOLUTIONS", "fast")
+        .output()
+        .expect("rtf runs");
+    assert!(!out.status.success());
+    assert!(
+        text(&out).contains("RTF_BF16_CONVOLUTIONS=`fast`"),
+        "{}",
+        text(&out)
+    );
+    assert!(!run_dir.exists(), "run folder written");
 }
