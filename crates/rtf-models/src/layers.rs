@@ -962,9 +962,30 @@ mod tests {
             ]
         };
         let (phase_form, direct) = (run(true), run(false));
-        for (i, (p, d)) in phase_form.iter().zip(&direct).enumerate() {
-            assert_eq!(p.size(), d.size(), "tensor {i}");
-            assert!(p.allclose(d, 1e-4, 1e-5, false), "tensor {i}");
+        // Each tensor is compared at the scale of the sum it is (see crate::tolerance): the
+        // output and the input gradient at their own magnitude; the weight and bias gradients
+        // both sum the same N·H·W terms ∂L/∂z (the weight's times an input patch of unit
+        // scale), so both at the weight gradient's magnitude. The bias gradient is zero in
+        // exact arithmetic (training-mode BatchNorm removes any per-channel constant): its
+        // values are rounding noise of that sum, ~1e-5 against terms reaching ~50, and a fixed
+        // atol of 1e-5 passed on AVX-512 kernels and failed on AVX2 ones (issue 33).
+        let gradient_scale = crate::tolerance::max_abs(&direct[2]);
+        let names = [
+            "output",
+            "input gradient",
+            "weight gradient",
+            "bias gradient",
+        ];
+        let scales = [0.0, 0.0, gradient_scale, gradient_scale];
+        for ((name, scale), (p, d)) in names.iter().zip(scales).zip(phase_form.iter().zip(&direct))
+        {
+            if let Err(e) = crate::tolerance::close_at_scale(name, p, d, scale, 1e-4) {
+                panic!("phase form against direct: {e}");
+            }
+        }
+        // And the bias gradient is zero at that scale in both forms.
+        for bias_gradient in [&phase_form[3], &direct[3]] {
+            assert!(crate::tolerance::max_abs(bias_gradient) <= 1e-5 * gradient_scale);
         }
     }
 

@@ -20,6 +20,7 @@ pub mod onednn;
 pub mod resnet;
 pub mod rtfnet;
 pub mod sync_bn;
+pub mod tolerance;
 pub mod weights;
 
 use serde::{Deserialize, Serialize};
