@@ -3,7 +3,8 @@
 //! `eval.json` (`rtf eval --json`). What is on disk decides what is left to do, so a re-run
 //! skips finished cells and resumes interrupted ones (`rtf train --resume`).
 
-use super::budget::Budget;
+use super::budget::{Budget, RECIPE_CPU_MODEL};
+use super::io::write_json;
 use super::tables::{Cell, Data, Table, Train};
 use anyhow::{bail, Context as _, Result};
 use serde_json::{json, Value};
@@ -154,9 +155,6 @@ impl Context {
         }))
     }
 }
-
-/// The network every role of a HeatNet recipe uses on the CPU budgets (stated in the results).
-pub const RECIPE_CPU_MODEL: &str = "mfnet";
 
 /// Fails when `dir` holds a cell made with another recipe (another budget or dataset).
 pub fn check_spec(dir: &Path, spec: &Value) -> Result<()> {
@@ -451,19 +449,6 @@ fn rtf_command(ctx: &Context) -> Command {
         c.env("OMP_WAIT_POLICY", "PASSIVE");
     }
     c
-}
-
-/// Writes JSON through a temporary file and a rename.
-pub fn write_json(path: &Path, v: &Value) -> Result<()> {
-    write_atomic(path, serde_json::to_string_pretty(v)?.as_bytes())
-}
-
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]

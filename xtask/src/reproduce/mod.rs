@@ -9,6 +9,7 @@
 mod budget;
 mod cells;
 mod figure;
+mod io;
 mod report;
 mod speed;
 mod tables;
@@ -787,7 +788,7 @@ fn docs(root: &Path, args: &[String]) -> Result<()> {
         );
     }
     let path = root.join("docs/src/reproduction.md");
-    cells::write_atomic(&path, text.as_bytes())?;
+    io::write_atomic(&path, text.as_bytes())?;
     eprintln!(
         "reproduce docs: wrote {} from {found} tables",
         path.display()

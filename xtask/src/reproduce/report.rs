@@ -4,6 +4,7 @@
 //! measured means.
 
 use super::cells::{self, Context, BENCH_FILE, EVAL_FILE};
+use super::io;
 use super::tables::{Metric, Subset, Table};
 use anyhow::{bail, Context as _, Result};
 use serde_json::{json, Value};
@@ -562,9 +563,9 @@ const MFNET_CPU_RATE_480: f64 = 1.25;
 pub fn write(out: &Path, v: &Value) -> Result<()> {
     validate(v)?;
     let id = v["table"].as_str().context("table id")?;
-    cells::write_json(&out.join(format!("{id}.json")), v)?;
-    cells::write_atomic(&out.join(format!("{id}.md")), markdown(v).as_bytes())?;
-    cells::write_atomic(&out.join(format!("{id}.csv")), csv(v).as_bytes())?;
+    io::write_json(&out.join(format!("{id}.json")), v)?;
+    io::write_atomic(&out.join(format!("{id}.md")), markdown(v).as_bytes())?;
+    io::write_atomic(&out.join(format!("{id}.csv")), csv(v).as_bytes())?;
     Ok(())
 }
 

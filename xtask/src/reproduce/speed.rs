@@ -293,8 +293,8 @@ pub fn run(
         "command": command,
     });
     super::report::validate(&v)?;
-    super::cells::write_json(&out.join(format!("{}.json", table.id)), &v)?;
-    super::cells::write_atomic(&out.join(format!("{}.md", table.id)), text.as_bytes())?;
+    super::io::write_json(&out.join(format!("{}.json", table.id)), &v)?;
+    super::io::write_atomic(&out.join(format!("{}.md", table.id)), text.as_bytes())?;
     eprintln!(
         "reproduce: wrote {}",
         out.join(format!("{}.md", table.id)).display()
