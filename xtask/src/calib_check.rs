@@ -63,92 +63,122 @@ pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
     let o = parse(extra)?;
     crate::setup::ensure_libtorch(root)?;
     if o.real_trials > 0 {
-        // Real-imagery rigs (MSRS frames through a known thermal camera): trials, table and
-        // the success-rate plot, from the rtf-calib example (it needs libtorch; xtask does not).
-        crate::run(
-            root,
-            "cargo",
-            &[
-                "run",
-                "--release",
-                "-p",
-                "rtf-calib",
-                "--example",
-                "real_trials",
-                "--",
-                "--trials",
-                &o.real_trials.to_string(),
-                "--width",
-                &o.real_width.to_string(),
-                "--frames",
-                &o.real_frames.to_string(),
-                "--out",
-                &format!("{}/real", o.out),
-            ],
-        )?;
+        real_trials(root, &o)?;
     }
     if o.seeds.is_empty() {
         return Ok(());
     }
     crate::run(root, "cargo", &["build", "--release", "-p", "rtf-cli"])?;
-    let (width, frames) = (o.width.to_string(), o.frames.to_string());
     let mut rows = Vec::new();
-    let synth = |seed: u64, depth: &str| -> Result<String> {
-        let dir = format!("{}/rig-{}-{}-{}", o.out, width, depth, seed);
-        let _ = std::fs::remove_dir_all(root.join(&dir));
-        crate::rtf_stdout(
-            root,
-            &s(&[
-                "synth",
-                "--format",
-                "calibration-rig",
-                "--out",
-                &dir,
-                "--size",
-                &format!("{width}x{}", o.width * 3 / 4),
-                "--count",
-                &frames,
-                "--rig-depth",
-                depth,
-                "--seed",
-                &seed.to_string(),
-            ]),
-        )?;
-        Ok(dir)
-    };
-    // Default recipe on one rig against its ground truth: prints and records a table row.
-    let mut check = |seed: u64, depth: &str, label: &str, extra: &[String]| -> Result<()> {
-        let dir = synth(seed, depth)?;
-        let start = Instant::now();
-        let mut args = s(&[
-            "calibrate",
-            "--rig",
-            &format!("{dir}/rig.yaml"),
-            "--out",
-            &format!("{dir}/calib.yaml"),
-        ]);
-        args.extend(s(&["--ground-truth", &format!("{dir}/ground_truth.yaml")]));
-        args.extend(extra.iter().map(|a| a.replace("{dir}", &dir)));
-        let line = truth_line(&crate::rtf_stdout(root, &args)?);
-        let secs = start.elapsed().as_secs_f64();
-        println!("default, {label} depth, seed {seed}: {line} (wall {secs:.1} s)");
-        rows.push(format!(
-            "| default | {label} | {seed} | {line} | {secs:.1} |"
-        ));
-        Ok(())
-    };
     for &seed in &o.seeds {
-        check(seed, "given", "given", &[])?;
+        rows.push(default_recipe(root, &o, seed, "given", "given", &[])?);
     }
     let seed = o.seeds[0];
-    check(
+    rows.push(default_recipe(
+        root,
+        &o,
         seed,
         "stereo",
         "stereo (SGM)",
         &s(&["--eval-rig", "{dir}/rig_depth.yaml"]),
+    )?);
+    time_paper_recipe(root, &o, seed)?;
+    println!("\n| recipe | depth | seed | result | wall s |\n|---|---|---|---|---|");
+    for r in rows {
+        println!("{r}");
+    }
+    Ok(())
+}
+
+/// Real-imagery rigs (MSRS frames through a known thermal camera): trials, table and the
+/// success-rate plot, from the rtf-calib example (it needs libtorch; xtask does not).
+fn real_trials(root: &Path, o: &Options) -> Result<()> {
+    crate::run(
+        root,
+        "cargo",
+        &[
+            "run",
+            "--release",
+            "-p",
+            "rtf-calib",
+            "--example",
+            "real_trials",
+            "--",
+            "--trials",
+            &o.real_trials.to_string(),
+            "--width",
+            &o.real_width.to_string(),
+            "--frames",
+            &o.real_frames.to_string(),
+            "--out",
+            &format!("{}/real", o.out),
+        ],
+    )
+}
+
+/// The folder (relative to the root) of the synthetic rig of `seed` with `depth`.
+fn rig_dir(o: &Options, depth: &str, seed: u64) -> String {
+    format!("{}/rig-{}-{}-{}", o.out, o.width, depth, seed)
+}
+
+/// `rtf synth --format calibration-rig` afresh into [`rig_dir`]; returns that folder.
+fn synth_rig(root: &Path, o: &Options, seed: u64, depth: &str) -> Result<String> {
+    let dir = rig_dir(o, depth, seed);
+    let _ = std::fs::remove_dir_all(root.join(&dir));
+    crate::rtf_stdout(
+        root,
+        &s(&[
+            "synth",
+            "--format",
+            "calibration-rig",
+            "--out",
+            &dir,
+            "--size",
+            &format!("{}x{}", o.width, o.width * 3 / 4),
+            "--count",
+            &o.frames.to_string(),
+            "--rig-depth",
+            depth,
+            "--seed",
+            &seed.to_string(),
+        ]),
     )?;
-    // Paper recipe: a short run timed, extrapolated to the recipe's 8000 iterations.
-    let dir = format!("{}/rig-{}-given-{}", o.out, width, seed);
+    Ok(dir)
+}
+
+/// Default recipe on one fresh rig against its ground truth: prints a line and returns the
+/// table row. `extra` flags may name the rig's folder as `{dir}`.
+fn default_recipe(
+    root: &Path,
+    o: &Options,
+    seed: u64,
+    depth: &str,
+    label: &str,
+    extra: &[String],
+) -> Result<String> {
+    let dir = synth_rig(root, o, seed, depth)?;
+    let start = Instant::now();
+    let mut args = s(&[
+        "calibrate",
+        "--rig",
+        &format!("{dir}/rig.yaml"),
+        "--out",
+        &format!("{dir}/calib.yaml"),
+    ]);
+    args.extend(s(&["--ground-truth", &format!("{dir}/ground_truth.yaml")]));
+    args.extend(extra.iter().map(|a| a.replace("{dir}", &dir)));
+    let line = truth_line(&crate::rtf_stdout(root, &args)?);
+    let secs = start.elapsed().as_secs_f64();
+    println!("default, {label} depth, seed {seed}: {line} (wall {secs:.1} s)");
+    Ok(format!(
+        "| default | {label} | {seed} | {line} | {secs:.1} |"
+    ))
+}
+
+/// Paper recipe: a short run on the given-depth rig of `seed` (made by [`default_recipe`]),
+/// timed and extrapolated to the recipe's 8000 iterations.
+fn time_paper_recipe(root: &Path, o: &Options, seed: u64) -> Result<()> {
+    let dir = rig_dir(o, "given", seed);
     let start = Instant::now();
     let paper = s(&[
         "calibrate",
@@ -185,9 +215,5 @@ pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
         per_iter,
         per_iter * 8000.0 / 3600.0
     );
-    println!("\n| recipe | depth | seed | result | wall s |\n|---|---|---|---|---|");
-    for r in rows {
-        println!("{r}");
-    }
     Ok(())
 }

@@ -237,13 +237,7 @@ fn demo(root: &Path, extra: &[String]) -> Result<()> {
         "--figure-frames",
         "6",
     ])?;
-    let split =
-        std::fs::read_to_string(out.join("data/test.txt")).context("reading demo/data/test.txt")?;
-    let images: Vec<String> = split
-        .lines()
-        .take(4)
-        .map(|n| format!("demo/data/images/{}.png", n.trim()))
-        .collect();
+    let images = demo_test_images(&out, 4)?;
     let mut predict = vec![
         "predict",
         "--model",
@@ -257,4 +251,15 @@ fn demo(root: &Path, extra: &[String]) -> Result<()> {
     step(&predict)?;
     println!("\ndemo: scores in demo/eval_test.json, prediction grid in demo/predictions.png, run in demo/run");
     Ok(())
+}
+
+/// The image paths (relative to the root) of the first `count` test frames of the demo data.
+fn demo_test_images(out: &Path, count: usize) -> Result<Vec<String>> {
+    let split =
+        std::fs::read_to_string(out.join("data/test.txt")).context("reading demo/data/test.txt")?;
+    Ok(split
+        .lines()
+        .take(count)
+        .map(|n| format!("demo/data/images/{}.png", n.trim()))
+        .collect())
 }

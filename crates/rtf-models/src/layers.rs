@@ -9,15 +9,11 @@
 
 use tch::{nn, Kind, Tensor};
 
+pub use crate::bn_defaults::{BN_EPS, BN_MOMENTUM};
 pub use crate::sync_bn::BatchNorm;
 
 use crate::aten::{ffi, shim_result};
 use crate::onednn::{conv_add_with_post_op, conv_with_post_op, Geometry, PostOp};
-
-/// BatchNorm epsilon of every reference network (PyTorch's default).
-pub const BN_EPS: f64 = 1e-5;
-/// BatchNorm momentum of every reference network (PyTorch's default).
-pub const BN_MOMENTUM: f64 = 0.1;
 
 /// BatchNorm2d initialised as PyTorch's (weight 1, bias 0; tch's default weight is U(0, 1)).
 pub fn bn2d(p: nn::Path, c: i64) -> BatchNorm {

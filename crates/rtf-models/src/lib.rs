@@ -9,6 +9,7 @@ pub mod allocator;
 pub mod aten;
 pub mod backbone;
 pub mod baselines;
+pub mod bn_defaults;
 pub mod error;
 pub mod fast;
 pub mod heatnet;

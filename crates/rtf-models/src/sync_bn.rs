@@ -16,7 +16,7 @@ use std::sync::Arc;
 use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
-use crate::layers::{BN_EPS, BN_MOMENTUM};
+use crate::bn_defaults::{BN_EPS, BN_MOMENTUM};
 
 /// A differentiable sum over every process of a data-parallel job.
 pub trait StatsAllReduce: Send + Sync {

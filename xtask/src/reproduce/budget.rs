@@ -8,6 +8,9 @@ use super::tables::{Data, RecipeFamily};
 use anyhow::{bail, Result};
 use serde_json::json;
 
+/// The network every role of a HeatNet recipe uses on the CPU budgets (stated in the results).
+pub const RECIPE_CPU_MODEL: &str = "mfnet";
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Budget {
     Smoke,
@@ -137,7 +140,7 @@ impl Budget {
                 "--epochs",
                 epochs,
                 "--model",
-                super::cells::RECIPE_CPU_MODEL,
+                RECIPE_CPU_MODEL,
                 "--resize",
                 size,
                 "--lr",

@@ -3,7 +3,8 @@
 //! `eval.json` (`rtf eval --json`). What is on disk decides what is left to do, so a re-run
 //! skips finished cells and resumes interrupted ones (`rtf train --resume`).
 
-use super::budget::Budget;
+use super::budget::{Budget, RECIPE_CPU_MODEL};
+use super::io::write_json;
 use super::tables::{Cell, Data, Table, Train};
 use anyhow::{bail, Context as _, Result};
 use serde_json::{json, Value};
@@ -155,9 +156,6 @@ impl Context {
     }
 }
 
-/// The network every role of a HeatNet recipe uses on the CPU budgets (stated in the results).
-pub const RECIPE_CPU_MODEL: &str = "mfnet";
-
 /// Fails when `dir` holds a cell made with another recipe (another budget or dataset).
 pub fn check_spec(dir: &Path, spec: &Value) -> Result<()> {
     let path = dir.join(CELL_FILE);
@@ -212,76 +210,18 @@ fn run_cell(ctx: &Context, table: &Table, cell: &Cell, seed: usize, dir: &Path) 
     let mut st = state(dir, cell.bench);
     if st == State::Fresh {
         if let Some(other) = find_identical(ctx, dir, &spec) {
-            std::fs::copy(other.join(EVAL_FILE), dir.join(EVAL_FILE))
-                .with_context(|| format!("copying {}", other.join(EVAL_FILE).display()))?;
-            let mut spec = spec.clone();
-            spec["reused_from"] = json!(other);
-            write_json(&dir.join(CELL_FILE), &spec)?;
-            if cell.bench {
-                bench(ctx, cell, dir)?;
-            }
-            return Ok(Outcome::Reused(other));
+            return reuse(ctx, cell, dir, &spec, other);
         }
     }
     let network = ctx.network(cell)?;
     if matches!(st, State::Fresh | State::Resume) {
-        let mut args: Vec<String> = vec!["train".into()];
-        if st == State::Resume {
-            args.extend(["--resume".into(), dir.display().to_string()]);
-        } else {
-            let train_root = spec["train_data"].as_str().context("train_data")?;
-            args.extend(["--data".into(), train_root.into()]);
-            args.extend(["--out".into(), dir.display().to_string()]);
-            args.extend(strings(&spec["rtf_train"]));
-        }
-        match rtf(ctx, dir, &args)? {
-            Ended::Exit(0) => {}
-            Ended::Exit(130) | Ended::Signal(SIGINT) => return Ok(Outcome::Interrupted),
-            ended => bail!(
-                "`rtf {}` failed ({ended}); its output: {}{}",
-                args.join(" "),
-                dir.join(LOG_FILE).display(),
-                log_tail(dir)
-            ),
+        if let Outcome::Interrupted = train(ctx, dir, &spec, st == State::Resume)? {
+            return Ok(Outcome::Interrupted);
         }
         st = State::Evaluate;
     }
     if st == State::Evaluate {
-        // The protocol: the checkpoint picked on validation where a validation split was
-        // used (MF), else the final weights.
-        let best = dir.join("best.safetensors");
-        let weights = if best.exists() {
-            best
-        } else {
-            dir.join("final.safetensors")
-        };
-        let mut args: Vec<String> = [
-            "eval",
-            "--model",
-            &network,
-            "--weights",
-            &weights.display().to_string(),
-            "--data",
-            spec["eval_data"].as_str().context("eval_data")?,
-            "--split",
-            "test",
-            "--json",
-            &dir.join(EVAL_FILE).display().to_string(),
-            "--device",
-            &ctx.device,
-        ]
-        .map(String::from)
-        .to_vec();
-        args.extend(strings(&spec["rtf_eval"]));
-        let ended = rtf(ctx, dir, &args)?;
-        if ended != Ended::Exit(0) {
-            bail!(
-                "`rtf {}` failed ({ended}); its output: {}{}",
-                args.join(" "),
-                dir.join(LOG_FILE).display(),
-                log_tail(dir)
-            );
-        }
+        evaluate(ctx, dir, &spec, &network)?;
         if cell.bench {
             bench(ctx, cell, dir)?;
         }
@@ -292,6 +232,84 @@ fn run_cell(ctx: &Context, table: &Table, cell: &Cell, seed: usize, dir: &Path) 
         remove_weights(dir)?;
     }
     Ok(Outcome::Ran)
+}
+
+/// Takes the scores of `other`, a finished cell with the same training and evaluation, instead
+/// of training again (recorded as `reused_from` in the cell's spec).
+fn reuse(ctx: &Context, cell: &Cell, dir: &Path, spec: &Value, other: PathBuf) -> Result<Outcome> {
+    std::fs::copy(other.join(EVAL_FILE), dir.join(EVAL_FILE))
+        .with_context(|| format!("copying {}", other.join(EVAL_FILE).display()))?;
+    let mut spec = spec.clone();
+    spec["reused_from"] = json!(other);
+    write_json(&dir.join(CELL_FILE), &spec)?;
+    if cell.bench {
+        bench(ctx, cell, dir)?;
+    }
+    Ok(Outcome::Reused(other))
+}
+
+/// `rtf train` into the cell's folder (`--resume` it when `resume`): `Outcome::Interrupted`
+/// when the user stopped it, `Outcome::Ran` when it finished.
+fn train(ctx: &Context, dir: &Path, spec: &Value, resume: bool) -> Result<Outcome> {
+    let mut args: Vec<String> = vec!["train".into()];
+    if resume {
+        args.extend(["--resume".into(), dir.display().to_string()]);
+    } else {
+        let train_root = spec["train_data"].as_str().context("train_data")?;
+        args.extend(["--data".into(), train_root.into()]);
+        args.extend(["--out".into(), dir.display().to_string()]);
+        args.extend(strings(&spec["rtf_train"]));
+    }
+    match rtf(ctx, dir, &args)? {
+        Ended::Exit(0) => Ok(Outcome::Ran),
+        Ended::Exit(130) | Ended::Signal(SIGINT) => Ok(Outcome::Interrupted),
+        ended => bail!(
+            "`rtf {}` failed ({ended}); its output: {}{}",
+            args.join(" "),
+            dir.join(LOG_FILE).display(),
+            log_tail(dir)
+        ),
+    }
+}
+
+/// `rtf eval` of the cell's weights on the test split into `eval.json`. The protocol: the
+/// checkpoint picked on validation where a validation split was used (MF), else the final
+/// weights.
+fn evaluate(ctx: &Context, dir: &Path, spec: &Value, network: &str) -> Result<()> {
+    let best = dir.join("best.safetensors");
+    let weights = if best.exists() {
+        best
+    } else {
+        dir.join("final.safetensors")
+    };
+    let mut args: Vec<String> = [
+        "eval",
+        "--model",
+        network,
+        "--weights",
+        &weights.display().to_string(),
+        "--data",
+        spec["eval_data"].as_str().context("eval_data")?,
+        "--split",
+        "test",
+        "--json",
+        &dir.join(EVAL_FILE).display().to_string(),
+        "--device",
+        &ctx.device,
+    ]
+    .map(String::from)
+    .to_vec();
+    args.extend(strings(&spec["rtf_eval"]));
+    let ended = rtf(ctx, dir, &args)?;
+    if ended != Ended::Exit(0) {
+        bail!(
+            "`rtf {}` failed ({ended}); its output: {}{}",
+            args.join(" "),
+            dir.join(LOG_FILE).display(),
+            log_tail(dir)
+        );
+    }
+    Ok(())
 }
 
 /// Removes every `.safetensors` file under `dir` (stage folders included).
@@ -451,19 +469,6 @@ fn rtf_command(ctx: &Context) -> Command {
         c.env("OMP_WAIT_POLICY", "PASSIVE");
     }
     c
-}
-
-/// Writes JSON through a temporary file and a rename.
-pub fn write_json(path: &Path, v: &Value) -> Result<()> {
-    write_atomic(path, serde_json::to_string_pretty(v)?.as_bytes())
-}
-
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]

@@ -100,7 +100,7 @@ pub fn draw(panels: &[Vec<Vec<Option<f64>>>; 2], path: &Path) -> Result<()> {
         let mut w = enc.write_header().context("PNG header")?;
         w.write_image_data(&cv.px).context("PNG data")?;
     }
-    super::cells::write_atomic(path, &bytes)
+    super::io::write_atomic(path, &bytes)
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@
 mod budget;
 mod cells;
 mod figure;
+mod io;
 mod report;
 mod speed;
 mod tables;
@@ -318,21 +319,15 @@ fn check_inputs(o: &Options, selected: &[Table]) -> Result<()> {
     Ok(())
 }
 
+/// One run of a cell: its table, the cell and the seed.
+type Job<'a> = (&'a Table, &'a tables::Cell, usize);
+
+/// A cell of a table that has no result, and why (reported under `Not measured`).
+type MissingCell = (String, report::Missing);
+
 pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
-    match args.first().map(String::as_str) {
-        None | Some("-h" | "--help" | "help") => {
-            print!("{}", usage());
-            return Ok(());
-        }
-        Some("--list") => {
-            for (id, title) in list() {
-                println!("{id:<13} {title}");
-            }
-            return Ok(());
-        }
-        Some("docs") => return docs(root, &args[1..]),
-        Some("smoke") if args.len() == 1 => return smoke(root),
-        _ => {}
+    if let Some(done) = subcommand(root, args) {
+        return done;
     }
     let o = parse(args)?;
     let out = root.join(&o.out);
@@ -343,13 +338,68 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
         .collect();
     check_inputs(&o, &selected)?;
 
+    let rtf = build_rtf(root, &selected)?;
+    let recipes = available_recipes(root);
+    check_recipes(&o, &selected, &recipes)?;
+    let (jobs, mut missing) = plan(&selected, &recipes, o.seeds);
+    let data = datasets(root, &rtf, &out, &o, &jobs)?;
+    let ctx = Context {
+        root: root.to_path_buf(),
+        rtf,
+        out: out.clone(),
+        budget: o.budget,
+        device: o.device.clone(),
+        backbone_weights: o.backbone_weights.clone(),
+        data,
+        recipes,
+    };
+    // A folder made with another recipe stops everything before anything runs.
+    for (t, c, s) in &jobs {
+        cells::check_spec(&ctx.cell_dir(t, c, *s), &ctx.spec(t, c, *s)?)?;
+    }
+
+    let progress = run_jobs(&ctx, &jobs, &mut missing);
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    write_tables(&ctx, &selected, o.seeds, &missing, &command)?;
+    if !progress.interrupted {
+        speed_tables(root, &o, &out, &command)?;
+    }
+    finish(&progress, jobs.len(), &missing, &out)
+}
+
+/// The commands that are not a table run (`--help`, `--list`, `docs`, `smoke`); `None` for a
+/// table run.
+fn subcommand(root: &Path, args: &[String]) -> Option<Result<()>> {
+    match args.first().map(String::as_str) {
+        None | Some("-h" | "--help" | "help") => {
+            print!("{}", usage());
+            Some(Ok(()))
+        }
+        Some("--list") => {
+            for (id, title) in list() {
+                println!("{id:<13} {title}");
+            }
+            Some(Ok(()))
+        }
+        Some("docs") => Some(docs(root, &args[1..])),
+        Some("smoke") if args.len() == 1 => Some(smoke(root)),
+        _ => None,
+    }
+}
+
+/// Builds the release `rtf` (and libtorch first when missing) and checks that it builds every
+/// network of the selected tables; returns the binary's path.
+fn build_rtf(root: &Path, selected: &[Table]) -> Result<PathBuf> {
     crate::setup::ensure_libtorch(root)?;
     crate::run(root, "cargo", &["build", "--release", "-p", "rtf-cli"])?;
-    let rtf = root.join("target/release/rtf");
-    check_networks(root, &selected)?;
-    let recipes = available_recipes(root);
-    let mut missing: Vec<(String, report::Missing)> = Vec::new();
-    let lacking: Vec<&str> = tables::recipes(&selected)
+    check_networks(root, selected)?;
+    Ok(root.join("target/release/rtf"))
+}
+
+/// A single table whose HeatNet recipes this rtf lacks stops here; under `all` their cells are
+/// reported as not measured instead (see [`plan`]).
+fn check_recipes(o: &Options, selected: &[Table], recipes: &BTreeMap<String, Value>) -> Result<()> {
+    let lacking: Vec<&str> = tables::recipes(selected)
         .into_iter()
         .filter(|r| !recipes.contains_key(*r))
         .collect();
@@ -361,10 +411,18 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
             lacking.join(", ")
         );
     }
+    Ok(())
+}
 
-    // Cells to run, and the ones that cannot run (reported in the results).
-    let mut jobs: Vec<(&Table, &tables::Cell, usize)> = Vec::new();
-    for t in &selected {
+/// The cells to run (each seed a job), and the ones that cannot run with the reason.
+fn plan<'a>(
+    selected: &'a [Table],
+    recipes: &BTreeMap<String, Value>,
+    seeds: usize,
+) -> (Vec<Job<'a>>, Vec<MissingCell>) {
+    let mut jobs = Vec::new();
+    let mut missing = Vec::new();
+    for t in selected {
         for c in &t.cells {
             let reason = c.blocked.map(String::from).or_else(|| match c.train {
                 Train::Recipe(r) if !recipes.contains_key(r) => Some(format!(
@@ -380,26 +438,33 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
                         reason,
                     },
                 )),
-                None => jobs.extend((0..o.seeds).map(|s| (t, c, s))),
+                None => jobs.extend((0..seeds).map(|s| (t, c, s))),
             }
         }
     }
+    (jobs, missing)
+}
 
-    // Datasets: the given roots, else synthetic ones for what the runnable cells read.
+/// Dataset roots by dataset, each with whether it is real: the given roots, else synthetic ones
+/// (made once under `<out>/data/`) for what the runnable cells read.
+fn datasets(
+    root: &Path,
+    rtf: &Path,
+    out: &Path,
+    o: &Options,
+    jobs: &[Job],
+) -> Result<BTreeMap<Data, (PathBuf, bool)>> {
     let mut data = BTreeMap::new();
     for (d, r) in &o.roots {
         let abs = std::fs::canonicalize(r).with_context(|| format!("{}", r.display()))?;
         data.insert(*d, (abs, true));
     }
-    let needed: Vec<Data> = {
-        let mut v: Vec<Data> = jobs
-            .iter()
-            .flat_map(|(_, c, _)| [c.data, c.eval_on])
-            .collect();
-        v.sort();
-        v.dedup();
-        v
-    };
+    let mut needed: Vec<Data> = jobs
+        .iter()
+        .flat_map(|(_, c, _)| [c.data, c.eval_on])
+        .collect();
+    needed.sort();
+    needed.dedup();
     for d in needed {
         if data.contains_key(&d) {
             continue;
@@ -407,82 +472,62 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
         if d == Data::Bdd {
             bail!("BDD100K cannot be synthesised: give --bdd");
         }
-        let dir = synthesise(root, &rtf, &out, o.budget, d)?;
+        let dir = synthesise(root, rtf, out, o.budget, d)?;
         data.insert(d, (dir, false));
     }
-    let ctx = Context {
-        root: root.to_path_buf(),
-        rtf: rtf.clone(),
-        out: out.clone(),
-        budget: o.budget,
-        device: o.device.clone(),
-        backbone_weights: o.backbone_weights.clone(),
-        data,
-        recipes,
-    };
-    // A folder made with another recipe stops everything before anything runs.
-    for (t, c, s) in &jobs {
-        cells::check_spec(&ctx.cell_dir(t, c, *s), &ctx.spec(t, c, *s)?)?;
-    }
+    Ok(data)
+}
 
-    let started = Instant::now();
-    let mut ran_seconds = 0.0;
-    let mut ran = 0usize;
-    let mut interrupted = false;
+/// How the cell runs went: for the ETA, the closing line and whether to stop.
+struct Progress {
+    started: Instant,
+    /// Cells trained or evaluated now (not skipped, reused or interrupted), and their time.
+    ran: usize,
+    ran_seconds: f64,
+    interrupted: bool,
+}
+
+/// Runs every job in order: skips finished cells, resumes interrupted ones, records failures
+/// in `missing` and goes on; stops at the first interrupted cell.
+fn run_jobs(ctx: &Context, jobs: &[Job], missing: &mut Vec<MissingCell>) -> Progress {
+    let mut p = Progress {
+        started: Instant::now(),
+        ran: 0,
+        ran_seconds: 0.0,
+        interrupted: false,
+    };
     let total = jobs.len();
     for (k, (t, c, s)) in jobs.iter().enumerate() {
         let dir = ctx.cell_dir(t, c, *s);
         let st = cells::state(&dir, c.bench);
+        let at = format!("[{}/{total}] {}/{}/seed{s}", k + 1, t.id, c.id);
         if st == cells::State::Done {
-            eprintln!(
-                "[{}/{total}] {}/{}/seed{s}: done, skipped",
-                k + 1,
-                t.id,
-                c.id
-            );
+            eprintln!("{at}: done, skipped");
             continue;
         }
-        // Cells left to train: identical ones (another table's same run) count once.
-        let mut keys: Vec<String> = jobs[k..]
-            .iter()
-            .filter(|(t, c, s)| {
-                cells::state(&ctx.cell_dir(t, c, *s), c.bench) != cells::State::Done
-            })
-            .filter_map(|(t, c, s)| ctx.spec(t, c, *s).ok())
-            .map(|v| {
-                ["budget", "train_data", "eval_data", "rtf_train", "rtf_eval"]
-                    .map(|key| v[key].to_string())
-                    .join("|")
-            })
-            .collect();
-        keys.sort();
-        keys.dedup();
-        let left = keys.len();
-        let eta = if ran > 0 {
+        let eta = if p.ran > 0 {
+            let left = trainings_left(ctx, &jobs[k..]) as f64;
             format!(
                 ", about {} left",
-                duration(ran_seconds / ran as f64 * left as f64)
+                duration(p.ran_seconds / p.ran as f64 * left)
             )
         } else {
             String::new()
         };
         eprintln!(
-            "[{}/{total}] {}/{}/seed{s}: {} (elapsed {}{eta})",
-            k + 1,
-            t.id,
-            c.id,
+            "{at}: {} (elapsed {}{eta})",
             match st {
                 cells::State::Resume => "resuming training",
                 cells::State::Evaluate => "evaluating",
                 _ => "training",
             },
-            duration(started.elapsed().as_secs_f64())
+            duration(p.started.elapsed().as_secs_f64())
         );
         let t0 = Instant::now();
-        match cells::run(&ctx, t, c, *s) {
+        match cells::run(ctx, t, c, *s) {
             Ok(Outcome::Ran) => {
-                ran += 1;
-                ran_seconds += t0.elapsed().as_secs_f64();
+                p.ran += 1;
+                p.ran_seconds += t0.elapsed().as_secs_f64();
             }
             Ok(Outcome::Reused(from)) => {
                 eprintln!("    same training as {}: reused", from.display());
@@ -492,7 +537,7 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
                     "interrupted: checkpoint written in {}; run the same command again to resume",
                     dir.display()
                 );
-                interrupted = true;
+                p.interrupted = true;
                 break;
             }
             Err(e) => {
@@ -507,9 +552,36 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
             }
         }
     }
+    p
+}
 
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    for t in &selected {
+/// Cells of `jobs` left to train: identical ones (another table's same run) count once.
+fn trainings_left(ctx: &Context, jobs: &[Job]) -> usize {
+    let mut keys: Vec<String> = jobs
+        .iter()
+        .filter(|(t, c, s)| cells::state(&ctx.cell_dir(t, c, *s), c.bench) != cells::State::Done)
+        .filter_map(|(t, c, s)| ctx.spec(t, c, *s).ok())
+        .map(|v| {
+            ["budget", "train_data", "eval_data", "rtf_train", "rtf_eval"]
+                .map(|key| v[key].to_string())
+                .join("|")
+        })
+        .collect();
+    keys.sort();
+    keys.dedup();
+    keys.len()
+}
+
+/// Writes every selected table (`<id>.json/.md/.csv`, and Fig. 3's PNG) from its cell folders,
+/// with its missing cells and the time estimate of the budgets not run.
+fn write_tables(
+    ctx: &Context,
+    selected: &[Table],
+    seeds: usize,
+    missing: &[MissingCell],
+    command: &str,
+) -> Result<()> {
+    for t in selected {
         let mine: Vec<report::Missing> = missing
             .iter()
             .filter(|(id, _)| id == t.id)
@@ -518,50 +590,52 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
                 reason: m.reason.clone(),
             })
             .collect();
-        let mut v = report::collect(&ctx, t, o.seeds, &mine, &command);
-        if let Some(e) = report::estimate(&ctx, t) {
+        let mut v = report::collect(ctx, t, seeds, &mine, command);
+        if let Some(e) = report::estimate(ctx, t) {
             v["estimate"] = e;
         }
         if t.figure {
-            let png = out.join(format!("{}.png", t.id));
+            let png = ctx.out.join(format!("{}.png", t.id));
             fig3(&v, &png)?;
             v["figure"] = Value::String(png.display().to_string());
         }
-        report::write(&out, &v)?;
+        report::write(&ctx.out, &v)?;
         eprintln!(
             "reproduce: wrote {}",
-            out.join(format!("{}.md", t.id)).display()
+            ctx.out.join(format!("{}.md", t.id)).display()
         );
     }
+    Ok(())
+}
+
+/// Runs the selected speed tables (`rtf bench model`), with the budget's warm-up and
+/// iteration counts unless given.
+fn speed_tables(root: &Path, o: &Options, out: &Path, command: &str) -> Result<()> {
+    let (warmup, iterations) = match o.budget {
+        Budget::Smoke => (0, 1),
+        Budget::Quick => (1, 5),
+        Budget::Paper => (3, 20),
+    };
+    let options = speed::Options {
+        size: match o.budget {
+            Budget::Smoke => "96x64".into(),
+            _ => "640x480".into(),
+        },
+        device: o.device.clone(),
+        precision: o.precision.clone(),
+        warmup: o.warmup.unwrap_or(warmup),
+        iterations: o.iterations.unwrap_or(iterations),
+    };
     for id in &o.ids {
         if let Some(t) = speed::TABLES.iter().find(|t| t.id == *id) {
-            if interrupted {
-                break;
-            }
-            let (warmup, iterations) = match o.budget {
-                Budget::Smoke => (0, 1),
-                Budget::Quick => (1, 5),
-                Budget::Paper => (3, 20),
-            };
-            speed::run(
-                root,
-                t,
-                &speed::Options {
-                    size: match o.budget {
-                        Budget::Smoke => "96x64".into(),
-                        _ => "640x480".into(),
-                    },
-                    device: o.device.clone(),
-                    precision: o.precision.clone(),
-                    warmup: o.warmup.unwrap_or(warmup),
-                    iterations: o.iterations.unwrap_or(iterations),
-                },
-                &out,
-                &command,
-                o.budget.name(),
-            )?;
+            speed::run(root, t, &options, out, command, o.budget.name())?;
         }
     }
+    Ok(())
+}
+
+/// The closing lines; an error when the run was interrupted or a cell failed.
+fn finish(p: &Progress, total: usize, missing: &[MissingCell], out: &Path) -> Result<()> {
     let failed: Vec<String> = missing
         .iter()
         .filter(|(_, m)| m.reason.starts_with("failed"))
@@ -569,14 +643,15 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
         .collect();
     let unavailable = missing.len() - failed.len();
     eprintln!(
-        "reproduce: {total} cell runs ({ran} trained or evaluated now) in {}; results in {}",
-        duration(started.elapsed().as_secs_f64()),
+        "reproduce: {total} cell runs ({} trained or evaluated now) in {}; results in {}",
+        p.ran,
+        duration(p.started.elapsed().as_secs_f64()),
         out.display()
     );
     if unavailable > 0 {
         eprintln!("reproduce: {unavailable} cells cannot run with this rtf yet (see `Not measured` in the tables)");
     }
-    if interrupted {
+    if p.interrupted {
         bail!("interrupted; re-run the same command to resume");
     }
     if !failed.is_empty() {
@@ -787,7 +862,7 @@ fn docs(root: &Path, args: &[String]) -> Result<()> {
         );
     }
     let path = root.join("docs/src/reproduction.md");
-    cells::write_atomic(&path, text.as_bytes())?;
+    io::write_atomic(&path, text.as_bytes())?;
     eprintln!(
         "reproduce docs: wrote {} from {found} tables",
         path.display()

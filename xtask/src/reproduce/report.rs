@@ -4,7 +4,8 @@
 //! measured means.
 
 use super::cells::{self, Context, BENCH_FILE, EVAL_FILE};
-use super::tables::{Metric, Subset, Table};
+use super::io;
+use super::tables::{Measure, Metric, Row, Subset, Table};
 use anyhow::{bail, Context as _, Result};
 use serde_json::{json, Value};
 use std::fmt::Write as _;
@@ -96,69 +97,11 @@ pub fn collect(
     let real = |d| ctx.data.get(&d).is_some_and(|(_, real)| *real);
     let datasets = table.datasets();
     let synthetic = datasets.iter().any(|&d| !real(d));
-    let mut rows = Vec::new();
-    for row in &table.rows {
-        let mut paper = serde_json::Map::new();
-        let mut measured = serde_json::Map::new();
-        for (c, column) in table.columns.iter().enumerate() {
-            if let Some(p) = row.paper[c] {
-                paper.insert(column.clone(), json!(round(p)));
-            }
-            let Some(m) = &row.measure[c] else { continue };
-            let Some(cell) = table.cell(&m.cell) else {
-                continue;
-            };
-            let mut per_seed = Vec::new();
-            for seed in 0..seeds {
-                let dir = ctx.cell_dir(table, cell, seed);
-                let eval = read_json(&dir.join(EVAL_FILE));
-                let bench = read_json(&dir.parent().unwrap_or(&dir).join(BENCH_FILE));
-                let v = eval
-                    .as_ref()
-                    .and_then(|e| read_metric(e, bench.as_ref(), &m.metric));
-                per_seed.push(v);
-            }
-            let values: Vec<f64> = per_seed.iter().flatten().copied().collect();
-            if values.is_empty() {
-                continue;
-            }
-            let (mean, std) = mean_std(&values);
-            measured.insert(
-                column.clone(),
-                json!({
-                    "mean": round(mean),
-                    "std": round(std),
-                    "seeds": per_seed.iter().map(|v| v.map(round)).collect::<Vec<_>>(),
-                }),
-            );
-        }
-        let cells_of_row: Vec<&str> = row
-            .measure
-            .iter()
-            .flatten()
-            .map(|m| m.cell.as_str())
-            .collect();
-        let status: Vec<String> = missing
-            .iter()
-            .filter(|m| cells_of_row.contains(&m.cell.as_str()))
-            .map(|m| format!("{}: {}", m.cell, m.reason))
-            .collect();
-        let mut r = json!({"label": row.label, "paper": paper, "measured": measured});
-        if !status.is_empty() {
-            r["not_measured"] = json!(status);
-        }
-        rows.push(r);
-    }
-    let mut recipes = serde_json::Map::new();
-    for cell in &table.cells {
-        if let Ok(spec) = ctx.spec(table, cell, 0) {
-            recipes.insert(
-                cell.id.clone(),
-                json!({"rtf_train": spec["rtf_train"], "rtf_eval": spec["rtf_eval"],
-                       "eval_data": spec["eval_data"]}),
-            );
-        }
-    }
+    let rows: Vec<Value> = table
+        .rows
+        .iter()
+        .map(|row| row_json(ctx, table, row, seeds, missing))
+        .collect();
     let data_roots: serde_json::Map<String, Value> = datasets
         .iter()
         .filter_map(|d| {
@@ -187,7 +130,7 @@ pub fn collect(
             "paper": table.source,
             "measured": "rtf on this machine (mean ± std over seeds; values in percent, times in ms)",
         })).collect::<Vec<_>>(),
-        "recipes": recipes,
+        "recipes": cell_recipes(ctx, table),
         "rows": rows,
         "command": command,
     });
@@ -196,6 +139,78 @@ pub fn collect(
         .map(|c| json!({"claim": c.text, "held": c.held, "detail": c.detail}))
         .collect::<Vec<_>>());
     out
+}
+
+/// One row of `<table>.json`: the paper's values, the measured ones (columns with no finished
+/// seed left out), and why the row's missing cells are missing.
+fn row_json(ctx: &Context, table: &Table, row: &Row, seeds: usize, missing: &[Missing]) -> Value {
+    let mut paper = serde_json::Map::new();
+    let mut measured = serde_json::Map::new();
+    for (c, column) in table.columns.iter().enumerate() {
+        if let Some(p) = row.paper[c] {
+            paper.insert(column.clone(), json!(round(p)));
+        }
+        let Some(m) = &row.measure[c] else { continue };
+        if let Some(v) = measured_column(ctx, table, m, seeds) {
+            measured.insert(column.clone(), v);
+        }
+    }
+    let cells_of_row: Vec<&str> = row
+        .measure
+        .iter()
+        .flatten()
+        .map(|m| m.cell.as_str())
+        .collect();
+    let status: Vec<String> = missing
+        .iter()
+        .filter(|m| cells_of_row.contains(&m.cell.as_str()))
+        .map(|m| format!("{}: {}", m.cell, m.reason))
+        .collect();
+    let mut r = json!({"label": row.label, "paper": paper, "measured": measured});
+    if !status.is_empty() {
+        r["not_measured"] = json!(status);
+    }
+    r
+}
+
+/// `{mean, std, seeds}` of one measured column over the seeds' `eval.json` (and the cell's
+/// `bench.json`); `None` when no seed has finished (or the table lacks the cell).
+fn measured_column(ctx: &Context, table: &Table, m: &Measure, seeds: usize) -> Option<Value> {
+    let cell = table.cell(&m.cell)?;
+    let per_seed: Vec<Option<f64>> = (0..seeds)
+        .map(|seed| {
+            let dir = ctx.cell_dir(table, cell, seed);
+            let eval = read_json(&dir.join(EVAL_FILE));
+            let bench = read_json(&dir.parent().unwrap_or(&dir).join(BENCH_FILE));
+            eval.as_ref()
+                .and_then(|e| read_metric(e, bench.as_ref(), &m.metric))
+        })
+        .collect();
+    let values: Vec<f64> = per_seed.iter().flatten().copied().collect();
+    if values.is_empty() {
+        return None;
+    }
+    let (mean, std) = mean_std(&values);
+    Some(json!({
+        "mean": round(mean),
+        "std": round(std),
+        "seeds": per_seed.iter().map(|v| v.map(round)).collect::<Vec<_>>(),
+    }))
+}
+
+/// The `rtf train`/`rtf eval` command lines of every cell, by cell id.
+fn cell_recipes(ctx: &Context, table: &Table) -> serde_json::Map<String, Value> {
+    let mut recipes = serde_json::Map::new();
+    for cell in &table.cells {
+        if let Ok(spec) = ctx.spec(table, cell, 0) {
+            recipes.insert(
+                cell.id.clone(),
+                json!({"rtf_train": spec["rtf_train"], "rtf_eval": spec["rtf_eval"],
+                       "eval_data": spec["eval_data"]}),
+            );
+        }
+    }
+    recipes
 }
 
 fn round(x: f64) -> f64 {
@@ -270,8 +285,33 @@ pub fn markdown(v: &Value) -> String {
         v["device"].as_str().unwrap_or(""),
         v["protocol"]["convention"].as_str().unwrap_or("")
     );
-    s += "| row |";
-    for c in &columns {
+    s += &markdown_rows(v, &columns);
+    s += &markdown_claims(v);
+    if let Some(f) = v.get("figure").and_then(Value::as_str) {
+        let _ = writeln!(
+            s,
+            "\nFigure `{f}`: measured mAcc (left) and mIoU (right) against the encoder \
+             (ResNet-18, 34, 50, 101, 152 from left to right), y from 0 to 100 % with a grid line \
+             every 10 %; RTFNet red, NRE blue, NTE green, NUB orange."
+        );
+    }
+    if let Some(e) = v.get("estimate").and_then(|e| e["text"].as_str()) {
+        let _ = writeln!(s, "\n{e}");
+    }
+    let _ = writeln!(
+        s,
+        "\nCommand: `{}`. Per-cell recipes: `{}.json`.",
+        v["command"].as_str().unwrap_or(""),
+        v["table"].as_str().unwrap_or("")
+    );
+    s
+}
+
+/// The Markdown table itself (paper and measured value side by side per column), then the
+/// rows' "Not measured" notes.
+fn markdown_rows(v: &Value, columns: &[&str]) -> String {
+    let mut s = String::from("| row |");
+    for c in columns {
         let _ = write!(s, " paper: {c} | measured: {c} |");
     }
     s += "\n|---|";
@@ -280,7 +320,7 @@ pub fn markdown(v: &Value) -> String {
     let mut notes = Vec::new();
     for row in v["rows"].as_array().into_iter().flatten() {
         let _ = write!(s, "| {} |", row["label"].as_str().unwrap_or(""));
-        for c in &columns {
+        for c in columns {
             let paper = row["paper"][c]
                 .as_f64()
                 .map_or("—".to_string(), |p| format!("{p:.1}"));
@@ -310,40 +350,29 @@ pub fn markdown(v: &Value) -> String {
             let _ = writeln!(s, "- {n}");
         }
     }
+    s
+}
+
+/// The paper's claims with their verdicts on the measured means (empty when the table has none).
+fn markdown_claims(v: &Value) -> String {
     let claims = v["claims"].as_array().cloned().unwrap_or_default();
-    if !claims.is_empty() {
-        s += "\nThe paper's claims, checked on the measured means:\n\n";
-        for c in claims {
-            let verdict = match c["held"].as_bool() {
-                Some(true) => "**held**",
-                Some(false) => "**not held**",
-                None => "not checkable (numbers missing)",
-            };
-            let _ = writeln!(
-                s,
-                "- {}: {verdict} ({})",
-                c["claim"].as_str().unwrap_or(""),
-                c["detail"].as_str().unwrap_or("")
-            );
-        }
+    if claims.is_empty() {
+        return String::new();
     }
-    if let Some(f) = v.get("figure").and_then(Value::as_str) {
+    let mut s = String::from("\nThe paper's claims, checked on the measured means:\n\n");
+    for c in claims {
+        let verdict = match c["held"].as_bool() {
+            Some(true) => "**held**",
+            Some(false) => "**not held**",
+            None => "not checkable (numbers missing)",
+        };
         let _ = writeln!(
             s,
-            "\nFigure `{f}`: measured mAcc (left) and mIoU (right) against the encoder \
-             (ResNet-18, 34, 50, 101, 152 from left to right), y from 0 to 100 % with a grid line \
-             every 10 %; RTFNet red, NRE blue, NTE green, NUB orange."
+            "- {}: {verdict} ({})",
+            c["claim"].as_str().unwrap_or(""),
+            c["detail"].as_str().unwrap_or("")
         );
     }
-    if let Some(e) = v.get("estimate").and_then(|e| e["text"].as_str()) {
-        let _ = writeln!(s, "\n{e}");
-    }
-    let _ = writeln!(
-        s,
-        "\nCommand: `{}`. Per-cell recipes: `{}.json`.",
-        v["command"].as_str().unwrap_or(""),
-        v["table"].as_str().unwrap_or("")
-    );
     s
 }
 
@@ -562,9 +591,9 @@ const MFNET_CPU_RATE_480: f64 = 1.25;
 pub fn write(out: &Path, v: &Value) -> Result<()> {
     validate(v)?;
     let id = v["table"].as_str().context("table id")?;
-    cells::write_json(&out.join(format!("{id}.json")), v)?;
-    cells::write_atomic(&out.join(format!("{id}.md")), markdown(v).as_bytes())?;
-    cells::write_atomic(&out.join(format!("{id}.csv")), csv(v).as_bytes())?;
+    io::write_json(&out.join(format!("{id}.json")), v)?;
+    io::write_atomic(&out.join(format!("{id}.md")), markdown(v).as_bytes())?;
+    io::write_atomic(&out.join(format!("{id}.csv")), csv(v).as_bytes())?;
     Ok(())
 }
 

@@ -186,6 +186,36 @@ pub fn run(
     command: &str,
     budget: &str,
 ) -> Result<()> {
+    let (measured, threads) = measure(root, table, o)?;
+    let context = format!(
+        "Paper columns: the paper's numbers as printed (its GPUs). Measured columns: `rtf bench \
+         model` on this machine, device {} ({} threads), {} fast path, batch 1, {}, random \
+         weights, median of {} passes after {} warm-up; parameters and f32 size from `rtf \
+         models --json`. Command: `{command}`.",
+        o.device,
+        threads,
+        o.precision,
+        o.size.replace('x', "×"),
+        o.iterations,
+        o.warmup,
+    );
+    let text = render(table, &measured, &context);
+    print!("{text}");
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let v = table_json(table, &measured, o, threads, command, budget);
+    super::report::validate(&v)?;
+    super::io::write_json(&out.join(format!("{}.json", table.id)), &v)?;
+    super::io::write_atomic(&out.join(format!("{}.md", table.id)), text.as_bytes())?;
+    eprintln!(
+        "reproduce: wrote {}",
+        out.join(format!("{}.md", table.id)).display()
+    );
+    Ok(())
+}
+
+/// Times every row's network with `rtf bench model` and sizes it with `rtf models`; returns
+/// the measurements in row order and the thread count `rtf` ran with.
+fn measure(root: &Path, table: &Table, o: &Options) -> Result<(Vec<Measured>, f64)> {
     let models: serde_json::Value =
         serde_json::from_str(&crate::rtf_stdout(root, &["models", "--json"])?)
             .context("parsing `rtf models --json`")?;
@@ -224,37 +254,37 @@ pub fn run(
             megabytes,
         });
     }
-    let context = format!(
-        "Paper columns: the paper's numbers as printed (its GPUs). Measured columns: `rtf bench \
-         model` on this machine, device {} ({} threads), {} fast path, batch 1, {}, random \
-         weights, median of {} passes after {} warm-up; parameters and f32 size from `rtf \
-         models --json`. Command: `{command}`.",
-        o.device,
-        threads,
-        o.precision,
-        o.size.replace('x', "×"),
-        o.iterations,
-        o.warmup,
-    );
-    let text = render(table, &measured, &context);
-    print!("{text}");
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let number = |s: &str| -> Option<f64> {
-        let end = s
-            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-            .unwrap_or(s.len());
-        s[..end].parse().ok()
-    };
+    Ok((measured, threads))
+}
+
+/// The leading number of a paper cell as printed ("29.42M" → 29.42); `None` for "" or text.
+fn paper_number(s: &str) -> Option<f64> {
+    let end = s
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(s.len());
+    s[..end].parse().ok()
+}
+
+/// `<id>.json` in the results schema ([`super::report::validate`]): the paper's numbers and
+/// this machine's, one seed each.
+fn table_json(
+    table: &Table,
+    measured: &[Measured],
+    o: &Options,
+    threads: f64,
+    command: &str,
+    budget: &str,
+) -> serde_json::Value {
     let rows: Vec<serde_json::Value> = table
         .rows
         .iter()
-        .zip(&measured)
+        .zip(measured)
         .map(|(row, m)| {
             let paper: serde_json::Map<String, serde_json::Value> = table
                 .paper_columns
                 .iter()
                 .zip(row.paper)
-                .filter_map(|(c, v)| Some((c.to_string(), json!(number(v)?))))
+                .filter_map(|(c, v)| Some((c.to_string(), json!(paper_number(v)?))))
                 .collect();
             let one = |v: f64| json!({"mean": v, "std": 0.0, "seeds": [v]});
             json!({
@@ -278,7 +308,7 @@ pub fn run(
     for c in ["ms", "FPS", "parameters", "MiB (f32)"] {
         columns.push(json!({"name": c, "paper": null, "measured": "rtf bench model / rtf models"}));
     }
-    let v = json!({
+    json!({
         "table": table.id,
         "title": table.title,
         "budget": {"name": budget, "warmup": o.warmup, "iterations": o.iterations,
@@ -291,15 +321,7 @@ pub fn run(
         "rows": rows,
         "claims": [],
         "command": command,
-    });
-    super::report::validate(&v)?;
-    super::cells::write_json(&out.join(format!("{}.json", table.id)), &v)?;
-    super::cells::write_atomic(&out.join(format!("{}.md", table.id)), text.as_bytes())?;
-    eprintln!(
-        "reproduce: wrote {}",
-        out.join(format!("{}.md", table.id)).display()
-    );
-    Ok(())
+    })
 }
 
 #[cfg(test)]
@@ -354,5 +376,39 @@ mod tests {
         let cells = |l: &str| l.matches('|').count();
         assert_eq!(cells(lines[4]), cells(mfnet));
         assert_eq!(cells(lines[5]), cells(mfnet));
+    }
+
+    #[test]
+    fn json_holds_the_printed_paper_numbers_and_the_measurements_in_the_schema() {
+        assert_eq!(paper_number("29.42M"), Some(29.42));
+        assert_eq!(paper_number("55.6"), Some(55.6));
+        assert_eq!(paper_number(""), None);
+        let table = TABLES.iter().find(|t| t.id == "mfnet-tab4").unwrap();
+        let m = Measured {
+            median_ms: 44.0,
+            fps: 22.7,
+            params: 736275,
+            megabytes: 2.81,
+        };
+        let o = Options {
+            size: "96x64".into(),
+            device: "cpu".into(),
+            precision: "fp32".into(),
+            warmup: 0,
+            iterations: 1,
+        };
+        let v = table_json(table, &vec![m; table.rows.len()], &o, 2.0, "cmd", "smoke");
+        super::super::report::validate(&v).unwrap();
+        let rows = v["rows"].as_array().unwrap();
+        assert_eq!(rows.len(), table.rows.len());
+        let mfnet = rows.iter().find(|r| r["network"] == "mfnet").unwrap();
+        // "" (not reported by the paper) is left out; "0.73M" and "3.7MB" keep their number.
+        let paper = mfnet["paper"].as_object().unwrap();
+        assert_eq!(paper.len(), 3, "{paper:?}");
+        assert!(paper.values().any(|x| x == 0.73) && paper.values().any(|x| x == 3.7));
+        assert_eq!(mfnet["measured"]["ms"]["mean"], 44.0);
+        assert_eq!(mfnet["measured"]["parameters"]["seeds"][0], 736275.0);
+        assert_eq!(v["threads"], 2.0);
+        assert_eq!(v["budget"]["precision"], "fp32");
     }
 }

@@ -1014,7 +1014,37 @@ const BDD_EVAL: &str = "`rtf eval` does not open BDD100K roots yet (RGB-only eva
 fn heatnet_tab1(with_bdd: bool) -> Table {
     let mut columns: Vec<String> = HEATNET_CLASSES.iter().map(|s| s.to_string()).collect();
     columns.push("Mean".into());
-    let cells = vec![
+    let cells = heatnet_tab1_cells(with_bdd);
+    let mut source_rows: Vec<_> = HEATNET_TAB1.to_vec();
+    if !with_bdd {
+        source_rows.retain(|r| !r.1.starts_with("bdd-"));
+    }
+    let rows = source_rows
+        .iter()
+        .map(|source| heatnet_tab1_row(&cells, source))
+        .collect();
+    Table {
+        id: "heatnet-tab1",
+        title: "HeatNet Tab. I: teachers, HeatNet RGB-T, distilled RGB-only; FR-T day / night / \
+                day-night; MF↔FR-T",
+        source: "Vertens et al., HeatNet, IROS 2020, Table I (shared/papers/heatnet.txt)",
+        recipe: RecipeFamily::Heatnet,
+        convention: "HeatNet convention on Freiburg Thermal: IoU per class 0–11, Mean = \
+                     nan-mean over them, ignore (13) dropped, background (12) predictions count \
+                     as false positives; Day/Night = mean of the day and the night score (spec \
+                     §2). MF rows: RTFNet-convention class IoU of person, car, bicycle and \
+                     their mean. Freiburg cells report the final weights: its only labelled \
+                     held-out part is the test layout, so no checkpoint is picked on it.",
+        columns,
+        rows,
+        cells,
+        figure: false,
+    }
+}
+
+/// The trained networks of HeatNet Tab. I (the BDD100K rows' two only `with_bdd`).
+fn heatnet_tab1_cells(with_bdd: bool) -> Vec<Cell> {
+    let mut cells = vec![
         cell("mf-mfnet", Train::Model("mfnet"), Data::Mf),
         cell("mf-rtfnet50", Train::Model("rtfnet50"), Data::Mf),
         cell("mf-heatnet", Train::Model("heatnet"), Data::Mf),
@@ -1055,8 +1085,6 @@ fn heatnet_tab1(with_bdd: bool) -> Table {
         cell("heatnet", Train::Recipe("heatnet-v6"), Data::Freiburg),
         cell("distill", Train::Recipe("heatnet-distill"), Data::Freiburg),
     ];
-    let mut cells = cells;
-    let mut source_rows: Vec<_> = HEATNET_TAB1.to_vec();
     if with_bdd {
         for (id, recipe) in [
             ("bdd-teacher-rgb", "heatnet-teacher-rgb"),
@@ -1068,63 +1096,48 @@ fn heatnet_tab1(with_bdd: bool) -> Table {
                 ..cell(id, Train::Recipe(recipe), Data::Freiburg)
             });
         }
-    } else {
-        source_rows.retain(|r| !r.1.starts_with("bdd-"));
     }
-    let rows = source_rows
-        .iter()
-        .map(|(label, cell_id, subset, paper)| {
-            let subset = match *subset {
-                "all" => Subset::All,
-                "day" => Subset::Day,
-                "night" => Subset::Night,
-                _ => Subset::DayNight,
-            };
-            let c = cells.iter().find(|c| c.id == *cell_id).expect("cell");
-            let m = |metric| {
-                Some(Measure {
-                    cell: cell_id.to_string(),
-                    metric,
-                })
-            };
-            let measure: Vec<Option<Measure>> = if c.eval_on == Data::Mf {
-                // MF rows: person, car, bicycle IoU and their mean (RTFNet-convention IoU).
-                let mut v = vec![None; 9];
-                v.extend(
-                    MF_PERSON_CAR_BIKE
-                        .iter()
-                        .map(|&k| m(Metric::ClassIoU(subset, k))),
-                );
-                v.push(m(Metric::MeanClassIoU(subset, &MF_PERSON_CAR_BIKE)));
-                v
-            } else {
-                let mut v: Vec<_> = (0..12).map(|k| m(Metric::ClassIoU(subset, k))).collect();
-                v.push(m(Metric::HeatnetMIoU(subset)));
-                v
-            };
-            Row {
-                label: label.to_string(),
-                paper: dashed(paper),
-                measure,
-            }
+    cells
+}
+
+/// One row of HeatNet Tab. I from its transcription `(label, cell, subset, paper values)`:
+/// Freiburg rows measure the 12 class IoUs and HeatNet's mean, MF rows person, car, bicycle
+/// and their mean (RTFNet-convention IoU).
+fn heatnet_tab1_row(
+    cells: &[Cell],
+    (label, cell_id, subset, paper): &(&str, &str, &str, [&str; 13]),
+) -> Row {
+    let subset = match *subset {
+        "all" => Subset::All,
+        "day" => Subset::Day,
+        "night" => Subset::Night,
+        _ => Subset::DayNight,
+    };
+    let c = cells.iter().find(|c| c.id == *cell_id).expect("cell");
+    let m = |metric| {
+        Some(Measure {
+            cell: cell_id.to_string(),
+            metric,
         })
-        .collect();
-    Table {
-        id: "heatnet-tab1",
-        title: "HeatNet Tab. I: teachers, HeatNet RGB-T, distilled RGB-only; FR-T day / night / \
-                day-night; MF↔FR-T",
-        source: "Vertens et al., HeatNet, IROS 2020, Table I (shared/papers/heatnet.txt)",
-        recipe: RecipeFamily::Heatnet,
-        convention: "HeatNet convention on Freiburg Thermal: IoU per class 0–11, Mean = \
-                     nan-mean over them, ignore (13) dropped, background (12) predictions count \
-                     as false positives; Day/Night = mean of the day and the night score (spec \
-                     §2). MF rows: RTFNet-convention class IoU of person, car, bicycle and \
-                     their mean. Freiburg cells report the final weights: its only labelled \
-                     held-out part is the test layout, so no checkpoint is picked on it.",
-        columns,
-        rows,
-        cells,
-        figure: false,
+    };
+    let measure: Vec<Option<Measure>> = if c.eval_on == Data::Mf {
+        let mut v = vec![None; 9];
+        v.extend(
+            MF_PERSON_CAR_BIKE
+                .iter()
+                .map(|&k| m(Metric::ClassIoU(subset, k))),
+        );
+        v.push(m(Metric::MeanClassIoU(subset, &MF_PERSON_CAR_BIKE)));
+        v
+    } else {
+        let mut v: Vec<_> = (0..12).map(|k| m(Metric::ClassIoU(subset, k))).collect();
+        v.push(m(Metric::HeatnetMIoU(subset)));
+        v
+    };
+    Row {
+        label: label.to_string(),
+        paper: dashed(paper),
+        measure,
     }
 }
 
