@@ -9,12 +9,13 @@
 //! (`train`: the training tree, `test`: the test layout, as `rtf eval --split` names them).
 
 use std::collections::{BTreeMap, HashSet};
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
+
+pub use crate::hash::{hash_bytes, hash_file};
 
 use crate::inspect::{detect_format, DatasetFormat};
 use crate::{DataError, FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit, MfDataset};
@@ -47,26 +48,6 @@ impl Fingerprint {
     pub fn split(&self, name: &str) -> Option<&SplitFingerprint> {
         self.splits.iter().find(|s| s.name == name)
     }
-}
-
-/// SHA-256 of a file's bytes, streamed.
-pub fn hash_file(path: &Path) -> Result<[u8; 32], DataError> {
-    let mut file = std::fs::File::open(path).map_err(|e| DataError::io(path, e))?;
-    let mut hasher = Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    loop {
-        let n = file.read(&mut buf).map_err(|e| DataError::io(path, e))?;
-        if n == 0 {
-            break;
-        }
-        hasher.update(&buf[..n]);
-    }
-    Ok(hasher.finalize().into())
-}
-
-/// SHA-256 of bytes already in memory.
-pub fn hash_bytes(bytes: &[u8]) -> [u8; 32] {
-    Sha256::digest(bytes).into()
 }
 
 pub fn hex(hash: &[u8]) -> String {

@@ -261,146 +261,17 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
     let mut problems = Vec::new();
     let images = stems(&root.join("images"), &mut problems);
     let labels = stems(&root.join("labels"), &mut problems);
-    let label_set: std::collections::HashSet<&String> = labels.iter().collect();
-    let image_set: std::collections::HashSet<&String> = images.iter().collect();
-    for name in &images {
-        if !label_set.contains(name) {
-            problems.push(problem(
-                root.join("labels").join(format!("{name}.png")),
-                "missing (image has no label)",
-            ));
-        }
-    }
-    for name in &labels {
-        if !image_set.contains(name) {
-            problems.push(problem(
-                root.join("images").join(format!("{name}.png")),
-                "missing (label has no image)",
-            ));
-        }
-    }
-    // Split files: unreadable, duplicates, names without files.
-    let mut listed: HashMap<String, Vec<String>> = HashMap::new();
-    // Split name -> (split file, frame names with their lines), for the leak check below.
-    let mut members: SplitMembers = BTreeMap::new();
-    let mut split_files: Vec<PathBuf> = std::fs::read_dir(root)
-        .map(|rd| {
-            rd.flatten()
-                .map(|e| e.path())
-                .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "txt"))
-                .collect()
-        })
-        .unwrap_or_default();
-    split_files.sort();
-    let split_dirs: Vec<PathBuf> = std::fs::read_dir(root)
-        .map(|rd| {
-            rd.flatten()
-                .map(|e| e.path())
-                .filter(|p| p.is_dir() && p.extension().is_some_and(|x| x == "txt"))
-                .collect()
-        })
-        .unwrap_or_default();
-    for dir in &split_dirs {
-        problems.push(problem(
-            dir,
-            "is a directory, expected a split file (one frame name per line)",
-        ));
-    }
-    if split_files.is_empty() && split_dirs.is_empty() {
-        problems.push(problem(
-            root,
-            "no split files (<split>.txt, e.g. train.txt)",
-        ));
-    }
-    for file in &split_files {
-        let split = file
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let text = match std::fs::read(file) {
-            Err(e) => {
-                problems.push(problem(file, e.to_string()));
-                continue;
-            }
-            Ok(b) => match String::from_utf8(b) {
-                Ok(t) => t,
-                Err(_) => {
-                    problems.push(problem(file, "not UTF-8 text"));
-                    continue;
-                }
-            },
-        };
-        let names = match parse_split(&text, file) {
-            Ok(n) => n,
-            Err(e) => {
-                problems.push(from_error(file, e));
-                continue;
-            }
-        };
-        if names.is_empty() {
-            problems.push(problem(file, "split is empty (no frame names)"));
-        }
-        let mut first_line: HashMap<&str, usize> = HashMap::new();
-        for (line, name) in &names {
-            if let Some(prev) = first_line.insert(name, *line) {
-                problems.push(problem(
-                    file,
-                    format!("line {line}: '{name}' duplicates line {prev}"),
-                ));
-            }
-            if !image_set.contains(name) {
-                problems.push(problem(
-                    file,
-                    format!("line {line}: frame '{name}' has no image images/{name}.png"),
-                ));
-            } else if !label_set.contains(name) {
-                problems.push(problem(
-                    file,
-                    format!("line {line}: frame '{name}' has no label labels/{name}.png"),
-                ));
-            }
-            listed.entry(name.clone()).or_default().push(split.clone());
-        }
-        members.insert(split.clone(), (file.clone(), names));
-    }
-    for name in &images {
-        if !listed.contains_key(name) && !split_files.is_empty() {
-            problems.push(problem(
-                root.join("images").join(format!("{name}.png")),
-                "frame is in no split file",
-            ));
-        }
-        if Daytime::from_mf_name(name).is_none() {
-            problems.push(problem(
-                root.join("images").join(format!("{name}.png")),
-                "name does not end in D or N (day/night unknown)",
-            ));
-        }
-    }
-    // Decode every pair.
-    let classes = ClassSet::mf();
-    let pairs: Vec<&String> = images.iter().filter(|n| label_set.contains(n)).collect();
-    let decoded: Vec<Decoded> = pairs
-        .par_iter()
-        .map(|name| {
-            let img = root.join("images").join(format!("{name}.png"));
-            let lab = root.join("labels").join(format!("{name}.png"));
-            let read = |p: &Path| std::fs::read(p).map_err(|e| DataError::io(p, e));
-            let image_bytes = read(&img);
-            let hash = image_bytes
-                .as_ref()
-                .ok()
-                .map(|b| crate::fingerprint::hash_bytes(b));
-            let result = image_bytes
-                .and_then(|ib| read(&lab).map(|lb| (ib, lb)))
-                .and_then(|(ib, lb)| {
-                    crate::mf::decode_mf_frame(name, &ib, &img, &lb, &lab, &classes)
-                })
-                .map(|f| (f.width, f.height))
-                .map_err(|e| from_error(&img, e));
-            (name.to_string(), hash, result)
-        })
-        .collect();
+    let image_set: HashSet<&String> = images.iter().collect();
+    let label_set: HashSet<&String> = labels.iter().collect();
+    problems.extend(unpaired_mf_files(root, &images, &labels));
+    let pairs = PairSets {
+        images: &image_set,
+        labels: &label_set,
+    };
+    let splits = check_mf_split_files(root, &pairs, &mut problems);
+    problems.extend(unlisted_or_undated_frames(root, &images, &splits));
+    let paired: Vec<&String> = images.iter().filter(|n| label_set.contains(n)).collect();
+    let decoded = decode_mf_pairs(root, &paired);
     let mut sizes: BTreeMap<(usize, usize), Vec<&str>> = BTreeMap::new();
     for (name, _, result) in &decoded {
         match result {
@@ -413,8 +284,207 @@ fn check_mf(root: &Path) -> (usize, Vec<Problem>) {
         .iter()
         .filter_map(|(n, h, _)| h.map(|h| (n.as_str(), h)))
         .collect();
-    problems.extend(duplicate_frames(root, &hashes, &members));
-    (pairs.len(), problems)
+    problems.extend(duplicate_frames(root, &hashes, &splits.members));
+    (paired.len(), problems)
+}
+
+/// Frame names present in `images/` and in `labels/` of an MF root.
+struct PairSets<'a> {
+    images: &'a HashSet<&'a String>,
+    labels: &'a HashSet<&'a String>,
+}
+
+/// What the split files of an MF root say: which splits list each frame, and each split's
+/// file with its names and lines (for the leak check).
+#[derive(Default)]
+struct MfSplitFiles {
+    listed: HashMap<String, Vec<String>>,
+    members: SplitMembers,
+    any_file: bool,
+}
+
+/// An image without its label or a label without its image.
+fn unpaired_mf_files(root: &Path, images: &[String], labels: &[String]) -> Vec<Problem> {
+    let label_set: HashSet<&String> = labels.iter().collect();
+    let image_set: HashSet<&String> = images.iter().collect();
+    let mut problems = Vec::new();
+    for name in images.iter().filter(|n| !label_set.contains(n)) {
+        problems.push(problem(
+            root.join("labels").join(format!("{name}.png")),
+            "missing (image has no label)",
+        ));
+    }
+    for name in labels.iter().filter(|n| !image_set.contains(n)) {
+        problems.push(problem(
+            root.join("images").join(format!("{name}.png")),
+            "missing (label has no image)",
+        ));
+    }
+    problems
+}
+
+/// Paths under `root` (not recursive) with extension `.txt` that are files (`want_dirs`
+/// false) or directories (true), sorted.
+fn txt_entries(root: &Path, want_dirs: bool) -> Vec<PathBuf> {
+    let mut out: Vec<PathBuf> = std::fs::read_dir(root)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_dir() == want_dirs && p.extension().is_some_and(|x| x == "txt"))
+                .filter(|p| want_dirs || p.is_file())
+                .collect()
+        })
+        .unwrap_or_default();
+    out.sort();
+    out
+}
+
+/// Split files: unreadable, empty, duplicate lines, names without files; a directory where a
+/// split file belongs; no split file at all.
+fn check_mf_split_files(
+    root: &Path,
+    pairs: &PairSets,
+    problems: &mut Vec<Problem>,
+) -> MfSplitFiles {
+    let split_files = txt_entries(root, false);
+    let split_dirs = txt_entries(root, true);
+    for dir in &split_dirs {
+        problems.push(problem(
+            dir,
+            "is a directory, expected a split file (one frame name per line)",
+        ));
+    }
+    if split_files.is_empty() && split_dirs.is_empty() {
+        problems.push(problem(
+            root,
+            "no split files (<split>.txt, e.g. train.txt)",
+        ));
+    }
+    let mut out = MfSplitFiles {
+        any_file: !split_files.is_empty(),
+        ..Default::default()
+    };
+    for file in &split_files {
+        let split = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let Some(names) = read_mf_split_file(file, problems) else {
+            continue;
+        };
+        check_mf_split_names(file, &names, pairs, problems);
+        for (_, name) in &names {
+            out.listed
+                .entry(name.clone())
+                .or_default()
+                .push(split.clone());
+        }
+        out.members.insert(split, (file.clone(), names));
+    }
+    out
+}
+
+/// The names of one split file with their lines, or `None` (and a problem) if unreadable.
+fn read_mf_split_file(file: &Path, problems: &mut Vec<Problem>) -> Option<Vec<(usize, String)>> {
+    let text = match std::fs::read(file).map(String::from_utf8) {
+        Err(e) => {
+            problems.push(problem(file, e.to_string()));
+            return None;
+        }
+        Ok(Err(_)) => {
+            problems.push(problem(file, "not UTF-8 text"));
+            return None;
+        }
+        Ok(Ok(t)) => t,
+    };
+    match parse_split(&text, file) {
+        Ok(names) => Some(names),
+        Err(e) => {
+            problems.push(from_error(file, e));
+            None
+        }
+    }
+}
+
+/// An empty split, a name listed twice, a name without its image or label.
+fn check_mf_split_names(
+    file: &Path,
+    names: &[(usize, String)],
+    pairs: &PairSets,
+    problems: &mut Vec<Problem>,
+) {
+    if names.is_empty() {
+        problems.push(problem(file, "split is empty (no frame names)"));
+    }
+    let mut first_line: HashMap<&str, usize> = HashMap::new();
+    for (line, name) in names {
+        if let Some(prev) = first_line.insert(name, *line) {
+            problems.push(problem(
+                file,
+                format!("line {line}: '{name}' duplicates line {prev}"),
+            ));
+        }
+        if !pairs.images.contains(name) {
+            problems.push(problem(
+                file,
+                format!("line {line}: frame '{name}' has no image images/{name}.png"),
+            ));
+        } else if !pairs.labels.contains(name) {
+            problems.push(problem(
+                file,
+                format!("line {line}: frame '{name}' has no label labels/{name}.png"),
+            ));
+        }
+    }
+}
+
+/// Images in no split file (when there are split files), and names without the D/N suffix.
+fn unlisted_or_undated_frames(
+    root: &Path,
+    images: &[String],
+    splits: &MfSplitFiles,
+) -> Vec<Problem> {
+    let mut problems = Vec::new();
+    for name in images {
+        let path = root.join("images").join(format!("{name}.png"));
+        if splits.any_file && !splits.listed.contains_key(name) {
+            problems.push(problem(&path, "frame is in no split file"));
+        }
+        if Daytime::from_mf_name(name).is_none() {
+            problems.push(problem(
+                &path,
+                "name does not end in D or N (day/night unknown)",
+            ));
+        }
+    }
+    problems
+}
+
+/// Decodes every image/label pair in parallel: its size or the problem, and the hash of the
+/// image bytes for the duplicate check.
+fn decode_mf_pairs(root: &Path, pairs: &[&String]) -> Vec<Decoded> {
+    let classes = ClassSet::mf();
+    pairs
+        .par_iter()
+        .map(|name| {
+            let img = root.join("images").join(format!("{name}.png"));
+            let lab = root.join("labels").join(format!("{name}.png"));
+            let read = |p: &Path| std::fs::read(p).map_err(|e| DataError::io(p, e));
+            let image_bytes = read(&img);
+            let hash = image_bytes
+                .as_ref()
+                .ok()
+                .map(|b| crate::hash::hash_bytes(b));
+            let result = image_bytes
+                .and_then(|ib| read(&lab).map(|lb| (ib, lb)))
+                .and_then(|(ib, lb)| {
+                    crate::mf::decode_mf_frame(name, &ib, &img, &lb, &lab, &classes)
+                })
+                .map(|f| (f.width, f.height))
+                .map_err(|e| from_error(&img, e));
+            (name.to_string(), hash, result)
+        })
+        .collect()
 }
 
 /// A decoded pair: frame name, hash of the image bytes (if read), size or the problem.
@@ -547,7 +617,7 @@ fn check_freiburg(root: &Path) -> (usize, Vec<Problem>) {
         .into_par_iter()
         .map(|i| {
             let rgb = split.files(i).0;
-            let hash = crate::fingerprint::hash_file(&rgb).ok();
+            let hash = crate::hash::hash_file(&rgb).ok();
             (rgb, hash)
         })
         .collect();

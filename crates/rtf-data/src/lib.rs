@@ -11,6 +11,7 @@ pub mod fingerprint;
 pub mod frame;
 pub mod freiburg;
 pub mod fuzzing;
+pub mod hash;
 pub mod inspect;
 pub mod loader;
 pub mod mf;

@@ -6,6 +6,7 @@
 //! own blur and noise. Frame `i` depends only on (seed, i), so generation is parallel and
 //! deterministic.
 
+mod freiburg;
 pub mod noise;
 pub mod scene;
 
@@ -252,7 +253,7 @@ pub fn generate(out: &Path, cfg: &SynthConfig) -> Result<SynthSummary, DataError
     let splits = assign_splits(cfg.count)?;
     match cfg.format {
         SynthFormat::Mf => write_mf(out, cfg, &splits),
-        SynthFormat::Freiburg => crate::freiburg::write_synthetic(out, cfg, &splits),
+        SynthFormat::Freiburg => freiburg::write_synthetic(out, cfg, &splits),
     }
 }
 

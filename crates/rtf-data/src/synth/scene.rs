@@ -292,15 +292,31 @@ impl Scene {
         blocks
     }
 
+    /// Places the scene's objects: cars, people, bikes (most with riders), cones, car stops,
+    /// then trees and street lamps along the sidewalks. The order of random draws is part of
+    /// the generator's output (frame `i` depends only on (seed, i)), so keep it.
     fn populate(&mut self, rng: &mut ChaCha8Rng) {
+        self.add_cars(rng);
+        self.add_people(rng);
+        self.add_bikes(rng);
+        self.add_cones(rng);
+        self.add_car_stops(rng);
+        for side in [-1.0f32, 1.0] {
+            self.add_trees(side, rng);
+            self.add_lamps(side, rng);
+        }
+        self.objects.retain(|o| o.z > 2.0);
+    }
+
+    /// A random x on either sidewalk.
+    fn sidewalk_x(&self, rng: &mut ChaCha8Rng) -> f32 {
+        let side = if rng.random::<bool>() { 1.0 } else { -1.0 };
+        self.road_center
+            + side * (self.road_half + self.curb_width + rng.random_range(0.3..self.sidewalk - 0.2))
+    }
+
+    fn add_cars(&mut self, rng: &mut ChaCha8Rng) {
         let (rc, rh) = (self.road_center, self.road_half);
-        let side_x = |rng: &mut ChaCha8Rng, s: &Scene| {
-            let side = if rng.random::<bool>() { 1.0 } else { -1.0 };
-            rc + side * (rh + s.curb_width + rng.random_range(0.3..s.sidewalk - 0.2))
-        };
-        // Depths biased towards the camera so objects are not tiny.
-        let depth =
-            |rng: &mut ChaCha8Rng, lo: f32, hi: f32| lo + (hi - lo) * rng.random::<f32>().powf(1.6);
         let n_cars = rng.random_range(1..=4);
         for _ in 0..n_cars {
             let r: f32 = rng.random();
@@ -337,7 +353,7 @@ impl Scene {
             self.objects.push(Object {
                 kind: Kind::Car { view, running },
                 x,
-                z: depth(rng, 5.0, 45.0),
+                z: near_biased_depth(rng, 5.0, 45.0),
                 lift: 0.0,
                 width: w * rng.random_range(0.9..1.1),
                 height: h * rng.random_range(0.9..1.15),
@@ -346,21 +362,29 @@ impl Scene {
                 seed: rng.random(),
             });
         }
+    }
+
+    fn add_people(&mut self, rng: &mut ChaCha8Rng) {
+        let (rc, rh) = (self.road_center, self.road_half);
         let n_people = rng.random_range(1..=5);
         for _ in 0..n_people {
             let on_road = rng.random::<f32>() < 0.3;
             let x = if on_road {
                 rc + rng.random_range(-rh..rh)
             } else {
-                side_x(rng, self)
+                self.sidewalk_x(rng)
             };
             let speed = rng.random_range(-1.5..1.5);
-            self.objects
-                .push(self.person(x, depth(rng, 4.0, 30.0), 0.0, [speed, 0.0], rng));
+            let z = near_biased_depth(rng, 4.0, 30.0);
+            self.objects.push(self.person(x, z, 0.0, [speed, 0.0], rng));
         }
+    }
+
+    fn add_bikes(&mut self, rng: &mut ChaCha8Rng) {
+        let (rc, rh) = (self.road_center, self.road_half);
         for _ in 0..rng.random_range(0..=2) {
             let x = rc + rng.random_range(-rh + 0.5..rh - 0.5);
-            let z = depth(rng, 4.0, 28.0);
+            let z = near_biased_depth(rng, 4.0, 28.0);
             let v = rng.random_range(-5.0..5.0);
             let frame = jitter(
                 [rgb(0.6, 0.1, 0.1), rgb(0.1, 0.1, 0.1), rgb(0.2, 0.3, 0.6)]
@@ -385,9 +409,13 @@ impl Scene {
                     .push(self.person(x, z + 0.05, 0.45, [v, 0.0], rng));
             }
         }
+    }
+
+    fn add_cones(&mut self, rng: &mut ChaCha8Rng) {
+        let (rc, rh) = (self.road_center, self.road_half);
         if rng.random::<f32>() < 0.35 {
             let x0 = rc + rng.random_range(-rh + 0.5..rh - 0.5);
-            let z0 = depth(rng, 4.0, 20.0);
+            let z0 = near_biased_depth(rng, 4.0, 20.0);
             for k in 0..rng.random_range(1..=4) {
                 self.objects.push(Object {
                     kind: Kind::Cone,
@@ -402,9 +430,12 @@ impl Scene {
                 });
             }
         }
+    }
+
+    fn add_car_stops(&mut self, rng: &mut ChaCha8Rng) {
         if rng.random::<f32>() < 0.3 {
-            let x0 = side_x(rng, self);
-            let z0 = depth(rng, 4.0, 15.0);
+            let x0 = self.sidewalk_x(rng);
+            let z0 = near_biased_depth(rng, 4.0, 15.0);
             for k in 0..rng.random_range(1..=3) {
                 self.objects.push(Object {
                     kind: Kind::CarStop,
@@ -419,48 +450,52 @@ impl Scene {
                 });
             }
         }
-        // Trees and street lamps along the sidewalks.
-        for side in [-1.0f32, 1.0] {
-            let x = rc + side * (rh + self.curb_width + self.sidewalk * 0.75);
-            let mut z = rng.random_range(3.0..15.0);
-            while z < 90.0 {
-                if rng.random::<f32>() < 0.5 {
-                    self.objects.push(Object {
-                        kind: Kind::Tree,
-                        x: x + rng.random_range(-0.3..0.3),
-                        z,
-                        lift: 0.0,
-                        width: rng.random_range(2.5..4.5),
-                        height: rng.random_range(4.0..8.0),
-                        colors: [
-                            jitter(rgb(0.15, 0.30, 0.08), rng, 0.2),
-                            rgb(0.25, 0.18, 0.12),
-                        ],
-                        velocity: [0.0, 0.0],
-                        seed: rng.random(),
-                    });
-                }
-                z += rng.random_range(8.0..16.0);
-            }
-            let mut z = rng.random_range(5.0..20.0);
-            let lx = rc + side * (rh + self.curb_width + 0.4);
-            while z < 160.0 {
-                self.lamps.push([lx, 6.0, z]);
+    }
+
+    /// Trees along the sidewalk on `side` (-1 left, +1 right).
+    fn add_trees(&mut self, side: f32, rng: &mut ChaCha8Rng) {
+        let x = self.road_center + side * (self.road_half + self.curb_width + self.sidewalk * 0.75);
+        let mut z = rng.random_range(3.0..15.0);
+        while z < 90.0 {
+            if rng.random::<f32>() < 0.5 {
                 self.objects.push(Object {
-                    kind: Kind::Lamp,
-                    x: lx,
+                    kind: Kind::Tree,
+                    x: x + rng.random_range(-0.3..0.3),
                     z,
                     lift: 0.0,
-                    width: 0.6,
-                    height: 6.0,
-                    colors: [rgb(0.3, 0.3, 0.32), rgb(1.0, 0.85, 0.6)],
+                    width: rng.random_range(2.5..4.5),
+                    height: rng.random_range(4.0..8.0),
+                    colors: [
+                        jitter(rgb(0.15, 0.30, 0.08), rng, 0.2),
+                        rgb(0.25, 0.18, 0.12),
+                    ],
                     velocity: [0.0, 0.0],
                     seed: rng.random(),
                 });
-                z += rng.random_range(22.0..32.0);
             }
+            z += rng.random_range(8.0..16.0);
         }
-        self.objects.retain(|o| o.z > 2.0);
+    }
+
+    /// Street lamps (objects and light sources) along the curb on `side`.
+    fn add_lamps(&mut self, side: f32, rng: &mut ChaCha8Rng) {
+        let mut z = rng.random_range(5.0..20.0);
+        let lx = self.road_center + side * (self.road_half + self.curb_width + 0.4);
+        while z < 160.0 {
+            self.lamps.push([lx, 6.0, z]);
+            self.objects.push(Object {
+                kind: Kind::Lamp,
+                x: lx,
+                z,
+                lift: 0.0,
+                width: 0.6,
+                height: 6.0,
+                colors: [rgb(0.3, 0.3, 0.32), rgb(1.0, 0.85, 0.6)],
+                velocity: [0.0, 0.0],
+                seed: rng.random(),
+            });
+            z += rng.random_range(22.0..32.0);
+        }
     }
 
     fn person(
@@ -1194,4 +1229,9 @@ pub fn box_blur(plane: &mut [f32], w: usize, h: usize, r: usize) {
             plane[y * w + x] = acc * norm;
         }
     }
+}
+
+/// A depth in `lo..hi` biased towards the camera, so objects are not tiny.
+fn near_biased_depth(rng: &mut ChaCha8Rng, lo: f32, hi: f32) -> f32 {
+    lo + (hi - lo) * rng.random::<f32>().powf(1.6)
 }
