@@ -188,7 +188,8 @@ pub fn cpu_bf16_arithmetic() -> Bf16Arithmetic {
 }
 
 /// [`cpu_bf16_arithmetic`] from the CPU's flag (`None`: unknown) and the first oneDNN ISA
-/// variable set, if any (an ISA name oneDNN does not know, or `ALL`/`DEFAULT`, caps nothing).
+/// variable set, if any. oneDNN compares the value with its upper-case names exactly (`strcmp`
+/// in `cpu_isa_traits.cpp`), so anything else (`avx2`, `ALL`, `DEFAULT`) caps nothing.
 fn bf16_arithmetic(cpu_flags: Option<bool>, cap: Option<(&'static str, String)>) -> Bf16Arithmetic {
     match cpu_flags {
         Some(false) => return Bf16Arithmetic::MissingFromCpu,
@@ -196,9 +197,7 @@ fn bf16_arithmetic(cpu_flags: Option<bool>, cap: Option<(&'static str, String)>)
         Some(true) => {}
     }
     match cap {
-        Some((var, isa))
-            if ISAS_WITHOUT_BF16.contains(&isa.trim().to_ascii_uppercase().as_str()) =>
-        {
+        Some((var, isa)) if ISAS_WITHOUT_BF16.contains(&isa.as_str()) => {
             Bf16Arithmetic::CappedBy { var, isa }
         }
         _ => Bf16Arithmetic::Native,
@@ -370,7 +369,7 @@ mod tests {
             "ONEDNN_MAX_CPU_ISA=AVX2 keeps oneDNN below AVX512_CORE_BF16"
         );
         assert_eq!(
-            bf16_arithmetic(Some(true), cap("avx512_core_vnni")).is_native(),
+            bf16_arithmetic(Some(true), cap("AVX512_CORE_VNNI")).is_native(),
             Some(false)
         );
         for isa in [
@@ -378,6 +377,7 @@ mod tests {
             "AVX512_CORE_AMX",
             "ALL",
             "DEFAULT",
+            "avx2",
             "nonsense",
         ] {
             assert_eq!(bf16_arithmetic(Some(true), cap(isa)), Native, "{isa}");
