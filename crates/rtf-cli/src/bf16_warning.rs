@@ -2,11 +2,11 @@
 //! `rtf train`, `eval`, `predict`, `bench model` and `bench train` with `--precision bf16`.
 //!
 //! Where the CPU has no bf16 instructions (no `avx512_bf16`, `amx_bf16` or Arm `bf16`, or
-//! oneDNN capped below `AVX512_CORE_BF16` by `ONEDNN_MAX_CPU_ISA`: [`rtf_amp::
-//! cpu_bf16_arithmetic`]) every bf16 product is computed by converting to fp32 and back. For
-//! inference (the fast path's bf16 weights and activations) that is libtorch's and oneDNN's
-//! generic bf16 kernels: an AVX2 EPYC, batch 1, 640×480, 2 threads, measured MFNet at 1.16 s
-//! against 102 ms in fp32 (~11×) and RTFNet-50 at 75 s against 2.28 s (~33×) (issue 31).
+//! oneDNN capped below `AVX512_CORE_BF16` by `ONEDNN_MAX_CPU_ISA`:
+//! [`rtf_amp::cpu_bf16_arithmetic`]) every bf16 product is computed by converting to fp32 and
+//! back. For inference (the fast path's bf16 weights and activations) that is libtorch's and
+//! oneDNN's generic bf16 kernels: an AVX2 EPYC, batch 1, 640×480, 2 threads, measured MFNet at
+//! 1.16 s against 102 ms in fp32 (~11×) and RTFNet-50 at 75 s against 2.28 s (~33×) (issue 31).
 //! Training routes its bf16 convolutions through fp32 kernels instead
 //! ([`rtf_amp::Bf16Convolutions::Emulated`]), which keeps a native kernel's numbers at fp32
 //! kernels' speed plus the casts: slower than fp32 (MFNet, 320×240, batch 2: 5.45 against 7.67
