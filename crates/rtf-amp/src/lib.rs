@@ -111,17 +111,101 @@ pub fn supported(device: Device, kind: Kind) -> bool {
     }
 }
 
-/// Whether this machine's CPU has native bf16 arithmetic (x86: `avx512_bf16` or `amx_bf16`;
-/// Arm: `bf16`), read from `/proc/cpuinfo`; `None` where that cannot be told. Without it,
-/// oneDNN emulates bf16 convolutions and CPU mixed precision is far slower than fp32 (MFNet
-/// training at 640×480 on an AVX2 EPYC: 0.14 against 1.42 images/s, docs/src/benchmarks.md), in
-/// PyTorch and rtf alike: worth a warning before hours of training.
+/// Whether this process has native bf16 arithmetic on the CPU ([`cpu_bf16_arithmetic`]);
+/// `None` where that cannot be told. Without it, oneDNN emulates bf16 convolutions and CPU
+/// mixed precision is far slower than fp32 (MFNet training at 640×480 on an AVX2 EPYC: 0.14
+/// against 1.42 images/s, docs/src/benchmarks.md), in PyTorch and rtf alike: worth a warning
+/// before hours of training.
 pub fn cpu_has_native_bf16() -> Option<bool> {
-    let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
-    cpuinfo_has_native_bf16(&info)
+    cpu_bf16_arithmetic().is_native()
 }
 
-/// [`cpu_has_native_bf16`] over the text of a `/proc/cpuinfo`.
+/// The environment variables by which oneDNN caps the instruction set it uses, in the order it
+/// reads them (oneDNN's "CPU Dispatcher Control": `ONEDNN_` first, then the older `DNNL_`).
+pub const ONEDNN_ISA_VARS: [&str; 2] = ["ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"];
+
+/// oneDNN's ISA names (`dnnl_cpu_isa_t`) below `AVX512_CORE_BF16`: capped to one of these,
+/// oneDNN has no bf16 instructions even on a CPU that has them.
+const ISAS_WITHOUT_BF16: [&str; 7] = [
+    "SSE41",
+    "AVX",
+    "AVX2",
+    "AVX2_VNNI",
+    "AVX2_VNNI_2",
+    "AVX512_CORE",
+    "AVX512_CORE_VNNI",
+];
+
+/// Whether the CPU arithmetic of this process has bf16 instructions, and if not, why.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Bf16Arithmetic {
+    /// x86 `avx512_bf16` or `amx_bf16`, Arm `bf16` in `/proc/cpuinfo`, and no oneDNN ISA cap
+    /// below them.
+    Native,
+    /// The CPU lacks the flags (e.g. an AVX2-only x86).
+    MissingFromCpu,
+    /// The CPU has them, but `var=isa` caps oneDNN below `AVX512_CORE_BF16` (how the AVX2 path
+    /// is exercised on an AVX-512 machine).
+    CappedBy { var: &'static str, isa: String },
+    /// `/proc/cpuinfo` is unreadable or names no flags.
+    Unknown,
+}
+
+impl Bf16Arithmetic {
+    /// `Some(true)` for native, `None` for unknown.
+    pub fn is_native(&self) -> Option<bool> {
+        match self {
+            Bf16Arithmetic::Native => Some(true),
+            Bf16Arithmetic::MissingFromCpu | Bf16Arithmetic::CappedBy { .. } => Some(false),
+            Bf16Arithmetic::Unknown => None,
+        }
+    }
+
+    /// Why bf16 is not native, in words for a warning ("" when it is or cannot be told).
+    pub fn reason(&self) -> String {
+        match self {
+            Bf16Arithmetic::MissingFromCpu => {
+                "no avx512_bf16, amx_bf16 or bf16 in /proc/cpuinfo".to_owned()
+            }
+            Bf16Arithmetic::CappedBy { var, isa } => {
+                format!("{var}={isa} keeps oneDNN below AVX512_CORE_BF16")
+            }
+            Bf16Arithmetic::Native | Bf16Arithmetic::Unknown => String::new(),
+        }
+    }
+}
+
+/// This process's [`Bf16Arithmetic`]: the CPU flags of `/proc/cpuinfo`, capped by
+/// [`ONEDNN_ISA_VARS`] where set.
+pub fn cpu_bf16_arithmetic() -> Bf16Arithmetic {
+    let flags = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|info| cpuinfo_has_native_bf16(&info));
+    let cap = ONEDNN_ISA_VARS
+        .iter()
+        .find_map(|var| Some((*var, std::env::var(var).ok()?)));
+    bf16_arithmetic(flags, cap)
+}
+
+/// [`cpu_bf16_arithmetic`] from the CPU's flag (`None`: unknown) and the first oneDNN ISA
+/// variable set, if any. oneDNN compares the value with its upper-case names exactly (`strcmp`
+/// in `cpu_isa_traits.cpp`), so anything else (`avx2`, `ALL`, `DEFAULT`) caps nothing.
+fn bf16_arithmetic(cpu_flags: Option<bool>, cap: Option<(&'static str, String)>) -> Bf16Arithmetic {
+    match cpu_flags {
+        Some(false) => return Bf16Arithmetic::MissingFromCpu,
+        None => return Bf16Arithmetic::Unknown,
+        Some(true) => {}
+    }
+    match cap {
+        Some((var, isa)) if ISAS_WITHOUT_BF16.contains(&isa.as_str()) => {
+            Bf16Arithmetic::CappedBy { var, isa }
+        }
+        _ => Bf16Arithmetic::Native,
+    }
+}
+
+/// Whether a `/proc/cpuinfo` names native bf16 arithmetic (x86: `avx512_bf16` or `amx_bf16`;
+/// Arm: `bf16`); `None` where it names no flags.
 fn cpuinfo_has_native_bf16(info: &str) -> Option<bool> {
     // x86 lists "flags", Arm "Features"; the first such line speaks for every core.
     let line = info
@@ -269,6 +353,38 @@ mod tests {
         let arm = "processor\t: 0\nFeatures\t: fp asimd sve bf16 i8mm\n";
         assert_eq!(cpuinfo_has_native_bf16(arm), Some(true));
         assert_eq!(cpuinfo_has_native_bf16("processor\t: 0\n"), None);
+    }
+
+    #[test]
+    fn a_onednn_isa_cap_below_avx512_core_bf16_makes_bf16_not_native() {
+        use Bf16Arithmetic::*;
+        let cap = |isa: &str| Some(("ONEDNN_MAX_CPU_ISA", isa.to_owned()));
+        assert_eq!(bf16_arithmetic(Some(true), None), Native);
+        assert_eq!(bf16_arithmetic(Some(false), None), MissingFromCpu);
+        assert_eq!(bf16_arithmetic(None, cap("AVX2")), Unknown);
+        let capped = bf16_arithmetic(Some(true), cap("AVX2"));
+        assert_eq!(capped.is_native(), Some(false));
+        assert_eq!(
+            capped.reason(),
+            "ONEDNN_MAX_CPU_ISA=AVX2 keeps oneDNN below AVX512_CORE_BF16"
+        );
+        assert_eq!(
+            bf16_arithmetic(Some(true), cap("AVX512_CORE_VNNI")).is_native(),
+            Some(false)
+        );
+        for isa in [
+            "AVX512_CORE_BF16",
+            "AVX512_CORE_AMX",
+            "ALL",
+            "DEFAULT",
+            "avx2",
+            "nonsense",
+        ] {
+            assert_eq!(bf16_arithmetic(Some(true), cap(isa)), Native, "{isa}");
+        }
+        // A CPU without the flags stays without them, whatever the cap.
+        assert_eq!(bf16_arithmetic(Some(false), cap("ALL")), MissingFromCpu);
+        assert!(MissingFromCpu.reason().contains("avx512_bf16"));
     }
 
     #[test]

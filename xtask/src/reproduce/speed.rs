@@ -343,6 +343,18 @@ mod tests {
         }
     }
 
+    /// MFNet Tab. IV and one made-up measurement (every row gets it).
+    fn mfnet_tab4_measured() -> (&'static Table, Measured) {
+        let table = TABLES.iter().find(|t| t.id == "mfnet-tab4").unwrap();
+        let m = Measured {
+            median_ms: 44.0,
+            fps: 22.7,
+            params: 736275,
+            megabytes: 2.81,
+        };
+        (table, m)
+    }
+
     #[test]
     fn table_shows_paper_and_measured_columns_side_by_side() {
         let models = serde_json::json!([
@@ -351,13 +363,7 @@ mod tests {
         ]);
         assert_eq!(size_of(&models, "mfnet").unwrap(), (736275, 2.81));
         assert!(size_of(&models, "nope").is_err());
-        let table = TABLES.iter().find(|t| t.id == "mfnet-tab4").unwrap();
-        let m = Measured {
-            median_ms: 44.0,
-            fps: 22.7,
-            params: 736275,
-            megabytes: 2.81,
-        };
+        let (table, m) = mfnet_tab4_measured();
         let text = render(table, &vec![m; table.rows.len()], "ctx");
         let lines: Vec<&str> = text.lines().collect();
         assert!(lines[0].starts_with("### MFNet Tab. IV"));
@@ -383,13 +389,7 @@ mod tests {
         assert_eq!(paper_number("29.42M"), Some(29.42));
         assert_eq!(paper_number("55.6"), Some(55.6));
         assert_eq!(paper_number(""), None);
-        let table = TABLES.iter().find(|t| t.id == "mfnet-tab4").unwrap();
-        let m = Measured {
-            median_ms: 44.0,
-            fps: 22.7,
-            params: 736275,
-            megabytes: 2.81,
-        };
+        let (table, m) = mfnet_tab4_measured();
         let o = Options {
             size: "96x64".into(),
             device: "cpu".into(),

@@ -63,6 +63,11 @@ pub fn run(args: Args) -> Result<()> {
         anyhow::ensure!(threads >= 1, "--threads must be ≥ 1");
         tch::set_num_threads(threads);
     }
+    let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
+    let bf16 = args.precision == Precision::Bf16;
+    if let Some(warning) = crate::bf16_warning::inference(bf16, device) {
+        eprintln!("warning: {warning}");
+    }
     let opts = BenchOptions {
         model: args.model,
         batch: args.batch,
@@ -78,7 +83,7 @@ pub fn run(args: Args) -> Result<()> {
         warmup: args.warmup,
         iterations: args.iterations,
         weights: args.weights,
-        device: rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?,
+        device,
     };
     let report = bench_model(&opts)?;
     if args.json {

@@ -63,7 +63,7 @@ pub fn run(args: Args) -> Result<()> {
         OptimizerKind::Rmsprop => OptimizerConfig::heatnet_paper(),
     };
     let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
-    if let Some(warning) = args.precision.slow_on(device) {
+    if let Some(warning) = crate::bf16_warning::training(args.precision, device) {
         eprintln!("warning: {warning}");
     }
     crate::allocator::set_purge_delay_for_training(args.precision, device);

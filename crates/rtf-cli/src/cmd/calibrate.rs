@@ -5,9 +5,9 @@
 use anyhow::{bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use rtf_calib::calibfile::{CalibFile, Quality};
-use rtf_calib::frames::load_frames;
+use rtf_calib::frames::{load_frames, Frame};
 use rtf_calib::optimize::{self, Recipe, Settings};
-use rtf_calib::quality::Verdict;
+use rtf_calib::quality::{Assessment, Verdict};
 use rtf_calib::rig::{OptimizerOverrides, Rig};
 use std::path::{Path, PathBuf};
 
@@ -145,56 +145,13 @@ pub fn run(args: Args) -> Result<()> {
         settings.batch_size,
         settings.learning_rate
     );
-    let bar = ProgressBar::new(1);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg} ETA {eta}",
-        )
-        .expect("valid template"),
-    );
     let start = std::time::Instant::now();
-    let outcome = optimize::calibrate(&rig, &frames, &settings, &mut |p| {
-        bar.set_length(p.total as u64);
-        bar.set_position(p.step as u64);
-        bar.set_message(format!("{} loss {:.6}", p.stage, p.loss));
-    })?;
-    bar.finish_and_clear();
+    let outcome = calibrate_with_progress(&rig, &frames, &settings)?;
     let seconds = start.elapsed().as_secs_f64();
     if let Some(reason) = &outcome.stopped {
         eprintln!("warning: stopped early: {reason}");
     }
-    let quality = Quality {
-        loss: outcome.loss,
-        frames_used: outcome.frames_used,
-        iterations: outcome.iterations,
-        assessment: outcome.assessment.clone(),
-    };
-    let file = CalibFile::from_calibration(&outcome.calibration, Some(quality));
-    file.save(&out)?;
-    if args.format == FormatArg::Kalibr {
-        rtf_calib::kalibr::Camchain::new(
-            &rig.rgb,
-            (rig.thermal.width, rig.thermal.height),
-            &outcome.calibration,
-        )
-        .save(&camchain)?;
-        println!("wrote {} (Kalibr camchain)", camchain.display());
-    }
-    let k = &file.thermal;
-    println!(
-        "wrote {}: fx {:.2} fy {:.2} cx {:.2} cy {:.2} distortion {:?}; t {:?} m; rotation {:.3}°; loss {:.6}; {} iterations in {:.1} s",
-        out.display(),
-        k.fx,
-        k.fy,
-        k.cx,
-        k.cy,
-        k.distortion,
-        file.extrinsic.translation,
-        outcome.calibration.extrinsic.angle().to_degrees(),
-        outcome.loss,
-        outcome.iterations,
-        seconds
-    );
+    write_calibration(&args, &rig, &outcome, &camchain, seconds)?;
     if let Some(dir) = &args.overlay {
         let written = rtf_calib::overlay::write_overlays(
             dir,
@@ -210,45 +167,130 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     if let Some(truth_path) = &args.ground_truth {
-        let truth = CalibFile::load(truth_path)?.calibration();
-        let eval_frames = match &args.eval_rig {
-            Some(path) => load_frames(&Rig::load(path)?, &mut |w| eprintln!("warning: {w}"))?,
-            None => frames,
-        };
-        let before = optimize::mean_map_error(&rig, &eval_frames, &outcome.initial, &truth);
-        let after = optimize::mean_map_error(&rig, &eval_frames, &outcome.calibration, &truth);
-        let (deg, metres) = outcome.calibration.extrinsic.difference(&truth.extrinsic);
+        compare_with_truth(&args, truth_path, &rig, frames, &outcome, seconds)?;
+    }
+    match &outcome.assessment {
+        Some(a) => report_verdict(a, &out),
+        None => Ok(()),
+    }
+}
+
+/// [`optimize::calibrate`] under a progress bar (stage, step, loss, ETA).
+fn calibrate_with_progress(
+    rig: &Rig,
+    frames: &[Frame],
+    settings: &Settings,
+) -> Result<optimize::Outcome> {
+    let bar = ProgressBar::new(1);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg} ETA {eta}",
+        )
+        .expect("valid template"),
+    );
+    let outcome = optimize::calibrate(rig, frames, settings, &mut |p| {
+        bar.set_length(p.total as u64);
+        bar.set_position(p.step as u64);
+        bar.set_message(format!("{} loss {:.6}", p.stage, p.loss));
+    })?;
+    bar.finish_and_clear();
+    Ok(outcome)
+}
+
+/// Writes calib.yaml (and the Kalibr camchain if asked) and prints the solution.
+fn write_calibration(
+    args: &Args,
+    rig: &Rig,
+    outcome: &optimize::Outcome,
+    camchain: &Path,
+    seconds: f64,
+) -> Result<()> {
+    let quality = Quality {
+        loss: outcome.loss,
+        frames_used: outcome.frames_used,
+        iterations: outcome.iterations,
+        assessment: outcome.assessment.clone(),
+    };
+    let file = CalibFile::from_calibration(&outcome.calibration, Some(quality));
+    file.save(&args.out)?;
+    if args.format == FormatArg::Kalibr {
+        rtf_calib::kalibr::Camchain::new(
+            &rig.rgb,
+            (rig.thermal.width, rig.thermal.height),
+            &outcome.calibration,
+        )
+        .save(camchain)?;
+        println!("wrote {} (Kalibr camchain)", camchain.display());
+    }
+    let k = &file.thermal;
+    println!(
+        "wrote {}: fx {:.2} fy {:.2} cx {:.2} cy {:.2} distortion {:?}; t {:?} m; rotation {:.3}°; loss {:.6}; {} iterations in {:.1} s",
+        args.out.display(),
+        k.fx,
+        k.fy,
+        k.cx,
+        k.cy,
+        k.distortion,
+        file.extrinsic.translation,
+        outcome.calibration.extrinsic.angle().to_degrees(),
+        outcome.loss,
+        outcome.iterations,
+        seconds
+    );
+    Ok(())
+}
+
+/// `--ground-truth`: the pixel-map error before and after, and the extrinsic's error, over the
+/// frames of `--eval-rig` (default: the calibrated `frames`).
+fn compare_with_truth(
+    args: &Args,
+    truth_path: &Path,
+    rig: &Rig,
+    frames: Vec<Frame>,
+    outcome: &optimize::Outcome,
+    seconds: f64,
+) -> Result<()> {
+    let truth = CalibFile::load(truth_path)?.calibration();
+    let eval_frames = match &args.eval_rig {
+        Some(path) => load_frames(&Rig::load(path)?, &mut |w| eprintln!("warning: {w}"))?,
+        None => frames,
+    };
+    let before = optimize::mean_map_error(rig, &eval_frames, &outcome.initial, &truth);
+    let after = optimize::mean_map_error(rig, &eval_frames, &outcome.calibration, &truth);
+    let (deg, metres) = outcome.calibration.extrinsic.difference(&truth.extrinsic);
+    println!(
+        "vs ground truth: pixel-map error {after:.4} px (initial {before:.3} px); rotation error {deg:.4} deg; translation error {:.3} cm; time {seconds:.1} s",
+        metres * 100.0
+    );
+    Ok(())
+}
+
+/// Prints the quality verdict; a `failed` one is an error (the file stays for inspection).
+fn report_verdict(a: &Assessment, out: &Path) -> Result<()> {
+    println!(
+        "verdict: {} ({}); alignment score {:.4} (start {:.4}, ±{} px {:.4}); {:.0} % of frames agree; split-half {:.2} px; map moved {:.1} px",
+        a.verdict,
+        a.reason,
+        a.score.at_solution,
+        a.score.at_start,
+        a.score.delta_px,
+        a.score.perturbed_mean,
+        100.0 * a.frames_agreeing,
+        a.split_px,
+        a.moved_px
+    );
+    if let Some(r) = &a.restarts {
         println!(
-            "vs ground truth: pixel-map error {after:.4} px (initial {before:.3} px); rotation error {deg:.4} deg; translation error {:.3} cm; time {seconds:.1} s",
-            metres * 100.0
+            "restarts (wrong-basin check): {} solutions from starts perturbed by {:.1} px; the best moved the first run's map {:.2} px; equal-scoring solutions within {:.2} px of each other",
+            r.count, r.perturbation_px, r.improved_px, r.spread_px
         );
     }
-    if let Some(a) = &outcome.assessment {
-        println!(
-            "verdict: {} ({}); alignment score {:.4} (start {:.4}, ±{} px {:.4}); {:.0} % of frames agree; split-half {:.2} px; map moved {:.1} px",
-            a.verdict,
+    if a.verdict == Verdict::Failed {
+        bail!(
+            "calibration failed: {} ({} kept for inspection)",
             a.reason,
-            a.score.at_solution,
-            a.score.at_start,
-            a.score.delta_px,
-            a.score.perturbed_mean,
-            100.0 * a.frames_agreeing,
-            a.split_px,
-            a.moved_px
+            out.display()
         );
-        if let Some(r) = &a.restarts {
-            println!(
-                "restarts (wrong-basin check): {} solutions from starts perturbed by {:.1} px; the best moved the first run's map {:.2} px; equal-scoring solutions within {:.2} px of each other",
-                r.count, r.perturbation_px, r.improved_px, r.spread_px
-            );
-        }
-        if a.verdict == Verdict::Failed {
-            bail!(
-                "calibration failed: {} ({} kept for inspection)",
-                a.reason,
-                out.display()
-            );
-        }
     }
     Ok(())
 }

@@ -202,17 +202,63 @@ pub fn run(args: Args) -> Result<()> {
         .map(|_| rtf_data::fingerprint(&args.data))
         .transpose()?;
     let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
+    let heatnet = print_scores(&args, format, &report, loaded.inputs);
+    let dropped = scores_without_modalities(&args, network.as_ref(), &split, &options, device)?;
+    if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
+        let n = report.confusion.num_classes();
+        let json = serde_json::to_string_pretty(&Report {
+            schema: EVAL_SCHEMA,
+            class_names: classes.names(),
+            confusion: (0..n)
+                .map(|t| (0..n).map(|p| report.confusion.get(t, p)).collect())
+                .collect(),
+            dropped,
+            model: &args.model,
+            inputs: loaded.inputs,
+            weights: &args.weights,
+            data: &args.data,
+            split: &args.split,
+            frames: report.frames,
+            all: &report.all,
+            day: report.day.as_ref(),
+            night: report.night.as_ref(),
+            heatnet,
+            data_fingerprint,
+        })?;
+        rtf_core::write_bytes_atomic(path, json.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(path) = &args.figure {
+        write_figure(
+            &args,
+            path,
+            network.as_ref(),
+            split.as_ref(),
+            &classes,
+            device,
+        )?;
+    }
+    Ok(())
+}
 
+/// Prints the scores: RTFNet's convention table, then HeatNet's (Freiburg Thermal) or the MFNet
+/// paper's mIoU, then day and night. Returns HeatNet's scores for the JSON.
+fn print_scores(
+    args: &Args,
+    format: DatasetFormat,
+    report: &rtf_eval::EvalReport,
+    inputs: rtf_models::Modality,
+) -> Option<HeatnetScores> {
     println!(
         "{} on {} `{}` ({} frames, inputs {})",
         args.model,
         args.data.display(),
         args.split,
         report.frames,
-        loaded.inputs
+        inputs
     );
     println!("{}", report.all.table());
-    let heatnet = (format == DatasetFormat::Freiburg).then(|| HeatnetScores::of(&report));
+    let heatnet = (format == DatasetFormat::Freiburg).then(|| HeatnetScores::of(report));
     let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.1}", 100.0 * v));
     match &heatnet {
         Some(h) => println!(
@@ -240,6 +286,17 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
     }
+    heatnet
+}
+
+/// `--drop`: the evaluation again with each named modality missing; prints and returns them.
+fn scores_without_modalities(
+    args: &Args,
+    network: &dyn rtf_models::Network,
+    split: &Arc<dyn FrameSource>,
+    options: &EvalOptions,
+    device: tch::Device,
+) -> Result<Vec<DroppedScores>> {
     let mut dropped = Vec::new();
     for modality in &args.drop {
         let drop = rtf_eval::ModalityDrop {
@@ -252,13 +309,7 @@ pub fn run(args: Args) -> Result<()> {
                 FillArg::Mean => rtf_eval::DropFill::Mean,
             },
         };
-        let r = rtf_eval::evaluate_with_drop(
-            network.as_ref(),
-            split.clone(),
-            &options,
-            Some(drop),
-            device,
-        )?;
+        let r = rtf_eval::evaluate_with_drop(network, split.clone(), options, Some(drop), device)?;
         let pct = |s: &Option<Scores>| {
             s.as_ref()
                 .map_or("-".into(), |s| format!("{:.1}", 100.0 * s.miou))
@@ -279,45 +330,25 @@ pub fn run(args: Args) -> Result<()> {
             night: r.night,
         });
     }
-    if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
-        let n = report.confusion.num_classes();
-        let json = serde_json::to_string_pretty(&Report {
-            schema: EVAL_SCHEMA,
-            class_names: classes.names(),
-            confusion: (0..n)
-                .map(|t| (0..n).map(|p| report.confusion.get(t, p)).collect())
-                .collect(),
-            dropped,
-            model: &args.model,
-            inputs: loaded.inputs,
-            weights: &args.weights,
-            data: &args.data,
-            split: &args.split,
-            frames: report.frames,
-            all: &report.all,
-            day: report.day.as_ref(),
-            night: report.night.as_ref(),
-            heatnet,
-            data_fingerprint,
-        })?;
-        rtf_core::write_bytes_atomic(path, json.as_bytes())
-            .with_context(|| format!("writing {}", path.display()))?;
-    }
-    if let Some(path) = &args.figure {
-        let rows = rtf_eval::figure::rows_for(
-            network.as_ref(),
-            split.as_ref(),
-            args.figure_frames,
-            args.resize,
-            device,
-        )?;
-        let column = rtf_eval::figure::PredictionColumn {
-            title: args.model.clone(),
-            ids: rows.iter().map(|r| r.prediction.clone()).collect(),
-        };
-        let grid = rtf_eval::figure::annotated_grid(&rows, &[column], &classes);
-        rtf_eval::figure::save_png(&grid, path)?;
-        println!("figure: {}", path.display());
-    }
+    Ok(dropped)
+}
+
+/// `--figure`: a grid of `--figure-frames` frames (RGB, thermal, truth, prediction).
+fn write_figure(
+    args: &Args,
+    path: &Path,
+    network: &dyn rtf_models::Network,
+    split: &dyn FrameSource,
+    classes: &rtf_core::ClassSet,
+    device: tch::Device,
+) -> Result<()> {
+    let rows = rtf_eval::figure::rows_for(network, split, args.figure_frames, args.resize, device)?;
+    let column = rtf_eval::figure::PredictionColumn {
+        title: args.model.clone(),
+        ids: rows.iter().map(|r| r.prediction.clone()).collect(),
+    };
+    let grid = rtf_eval::figure::annotated_grid(&rows, &[column], classes);
+    rtf_eval::figure::save_png(&grid, path)?;
+    println!("figure: {}", path.display());
     Ok(())
 }

@@ -296,28 +296,7 @@ pub fn run(args: Args) -> Result<()> {
             let dir = tempfile::tempdir()?;
             let ts = dir.path().join("module.pt");
             save_torchscript(&ts)?;
-            rtf_core::write_atomic(&args.out, |tmp| -> Result<()> {
-                let output = Command::new(&python)
-                    .arg("-c")
-                    .arg(include_str!("../../../../scripts/export_onnx.py"))
-                    .arg(&ts)
-                    .arg(tmp)
-                    .arg(in_channels.to_string())
-                    .arg(args.size.0.to_string())
-                    .arg(args.size.1.to_string())
-                    .output()
-                    .with_context(|| format!("running {}", python.display()))?;
-                print!("{}", String::from_utf8_lossy(&output.stdout));
-                if !output.status.success() {
-                    bail!(
-                        "PyTorch's ONNX export ({}) failed: {}",
-                        python.display(),
-                        String::from_utf8_lossy(&output.stderr).trim()
-                    );
-                }
-                Ok(())
-            })
-            .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.out.display()))?;
+            torchscript_to_onnx(&python, &ts, &args.out, in_channels, args.size)?;
         }
     }
     println!(
@@ -330,6 +309,40 @@ pub fn run(args: Args) -> Result<()> {
         args.format
     );
     Ok(())
+}
+
+/// Converts the TorchScript file `ts` to ONNX at `out` (written atomically) with PyTorch's
+/// exporter (`scripts/export_onnx.py` under `python`), traced at `size` (height,
+/// width, as `--size`).
+fn torchscript_to_onnx(
+    python: &Path,
+    ts: &Path,
+    out: &Path,
+    in_channels: i64,
+    size: (usize, usize),
+) -> Result<()> {
+    rtf_core::write_atomic(out, |tmp| -> Result<()> {
+        let output = Command::new(python)
+            .arg("-c")
+            .arg(include_str!("../../../../scripts/export_onnx.py"))
+            .arg(ts)
+            .arg(tmp)
+            .arg(in_channels.to_string())
+            .arg(size.0.to_string())
+            .arg(size.1.to_string())
+            .output()
+            .with_context(|| format!("running {}", python.display()))?;
+        print!("{}", String::from_utf8_lossy(&output.stdout));
+        if !output.status.success() {
+            bail!(
+                "PyTorch's ONNX export ({}) failed: {}",
+                python.display(),
+                String::from_utf8_lossy(&output.stderr).trim()
+            );
+        }
+        Ok(())
+    })
+    .map_err(|e| anyhow::anyhow!("{}: {e:#}", out.display()))
 }
 
 #[cfg(test)]

@@ -70,6 +70,10 @@ pub fn load_network(
     foreign_weights: bool,
     inputs: Option<rtf_models::Modality>,
 ) -> anyhow::Result<LoadedNetwork> {
+    let bf16 = precision == Some(rtf_models::fast::Precision::Bf16);
+    if let Some(warning) = crate::bf16_warning::inference(bf16, device) {
+        eprintln!("warning: {warning}");
+    }
     let cfg = rtf_models::ModelConfig::from_name(name, num_classes)?;
     let mut vs = tch::nn::VarStore::new(device);
     let net = rtf_models::build(&vs.root(), &cfg)?;

@@ -175,7 +175,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut slow = None;
     for (i, (_, stage)) in cfg.stages().into_iter().enumerate() {
         let device = available_device(&stage.device).map_err(anyhow::Error::msg)?;
-        slow = slow.or_else(|| stage.precision.slow_on(device));
+        slow = slow.or_else(|| crate::bf16_warning::training(stage.precision, device));
         // The allocator's policy follows the first stage's arithmetic (process-wide).
         if i == 0 {
             crate::allocator::set_purge_delay_for_training(stage.precision, device);
