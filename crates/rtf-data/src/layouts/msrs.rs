@@ -1,0 +1,118 @@
+//! MSRS (Tang et al., "PIAFusion", Information Fusion 2022; the "Multi-Spectral Road
+//! Scenarios" release, github.com/Linfeng-Tang/MSRS): the MF dataset (spec §1) re-registered,
+//! misaligned pairs dropped, thermal contrast-enhanced. Layout: `{train,test}/vi/NAME.png`
+//! (RGB, 8-bit), `{train,test}/ir/NAME.png` (8-bit grey), `{train,test}/Label/NAME.png`
+//! (8-bit class ids, MF's 9 classes). Names keep MF's `D`/`N` suffix (day/night).
+//!
+//! A root holding `vi/` and `ir/` directly (one split of the release, as
+//! `../shared/data/msrs-samples`) is read as one split named `all`.
+
+use std::path::Path;
+
+use rtf_core::ClassSet;
+
+use super::{built_in, Folders};
+use crate::description::{DatasetDescription, LayoutKind, NightRule};
+
+const FOLDERS: Folders = Folders {
+    rgb: "vi",
+    thermal: "ir",
+    labels: "Label",
+};
+
+pub fn matches(root: &Path) -> bool {
+    ["train", "test"]
+        .iter()
+        .any(|s| FOLDERS.present_in(&root.join(s)))
+        || FOLDERS.present_in(root)
+}
+
+pub fn describe(root: &Path) -> DatasetDescription {
+    let mut splits = FOLDERS.splits(root, &["train", "test"]);
+    if splits.is_empty() {
+        splits.push(FOLDERS.split("all", root));
+    }
+    let mut classes = ClassSet::mf();
+    classes.name = "msrs".into();
+    built_in(
+        root,
+        LayoutKind::Msrs,
+        classes,
+        splits,
+        NightRule::Suffix("N".into()),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layouts::recognise;
+    use crate::testutil::*;
+    use crate::{DescribedDataset, FrameSource};
+    use rtf_core::Daytime;
+
+    const MSRS: RgbtFolders = RgbtFolders {
+        rgb: "vi",
+        thermal: "ir",
+        labels: "Label",
+    };
+
+    /// The release's layout: `{train,test}/{vi,ir,Label}/NAME.png`, MF names with D/N,
+    /// 8-bit RGB, 8-bit grey thermal, 8-bit ids 0..8.
+    fn msrs_fixture(root: &Path) {
+        for (split, names) in [
+            ("train", ["00001D", "00002N"]),
+            ("test", ["00004N", "00005D"]),
+        ] {
+            for name in names {
+                write_rgbt_frame(
+                    &root.join(split),
+                    &MSRS,
+                    name,
+                    (8, 6),
+                    ThermalFixture::Grey8,
+                    9,
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn msrs_root_reads_mf_classes_day_night_and_byte_thermal() {
+        let dir = tempfile::tempdir().unwrap();
+        msrs_fixture(dir.path());
+        assert_eq!(recognise(dir.path()), Some(LayoutKind::Msrs));
+        let d = describe(dir.path());
+        assert_eq!(d.class_set.len(), 9);
+        assert_eq!(d.class_set.names(), ClassSet::mf().names());
+        assert_eq!(d.split_names(), vec!["train", "test"]);
+        let train = DescribedDataset::new(d).split("train").unwrap();
+        assert_eq!(train.len(), 2);
+        assert_eq!(train.daytime(0), Some(Daytime::Day));
+        assert_eq!(train.daytime(1), Some(Daytime::Night));
+        let f = train.load(1).unwrap();
+        assert_eq!((f.width, f.height, f.name.as_str()), (8, 6, "00002N"));
+        assert_eq!(f.thermal[7], 7.0 / 255.0);
+        assert_eq!(f.label.unwrap(), ids(8, 6, 9));
+        assert_eq!(&f.rgb[..], &rgb(8, 6, 6)[..]);
+    }
+
+    #[test]
+    fn a_flat_vi_ir_folder_is_one_unlabelled_split() {
+        let dir = tempfile::tempdir().unwrap();
+        let flat = RgbtFolders { labels: "", ..MSRS };
+        write_rgbt_frame(
+            dir.path(),
+            &flat,
+            "00004N",
+            (8, 6),
+            ThermalFixture::Grey8,
+            9,
+        );
+        let d = describe(dir.path());
+        assert_eq!(d.split_names(), vec!["all"]);
+        let all = DescribedDataset::new(d).split("all").unwrap();
+        assert!(!all.labelled());
+        assert_eq!(all.load(0).unwrap().label, None);
+    }
+}
