@@ -68,6 +68,15 @@ impl DescribedDataset {
     }
 }
 
+/// The held-out validation part named as `--val-split holdout:N`: every N-th training frame
+/// (N >= 2), taken out of training.
+pub fn parse_holdout(val_split: &str) -> Option<usize> {
+    val_split
+        .strip_prefix("holdout:")
+        .and_then(|n| n.parse().ok())
+        .filter(|&n: &usize| n >= 2)
+}
+
 /// The files of one frame.
 #[derive(Debug, Clone)]
 struct Entry {
@@ -180,6 +189,26 @@ impl DescribedSplit {
 
     pub fn description(&self) -> &DatasetDescription {
         &self.description
+    }
+
+    /// Splits off every `every`-th frame (indices `every-1`, `2*every-1`, …) as a held-out
+    /// validation part: (the frames kept for training, the held-out frames). For datasets that
+    /// ship no val split (validation must never be the test split unless asked).
+    pub fn hold_out(&self, every: usize) -> (DescribedSplit, DescribedSplit) {
+        let held = |i: usize| every > 0 && i % every == every - 1;
+        let part = |keep_held: bool, suffix: &str| DescribedSplit {
+            description: self.description.clone(),
+            split: format!("{}{suffix}", self.split),
+            entries: (self.entries.iter().enumerate())
+                .filter(|(i, _)| held(*i) == keep_held)
+                .map(|(_, e)| e.clone())
+                .collect(),
+            palette: self.palette.clone(),
+        };
+        (
+            part(false, ""),
+            part(true, &format!(" (held out: every {every}th)")),
+        )
     }
 
     /// Whether the split's frames have labels.
@@ -490,6 +519,18 @@ mod tests {
             text.contains("line 2") && text.contains("rgb/c.png"),
             "{text}"
         );
+    }
+
+    #[test]
+    fn hold_out_takes_every_nth_frame_out_of_training() {
+        let dir = plain_root(EXAMPLE);
+        let train = open(dir.path(), "train").unwrap();
+        let (kept, held) = train.hold_out(2);
+        assert_eq!((kept.len(), held.len()), (1, 1));
+        assert_eq!((kept.frame_name(0), held.frame_name(0)), ("a", "b"));
+        assert_eq!(parse_holdout("holdout:10"), Some(10));
+        assert_eq!(parse_holdout("holdout:1"), None);
+        assert_eq!(parse_holdout("val"), None);
     }
 
     #[test]

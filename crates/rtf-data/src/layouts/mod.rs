@@ -63,6 +63,14 @@ impl Folders {
         dir.join(self.rgb).is_dir() && dir.join(self.thermal).is_dir()
     }
 
+    /// Whether `root/train` or `root/test` has the RGB and thermal folders (the public sets
+    /// ship these two splits).
+    pub fn in_train_or_test(&self, root: &Path) -> bool {
+        ["train", "test"]
+            .iter()
+            .any(|s| self.present_in(&root.join(s)))
+    }
+
     /// The splits among `names` that have the RGB and thermal folders.
     pub fn splits(&self, root: &Path, names: &[&str]) -> Vec<SplitSpec> {
         names

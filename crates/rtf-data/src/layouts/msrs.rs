@@ -21,10 +21,7 @@ const FOLDERS: Folders = Folders {
 };
 
 pub fn matches(root: &Path) -> bool {
-    ["train", "test"]
-        .iter()
-        .any(|s| FOLDERS.present_in(&root.join(s)))
-        || FOLDERS.present_in(root)
+    FOLDERS.in_train_or_test(root) || FOLDERS.present_in(root)
 }
 
 pub fn describe(root: &Path) -> DatasetDescription {

@@ -29,9 +29,7 @@ pub const CLASSES: [(&str, [u8; 3]); 5] = [
 ];
 
 pub fn matches(root: &Path) -> bool {
-    ["train", "test"]
-        .iter()
-        .any(|s| FOLDERS.present_in(&root.join(s)))
+    FOLDERS.in_train_or_test(root)
 }
 
 pub fn describe(root: &Path) -> DatasetDescription {
