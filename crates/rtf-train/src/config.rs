@@ -401,6 +401,15 @@ pub enum DatasetConfig {
         #[serde(default = "yes")]
         validate: bool,
     },
+    /// A root read through a dataset description (rtf_data::layouts): `root/dataset.yaml`
+    /// (the plain layout) or a recognised MSRS, PST900 or FMB root. Its class set decides the
+    /// network's number of outputs.
+    Described {
+        root: PathBuf,
+        train_split: String,
+        /// None: no validation (the public sets ship only train and test).
+        val_split: Option<String>,
+    },
 }
 
 fn yes() -> bool {
