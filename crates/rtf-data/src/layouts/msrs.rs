@@ -112,4 +112,26 @@ mod tests {
         assert!(!all.labelled());
         assert_eq!(all.load(0).unwrap().label, None);
     }
+
+    /// The 48 real MSRS test scenes of ../shared/data/msrs-samples (README there): a flat
+    /// vi/ + ir/ folder, 640×480, 24 day and 24 night by the D/N suffix, grey thermal.
+    #[test]
+    fn the_real_msrs_samples_read_as_one_split_of_48_frames() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/msrs-samples");
+        assert_eq!(recognise(&root), Some(LayoutKind::Msrs));
+        let all = DescribedDataset::new(describe(&root)).split("all").unwrap();
+        assert_eq!(all.len(), 48);
+        let night = (0..48)
+            .filter(|&i| all.daytime(i) == Some(Daytime::Night))
+            .count();
+        assert_eq!(night, 24);
+        let f = all.load(0).unwrap();
+        assert_eq!((f.width, f.height, f.label.is_none()), (640, 480, true));
+        let mean = f.thermal.iter().sum::<f32>() / f.thermal.len() as f32;
+        let spread = f.thermal.iter().fold(0f32, |m, &t| m.max((t - mean).abs()));
+        assert!(
+            mean > 0.02 && mean < 0.98 && spread > 0.1,
+            "thermal mean {mean}, spread {spread}"
+        );
+    }
 }
