@@ -71,9 +71,9 @@ pub fn run(args: Args) -> Result<()> {
                 return Ok(());
             }
             println!(
-                "{} ({:?} layout, {} files, {} bytes)",
+                "{} ({} layout, {} files, {} bytes)",
                 dir.display(),
-                fp.format,
+                fp.format.name(),
                 fp.files,
                 fp.bytes
             );
