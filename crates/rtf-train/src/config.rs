@@ -926,6 +926,18 @@ mod tests {
     }
 
     #[test]
+    fn a_described_dataset_round_trips_with_its_format_tag() {
+        let cfg = DatasetConfig::Described {
+            root: "data/pst900".into(),
+            train_split: "train".into(),
+            val_split: Some("holdout:10".into()),
+        };
+        let json = serde_json::to_string(&cfg).unwrap();
+        assert!(json.contains(r#""format":"described""#), "{json}");
+        assert_eq!(serde_json::from_str::<DatasetConfig>(&json).unwrap(), cfg);
+    }
+
+    #[test]
     fn freiburg_dataset_round_trips_and_defaults_to_the_reference_preprocessing() {
         let cfg = DatasetConfig::freiburg("data/freiburg".into(), true);
         let json = serde_json::to_string(&cfg).unwrap();
