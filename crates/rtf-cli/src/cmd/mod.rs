@@ -103,18 +103,6 @@ pub fn load_network(
     })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sizes_parse() {
-        assert_eq!(parse_size("640x480"), Ok((640, 480)));
-        assert!(parse_size("640").is_err());
-        assert!(parse_size("0x4").is_err());
-    }
-}
-
 /// A described root's description (dataset.yaml read and checked, or a built-in layout),
 /// announced on stderr: rtf says which layout, classes and thermal rule it inferred.
 pub fn described(root: &std::path::Path) -> anyhow::Result<rtf_data::DatasetDescription> {
@@ -130,4 +118,16 @@ pub fn described(root: &std::path::Path) -> anyhow::Result<rtf_data::DatasetDesc
         description.thermal.describe()
     );
     Ok(description)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse() {
+        assert_eq!(parse_size("640x480"), Ok((640, 480)));
+        assert!(parse_size("640").is_err());
+        assert!(parse_size("0x4").is_err());
+    }
 }
