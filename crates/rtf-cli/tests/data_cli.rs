@@ -188,3 +188,134 @@ fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+/// A plain-layout root as a user would write it: dataset.yaml, 16-bit thermal, two classes.
+fn plain_dataset(root: &std::path::Path, yaml: &str) {
+    use rtf_data::pngio::{write_png_u16, write_png_u8};
+    let (w, h) = (8, 6);
+    for split in ["train", "test"] {
+        for name in ["f1", "f2"] {
+            let file = |folder: &str| root.join(split).join(folder).join(format!("{name}.png"));
+            let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i % 256) as u8).collect();
+            write_png_u8(&file("rgb"), w, h, 3, &rgb).unwrap();
+            let counts: Vec<u16> = (0..w * h).map(|i| 21800 + 50 * i as u16).collect();
+            write_png_u16(&file("thermal"), w, h, 1, &counts).unwrap();
+            let ids: Vec<u8> = (0..w * h).map(|i| (i % 2) as u8).collect();
+            write_png_u8(&file("labels"), w, h, 1, &ids).unwrap();
+        }
+    }
+    std::fs::write(root.join("dataset.yaml"), yaml).unwrap();
+}
+
+const PLAIN_YAML: &str = "classes:
+  - {id: 0, name: background, color: [0, 0, 0]}
+  - {id: 1, name: pedestrian, color: [220, 20, 60]}
+ignore_id: 255
+thermal:
+  range: [21800, 25000]
+";
+
+#[test]
+fn check_and_stats_name_the_plain_layout_its_classes_and_thermal_rule() {
+    let tmp = tempfile::tempdir().unwrap();
+    plain_dataset(tmp.path(), PLAIN_YAML);
+    let out = ok(&["data", "check", s(tmp.path())]);
+    let first = out.lines().next().unwrap();
+    assert!(first.contains("plain (dataset.yaml)"), "{out}");
+    assert!(
+        first.contains("2 classes") && first.contains("background, pedestrian"),
+        "{out}"
+    );
+    assert!(first.contains("range [21800, 25000]"), "{out}");
+    let stats = ok(&["data", "stats", s(tmp.path())]);
+    let pedestrian = stats.lines().find(|l| l.contains("pedestrian")).unwrap();
+    // Half of the 4 x 48 labelled pixels.
+    assert!(
+        pedestrian.contains("50.0000 %") && pedestrian.contains(" 96 px"),
+        "{stats}"
+    );
+    let fp = ok(&["data", "fingerprint", s(tmp.path())]);
+    assert!(fp.contains("train") && fp.contains("test"), "{fp}");
+}
+
+#[test]
+fn check_refuses_16_bit_thermal_without_a_rule_and_a_bad_description() {
+    let tmp = tempfile::tempdir().unwrap();
+    let no_rule = PLAIN_YAML.replace("thermal:\n  range: [21800, 25000]\n", "");
+    plain_dataset(tmp.path(), &no_rule);
+    let failed = |args: &[&str]| {
+        let out = rtf(args);
+        assert!(!out.status.success(), "rtf {args:?} should fail");
+        text(&out)
+    };
+    let out = failed(&["data", "check", s(tmp.path())]);
+    assert!(
+        out.contains("train/thermal/f1.png")
+            && out.contains("16-bit thermal needs a normalisation"),
+        "{out}"
+    );
+    let typo = PLAIN_YAML.replace("ignore_id", "ignore_idd");
+    std::fs::write(tmp.path().join("dataset.yaml"), typo).unwrap();
+    let out = failed(&["data", "check", s(tmp.path())]);
+    assert!(
+        out.contains("dataset.yaml") && out.contains("ignore_idd") && out.contains("line 4"),
+        "{out}"
+    );
+}
+
+/// A PST900 root (train and test only, 5 classes) trains without validation, says so, and
+/// its weights have 5 outputs that `rtf eval` scores by class name.
+#[test]
+fn a_five_class_pst900_root_trains_without_val_and_evaluates_by_class_name() {
+    use rtf_data::pngio::write_png_u8;
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, run) = (tmp.path().join("pst900"), tmp.path().join("run"));
+    let (w, h) = (64, 48);
+    for split in ["train", "test"] {
+        for k in 0..4u8 {
+            let file = |folder: &str| data.join(split).join(folder).join(format!("f{k}.png"));
+            let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i % 253) as u8 ^ k).collect();
+            write_png_u8(&file("rgb"), w, h, 3, &rgb).unwrap();
+            let thermal: Vec<u8> = (0..w * h).map(|i| (i % 256) as u8).collect();
+            write_png_u8(&file("thermal"), w, h, 1, &thermal).unwrap();
+            let ids: Vec<u8> = (0..w * h).map(|i| ((i / w) * 5 / h) as u8).collect();
+            write_png_u8(&file("labels"), w, h, 1, &ids).unwrap();
+        }
+    }
+    let out = rtf(&short_train(&data, &run, "1", &["--model", "mfnet"]));
+    let printed = text(&out);
+    assert!(out.status.success(), "{printed}");
+    assert!(printed.contains("PST900 layout; 5 classes"), "{printed}");
+    assert!(printed.contains("validation skipped"), "{printed}");
+    let config = json_file(&run.join("config.json"));
+    assert_eq!(config["model"]["num_classes"], 5, "{config}");
+    let weights = run.join("final.safetensors");
+    let table = ok(&[
+        "eval",
+        "--model",
+        "mfnet",
+        "--weights",
+        s(&weights),
+        "--data",
+        s(&data),
+        "--split",
+        "test",
+    ]);
+    assert!(
+        table.contains("hand_drill") && table.contains("survivor"),
+        "{table}"
+    );
+    let err = fails(&[
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&tmp.path().join("r2")),
+        "--val-split",
+        "val",
+    ]);
+    assert!(
+        err.contains("no split `val`") && err.contains("train, test"),
+        "{err}"
+    );
+}

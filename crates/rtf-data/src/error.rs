@@ -62,6 +62,35 @@ pub enum DataError {
     },
     #[error("{path}: {message}")]
     Format { path: PathBuf, message: String },
+    #[error("{path}: {bits}-bit thermal needs a normalisation: give `thermal: {{range: [lo, hi]}}` or `thermal: {{percentile: [1, 99]}}` (or min_max: true) in dataset.yaml")]
+    ThermalNormalisation { path: PathBuf, bits: u8 },
+    /// A dataset.yaml (or a built-in layout) that cannot be used; `message` starts with the
+    /// line when the problem has one.
+    #[error("{path}: {message}")]
+    Description { path: PathBuf, message: String },
+    #[error("{path}: colour [{}, {}, {}] at (x {x}, y {y}) is not in the palette of the {class_set} class set", color[0], color[1], color[2])]
+    LabelColor {
+        path: PathBuf,
+        color: [u8; 3],
+        x: usize,
+        y: usize,
+        class_set: String,
+    },
+    #[error("{path}: no {what} partner: {partner} does not exist")]
+    MissingPartner {
+        path: PathBuf,
+        what: &'static str,
+        partner: PathBuf,
+    },
+    #[error("{partner}: is {partner_w}x{partner_h} but its partner {path} is {w}x{h}")]
+    PartnerSize {
+        path: PathBuf,
+        partner: PathBuf,
+        w: usize,
+        h: usize,
+        partner_w: usize,
+        partner_h: usize,
+    },
     #[error("invalid configuration: {0}")]
     Config(String),
     #[error("frame '{name}': {message}")]

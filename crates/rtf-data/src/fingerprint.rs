@@ -18,7 +18,10 @@ use sha2::{Digest, Sha256};
 pub use crate::hash::{hash_bytes, hash_file};
 
 use crate::inspect::{detect_format, DatasetFormat};
-use crate::{DataError, FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit, MfDataset};
+use crate::{
+    DataError, DescribedDataset, FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit,
+    MfDataset,
+};
 
 /// The hash algorithm named in every fingerprint.
 pub const ALGORITHM: &str = "sha256";
@@ -60,65 +63,101 @@ struct FrameFiles {
     files: Vec<PathBuf>,
 }
 
+fn mf_frames(root: &Path) -> Result<Vec<(String, Vec<FrameFiles>)>, DataError> {
+    let ds = MfDataset::open(root)?;
+    ds.split_names()
+        .iter()
+        .map(|name| {
+            let split = ds.split(name)?;
+            let frames = split
+                .names()
+                .iter()
+                .map(|n| FrameFiles {
+                    name: n.clone(),
+                    files: vec![ds.image_path(n), ds.label_path(n)],
+                })
+                .collect();
+            Ok((name.clone(), frames))
+        })
+        .collect()
+}
+
+fn freiburg_frames(root: &Path) -> Result<Vec<(String, Vec<FrameFiles>)>, DataError> {
+    let all = FreiburgSplit::open(root, FreiburgPreprocess::native())?;
+    Ok([
+        ("test", FreiburgPart::TestLayout),
+        ("train", FreiburgPart::TrainTree),
+        ("val", FreiburgPart::Validation),
+    ]
+    .into_iter()
+    .map(|(name, part)| {
+        let split = all.clone().part(part);
+        let frames = (0..split.len())
+            .map(|i| {
+                let (rgb, ir, label) = split.files(i);
+                let mut files = vec![rgb, ir];
+                files.extend(label);
+                FrameFiles {
+                    name: split.frame_name(i).to_string(),
+                    files,
+                }
+            })
+            .collect::<Vec<_>>();
+        (name.to_string(), frames)
+    })
+    .filter(|(_, frames)| !frames.is_empty())
+    .collect())
+}
+
+/// The frames of a described layout; with a dataset.yaml, each frame also reads it (it decides
+/// how the frame's files become a frame).
+fn described_frames(root: &Path) -> Result<Vec<(String, Vec<FrameFiles>)>, DataError> {
+    let description = crate::layouts::describe(root).ok_or_else(|| DataError::Layout {
+        root: root.to_path_buf(),
+        message: crate::inspect::NOT_A_DATASET.into(),
+    })??;
+    let yaml = Some(description.origin.clone()).filter(|p| p.is_file());
+    let dataset = DescribedDataset::new(description.clone());
+    description
+        .split_names()
+        .into_iter()
+        .map(|name| {
+            let split = dataset.split(name)?;
+            let frames = (0..split.len())
+                .map(|i| {
+                    let mut files: Vec<PathBuf> =
+                        split.files(i).into_iter().map(Path::to_path_buf).collect();
+                    files.extend(yaml.clone());
+                    FrameFiles {
+                        name: split.frame_name(i).to_string(),
+                        files,
+                    }
+                })
+                .collect();
+            Ok((name.to_string(), frames))
+        })
+        .collect()
+}
+
 /// Fingerprints the dataset under `root` (MF or Freiburg Thermal layout; module docs).
 /// Reads every file once, in parallel; a missing or unreadable file is an error naming it.
 pub fn fingerprint(root: &Path) -> Result<Fingerprint, DataError> {
     let format = detect_format(root).ok_or_else(|| DataError::Layout {
         root: root.to_path_buf(),
-        message: "not a dataset root (MF: images/ + labels/; Freiburg: fl_rgb/ or ImagesRGB/)"
-            .into(),
+        message: crate::inspect::NOT_A_DATASET.into(),
     })?;
     let splits: Vec<(String, Vec<FrameFiles>)> = match format {
-        DatasetFormat::Mf => {
-            let ds = MfDataset::open(root)?;
-            ds.split_names()
-                .iter()
-                .map(|name| {
-                    let split = ds.split(name)?;
-                    let frames = split
-                        .names()
-                        .iter()
-                        .map(|n| FrameFiles {
-                            name: n.clone(),
-                            files: vec![ds.image_path(n), ds.label_path(n)],
-                        })
-                        .collect();
-                    Ok((name.clone(), frames))
-                })
-                .collect::<Result<_, DataError>>()?
-        }
-        DatasetFormat::Freiburg => {
-            let all = FreiburgSplit::open(root, FreiburgPreprocess::native())?;
-            [
-                ("test", FreiburgPart::TestLayout),
-                ("train", FreiburgPart::TrainTree),
-                ("val", FreiburgPart::Validation),
-            ]
-            .into_iter()
-            .map(|(name, part)| {
-                let split = all.clone().part(part);
-                let frames = (0..split.len())
-                    .map(|i| {
-                        let (rgb, ir, label) = split.files(i);
-                        let mut files = vec![rgb, ir];
-                        files.extend(label);
-                        FrameFiles {
-                            name: split.frame_name(i).to_string(),
-                            files,
-                        }
-                    })
-                    .collect::<Vec<_>>();
-                (name.to_string(), frames)
-            })
-            .filter(|(_, frames)| !frames.is_empty())
-            .collect()
-        }
+        DatasetFormat::Mf => mf_frames(root)?,
+        DatasetFormat::Freiburg => freiburg_frames(root)?,
         DatasetFormat::Bdd => {
             return Err(DataError::Layout {
                 root: root.to_path_buf(),
-                message: "fingerprints cover the MF and Freiburg Thermal layouts, not BDD".into(),
+                message:
+                    "fingerprints cover the MF, Freiburg Thermal and described layouts, not BDD"
+                        .into(),
             })
         }
+        _ => described_frames(root)?,
     };
     let distinct: Vec<&PathBuf> = {
         let mut seen = HashSet::new();

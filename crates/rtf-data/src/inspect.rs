@@ -3,6 +3,8 @@
 //! `check` never stops at the first problem: it decodes every file (in parallel) and returns
 //! every problem with its file name.
 
+use crate::described::DescribedDataset;
+use crate::description::{DatasetDescription, LayoutKind};
 use crate::freiburg::{FreiburgPreprocess, FreiburgSplit};
 use crate::mf::parse_split;
 use crate::{DataError, FrameSource, MfDataset};
@@ -19,10 +21,55 @@ pub enum DatasetFormat {
     Freiburg,
     /// BDD100K night as HeatNet reads it: `<list>.txt`, `images/<split>/`, `labels/<split>/`.
     Bdd,
+    /// `ROOT/dataset.yaml` and the folders it names ([`crate::description`]).
+    Plain,
+    /// MSRS: `{train,test}/{vi,ir,Label}` ([`crate::layouts::msrs`]).
+    Msrs,
+    /// PST900: `{train,test}/{rgb,thermal,labels}` ([`crate::layouts::pst900`]).
+    Pst900,
+    /// FMB: `{train,test}/{Visible,Infrared,Label}` ([`crate::layouts::fmb`]).
+    Fmb,
 }
 
-/// Recognises a dataset root by its layout.
+impl DatasetFormat {
+    /// Whether frames of this layout are read through a [`DatasetDescription`].
+    pub fn is_described(self) -> bool {
+        matches!(self, Self::Plain | Self::Msrs | Self::Pst900 | Self::Fmb)
+    }
+
+    /// The layout's name as `rtf data check` prints it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Mf => "MF",
+            Self::Freiburg => "Freiburg Thermal",
+            Self::Bdd => "BDD100K night",
+            Self::Plain => LayoutKind::Plain.name(),
+            Self::Msrs => LayoutKind::Msrs.name(),
+            Self::Pst900 => LayoutKind::Pst900.name(),
+            Self::Fmb => LayoutKind::Fmb.name(),
+        }
+    }
+}
+
+impl From<LayoutKind> for DatasetFormat {
+    fn from(kind: LayoutKind) -> Self {
+        match kind {
+            LayoutKind::Plain => Self::Plain,
+            LayoutKind::Msrs => Self::Msrs,
+            LayoutKind::Pst900 => Self::Pst900,
+            LayoutKind::Fmb => Self::Fmb,
+        }
+    }
+}
+
+/// What a root that is no dataset is told.
+pub const NOT_A_DATASET: &str = "not a dataset root: expected dataset.yaml (plain layout), images/ + labels/ (MF), fl_rgb/ or ImagesRGB/ folders (Freiburg Thermal), or {train,test}/ with vi+ir (MSRS), rgb+thermal (PST900) or Visible+Infrared (FMB)";
+
+/// Recognises a dataset root by its layout. A dataset.yaml wins over every built-in layout.
 pub fn detect_format(root: &Path) -> Option<DatasetFormat> {
+    if root.join(crate::description::DESCRIPTION_FILE).is_file() {
+        return Some(DatasetFormat::Plain);
+    }
     if root.join("images").is_dir() && root.join("labels").is_dir() {
         // BDD keeps its images in per-split folders; MF keeps PNGs directly in images/.
         return Some(if bdd_splits(root).is_empty() {
@@ -35,7 +82,10 @@ pub fn detect_format(root: &Path) -> Option<DatasetFormat> {
     for name in ["fl_rgb", "ImagesRGB"] {
         let _ = find_dir(root, name, 6, &mut found);
     }
-    (!found.is_empty()).then_some(DatasetFormat::Freiburg)
+    if !found.is_empty() {
+        return Some(DatasetFormat::Freiburg);
+    }
+    crate::layouts::recognise(root).map(DatasetFormat::from)
 }
 
 /// Sub-folders of `images/` that have a matching `labels/` folder (BDD splits).
@@ -174,7 +224,12 @@ fn from_error(fallback: &Path, e: DataError) -> Problem {
         | DataError::BitDepth { path, .. }
         | DataError::LabelOutOfRange { path, .. }
         | DataError::EmptySplit { path }
+        | DataError::ThermalNormalisation { path, .. }
+        | DataError::Description { path, .. }
+        | DataError::LabelColor { path, .. }
+        | DataError::MissingPartner { path, .. }
         | DataError::Format { path, .. } => path.clone(),
+        DataError::PartnerSize { partner, .. } => partner.clone(),
         DataError::SizeMismatch { label, .. } => label.clone(),
         DataError::MissingFrame { split_file, .. } => split_file.clone(),
         DataError::Layout { root, .. } | DataError::UnknownSplit { root, .. } => root.clone(),
@@ -195,6 +250,10 @@ pub struct CheckReport {
     /// Frames decoded and checked.
     pub frames: usize,
     pub problems: Vec<Problem>,
+    /// The classes the layout reads (none when the root or its description is unreadable).
+    pub class_set: Option<ClassSet>,
+    /// How thermal becomes [0, 1] (described layouts only).
+    pub thermal: Option<String>,
 }
 
 impl CheckReport {
@@ -206,25 +265,66 @@ impl CheckReport {
 /// Validates a dataset completely; every problem is listed (sorted by path).
 pub fn check(root: &Path) -> CheckReport {
     let format = detect_format(root);
+    let mut description = None;
     let (frames, mut problems) = match format {
         Some(DatasetFormat::Mf) => check_mf(root),
         Some(DatasetFormat::Freiburg) => check_freiburg(root),
         Some(DatasetFormat::Bdd) => check_bdd(root),
-        None => (
-            0,
-            vec![problem(
-                root,
-                "not a dataset root: expected images/ + labels/ (MF) or fl_rgb/ / ImagesRGB/ folders (Freiburg Thermal)",
-            )],
-        ),
+        Some(_) => match crate::layouts::describe(root) {
+            Some(Ok(d)) => {
+                let checked = check_described(&d);
+                description = Some(d);
+                checked
+            }
+            Some(Err(e)) => (0, vec![from_error(root, e)]),
+            None => (0, vec![problem(root, NOT_A_DATASET)]),
+        },
+        None => (0, vec![problem(root, NOT_A_DATASET)]),
     };
     problems.sort_by(|a, b| a.path.cmp(&b.path).then(a.message.cmp(&b.message)));
+    let class_set = match (format, &description) {
+        (_, Some(d)) => Some(d.class_set.clone()),
+        (Some(DatasetFormat::Mf), _) => Some(ClassSet::mf()),
+        (Some(DatasetFormat::Freiburg | DatasetFormat::Bdd), _) => Some(ClassSet::freiburg()),
+        _ => None,
+    };
     CheckReport {
         root: root.to_path_buf(),
         format,
         frames,
         problems,
+        class_set,
+        thermal: description.map(|d| d.thermal.describe()),
     }
+}
+
+/// Every split of a described dataset opened (pairing) and every frame decoded (sizes,
+/// label ids or colours, thermal normalisation), in parallel.
+fn check_described(description: &DatasetDescription) -> (usize, Vec<Problem>) {
+    let dataset = DescribedDataset::new(description.clone());
+    let mut problems = Vec::new();
+    let mut frames = 0;
+    for name in description.split_names() {
+        let split = match dataset.split(name) {
+            Ok(split) => split,
+            Err(e) => {
+                problems.push(from_error(&description.root, e));
+                continue;
+            }
+        };
+        frames += split.len();
+        let decoded: Vec<Problem> = (0..split.len())
+            .into_par_iter()
+            .filter_map(|i| {
+                split
+                    .load(i)
+                    .err()
+                    .map(|e| from_error(&description.root, e))
+            })
+            .collect();
+        problems.extend(decoded);
+    }
+    (frames, problems)
 }
 
 fn stems(dir: &Path, problems: &mut Vec<Problem>) -> Vec<String> {
@@ -676,109 +776,28 @@ pub struct Stats {
 pub fn stats(root: &Path) -> Result<Stats, DataError> {
     let format = detect_format(root).ok_or_else(|| DataError::Layout {
         root: root.to_path_buf(),
-        message: "not a dataset root (MF: images/ + labels/; Freiburg: fl_rgb/ or ImagesRGB/)"
-            .into(),
+        message: NOT_A_DATASET.into(),
     })?;
-    let count_days = |src: &dyn FrameSource| {
-        let day = (0..src.len())
-            .filter(|&i| src.daytime(i) == Some(Daytime::Day))
-            .count();
-        let night = (0..src.len())
-            .filter(|&i| src.daytime(i) == Some(Daytime::Night))
-            .count();
-        (day, night)
-    };
-    let mut splits = Vec::new();
-    let (classes, counts, labelled, ignored) = match format {
-        DatasetFormat::Mf => {
-            let ds = MfDataset::open(root)?;
-            let mut frames: BTreeMap<String, ()> = BTreeMap::new();
-            for name in ds.split_names() {
-                let split = ds.split(name)?;
-                let (day, night) = count_days(&split);
-                splits.push(SplitStats {
-                    name: name.clone(),
-                    frames: split.len(),
-                    day,
-                    night,
-                });
-                for n in split.names() {
-                    frames.insert(n.clone(), ());
-                }
-            }
-            let names: Vec<String> = frames.into_keys().collect();
-            let classes = ds.class_set().clone();
-            let counts = count_pixels(&classes, names.len(), |i| {
-                ds.load_frame(&names[i]).map(|f| f.label)
-            })?;
-            (classes, counts, names.len(), 0)
-        }
-        DatasetFormat::Freiburg => {
-            let split = FreiburgSplit::open(root, FreiburgPreprocess::native())?;
-            let mut groups: BTreeMap<String, (usize, usize, usize)> = BTreeMap::new();
-            for i in 0..split.len() {
-                let name = split.frame_name(i);
-                // Group by the first path component (train / test/day …).
-                let group = Path::new(name)
-                    .parent()
-                    .and_then(|p| p.components().next())
-                    .map(|c| c.as_os_str().to_string_lossy().into_owned())
-                    .unwrap_or_default();
-                let g = groups.entry(group).or_default();
-                g.0 += 1;
-                match split.daytime(i) {
-                    Some(Daytime::Day) => g.1 += 1,
-                    _ => g.2 += 1,
-                }
-            }
-            for (name, (frames, day, night)) in groups {
-                splits.push(SplitStats {
-                    name,
-                    frames,
-                    day,
-                    night,
-                });
-            }
-            let classes = split.class_set().clone();
-            let labelled: Vec<usize> = (0..split.len()).filter(|&i| split.is_labelled(i)).collect();
-            let counts = count_pixels(&classes, labelled.len(), |i| {
-                split.load_raw(labelled[i]).map(|f| f.label)
-            })?;
-            let ignored = classes
-                .ignore_id
-                .map_or(0, |id| counts.get(id as usize).copied().unwrap_or(0));
-            (classes, counts, labelled.len(), ignored)
-        }
-        DatasetFormat::Bdd => {
-            let classes = ClassSet::freiburg();
-            let mut counts = vec![0u64; 256];
-            let mut seen: BTreeMap<String, ()> = BTreeMap::new();
-            let mut labelled = 0;
-            for list in list_files(root) {
-                let split_name = bdd_split_of(root, &list).ok_or_else(|| DataError::Layout {
+    let counted = match format {
+        DatasetFormat::Mf => mf_counts(root)?,
+        DatasetFormat::Freiburg => freiburg_counts(root)?,
+        DatasetFormat::Bdd => bdd_counts(root)?,
+        _ => {
+            let description =
+                crate::layouts::describe(root).ok_or_else(|| DataError::Layout {
                     root: root.to_path_buf(),
-                    message: format!("{list}.txt: its first frame is in no images/<split>/ folder"),
-                })?;
-                let split = crate::bdd::BddSplit::open(root, &list, &split_name, None)?;
-                splits.push(SplitStats {
-                    name: list.clone(),
-                    frames: split.len(),
-                    day: 0,
-                    night: split.len(),
-                });
-                let fresh: Vec<usize> = (0..split.len())
-                    .filter(|&i| seen.insert(split.frame_name(i).to_string(), ()).is_none())
-                    .collect();
-                let c = count_pixels(&classes, fresh.len(), |i| {
-                    split.load(fresh[i]).map(|f| f.label)
-                })?;
-                counts.iter_mut().zip(c).for_each(|(a, b)| *a += b);
-                labelled += fresh.len();
-            }
-            let ignored = counts[13];
-            (classes, counts, labelled, ignored)
+                    message: NOT_A_DATASET.into(),
+                })??;
+            described_counts(&description)?
         }
     };
+    let Counted {
+        splits,
+        classes,
+        counts,
+        labelled,
+        ignored,
+    } = counted;
     let total: u64 = counts.iter().take(classes.len()).sum();
     let classes = classes
         .classes
@@ -804,6 +823,170 @@ pub fn stats(root: &Path) -> Result<Stats, DataError> {
         labelled_frames: labelled,
         classes,
         ignored_pixels: ignored,
+    })
+}
+
+/// What one layout's statistics counted: splits, the class set, pixels per label value (256),
+/// labelled frames and ignored pixels.
+struct Counted {
+    splits: Vec<SplitStats>,
+    classes: ClassSet,
+    counts: Vec<u64>,
+    labelled: usize,
+    ignored: u64,
+}
+
+fn count_days(src: &dyn FrameSource) -> (usize, usize) {
+    let day = (0..src.len())
+        .filter(|&i| src.daytime(i) == Some(Daytime::Day))
+        .count();
+    let night = (0..src.len())
+        .filter(|&i| src.daytime(i) == Some(Daytime::Night))
+        .count();
+    (day, night)
+}
+
+fn split_stats(name: &str, src: &dyn FrameSource) -> SplitStats {
+    let (day, night) = count_days(src);
+    SplitStats {
+        name: name.to_string(),
+        frames: src.len(),
+        day,
+        night,
+    }
+}
+
+fn ignored_pixels(classes: &ClassSet, counts: &[u64]) -> u64 {
+    classes
+        .ignore_id
+        .map_or(0, |id| counts.get(id as usize).copied().unwrap_or(0))
+}
+
+fn mf_counts(root: &Path) -> Result<Counted, DataError> {
+    let ds = MfDataset::open(root)?;
+    let mut splits = Vec::new();
+    let mut frames: BTreeMap<String, ()> = BTreeMap::new();
+    for name in ds.split_names() {
+        let split = ds.split(name)?;
+        splits.push(split_stats(name, &split));
+        for n in split.names() {
+            frames.insert(n.clone(), ());
+        }
+    }
+    let names: Vec<String> = frames.into_keys().collect();
+    let classes = ds.class_set().clone();
+    let counts = count_pixels(&classes, names.len(), |i| {
+        ds.load_frame(&names[i]).map(|f| f.label)
+    })?;
+    Ok(Counted {
+        splits,
+        classes,
+        counts,
+        labelled: names.len(),
+        ignored: 0,
+    })
+}
+
+fn freiburg_counts(root: &Path) -> Result<Counted, DataError> {
+    let split = FreiburgSplit::open(root, FreiburgPreprocess::native())?;
+    let mut groups: BTreeMap<String, (usize, usize, usize)> = BTreeMap::new();
+    for i in 0..split.len() {
+        let name = split.frame_name(i);
+        // Group by the first path component (train / test/day …).
+        let group = Path::new(name)
+            .parent()
+            .and_then(|p| p.components().next())
+            .map(|c| c.as_os_str().to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let g = groups.entry(group).or_default();
+        g.0 += 1;
+        match split.daytime(i) {
+            Some(Daytime::Day) => g.1 += 1,
+            _ => g.2 += 1,
+        }
+    }
+    let splits = groups
+        .into_iter()
+        .map(|(name, (frames, day, night))| SplitStats {
+            name,
+            frames,
+            day,
+            night,
+        })
+        .collect();
+    let classes = split.class_set().clone();
+    let labelled: Vec<usize> = (0..split.len()).filter(|&i| split.is_labelled(i)).collect();
+    let counts = count_pixels(&classes, labelled.len(), |i| {
+        split.load_raw(labelled[i]).map(|f| f.label)
+    })?;
+    Ok(Counted {
+        splits,
+        ignored: ignored_pixels(&classes, &counts),
+        classes,
+        counts,
+        labelled: labelled.len(),
+    })
+}
+
+fn bdd_counts(root: &Path) -> Result<Counted, DataError> {
+    let classes = ClassSet::freiburg();
+    let mut counts = vec![0u64; 256];
+    let mut seen: BTreeMap<String, ()> = BTreeMap::new();
+    let (mut labelled, mut splits) = (0, Vec::new());
+    for list in list_files(root) {
+        let split_name = bdd_split_of(root, &list).ok_or_else(|| DataError::Layout {
+            root: root.to_path_buf(),
+            message: format!("{list}.txt: its first frame is in no images/<split>/ folder"),
+        })?;
+        let split = crate::bdd::BddSplit::open(root, &list, &split_name, None)?;
+        splits.push(SplitStats {
+            name: list.clone(),
+            frames: split.len(),
+            day: 0,
+            night: split.len(),
+        });
+        let fresh: Vec<usize> = (0..split.len())
+            .filter(|&i| seen.insert(split.frame_name(i).to_string(), ()).is_none())
+            .collect();
+        let c = count_pixels(&classes, fresh.len(), |i| {
+            split.load(fresh[i]).map(|f| f.label)
+        })?;
+        counts.iter_mut().zip(c).for_each(|(a, b)| *a += b);
+        labelled += fresh.len();
+    }
+    let ignored = counts[13];
+    Ok(Counted {
+        splits,
+        classes,
+        counts,
+        labelled,
+        ignored,
+    })
+}
+
+/// A described dataset: every split, the labels of every labelled split counted (a frame in
+/// two splits is counted once per split: splits of these layouts are folders, not lists).
+fn described_counts(description: &DatasetDescription) -> Result<Counted, DataError> {
+    let dataset = DescribedDataset::new(description.clone());
+    let classes = description.class_set.clone();
+    let mut counts = vec![0u64; 256];
+    let (mut labelled, mut splits) = (0, Vec::new());
+    for name in description.split_names() {
+        let split = dataset.split(name)?;
+        splits.push(split_stats(name, &split));
+        if !split.labelled() {
+            continue;
+        }
+        let c = count_pixels(&classes, split.len(), |i| split.load(i).map(|f| f.label))?;
+        counts.iter_mut().zip(c).for_each(|(a, b)| *a += b);
+        labelled += split.len();
+    }
+    Ok(Counted {
+        splits,
+        ignored: ignored_pixels(&classes, &counts),
+        classes,
+        counts,
+        labelled,
     })
 }
 
@@ -837,6 +1020,7 @@ fn count_pixels(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fingerprint::fingerprint;
     use crate::synth::{generate, SynthConfig, SynthFormat};
     use crate::testutil::*;
 
@@ -1052,5 +1236,55 @@ mod tests {
             !text.iter().any(|t| t.contains("test_day")),
             "a subset split is no leak: {text:#?}"
         );
+    }
+
+    #[test]
+    fn check_and_stats_name_a_described_layout_and_its_classes() {
+        let dir = tempfile::tempdir().unwrap();
+        let pst = RgbtFolders {
+            rgb: "rgb",
+            thermal: "thermal",
+            labels: "labels",
+        };
+        for (split, name) in [("train", "f1"), ("test", "f2")] {
+            let d = dir.path().join(split);
+            write_rgbt_frame(&d, &pst, name, (5, 2), ThermalFixture::Grey8, 5);
+        }
+        let report = check(dir.path());
+        assert!(report.is_ok(), "{:?}", report.problems);
+        assert_eq!(report.format, Some(DatasetFormat::Pst900));
+        assert_eq!(report.frames, 2);
+        assert_eq!(report.class_set.as_ref().unwrap().names()[4], "survivor");
+        assert_eq!(report.thermal.as_deref(), Some("8-bit / 255"));
+        let s = stats(dir.path()).unwrap();
+        assert_eq!(s.labelled_frames, 2);
+        // ids(5, 2, 5) = 0,0,0,1,1,1,2,2,2,3: per frame 3+3+3+1+0 pixels.
+        let pixels: Vec<(&str, u64)> = s
+            .classes
+            .iter()
+            .map(|c| (c.name.as_str(), c.pixels))
+            .collect();
+        assert_eq!(
+            pixels,
+            [
+                ("background", 6),
+                ("fire_extinguisher", 6),
+                ("backpack", 6),
+                ("hand_drill", 2),
+                ("survivor", 0)
+            ]
+        );
+        // A label id outside the class list is a problem naming the file and the id.
+        let label = dir.path().join("test/labels/f2.png");
+        write(&label, &png_u8(5, 2, 1, &[9; 10]));
+        let report = check(dir.path());
+        assert_eq!(report.problems.len(), 1, "{:?}", report.problems);
+        assert_eq!(report.problems[0].path, label);
+        assert!(
+            report.problems[0].message.contains("label id 9"),
+            "{}",
+            report.problems[0]
+        );
+        assert_eq!(fingerprint(dir.path()).unwrap().splits.len(), 2);
     }
 }

@@ -6,6 +6,8 @@
 
 pub mod augment;
 pub mod bdd;
+pub mod described;
+pub mod description;
 pub mod error;
 pub mod fingerprint;
 pub mod frame;
@@ -13,13 +15,17 @@ pub mod freiburg;
 pub mod fuzzing;
 pub mod hash;
 pub mod inspect;
+pub mod layouts;
 pub mod loader;
 pub mod mf;
 pub mod npy;
 pub mod pngio;
 pub mod synth;
+pub mod thermal;
 
 pub use augment::{resize_frame, AugmentConfig};
+pub use described::{DescribedDataset, DescribedSplit};
+pub use description::DatasetDescription;
 pub use error::DataError;
 pub use fingerprint::{fingerprint, Fingerprint, SplitFingerprint};
 pub use frame::{Frame, FrameSource, MemorySource};

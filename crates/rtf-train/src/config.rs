@@ -401,6 +401,15 @@ pub enum DatasetConfig {
         #[serde(default = "yes")]
         validate: bool,
     },
+    /// A root read through a dataset description (rtf_data::layouts): `root/dataset.yaml`
+    /// (the plain layout) or a recognised MSRS, PST900 or FMB root. Its class set decides the
+    /// network's number of outputs.
+    Described {
+        root: PathBuf,
+        train_split: String,
+        /// None: no validation (the public sets ship only train and test).
+        val_split: Option<String>,
+    },
 }
 
 fn yes() -> bool {
@@ -914,6 +923,18 @@ mod tests {
         let json = serde_json::to_string_pretty(&cfg).unwrap();
         assert_eq!(serde_json::from_str::<TrainConfig>(&json).unwrap(), cfg);
         assert!(json.contains("\"seed\""));
+    }
+
+    #[test]
+    fn a_described_dataset_round_trips_with_its_format_tag() {
+        let cfg = DatasetConfig::Described {
+            root: "data/pst900".into(),
+            train_split: "train".into(),
+            val_split: Some("holdout:10".into()),
+        };
+        let json = serde_json::to_string(&cfg).unwrap();
+        assert!(json.contains(r#""format":"described""#), "{json}");
+        assert_eq!(serde_json::from_str::<DatasetConfig>(&json).unwrap(), cfg);
     }
 
     #[test]

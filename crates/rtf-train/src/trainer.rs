@@ -196,6 +196,11 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
             .map(|v| Arc::new(v) as Source);
             (Arc::new(train), val, true)
         }
+        DatasetConfig::Described {
+            root,
+            train_split,
+            val_split,
+        } => described_sources(root, train_split, val_split.as_deref())?,
     };
     let ignore_id = train.class_set().ignore_id;
     if labels {
@@ -236,6 +241,28 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
     })
 }
 
+/// The training split and the validation split (if named) of a described root (not Freiburg).
+fn described_sources(
+    root: &Path,
+    train_split: &str,
+    val_split: Option<&str>,
+) -> Result<(Source, Option<Source>, bool), TrainError> {
+    let description = rtf_data::layouts::describe(root)
+        .ok_or_else(|| run_error(root, rtf_data::inspect::NOT_A_DATASET))??;
+    let dataset = rtf_data::DescribedDataset::new(description);
+    let train = dataset.split(train_split)?;
+    let holdout = val_split.and_then(rtf_data::described::parse_holdout);
+    if let Some(every) = holdout {
+        let (kept, held) = train.hold_out(every);
+        return Ok((Arc::new(kept), Some(Arc::new(held)), false));
+    }
+    let val = match val_split {
+        Some(name) => Some(Arc::new(dataset.split(name)?) as Source),
+        None => None,
+    };
+    Ok((Arc::new(train), val, false))
+}
+
 fn loader(
     cfg: &TrainConfig,
     source: Source,
@@ -262,7 +289,7 @@ fn loader(
 pub fn default_select_metric(dataset: &DatasetConfig) -> SelectMetric {
     match dataset {
         DatasetConfig::Freiburg { .. } => SelectMetric::HeatnetMiou,
-        DatasetConfig::Mf { .. } => SelectMetric::Miou,
+        DatasetConfig::Mf { .. } | DatasetConfig::Described { .. } => SelectMetric::Miou,
     }
 }
 
@@ -415,7 +442,9 @@ pub fn train_distributed(
     // Which data the run used: its content hash, in config.json (a resume on changed data says so).
     let mut cfg_written = cfg.clone();
     let root = match &cfg.dataset {
-        DatasetConfig::Mf { root, .. } | DatasetConfig::Freiburg { root, .. } => root,
+        DatasetConfig::Mf { root, .. }
+        | DatasetConfig::Freiburg { root, .. }
+        | DatasetConfig::Described { root, .. } => root,
     };
     let fingerprint = rtf_data::fingerprint(root)?;
     if let Some(before) = cfg

@@ -14,7 +14,7 @@ pub struct Args {
 pub enum DataCommand {
     /// Validate a dataset completely; lists every problem, exit code 1 if there is any.
     Check {
-        /// Dataset root (MF, Freiburg Thermal or BDD100K-night layout).
+        /// Dataset root (dataset.yaml, MF, Freiburg Thermal, BDD100K-night, MSRS, PST900 or FMB layout).
         dir: PathBuf,
         /// Print the report as JSON.
         #[arg(long)]
@@ -22,7 +22,7 @@ pub enum DataCommand {
     },
     /// Frames per split and day/night, per-class pixel shares.
     Stats {
-        /// Dataset root (MF, Freiburg Thermal or BDD100K-night layout).
+        /// Dataset root (dataset.yaml, MF, Freiburg Thermal, BDD100K-night, MSRS, PST900 or FMB layout).
         dir: PathBuf,
         /// Print JSON instead of a table.
         #[arg(long)]
@@ -31,7 +31,7 @@ pub enum DataCommand {
     /// SHA-256 of every file each split reads: one hash per split and one for the dataset
     /// (recorded by `rtf eval --json` and in a run's config.json).
     Fingerprint {
-        /// Dataset root (MF or Freiburg Thermal layout).
+        /// Dataset root (MF, Freiburg Thermal, dataset.yaml, MSRS, PST900 or FMB layout).
         dir: PathBuf,
         /// Print JSON instead of a table.
         #[arg(long)]
@@ -46,12 +46,11 @@ pub fn run(args: Args) -> Result<()> {
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
+                println!("{}", recognised(&dir, &report));
                 for p in &report.problems {
                     println!("{p}");
                 }
-                let format = report
-                    .format
-                    .map_or("unknown".to_string(), |f| format!("{f:?}"));
+                let format = report.format.map_or("unknown", |f| f.name());
                 println!(
                     "{}: {} layout, {} frames decoded, {} problem(s)",
                     dir.display(),
@@ -72,9 +71,9 @@ pub fn run(args: Args) -> Result<()> {
                 return Ok(());
             }
             println!(
-                "{} ({:?} layout, {} files, {} bytes)",
+                "{} ({} layout, {} files, {} bytes)",
                 dir.display(),
-                fp.format,
+                fp.format.name(),
                 fp.files,
                 fp.bytes
             );
@@ -91,31 +90,68 @@ pub fn run(args: Args) -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&stats)?);
                 return Ok(());
             }
-            println!("{} ({:?} layout)", dir.display(), stats.format);
-            println!(
-                "{:<16} {:>7} {:>7} {:>7}",
-                "split", "frames", "day", "night"
-            );
-            for s in &stats.splits {
-                println!("{:<16} {:>7} {:>7} {:>7}", s.name, s.frames, s.day, s.night);
-            }
-            println!(
-                "\nclass pixel share over {} labelled frames",
-                stats.labelled_frames
-            );
-            for c in &stats.classes {
-                println!(
-                    "{:>3} {:<12} {:>8.4} %  {:>12} px",
-                    c.id,
-                    c.name,
-                    100.0 * c.share,
-                    c.pixels
-                );
-            }
-            if stats.ignored_pixels > 0 {
-                println!("ignored (id 13): {} px", stats.ignored_pixels);
-            }
+            print_stats(&dir, &stats);
             Ok(())
         }
+    }
+}
+
+/// The first line of `rtf data check`: which layout was recognised, which classes it reads and
+/// how its thermal is normalised (nothing about a dataset is guessed silently).
+fn recognised(dir: &std::path::Path, report: &inspect::CheckReport) -> String {
+    let Some(format) = report.format else {
+        return format!("{}: no known layout", dir.display());
+    };
+    let mut line = format!("{}: recognised the {} layout", dir.display(), format.name());
+    if let Some(classes) = &report.class_set {
+        let ignore = classes
+            .ignore_id
+            .map(|i| format!(", ignore id {i}"))
+            .unwrap_or_default();
+        line += &format!(
+            "; {} classes ({}{ignore}): {}",
+            classes.len(),
+            classes.name,
+            classes.names().join(", ")
+        );
+    }
+    if let Some(thermal) = &report.thermal {
+        line += &format!("; thermal {thermal}");
+    }
+    line
+}
+
+/// `rtf data stats` as a table: splits, then the class histogram by name.
+fn print_stats(dir: &std::path::Path, stats: &inspect::Stats) {
+    println!("{} ({} layout)", dir.display(), stats.format.name());
+    println!(
+        "{:<16} {:>7} {:>7} {:>7}",
+        "split", "frames", "day", "night"
+    );
+    for s in &stats.splits {
+        println!("{:<16} {:>7} {:>7} {:>7}", s.name, s.frames, s.day, s.night);
+    }
+    println!(
+        "\nclass pixel share over {} labelled frames",
+        stats.labelled_frames
+    );
+    let width = stats
+        .classes
+        .iter()
+        .map(|c| c.name.len())
+        .max()
+        .unwrap_or(0)
+        .max(12);
+    for c in &stats.classes {
+        println!(
+            "{:>3} {:<width$} {:>8.4} %  {:>12} px",
+            c.id,
+            c.name,
+            100.0 * c.share,
+            c.pixels
+        );
+    }
+    if stats.ignored_pixels > 0 {
+        println!("ignored (ignore id): {} px", stats.ignored_pixels);
     }
 }

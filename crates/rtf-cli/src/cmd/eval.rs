@@ -171,7 +171,17 @@ pub(crate) fn open_split(
             );
             Ok((Arc::new(frames), DatasetFormat::Freiburg))
         }
-        other => unreachable!("segmentation_format returned {other:?}"),
+        format => {
+            let description = super::described(root)?;
+            let split = rtf_data::DescribedDataset::new(description).split(split)?;
+            anyhow::ensure!(
+                split.labelled(),
+                "{}: the `{}` split has no labels to evaluate against",
+                root.display(),
+                split.name()
+            );
+            Ok((Arc::new(split), format))
+        }
     }
 }
 

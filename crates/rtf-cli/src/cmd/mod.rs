@@ -28,7 +28,8 @@ pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
     }
 }
 
-/// The layout of a dataset root that `rtf train` / `rtf eval` read (MF or Freiburg Thermal);
+/// The layout of a dataset root that `rtf train` / `rtf eval` read (MF, Freiburg Thermal, or a
+/// described layout: dataset.yaml, MSRS, PST900, FMB);
 /// anything else is an error naming the root. `purpose` words the error ("a training").
 pub fn segmentation_format(
     root: &std::path::Path,
@@ -37,9 +38,10 @@ pub fn segmentation_format(
     use rtf_data::inspect::DatasetFormat;
     match rtf_data::inspect::detect_format(root) {
         Some(format @ (DatasetFormat::Mf | DatasetFormat::Freiburg)) => Ok(format),
+        Some(format) if format.is_described() => Ok(format),
         other => anyhow::bail!(
-            "{}: not {purpose} dataset rtf can read ({}; expected the MF or the Freiburg \
-             Thermal layout, see `rtf data check`)",
+            "{}: not {purpose} dataset rtf can read ({}; expected dataset.yaml, or the MF, \
+             Freiburg Thermal, MSRS, PST900 or FMB layout, see `rtf data check`)",
             root.display(),
             other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))
         ),
@@ -103,6 +105,23 @@ pub fn load_network(
         net: rtf_models::masked(net, inputs),
         inputs,
     })
+}
+
+/// A described root's description (dataset.yaml read and checked, or a built-in layout),
+/// announced on stderr: rtf says which layout, classes and thermal rule it inferred.
+pub fn described(root: &std::path::Path) -> anyhow::Result<rtf_data::DatasetDescription> {
+    let description = rtf_data::layouts::describe(root).ok_or_else(|| {
+        anyhow::anyhow!("{}: {}", root.display(), rtf_data::inspect::NOT_A_DATASET)
+    })??;
+    eprintln!(
+        "data: {}: {} layout; {} classes ({}); thermal {}",
+        root.display(),
+        description.layout.name(),
+        description.class_set.len(),
+        description.class_set.names().join(", "),
+        description.thermal.describe()
+    );
+    Ok(description)
 }
 
 #[cfg(test)]

@@ -109,11 +109,13 @@ pub struct Args {
     pub no_flip: bool,
     #[arg(long)]
     pub seed: Option<u64>,
-    /// MF: the training split.
+    /// MF and described layouts (dataset.yaml, MSRS, PST900, FMB): the training split.
     #[arg(long)]
     pub train_split: Option<String>,
     /// MF: validation split evaluated after every epoch ("none" to skip). Freiburg: "none"
-    /// skips the `val` layout.
+    /// skips the `val` layout. Described layouts: `val` when there is one, else none (said
+    /// on stderr); `holdout:N` holds every N-th training frame out for validation; `test`
+    /// only when named here (and announced).
     #[arg(long)]
     pub val_split: Option<String>,
     /// Resize frames to WxH (labels nearest) before the network.
@@ -357,8 +359,53 @@ fn dataset_of(data: &Path, args: &Args) -> Result<(DatasetConfig, ClassSet)> {
                 ClassSet::freiburg(),
             )
         }
-        other => unreachable!("segmentation_format returned {other:?}"),
+        _ => described_dataset(root, args)?,
     })
+}
+
+/// A described root (dataset.yaml, MSRS, PST900, FMB): its class set sizes the network. The
+/// public sets ship only train and test, so without a `val` split validation is skipped (said
+/// on stderr); validating on test happens only when named, and is announced.
+fn described_dataset(root: PathBuf, args: &Args) -> Result<(DatasetConfig, ClassSet)> {
+    let description = super::described(&root)?;
+    let has = |name: &str| description.split(name).is_some();
+    let train_split = args.train_split.clone().unwrap_or_else(|| "train".into());
+    let val_split = match args.val_split.as_deref() {
+        Some("none") => None,
+        Some(name) => Some(name.to_string()),
+        None if has("val") => Some("val".to_string()),
+        None => {
+            eprintln!("data: no `val` split: validation skipped (name one with --val-split)");
+            None
+        }
+    };
+    if val_split.as_deref() == Some("test") {
+        eprintln!("data: validating on the `test` split, as --val-split asks: best-epoch selection then sees test data");
+    }
+    let holdout = val_split
+        .as_deref()
+        .and_then(rtf_data::described::parse_holdout);
+    if let Some(every) = holdout {
+        eprintln!(
+            "data: validating on every {every}th frame of `{train_split}`, held out of training"
+        );
+    }
+    let named = val_split.iter().filter(|_| holdout.is_none());
+    for name in std::iter::once(&train_split).chain(named) {
+        anyhow::ensure!(
+            has(name),
+            "{}: no split `{name}` (available: {})",
+            root.display(),
+            description.split_names().join(", ")
+        );
+    }
+    let classes = description.class_set.clone();
+    let dataset = DatasetConfig::Described {
+        root,
+        train_split,
+        val_split,
+    };
+    Ok((dataset, classes))
 }
 
 /// A teacher given on the command line: a run folder (its network, channels and selected

@@ -1,0 +1,544 @@
+//! Frames of a dataset read through a [`DatasetDescription`] (the plain layout's dataset.yaml,
+//! or a built-in layout: MSRS, PST900, FMB). Every split is a [`FrameSource`].
+//!
+//! Opening a split pairs its files by name and refuses, naming the file, an RGB without its
+//! thermal partner (or the reverse), a label without its RGB, and a list naming missing files;
+//! loading a frame refuses partners of different sizes, label ids outside the class list,
+//! colours outside the palette and 16-bit thermal without a normalisation.
+
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use rtf_core::{ClassSet, Daytime};
+
+use crate::description::{DatasetDescription, LabelEncoding, NightRule, SplitSpec};
+use crate::frame::check_label_ids;
+use crate::pngio::{read_png, PngImage, Samples};
+use crate::{DataError, Frame, FrameSource};
+
+/// A described dataset; [`Self::split`] opens one of its splits.
+#[derive(Debug, Clone)]
+pub struct DescribedDataset {
+    description: Arc<DatasetDescription>,
+}
+
+impl DescribedDataset {
+    pub fn new(description: DatasetDescription) -> Self {
+        Self {
+            description: Arc::new(description),
+        }
+    }
+
+    pub fn description(&self) -> &DatasetDescription {
+        &self.description
+    }
+
+    pub fn class_set(&self) -> &ClassSet {
+        &self.description.class_set
+    }
+
+    /// The frames of split `name`, paired and checked (module docs).
+    pub fn split(&self, name: &str) -> Result<DescribedSplit, DataError> {
+        let spec = self
+            .description
+            .split(name)
+            .ok_or_else(|| DataError::UnknownSplit {
+                root: self.description.root.clone(),
+                name: name.to_string(),
+                available: self.description.split_names().join(", "),
+            })?;
+        let entries = match &spec.list {
+            Some(list) => listed_entries(spec, list)?,
+            None => paired_entries(spec)?,
+        };
+        let entries = entries
+            .into_iter()
+            .map(|mut e| {
+                e.daytime = daytime(&self.description.night, &e.name);
+                e
+            })
+            .collect();
+        Ok(DescribedSplit {
+            description: self.description.clone(),
+            split: name.to_string(),
+            entries,
+            palette: palette(&self.description),
+        })
+    }
+}
+
+/// The held-out validation part named as `--val-split holdout:N`: every N-th training frame
+/// (N >= 2), taken out of training.
+pub fn parse_holdout(val_split: &str) -> Option<usize> {
+    val_split
+        .strip_prefix("holdout:")
+        .and_then(|n| n.parse().ok())
+        .filter(|&n: &usize| n >= 2)
+}
+
+/// The files of one frame.
+#[derive(Debug, Clone)]
+struct Entry {
+    name: String,
+    rgb: PathBuf,
+    thermal: PathBuf,
+    label: Option<PathBuf>,
+    daytime: Option<Daytime>,
+}
+
+fn daytime(rule: &NightRule, name: &str) -> Option<Daytime> {
+    let night = match rule {
+        NightRule::None => return None,
+        NightRule::Suffix(s) => name.ends_with(s.as_str()),
+        NightRule::List { names, .. } => names.contains(name),
+    };
+    Some(if night { Daytime::Night } else { Daytime::Day })
+}
+
+fn palette(d: &DatasetDescription) -> HashMap<[u8; 3], u8> {
+    let mut map: HashMap<[u8; 3], u8> = d
+        .class_set
+        .classes
+        .iter()
+        .map(|c| (c.color, c.id))
+        .collect();
+    if let (Some(color), Some(id)) = (d.ignore_color, d.class_set.ignore_id) {
+        map.insert(color, id);
+    }
+    map
+}
+
+/// Frames named by a list file: each must have every file of the split.
+fn listed_entries(spec: &SplitSpec, list: &Path) -> Result<Vec<Entry>, DataError> {
+    let names = crate::mf::read_split_file(list)?;
+    names
+        .into_iter()
+        .map(|(line, name)| {
+            let entry = entry_of(spec, &name);
+            let files = [Some(&entry.rgb), Some(&entry.thermal), entry.label.as_ref()];
+            if let Some(missing) = files.into_iter().flatten().find(|p| !p.is_file()) {
+                return Err(DataError::MissingFrame {
+                    split_file: list.to_path_buf(),
+                    line,
+                    name,
+                    missing: missing.clone(),
+                });
+            }
+            Ok(entry)
+        })
+        .collect()
+}
+
+fn entry_of(spec: &SplitSpec, name: &str) -> Entry {
+    Entry {
+        name: name.to_string(),
+        rgb: spec.rgb.path(name),
+        thermal: spec.thermal.path(name),
+        label: spec.labels.as_ref().map(|l| l.path(name)),
+        daytime: None,
+    }
+}
+
+/// Frames found by listing the folders: every RGB needs its thermal (and label, when the split
+/// has labels), and every thermal or label its RGB.
+fn paired_entries(spec: &SplitSpec) -> Result<Vec<Entry>, DataError> {
+    let rgb_names = spec.rgb.names()?;
+    if rgb_names.is_empty() {
+        return Err(DataError::EmptySplit {
+            path: spec.rgb.dir.clone(),
+        });
+    }
+    let rgb_set: HashSet<&String> = rgb_names.iter().collect();
+    let partners = [
+        Some((&spec.thermal, "thermal")),
+        spec.labels.as_ref().map(|l| (l, "label")),
+    ];
+    for (pattern, what) in partners.into_iter().flatten() {
+        if let Some(name) = pattern.names()?.into_iter().find(|n| !rgb_set.contains(n)) {
+            return Err(DataError::MissingPartner {
+                path: pattern.path(&name),
+                what: "RGB",
+                partner: spec.rgb.path(&name),
+            });
+        }
+        if let Some(name) = rgb_names.iter().find(|n| !pattern.path(n).is_file()) {
+            return Err(DataError::MissingPartner {
+                path: spec.rgb.path(name),
+                what,
+                partner: pattern.path(name),
+            });
+        }
+    }
+    Ok(rgb_names.iter().map(|n| entry_of(spec, n)).collect())
+}
+
+/// One split of a described dataset.
+#[derive(Debug, Clone)]
+pub struct DescribedSplit {
+    description: Arc<DatasetDescription>,
+    split: String,
+    entries: Vec<Entry>,
+    palette: HashMap<[u8; 3], u8>,
+}
+
+impl DescribedSplit {
+    pub fn name(&self) -> &str {
+        &self.split
+    }
+
+    pub fn description(&self) -> &DatasetDescription {
+        &self.description
+    }
+
+    /// Splits off every `every`-th frame (indices `every-1`, `2*every-1`, …) as a held-out
+    /// validation part: (the frames kept for training, the held-out frames). For datasets that
+    /// ship no val split (validation must never be the test split unless asked).
+    pub fn hold_out(&self, every: usize) -> (DescribedSplit, DescribedSplit) {
+        let held = |i: usize| every > 0 && i % every == every - 1;
+        let part = |keep_held: bool, suffix: &str| DescribedSplit {
+            description: self.description.clone(),
+            split: format!("{}{suffix}", self.split),
+            entries: (self.entries.iter().enumerate())
+                .filter(|(i, _)| held(*i) == keep_held)
+                .map(|(_, e)| e.clone())
+                .collect(),
+            palette: self.palette.clone(),
+        };
+        (
+            part(false, ""),
+            part(true, &format!(" (held out: every {every}th)")),
+        )
+    }
+
+    /// Whether the split's frames have labels.
+    pub fn labelled(&self) -> bool {
+        self.entries.first().is_some_and(|e| e.label.is_some())
+    }
+
+    /// The files frame `index` reads (for fingerprints and checks).
+    pub fn files(&self, index: usize) -> Vec<&Path> {
+        let e = &self.entries[index];
+        let label = e.label.as_deref();
+        [Some(e.rgb.as_path()), Some(e.thermal.as_path()), label]
+            .into_iter()
+            .flatten()
+            .collect()
+    }
+
+    fn read(&self, index: usize, with_label: bool) -> Result<Frame, DataError> {
+        let entry = self.entries.get(index).ok_or_else(|| DataError::Frame {
+            name: format!("#{index}"),
+            message: format!("index out of range (len {})", self.entries.len()),
+        })?;
+        let (width, height, rgb) = read_rgb(&entry.rgb)?;
+        let thermal_png = read_png(&entry.thermal)?;
+        same_size(&entry.rgb, (width, height), &entry.thermal, &thermal_png)?;
+        let (bits, samples) = thermal_samples(&thermal_png, &entry.thermal)?;
+        let thermal = self
+            .description
+            .thermal
+            .apply(&samples, bits, &entry.thermal)?;
+        let label = match (&entry.label, with_label) {
+            (Some(path), true) => Some(self.read_label(path, &entry.rgb, (width, height))?),
+            _ => None,
+        };
+        Ok(Frame {
+            name: entry.name.clone(),
+            daytime: entry.daytime,
+            width,
+            height,
+            rgb,
+            thermal,
+            label,
+        })
+    }
+
+    fn read_label(
+        &self,
+        path: &Path,
+        rgb: &Path,
+        size: (usize, usize),
+    ) -> Result<Vec<u8>, DataError> {
+        let png = read_png(path)?;
+        same_size(rgb, size, path, &png)?;
+        let Samples::U8(samples) = &png.samples else {
+            return Err(DataError::BitDepth {
+                path: path.to_path_buf(),
+                expected: "8".into(),
+                found: png.bit_depth(),
+            });
+        };
+        let classes = &self.description.class_set;
+        match self.description.labels {
+            LabelEncoding::Ids => {
+                crate::pngio::check_channels(&png, path, 1, "label of class ids")?;
+                check_label_ids(samples, png.width, classes, path)?;
+                Ok(samples.clone())
+            }
+            LabelEncoding::Colors => colour_label(&png, samples, &self.palette, classes, path),
+        }
+    }
+}
+
+fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<u8>), DataError> {
+    let png = read_png(path)?;
+    let channels_error = || DataError::Channels {
+        path: path.to_path_buf(),
+        what: "RGB image",
+        expected: "3 or 4".into(),
+        found: png.channels,
+    };
+    let Samples::U8(samples) = &png.samples else {
+        return Err(DataError::BitDepth {
+            path: path.to_path_buf(),
+            expected: "8".into(),
+            found: png.bit_depth(),
+        });
+    };
+    let rgb = match png.channels {
+        3 if !png.indexed => samples.clone(),
+        4 => samples
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect(),
+        _ => return Err(channels_error()),
+    };
+    Ok((png.width, png.height, rgb))
+}
+
+fn same_size(
+    path: &Path,
+    (w, h): (usize, usize),
+    partner: &Path,
+    png: &PngImage,
+) -> Result<(), DataError> {
+    if (png.width, png.height) == (w, h) {
+        return Ok(());
+    }
+    Err(DataError::PartnerSize {
+        path: path.to_path_buf(),
+        partner: partner.to_path_buf(),
+        w,
+        h,
+        partner_w: png.width,
+        partner_h: png.height,
+    })
+}
+
+/// The thermal plane as stored (bit depth, samples). Grey stored as RGB(A) or grey + alpha
+/// is read from its first channel; a thermal image whose colour channels differ (a colour-
+/// mapped rendering, not measurements) is refused.
+fn thermal_samples(png: &PngImage, path: &Path) -> Result<(u8, Vec<u16>), DataError> {
+    let widen = |s: &Samples| -> Vec<u16> {
+        match s {
+            Samples::U8(v) => v.iter().map(|&x| x as u16).collect(),
+            Samples::U16(v) => v.clone(),
+        }
+    };
+    let all = widen(&png.samples);
+    let c = png.channels;
+    if c == 1 && !png.indexed {
+        return Ok((png.bit_depth(), all));
+    }
+    let grey_as_colour =
+        (c == 3 || c == 4) && all.chunks_exact(c).all(|p| p[0] == p[1] && p[1] == p[2]);
+    if c == 2 || grey_as_colour {
+        return Ok((png.bit_depth(), all.chunks_exact(c).map(|p| p[0]).collect()));
+    }
+    Err(DataError::Format {
+        path: path.to_path_buf(),
+        message: format!(
+            "thermal image has {c} channels that differ{} (a colour-mapped rendering?); rtf reads thermal from one grey channel",
+            if png.indexed { " (palette image)" } else { "" }
+        ),
+    })
+}
+
+fn colour_label(
+    png: &PngImage,
+    samples: &[u8],
+    palette: &HashMap<[u8; 3], u8>,
+    classes: &ClassSet,
+    path: &Path,
+) -> Result<Vec<u8>, DataError> {
+    let c = png.channels;
+    if !(c == 3 || c == 4) || png.indexed {
+        return Err(DataError::Channels {
+            path: path.to_path_buf(),
+            what: "colour-coded label",
+            expected: "3 or 4".into(),
+            found: c,
+        });
+    }
+    samples
+        .chunks_exact(c)
+        .enumerate()
+        .map(|(i, p)| {
+            let color = [p[0], p[1], p[2]];
+            palette
+                .get(&color)
+                .copied()
+                .ok_or_else(|| DataError::LabelColor {
+                    path: path.to_path_buf(),
+                    color,
+                    x: i % png.width.max(1),
+                    y: i / png.width.max(1),
+                    class_set: classes.name.clone(),
+                })
+        })
+        .collect()
+}
+
+impl FrameSource for DescribedSplit {
+    fn len(&self) -> usize {
+        self.entries.len()
+    }
+    fn frame_name(&self, index: usize) -> &str {
+        &self.entries[index].name
+    }
+    fn daytime(&self, index: usize) -> Option<Daytime> {
+        self.entries[index].daytime
+    }
+    fn class_set(&self) -> &ClassSet {
+        &self.description.class_set
+    }
+    fn load(&self, index: usize) -> Result<Frame, DataError> {
+        self.read(index, true)
+    }
+    fn load_unlabelled(&self, index: usize) -> Result<Frame, DataError> {
+        self.read(index, false)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::description::tests::{plain_root, EXAMPLE};
+    use crate::description::{read_description, DESCRIPTION_FILE};
+    use crate::testutil::*;
+
+    fn open(root: &Path, split: &str) -> Result<DescribedSplit, DataError> {
+        let d = read_description(&root.join(DESCRIPTION_FILE))?;
+        DescribedDataset::new(d).split(split)
+    }
+
+    /// The error's text, which must name `path`.
+    fn names(err: DataError, path: &Path) -> String {
+        let text = err.to_string();
+        assert!(text.contains(&path.display().to_string()), "{text}");
+        text
+    }
+
+    #[test]
+    fn sixteen_bit_thermal_is_read_through_the_range() {
+        let dir = plain_root(EXAMPLE);
+        let train = open(dir.path(), "train").unwrap();
+        assert_eq!(train.len(), 2);
+        assert_eq!(train.class_set().len(), 2);
+        let f = train.load(0).unwrap();
+        // Counts 21800 + i over [21800, 25000].
+        assert_eq!(f.thermal[0], 0.0);
+        assert!(
+            (f.thermal[11] - 11.0 / 3200.0).abs() < 1e-6,
+            "{}",
+            f.thermal[11]
+        );
+        assert_eq!(f.label.unwrap(), ids(4, 3, 2));
+    }
+
+    #[test]
+    fn sixteen_bit_thermal_without_a_normalisation_names_the_file() {
+        let no_rule = EXAMPLE.replace("thermal:\n  range: [21800, 25000]", "");
+        let dir = plain_root(&no_rule);
+        let err = open(dir.path(), "train").unwrap().load(0).unwrap_err();
+        assert!(matches!(
+            err,
+            DataError::ThermalNormalisation { bits: 16, .. }
+        ));
+        names(err, &dir.path().join("train/thermal/a.png"));
+    }
+
+    #[test]
+    fn a_frame_without_its_partner_names_both_files() {
+        let dir = plain_root(EXAMPLE);
+        std::fs::remove_file(dir.path().join("train/thermal/b.png")).unwrap();
+        let text = names(
+            open(dir.path(), "train").unwrap_err(),
+            &dir.path().join("train/rgb/b.png"),
+        );
+        assert!(
+            text.contains("no thermal partner") && text.contains("thermal/b.png"),
+            "{text}"
+        );
+        std::fs::remove_file(dir.path().join("val/rgb/a.png")).unwrap();
+        let err = open(dir.path(), "val").unwrap_err();
+        let text = names(err, &dir.path().join("val/thermal/a.png"));
+        assert!(text.contains("no RGB partner"), "{text}");
+    }
+
+    #[test]
+    fn partners_of_different_sizes_are_refused() {
+        let dir = plain_root(EXAMPLE);
+        let thermal = dir.path().join("train/thermal/a.png");
+        write(&thermal, &png_u16(5, 3, 1, &[22000; 15]));
+        let err = open(dir.path(), "train").unwrap().load(0).unwrap_err();
+        let text = names(err, &thermal);
+        assert!(text.contains("5x3") && text.contains("4x3"), "{text}");
+    }
+
+    #[test]
+    fn a_colour_outside_the_palette_names_the_file_and_colour() {
+        let yaml = format!("{EXAMPLE}label_encoding: colors\n");
+        let dir = plain_root(&yaml);
+        let label = dir.path().join("train/labels/a.png");
+        let mut pixels: Vec<u8> = [[0u8, 0, 0], [220, 20, 60]].repeat(6).concat();
+        write(&label, &png_u8(4, 3, 3, &pixels));
+        let f = open(dir.path(), "train").unwrap().load(0).unwrap();
+        assert_eq!(f.label.unwrap(), [0, 1].repeat(6));
+        pixels[9..12].copy_from_slice(&[1, 2, 3]);
+        write(&label, &png_u8(4, 3, 3, &pixels));
+        let err = open(dir.path(), "train").unwrap().load(0).unwrap_err();
+        let text = names(err, &label);
+        assert!(
+            text.contains("[1, 2, 3]") && text.contains("x 3, y 0"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn a_split_list_naming_a_missing_frame_names_the_list_and_line() {
+        let dir = plain_root(EXAMPLE);
+        let list = dir.path().join("train.txt");
+        write(&list, b"a\nc\n");
+        let yaml = format!("{EXAMPLE}splits:\n  train: {{rgb: train/rgb, thermal: train/thermal, labels: train/labels, list: train.txt}}\n");
+        write(&dir.path().join(DESCRIPTION_FILE), yaml.as_bytes());
+        let err = open(dir.path(), "train").unwrap_err();
+        let text = names(err, &list);
+        assert!(
+            text.contains("line 2") && text.contains("rgb/c.png"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn hold_out_takes_every_nth_frame_out_of_training() {
+        let dir = plain_root(EXAMPLE);
+        let train = open(dir.path(), "train").unwrap();
+        let (kept, held) = train.hold_out(2);
+        assert_eq!((kept.len(), held.len()), (1, 1));
+        assert_eq!((kept.frame_name(0), held.frame_name(0)), ("a", "b"));
+        assert_eq!(parse_holdout("holdout:10"), Some(10));
+        assert_eq!(parse_holdout("holdout:1"), None);
+        assert_eq!(parse_holdout("val"), None);
+    }
+
+    #[test]
+    fn night_frames_follow_the_suffix() {
+        let yaml = format!("{EXAMPLE}night: {{suffix: b}}\n");
+        let dir = plain_root(&yaml);
+        let train = open(dir.path(), "train").unwrap();
+        assert_eq!(train.daytime(0), Some(Daytime::Day));
+        assert_eq!(train.daytime(1), Some(Daytime::Night));
+    }
+}

@@ -1,0 +1,752 @@
+//! A dataset description: where a dataset's RGB, thermal and label files are, its class set,
+//! how labels and thermal are encoded, and which frames are night. Written by the user as
+//! `ROOT/dataset.yaml` (the plain layout; docs/src/data.md "Your own data"), or built in code
+//! for the field's layouts a root is recognised by ([`crate::layouts`]).
+//!
+//! ```yaml
+//! classes:                      # id = label value = network output; ids 0..N-1
+//!   - {id: 0, name: background, color: [0, 0, 0]}
+//!   - {id: 1, name: pedestrian, color: [220, 20, 60]}
+//! ignore_id: 255                # optional
+//! label_encoding: ids           # or colors (RGB labels mapped through the palette)
+//! thermal:
+//!   range: [21800, 25000]       # 16-bit raw counts mapped linearly to [0, 1], clipped
+//! splits:                       # optional; default {train,val,test}/{rgb,thermal,labels}
+//!   train: {rgb: train/rgb, thermal: "train/ir/{name}_ir.png", labels: train/labels}
+//! night: {suffix: N}            # or {list: night.txt}; default none
+//! ```
+//!
+//! Unknown keys and contradictions are refused with the file and the line: a description
+//! that rtf silently reads differently from what its writer meant costs a training run.
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::path::{Component, Path, PathBuf};
+
+use rtf_core::{ClassInfo, ClassSet};
+use serde::{Deserialize, Serialize};
+
+use crate::thermal::{TemperatureMap, ThermalNormalisation};
+use crate::DataError;
+
+/// The file name of a plain-layout description.
+pub const DESCRIPTION_FILE: &str = "dataset.yaml";
+
+/// The layouts rtf reads through a description (module docs of [`crate::layouts`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LayoutKind {
+    /// `ROOT/dataset.yaml` and the folders it names.
+    Plain,
+    Msrs,
+    Pst900,
+    Fmb,
+}
+
+impl LayoutKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Plain => "plain (dataset.yaml)",
+            Self::Msrs => "MSRS",
+            Self::Pst900 => "PST900",
+            Self::Fmb => "FMB",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LabelEncoding {
+    /// One channel, the value is the class id (or the ignore id).
+    #[default]
+    Ids,
+    /// RGB, each colour is a class's palette colour (or the ignore colour).
+    Colors,
+}
+
+/// Which frames are night.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub enum NightRule {
+    /// Day/night unknown (no day/night metrics).
+    #[default]
+    None,
+    /// Names ending in this suffix are night, all others day (MF/MSRS: `N`).
+    Suffix(String),
+    /// The names in this list file are night, all others day.
+    List {
+        file: PathBuf,
+        names: HashSet<String>,
+    },
+}
+
+/// Where one kind of file of a split is: `dir/prefix NAME suffix`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FilePattern {
+    pub dir: PathBuf,
+    pub prefix: String,
+    pub suffix: String,
+}
+
+impl FilePattern {
+    /// `dir/NAME.png`.
+    pub fn folder(dir: PathBuf) -> Self {
+        Self {
+            dir,
+            prefix: String::new(),
+            suffix: ".png".into(),
+        }
+    }
+
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir
+            .join(format!("{}{name}{}", self.prefix, self.suffix))
+    }
+
+    /// The frame names of the files in `dir` that match, sorted.
+    pub fn names(&self) -> Result<Vec<String>, DataError> {
+        let entries = std::fs::read_dir(&self.dir).map_err(|e| DataError::io(&self.dir, e))?;
+        let mut names: Vec<String> = entries
+            .flatten()
+            .filter(|e| e.path().is_file())
+            .filter_map(|e| e.file_name().to_str().map(str::to_string))
+            .filter_map(|f| {
+                let stem = f.strip_prefix(&self.prefix)?.strip_suffix(&self.suffix)?;
+                (!stem.is_empty()).then(|| stem.to_string())
+            })
+            .collect();
+        names.sort();
+        Ok(names)
+    }
+}
+
+/// One split: its files and, optionally, the list file that names its frames.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SplitSpec {
+    pub name: String,
+    pub rgb: FilePattern,
+    pub thermal: FilePattern,
+    /// `None`: the split has no labels (unlabelled frames).
+    pub labels: Option<FilePattern>,
+    pub list: Option<PathBuf>,
+}
+
+/// A dataset as rtf reads it, whichever way it was described.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DatasetDescription {
+    pub root: PathBuf,
+    /// The dataset.yaml, or the root of a built-in layout: what errors name.
+    pub origin: PathBuf,
+    pub layout: LayoutKind,
+    pub class_set: ClassSet,
+    pub labels: LabelEncoding,
+    /// The colour of ignored pixels in colour-coded labels.
+    pub ignore_color: Option<[u8; 3]>,
+    pub thermal: ThermalNormalisation,
+    pub splits: Vec<SplitSpec>,
+    pub night: NightRule,
+}
+
+impl DatasetDescription {
+    pub fn split(&self, name: &str) -> Option<&SplitSpec> {
+        self.splits.iter().find(|s| s.name == name)
+    }
+
+    pub fn split_names(&self) -> Vec<&str> {
+        self.splits.iter().map(|s| s.name.as_str()).collect()
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDescription {
+    name: Option<String>,
+    classes: Vec<RawClass>,
+    ignore_id: Option<u8>,
+    ignore_color: Option<[u8; 3]>,
+    #[serde(default)]
+    label_encoding: LabelEncoding,
+    #[serde(default)]
+    thermal: RawThermal,
+    splits: Option<BTreeMap<String, RawSplit>>,
+    #[serde(default)]
+    night: RawNight,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawClass {
+    id: u8,
+    name: String,
+    color: [u8; 3],
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawThermal {
+    range: Option<[f64; 2]>,
+    #[serde(default)]
+    min_max: bool,
+    percentile: Option<[f64; 2]>,
+    to_temperature: Option<TemperatureMap>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSplit {
+    rgb: String,
+    thermal: String,
+    labels: Option<String>,
+    list: Option<String>,
+}
+
+/// `{suffix: N}` or `{list: night.txt}`; absent: day/night unknown.
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawNight {
+    suffix: Option<String>,
+    list: Option<String>,
+}
+
+/// Reads and checks `ROOT/dataset.yaml` (or any description file; paths in it are relative
+/// to its folder).
+pub fn read_description(file: &Path) -> Result<DatasetDescription, DataError> {
+    let text = std::fs::read_to_string(file).map_err(|e| DataError::io(file, e))?;
+    parse_description(&text, file)
+}
+
+/// Parses description `text` read from `file`.
+pub fn parse_description(text: &str, file: &Path) -> Result<DatasetDescription, DataError> {
+    let raw: RawDescription =
+        serde_yaml_ng::from_str(text).map_err(|e| DataError::Description {
+            path: file.to_path_buf(),
+            message: e.to_string(),
+        })?;
+    let root = file
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .to_path_buf();
+    let at = Located { file, text };
+    let name = raw.name.clone().unwrap_or_else(|| folder_name(&root));
+    let class_set = class_set(&raw, name, &at)?;
+    check_label_encoding(&raw, &at)?;
+    let thermal = thermal_rule(&raw.thermal, &at)?;
+    let splits = match &raw.splits {
+        Some(splits) => described_splits(splits, &root, &at)?,
+        None => plain_splits(&root, &at)?,
+    };
+    let night = night_rule(&raw.night, &root, &at)?;
+    Ok(DatasetDescription {
+        origin: file.to_path_buf(),
+        root,
+        layout: LayoutKind::Plain,
+        class_set,
+        labels: raw.label_encoding,
+        ignore_color: raw.ignore_color,
+        thermal,
+        splits,
+        night,
+    })
+}
+
+fn folder_name(root: &Path) -> String {
+    std::fs::canonicalize(root)
+        .ok()
+        .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .unwrap_or_else(|| "dataset".into())
+}
+
+/// The description's text, to name the line of a problem found after parsing.
+struct Located<'a> {
+    file: &'a Path,
+    text: &'a str,
+}
+
+impl Located<'_> {
+    /// An error naming the file and, when found, the line.
+    fn error(&self, line: Option<usize>, message: impl std::fmt::Display) -> DataError {
+        DataError::Description {
+            path: self.file.to_path_buf(),
+            message: match line {
+                Some(line) => format!("line {line}: {message}"),
+                None => message.to_string(),
+            },
+        }
+    }
+
+    /// The first line whose content starts with `key:` (after indentation, `- ` or `{`).
+    fn key_line(&self, key: &str) -> Option<usize> {
+        self.text
+            .lines()
+            .position(|l| {
+                let l = l.trim_start().trim_start_matches(['-', '{', ' ']);
+                l.strip_prefix(key)
+                    .is_some_and(|rest| rest.trim_start().starts_with(':'))
+            })
+            .map(|i| i + 1)
+    }
+
+    /// The first line containing `needle` (a path or a value as written).
+    fn line_with(&self, needle: &str) -> Option<usize> {
+        self.text
+            .lines()
+            .position(|l| l.contains(needle))
+            .map(|i| i + 1)
+    }
+
+    /// The line of each entry of the `classes:` list, in order.
+    fn class_lines(&self) -> Vec<usize> {
+        let Some(start) = self.key_line("classes") else {
+            return Vec::new();
+        };
+        let lines: Vec<&str> = self.text.lines().collect();
+        let indent = |l: &str| l.len() - l.trim_start().len();
+        let key_indent = indent(lines[start - 1]);
+        let mut out = Vec::new();
+        let mut item_indent = None;
+        for (i, line) in lines.iter().enumerate().skip(start) {
+            let content = line.trim_start();
+            if content.is_empty() || content.starts_with('#') {
+                continue;
+            }
+            if !content.starts_with('-') && indent(line) <= key_indent {
+                break;
+            }
+            if content.starts_with('-') && *item_indent.get_or_insert(indent(line)) == indent(line)
+            {
+                out.push(i + 1);
+            }
+        }
+        out
+    }
+}
+
+/// The class list: ids 0..N-1 each once (the network has N outputs), names unique, the ignore
+/// id not a class id.
+fn class_set(raw: &RawDescription, name: String, at: &Located) -> Result<ClassSet, DataError> {
+    let lines = at.class_lines();
+    let line = |k: usize| lines.get(k).copied().or_else(|| at.key_line("classes"));
+    if raw.classes.is_empty() {
+        return Err(at.error(at.key_line("classes"), "the class list is empty"));
+    }
+    let mut by_id: HashMap<u8, usize> = HashMap::new();
+    let mut by_name: HashMap<&str, usize> = HashMap::new();
+    for (k, class) in raw.classes.iter().enumerate() {
+        if let Some(first) = by_id.insert(class.id, k) {
+            let message = format!(
+                "class id {} is given twice (also entry {})",
+                class.id,
+                first + 1
+            );
+            return Err(at.error(line(k), message));
+        }
+        if let Some(first) = by_name.insert(class.name.as_str(), k) {
+            let message = format!(
+                "class name '{}' is given twice (also entry {})",
+                class.name,
+                first + 1
+            );
+            return Err(at.error(line(k), message));
+        }
+        if class.id as usize >= raw.classes.len() {
+            let message = format!(
+                "class id {} is out of 0..{}: ids must be 0..N-1 for N classes (the network's N outputs)",
+                class.id,
+                raw.classes.len() - 1
+            );
+            return Err(at.error(line(k), message));
+        }
+    }
+    if let Some(ignore) = raw.ignore_id.filter(|id| by_id.contains_key(id)) {
+        let message = format!("ignore_id {ignore} is also a class id");
+        return Err(at.error(at.key_line("ignore_id"), message));
+    }
+    let mut classes: Vec<ClassInfo> = raw
+        .classes
+        .iter()
+        .map(|c| ClassInfo {
+            id: c.id,
+            name: c.name.clone(),
+            color: c.color,
+        })
+        .collect();
+    classes.sort_by_key(|c| c.id);
+    Ok(ClassSet {
+        name,
+        classes,
+        ignore_id: raw.ignore_id,
+    })
+}
+
+/// Colour-coded labels need distinct colours; an ignore colour needs an ignore id and colour
+/// labels.
+fn check_label_encoding(raw: &RawDescription, at: &Located) -> Result<(), DataError> {
+    let line = at.key_line("ignore_color");
+    if raw.ignore_color.is_some() && raw.ignore_id.is_none() {
+        return Err(at.error(
+            line,
+            "ignore_color without ignore_id: which id do ignored pixels get?",
+        ));
+    }
+    if raw.ignore_color.is_some() && raw.label_encoding == LabelEncoding::Ids {
+        return Err(at.error(line, "ignore_color has no effect with label_encoding: ids"));
+    }
+    if raw.label_encoding != LabelEncoding::Colors {
+        return Ok(());
+    }
+    let mut seen: HashMap<[u8; 3], &str> = HashMap::new();
+    let ignore = raw.ignore_color.map(|c| (c, "the ignore colour"));
+    for (color, name) in raw
+        .classes
+        .iter()
+        .map(|c| (c.color, c.name.as_str()))
+        .chain(ignore)
+    {
+        if let Some(other) = seen.insert(color, name) {
+            let message = format!(
+                "colour {color:?} is both '{other}' and '{name}': colour-coded labels need distinct colours"
+            );
+            return Err(at.error(at.line_with(name), message));
+        }
+    }
+    Ok(())
+}
+
+/// The thermal rule: at most one of `range`, `min_max` and `percentile`; a temperature map
+/// only with a range (it is the range's unit); ranges and percentiles ordered.
+fn thermal_rule(raw: &RawThermal, at: &Located) -> Result<ThermalNormalisation, DataError> {
+    let given = [raw.range.is_some(), raw.min_max, raw.percentile.is_some()];
+    if given.iter().filter(|&&g| g).count() > 1 {
+        let line = [
+            ("percentile", raw.percentile.is_some()),
+            ("min_max", raw.min_max),
+        ]
+        .iter()
+        .find(|(_, g)| *g)
+        .and_then(|(key, _)| at.key_line(key));
+        let message = "thermal: give one of range, min_max and percentile";
+        return Err(at.error(line, message));
+    }
+    if raw.to_temperature.is_some() && raw.range.is_none() {
+        let message =
+            "thermal.to_temperature sets the unit of thermal.range, and there is no range";
+        return Err(at.error(at.key_line("to_temperature"), message));
+    }
+    if let Some([lo, hi]) = raw.range {
+        if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
+            let message =
+                format!("thermal.range [{lo}, {hi}]: the low end must be below the high end");
+            return Err(at.error(at.key_line("range"), message));
+        }
+        let map = raw.to_temperature;
+        return Ok(ThermalNormalisation::Range { lo, hi, map });
+    }
+    if let Some([lo, hi]) = raw.percentile {
+        if !(0.0 <= lo && lo < hi && hi <= 100.0) {
+            let message = format!("thermal.percentile [{lo}, {hi}]: need 0 <= low < high <= 100");
+            return Err(at.error(at.key_line("percentile"), message));
+        }
+        return Ok(ThermalNormalisation::Percentile { lo, hi });
+    }
+    Ok(match raw.min_max {
+        true => ThermalNormalisation::MinMax,
+        false => ThermalNormalisation::Byte,
+    })
+}
+
+/// A path written in the description, relative to its folder: never absolute or through `..`
+/// (a typo must not silently read another dataset), and it must exist.
+fn inside(root: &Path, written: &str, want_dir: bool, at: &Located) -> Result<PathBuf, DataError> {
+    let line = at.line_with(written);
+    let relative = Path::new(written);
+    let escapes = relative.is_absolute()
+        || relative
+            .components()
+            .any(|c| matches!(c, Component::ParentDir | Component::Prefix(_)));
+    if escapes {
+        let message = format!(
+            "'{written}' points outside the dataset folder {}",
+            root.display()
+        );
+        return Err(at.error(line, message));
+    }
+    let path = root.join(relative);
+    let exists = if want_dir {
+        path.is_dir()
+    } else {
+        path.is_file()
+    };
+    if !exists {
+        let what = if want_dir { "folder" } else { "file" };
+        let message = format!("'{written}': no such {what} {}", path.display());
+        return Err(at.error(line, message));
+    }
+    Ok(path)
+}
+
+/// A folder (`train/rgb` → `train/rgb/NAME.png`) or a pattern with `{name}` in its file name
+/// (`train/ir/{name}_ir.png`).
+fn file_pattern(root: &Path, written: &str, at: &Located) -> Result<FilePattern, DataError> {
+    if !written.contains("{name}") {
+        return Ok(FilePattern::folder(inside(root, written, true, at)?));
+    }
+    let (dir, file) = written.rsplit_once('/').unwrap_or(("", written));
+    let parts: Vec<&str> = file.split("{name}").collect();
+    if parts.len() != 2 || dir.contains("{name}") {
+        let message = format!("'{written}': {{name}} must appear once, in the file name");
+        return Err(at.error(at.line_with(written), message));
+    }
+    let dir = if dir.is_empty() {
+        root.to_path_buf()
+    } else {
+        inside(root, dir, true, at)?
+    };
+    Ok(FilePattern {
+        dir,
+        prefix: parts[0].to_string(),
+        suffix: parts[1].to_string(),
+    })
+}
+
+fn described_splits(
+    raw: &BTreeMap<String, RawSplit>,
+    root: &Path,
+    at: &Located,
+) -> Result<Vec<SplitSpec>, DataError> {
+    if raw.is_empty() {
+        return Err(at.error(at.key_line("splits"), "splits: no split given"));
+    }
+    raw.iter()
+        .map(|(name, split)| {
+            Ok(SplitSpec {
+                name: name.clone(),
+                rgb: file_pattern(root, &split.rgb, at)?,
+                thermal: file_pattern(root, &split.thermal, at)?,
+                labels: split
+                    .labels
+                    .as_deref()
+                    .map(|l| file_pattern(root, l, at))
+                    .transpose()?,
+                list: split
+                    .list
+                    .as_deref()
+                    .map(|l| inside(root, l, false, at))
+                    .transpose()?,
+            })
+        })
+        .collect()
+}
+
+/// The plain layout's splits: each of `{train,val,test}` that has an `rgb/` folder, with its
+/// `thermal/` (required) and `labels/` (optional: unlabelled frames).
+fn plain_splits(root: &Path, at: &Located) -> Result<Vec<SplitSpec>, DataError> {
+    let mut splits = Vec::new();
+    for name in ["train", "val", "test"] {
+        let dir = root.join(name);
+        if !dir.join("rgb").is_dir() {
+            continue;
+        }
+        if !dir.join("thermal").is_dir() {
+            let message = format!("{}/rgb has no {name}/thermal folder beside it", name);
+            return Err(at.error(None, message));
+        }
+        let labels = dir.join("labels");
+        splits.push(SplitSpec {
+            name: name.into(),
+            rgb: FilePattern::folder(dir.join("rgb")),
+            thermal: FilePattern::folder(dir.join("thermal")),
+            labels: labels.is_dir().then(|| FilePattern::folder(labels)),
+            list: None,
+        });
+    }
+    if splits.is_empty() {
+        let message = "no splits: give `splits:`, or put the frames in {train,val,test}/{rgb,thermal,labels}/NAME.png beside dataset.yaml";
+        return Err(at.error(None, message));
+    }
+    Ok(splits)
+}
+
+fn night_rule(raw: &RawNight, root: &Path, at: &Located) -> Result<NightRule, DataError> {
+    Ok(match (&raw.suffix, &raw.list) {
+        (None, None) => NightRule::None,
+        (Some(_), Some(_)) => {
+            let message = "night: give either suffix or list, not both";
+            return Err(at.error(at.key_line("night"), message));
+        }
+        (Some(s), None) if s.is_empty() => {
+            return Err(at.error(at.key_line("suffix"), "night suffix is empty"));
+        }
+        (Some(s), None) => NightRule::Suffix(s.clone()),
+        (None, Some(written)) => {
+            let file = inside(root, written, false, at)?;
+            let names = crate::mf::read_split_file(&file)?
+                .into_iter()
+                .map(|(_, n)| n)
+                .collect();
+            NightRule::List { file, names }
+        }
+    })
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::testutil::*;
+
+    /// The issue's example, verbatim.
+    pub(crate) const EXAMPLE: &str = "classes:                      # id = label value; colour for palettes and colour-coded labels
+  - {id: 0, name: background, color: [0, 0, 0]}
+  - {id: 1, name: pedestrian, color: [220, 20, 60]}
+ignore_id: 255                # optional
+thermal:
+  range: [21800, 25000]       # 16-bit raw counts mapped linearly to [0, 1], clipped
+";
+
+    /// A plain-layout root: dataset.yaml and `{train,val}/{rgb,thermal,labels}/NAME.png`.
+    pub(crate) fn plain_root(yaml: &str) -> tempfile::TempDir {
+        let dir = tempfile::tempdir().unwrap();
+        let folders = RgbtFolders {
+            rgb: "rgb",
+            thermal: "thermal",
+            labels: "labels",
+        };
+        for split in ["train", "val"] {
+            let d = dir.path().join(split);
+            for name in ["a", "b"] {
+                let raw = ThermalFixture::Raw16 { base: 21800 };
+                write_rgbt_frame(&d, &folders, name, (4, 3), raw, 2);
+            }
+        }
+        write(&dir.path().join(DESCRIPTION_FILE), yaml.as_bytes());
+        dir
+    }
+
+    fn parse_in(root: &Path, yaml: &str) -> Result<DatasetDescription, DataError> {
+        parse_description(yaml, &root.join(DESCRIPTION_FILE))
+    }
+
+    /// The error text, which must name dataset.yaml and `line`.
+    fn refused(yaml: &str, line: usize) -> String {
+        let dir = plain_root(EXAMPLE);
+        let text = parse_in(dir.path(), yaml).unwrap_err().to_string();
+        assert!(text.contains("dataset.yaml"), "{text}");
+        assert!(text.contains(&format!("line {line}")), "{text}");
+        text
+    }
+
+    #[test]
+    fn the_issue_example_describes_the_plain_layout() {
+        let dir = plain_root(EXAMPLE);
+        let d = read_description(&dir.path().join(DESCRIPTION_FILE)).unwrap();
+        assert_eq!(d.layout, LayoutKind::Plain);
+        assert_eq!(d.class_set.names(), ["background", "pedestrian"]);
+        assert_eq!(d.class_set.ignore_id, Some(255));
+        assert_eq!(d.class_set.color(1), [220, 20, 60]);
+        assert_eq!(
+            d.thermal,
+            ThermalNormalisation::Range {
+                lo: 21800.0,
+                hi: 25000.0,
+                map: None
+            }
+        );
+        assert_eq!(d.split_names(), vec!["train", "val"]);
+        assert_eq!(d.night, NightRule::None);
+        let train = d.split("train").unwrap();
+        assert_eq!(train.rgb.path("a"), dir.path().join("train/rgb/a.png"));
+        assert!(train.labels.is_some());
+    }
+
+    #[test]
+    fn unknown_keys_are_refused_with_their_line() {
+        let text = refused(&EXAMPLE.replace("ignore_id: 255", "ignore_idd: 255"), 4);
+        assert!(text.contains("ignore_idd"), "{text}");
+        let text = refused(&EXAMPLE.replace("name: pedestrian", "nam: pedestrian"), 3);
+        assert!(text.contains("nam"), "{text}");
+    }
+
+    #[test]
+    fn duplicate_class_ids_and_names_are_refused_with_the_line() {
+        let text = refused(
+            &EXAMPLE.replace("{id: 1, name: pedestrian", "{id: 0, name: pedestrian"),
+            3,
+        );
+        assert!(text.contains("class id 0 is given twice"), "{text}");
+        let text = refused(&EXAMPLE.replace("name: pedestrian", "name: background"), 3);
+        assert!(text.contains("'background' is given twice"), "{text}");
+        let text = refused(&EXAMPLE.replace("{id: 1,", "{id: 2,"), 3);
+        assert!(text.contains("ids must be 0..N-1"), "{text}");
+    }
+
+    #[test]
+    fn contradictions_are_refused_with_the_line() {
+        let both = EXAMPLE.replace(
+            "range: [21800, 25000]",
+            "range: [21800, 25000]\n  min_max: true",
+        );
+        let text = refused(&both, 7);
+        assert!(
+            text.contains("one of range, min_max and percentile"),
+            "{text}"
+        );
+        let text = refused(&EXAMPLE.replace("[21800, 25000]", "[25000, 21800]"), 6);
+        assert!(text.contains("low end"), "{text}");
+        let text = refused(&EXAMPLE.replace("ignore_id: 255", "ignore_id: 1"), 4);
+        assert!(text.contains("also a class id"), "{text}");
+        let colour = format!("{EXAMPLE}ignore_color: [1, 1, 1]\n");
+        let text = refused(&colour, 7);
+        assert!(
+            text.contains("no effect with label_encoding: ids"),
+            "{text}"
+        );
+        let temp = EXAMPLE.replace(
+            "  range: [21800, 25000]",
+            "  min_max: true\n  to_temperature: {scale: 0.04, offset: -273.15, unit: celsius}",
+        );
+        let text = refused(&temp, 7);
+        assert!(text.contains("to_temperature"), "{text}");
+        let same_colour =
+            EXAMPLE.replace("[220, 20, 60]", "[0, 0, 0]") + "label_encoding: colors\n";
+        let text = refused(&same_colour, 3);
+        assert!(text.contains("distinct colours"), "{text}");
+    }
+
+    #[test]
+    fn a_path_outside_the_dataset_or_a_typo_is_refused_with_the_line() {
+        let splits = "splits:\n  train: {rgb: ../train/rgb, thermal: train/thermal}\n";
+        let text = refused(&format!("{EXAMPLE}{splits}"), 8);
+        assert!(text.contains("points outside the dataset folder"), "{text}");
+        let splits = "splits:\n  train: {rgb: train/rgbb, thermal: train/thermal}\n";
+        let text = refused(&format!("{EXAMPLE}{splits}"), 8);
+        assert!(
+            text.contains("train/rgbb") && text.contains("no such folder"),
+            "{text}"
+        );
+        let night = "night: {list: nights.txt}\n";
+        let text = refused(&format!("{EXAMPLE}{night}"), 7);
+        assert!(text.contains("no such file"), "{text}");
+    }
+
+    #[test]
+    fn patterns_split_lists_and_night_rules_resolve() {
+        let dir = plain_root(EXAMPLE);
+        write(&dir.path().join("lists/train.txt"), b"a\n");
+        write(&dir.path().join("night.txt"), b"b\n");
+        let yaml = format!(
+            "{EXAMPLE}splits:\n  train: {{rgb: \"train/rgb/{{name}}.png\", thermal: train/thermal, list: lists/train.txt}}\nnight: {{list: night.txt}}\n"
+        );
+        let d = parse_in(dir.path(), &yaml).unwrap();
+        let train = d.split("train").unwrap();
+        assert_eq!(train.rgb.path("x"), dir.path().join("train/rgb/x.png"));
+        assert_eq!(train.labels, None);
+        assert_eq!(train.list, Some(dir.path().join("lists/train.txt")));
+        assert!(matches!(&d.night, NightRule::List { names, .. } if names.contains("b")));
+        let yaml = EXAMPLE.replace("  range: [21800, 25000]", "  percentile: [1, 99]")
+            + "night: {suffix: _n}\n";
+        let d = parse_in(dir.path(), &yaml).unwrap();
+        assert_eq!(
+            d.thermal,
+            ThermalNormalisation::Percentile { lo: 1.0, hi: 99.0 }
+        );
+        assert_eq!(d.night, NightRule::Suffix("_n".into()));
+    }
+}

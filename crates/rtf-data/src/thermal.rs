@@ -1,0 +1,208 @@
+//! Thermal normalisation of RGB-T datasets other than MF and Freiburg: how raw thermal counts
+//! (8-bit, or 16-bit radiometric) become the network's [0, 1] thermal plane.
+//!
+//! - 8-bit thermal without a rule: byte / 255 (as MF; spec §1).
+//! - A fixed range `[lo, hi]`: linear to [0, 1], clipped (as HeatNet clips Freiburg's 16-bit
+//!   counts; spec §5), optionally after a linear map counts → °C/K given by the user, in which
+//!   case the range is in degrees.
+//! - Per image: min–max, or a percentile clip `[p_lo, p_hi]` (the common AGC-style display
+//!   of radiometric frames).
+//!
+//! 16-bit thermal without a rule is refused: guessing a range would change what the network
+//! sees from one dataset to the next without a word.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::DataError;
+
+/// A linear map from raw counts to a temperature: `t = scale * counts + offset`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TemperatureMap {
+    pub scale: f64,
+    pub offset: f64,
+    pub unit: TemperatureUnit,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TemperatureUnit {
+    Celsius,
+    Kelvin,
+}
+
+/// How thermal samples become [0, 1].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ThermalNormalisation {
+    /// 8-bit only: byte / 255. 16-bit files under this rule are an error.
+    Byte,
+    /// `[lo, hi]` in counts, or in degrees of `map` when given; clipped.
+    Range {
+        lo: f64,
+        hi: f64,
+        map: Option<TemperatureMap>,
+    },
+    /// Each image's own minimum and maximum.
+    MinMax,
+    /// Each image's `lo`-th and `hi`-th percentiles (0..=100), clipped.
+    Percentile { lo: f64, hi: f64 },
+}
+
+impl ThermalNormalisation {
+    /// A short description for the first line of output ("16-bit, range [21800, 25000]").
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Byte => "8-bit / 255".into(),
+            Self::Range { lo, hi, map: None } => format!("range [{lo}, {hi}] counts, clipped"),
+            Self::Range {
+                lo,
+                hi,
+                map: Some(m),
+            } => format!(
+                "counts x {} + {} -> {:?}, range [{lo}, {hi}], clipped",
+                m.scale, m.offset, m.unit
+            ),
+            Self::MinMax => "per-image min-max".into(),
+            Self::Percentile { lo, hi } => format!("per-image percentile clip [{lo}, {hi}]"),
+        }
+    }
+
+    /// Normalises one image's samples (`bits` 8 or 16, already one channel) to [0, 1].
+    /// `path` names the file in the error for 16-bit samples without a rule.
+    pub fn apply(&self, samples: &[u16], bits: u8, path: &Path) -> Result<Vec<f32>, DataError> {
+        Ok(match self {
+            Self::Byte if bits == 8 => samples.iter().map(|&v| v as f32 / 255.0).collect(),
+            Self::Byte => {
+                return Err(DataError::ThermalNormalisation {
+                    path: path.to_path_buf(),
+                    bits,
+                })
+            }
+            Self::Range { lo, hi, map } => {
+                let to_unit = |v: u16| match map {
+                    Some(m) => m.scale * v as f64 + m.offset,
+                    None => v as f64,
+                };
+                linear_clip(samples, lo, hi, to_unit)
+            }
+            Self::MinMax => {
+                let lo = samples.iter().copied().min().unwrap_or(0) as f64;
+                let hi = samples.iter().copied().max().unwrap_or(0) as f64;
+                linear_clip(samples, &lo, &hi, |v| v as f64)
+            }
+            Self::Percentile { lo, hi } => {
+                let (a, b) = percentiles(samples, *lo, *hi);
+                linear_clip(samples, &a, &b, |v| v as f64)
+            }
+        })
+    }
+}
+
+/// `(f(v) - lo) / (hi - lo)` clipped to [0, 1]; a flat range (hi <= lo) gives 0 everywhere.
+fn linear_clip(samples: &[u16], lo: &f64, hi: &f64, f: impl Fn(u16) -> f64) -> Vec<f32> {
+    let span = hi - lo;
+    if span <= 0.0 {
+        return vec![0.0; samples.len()];
+    }
+    samples
+        .iter()
+        .map(|&v| ((f(v) - lo) / span).clamp(0.0, 1.0) as f32)
+        .collect()
+}
+
+/// The `lo`-th and `hi`-th percentiles of the samples (nearest rank, from a full histogram).
+fn percentiles(samples: &[u16], lo: f64, hi: f64) -> (f64, f64) {
+    if samples.is_empty() {
+        return (0.0, 0.0);
+    }
+    let mut histogram = vec![0usize; 65536];
+    for &v in samples {
+        histogram[v as usize] += 1;
+    }
+    let rank = |p: f64| ((p / 100.0) * (samples.len() - 1) as f64).round() as usize;
+    let (want_lo, want_hi) = (rank(lo), rank(hi));
+    let (mut seen, mut found_lo, mut found_hi) = (0usize, None, None);
+    for (value, &count) in histogram.iter().enumerate() {
+        seen += count;
+        if found_lo.is_none() && seen > want_lo {
+            found_lo = Some(value as f64);
+        }
+        if seen > want_hi {
+            found_hi = Some(value as f64);
+            break;
+        }
+    }
+    (found_lo.unwrap_or(0.0), found_hi.unwrap_or(65535.0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p() -> &'static Path {
+        Path::new("t.png")
+    }
+
+    #[test]
+    fn byte_rule_scales_8_bit_and_refuses_16_bit_naming_the_file() {
+        let out = ThermalNormalisation::Byte
+            .apply(&[0, 255, 51], 8, p())
+            .unwrap();
+        assert_eq!(out, vec![0.0, 1.0, 0.2]);
+        let err = ThermalNormalisation::Byte
+            .apply(&[0, 40000], 16, p())
+            .unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains("t.png") && text.contains("16-bit"), "{text}");
+    }
+
+    #[test]
+    fn fixed_range_is_linear_and_clipped() {
+        let rule = ThermalNormalisation::Range {
+            lo: 21800.0,
+            hi: 25000.0,
+            map: None,
+        };
+        let out = rule
+            .apply(&[20000, 21800, 23400, 25000, 30000], 16, p())
+            .unwrap();
+        assert_eq!(out, vec![0.0, 0.0, 0.5, 1.0, 1.0]);
+    }
+
+    #[test]
+    fn range_in_degrees_goes_through_the_temperature_map() {
+        // counts * 0.01 - 273.15 = °C: 29315 -> 20 °C, 31315 -> 40 °C.
+        let rule = ThermalNormalisation::Range {
+            lo: 20.0,
+            hi: 40.0,
+            map: Some(TemperatureMap {
+                scale: 0.01,
+                offset: -273.15,
+                unit: TemperatureUnit::Celsius,
+            }),
+        };
+        let out = rule.apply(&[29315, 30315, 31315], 16, p()).unwrap();
+        for (got, want) in out.iter().zip([0.0f32, 0.5, 1.0]) {
+            assert!((got - want).abs() < 1e-4, "{out:?}");
+        }
+    }
+
+    #[test]
+    fn min_max_and_percentiles_follow_the_image() {
+        let out = ThermalNormalisation::MinMax
+            .apply(&[1000, 1500, 2000], 16, p())
+            .unwrap();
+        assert_eq!(out, vec![0.0, 0.5, 1.0]);
+        // 101 samples 0..=100 plus one hot outlier: the 1st..99th percentile clip ignores it.
+        let mut samples: Vec<u16> = (0..=100).map(|v| 1000 + v * 10).collect();
+        samples.push(60000);
+        let rule = ThermalNormalisation::Percentile { lo: 1.0, hi: 99.0 };
+        let out = rule.apply(&samples, 16, p()).unwrap();
+        assert_eq!(out[0], 0.0);
+        assert_eq!(*out.last().unwrap(), 1.0);
+        assert!(out[50] > 0.45 && out[50] < 0.55, "{}", out[50]);
+    }
+}
