@@ -50,6 +50,15 @@ fn synth_train_resume_eval_predict() {
         })
         .collect();
     assert_eq!(epochs, vec![0, 1], "resume continued at the next epoch");
+    // Resumed again with nothing left: said, exit 0, the weights' path as a finished run prints.
+    let out = rtf(&["train", "--resume", s(&run)]);
+    assert!(out.status.success(), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("nothing to do: finished at epoch 2 of 2"),
+        "{stderr}"
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("final.safetensors"));
 
     let weights = run.join("final.safetensors");
     let json = tmp.path().join("scores.json");

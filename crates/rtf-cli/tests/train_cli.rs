@@ -113,6 +113,35 @@ fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole()
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", text(&out));
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        said.contains("nothing to do: finished at epoch 1 of 1"),
+        "{said}"
+    );
+    // More epochs extend the finished run's last stage (the teacher stays as it is), and the
+    // run's weights are the extended stage's.
+    let stdout = ok(&["train", "--resume", s(&run), "--epochs", "2"]);
+    assert!(stdout.trim().ends_with("final.safetensors"), "{stdout}");
+    let lines = |stage: &str| {
+        std::fs::read_to_string(run.join(stage).join("log.jsonl"))
+            .unwrap()
+            .lines()
+            .count()
+    };
+    assert_eq!((lines("teacher-rgb"), lines("v5")), (1, 2));
+    assert_eq!(
+        std::fs::read(run.join("final.safetensors")).unwrap(),
+        std::fs::read(run.join("v5/final.safetensors")).unwrap()
+    );
+    let out = rtf(&["train", "--resume", s(&run), "--epochs", "2"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(
+        text(&out).contains("nothing to do: finished at epoch 2 of 2"),
+        "{}",
+        text(&out)
+    );
+    let err = fails(&["train", "--resume", s(&run), "--epochs", "1"]);
+    assert!(err.contains("--epochs 1"), "{err}");
 }
 
 #[test]

@@ -15,6 +15,7 @@ pub mod optim;
 pub mod pipeline;
 pub mod procedure;
 pub mod recipe;
+pub mod resume;
 pub mod run;
 pub mod tensorboard;
 pub mod trainer;

@@ -115,7 +115,9 @@ pub fn run_pipeline_distributed(
     let mut trained = Vec::new();
     for stage in &cfg.stages {
         let dir = run_dir.join(&stage.name);
-        let (done, started) = (dir.join(FINAL_FILE).is_file(), rundir::holds_run(&dir));
+        // Finished means every epoch it is asked for: a resume may extend a finished stage.
+        let done = crate::resume::is_finished(&dir, stage.config.epochs)?;
+        let started = rundir::holds_run(&dir);
         // Every rank has read the stage's state before rank 0 starts writing it.
         barrier()?;
         if done {

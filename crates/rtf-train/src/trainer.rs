@@ -419,11 +419,18 @@ pub fn train_distributed(
     let resume = resume && checkpoint_path.exists();
     if resume {
         let saved = checkpoint::read_state(&checkpoint_path)?;
-        if cfg.epochs < saved.epochs_done {
+        // A checkpoint inside an epoch holds weights past the epochs done: ending the run
+        // there would call mid-epoch weights final.
+        let stands_at = saved.epochs_done + saved.partial.is_some() as usize;
+        if cfg.epochs < stands_at {
             return Err(TrainError::Config(format!(
-                "{}: the run has done {} epochs; --epochs {} would end it before where it stands",
+                "{}: the run has done {} epochs{}; --epochs {} would end it before where it stands",
                 run_dir.display(),
                 saved.epochs_done,
+                match saved.partial.is_some() {
+                    true => format!(" and part of epoch {stands_at}"),
+                    false => String::new(),
+                },
                 cfg.epochs
             )));
         }

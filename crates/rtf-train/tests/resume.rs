@@ -1,4 +1,5 @@
-//! A run stopped after one epoch and resumed ends bit-identical to an uninterrupted run.
+//! A run stopped after one epoch, or inside one, or finished and extended by more epochs
+//! (single or multi-stage), and resumed ends bit-identical to an uninterrupted run.
 
 mod common;
 
@@ -6,7 +7,9 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::Mutex;
 
-use rtf_train::{DatasetConfig, OptimizerConfig, TrainConfig};
+use rtf_train::config::{PipelineConfig, StageConfig, WeightsRef};
+use rtf_train::resume;
+use rtf_train::{DatasetConfig, OptimizerConfig, RunConfig, TrainConfig};
 
 /// A tiny MF-layout dataset: random RGBA frames whose label is "hot pixel = person".
 /// libtorch's random generator is process-global: tests that compare runs must not interleave.
@@ -264,4 +267,141 @@ fn a_diverging_run_stops_and_never_writes_non_finite_weights() {
             assert!(finite, "{file}: `{name}` holds a non-finite value");
         }
     }
+}
+
+/// A finished run extended by a resume with more epochs (`rtf train --resume RUN --epochs 4`
+/// after 2) ends with the weights and log of a 4-epoch run; a resume with nothing left says so;
+/// a checkpoint inside an epoch cannot be declared final by asking for fewer epochs.
+#[test]
+fn a_finished_run_extended_equals_an_uninterrupted_run() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    common::write_split_dataset(&data, 6, 12345, 4);
+    let straight = tmp.path().join("straight");
+    let expected = rtf_train::train(&config(&data, 4), &straight, false, &mut |_| {}).unwrap();
+
+    let extended = tmp.path().join("extended");
+    let mut run = RunConfig::Single(Box::new(config(&data, 2)));
+    rtf_train::train(&config(&data, 2), &extended, false, &mut |_| {}).unwrap();
+    let finished = resume::finished(&run, &extended)
+        .unwrap()
+        .expect("finished");
+    assert_eq!(
+        finished.to_string(),
+        "nothing to do: finished at epoch 2 of 2"
+    );
+    assert_eq!(finished.weights, extended.join("final.safetensors"));
+    resume::extend(&mut run, &extended, 4).unwrap();
+    assert_eq!(resume::finished(&run, &extended).unwrap(), None);
+    let RunConfig::Single(cfg) = &run else {
+        panic!("a single run stays single")
+    };
+    assert_eq!(cfg.epochs, 4);
+    let resumed = rtf_train::train(cfg, &extended, true, &mut |_| {}).unwrap();
+    assert_eq!(resumed.records.len(), 2, "epochs 3 and 4 train");
+    assert_eq!(resumed.state.steps_done, expected.state.steps_done);
+    assert_eq!(
+        common::weights(&straight.join("final.safetensors")),
+        common::weights(&extended.join("final.safetensors")),
+        "2 epochs extended to 4 = 4 epochs"
+    );
+    let log = std::fs::read_to_string(extended.join("log.jsonl")).unwrap();
+    assert_eq!(log.lines().count(), 4);
+    assert!(resume::finished(&run, &extended).unwrap().is_some());
+    // Fewer epochs than done: refused.
+    let err = rtf_train::train(&config(&data, 3), &extended, true, &mut |_| {}).unwrap_err();
+    assert!(err.to_string().contains("--epochs 3"), "{err}");
+
+    // Stopped inside epoch 2 of 2: asking for 1 epoch would call mid-epoch weights final.
+    let stopped = tmp.path().join("stopped");
+    rtf_train::train(&config(&data, 1), &stopped, false, &mut |_| {}).unwrap();
+    let stop = AtomicBool::new(true);
+    rtf_train::trainer::train_until(&config(&data, 2), &stopped, true, &mut |_| {}, &stop).unwrap();
+    assert!(resume::saved_state(&stopped)
+        .unwrap()
+        .unwrap()
+        .partial
+        .is_some());
+    let stopped_run = RunConfig::Single(Box::new(config(&data, 1)));
+    assert_eq!(resume::finished(&stopped_run, &stopped).unwrap(), None);
+    let err = rtf_train::train(&config(&data, 1), &stopped, true, &mut |_| {}).unwrap_err();
+    assert!(err.to_string().contains("part of epoch 2"), "{err}");
+}
+
+/// A finished two-stage run (stage 2 starts from stage 1's weights) extended by a resume with
+/// more epochs trains its last stage only, and ends as the same run trained for those epochs
+/// in one go; stage 1 is untouched.
+#[test]
+fn a_finished_multi_stage_run_extends_its_last_stage_exactly() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    common::write_split_dataset(&data, 6, 12345, 4);
+    let pipeline = |last_epochs| {
+        RunConfig::Pipeline(PipelineConfig {
+            recipe: None,
+            stages: vec![
+                StageConfig {
+                    name: "first".into(),
+                    config: config(&data, 1),
+                },
+                StageConfig {
+                    name: "second".into(),
+                    config: TrainConfig {
+                        init_from: Some(WeightsRef::Stage("first".into())),
+                        ..config(&data, last_epochs)
+                    },
+                },
+            ],
+        })
+    };
+    let never = AtomicBool::new(false);
+    let train = |run: &RunConfig, dir: &Path, resume: bool| {
+        let RunConfig::Pipeline(p) = run else {
+            panic!("a pipeline")
+        };
+        rtf_train::pipeline::run_pipeline(p, dir, resume, &mut |_, _| {}, &never).unwrap()
+    };
+    let straight = tmp.path().join("straight");
+    train(&pipeline(4), &straight, false);
+
+    let extended = tmp.path().join("extended");
+    let mut run = pipeline(2);
+    train(&run, &extended, false);
+    let finished = resume::finished(&run, &extended)
+        .unwrap()
+        .expect("finished");
+    assert_eq!(
+        finished.to_string(),
+        "nothing to do: finished at epoch 2 of 2 (last stage second)"
+    );
+    let first_before = common::weights(&extended.join("first/final.safetensors"));
+    resume::extend(&mut run, &extended, 4).unwrap();
+    let RunConfig::Pipeline(p) = &run else {
+        panic!("a pipeline")
+    };
+    assert_eq!(
+        p.stages.iter().map(|s| s.config.epochs).collect::<Vec<_>>(),
+        [1, 4],
+        "only the last stage is extended"
+    );
+    let outcome = train(&run, &extended, true);
+    assert_eq!(outcome.trained, ["second"]);
+    assert_eq!(
+        common::weights(&extended.join("first/final.safetensors")),
+        first_before
+    );
+    for file in ["second/final.safetensors", "final.safetensors"] {
+        assert_eq!(
+            common::weights(&straight.join(file)),
+            common::weights(&extended.join(file)),
+            "{file}: stage 2 extended from 2 to 4 epochs = 4 epochs"
+        );
+    }
+    let log = std::fs::read_to_string(extended.join("second/log.jsonl")).unwrap();
+    assert_eq!(log.lines().count(), 4);
+    // Fewer epochs than the last stage has done: refused before anything trains.
+    let err = resume::extend(&mut run.clone(), &extended, 3).unwrap_err();
+    assert!(err.to_string().contains("--epochs 3"), "{err}");
 }

@@ -34,8 +34,10 @@ pub struct Args {
     /// stage for multi-stage recipes).
     #[arg(long, required_unless_present = "resume")]
     pub out: Option<PathBuf>,
-    /// Continue the run in this folder exactly where it stopped (its config.json is used;
-    /// --epochs may extend it).
+    /// Continue the run in this folder exactly where it stopped (its config.json is used).
+    /// --epochs extends it, finished or not: a multi-stage run in the stage it continues and
+    /// those after it, or its last stage once every stage is done. A finished run with nothing
+    /// to do says so and exits 0.
     #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config", "precision", "sync_bn"])]
     pub resume: Option<PathBuf>,
     /// The day teacher (HeatNet's RGB teacher): a run folder, or a weights file with
@@ -161,7 +163,7 @@ pub fn run(args: Args) -> Result<()> {
         Some(run_dir) => {
             let mut cfg = rtf_train::trainer::read_config(run_dir)?;
             if let Some(epochs) = args.epochs {
-                cfg.stages_mut().into_iter().for_each(|c| c.epochs = epochs);
+                rtf_train::resume::extend(&mut cfg, run_dir, epochs)?;
             }
             cfg.validate()?;
             (cfg, run_dir.clone(), true)
@@ -174,6 +176,18 @@ pub fn run(args: Args) -> Result<()> {
     };
     let ddp = join_job(&mut cfg, args.dist_timeout)?;
     let root = ddp.as_ref().is_none_or(|d| d.is_root());
+    // Exit 0 with nothing to do, so a scheduler's resume-until-done loop ends.
+    if let Some(finished) = resume
+        .then(|| rtf_train::resume::finished(&cfg, &run_dir))
+        .transpose()?
+        .flatten()
+    {
+        if root {
+            eprintln!("{finished}");
+            println!("{}", finished.weights.display());
+        }
+        return Ok(());
+    }
     let mut slow = None;
     for (i, (_, stage)) in cfg.stages().into_iter().enumerate() {
         let device = available_device(&stage.device).map_err(anyhow::Error::msg)?;
