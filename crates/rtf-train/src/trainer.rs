@@ -607,6 +607,17 @@ pub fn train_distributed(
     let steps_per_epoch = cfg
         .max_steps_per_epoch
         .map_or(main.num_batches(), |m| m.min(main.num_batches()));
+    // One validation loader for the whole run: a loader per validation started fresh decoding
+    // threads every epoch, and each ended thread's allocator heap stayed behind (~15 MB per
+    // epoch at 64×48, issue 30; rtf_eval::evaluate::split_loader).
+    let val_loader = sources.val.clone().map(|val| {
+        let options = EvalOptions {
+            batch_size: cfg.batch_size,
+            resize: cfg.resize,
+            workers: cfg.workers,
+        };
+        rtf_eval::evaluate::split_loader(val, &options, input)
+    });
     let mut records = Vec::new();
     // Data-parallel: the stop every rank agreed on at the last step.
     let mut stop_agreed = false;
@@ -794,15 +805,10 @@ pub fn train_distributed(
         }
         bar.finish_and_clear();
         let seconds = elapsed().as_secs_f64();
-        let val = match &sources.val {
-            Some(val) => {
-                let options = EvalOptions {
-                    batch_size: cfg.batch_size,
-                    resize: cfg.resize,
-                    workers: cfg.workers,
-                };
-                let report =
-                    rtf_eval::evaluate(&procedure.student().net, val.clone(), &options, device)?;
+        let val = match &val_loader {
+            Some(loader) => {
+                let net = &procedure.student().net;
+                let report = rtf_eval::evaluate::evaluate_loader(net, loader, None, device)?;
                 Some(val_record(&report, sources.freiburg, select))
             }
             None => None,
