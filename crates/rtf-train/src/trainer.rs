@@ -246,7 +246,7 @@ fn loader(
         source,
         LoaderConfig {
             batch_size: cfg.batch_size,
-            shuffle: true,
+            shuffle: cfg.shuffle,
             drop_last: false,
             seed,
             workers: cfg.workers,
