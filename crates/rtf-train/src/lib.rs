@@ -16,6 +16,7 @@ pub mod pipeline;
 pub mod procedure;
 pub mod recipe;
 pub mod run;
+pub mod step_log;
 pub mod tensorboard;
 pub mod trainer;
 
