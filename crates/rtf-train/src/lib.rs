@@ -9,6 +9,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod ddp;
+pub mod init;
 pub mod label_cache;
 pub mod loss;
 pub mod optim;
