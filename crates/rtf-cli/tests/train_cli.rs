@@ -403,3 +403,80 @@ fn a_network_trained_on_one_modality_is_evaluated_on_it_without_a_flag() {
         "the thermal channel changed an RGB-only network's prediction"
     );
 }
+
+/// The parity controls (issue 27): `--init` starts from a weights file (checked before a run
+/// folder exists: the error names the tensors that do not fit), `--no-shuffle` and
+/// `--no-augment` are recorded in config.json and a resume keeps all three; each step's loss
+/// lands in steps.jsonl.
+#[test]
+fn init_no_shuffle_and_no_augment_are_recorded_and_resumed() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, first, run) = (
+        dir.path().join("data"),
+        dir.path().join("first"),
+        dir.path().join("run"),
+    );
+    synth_mf(&data, "12", "3", "32x32");
+    let weights = ok(&short_train(&data, &first, "1", &[]));
+    let weights = weights.trim();
+
+    let wrong = dir.path().join("wrong");
+    let err = fails(&short_train(
+        &data,
+        &wrong,
+        "1",
+        &["--model", "mfnet-paper", "--init", weights],
+    ));
+    assert!(
+        err.contains("final.safetensors: weights do not match"),
+        "{err}"
+    );
+    assert!(
+        err.contains("decode4.conv.weight (network [64, 128, 3, 3], file [64, 132, 3, 3])"),
+        "{err}"
+    );
+    assert!(
+        !wrong.exists(),
+        "nothing written for weights that do not fit"
+    );
+
+    let controls = [
+        "--init",
+        weights,
+        "--no-shuffle",
+        "--no-augment",
+        "--val-split",
+        "none",
+    ];
+    ok(&short_train(&data, &run, "2", &controls));
+    let config = json_file(&run.join("config.json"));
+    assert_eq!(config["shuffle"], false, "{config}");
+    assert!(config["init_from"]["file"]
+        .as_str()
+        .unwrap()
+        .ends_with("final.safetensors"));
+    let augment = config["augment"].as_object().unwrap();
+    assert!(
+        augment.values().all(|v| v.is_null() || v == false),
+        "every augmentation off: {config}"
+    );
+    let before = std::fs::read_to_string(run.join("config.json")).unwrap();
+    ok(&["train", "--resume", s(&run), "--epochs", "2"]);
+    let after = json_file(&run.join("config.json"));
+    assert_eq!(after["shuffle"], false);
+    assert_eq!(after["augment"], config["augment"]);
+    assert_eq!(after["init_from"], config["init_from"], "{before}");
+    let steps = std::fs::read_to_string(run.join("steps.jsonl")).unwrap();
+    let epochs: Vec<u64> = steps
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(epochs, [0, 0, 1, 1], "{steps}");
+
+    let err = fails(&["train", "--resume", s(&run), "--no-shuffle"]);
+    assert!(err.contains("--no-shuffle"), "{err}");
+}

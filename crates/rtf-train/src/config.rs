@@ -17,6 +17,11 @@ pub struct TrainConfig {
     pub optimizer: OptimizerConfig,
     pub loss: LossConfig,
     pub augment: AugmentConfig,
+    /// Batches in a new random order every epoch; false = in the order of the split list
+    /// (parity runs against a reference trainer). True for configs written before there was a
+    /// choice; written only when false.
+    #[serde(default = "yes", skip_serializing_if = "is_yes")]
+    pub shuffle: bool,
     /// Resize frames to (width, height) for training and validation; None = as stored.
     pub resize: Option<(usize, usize)>,
     /// Stop each epoch after this many steps (quick experiments); None = full epochs.
@@ -414,6 +419,10 @@ pub enum DatasetConfig {
 
 fn yes() -> bool {
     true
+}
+
+fn is_yes(value: &bool) -> bool {
+    *value
 }
 
 impl DatasetConfig {
@@ -820,6 +829,7 @@ impl TrainConfig {
                 hflip: true,
                 ..Default::default()
             },
+            shuffle: true,
             resize: None,
             max_steps_per_epoch: None,
             checkpoint_every: None,
@@ -898,6 +908,21 @@ pub fn available_device(name: &str) -> Result<tch::Device, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A config.json written before `shuffle` existed loads as shuffled; `false` is written
+    /// and read back (rtf train --no-shuffle).
+    #[test]
+    fn shuffle_defaults_to_on_and_is_recorded_when_off() {
+        let mut cfg = TrainConfig::mfnet_paper(PathBuf::from("/data"));
+        let old = serde_json::to_value(&cfg).unwrap();
+        assert!(old.get("shuffle").is_none(), "{old}");
+        let back: TrainConfig = serde_json::from_value(old).unwrap();
+        assert!(back.shuffle);
+        cfg.shuffle = false;
+        let text = serde_json::to_string(&cfg).unwrap();
+        assert!(text.contains("\"shuffle\":false"), "{text}");
+        assert!(!serde_json::from_str::<TrainConfig>(&text).unwrap().shuffle);
+    }
 
     #[test]
     fn schedule_decays_per_epoch() {

@@ -9,6 +9,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod ddp;
+pub mod init;
 pub mod label_cache;
 pub mod loss;
 pub mod optim;
@@ -17,6 +18,7 @@ pub mod procedure;
 pub mod recipe;
 pub mod resume;
 pub mod run;
+pub mod step_log;
 pub mod tensorboard;
 pub mod trainer;
 

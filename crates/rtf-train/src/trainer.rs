@@ -273,7 +273,7 @@ fn loader(
         source,
         LoaderConfig {
             batch_size: cfg.batch_size,
-            shuffle: true,
+            shuffle: cfg.shuffle,
             drop_last: false,
             seed,
             workers: cfg.workers,
@@ -515,6 +515,10 @@ pub fn train_distributed(
             None => {}
         }
     }
+    let step_log_path = run_dir.join(crate::step_log::STEP_LOG_FILE);
+    let step_log_error = |e: std::io::Error| run_error(&step_log_path, e.to_string());
+    let mut step_log = crate::step_log::StepLog::open(run_dir, is_root, state.steps_done)
+        .map_err(step_log_error)?;
     if let Some(d) = &ddp {
         // DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every
         // trained network's gradients averaged from now on.
@@ -761,6 +765,10 @@ pub fn train_distributed(
                     what: format!("loss is {}", report.total),
                 });
             }
+            let terms = report.terms.iter().chain(&report.metrics);
+            step_log
+                .record(epoch, state.steps_done, report.total, terms)
+                .map_err(step_log_error)?;
             state.steps_done += 1;
             loss_sum += report.total;
             for (name, value) in report.terms.iter().chain(&report.metrics) {

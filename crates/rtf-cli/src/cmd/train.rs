@@ -7,6 +7,7 @@ use rtf_data::inspect::DatasetFormat;
 use rtf_models::ModelConfig;
 use rtf_train::config::{
     available_device, CriticInput, Precision, Procedure, SelectMetric, TeacherRef, TrainConfig,
+    WeightsRef,
 };
 use rtf_train::recipe::{self, RecipeInputs};
 use rtf_train::{DatasetConfig, Modality, OptimizerConfig, OptimizerKind, RunConfig};
@@ -38,7 +39,7 @@ pub struct Args {
     /// --epochs extends it, finished or not: a multi-stage run in the stage it continues and
     /// those after it, or its last stage once every stage is done. A finished run with nothing
     /// to do says so and exits 0.
-    #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config", "precision", "sync_bn"])]
+    #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config", "precision", "sync_bn", "init", "no_shuffle", "no_augment"])]
     pub resume: Option<PathBuf>,
     /// The day teacher (HeatNet's RGB teacher): a run folder, or a weights file with
     /// --teacher-model. Without it, recipes train the teacher first.
@@ -109,6 +110,21 @@ pub struct Args {
     /// Disable horizontal-flip augmentation.
     #[arg(long)]
     pub no_flip: bool,
+    /// No augmentation at all (no flip, crop, window, rotation, modality drop-out, IR or
+    /// brightness scaling, noise): every frame as stored (resized if --resize). Recorded in
+    /// config.json.
+    #[arg(long)]
+    pub no_augment: bool,
+    /// Batches in the order of the split list every epoch instead of a new random order
+    /// (parity runs against a reference trainer). Recorded in config.json.
+    #[arg(long)]
+    pub no_shuffle: bool,
+    /// Start the network from these weights (safetensors under the reference names, e.g.
+    /// `rtf convert` output or another run's final.safetensors) instead of a fresh
+    /// initialisation: fine-tuning, parity runs. Every tensor must match the network; the
+    /// error names those that do not. Single-stage runs only. Recorded in config.json.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
     #[arg(long)]
     pub seed: Option<u64>,
     /// MF and described layouts (dataset.yaml, MSRS, PST900, FMB): the training split.
@@ -561,9 +577,36 @@ fn new_run(args: &Args) -> Result<RunConfig> {
     let recipe_networks = args.recipe.is_some() || args.config.is_some();
     for stage in cfg.stages_mut() {
         apply_flags(stage, args, recipe_networks)?;
+        apply_parity_controls(stage, args);
+    }
+    if let Some(path) = &args.init {
+        apply_init(&mut cfg, path)?;
     }
     cfg.validate()?;
     Ok(cfg)
+}
+
+/// `--no-augment` and `--no-shuffle` (issue 27's controls for parity runs).
+fn apply_parity_controls(cfg: &mut TrainConfig, args: &Args) {
+    if args.no_augment {
+        cfg.augment = Default::default();
+    }
+    if args.no_shuffle {
+        cfg.shuffle = false;
+    }
+}
+
+/// `--init WEIGHTS`: the single stage starts from this file, checked now so that weights that
+/// do not fit leave no run folder behind.
+fn apply_init(cfg: &mut RunConfig, path: &Path) -> Result<()> {
+    let RunConfig::Single(single) = cfg else {
+        bail!("--init goes with a single-stage run (a pipeline's stages start from their own weights)");
+    };
+    let path = std::fs::canonicalize(path)
+        .with_context(|| format!("{}: cannot open the --init weights", path.display()))?;
+    single.init_from = Some(WeightsRef::File(path));
+    rtf_train::init::check_init_weights(single)?;
+    Ok(())
 }
 
 /// Flags the user gave override the recipe's or config's values, in every stage.
