@@ -305,6 +305,63 @@ fn a_five_class_pst900_root_trains_without_val_and_evaluates_by_class_name() {
         table.contains("hand_drill") && table.contains("survivor"),
         "{table}"
     );
+    // predict paints in the dataset's palette and writes ids of its 5 classes.
+    let predicted = tmp.path().join("pred");
+    let (rgb, thermal) = (
+        data.join("test/rgb/f0.png"),
+        data.join("test/thermal/f0.png"),
+    );
+    ok(&[
+        "predict",
+        "--model",
+        "mfnet",
+        "--weights",
+        s(&weights),
+        "--out",
+        s(&predicted),
+        "--classes",
+        s(&data),
+        "--rgb",
+        s(&rgb),
+        "--thermal",
+        s(&thermal),
+    ]);
+    let ids = rtf_data::pngio::read_png(&predicted.join("f0.png")).unwrap();
+    let rtf_data::pngio::Samples::U8(ids) = ids.samples else {
+        panic!("8-bit ids")
+    };
+    assert!(ids.iter().all(|&id| id < 5), "ids of the 5 PST900 classes");
+    let colors = rtf_data::pngio::read_png(&predicted.join("f0_color.png")).unwrap();
+    let rtf_data::pngio::Samples::U8(colors) = colors.samples else {
+        panic!("8-bit colours")
+    };
+    let palette = rtf_data::layouts::pst900::CLASSES.map(|(_, c)| c);
+    for (pixel, &id) in colors.chunks_exact(3).zip(&ids) {
+        assert_eq!(pixel, palette[id as usize], "PST900 palette");
+    }
+    // Validation: none without a val split; every 2nd training frame with holdout:2.
+    let held = tmp.path().join("held");
+    let holdout = ["--model", "mfnet", "--val-split", "holdout:2"];
+    let out = rtf(&short_train(&data, &held, "1", &holdout));
+    let printed = text(&out);
+    assert!(out.status.success(), "{printed}");
+    assert!(
+        printed.contains("1 in 2 frames of `train`, held out"),
+        "{printed}"
+    );
+    let first_epoch = |run: &std::path::Path| -> serde_json::Value {
+        let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
+        serde_json::from_str(log.lines().next().unwrap()).unwrap()
+    };
+    assert!(
+        first_epoch(&run)["val_miou"].is_null(),
+        "no validation without val"
+    );
+    let record = first_epoch(&held);
+    assert!(
+        record["val_miou"].is_number(),
+        "validated on the held-out part: {record}"
+    );
     let err = fails(&[
         "train",
         "--data",

@@ -207,7 +207,7 @@ impl DescribedSplit {
         };
         (
             part(false, ""),
-            part(true, &format!(" (held out: every {every}th)")),
+            part(true, &format!(" (held out: 1 in {every})")),
         )
     }
 

@@ -23,7 +23,9 @@ pub struct Args {
     /// Also write the logits as float32 .npy of shape [classes, H, W].
     #[arg(long)]
     pub logits: bool,
-    /// Class set of the weights: mf (9) or freiburg (13); default from the model (HeatNet: freiburg).
+    /// Class set of the weights: mf (9), freiburg (13), or a dataset root / dataset.yaml whose
+    /// class set (its N classes and palette) the weights were trained on; default from the
+    /// model (HeatNet: freiburg).
     #[arg(long)]
     pub classes: Option<String>,
     /// RGB image of a pair given as separate files (with --thermal).
@@ -53,6 +55,29 @@ pub struct Args {
     /// RGBA PNGs, thermal in the alpha channel (MF layout).
     #[arg(required_unless_present = "rgb")]
     pub images: Vec<PathBuf>,
+}
+
+/// The class set of a dataset root in a described layout (dataset.yaml, MSRS, PST900, FMB) or
+/// of a dataset.yaml file.
+fn described_class_set(path: &Path) -> Result<ClassSet> {
+    let description = if path.is_file() {
+        rtf_data::description::read_description(path)?
+    } else if let Some(description) = rtf_data::layouts::describe(path) {
+        description?
+    } else {
+        bail!(
+            "--classes {}: not mf, freiburg, a dataset.yaml or a dataset root with one \
+             (or an MSRS, PST900 or FMB root)",
+            path.display()
+        );
+    };
+    eprintln!(
+        "classes: {} ({}): {}",
+        description.class_set.name,
+        description.layout.name(),
+        description.class_set.names().join(", ")
+    );
+    Ok(description.class_set)
 }
 
 fn parse_range(text: &str) -> Result<(u16, u16), String> {
@@ -223,7 +248,7 @@ pub fn run(args: Args) -> Result<()> {
     let classes = match args.classes.as_deref() {
         Some("mf") => ClassSet::mf(),
         Some("freiburg") => ClassSet::freiburg(),
-        Some(other) => bail!("unknown class set `{other}` (expected mf or freiburg)"),
+        Some(other) => described_class_set(Path::new(other))?,
         None if heatnet => ClassSet::freiburg(),
         None => ClassSet::mf(),
     };

@@ -417,7 +417,7 @@ fn described_dataset(root: PathBuf, args: &Args) -> Result<(DatasetConfig, Class
         .and_then(rtf_data::described::parse_holdout);
     if let Some(every) = holdout {
         eprintln!(
-            "data: validating on every {every}th frame of `{train_split}`, held out of training"
+            "data: validating on 1 in {every} frames of `{train_split}`, held out of training"
         );
     }
     let named = val_split.iter().filter(|_| holdout.is_none());
