@@ -3,7 +3,9 @@
 # version (issue 27 §3; docs/src/training.md, "Parity with the official recipe"): the 48 MSRS
 # scenes of ../shared/data/msrs-samples at 160×128 labelled by the published MFNet, two epochs
 # of batch 4 (24 steps) for MFNet and RTFNet-18, same starting weights, no shuffle, no
-# augmentation, fp32, the official code's SGD schedule. Prints one JSON object.
+# augmentation, fp32, the official code's SGD schedule, one thread each side (another thread
+# count's rounding is amplified by RTFNet-18's random-init trajectory: docs). Prints one JSON
+# object.
 #   scripts/parity_train.sh [WORK_DIR] [extra scripts/parity_train.py flags]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,4 +14,4 @@ shift || true
 export LIBTORCH="${LIBTORCH:-$PWD/.libtorch}"
 cargo build --release -q -p rtf-cli
 exec .venv/bin/python scripts/parity_train.py --rtf target/release/rtf --work "$work" \
-    --models mfnet,rtfnet18 --frames 48 --size 160x128 --epochs 2 --batch-size 4 "$@"
+    --models mfnet,rtfnet18 --frames 48 --size 160x128 --epochs 2 --batch-size 4 --threads 1 "$@"
