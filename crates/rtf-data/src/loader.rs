@@ -60,7 +60,8 @@ pub struct Loader {
     source: Arc<dyn FrameSource>,
     cfg: LoaderConfig,
     input: InputConvention,
-    pool: Option<Arc<rayon::ThreadPool>>,
+    /// None with `workers: 0` (or when no thread could be started): batches load inline.
+    producer: Option<Producer>,
 }
 
 impl Loader {
@@ -76,11 +77,12 @@ impl Loader {
             })
             .flatten()
             .map(Arc::new);
+        let producer = pool.and_then(Producer::start);
         Self {
             source,
             cfg,
             input,
-            pool,
+            producer,
         }
     }
 
@@ -140,36 +142,98 @@ impl Loader {
                 "batch_size must be at least 1".into(),
             )))
         } else {
-            match &self.pool {
-                None => Mode::Inline { next: first_batch },
-                Some(pool) => {
-                    let (tx, rx) = crossbeam_channel::bounded(self.cfg.prefetch);
-                    let (job2, pool) = (job.clone(), pool.clone());
-                    let handle = std::thread::Builder::new()
-                        .name("rtf-data-batches".into())
-                        .spawn(move || {
-                            for b in first_batch..job2.num_batches {
-                                let batch = pool.install(|| job2.batch(b, true));
-                                let failed = batch.is_err();
-                                if tx.send(batch).is_err() || failed {
-                                    break;
-                                }
-                            }
-                        });
-                    match handle {
-                        Ok(h) => Mode::Threaded {
-                            rx: Some(rx),
-                            handle: Some(h),
-                        },
-                        Err(_) => Mode::Inline { next: first_batch },
-                    }
-                }
-            }
+            let threaded = self
+                .producer
+                .as_ref()
+                .and_then(|p| p.submit(job.clone(), first_batch, self.cfg.prefetch));
+            threaded.unwrap_or(Mode::Inline { next: first_batch })
         };
         EpochIter {
             job,
             mode,
             done: false,
+        }
+    }
+}
+
+/// The thread that produces one loader's batches (on the loader's pool), epoch after epoch. It
+/// lives as long as the loader: a thread started per epoch leaked its heap in the `rtf`
+/// binary, where mimalloc never learns that such a thread ended (its thread-exit hook is lost
+/// behind libtorch's pthread keys; docs/src/reliability.md, "Memory across epochs").
+struct Producer {
+    jobs: Option<crossbeam_channel::Sender<ProducerJob>>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
+
+/// One epoch's work for the [`Producer`].
+struct ProducerJob {
+    job: Arc<EpochJob>,
+    first_batch: usize,
+    batches: crossbeam_channel::Sender<Result<Batch, DataError>>,
+    /// Dropped once the producer has left this epoch: what the consumer waits on to know it
+    /// stopped (as it joined the per-epoch thread before).
+    _finished: crossbeam_channel::Sender<()>,
+}
+
+impl Producer {
+    fn start(pool: Arc<rayon::ThreadPool>) -> Option<Self> {
+        let (jobs, queue) = crossbeam_channel::unbounded::<ProducerJob>();
+        let handle = std::thread::Builder::new()
+            .name("rtf-data-batches".into())
+            .spawn(move || queue.into_iter().for_each(|work| produce(&pool, work)))
+            .ok()?;
+        Some(Self {
+            jobs: Some(jobs),
+            handle: Some(handle),
+        })
+    }
+
+    /// Queues the batches of `job` from `first_batch` on; None when the thread is gone.
+    fn submit(&self, job: Arc<EpochJob>, first_batch: usize, prefetch: usize) -> Option<Mode> {
+        let (batches, rx) = crossbeam_channel::bounded(prefetch);
+        let (finished, finished_rx) = crossbeam_channel::bounded(0);
+        let work = ProducerJob {
+            job,
+            first_batch,
+            batches,
+            _finished: finished,
+        };
+        self.jobs.as_ref()?.send(work).ok()?;
+        Some(Mode::Threaded {
+            rx: Some(rx),
+            finished: Some(finished_rx),
+        })
+    }
+}
+
+/// Produces one epoch's batches until the epoch ends, a batch fails or the consumer left; a
+/// panic is reported to the consumer as [`DataError::WorkerGone`], never as a short epoch.
+fn produce(pool: &rayon::ThreadPool, work: ProducerJob) {
+    let ProducerJob {
+        job,
+        first_batch,
+        batches,
+        _finished,
+    } = work;
+    let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        for b in first_batch..job.num_batches {
+            let batch = pool.install(|| job.batch(b, true));
+            let failed = batch.is_err();
+            if batches.send(batch).is_err() || failed {
+                break;
+            }
+        }
+    }));
+    if run.is_err() {
+        let _ = batches.send(Err(DataError::WorkerGone));
+    }
+}
+
+impl Drop for Producer {
+    fn drop(&mut self) {
+        drop(self.jobs.take());
+        if let Some(handle) = self.handle.take() {
+            let _ = handle.join();
         }
     }
 }
@@ -458,7 +522,7 @@ enum Mode {
     },
     Threaded {
         rx: Option<crossbeam_channel::Receiver<Result<Batch, DataError>>>,
-        handle: Option<std::thread::JoinHandle<()>>,
+        finished: Option<crossbeam_channel::Receiver<()>>,
     },
     Failed(Option<DataError>),
 }
@@ -487,22 +551,9 @@ impl Iterator for EpochIter {
                     Some(self.job.batch(*next - 1, false))
                 }
             }
-            Mode::Threaded { rx, .. } => match rx.as_ref().map(|r| r.recv()) {
-                Some(Ok(item)) => Some(item),
-                // Channel closed: the producer finished (or died; a panic there must not pass
-                // silently as a short epoch).
-                _ => {
-                    if let Mode::Threaded { handle, .. } = &mut self.mode {
-                        if let Some(h) = handle.take() {
-                            if h.join().is_err() {
-                                self.done = true;
-                                return Some(Err(DataError::WorkerGone));
-                            }
-                        }
-                    }
-                    None
-                }
-            },
+            // Channel closed: the producer finished the epoch (a panic there arrives first as
+            // WorkerGone, never as a silently short epoch).
+            Mode::Threaded { rx, .. } => rx.as_ref().and_then(|r| r.recv().ok()),
         };
         match item {
             Some(Ok(mut batch)) => {
@@ -523,11 +574,12 @@ impl Iterator for EpochIter {
 
 impl Drop for EpochIter {
     fn drop(&mut self) {
-        if let Mode::Threaded { rx, handle } = &mut self.mode {
-            // Closing the channel makes the producer's next send fail, so it stops.
+        if let Mode::Threaded { rx, finished } = &mut self.mode {
+            // Closing the channel makes the producer's next send fail, so it stops; wait until
+            // it has left the epoch.
             drop(rx.take());
-            if let Some(h) = handle.take() {
-                let _ = h.join();
+            if let Some(finished) = finished.take() {
+                let _ = finished.recv();
             }
         }
     }
