@@ -10,8 +10,9 @@ use std::sync::Arc;
 
 use crate::config::{PipelineConfig, RunConfig, TeacherRef, TrainConfig, WeightsRef};
 use crate::ddp::Ddp;
+use crate::error::TrainError;
 use crate::run::{self as rundir, run_error, BEST_FILE, CONFIG_FILE, FINAL_FILE};
-use crate::trainer::{self, EpochRecord, TrainError, TrainOutcome};
+use crate::trainer::{self, EpochRecord, TrainOutcome};
 
 #[derive(Debug, Clone)]
 pub struct PipelineOutcome {

@@ -12,44 +12,17 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 use rtf_core::Daytime;
 use rtf_data::frame::Subset;
-use rtf_data::{
-    DataError, FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset,
-};
-use rtf_eval::{EvalError, EvalOptions, EvalReport};
-use rtf_models::{ModelError, Network};
+use rtf_data::{FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset};
+use rtf_eval::{EvalOptions, EvalReport};
+use rtf_models::Network;
 use serde::{Deserialize, Serialize};
 
-use crate::checkpoint::{self, CheckpointError, Part, PartialEpoch, TrainState};
-use crate::config::{ConfigError, DatasetConfig, SelectMetric, TrainConfig, WeightsRef};
+use crate::checkpoint::{self, Part, PartialEpoch, TrainState};
+use crate::config::{DatasetConfig, SelectMetric, TrainConfig, WeightsRef};
+pub use crate::error::TrainError;
 use crate::procedure::{self, Procedure, StepBatches};
 use crate::run::{self as rundir, run_error};
 pub use crate::run::{BEST_FILE, CHECKPOINT_FILE, CONFIG_FILE, FINAL_FILE, LOG_FILE};
-
-#[derive(Debug, thiserror::Error)]
-pub enum TrainError {
-    #[error(transparent)]
-    Data(#[from] DataError),
-    #[error(transparent)]
-    Model(#[from] ModelError),
-    #[error(transparent)]
-    Eval(#[from] EvalError),
-    #[error(transparent)]
-    Checkpoint(#[from] CheckpointError),
-    #[error("{path}: {message}")]
-    Run { path: PathBuf, message: String },
-    #[error("{0}")]
-    Config(String),
-    #[error("invalid configuration: {0}")]
-    Invalid(#[from] ConfigError),
-    #[error(transparent)]
-    Distributed(#[from] rtf_dist::DistError),
-    #[error("training diverged at epoch {epoch}, step {step}: {what}")]
-    Diverged {
-        epoch: usize,
-        step: u64,
-        what: String,
-    },
-}
 
 /// Validation scores of one epoch (percent-free fractions like every score of rtf-eval).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -875,7 +848,7 @@ pub fn train_distributed(
     }
     let final_weights = run_dir.join(FINAL_FILE);
     let weights_digest = match &ddp {
-        Some(d) => Some(d.check_identical(procedure.as_ref())?),
+        Some(d) => Some(d.check_identical(procedure.trained().iter().map(|t| &t.vs))?),
         None => None,
     };
     if is_root {
