@@ -11,8 +11,8 @@ use serde::Serialize;
 use tch::{Device, Kind, Tensor};
 
 use crate::config::{OptimizerConfig, Precision, TrainConfig};
+use crate::error::TrainError;
 use crate::procedure::Student;
-use crate::trainer::TrainError;
 
 /// What to time.
 #[derive(Debug, Clone)]

@@ -14,7 +14,7 @@ use rtf_dist::{DistError, ProcessGroup, BUCKET_BYTES};
 use tch::nn::VarStore;
 use tch::Tensor;
 
-use crate::trainer::TrainError;
+use crate::error::TrainError;
 
 /// This process's place in a data-parallel job and its process group.
 pub struct Ddp {
@@ -120,12 +120,12 @@ impl Ddp {
 
     /// Checks that every rank ends with the same weights (every variable of every trained
     /// network, bit for bit): rank 0's digest is broadcast and every rank compares its own.
-    /// Returns the digest.
-    pub fn check_identical(
+    /// Returns the digest. `trained`: the VarStore of every trained network, in role order.
+    pub fn check_identical<'a>(
         &self,
-        procedure: &dyn crate::procedure::Procedure,
+        trained: impl IntoIterator<Item = &'a VarStore>,
     ) -> Result<u64, TrainError> {
-        let digest = weights_digest(procedure.trained().iter().map(|t| &t.vs));
+        let digest = weights_digest(trained);
         // Two exact halves: all-reduced values are i64 tensors.
         let group = self.group();
         let mut t = Tensor::from_slice(&[(digest >> 32) as i64, (digest & 0xffff_ffff) as i64])

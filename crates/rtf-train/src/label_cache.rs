@@ -13,8 +13,8 @@ use rtf_data::pngio::{write_png_u8, Samples};
 use rtf_data::{DataError, Frame, FrameSource, Loader, LoaderConfig};
 use tch::{Device, Kind};
 
+use crate::error::TrainError;
 use crate::procedure::Frozen;
-use crate::trainer::TrainError;
 
 /// Labels every frame of `source` with `teacher` into `dir` (frames already there are skipped).
 pub fn write(

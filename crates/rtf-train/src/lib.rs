@@ -9,6 +9,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod ddp;
+pub mod error;
 pub mod init;
 pub mod label_cache;
 pub mod loss;
@@ -26,6 +27,7 @@ pub use config::{
     DatasetConfig, LossConfig, Modality, OptimizerConfig, OptimizerKind, PipelineConfig, Procedure,
     RunConfig, TrainConfig,
 };
+pub use error::TrainError;
 pub use loss::Loss;
 pub use optim::Optimizer;
-pub use trainer::{train, EpochRecord, TrainError, TrainOutcome};
+pub use trainer::{train, EpochRecord, TrainOutcome};

@@ -117,83 +117,90 @@ impl Optimizer {
         if self.scaling && !self.unscale(vs) {
             return;
         }
-        let cfg = self.config.clone();
         tch::no_grad(|| {
-            for (name, mut param) in trainable(vs) {
+            for (name, param) in trainable(vs) {
                 let grad = param.grad();
                 if !grad.defined() {
                     continue;
                 }
-                if cfg.kind == OptimizerKind::Sgd && fusable(&param, &grad) {
-                    // The same update in ATen's fused kernel: one pass, no temporaries.
-                    let key = format!("momentum/{name}");
-                    let (buffer, first_step) = match self.state.get(&key) {
-                        _ if cfg.momentum == 0.0 => (grad.shallow_clone(), false),
-                        Some(buffer) if buffer.stride() == param.stride() => {
-                            (buffer.shallow_clone(), false)
-                        }
-                        Some(_) => {
-                            // A buffer restored with another layout (a checkpoint is laid out
-                            // contiguous): re-laid like the parameter, same values.
-                            let mut buffer = param.empty_like();
-                            buffer.copy_(&self.state[&key]);
-                            self.state.insert(key, buffer.shallow_clone());
-                            (buffer, false)
-                        }
-                        None => {
-                            let buffer = param.zeros_like();
-                            self.state.insert(key, buffer.shallow_clone());
-                            (buffer, true)
-                        }
-                    };
-                    rtf_models::aten::fused_sgd_(
-                        &param,
-                        &grad,
-                        &buffer,
-                        cfg.weight_decay,
-                        cfg.momentum,
-                        lr,
-                        first_step,
-                    );
-                    continue;
+                match self.config.kind == OptimizerKind::Sgd && fusable(&param, &grad) {
+                    true => self.fused_sgd_step(&name, &param, &grad, lr),
+                    false => self.step_written_out(&name, param, grad, lr),
                 }
-                let grad = if cfg.weight_decay != 0.0 {
-                    grad + &param * cfg.weight_decay
-                } else {
-                    grad
-                };
-                let direction = match cfg.kind {
-                    OptimizerKind::Sgd => grad,
-                    OptimizerKind::Rmsprop => {
-                        let square_avg = self.buffer(format!("square_avg/{name}"), &grad);
-                        let _ = square_avg
-                            .shallow_clone()
-                            .g_mul_scalar_(cfg.alpha)
-                            .g_add_(&(&grad * &grad * (1.0 - cfg.alpha)));
-                        grad / (square_avg.sqrt() + cfg.eps)
-                    }
-                };
-                let update = if cfg.momentum == 0.0 {
-                    direction
-                } else {
-                    let key = format!("momentum/{name}");
-                    match self.state.get_mut(&key) {
-                        Some(buffer) => {
-                            let _ = buffer.g_mul_scalar_(cfg.momentum).g_add_(&direction);
-                            buffer.shallow_clone()
-                        }
-                        // SGD starts its buffer at the first direction; RMSprop starts at 0 and
-                        // adds it, which is the same.
-                        None => {
-                            let buffer = direction.detach().copy();
-                            self.state.insert(key, buffer.shallow_clone());
-                            buffer
-                        }
-                    }
-                };
-                let _ = param.g_sub_(&(update * lr));
             }
         });
+    }
+
+    /// SGD's update in ATen's fused kernel: one pass, no temporaries.
+    fn fused_sgd_step(&mut self, name: &str, param: &Tensor, grad: &Tensor, lr: f64) {
+        let cfg = &self.config;
+        let key = format!("momentum/{name}");
+        let (buffer, first_step) = match self.state.get(&key) {
+            _ if cfg.momentum == 0.0 => (grad.shallow_clone(), false),
+            Some(buffer) if buffer.stride() == param.stride() => (buffer.shallow_clone(), false),
+            Some(_) => {
+                // A buffer restored with another layout (a checkpoint is laid out
+                // contiguous): re-laid like the parameter, same values.
+                let mut buffer = param.empty_like();
+                buffer.copy_(&self.state[&key]);
+                self.state.insert(key, buffer.shallow_clone());
+                (buffer, false)
+            }
+            None => {
+                let buffer = param.zeros_like();
+                self.state.insert(key, buffer.shallow_clone());
+                (buffer, true)
+            }
+        };
+        rtf_models::aten::fused_sgd_(
+            param,
+            grad,
+            &buffer,
+            cfg.weight_decay,
+            cfg.momentum,
+            lr,
+            first_step,
+        );
+    }
+
+    /// The update rules written out (RMSprop; SGD where the fused kernel does not apply).
+    fn step_written_out(&mut self, name: &str, mut param: Tensor, grad: Tensor, lr: f64) {
+        let cfg = self.config.clone();
+        let grad = if cfg.weight_decay != 0.0 {
+            grad + &param * cfg.weight_decay
+        } else {
+            grad
+        };
+        let direction = match cfg.kind {
+            OptimizerKind::Sgd => grad,
+            OptimizerKind::Rmsprop => {
+                let square_avg = self.buffer(format!("square_avg/{name}"), &grad);
+                let _ = square_avg
+                    .shallow_clone()
+                    .g_mul_scalar_(cfg.alpha)
+                    .g_add_(&(&grad * &grad * (1.0 - cfg.alpha)));
+                grad / (square_avg.sqrt() + cfg.eps)
+            }
+        };
+        let update = if cfg.momentum == 0.0 {
+            direction
+        } else {
+            let key = format!("momentum/{name}");
+            match self.state.get_mut(&key) {
+                Some(buffer) => {
+                    let _ = buffer.g_mul_scalar_(cfg.momentum).g_add_(&direction);
+                    buffer.shallow_clone()
+                }
+                // SGD starts its buffer at the first direction; RMSprop starts at 0 and
+                // adds it, which is the same.
+                None => {
+                    let buffer = direction.detach().copy();
+                    self.state.insert(key, buffer.shallow_clone());
+                    buffer
+                }
+            }
+        };
+        let _ = param.g_sub_(&(update * lr));
     }
 
     /// The state tensor `key`, created as zeros shaped like `like` on first use.

@@ -8,10 +8,11 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use crate::config::{PipelineConfig, RunConfig, TeacherRef, TrainConfig, WeightsRef};
+use crate::config::{PipelineConfig, RunConfig, StageConfig, TeacherRef, TrainConfig, WeightsRef};
 use crate::ddp::Ddp;
+use crate::error::TrainError;
 use crate::run::{self as rundir, run_error, BEST_FILE, CONFIG_FILE, FINAL_FILE};
-use crate::trainer::{self, EpochRecord, TrainError, TrainOutcome};
+use crate::trainer::{self, EpochRecord, TrainOutcome};
 
 #[derive(Debug, Clone)]
 pub struct PipelineOutcome {
@@ -37,7 +38,7 @@ pub fn stage_weights(stage_dir: &Path) -> PathBuf {
 pub fn resolve(
     cfg: &TrainConfig,
     run_dir: &Path,
-    stages: &[crate::config::StageConfig],
+    stages: &[StageConfig],
 ) -> Result<TrainConfig, TrainError> {
     let mut cfg = cfg.clone();
     let find = |name: &str| {
@@ -87,70 +88,12 @@ pub fn run_pipeline_distributed(
     stop: &AtomicBool,
     ddp: Option<Arc<Ddp>>,
 ) -> Result<PipelineOutcome, TrainError> {
-    let run = RunConfig::Pipeline(cfg.clone());
-    run.validate()?;
-    let is_root = ddp.as_ref().is_none_or(|d| d.is_root());
-    let barrier = || ddp.as_ref().map_or(Ok(()), |d| d.barrier());
-    if !resume && rundir::holds_run(run_dir) {
-        return Err(run_error(
-            run_dir,
-            "already holds a run; use --resume to continue it or choose another output folder",
-        ));
-    }
-    for stage in &cfg.stages {
-        crate::procedure::check_teachers(&stage.config)?;
-    }
-    // Every rank has looked at the folder before rank 0 writes to it.
-    barrier()?;
-    let lock = match is_root {
-        true => {
-            std::fs::create_dir_all(run_dir)
-                .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
-            let lock = rundir::RunLock::acquire(run_dir)?;
-            rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &run)?;
-            Some(lock)
-        }
-        false => None,
-    };
+    let lock = open_run_folder(cfg, run_dir, resume, ddp.as_deref())?;
     let mut trained = Vec::new();
     for stage in &cfg.stages {
-        let dir = run_dir.join(&stage.name);
-        // Finished means every epoch it is asked for: a resume may extend a finished stage.
-        let done = crate::resume::is_finished(&dir, stage.config.epochs)?;
-        let started = rundir::holds_run(&dir);
-        // Every rank has read the stage's state before rank 0 starts writing it.
-        barrier()?;
-        if done {
+        let Some(outcome) = train_stage(cfg, stage, run_dir, on_epoch, stop, ddp.clone())? else {
             continue;
-        }
-        let mut resolved = resolve(&stage.config, run_dir, &cfg.stages)?;
-        if started {
-            // The stage's own config.json says how many processes trained it (the trainer
-            // refuses to continue it exactly with another number).
-            if let Ok(RunConfig::Single(saved)) = trainer::read_config(&dir) {
-                resolved.world_size = saved.world_size;
-            }
-        }
-        if is_root {
-            eprintln!(
-                "stage {} ({}, {}): {} epochs into {}",
-                stage.name,
-                resolved.procedure.name(),
-                resolved.model.name(),
-                resolved.epochs,
-                dir.display()
-            );
-        }
-        let outcome = trainer::train_distributed(
-            &resolved,
-            &dir,
-            started,
-            &mut |r| on_epoch(&stage.name, r),
-            stop,
-            ddp.clone(),
-        )?;
-        // Rank 0 has written the stage's weights before any rank reads them.
-        barrier()?;
+        };
         trained.push(stage.name.clone());
         if outcome.final_weights.is_none() {
             return Ok(PipelineOutcome {
@@ -161,14 +104,8 @@ pub fn run_pipeline_distributed(
             });
         }
     }
-    let last = run_dir.join(&cfg.stages.last().expect("validated: a stage").name);
-    for file in [FINAL_FILE, BEST_FILE] {
-        if is_root && last.join(file).is_file() {
-            let bytes = std::fs::read(last.join(file))
-                .map_err(|e| run_error(&last.join(file), format!("cannot read: {e}")))?;
-            rtf_core::write_bytes_atomic(&run_dir.join(file), &bytes)
-                .map_err(|e| run_error(&run_dir.join(file), e.to_string()))?;
-        }
+    if ddp.as_ref().is_none_or(|d| d.is_root()) {
+        copy_last_stage_weights(cfg, run_dir)?;
     }
     drop(lock);
     Ok(PipelineOutcome {
@@ -177,4 +114,106 @@ pub fn run_pipeline_distributed(
         interrupted: None,
         trained,
     })
+}
+
+fn barrier(ddp: Option<&Ddp>) -> Result<(), TrainError> {
+    match ddp {
+        Some(d) => Ok(d.barrier()?),
+        None => Ok(()),
+    }
+}
+
+/// Checks the pipeline and the folder; rank 0 takes the folder's lock and writes the
+/// pipeline's `config.json`.
+fn open_run_folder(
+    cfg: &PipelineConfig,
+    run_dir: &Path,
+    resume: bool,
+    ddp: Option<&Ddp>,
+) -> Result<Option<rundir::RunLock>, TrainError> {
+    let run = RunConfig::Pipeline(cfg.clone());
+    run.validate()?;
+    if !resume && rundir::holds_run(run_dir) {
+        return Err(run_error(
+            run_dir,
+            "already holds a run; use --resume to continue it or choose another output folder",
+        ));
+    }
+    for stage in &cfg.stages {
+        crate::procedure::check_teachers(&stage.config)?;
+    }
+    // Every rank has looked at the folder before rank 0 writes to it.
+    barrier(ddp)?;
+    if !ddp.is_none_or(|d| d.is_root()) {
+        return Ok(None);
+    }
+    std::fs::create_dir_all(run_dir)
+        .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
+    let lock = rundir::RunLock::acquire(run_dir)?;
+    rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &run)?;
+    Ok(Some(lock))
+}
+
+/// Trains one stage (resumes it if it started, extends it if asked for more epochs); None
+/// when it is finished.
+fn train_stage(
+    cfg: &PipelineConfig,
+    stage: &StageConfig,
+    run_dir: &Path,
+    on_epoch: &mut dyn FnMut(&str, &EpochRecord),
+    stop: &AtomicBool,
+    ddp: Option<Arc<Ddp>>,
+) -> Result<Option<TrainOutcome>, TrainError> {
+    let dir = run_dir.join(&stage.name);
+    // Finished means every epoch it is asked for: a resume may extend a finished stage.
+    let done = crate::resume::is_finished(&dir, stage.config.epochs)?;
+    let started = rundir::holds_run(&dir);
+    // Every rank has read the stage's state before rank 0 starts writing it.
+    barrier(ddp.as_deref())?;
+    if done {
+        return Ok(None);
+    }
+    let mut resolved = resolve(&stage.config, run_dir, &cfg.stages)?;
+    if started {
+        // The stage's own config.json says how many processes trained it (the trainer
+        // refuses to continue it exactly with another number).
+        if let Ok(RunConfig::Single(saved)) = trainer::read_config(&dir) {
+            resolved.world_size = saved.world_size;
+        }
+    }
+    if ddp.as_ref().is_none_or(|d| d.is_root()) {
+        eprintln!(
+            "stage {} ({}, {}): {} epochs into {}",
+            stage.name,
+            resolved.procedure.name(),
+            resolved.model.name(),
+            resolved.epochs,
+            dir.display()
+        );
+    }
+    let outcome = trainer::train_distributed(
+        &resolved,
+        &dir,
+        started,
+        &mut |r| on_epoch(&stage.name, r),
+        stop,
+        ddp.clone(),
+    )?;
+    // Rank 0 has written the stage's weights before any rank reads them.
+    barrier(ddp.as_deref())?;
+    Ok(Some(outcome))
+}
+
+/// The last stage's final and best weights, copied to the run folder.
+fn copy_last_stage_weights(cfg: &PipelineConfig, run_dir: &Path) -> Result<(), TrainError> {
+    let last = run_dir.join(&cfg.stages.last().expect("validated: a stage").name);
+    for file in [FINAL_FILE, BEST_FILE] {
+        if last.join(file).is_file() {
+            let bytes = std::fs::read(last.join(file))
+                .map_err(|e| run_error(&last.join(file), format!("cannot read: {e}")))?;
+            rtf_core::write_bytes_atomic(&run_dir.join(file), &bytes)
+                .map_err(|e| run_error(&run_dir.join(file), e.to_string()))?;
+        }
+    }
+    Ok(())
 }

@@ -366,42 +366,8 @@ fn network_for(
 /// The run a recipe describes for `inputs`: one stage → a single training, several → a
 /// pipeline. Flags applied afterwards override (`rtf train`).
 pub fn instantiate(recipe: &Recipe, inputs: &RecipeInputs) -> Result<RunConfig, RecipeError> {
-    // Stages the user brings, as teachers.
-    let mut external: BTreeMap<&str, TeacherRef> = BTreeMap::new();
-    for (given, stage, flag) in [
-        (&inputs.teacher, recipe.teacher_stage, "--teacher"),
-        (
-            &inputs.night_teacher,
-            recipe.night_teacher_stage,
-            "--night-teacher",
-        ),
-    ] {
-        match (given, stage) {
-            (Some(t), Some(s)) => {
-                external.insert(s, t.clone());
-            }
-            (Some(_), None) => {
-                return Err(RecipeError(format!(
-                    "recipe `{}` takes no {flag}",
-                    recipe.name
-                )))
-            }
-            (None, _) => {}
-        }
-    }
-    // Keep the stages the last one needs, minus those the user brought.
-    let mut needed = vec![recipe.stages.last().expect("a recipe has stages").name];
-    for spec in recipe.stages.iter().rev() {
-        if !needed.contains(&spec.name) || external.contains_key(spec.name) {
-            continue;
-        }
-        let refs = match spec.procedure {
-            Supervised => vec![],
-            TeacherStudent { day, night } => std::iter::once(day).chain(night).collect(),
-            Adversarial { day } => vec![day],
-        };
-        needed.extend(refs.into_iter().chain(spec.init_from));
-    }
+    let external = external_teachers(recipe, inputs)?;
+    let needed = needed_stages(recipe, &external);
     let freiburg = matches!(inputs.dataset, DatasetConfig::Freiburg { .. });
     let teacher = |name: &str| -> TeacherRef {
         external
@@ -414,9 +380,8 @@ pub fn instantiate(recipe: &Recipe, inputs: &RecipeInputs) -> Result<RunConfig, 
         if !needed.contains(&spec.name) || external.contains_key(spec.name) {
             continue;
         }
-        let model = network_for(spec.role, spec.inputs, inputs)?;
         let mut cfg = TrainConfig::mfnet_paper(PathBuf::new());
-        cfg.model = model;
+        cfg.model = network_for(spec.role, spec.inputs, inputs)?;
         cfg.dataset = inputs.dataset.clone();
         cfg.inputs = spec.inputs;
         recipe.schedule.apply(&mut cfg, freiburg);
@@ -447,6 +412,57 @@ pub fn instantiate(recipe: &Recipe, inputs: &RecipeInputs) -> Result<RunConfig, 
             stages,
         }),
     })
+}
+
+/// The stages the user brings as teachers (`--teacher`, `--night-teacher`), by stage name.
+fn external_teachers(
+    recipe: &Recipe,
+    inputs: &RecipeInputs,
+) -> Result<BTreeMap<&'static str, TeacherRef>, RecipeError> {
+    let mut external = BTreeMap::new();
+    for (given, stage, flag) in [
+        (&inputs.teacher, recipe.teacher_stage, "--teacher"),
+        (
+            &inputs.night_teacher,
+            recipe.night_teacher_stage,
+            "--night-teacher",
+        ),
+    ] {
+        match (given, stage) {
+            (Some(t), Some(s)) => {
+                external.insert(s, t.clone());
+            }
+            (Some(_), None) => {
+                return Err(RecipeError(format!(
+                    "recipe `{}` takes no {flag}",
+                    recipe.name
+                )))
+            }
+            (None, _) => {}
+        }
+    }
+    Ok(external)
+}
+
+/// The stages the last one needs (as teachers or starting weights), minus those the user
+/// brought.
+fn needed_stages(
+    recipe: &Recipe,
+    external: &BTreeMap<&'static str, TeacherRef>,
+) -> Vec<&'static str> {
+    let mut needed = vec![recipe.stages.last().expect("a recipe has stages").name];
+    for spec in recipe.stages.iter().rev() {
+        if !needed.contains(&spec.name) || external.contains_key(spec.name) {
+            continue;
+        }
+        let refs = match spec.procedure {
+            Supervised => vec![],
+            TeacherStudent { day, night } => std::iter::once(day).chain(night).collect(),
+            Adversarial { day } => vec![day],
+        };
+        needed.extend(refs.into_iter().chain(spec.init_from));
+    }
+    needed
 }
 
 #[cfg(test)]

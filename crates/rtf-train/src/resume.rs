@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 
 use crate::checkpoint::{self, TrainState};
 use crate::config::RunConfig;
+use crate::error::TrainError;
 use crate::run::{CHECKPOINT_FILE, FINAL_FILE};
-use crate::trainer::TrainError;
 
 /// A run (or stage) folder's progress: its checkpoint's state, None before the first checkpoint.
 pub fn saved_state(dir: &Path) -> Result<Option<TrainState>, TrainError> {

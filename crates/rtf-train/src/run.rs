@@ -7,7 +7,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use crate::trainer::TrainError;
+use crate::error::TrainError;
 
 pub const CONFIG_FILE: &str = "config.json";
 pub const LOG_FILE: &str = "log.jsonl";

@@ -2,6 +2,13 @@
 //! per step, mid-epoch checkpoints, Ctrl-C, validation, logging, best/final weights. What a
 //! step does is the procedure's ([`crate::procedure`]). The run folder is described in
 //! [`crate::run`].
+//!
+//! A run's life, in [`train_distributed`]'s phases: open the run folder (`RunFolder::open`:
+//! every check that can refuse the run, the lock), restore or start (`Run::restore_or_start`:
+//! config recorded, networks restored from the checkpoint or initialised, data-parallel
+//! start, label caches, streams), an epoch (`Run::epoch`: `train_steps` → `step`, then
+//! `validate`, `keep_best`), save (`Run::save`: checkpoint, log line, TensorBoard) and finish
+//! (`Run::finish`: `final.safetensors`). A per-epoch hook goes in `Run::epoch`.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -12,44 +19,18 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 use rtf_core::Daytime;
 use rtf_data::frame::Subset;
-use rtf_data::{
-    DataError, FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset,
-};
-use rtf_eval::{EvalError, EvalOptions, EvalReport};
-use rtf_models::{ModelError, Network};
+use rtf_data::{FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset};
+use rtf_eval::{EvalOptions, EvalReport};
+use rtf_models::Network;
 use serde::{Deserialize, Serialize};
 
-use crate::checkpoint::{self, CheckpointError, Part, PartialEpoch, TrainState};
-use crate::config::{ConfigError, DatasetConfig, SelectMetric, TrainConfig, WeightsRef};
+use crate::checkpoint::{self, Part, PartialEpoch, TrainState};
+use crate::config::{DatasetConfig, SelectMetric, TrainConfig, WeightsRef};
+use crate::ddp::Ddp;
+pub use crate::error::TrainError;
 use crate::procedure::{self, Procedure, StepBatches};
 use crate::run::{self as rundir, run_error};
 pub use crate::run::{BEST_FILE, CHECKPOINT_FILE, CONFIG_FILE, FINAL_FILE, LOG_FILE};
-
-#[derive(Debug, thiserror::Error)]
-pub enum TrainError {
-    #[error(transparent)]
-    Data(#[from] DataError),
-    #[error(transparent)]
-    Model(#[from] ModelError),
-    #[error(transparent)]
-    Eval(#[from] EvalError),
-    #[error(transparent)]
-    Checkpoint(#[from] CheckpointError),
-    #[error("{path}: {message}")]
-    Run { path: PathBuf, message: String },
-    #[error("{0}")]
-    Config(String),
-    #[error("invalid configuration: {0}")]
-    Invalid(#[from] ConfigError),
-    #[error(transparent)]
-    Distributed(#[from] rtf_dist::DistError),
-    #[error("training diverged at epoch {epoch}, step {step}: {what}")]
-    Diverged {
-        epoch: usize,
-        step: u64,
-        what: String,
-    },
-}
 
 /// Validation scores of one epoch (percent-free fractions like every score of rtf-eval).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -144,9 +125,13 @@ struct Sources {
     freiburg: bool,
 }
 
-fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
-    let labels = cfg.procedure.reads_labels();
-    let (train, val, freiburg): (Source, Option<Source>, bool) = match &cfg.dataset {
+/// A dataset's training frames (labelled ones when `labels`), its validation frames, and
+/// whether it is Freiburg.
+fn open_dataset(
+    dataset: &DatasetConfig,
+    labels: bool,
+) -> Result<(Source, Option<Source>, bool), TrainError> {
+    match dataset {
         DatasetConfig::Mf {
             root,
             train_split,
@@ -161,7 +146,7 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
                 Some(name) => Some(Arc::new(mf.split(name)?) as Source),
                 None => None,
             };
-            (train, val, false)
+            Ok((train, val, false))
         }
         DatasetConfig::Freiburg {
             root,
@@ -194,14 +179,46 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
             }
             .filter(|v| !v.is_empty())
             .map(|v| Arc::new(v) as Source);
-            (Arc::new(train), val, true)
+            Ok((Arc::new(train), val, true))
         }
         DatasetConfig::Described {
             root,
             train_split,
             val_split,
-        } => described_sources(root, train_split, val_split.as_deref())?,
+        } => described_sources(root, train_split, val_split.as_deref()),
+    }
+}
+
+/// The training split and the validation split (if named) of a described root (not Freiburg).
+fn described_sources(
+    root: &Path,
+    train_split: &str,
+    val_split: Option<&str>,
+) -> Result<(Source, Option<Source>, bool), TrainError> {
+    let description = rtf_data::layouts::describe(root)
+        .ok_or_else(|| run_error(root, rtf_data::inspect::NOT_A_DATASET))??;
+    let dataset = rtf_data::DescribedDataset::new(description);
+    let train = dataset.split(train_split)?;
+    let holdout = val_split.and_then(rtf_data::described::parse_holdout);
+    if let Some(every) = holdout {
+        let (kept, held) = train.hold_out(every);
+        return Ok((Arc::new(kept), Some(Arc::new(held)), false));
+    }
+    let val = match val_split {
+        Some(name) => Some(Arc::new(dataset.split(name)?) as Source),
+        None => None,
     };
+    Ok((Arc::new(train), val, false))
+}
+
+/// An error writing RUN/steps.jsonl, naming the file.
+fn step_log_error(run_dir: &Path, e: std::io::Error) -> TrainError {
+    run_error(&run_dir.join(crate::step_log::STEP_LOG_FILE), e.to_string())
+}
+
+fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
+    let labels = cfg.procedure.reads_labels();
+    let (train, val, freiburg) = open_dataset(&cfg.dataset, labels)?;
     let ignore_id = train.class_set().ignore_id;
     if labels {
         return Ok(Sources {
@@ -239,28 +256,6 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
         val,
         freiburg,
     })
-}
-
-/// The training split and the validation split (if named) of a described root (not Freiburg).
-fn described_sources(
-    root: &Path,
-    train_split: &str,
-    val_split: Option<&str>,
-) -> Result<(Source, Option<Source>, bool), TrainError> {
-    let description = rtf_data::layouts::describe(root)
-        .ok_or_else(|| run_error(root, rtf_data::inspect::NOT_A_DATASET))??;
-    let dataset = rtf_data::DescribedDataset::new(description);
-    let train = dataset.split(train_split)?;
-    let holdout = val_split.and_then(rtf_data::described::parse_holdout);
-    if let Some(every) = holdout {
-        let (kept, held) = train.hold_out(every);
-        return Ok((Arc::new(kept), Some(Arc::new(held)), false));
-    }
-    let val = match val_split {
-        Some(name) => Some(Arc::new(dataset.split(name)?) as Source),
-        None => None,
-    };
-    Ok((Arc::new(train), val, false))
 }
 
 fn loader(
@@ -382,61 +377,113 @@ pub fn train_distributed(
     resume: bool,
     on_epoch: &mut dyn FnMut(&EpochRecord),
     stop: &AtomicBool,
-    ddp: Option<Arc<crate::ddp::Ddp>>,
+    ddp: Option<Arc<Ddp>>,
 ) -> Result<TrainOutcome, TrainError> {
     cfg.validate()?;
     let device = cfg.device().map_err(TrainError::Config)?;
-    let checkpoint_path = run_dir.join(CHECKPOINT_FILE);
-    let is_root = ddp.as_ref().is_none_or(|d| d.is_root());
-    let world = ddp.as_ref().map(|d| d.world_size());
-    if cfg.world_size.unwrap_or(1) != world.unwrap_or(1) && resume {
-        return Err(TrainError::Config(format!(
-            "{}: the run was trained by {} process(es), this is {}; resume it with as many \
-             (torchrun --nproc-per-node ...) so that it continues exactly",
-            run_dir.display(),
-            cfg.world_size.unwrap_or(1),
-            world.unwrap_or(1)
-        )));
-    }
-    if is_root && !resume && rundir::holds_run(run_dir) {
-        return Err(run_error(
-            run_dir,
-            "already holds a run; use --resume to continue it or choose another output folder",
-        ));
-    }
-    procedure::check_teachers(cfg)?;
-    let _lock = match is_root {
-        true => {
-            std::fs::create_dir_all(run_dir)
-                .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
-            let lock = rundir::RunLock::acquire(run_dir)?;
-            rundir::remove_orphan_temp_files(run_dir);
-            Some(lock)
+    let folder = RunFolder::open(cfg, run_dir, resume, ddp.as_deref())?;
+    let (mut run, streams) = Run::restore_or_start(cfg, folder, ddp, device)?;
+    for epoch in run.state.epochs_done..cfg.epochs {
+        if let EpochEnd::Stopped = run.epoch(&streams, epoch, on_epoch, stop)? {
+            return Ok(run.stopped());
         }
-        false => None,
-    };
-    // A resume of a run killed before its first checkpoint starts it over.
-    let resume = resume && checkpoint_path.exists();
-    if resume {
-        let saved = checkpoint::read_state(&checkpoint_path)?;
-        // A checkpoint inside an epoch holds weights past the epochs done: ending the run
-        // there would call mid-epoch weights final.
-        let stands_at = saved.epochs_done + saved.partial.is_some() as usize;
-        if cfg.epochs < stands_at {
+    }
+    run.finish()
+}
+
+/// The run folder, held for the run's life: rank 0 owns its lock; `resume` says whether the
+/// run continues its checkpoint.
+struct RunFolder<'a> {
+    dir: &'a Path,
+    checkpoint: PathBuf,
+    resume: bool,
+    is_root: bool,
+    /// Data-parallel: the number of processes.
+    world: Option<usize>,
+    _lock: Option<rundir::RunLock>,
+}
+
+impl<'a> RunFolder<'a> {
+    /// Phase 1, open the run folder: every check that can refuse the run before it writes.
+    fn open(
+        cfg: &TrainConfig,
+        dir: &'a Path,
+        resume: bool,
+        ddp: Option<&Ddp>,
+    ) -> Result<Self, TrainError> {
+        let checkpoint = dir.join(CHECKPOINT_FILE);
+        let is_root = ddp.is_none_or(|d| d.is_root());
+        let world = ddp.map(|d| d.world_size());
+        if cfg.world_size.unwrap_or(1) != world.unwrap_or(1) && resume {
             return Err(TrainError::Config(format!(
-                "{}: the run has done {} epochs{}; --epochs {} would end it before where it stands",
-                run_dir.display(),
-                saved.epochs_done,
-                match saved.partial.is_some() {
-                    true => format!(" and part of epoch {stands_at}"),
-                    false => String::new(),
-                },
-                cfg.epochs
+                "{}: the run was trained by {} process(es), this is {}; resume it with as many \
+                 (torchrun --nproc-per-node ...) so that it continues exactly",
+                dir.display(),
+                cfg.world_size.unwrap_or(1),
+                world.unwrap_or(1)
             )));
         }
+        if is_root && !resume && rundir::holds_run(dir) {
+            return Err(run_error(
+                dir,
+                "already holds a run; use --resume to continue it or choose another output folder",
+            ));
+        }
+        procedure::check_teachers(cfg)?;
+        let lock = match is_root {
+            true => {
+                std::fs::create_dir_all(dir)
+                    .map_err(|e| run_error(dir, format!("cannot create: {e}")))?;
+                let lock = rundir::RunLock::acquire(dir)?;
+                rundir::remove_orphan_temp_files(dir);
+                Some(lock)
+            }
+            false => None,
+        };
+        // A resume of a run killed before its first checkpoint starts it over.
+        let resume = resume && checkpoint.exists();
+        if resume {
+            check_resume_epochs(cfg, dir, &checkpoint)?;
+        }
+        Ok(Self {
+            dir,
+            checkpoint,
+            resume,
+            is_root,
+            world,
+            _lock: lock,
+        })
     }
+}
 
-    let sources = open_sources(cfg)?;
+/// Refuses `--epochs` that would end a resumed run before where it stands.
+fn check_resume_epochs(cfg: &TrainConfig, dir: &Path, checkpoint: &Path) -> Result<(), TrainError> {
+    let saved = checkpoint::read_state(checkpoint)?;
+    // A checkpoint inside an epoch holds weights past the epochs done: ending the run
+    // there would call mid-epoch weights final.
+    let stands_at = saved.epochs_done + saved.partial.is_some() as usize;
+    if cfg.epochs < stands_at {
+        return Err(TrainError::Config(format!(
+            "{}: the run has done {} epochs{}; --epochs {} would end it before where it stands",
+            dir.display(),
+            saved.epochs_done,
+            match saved.partial.is_some() {
+                true => format!(" and part of epoch {stands_at}"),
+                false => String::new(),
+            },
+            cfg.epochs
+        )));
+    }
+    Ok(())
+}
+
+/// Checks the data against the model and writes `config.json` with the data's fingerprint
+/// (which data the run used: a resume on changed data says so) and the number of processes.
+fn record_config(
+    cfg: &TrainConfig,
+    folder: &RunFolder,
+    sources: &Sources,
+) -> Result<(), TrainError> {
     let classes = sources.main.class_set().clone();
     if classes.len() as i64 != cfg.model.num_classes() {
         return Err(TrainError::Config(format!(
@@ -446,7 +493,6 @@ pub fn train_distributed(
         )));
     }
     procedure::check_teachers(cfg)?;
-    // Which data the run used: its content hash, in config.json (a resume on changed data says so).
     let mut cfg_written = cfg.clone();
     let root = match &cfg.dataset {
         DatasetConfig::Mf { root, .. }
@@ -467,82 +513,81 @@ pub fn train_distributed(
         );
     }
     cfg_written.data_fingerprint = Some(fingerprint);
-    if world.is_some() {
-        cfg_written.world_size = world;
+    if folder.world.is_some() {
+        cfg_written.world_size = folder.world;
     }
-    if is_root {
-        rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &cfg_written)?;
+    if folder.is_root {
+        rundir::write_json_atomic(&folder.dir.join(CONFIG_FILE), &cfg_written)?;
     }
+    Ok(())
+}
 
-    tch::manual_seed(cfg.seed as i64);
-    let mut procedure = procedure::build(cfg, sources.ignore_id, device)?;
-    let mut state = TrainState {
+/// A resumed run's networks, optimisers and progress from its checkpoint; its log rewritten
+/// from the checkpoint's records (a line lost to a kill comes back).
+fn restore(folder: &RunFolder, procedure: &mut dyn Procedure) -> Result<TrainState, TrainError> {
+    let mut trained = procedure.trained_mut();
+    let mut parts: Vec<(&str, &mut tch::nn::VarStore)> =
+        trained.iter_mut().map(|t| (t.role, &mut t.vs)).collect();
+    let (mut optimizers, saved) = checkpoint::load(&folder.checkpoint, &mut parts)?;
+    drop(parts);
+    for t in trained.iter_mut() {
+        t.optimizer
+            .set_state(optimizers.remove(t.role).unwrap_or_default());
+    }
+    if folder.is_root {
+        rundir::rewrite_log(folder.dir, &saved.records)?;
+    }
+    Ok(saved)
+}
+
+/// A new run's student from its backbone or starting weights, and no log.
+fn start(
+    cfg: &TrainConfig,
+    folder: &RunFolder,
+    procedure: &mut dyn Procedure,
+) -> Result<TrainState, TrainError> {
+    if folder.is_root {
+        let _ = std::fs::remove_file(folder.dir.join(LOG_FILE));
+    }
+    let student = &mut procedure.trained_mut()[0].vs;
+    if let Some(path) = &cfg.backbone_weights {
+        rtf_models::backbone::load_backbone_weights(student, &cfg.model, path)?;
+    }
+    match &cfg.init_from {
+        Some(WeightsRef::File(path)) => rtf_models::weights::load_safetensors(student, path)?,
+        Some(WeightsRef::Stage(name)) => {
+            return Err(TrainError::Config(format!(
+                "init_from stage `{name}` was not resolved (stage references only work inside a multi-stage run)"
+            )))
+        }
+        None => {}
+    }
+    Ok(TrainState {
         epochs_done: 0,
         steps_done: 0,
         best_val_miou: None,
         partial: None,
         records: Vec::new(),
-    };
-    if resume {
-        let mut trained = procedure.trained_mut();
-        let mut parts: Vec<(&str, &mut tch::nn::VarStore)> =
-            trained.iter_mut().map(|t| (t.role, &mut t.vs)).collect();
-        let (mut optimizers, saved) = checkpoint::load(&checkpoint_path, &mut parts)?;
-        drop(parts);
-        for t in trained.iter_mut() {
-            t.optimizer
-                .set_state(optimizers.remove(t.role).unwrap_or_default());
-        }
-        state = saved;
-        if is_root {
-            rundir::rewrite_log(run_dir, &state.records)?;
-        }
-    } else {
-        if is_root {
-            let _ = std::fs::remove_file(run_dir.join(LOG_FILE));
-        }
-        let student = &mut procedure.trained_mut()[0].vs;
-        if let Some(path) = &cfg.backbone_weights {
-            rtf_models::backbone::load_backbone_weights(student, &cfg.model, path)?;
-        }
-        match &cfg.init_from {
-            Some(WeightsRef::File(path)) => rtf_models::weights::load_safetensors(student, path)?,
-            Some(WeightsRef::Stage(name)) => {
-                return Err(TrainError::Config(format!(
-                    "init_from stage `{name}` was not resolved (stage references only work inside a multi-stage run)"
-                )))
-            }
-            None => {}
-        }
-    }
-    let step_log_path = run_dir.join(crate::step_log::STEP_LOG_FILE);
-    let step_log_error = |e: std::io::Error| run_error(&step_log_path, e.to_string());
-    let mut step_log = crate::step_log::StepLog::open(run_dir, is_root, state.steps_done)
-        .map_err(step_log_error)?;
-    if let Some(d) = &ddp {
-        // DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every
-        // trained network's gradients averaged from now on.
-        for t in procedure.trained_mut() {
-            d.broadcast_all(&t.vs)?;
-            t.ddp = Some(d.clone());
-        }
-    }
-    // Synchronised BatchNorm: the training-mode forwards of this thread (every step runs here)
-    // use the whole data-parallel batch's statistics until the run returns.
-    let _sync_batch_norm = match &ddp {
-        Some(d) if cfg.sync_batch_norm => Some(rtf_models::SyncBatchNorm::install(d.clone())),
-        _ => None,
-    };
+    })
+}
+
+/// Teacher labels written once, if the procedure asks: the streams then carry them as labels.
+/// Ranks other than 0 never write the run folder: they label into a scratch folder of their
+/// own, removed when the run returns.
+fn cache_labels(
+    cfg: &TrainConfig,
+    folder: &RunFolder,
+    procedure: &dyn Procedure,
+    sources: &mut Sources,
+    device: tch::Device,
+) -> Result<Option<crate::ddp::ScratchDir>, TrainError> {
     let input = procedure.student().net.input_convention();
-    // Teacher labels written once, if asked: the streams then carry them as labels.
-    let mut sources = sources;
     let threshold = match &cfg.procedure {
         crate::config::Procedure::TeacherStudent { targets, .. }
         | crate::config::Procedure::Adversarial { targets, .. } => targets.threshold,
         crate::config::Procedure::Supervised => None,
     };
     let (day_labeller, night_labeller) = procedure.labellers();
-    // Label caches of ranks other than 0, removed when the run returns.
     let mut scratch: Option<crate::ddp::ScratchDir> = None;
     let streams = [
         (day_labeller, Some(&mut sources.main), "day"),
@@ -553,9 +598,8 @@ pub fn train_distributed(
         else {
             continue;
         };
-        // Other ranks than 0 never write the run folder: they label into a folder of their own.
-        let dir = match is_root {
-            true => run_dir.join("labels").join(name),
+        let dir = match folder.is_root {
+            true => folder.dir.join("labels").join(name),
             false => scratch
                 .get_or_insert_with(crate::ddp::ScratchDir::new)
                 .path()
@@ -571,68 +615,89 @@ pub fn train_distributed(
         )?;
         *stream = Arc::new(crate::label_cache::CachedLabels::new(stream.clone(), dir));
     }
-    let mut tb = match is_root {
-        true => Some(
-            crate::tensorboard::TbWriter::create(run_dir)
-                .map_err(|e| run_error(&run_dir.join("tb"), format!("TensorBoard: {e}")))?,
-        ),
-        false => None,
-    };
-    let main = loader(cfg, sources.main.clone(), cfg.seed, input);
-    // The night stream has its own order, and cycles when it is the shorter one.
-    let night = sources.night.clone().map(|s| {
-        loader(
-            cfg,
-            s,
-            rtf_data::loader::mix(cfg.seed, 0x6e69676874, 0),
-            input,
-        )
-    });
-    // A data-parallel rank loads only its shard of each stream.
-    let (main, main_shard, night, night_shard) = match &ddp {
-        None => (main, None, night, None),
-        Some(d) => {
-            let (main, shard) =
-                crate::ddp::shard_loader(main.source().clone(), main.config().clone(), input, d)?;
-            let (night, night_shard) = match night {
-                Some(n) => {
-                    let (l, s) =
-                        crate::ddp::shard_loader(n.source().clone(), n.config().clone(), input, d)?;
-                    (Some(l), Some(s))
+    Ok(scratch)
+}
+
+/// The batches a run trains on: the main stream and the night stream (its own order, cycling
+/// when it is the shorter one); a data-parallel rank loads only its shard of each.
+struct Streams {
+    main: Loader,
+    main_shard: Option<Arc<crate::ddp::EpochShard>>,
+    night: Option<Loader>,
+    night_shard: Option<Arc<crate::ddp::EpochShard>>,
+}
+
+impl Streams {
+    fn open(
+        cfg: &TrainConfig,
+        sources: &Sources,
+        input: rtf_core::InputConvention,
+        ddp: Option<&Ddp>,
+    ) -> Result<Self, TrainError> {
+        let main = loader(cfg, sources.main.clone(), cfg.seed, input);
+        let night_seed = rtf_data::loader::mix(cfg.seed, 0x6e69676874, 0);
+        let night = sources
+            .night
+            .clone()
+            .map(|s| loader(cfg, s, night_seed, input));
+        let Some(d) = ddp else {
+            return Ok(Self {
+                main,
+                main_shard: None,
+                night,
+                night_shard: None,
+            });
+        };
+        let shard =
+            |l: Loader| crate::ddp::shard_loader(l.source().clone(), l.config().clone(), input, d);
+        let (main, main_shard) = shard(main)?;
+        let (night, night_shard) = match night.map(shard).transpose()? {
+            Some((l, s)) => (Some(l), Some(s)),
+            None => (None, None),
+        };
+        Ok(Self {
+            main,
+            main_shard: Some(main_shard),
+            night,
+            night_shard,
+        })
+    }
+
+    /// The night batches from run-wide step `global` on: night batch g of the run is batch
+    /// g mod n of night epoch g div n.
+    fn night_from(
+        &self,
+        global: usize,
+    ) -> Option<impl Iterator<Item = Result<rtf_data::Batch, rtf_data::DataError>> + '_> {
+        self.night.as_ref().map(move |n| {
+            let per_epoch = n.num_batches().max(1);
+            let (start_epoch, start_batch) = (global / per_epoch, global % per_epoch);
+            let shard = self.night_shard.clone();
+            (start_epoch..).flat_map(move |e| {
+                if let Some(shard) = &shard {
+                    shard.set_epoch(e as u64);
                 }
-                None => (None, None),
-            };
-            (main, Some(shard), night, night_shard)
-        }
-    };
-    let select = cfg
-        .select_by
-        .unwrap_or_else(|| default_select_metric(&cfg.dataset));
-    let steps_per_epoch = cfg
-        .max_steps_per_epoch
-        .map_or(main.num_batches(), |m| m.min(main.num_batches()));
-    // One validation loader for the whole run: a loader per validation started fresh decoding
-    // threads every epoch, and each ended thread's allocator heap stayed behind (~15 MB per
-    // epoch at 64×48, issue 30; rtf_eval::evaluate::split_loader).
-    let val_loader = sources.val.clone().map(|val| {
-        let options = EvalOptions {
-            batch_size: cfg.batch_size,
-            resize: cfg.resize,
-            workers: cfg.workers,
-        };
-        rtf_eval::evaluate::split_loader(val, &options, input)
-    });
-    let mut records = Vec::new();
-    // Data-parallel: the stop every rank agreed on at the last step.
-    let mut stop_agreed = false;
-    for epoch in state.epochs_done..cfg.epochs {
-        let lr = cfg.optimizer.lr_at(epoch);
-        let bar = match is_root {
-            true => progress_bar(steps_per_epoch, epoch, cfg.epochs),
-            false => ProgressBar::hidden(),
-        };
-        // A mid-epoch checkpoint resumes at its batch with the epoch's sums so far.
-        let done = state.partial.take().unwrap_or(PartialEpoch {
+                n.epoch_from(e as u64, if e == start_epoch { start_batch } else { 0 })
+            })
+        })
+    }
+}
+
+/// An epoch's sums so far (carried over from a mid-epoch checkpoint on resume) and its time.
+struct EpochProgress {
+    first: usize,
+    loss_sum: f64,
+    images: usize,
+    waited: Duration,
+    term_sums: BTreeMap<String, f64>,
+    /// Time of the epoch before a resume, and when this process took it up.
+    before: Duration,
+    started: Instant,
+}
+
+impl EpochProgress {
+    fn from_checkpoint(partial: Option<PartialEpoch>, steps_per_epoch: usize) -> Self {
+        let done = partial.unwrap_or(PartialEpoch {
             batches: 0,
             loss_sum: 0.0,
             images: 0,
@@ -640,39 +705,221 @@ pub fn train_distributed(
             wait_seconds: 0.0,
             term_sums: BTreeMap::new(),
         });
-        let first = done.batches.min(steps_per_epoch);
+        Self {
+            first: done.batches.min(steps_per_epoch),
+            loss_sum: done.loss_sum,
+            images: done.images,
+            waited: Duration::from_secs_f64(done.wait_seconds),
+            term_sums: done.term_sums,
+            before: Duration::from_secs_f64(done.seconds),
+            started: Instant::now(),
+        }
+    }
+
+    fn elapsed(&self) -> Duration {
+        self.before + self.started.elapsed()
+    }
+
+    /// A mid-epoch checkpoint's progress after `batches` batches.
+    fn partial(&self, batches: usize) -> PartialEpoch {
+        PartialEpoch {
+            batches,
+            loss_sum: self.loss_sum,
+            images: self.images,
+            seconds: self.elapsed().as_secs_f64(),
+            wait_seconds: self.waited.as_secs_f64(),
+            term_sums: self.term_sums.clone(),
+        }
+    }
+}
+
+enum EpochEnd {
+    Done,
+    /// Stopped (Ctrl-C, SIGTERM, a stop agreed by every rank); its checkpoint is written.
+    Stopped,
+}
+
+/// One run's life after its folder is open: the trained networks and their progress, what
+/// validation reads, and what rank 0 writes besides the checkpoint.
+struct Run<'a> {
+    cfg: &'a TrainConfig,
+    ddp: Option<Arc<Ddp>>,
+    device: tch::Device,
+    procedure: Box<dyn Procedure>,
+    state: TrainState,
+    /// One validation loader for the whole run: a loader per validation started fresh decoding
+    /// threads every epoch, and each ended thread's allocator heap stayed behind (~15 MB per
+    /// epoch at 64×48, issue 30; rtf_eval::evaluate::split_loader).
+    val: Option<rtf_data::Loader>,
+    /// Each step's loss terms (RUN/steps.jsonl), for step-by-step comparison with a reference.
+    step_log: crate::step_log::StepLog,
+    freiburg: bool,
+    select: SelectMetric,
+    steps_per_epoch: usize,
+    tb: Option<crate::tensorboard::TbWriter>,
+    records: Vec<EpochRecord>,
+    /// Data-parallel: the stop every rank agreed on at the last step.
+    stop_agreed: bool,
+    _sync_batch_norm: Option<rtf_models::SyncBatchNorm>,
+    _scratch: Option<crate::ddp::ScratchDir>,
+    /// Last: the run folder's lock goes when everything else is done.
+    folder: RunFolder<'a>,
+}
+
+impl<'a> Run<'a> {
+    /// Phase 2, restore or start: the config recorded, the networks built and restored from
+    /// the checkpoint or initialised, data-parallel started, label caches and the streams.
+    fn restore_or_start(
+        cfg: &'a TrainConfig,
+        folder: RunFolder<'a>,
+        ddp: Option<Arc<Ddp>>,
+        device: tch::Device,
+    ) -> Result<(Self, Streams), TrainError> {
+        let mut sources = open_sources(cfg)?;
+        record_config(cfg, &folder, &sources)?;
+        tch::manual_seed(cfg.seed as i64);
+        let mut procedure = procedure::build(cfg, sources.ignore_id, device)?;
+        let state = match folder.resume {
+            true => restore(&folder, procedure.as_mut())?,
+            false => start(cfg, &folder, procedure.as_mut())?,
+        };
+        if let Some(d) = &ddp {
+            // DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every
+            // trained network's gradients averaged from now on.
+            for t in procedure.trained_mut() {
+                d.broadcast_all(&t.vs)?;
+                t.ddp = Some(d.clone());
+            }
+        }
+        // Synchronised BatchNorm: the training-mode forwards of this thread (every step runs
+        // here) use the whole data-parallel batch's statistics until the run returns.
+        let sync_batch_norm = match &ddp {
+            Some(d) if cfg.sync_batch_norm => Some(rtf_models::SyncBatchNorm::install(d.clone())),
+            _ => None,
+        };
+        let scratch = cache_labels(cfg, &folder, procedure.as_ref(), &mut sources, device)?;
+        let tb = match folder.is_root {
+            true => Some(
+                crate::tensorboard::TbWriter::create(folder.dir)
+                    .map_err(|e| run_error(&folder.dir.join("tb"), format!("TensorBoard: {e}")))?,
+            ),
+            false => None,
+        };
+        let input = procedure.student().net.input_convention();
+        let streams = Streams::open(cfg, &sources, input, ddp.as_deref())?;
+        let val = sources.val.clone().map(|val| {
+            let options = EvalOptions {
+                batch_size: cfg.batch_size,
+                resize: cfg.resize,
+                workers: cfg.workers,
+            };
+            rtf_eval::evaluate::split_loader(val, &options, input)
+        });
+        let step_log = crate::step_log::StepLog::open(folder.dir, folder.is_root, state.steps_done)
+            .map_err(|e| step_log_error(folder.dir, e))?;
+        let steps_per_epoch = cfg
+            .max_steps_per_epoch
+            .map_or(streams.main.num_batches(), |m| {
+                m.min(streams.main.num_batches())
+            });
+        let run = Self {
+            cfg,
+            ddp,
+            device,
+            procedure,
+            state,
+            val,
+            step_log,
+            freiburg: sources.freiburg,
+            select: cfg
+                .select_by
+                .unwrap_or_else(|| default_select_metric(&cfg.dataset)),
+            steps_per_epoch,
+            tb,
+            records: Vec::new(),
+            stop_agreed: false,
+            _sync_batch_norm: sync_batch_norm,
+            _scratch: scratch,
+            folder,
+        };
+        Ok((run, streams))
+    }
+
+    /// Phase 3, an epoch: its steps, validation, the best weights, and its checkpoint, log
+    /// line and TensorBoard scalars (rank 0).
+    fn epoch(
+        &mut self,
+        streams: &Streams,
+        epoch: usize,
+        on_epoch: &mut dyn FnMut(&EpochRecord),
+        stop: &AtomicBool,
+    ) -> Result<EpochEnd, TrainError> {
+        let Some(progress) = self.train_steps(streams, epoch, stop)? else {
+            return Ok(EpochEnd::Stopped);
+        };
+        let seconds = progress.elapsed().as_secs_f64();
+        let val = self.validate()?;
+        self.state.epochs_done = epoch + 1;
+        let record = self.epoch_record(epoch, progress, seconds, val);
+        self.keep_best(epoch, &record)?;
+        self.state
+            .records
+            .push(serde_json::to_value(&record).expect("record serialises"));
+        let data_parallel = self.ddp.is_some();
+        let stopping = match (data_parallel, self.folder.is_root) {
+            (_, false) => {
+                // Rank 0 writes the checkpoint, the log and TensorBoard.
+                check_finite(self.procedure.as_ref(), epoch, self.state.steps_done)?;
+                self.records.push(record);
+                self.stop_agreed
+            }
+            (data_parallel, true) => {
+                self.save(epoch, &record)?;
+                on_epoch(&record);
+                self.records.push(record);
+                match data_parallel {
+                    true => self.stop_agreed,
+                    false => stop.load(Ordering::Relaxed),
+                }
+            }
+        };
+        // Stopped on an epoch's last step: its checkpoint is the epoch-end one.
+        match stopping && self.state.epochs_done < self.cfg.epochs {
+            true => Ok(EpochEnd::Stopped),
+            false => Ok(EpochEnd::Done),
+        }
+    }
+
+    /// The epoch's steps from where its checkpoint left it; None when stopped inside it (its
+    /// mid-epoch checkpoint is written).
+    fn train_steps(
+        &mut self,
+        streams: &Streams,
+        epoch: usize,
+        stop: &AtomicBool,
+    ) -> Result<Option<EpochProgress>, TrainError> {
+        let steps_per_epoch = self.steps_per_epoch;
+        let bar = match self.folder.is_root {
+            true => progress_bar(steps_per_epoch, epoch, self.cfg.epochs),
+            false => ProgressBar::hidden(),
+        };
+        let mut progress =
+            EpochProgress::from_checkpoint(self.state.partial.take(), steps_per_epoch);
+        let first = progress.first;
         bar.set_position(first as u64);
-        // Time of the epoch so far (the part before a resume, if any, plus this process's).
-        let (before, started) = (Duration::from_secs_f64(done.seconds), Instant::now());
-        let elapsed = || before + started.elapsed();
-        let (mut loss_sum, mut images, mut waited, mut term_sums) = (
-            done.loss_sum,
-            done.images,
-            Duration::from_secs_f64(done.wait_seconds),
-            done.term_sums,
-        );
-        if let Some(shard) = &main_shard {
+        if let Some(shard) = &streams.main_shard {
             shard.set_epoch(epoch as u64);
         }
-        let batches = main
+        let batches = streams
+            .main
             .epoch_from(epoch as u64, first)
             .take(steps_per_epoch - first);
-        // Night batch g of the run is batch g mod n of night epoch g div n.
-        let mut night_batches = night.as_ref().map(|n| {
-            let per_epoch = n.num_batches().max(1);
-            let global = epoch * steps_per_epoch + first;
-            let (start_epoch, start_batch) = (global / per_epoch, global % per_epoch);
-            let shard = night_shard.clone();
-            (start_epoch..).flat_map(move |e| {
-                if let Some(shard) = &shard {
-                    shard.set_epoch(e as u64);
-                }
-                n.epoch_from(e as u64, if e == start_epoch { start_batch } else { 0 })
-            })
-        });
+        let mut night_batches = streams.night_from(epoch * steps_per_epoch + first);
         for (step, batch) in (first..).zip(batches) {
             // Reseeded per step so a resumed run draws the same random numbers (dropout, ...).
-            tch::manual_seed(rtf_data::loader::mix(cfg.seed, epoch as u64, step as u64) as i64);
+            tch::manual_seed(
+                rtf_data::loader::mix(self.cfg.seed, epoch as u64, step as u64) as i64,
+            );
             let batch = batch?;
             let night_batch = match night_batches.as_mut() {
                 Some(it) => Some(
@@ -681,261 +928,318 @@ pub fn train_distributed(
                 ),
                 None => None,
             };
-            waited += batch.wait + night_batch.as_ref().map_or(Duration::ZERO, |b| b.wait);
-            let count = batch.names.len();
-            let on_device = |mut b: rtf_data::Batch| {
-                b.input = b.input.to_device(device);
-                b.target = b.target.to_device(device);
-                b
-            };
-            let batches = StepBatches {
-                main: on_device(batch),
-                night: night_batch.map(on_device),
-            };
-            let mut report = procedure.step(&batches, epoch)?;
-            // Data-parallel: rank 0's BatchNorm statistics everywhere, and one all-reduce that
-            // agrees on stopping and averages the losses to log over every rank's batch.
-            let mut interrupted = stop.load(Ordering::Relaxed);
-            if let Some(d) = &ddp {
-                // A collective that failed (a dead rank, a timeout) stops every rank; rank 0
-                // checkpoints where the step left its weights: before it when the gradient
-                // all-reduce failed (the update was skipped), after it otherwise.
-                let keys: Vec<String> = report
-                    .terms
-                    .keys()
-                    .chain(report.metrics.keys())
-                    .cloned()
-                    .collect();
-                let values: Vec<f64> = std::iter::once(report.total)
-                    .chain(report.terms.values().copied())
-                    .chain(report.metrics.values().copied())
-                    .collect();
-                let synced = match d.check() {
-                    Err(e) => Err((e, step)),
-                    Ok(()) => procedure
-                        .trained()
-                        .iter()
-                        .try_for_each(|t| d.broadcast_buffers(&t.vs))
-                        .and_then(|_| d.agree(interrupted, &values))
-                        .map_err(|e| (e, step + 1)),
-                };
-                let (any_stop, sums) = match synced {
-                    Ok(agreed) => agreed,
-                    Err((error, batches)) => {
-                        let mut message = format!("{error}; every rank stops");
-                        if is_root {
-                            let after = batches > step;
-                            state.steps_done += after as u64;
-                            state.partial = Some(PartialEpoch {
-                                batches,
-                                loss_sum: loss_sum + if after { report.total } else { 0.0 },
-                                images: images + if after { count * world.unwrap_or(1) } else { 0 },
-                                seconds: elapsed().as_secs_f64(),
-                                wait_seconds: waited.as_secs_f64(),
-                                term_sums: term_sums.clone(),
-                            });
-                            save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
-                            message += &format!(
-                                "; rank 0 wrote a checkpoint at epoch {}, batch {batches}: \
-                                 continue with `rtf train --resume {}` under torchrun with as \
-                                 many processes",
-                                epoch + 1,
-                                run_dir.display()
-                            );
-                        }
-                        return Err(TrainError::Config(message));
-                    }
-                };
-                interrupted = any_stop;
-                stop_agreed = any_stop;
-                let n = d.world_size() as f64;
-                report.total = sums[0] / n;
-                for (key, sum) in keys.iter().zip(&sums[1..]) {
-                    if let Some(v) = report.terms.get_mut(key) {
-                        *v = sum / n;
-                    } else if let Some(v) = report.metrics.get_mut(key) {
-                        *v = sum / n;
-                    }
-                }
-            }
-            if !report.total.is_finite() {
-                return Err(TrainError::Diverged {
-                    epoch,
-                    step: state.steps_done,
-                    what: format!("loss is {}", report.total),
-                });
-            }
-            let terms = report.terms.iter().chain(&report.metrics);
-            step_log
-                .record(epoch, state.steps_done, report.total, terms)
-                .map_err(step_log_error)?;
-            state.steps_done += 1;
-            loss_sum += report.total;
-            for (name, value) in report.terms.iter().chain(&report.metrics) {
-                *term_sums.entry(name.clone()).or_default() += value;
-            }
-            images += count * world.unwrap_or(1);
-            let rate = images as f64 / elapsed().as_secs_f64().max(1e-9);
+            let interrupted = self.step(epoch, step, batch, night_batch, &mut progress, stop)?;
             bar.set_message(format!(
-                "loss {:.4} | {rate:.1} img/s",
-                loss_sum / (step + 1) as f64
+                "loss {:.4} | {:.1} img/s",
+                progress.loss_sum / (step + 1) as f64,
+                progress.images as f64 / progress.elapsed().as_secs_f64().max(1e-9)
             ));
             bar.inc(1);
-            let scheduled = cfg
-                .checkpoint_every
-                .is_some_and(|every| every > 0 && state.steps_done % every as u64 == 0);
-            // On an epoch's last step the epoch-end checkpoint below does the work.
+            let scheduled = self.cfg.checkpoint_every.is_some_and(|every| {
+                every > 0 && self.state.steps_done.is_multiple_of(every as u64)
+            });
+            // On an epoch's last step the epoch-end checkpoint does the work.
             if step + 1 < steps_per_epoch && (interrupted || scheduled) {
-                state.partial = Some(PartialEpoch {
-                    batches: step + 1,
-                    loss_sum,
-                    images,
-                    seconds: elapsed().as_secs_f64(),
-                    wait_seconds: waited.as_secs_f64(),
-                    term_sums: term_sums.clone(),
-                });
-                match is_root {
-                    true => save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?,
-                    false => check_finite(procedure.as_ref(), epoch, state.steps_done)?,
-                }
+                self.state.partial = Some(progress.partial(step + 1));
+                self.save_or_check(epoch)?;
                 if interrupted {
                     bar.abandon();
-                    return Ok(TrainOutcome {
-                        run_dir: run_dir.to_path_buf(),
-                        final_weights: None,
-                        records,
-                        state,
-                        weights_digest: None,
-                    });
+                    return Ok(None);
                 }
-                state.partial = None;
+                self.state.partial = None;
             }
         }
         bar.finish_and_clear();
-        let seconds = elapsed().as_secs_f64();
-        let val = match &val_loader {
-            Some(loader) => {
-                let net = &procedure.student().net;
-                let report = rtf_eval::evaluate::evaluate_loader(net, loader, None, device)?;
-                Some(val_record(&report, sources.freiburg, select))
-            }
-            None => None,
+        Ok(Some(progress))
+    }
+
+    /// One optimisation step and its accounting; whether the run stops after it.
+    fn step(
+        &mut self,
+        epoch: usize,
+        step: usize,
+        batch: rtf_data::Batch,
+        night_batch: Option<rtf_data::Batch>,
+        progress: &mut EpochProgress,
+        stop: &AtomicBool,
+    ) -> Result<bool, TrainError> {
+        progress.waited += batch.wait + night_batch.as_ref().map_or(Duration::ZERO, |b| b.wait);
+        let count = batch.names.len();
+        let device = self.device;
+        let on_device = |mut b: rtf_data::Batch| {
+            b.input = b.input.to_device(device);
+            b.target = b.target.to_device(device);
+            b
         };
-        state.epochs_done = epoch + 1;
-        let steps = steps_per_epoch.max(1) as f64;
-        let (losses, metrics): (BTreeMap<_, _>, BTreeMap<_, _>) = term_sums
+        let batches = StepBatches {
+            main: on_device(batch),
+            night: night_batch.map(on_device),
+        };
+        let mut report = self.procedure.step(&batches, epoch)?;
+        let mut interrupted = stop.load(Ordering::Relaxed);
+        if self.ddp.is_some() {
+            interrupted = self.sync_step(epoch, step, count, &mut report, progress, interrupted)?;
+            self.stop_agreed = interrupted;
+        }
+        if !report.total.is_finite() {
+            return Err(TrainError::Diverged {
+                epoch,
+                step: self.state.steps_done,
+                what: format!("loss is {}", report.total),
+            });
+        }
+        let terms = report.terms.iter().chain(&report.metrics);
+        self.step_log
+            .record(epoch, self.state.steps_done, report.total, terms)
+            .map_err(|e| step_log_error(self.folder.dir, e))?;
+        self.state.steps_done += 1;
+        progress.loss_sum += report.total;
+        for (name, value) in report.terms.iter().chain(&report.metrics) {
+            *progress.term_sums.entry(name.clone()).or_default() += value;
+        }
+        progress.images += count * self.folder.world.unwrap_or(1);
+        Ok(interrupted)
+    }
+
+    /// Data-parallel: rank 0's BatchNorm statistics everywhere, and one all-reduce that agrees
+    /// on stopping and averages the losses to log over every rank's batch. Returns the stop
+    /// every rank agreed on. A collective that failed (a dead rank, a timeout) stops every
+    /// rank; rank 0 checkpoints where the step left its weights: before it when the gradient
+    /// all-reduce failed (the update was skipped), after it otherwise.
+    fn sync_step(
+        &mut self,
+        epoch: usize,
+        step: usize,
+        count: usize,
+        report: &mut procedure::StepReport,
+        progress: &EpochProgress,
+        interrupted: bool,
+    ) -> Result<bool, TrainError> {
+        let d = self.ddp.clone().expect("a data-parallel run");
+        let keys: Vec<String> = report
+            .terms
+            .keys()
+            .chain(report.metrics.keys())
+            .cloned()
+            .collect();
+        let values: Vec<f64> = std::iter::once(report.total)
+            .chain(report.terms.values().copied())
+            .chain(report.metrics.values().copied())
+            .collect();
+        let synced = match d.check() {
+            Err(e) => Err((e, step)),
+            Ok(()) => self
+                .procedure
+                .trained()
+                .iter()
+                .try_for_each(|t| d.broadcast_buffers(&t.vs))
+                .and_then(|_| d.agree(interrupted, &values))
+                .map_err(|e| (e, step + 1)),
+        };
+        let (any_stop, sums) = match synced {
+            Ok(agreed) => agreed,
+            Err((error, batches)) => {
+                let after = batches > step;
+                let mut partial = progress.partial(batches);
+                if after {
+                    partial.loss_sum += report.total;
+                    partial.images += count * self.folder.world.unwrap_or(1);
+                }
+                return Err(self.collective_failed(epoch, partial, after, error));
+            }
+        };
+        let n = d.world_size() as f64;
+        report.total = sums[0] / n;
+        for (key, sum) in keys.iter().zip(&sums[1..]) {
+            if let Some(v) = report.terms.get_mut(key) {
+                *v = sum / n;
+            } else if let Some(v) = report.metrics.get_mut(key) {
+                *v = sum / n;
+            }
+        }
+        Ok(any_stop)
+    }
+
+    /// A failed collective: rank 0 writes the checkpoint `partial` describes (`after`: the
+    /// failed step's update was applied) and the error says how to continue.
+    fn collective_failed(
+        &mut self,
+        epoch: usize,
+        partial: PartialEpoch,
+        after: bool,
+        error: TrainError,
+    ) -> TrainError {
+        let mut message = format!("{error}; every rank stops");
+        if !self.folder.is_root {
+            return TrainError::Config(message);
+        }
+        self.state.steps_done += after as u64;
+        let partial_batches = partial.batches;
+        self.state.partial = Some(partial);
+        if let Err(e) = self.save_checkpoint(epoch) {
+            return e;
+        }
+        message += &format!(
+            "; rank 0 wrote a checkpoint at epoch {}, batch {}: \
+             continue with `rtf train --resume {}` under torchrun with as \
+             many processes",
+            epoch + 1,
+            partial_batches,
+            self.folder.dir.display()
+        );
+        TrainError::Config(message)
+    }
+
+    /// Phase 4, validate: the student on the validation frames, if the run has them.
+    fn validate(&self) -> Result<Option<ValRecord>, TrainError> {
+        let Some(loader) = &self.val else {
+            return Ok(None);
+        };
+        let student = &self.procedure.student().net;
+        let report = rtf_eval::evaluate::evaluate_loader(student, loader, None, self.device)?;
+        Ok(Some(val_record(&report, self.freiburg, self.select)))
+    }
+
+    fn epoch_record(
+        &self,
+        epoch: usize,
+        progress: EpochProgress,
+        seconds: f64,
+        val: Option<ValRecord>,
+    ) -> EpochRecord {
+        let steps = self.steps_per_epoch.max(1) as f64;
+        let (losses, metrics): (BTreeMap<_, _>, BTreeMap<_, _>) = progress
+            .term_sums
             .into_iter()
             .map(|(k, v)| (k, v / steps))
             .partition(|(k, _)| !k.starts_with("critic_acc"));
-        let record = EpochRecord {
+        EpochRecord {
             epoch,
-            lr,
-            train_loss: loss_sum / steps,
-            images,
+            lr: self.cfg.optimizer.lr_at(epoch),
+            train_loss: progress.loss_sum / steps,
+            images: progress.images,
             seconds,
-            images_per_s: images as f64 / seconds.max(1e-9),
-            data_wait_fraction: waited.as_secs_f64() / seconds.max(1e-9),
+            images_per_s: progress.images as f64 / seconds.max(1e-9),
+            data_wait_fraction: progress.waited.as_secs_f64() / seconds.max(1e-9),
             val_miou: val.as_ref().map(|v| v.miou),
             val_macc: val.as_ref().map(|v| v.macc),
             losses,
-            lrs: procedure
+            lrs: self
+                .procedure
                 .trained()
                 .iter()
                 .map(|t| (t.role.to_string(), t.schedule.lr_at(epoch)))
                 .collect(),
             metrics,
             val,
+        }
+    }
+
+    /// `best.safetensors` when the selection metric improved.
+    fn keep_best(&mut self, epoch: usize, record: &EpochRecord) -> Result<(), TrainError> {
+        let Some(v) = &record.val else {
+            return Ok(());
         };
-        if let Some(v) = &record.val {
-            if state.best_val_miou.is_none_or(|best| v.selected > best) {
-                check_finite(procedure.as_ref(), epoch, state.steps_done)?;
-                state.best_val_miou = Some(v.selected);
-                if is_root {
-                    rtf_models::weights::save_safetensors(
-                        &procedure.student().trained.vs,
-                        &cfg.model,
-                        cfg.inputs,
-                        &run_dir.join(BEST_FILE),
-                    )?;
-                }
-            }
+        if !self
+            .state
+            .best_val_miou
+            .is_none_or(|best| v.selected > best)
+        {
+            return Ok(());
         }
-        state
-            .records
-            .push(serde_json::to_value(&record).expect("record serialises"));
-        if !is_root {
-            // Rank 0 writes the checkpoint, the log and TensorBoard.
-            check_finite(procedure.as_ref(), epoch, state.steps_done)?;
-            records.push(record);
-            if stop_agreed && state.epochs_done < cfg.epochs {
-                return Ok(TrainOutcome {
-                    run_dir: run_dir.to_path_buf(),
-                    final_weights: None,
-                    records,
-                    state,
-                    weights_digest: None,
-                });
-            }
-            continue;
+        check_finite(self.procedure.as_ref(), epoch, self.state.steps_done)?;
+        self.state.best_val_miou = Some(v.selected);
+        if self.folder.is_root {
+            self.save_student(&self.folder.dir.join(BEST_FILE))?;
         }
-        save_checkpoint(&checkpoint_path, procedure.as_ref(), &state, epoch)?;
-        rundir::append_log(run_dir, &record)?;
-        // TensorBoard: every scalar of the record (loss terms, rates, validation, critic), and
-        // every N epochs a prediction grid of validation frames.
-        let grid = match (&sources.val, cfg.tb_images_every) {
-            (Some(val), Some(every)) if every > 0 && (epoch + 1) % every == 0 => Some(
-                prediction_grid_png(procedure.student(), val.as_ref(), cfg, device)?,
-            ),
+        Ok(())
+    }
+
+    /// Phase 5, save (rank 0): the epoch-end checkpoint, the log line, and TensorBoard: every
+    /// scalar of the record (loss terms, rates, validation, critic), and every N epochs a
+    /// prediction grid of validation frames.
+    fn save(&mut self, epoch: usize, record: &EpochRecord) -> Result<(), TrainError> {
+        self.save_checkpoint(epoch)?;
+        rundir::append_log(self.folder.dir, record)?;
+        let grid = match (&self.val, self.cfg.tb_images_every) {
+            (Some(val), Some(every)) if every > 0 && (epoch + 1).is_multiple_of(every) => {
+                Some(prediction_grid_png(
+                    self.procedure.student(),
+                    val.source().as_ref(),
+                    self.cfg,
+                    self.device,
+                )?)
+            }
             _ => None,
         };
-        let tb = tb.as_mut().expect("rank 0 has its TensorBoard writer");
+        let tb = self.tb.as_mut().expect("rank 0 has its TensorBoard writer");
         let written = tb
-            .record(&serde_json::to_value(&record).expect("record serialises"))
+            .record(&serde_json::to_value(record).expect("record serialises"))
             .and_then(|_| match &grid {
                 Some(png) => tb.image_png("val/predictions", epoch as i64, png),
                 None => Ok(()),
             })
             .and_then(|_| tb.flush());
-        if let Err(e) = written {
-            return Err(run_error(&run_dir.join("tb"), format!("TensorBoard: {e}")));
-        }
-        on_epoch(&record);
-        records.push(record);
-        let stopping = match ddp {
-            Some(_) => stop_agreed,
-            None => stop.load(Ordering::Relaxed),
-        };
-        if stopping && state.epochs_done < cfg.epochs {
-            // Stopped on an epoch's last step: its checkpoint is the epoch-end one.
-            return Ok(TrainOutcome {
-                run_dir: run_dir.to_path_buf(),
-                final_weights: None,
-                records,
-                state,
-                weights_digest: None,
-            });
+        written.map_err(|e| run_error(&self.folder.dir.join("tb"), format!("TensorBoard: {e}")))
+    }
+
+    fn save_checkpoint(&self, epoch: usize) -> Result<(), TrainError> {
+        save_checkpoint(
+            &self.folder.checkpoint,
+            self.procedure.as_ref(),
+            &self.state,
+            epoch,
+        )
+    }
+
+    /// A mid-epoch checkpoint on rank 0; the other ranks check their weights as it would.
+    fn save_or_check(&self, epoch: usize) -> Result<(), TrainError> {
+        match self.folder.is_root {
+            true => self.save_checkpoint(epoch),
+            false => check_finite(self.procedure.as_ref(), epoch, self.state.steps_done),
         }
     }
-    let final_weights = run_dir.join(FINAL_FILE);
-    let weights_digest = match &ddp {
-        Some(d) => Some(d.check_identical(procedure.as_ref())?),
-        None => None,
-    };
-    if is_root {
+
+    fn save_student(&self, path: &Path) -> Result<(), TrainError> {
         rtf_models::weights::save_safetensors(
-            &procedure.student().trained.vs,
-            &cfg.model,
-            cfg.inputs,
-            &final_weights,
+            &self.procedure.student().trained.vs,
+            &self.cfg.model,
+            self.cfg.inputs,
+            path,
         )?;
+        Ok(())
     }
-    Ok(TrainOutcome {
-        run_dir: run_dir.to_path_buf(),
-        final_weights: Some(final_weights),
-        records,
-        state,
-        weights_digest,
-    })
+
+    /// The outcome of a stopped run (`--resume` continues it from its checkpoint).
+    fn stopped(self) -> TrainOutcome {
+        TrainOutcome {
+            run_dir: self.folder.dir.to_path_buf(),
+            final_weights: None,
+            records: self.records,
+            state: self.state,
+            weights_digest: None,
+        }
+    }
+
+    /// Phase 6, finish: every rank holds the same weights (data-parallel), and rank 0 writes
+    /// `final.safetensors`.
+    fn finish(self) -> Result<TrainOutcome, TrainError> {
+        let final_weights = self.folder.dir.join(FINAL_FILE);
+        let weights_digest = match &self.ddp {
+            Some(d) => Some(d.check_identical(self.procedure.trained().iter().map(|t| &t.vs))?),
+            None => None,
+        };
+        if self.folder.is_root {
+            self.save_student(&final_weights)?;
+        }
+        Ok(TrainOutcome {
+            run_dir: self.folder.dir.to_path_buf(),
+            final_weights: Some(final_weights),
+            records: self.records,
+            state: self.state,
+            weights_digest,
+        })
+    }
 }
 
 /// A titled grid (RGB | thermal | truth | prediction) of four validation frames, as PNG.

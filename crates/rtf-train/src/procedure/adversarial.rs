@@ -19,8 +19,8 @@ use tch::{nn::ModuleT, Device, Kind, Tensor};
 use super::teacher_student::distillation_loss;
 use super::{Labeller, Procedure, StepBatches, StepReport, Student, Trained, CRITIC};
 use crate::config::{CriticInput, CriticOptions, TargetOptions};
+use crate::error::TrainError;
 use crate::loss::least_squares;
-use crate::trainer::TrainError;
 
 /// The critic's target for day outputs (paper eq. 2; the published code flips both).
 const DAY: f64 = 0.0;

@@ -21,9 +21,9 @@ pub use teacher_student::TeacherStudent;
 use crate::config::{
     Modality, OptimizerConfig, Precision, Procedure as ProcedureConfig, TrainConfig,
 };
+use crate::error::TrainError;
 use crate::loss::PseudoTargets;
 use crate::optim::Optimizer;
-use crate::trainer::TrainError;
 
 /// Role of the segmentation network every procedure trains (and validation scores).
 pub const STUDENT: &str = "student";

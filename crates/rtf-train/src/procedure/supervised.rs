@@ -4,8 +4,8 @@
 use std::collections::BTreeMap;
 
 use super::{Procedure, StepBatches, StepReport, Student, Trained};
+use crate::error::TrainError;
 use crate::loss::Loss;
-use crate::trainer::TrainError;
 
 pub struct Supervised {
     pub student: Student,

@@ -9,8 +9,8 @@ use tch::Tensor;
 
 use super::{Labeller, Procedure, StepBatches, StepReport, Student, Trained};
 use crate::config::TargetOptions;
+use crate::error::TrainError;
 use crate::loss::{soft_cross_entropy, weighted_cross_entropy, PseudoTargets, PSEUDO_IGNORE};
-use crate::trainer::TrainError;
 
 pub struct TeacherStudent {
     pub student: Student,
