@@ -153,7 +153,7 @@ pub fn run(args: Args) -> Result<()> {
         .expect("valid template"),
     );
     let start = std::time::Instant::now();
-    let outcome = optimize::calibrate(&rig, &frames, &settings, &mut |p| {
+    let outcome = rtf_calib::solve::calibrate(&rig, &frames, &settings, &mut |p| {
         bar.set_length(p.total as u64);
         bar.set_position(p.step as u64);
         bar.set_message(format!("{} loss {:.6}", p.stage, p.loss));
@@ -242,6 +242,7 @@ pub fn run(args: Args) -> Result<()> {
                 r.count, r.perturbation_px, r.improved_px, r.spread_px
             );
         }
+        print_bound(a);
         if a.verdict == Verdict::Failed {
             bail!(
                 "calibration failed: {} ({} kept for inspection)",
@@ -251,4 +252,29 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The stated error bound (issue 28) and, for each quantity with a rig.yaml prior, whether
+/// the images or the prior set it.
+fn print_bound(a: &rtf_calib::quality::Assessment) {
+    let (Some(px), Some(b)) = (a.map_error_bound_px, &a.bound) else {
+        return;
+    };
+    println!(
+        "map error bound: {px:.2} px (solutions the data cannot tell apart; flattest direction {:.2} px{})",
+        b.flattest_px,
+        if b.capped { ", unbounded within the search" } else { "" }
+    );
+    for (name, r) in &b.priors {
+        println!(
+            "  {name}: set by the {} ({:.0} % of the information from the prior; ±{:.4} after, prior σ {})",
+            r.set_by,
+            100.0 * r.prior_share,
+            r.posterior_half_width,
+            r.prior_sigma
+        );
+    }
+    for w in &b.warnings {
+        eprintln!("warning: {w}");
+    }
 }
