@@ -104,7 +104,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let profile = std::env::var_os("RTF_CALIB_PROFILE").is_some();
         let mut stages: Vec<(String, usize, f64)> = Vec::new();
         let mut last = std::time::Instant::now();
-        let outcome = optimize::calibrate(&real.rig, &loaded, &settings, &mut |p| {
+        let outcome = rtf_calib::solve::calibrate(&real.rig, &loaded, &settings, &mut |p| {
             if profile {
                 let dt = last.elapsed().as_secs_f64();
                 last = std::time::Instant::now();

@@ -3,6 +3,7 @@
 //! Conventions (spec §6): pixel centres at integer coordinates; X_T = R·X_RGB + t; T stored as
 //! R and t with se(3) coordinates its exact logarithm.
 
+pub mod bound;
 pub mod calibfile;
 pub mod camera;
 pub mod error;
@@ -16,6 +17,7 @@ pub mod quality;
 pub mod real_rig;
 pub mod rig;
 pub mod se3;
+pub mod solve;
 pub mod stereo;
 pub mod synth_rig;
 

@@ -30,6 +30,7 @@
 //! thresholds were set on the real-imagery trials of `cargo xtask calib-check`
 //! (docs/src/calibration.md).
 
+use crate::bound::Bound;
 use crate::camera::Calibration;
 use crate::error::Result;
 use crate::frames::Frame;
@@ -77,26 +78,7 @@ pub struct Scores {
     pub delta_px: f64,
 }
 
-/// The wrong-basin check of the default recipe (see [`crate::optimize`]'s restarts): the
-/// solution perturbed and refined again from several starts.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Restarts {
-    /// Solutions compared (the continued main solution and the perturbed restarts).
-    pub count: usize,
-    /// Rounds of restarts run (a second round runs around a clearly better solution).
-    pub rounds: usize,
-    /// Perturbation of the starts (full-resolution thermal px).
-    pub perturbation_px: f64,
-    /// Mean distance (px) between the main run's map and the chosen one (0: it stood).
-    pub improved_px: f64,
-    /// Relative cost drop from the main run's solution to the best restart.
-    pub cost_drop: f64,
-    /// Largest distance (px) from the best solution to any solution of about the same cost.
-    pub spread_px: f64,
-    /// False if the last round still found a clearly better, distinct solution.
-    pub settled: bool,
-}
+pub use crate::optimize::Restarts;
 
 /// Restart spread (px) above which the verdict is `uncertain`: two solutions that score about
 /// the same map pixels this differently, so a < 1 px result cannot be claimed.
@@ -125,14 +107,45 @@ pub struct Assessment {
     pub sigma: BTreeMap<String, f64>,
     /// Variance inflation per parameter from correlation with the others (1 = independent).
     pub conditioning: BTreeMap<String, f64>,
+    /// Bound on the mean RGB→thermal map error (px) from the solutions the data cannot tell
+    /// apart ([`crate::bound`]); `ok` needs it below [`BOUND_OK_PX`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub map_error_bound_px: Option<f64>,
+    /// How the bound was found, the per-parameter intervals and who set the priored ones.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bound: Option<Bound>,
+}
+
+/// The largest map error bound (px) an `ok` verdict allows (issue 28).
+pub const BOUND_OK_PX: f64 = 1.0;
+
+impl Assessment {
+    /// Records the bound; an `ok` verdict becomes `uncertain` when the bound is not below
+    /// [`BOUND_OK_PX`], and the prior warnings join the reason.
+    pub fn with_bound(mut self, bound_px: f64, bound: Bound) -> Self {
+        if self.verdict == Verdict::Ok && !(bound_px < BOUND_OK_PX) {
+            self.verdict = Verdict::Uncertain;
+            self.reason = format!(
+                "solutions the data cannot tell apart map pixels up to {bound_px:.2} px apart \
+                 (bound ≥ {BOUND_OK_PX} px): add frames with structure at several depths, or \
+                 priors (rig.yaml `prior:`) for what you know of the rig"
+            );
+        }
+        if self.verdict == Verdict::Ok && !bound.warnings.is_empty() {
+            // A prior the images contradict makes the bound conditional on a wrong prior.
+            self.verdict = Verdict::Uncertain;
+        }
+        for w in &bound.warnings {
+            self.reason.push_str(&format!("; warning {w}"));
+        }
+        self.map_error_bound_px = Some(bound_px);
+        self.bound = Some(bound);
+        self
+    }
 }
 
 /// Per-frame score [b] of `level` (correlation mode, unblurred) at θ.
-pub(crate) fn frame_scores(
-    level: &Level,
-    scaling: &Scaling,
-    theta: &[f64; NUM_PARAMS],
-) -> Vec<f64> {
+pub fn frame_scores(level: &Level, scaling: &Scaling, theta: &[f64; NUM_PARAMS]) -> Vec<f64> {
     let b = level.points.size()[0];
     let idx = Tensor::arange(b, (Kind::Int64, tch::Device::Cpu));
     let t = level.warp(&scaling.tensor(theta), &idx) * &level.mask;
@@ -318,16 +331,84 @@ pub(crate) fn decide(f: &Figures) -> (Verdict, String) {
 /// 640 wide (≤ 320 px wide), where δ = 1.5 px is still resolved; above MAX_LEVEL_PIXELS per
 /// frame (the 320×240 level of a 640×480 rig) on a random subset of the support, as in the
 /// optimiser; correlation mode, unblurred.
-pub(crate) fn assessment_level(rig: &Rig, chosen: &[&Frame]) -> (usize, Level) {
-    let factor = optimize::pyramid_factors(rig.rgb.width)
-        .into_iter()
-        .filter(|&f| rig.rgb.width / f <= 320)
-        .min()
-        .unwrap_or(1);
+pub fn assessment_level(rig: &Rig, chosen: &[&Frame]) -> (usize, Level) {
+    let factor = optimize::assessment_factor(rig.rgb.width);
     let level = Level::build(&rig.rgb, chosen, factor, false, 0.0, 1)
         .subsample(optimize::MAX_LEVEL_PIXELS, 0)
         .into_correlation();
     (factor, level)
+}
+
+/// Formal 1-σ per parameter (physical units) and variance inflation by correlation, from the
+/// normal equations at θ (all parameters; fx = fy tied if square).
+fn formal_sigma(
+    level: &Level,
+    scaling: &Scaling,
+    theta: &[f64; NUM_PARAMS],
+    frames: usize,
+    square: bool,
+) -> (BTreeMap<String, f64>, BTreeMap<String, f64>) {
+    let all: Vec<usize> = (0..NUM_PARAMS).collect();
+    let pdirs = optimize::directions(&all, scaling, square);
+    let frames_idx: Vec<i64> = (0..frames as i64).collect();
+    let (jtj, _, _) = optimize::normal_equations(level, scaling, theta, &pdirs, &frames_idx);
+    let n = pdirs.len();
+    let idx = Tensor::from_slice(&frames_idx);
+    let r = level.residual(&scaling.tensor(theta), &idx);
+    let support = level.support(&idx);
+    let resid_var = r.square().sum(Kind::Double).double_value(&[]) / support.max(1.0);
+    let n_eff = (support / 9.0).max(1.0);
+    let mut sigma = BTreeMap::new();
+    let mut conditioning = BTreeMap::new();
+    for k in 0..n {
+        let mut e = vec![0.0; n];
+        e[k] = 1.0;
+        let Some(col) = optimize::solve_spd(&jtj, &e) else {
+            continue;
+        };
+        let var_theta = resid_var * col[k] / n_eff;
+        let p = pdirs[k].iter().position(|&x| x != 0.0).unwrap_or(0);
+        let names: Vec<usize> = if square && p == 0 {
+            vec![0, 1]
+        } else {
+            vec![p]
+        };
+        for i in names {
+            sigma.insert(
+                PARAM_NAMES[i].to_string(),
+                var_theta.sqrt() * scaling.scale[i] * pdirs[k][i].abs(),
+            );
+            conditioning.insert(PARAM_NAMES[i].to_string(), col[k] * jtj[k][k]);
+        }
+    }
+    (sigma, conditioning)
+}
+
+/// What lies beyond the physical bounds (distortion, principal point, pixel aspect), in words.
+fn beyond_bounds(rig: &Rig, solution: &Calibration, square: bool) -> Vec<String> {
+    let k = &solution.thermal;
+    let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
+    let off_centre = ((k.cx - w / 2.0) / w)
+        .abs()
+        .max(((k.cy - h / 2.0) / w).abs());
+    let [k1, k2, p1, p2] = k.distortion;
+    let aspect = (k.fx / k.fy - 1.0).abs();
+    let mut at_bounds = Vec::new();
+    if k1.abs() > 0.5 || k2.abs() > 0.3 || p1.abs().max(p2.abs()) > 0.01 {
+        at_bounds.push(format!(
+            "distortion beyond its bounds (k1 {k1:.3}, k2 {k2:.3}, p1 {p1:.4}, p2 {p2:.4})"
+        ));
+    }
+    if off_centre > 0.1 {
+        at_bounds.push(format!(
+            "principal point {:.0} % of the width off centre",
+            100.0 * off_centre
+        ));
+    }
+    if (square && aspect > 1e-6) || aspect > 0.02 {
+        at_bounds.push(format!("pixel aspect fx/fy {:.4}", k.fx / k.fy));
+    }
+    at_bounds
 }
 
 /// Assesses `solution` (found from `initial`) on the frames `used` of `frames`.
@@ -385,65 +466,11 @@ pub fn assess(
             })
     };
     let agreeing = (0..s0.len()).filter(|&f| agrees(f)).count() as f64 / s0.len().max(1) as f64;
-    // Formal uncertainty from the normal equations (all parameters; fx = fy tied if square).
-    let all: Vec<usize> = (0..NUM_PARAMS).collect();
-    let pdirs = optimize::directions(&all, &scaling, square);
-    let frames_idx: Vec<i64> = (0..chosen.len() as i64).collect();
-    let (jtj, _, _) = optimize::normal_equations(&level, &scaling, &theta, &pdirs, &frames_idx);
-    let n = pdirs.len();
-    let idx = Tensor::from_slice(&frames_idx);
-    let r = level.residual(&scaling.tensor(&theta), &idx);
-    let support = level.support(&idx);
-    let resid_var = r.square().sum(Kind::Double).double_value(&[]) / support.max(1.0);
-    let n_eff = (support / 9.0).max(1.0);
-    let mut sigma = BTreeMap::new();
-    let mut conditioning = BTreeMap::new();
-    for k in 0..n {
-        let mut e = vec![0.0; n];
-        e[k] = 1.0;
-        let Some(col) = optimize::solve_spd(&jtj, &e) else {
-            continue;
-        };
-        let var_theta = resid_var * col[k] / n_eff;
-        let p = pdirs[k].iter().position(|&x| x != 0.0).unwrap_or(0);
-        let names: Vec<usize> = if square && p == 0 {
-            vec![0, 1]
-        } else {
-            vec![p]
-        };
-        for i in names {
-            sigma.insert(
-                PARAM_NAMES[i].to_string(),
-                var_theta.sqrt() * scaling.scale[i] * pdirs[k][i].abs(),
-            );
-            conditioning.insert(PARAM_NAMES[i].to_string(), col[k] * jtj[k][k]);
-        }
-    }
+    let (sigma, conditioning) = formal_sigma(&level, &scaling, &theta, chosen.len(), square);
     let moved_px = optimize::mean_map_error(rig, frames, solution, initial);
     let split_px = split_half(rig, frames, used, &chosen, factor, &scaling, &theta, square);
     let gain = at_solution - mean(&start);
-    let k = &solution.thermal;
-    let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
-    let off_centre = ((k.cx - w / 2.0) / w)
-        .abs()
-        .max(((k.cy - h / 2.0) / w).abs());
-    let [k1, k2, p1, p2] = k.distortion;
-    let aspect = (k.fx / k.fy - 1.0).abs();
-    let mut at_bounds = Vec::new();
-    if k1.abs() > 0.5 || k2.abs() > 0.3 || p1.abs().max(p2.abs()) > 0.01 {
-        at_bounds.push(format!(
-            "distortion beyond its bounds (k1 {k1:.3}, k2 {k2:.3}, p1 {p1:.4}, p2 {p2:.4})"
-        ));
-    }
-    if off_centre > 0.1 {
-        at_bounds.push(format!(
-            "principal point {:.0} % of the width off centre",
-            100.0 * off_centre
-        ));
-    }
-    if (square && aspect > 1e-6) || aspect > 0.02 {
-        at_bounds.push(format!("pixel aspect fx/fy {:.4}", k.fx / k.fy));
-    }
+    let at_bounds = beyond_bounds(rig, solution, square);
     let (verdict, reason) = decide(&Figures {
         stopped,
         at_solution,
@@ -472,6 +499,8 @@ pub fn assess(
         restarts,
         sigma,
         conditioning,
+        map_error_bound_px: None,
+        bound: None,
     })
 }
 

@@ -283,7 +283,7 @@ fn parallax_shift(bands: &[f64; 8], y: f64) -> f64 {
 
 /// MSRS scene `name` from `msrs` (the `msrs-samples` folder) at its 640×480: the RGB image
 /// and the thermal image (0–1) re-registered onto it by [`warp_msrs_ir`].
-pub(crate) fn load_msrs_pair(msrs: &Path, name: &str, parallax: bool) -> Result<(Plane, Plane)> {
+pub fn load_msrs_pair(msrs: &Path, name: &str, parallax: bool) -> Result<(Plane, Plane)> {
     let vi = read_gray(&msrs.join("vi").join(format!("{name}.png")))?;
     let raw = read_thermal_raw(&msrs.join("ir").join(format!("{name}.png")))?;
     let raw = Plane::new(
@@ -328,6 +328,73 @@ pub fn warp_msrs_ir(scene: &str, ir: &Plane, parallax: bool) -> Plane {
         })
         .collect();
     Plane::new(ir.width, ir.height, data)
+}
+
+// How `MSRS_PARALLAX` fills the bands it could not measure (round 7; measured by the
+// `probe_parallax_bands` probe in examples/calib_probes.rs).
+
+/// Bands without a measurement take the linear interpolation of their measured
+/// neighbours (the nearest one past the first or last; 0 when none was measured).
+pub fn fill_bands(shifts: &[Option<f64>]) -> Vec<f64> {
+    let known: Vec<(usize, f64)> = shifts
+        .iter()
+        .enumerate()
+        .filter_map(|(i, s)| s.map(|v| (i, v)))
+        .collect();
+    (0..shifts.len())
+        .map(|i| {
+            let before = known.iter().rev().find(|k| k.0 <= i);
+            let after = known.iter().find(|k| k.0 >= i);
+            match (before, after) {
+                (Some(&(i0, v0)), Some(&(i1, v1))) if i1 > i0 => {
+                    v0 + (v1 - v0) * (i - i0) as f64 / (i1 - i0) as f64
+                }
+                (Some(&(_, v)), _) | (None, Some(&(_, v))) => v,
+                (None, None) => 0.0,
+            }
+        })
+        .collect()
+}
+
+/// The street scenes' common parallax profile: per band, the median over the scenes of
+/// the measured shift less the scene's mean over its measured middle bands (2–4), the far
+/// part of the image that every scene measures best (0 where no scene measured the band).
+pub fn parallax_profile(scenes: &[Vec<Option<f64>>]) -> Vec<f64> {
+    let bands = scenes.first().map_or(0, Vec::len);
+    (0..bands)
+        .map(|i| {
+            let mut rel: Vec<f64> = scenes
+                .iter()
+                .filter_map(|s| {
+                    let mid: Vec<f64> = s[2..=4].iter().flatten().copied().collect();
+                    let v = s[i]?;
+                    (!mid.is_empty()).then(|| v - mid.iter().sum::<f64>() / mid.len() as f64)
+                })
+                .collect();
+            rel.sort_by(f64::total_cmp);
+            match rel.len() {
+                0 => 0.0,
+                n if n % 2 == 1 => rel[n / 2],
+                n => (rel[n / 2 - 1] + rel[n / 2]) / 2.0,
+            }
+        })
+        .collect()
+}
+
+/// A scene's bands: the profile plus the scene's own departure from it, measured where
+/// the band was measured and filled in between by [`fill_bands`] (so an unmeasured band
+/// follows the profile, offset like its measured neighbours).
+pub fn bands_from_profile(shifts: &[Option<f64>], profile: &[f64]) -> Vec<f64> {
+    let departure: Vec<Option<f64>> = shifts
+        .iter()
+        .zip(profile)
+        .map(|(s, p)| s.map(|v| v - p))
+        .collect();
+    fill_bands(&departure)
+        .iter()
+        .zip(profile)
+        .map(|(d, p)| d + p)
+        .collect()
 }
 
 /// What [`write_real_rig`] wrote.
@@ -679,6 +746,7 @@ pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
         frames,
         stereo: None,
         optimizer: None,
+        prior: None,
     };
     let rig_path = out.join("rig.yaml");
     rig.save(&rig_path)?;
@@ -696,6 +764,31 @@ pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unmeasured_bands_follow_the_common_profile() {
+        let m = |v: &[f64], known: &[usize]| -> Vec<Option<f64>> {
+            (0..v.len())
+                .map(|i| known.contains(&i).then_some(v[i]))
+                .collect()
+        };
+        let day = [-3.0, -2.0, -1.0, 0.0, 1.0, -1.0, -4.0, -7.0];
+        let scenes = vec![
+            m(&day, &[0, 1, 2, 3, 4, 5, 6, 7]),
+            m(&day.map(|v| v + 2.0), &[0, 1, 2, 3, 4, 5, 6, 7]),
+            // A night scene measured at the top only, 1 px above the profile.
+            m(&day.map(|v| v + 1.0), &[0, 1, 2, 3]),
+        ];
+        let profile = parallax_profile(&scenes);
+        // Relative to the middle bands' mean (0).
+        assert_eq!(profile, day.to_vec());
+        let night = bands_from_profile(&scenes[2], &profile);
+        for (got, want) in night.iter().zip(day.map(|v| v + 1.0)) {
+            assert!((got - want).abs() < 1e-12, "{night:?}");
+        }
+        // Nothing measured: the profile itself.
+        assert_eq!(bands_from_profile(&[None; 8], &profile), day.to_vec());
+    }
 
     #[test]
     fn parallax_shift_interpolates_between_band_centres() {
@@ -799,8 +892,9 @@ mod tests {
 mod calibration_tests {
     use super::*;
     use crate::frames::load_frames;
-    use crate::optimize::{calibrate, mean_map_error, Outcome, Recipe, Settings};
+    use crate::optimize::{mean_map_error, Recipe, Settings};
     use crate::quality::Verdict;
+    use crate::solve::{calibrate, Outcome};
 
     fn run(degrade: Degrade, seed: u64) -> Option<(f64, f64, Outcome)> {
         let data = default_data_dir()?;
@@ -818,6 +912,14 @@ mod calibration_tests {
             "{degrade:?} seed {seed}: map error {before:.2} -> {after:.3} px; {:?}",
             out.assessment
         );
+        if degrade == Degrade::None {
+            // The stated bound covers the true error on real imagery too (issue 28).
+            let bound = out.assessment.as_ref().and_then(|a| a.map_error_bound_px);
+            assert!(
+                after <= bound.expect("bound stated"),
+                "{after} px > bound {bound:?}"
+            );
+        }
         Some((before, after, out))
     }
 
@@ -861,6 +963,14 @@ mod calibration_tests {
         let after = mean_map_error(&real.rig, &frames, &out.calibration, &real.truth);
         let a = out.assessment.unwrap();
         eprintln!("wrong basin {wrong:.3} px -> {after:.3} px; {a:?}");
+        // The bound is not asserted to cover this rig: it does not (0.61 px against 0.87 px,
+        // docs/src/calibration.md, "The bound on the rigs"); its verdict is not `ok` (the
+        // distortion sits at its bound), which is what must hold.
+        let bound = a.map_error_bound_px.unwrap();
+        assert!(
+            after <= bound || a.verdict != Verdict::Ok,
+            "{after} px > {bound} px, ok"
+        );
         assert!(
             after < 1.0 || a.verdict != Verdict::Ok,
             "{after} px off but verdict ok: {a:?}"

@@ -60,6 +60,87 @@ impl OptimizerOverrides {
     }
 }
 
+/// What the user knows about the rig (issue 28), each item optional. Estimation becomes MAP:
+/// the images' cost plus (x − μ)²/σ² per item, so directions the images cannot fix (focal
+/// length against forward offset, principal point against rotation) are set by what was
+/// measured rather than left to chance.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PriorSpec {
+    /// Thermal camera centre in the RGB frame (metres), as measured: −Rᵀt.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub translation_m: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub translation_sigma_m: Option<f64>,
+    /// Rotation vector RGB → thermal (the `se3` ω), degrees.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotation_deg: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotation_sigma_deg: Option<f64>,
+    /// σ of the principal point about `principal_point_px` (default: the image centre); it
+    /// replaces the built-in prior (free within ±5 % of the width of the centre).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub principal_point_sigma_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub principal_point_px: Option<Vec<f64>>,
+}
+
+impl PriorSpec {
+    fn validate(&self) -> std::result::Result<(), String> {
+        let vector = |name: &str, v: &Option<Vec<f64>>, len: usize| match v {
+            Some(v) if v.len() != len => Err(format!(
+                "prior.{name}: needs {len} numbers, got {}",
+                v.len()
+            )),
+            Some(v) if v.iter().any(|x| !x.is_finite()) => {
+                Err(format!("prior.{name}: must be finite, got {v:?}"))
+            }
+            _ => Ok(()),
+        };
+        let sigma = |name: &str, s: Option<f64>| match s {
+            Some(s) if !(s.is_finite() && s > 0.0) => {
+                Err(format!("prior.{name}: must be a positive number, got {s}"))
+            }
+            _ => Ok(()),
+        };
+        vector("translation_m", &self.translation_m, 3)?;
+        vector("rotation_deg", &self.rotation_deg, 3)?;
+        vector("principal_point_px", &self.principal_point_px, 2)?;
+        sigma("translation_sigma_m", self.translation_sigma_m)?;
+        sigma("rotation_sigma_deg", self.rotation_sigma_deg)?;
+        sigma("principal_point_sigma_px", self.principal_point_sigma_px)?;
+        let pairs = [
+            (
+                "translation_m",
+                self.translation_m.is_some(),
+                "translation_sigma_m",
+                self.translation_sigma_m.is_some(),
+            ),
+            (
+                "rotation_deg",
+                self.rotation_deg.is_some(),
+                "rotation_sigma_deg",
+                self.rotation_sigma_deg.is_some(),
+            ),
+            (
+                "principal_point_px",
+                self.principal_point_px.is_some(),
+                "principal_point_sigma_px",
+                self.principal_point_sigma_px.is_some(),
+            ),
+        ];
+        for (value, has_value, sd, has_sd) in pairs {
+            if has_value && !has_sd {
+                return Err(format!("prior.{sd}: needed with prior.{value}"));
+            }
+            if has_sd && !has_value && value != "principal_point_px" {
+                return Err(format!("prior.{value}: needed with prior.{sd}"));
+            }
+        }
+        Ok(())
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Rig {
@@ -70,6 +151,9 @@ pub struct Rig {
     pub stereo: Option<StereoSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub optimizer: Option<OptimizerOverrides>,
+    /// What the user knows about the rig (optional; see [`PriorSpec`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prior: Option<PriorSpec>,
 }
 
 impl Rig {
@@ -141,6 +225,9 @@ impl Rig {
                 positive("optimizer.learning_rate", lr)?;
             }
         }
+        if let Some(prior) = &self.prior {
+            prior.validate()?;
+        }
         Ok(())
     }
 
@@ -183,6 +270,29 @@ stereo:   { baseline_m: 0.3 }
 optimizer: { iterations: 2000, batch_size: 10, learning_rate: 0.01 }
 ";
 
+    /// Issue 28's example, verbatim.
+    const PRIOR: &str = "
+prior:
+  translation_m: [0.12, -0.02, 0.03]   # thermal camera centre in the RGB frame, as measured
+  translation_sigma_m: 0.02
+  rotation_deg: [0.0, 0.0, 0.0]        # rotation vector RGB→thermal, degrees
+  rotation_sigma_deg: 2.0
+  principal_point_sigma_px: 10         # about the image centre (or the datasheet's point)
+";
+
+    #[test]
+    fn parses_the_prior_in_the_issues_form() {
+        let rig = Rig::parse(&format!("{GOOD}{PRIOR}")).unwrap();
+        let p = rig.prior.expect("prior");
+        assert_eq!(p.translation_m, Some(vec![0.12, -0.02, 0.03]));
+        assert_eq!(p.translation_sigma_m, Some(0.02));
+        assert_eq!(p.rotation_deg, Some(vec![0.0; 3]));
+        assert_eq!(p.rotation_sigma_deg, Some(2.0));
+        assert_eq!(p.principal_point_sigma_px, Some(10.0));
+        assert_eq!(p.principal_point_px, None);
+        assert!(Rig::parse(GOOD).unwrap().prior.is_none());
+    }
+
     #[test]
     fn parses_issue_example_with_paths_relative_to_file() {
         let dir = tempfile::tempdir().unwrap();
@@ -224,6 +334,22 @@ optimizer: { iterations: 2000, batch_size: 10, learning_rate: 0.01 }
             (
                 GOOD.replace("iterations: 2000", "iteration: 2000"),
                 "iteration",
+            ),
+            (
+                format!("{GOOD}{PRIOR}").replace("sigma_m: 0.02", "sigma_m: -0.02"),
+                "prior.translation_sigma_m: must be a positive number",
+            ),
+            (
+                format!("{GOOD}{PRIOR}").replace("[0.12, -0.02, 0.03]", "[0.12, -0.02]"),
+                "prior.translation_m: needs 3 numbers, got 2",
+            ),
+            (
+                format!("{GOOD}{PRIOR}").replace("  rotation_sigma_deg: 2.0\n", ""),
+                "prior.rotation_sigma_deg: needed with prior.rotation_deg",
+            ),
+            (
+                format!("{GOOD}{PRIOR}").replace("principal_point_sigma_px", "principal_sigma_px"),
+                "principal_sigma_px",
             ),
         ];
         for (text, field) in cases {

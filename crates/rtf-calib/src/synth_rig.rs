@@ -536,6 +536,7 @@ pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
             baseline_m: cfg.baseline_m,
         }),
         optimizer: None,
+        prior: None,
     };
     let rig_path = out.join("rig.yaml");
     rig.save(&rig_path)?;

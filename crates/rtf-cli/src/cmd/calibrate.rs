@@ -175,12 +175,12 @@ pub fn run(args: Args) -> Result<()> {
     }
 }
 
-/// [`optimize::calibrate`] under a progress bar (stage, step, loss, ETA).
+/// [`rtf_calib::solve::calibrate`] under a progress bar (stage, step, loss, ETA).
 fn calibrate_with_progress(
     rig: &Rig,
     frames: &[Frame],
     settings: &Settings,
-) -> Result<optimize::Outcome> {
+) -> Result<rtf_calib::solve::Outcome> {
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template(
@@ -188,7 +188,7 @@ fn calibrate_with_progress(
         )
         .expect("valid template"),
     );
-    let outcome = optimize::calibrate(rig, frames, settings, &mut |p| {
+    let outcome = rtf_calib::solve::calibrate(rig, frames, settings, &mut |p| {
         bar.set_length(p.total as u64);
         bar.set_position(p.step as u64);
         bar.set_message(format!("{} loss {:.6}", p.stage, p.loss));
@@ -201,7 +201,7 @@ fn calibrate_with_progress(
 fn write_calibration(
     args: &Args,
     rig: &Rig,
-    outcome: &optimize::Outcome,
+    outcome: &rtf_calib::solve::Outcome,
     camchain: &Path,
     seconds: f64,
 ) -> Result<()> {
@@ -247,7 +247,7 @@ fn compare_with_truth(
     truth_path: &Path,
     rig: &Rig,
     frames: Vec<Frame>,
-    outcome: &optimize::Outcome,
+    outcome: &rtf_calib::solve::Outcome,
     seconds: f64,
 ) -> Result<()> {
     let truth = CalibFile::load(truth_path)?.calibration();
@@ -285,6 +285,7 @@ fn report_verdict(a: &Assessment, out: &Path) -> Result<()> {
             r.count, r.perturbation_px, r.improved_px, r.spread_px
         );
     }
+    print_bound(a);
     if a.verdict == Verdict::Failed {
         bail!(
             "calibration failed: {} ({} kept for inspection)",
@@ -293,4 +294,29 @@ fn report_verdict(a: &Assessment, out: &Path) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The stated error bound (issue 28) and, for each quantity with a rig.yaml prior, whether
+/// the images or the prior set it.
+fn print_bound(a: &Assessment) {
+    let (Some(px), Some(b)) = (a.map_error_bound_px, &a.bound) else {
+        return;
+    };
+    println!(
+        "map error bound: {px:.2} px (solutions the data cannot tell apart; flattest direction {:.2} px{})",
+        b.flattest_px,
+        if b.capped { ", unbounded within the search" } else { "" }
+    );
+    for (name, r) in &b.priors {
+        println!(
+            "  {name}: set by the {} ({:.0} % of the information from the prior; ±{:.4} after, prior σ {})",
+            r.set_by,
+            100.0 * r.prior_share,
+            r.posterior_half_width,
+            r.prior_sigma
+        );
+    }
+    for w in &b.warnings {
+        eprintln!("warning: {w}");
+    }
 }
