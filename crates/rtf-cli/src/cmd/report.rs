@@ -491,8 +491,9 @@ fn class_bars(title: &str, rows: &[ClassRow], labels: [&str; 2]) -> Result<Strin
             .y_labels(0)
             .x_desc("IoU")
             .x_label_formatter(&|x| {
-                if (0.0..=1.0).contains(x) {
-                    format!("{x:.1}")
+                // The 0 tick may come out as -1e-17.
+                if (-1e-9..=1.0 + 1e-9).contains(x) {
+                    format!("{:.1}", x.abs())
                 } else {
                     String::new()
                 }
