@@ -369,3 +369,33 @@ fn several_runs_compare_metrics_curves_and_configuration_differences() {
         );
     }
 }
+
+/// The page as a browser draws it: headless Chromium (scripts/report_screenshot.sh) renders
+/// the report, and the screenshot is not blank. Gated: `RTF_CHROMIUM=1` (needs `chromium`).
+#[test]
+fn chromium_renders_the_report() {
+    if std::env::var("RTF_CHROMIUM").as_deref() != Ok("1") {
+        eprintln!("skipped: set RTF_CHROMIUM=1 (needs chromium) to render the report");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    synthetic_run(&run, 50, serde_json::json!({"model": {"network": "mfnet"}}));
+    let (page, shot) = (tmp.path().join("report.html"), tmp.path().join("shot.png"));
+    ok(&["report", s(&run), "--out", s(&page), "--frames", "0"]);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/report_screenshot.sh");
+    let status = std::process::Command::new("bash")
+        .args([s(&script), s(&page), s(&shot), "1000x1200"])
+        .status()
+        .expect("bash runs");
+    assert!(status.success(), "report_screenshot.sh failed");
+    let img = image::open(&shot).expect("a PNG screenshot").to_rgb8();
+    assert_eq!(img.dimensions(), (1000, 1200));
+    // Drawn, not blank: dark text and the bars' / curves' blue both appear.
+    let dark = img.pixels().filter(|p| p.0.iter().all(|&c| c < 80)).count();
+    let blue = img
+        .pixels()
+        .filter(|p| p.0[2] > 150 && p.0[0] < 80 && p.0[1] < 150)
+        .count();
+    assert!(dark > 1000 && blue > 1000, "dark {dark}, blue {blue}");
+}
