@@ -1,12 +1,14 @@
 //! `rtf report RUN… [--eval SCORES.json…] --out report.html`: one self-contained HTML page
 //! (every image embedded as a `data:` URI) summarising training runs and evaluations.
 //!
-//! Per run (and per stage of a multi-stage run, `RUN/<stage>/`): the configuration, training
-//! curves (each loss term, learning rates, validation mIoU / mAcc, day and night) and the last
-//! epoch's per-class IoU, day and night, when the log has them. Per `rtf eval --json` file: the
+//! The page leads with the answer (issue #30). Per run (and per stage of a multi-stage run,
+//! `RUN/<stage>/`): a headline (final and best validation mIoU with their epochs, mAcc, day,
+//! night), the last validation's per-class IoU as bars by class name, the training curves (each
+//! loss term, learning rates, validation mIoU / mAcc, day and night), and the configuration
+//! last, collapsed. Several runs: first a table of final and best metrics, the curves overlaid
+//! and only the configuration settings that differ. Per `rtf eval --json` file: the
 //! scores (all / day / night, missing-modality rows), per-class IoU bars (day / night) and the
-//! confusion matrix as a heat map (rows = truth, normalised per row). Several runs: a
-//! side-by-side table. With weights in the run folders and a dataset (`--data`, else the first
+//! confusion matrix as a heat map (rows = truth, normalised per row). With weights in the run folders and a dataset (`--data`, else the first
 //! run's validation split), a prediction grid: RGB | thermal | truth | each run's prediction,
 //! column titles and class legend ([`rtf_eval::figure::annotated_grid`]).
 //!
