@@ -6,11 +6,12 @@
 //! night), the last validation's per-class IoU as bars by class name, the training curves (each
 //! loss term, learning rates, validation mIoU / mAcc, day and night), and the configuration
 //! last, collapsed. Several runs: first a table of final and best metrics, the curves overlaid
-//! and only the configuration settings that differ. Per `rtf eval --json` file: the
-//! scores (all / day / night, missing-modality rows), per-class IoU bars (day / night) and the
-//! confusion matrix as a heat map (rows = truth, normalised per row). With weights in the run folders and a dataset (`--data`, else the first
-//! run's validation split), a prediction grid: RGB | thermal | truth | each run's prediction,
-//! column titles and class legend ([`rtf_eval::figure::annotated_grid`]).
+//! and only the configuration settings that differ. Per `rtf eval --json` file: the scores
+//! (all / day / night, missing-modality rows), per-class IoU bars (day / night) and the
+//! confusion matrix as a heat map (rows = truth, normalised per row). With weights in the run
+//! folders and a dataset (`--data`, else the first run's validation split), a prediction grid:
+//! RGB | thermal | truth | each run's prediction, column titles and class legend
+//! ([`rtf_eval::figure::annotated_grid`]).
 //!
 //! Charts are drawn with `plotters` (SVG backend: text is laid out by the browser, no font
 //! files needed); the grid is a PNG.
