@@ -25,6 +25,38 @@ fn images(html: &str) -> Vec<(String, Vec<u8>)> {
         .collect()
 }
 
+/// The contents of an SVG's `<text>` elements.
+fn svg_texts(svg: &str) -> Vec<String> {
+    let doc = roxmltree::Document::parse(svg).expect("SVG parses as XML");
+    doc.descendants()
+        .filter(|n| n.has_tag_name("text"))
+        .map(|n| n.text().unwrap_or("").trim().to_string())
+        .collect()
+}
+
+/// The SVG of the chart titled `title`.
+fn chart<'a>(svgs: &'a [String], title: &str) -> &'a str {
+    svgs.iter()
+        .find(|svg| svg_texts(svg).iter().any(|t| t == title))
+        .unwrap_or_else(|| panic!("no chart titled {title}"))
+}
+
+fn svg_images(html: &str) -> Vec<String> {
+    images(html)
+        .into_iter()
+        .filter(|(mime, _)| mime == "image/svg+xml")
+        .map(|(_, b)| String::from_utf8(b).unwrap())
+        .collect()
+}
+
+/// A run folder with `epochs` new-schema log lines and the given configuration.
+fn synthetic_run(dir: &Path, epochs: u64, config: serde_json::Value) {
+    std::fs::create_dir_all(dir).unwrap();
+    std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+    let lines: Vec<String> = (0..epochs).map(new_schema_line).collect();
+    std::fs::write(dir.join("log.jsonl"), lines.join("\n") + "\n").unwrap();
+}
+
 fn new_schema_line(epoch: u64) -> String {
     serde_json::json!({
         "epoch": epoch, "lr": 0.01, "train_loss": 1.0 / (epoch + 1) as f64, "images": 8,
@@ -164,7 +196,8 @@ fn report_of_runs_and_evaluations_is_one_self_contained_page() {
     }
     // Every run (the one `rtf train` wrote, run-new, both stages): loss, lr, val, class bars;
     // eval: bars, heat map; one prediction grid. (Old-schema logs: the unit tests.)
-    assert_eq!(svgs, 4 * 4 + 2, "{}", imgs.len());
+    // Comparing: validation mIoU and training loss, the runs overlaid.
+    assert_eq!(svgs, 4 * 4 + 2 + 2, "{}", imgs.len());
     assert_eq!(pngs, 1);
     for title in [
         "Training loss",
@@ -179,10 +212,12 @@ fn report_of_runs_and_evaluations_is_one_self_contained_page() {
     }
     let bars = imgs
         .iter()
-        .map(|(_, b)| String::from_utf8_lossy(b).into_owned())
-        .find(|t| t.contains("car 35.0/25.0"))
+        .map(|(_, b)| svg_texts(&String::from_utf8_lossy(b)))
+        .find(|t| t.iter().any(|t| t == "35.0/25.0"))
         .expect("day/night IoU bars of the new log");
-    assert!(bars.contains("day") && bars.contains("night"));
+    for label in ["car", "day", "night"] {
+        assert!(bars.iter().any(|t| t == label), "{label} in {bars:?}");
+    }
 }
 
 #[test]
@@ -227,4 +262,140 @@ fn bad_input_names_the_file_and_writes_nothing() {
     ok(&["report", s(&run), "--out", s(&out)]);
     let html = std::fs::read_to_string(&out).unwrap();
     assert!(html.contains("No prediction grid"));
+}
+
+#[test]
+fn a_run_report_leads_with_the_answer_and_stays_legible_at_500_epochs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("long");
+    synthetic_run(
+        &run,
+        500,
+        serde_json::json!({"model": {"network": "mfnet"}, "epochs": 500}),
+    );
+    let out = tmp.path().join("report.html");
+    ok(&["report", s(&run), "--out", s(&out), "--frames", "0"]);
+    let html = std::fs::read_to_string(&out).unwrap();
+
+    // new_schema_line: val miou 0.2 + 0.05 epoch, so the last epoch (499) is also the best.
+    let headline = &html[html.find("class=\"headline\"").unwrap()..];
+    let headline = &headline[..headline.find("</div>\n</div>").unwrap()];
+    let final_miou = format!("{:.1}", 100.0 * (0.2 + 0.05 * 499.0));
+    for figure in [
+        final_miou.as_str(),
+        "final mIoU (epoch 499)",
+        "best mIoU (epoch 499)",
+        "mAcc",
+        "30.0",
+        "mIoU day",
+        "25.0",
+        "mIoU night",
+        "15.0",
+    ] {
+        assert!(headline.contains(figure), "{figure} in {headline}");
+    }
+    // The answer, then the class bars, the curves, and the configuration last, collapsed.
+    let at = |needle: &str| {
+        html.find(needle)
+            .unwrap_or_else(|| panic!("{needle} in the page"))
+    };
+    let order = [
+        at("class=\"headline\""),
+        at("alt=\"per-class IoU bars\""),
+        at("alt=\"validation mIoU curves\""),
+        at("alt=\"training loss curves\""),
+        at("<details class=\"config\">"),
+    ];
+    assert!(order.windows(2).all(|w| w[0] < w[1]), "{order:?}");
+    assert!(!html.contains("<details open"), "configuration collapsed");
+    assert!(html.contains("<th>model.network</th>"));
+
+    // Tick thinning: at most 8 numeric labels on the epoch axis, 6 on the score axis.
+    let svgs = svg_images(&html);
+    let validation = chart(&svgs, "Validation");
+    let numeric = svg_texts(validation)
+        .into_iter()
+        .filter(|t| t.parse::<f64>().is_ok())
+        .count();
+    assert!((4..=8 + 6).contains(&numeric), "{numeric} tick labels");
+    let bars = svg_texts(chart(&svgs, "Per-class IoU (last validation), %"));
+    for name in ["unlabeled", "car", "person"] {
+        assert!(bars.iter().any(|t| t == name), "{name} in {bars:?}");
+    }
+}
+
+#[test]
+fn several_runs_compare_metrics_curves_and_configuration_differences() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("run-a"), tmp.path().join("run-b"));
+    let shared = |network: &str, lr: f64| serde_json::json!({"model": {"network": network}, "lr": lr, "batch": 4, "seed": 7});
+    synthetic_run(&a, 3, shared("mfnet", 0.01));
+    synthetic_run(&b, 5, shared("rtfnet", 0.01));
+    let out = tmp.path().join("compare.html");
+    ok(&["report", s(&a), s(&b), "--out", s(&out), "--frames", "0"]);
+    let html = std::fs::read_to_string(&out).unwrap();
+
+    let table = &html[html.find("<table class=\"compare\">").unwrap()..];
+    let table = &table[..table.find("</table>").unwrap()];
+    for cell in [
+        "final mIoU",
+        "best mIoU",
+        "best epoch",
+        "<th>run-a</th>",
+        "<th>run-b</th>",
+        "<td>30.0</td>",
+        "<td>40.0</td>",
+    ] {
+        assert!(table.contains(cell), "{cell} in {table}");
+    }
+    // Only the settings that differ: the network, not lr / batch / seed.
+    let diff = &html[html.find("<table class=\"config-diff\">").unwrap()..];
+    let diff = &diff[..diff.find("</table>").unwrap()];
+    assert!(diff.contains("<th>model.network</th>") && diff.contains("rtfnet"));
+    for same in ["<th>lr</th>", "<th>batch</th>", "<th>seed</th>"] {
+        assert!(!diff.contains(same), "{same} is the same in both runs");
+    }
+    assert!(
+        !html.contains("<details class=\"config\">"),
+        "no full configurations"
+    );
+
+    let svgs = svg_images(&html);
+    for title in ["Validation mIoU", "Training loss"] {
+        let texts = svg_texts(chart(&svgs, title));
+        assert!(
+            texts.iter().any(|t| t == "run-a") && texts.iter().any(|t| t == "run-b"),
+            "{title}: both runs overlaid, {texts:?}"
+        );
+    }
+}
+
+/// The page as a browser draws it: headless Chromium (scripts/report_screenshot.sh) renders
+/// the report, and the screenshot is not blank. Gated: `RTF_CHROMIUM=1` (needs `chromium`).
+#[test]
+fn chromium_renders_the_report() {
+    if std::env::var("RTF_CHROMIUM").as_deref() != Ok("1") {
+        eprintln!("skipped: set RTF_CHROMIUM=1 (needs chromium) to render the report");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    synthetic_run(&run, 50, serde_json::json!({"model": {"network": "mfnet"}}));
+    let (page, shot) = (tmp.path().join("report.html"), tmp.path().join("shot.png"));
+    ok(&["report", s(&run), "--out", s(&page), "--frames", "0"]);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/report_screenshot.sh");
+    let status = std::process::Command::new("bash")
+        .args([s(&script), s(&page), s(&shot), "1000x1200"])
+        .status()
+        .expect("bash runs");
+    assert!(status.success(), "report_screenshot.sh failed");
+    let img = image::open(&shot).expect("a PNG screenshot").to_rgb8();
+    assert_eq!(img.dimensions(), (1000, 1200));
+    // Drawn, not blank: dark text and the bars' / curves' blue both appear.
+    let dark = img.pixels().filter(|p| p.0.iter().all(|&c| c < 80)).count();
+    let blue = img
+        .pixels()
+        .filter(|p| p.0[2] > 150 && p.0[0] < 80 && p.0[1] < 150)
+        .count();
+    assert!(dark > 1000 && blue > 1000, "dark {dark}, blue {blue}");
 }

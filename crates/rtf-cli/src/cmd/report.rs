@@ -1,14 +1,17 @@
 //! `rtf report RUN… [--eval SCORES.json…] --out report.html`: one self-contained HTML page
 //! (every image embedded as a `data:` URI) summarising training runs and evaluations.
 //!
-//! Per run (and per stage of a multi-stage run, `RUN/<stage>/`): the configuration, training
-//! curves (each loss term, learning rates, validation mIoU / mAcc, day and night) and the last
-//! epoch's per-class IoU, day and night, when the log has them. Per `rtf eval --json` file: the
-//! scores (all / day / night, missing-modality rows), per-class IoU bars (day / night) and the
-//! confusion matrix as a heat map (rows = truth, normalised per row). Several runs: a
-//! side-by-side table. With weights in the run folders and a dataset (`--data`, else the first
-//! run's validation split), a prediction grid: RGB | thermal | truth | each run's prediction,
-//! column titles and class legend ([`rtf_eval::figure::annotated_grid`]).
+//! The page leads with the answer (issue #30). Per run (and per stage of a multi-stage run,
+//! `RUN/<stage>/`): a headline (final and best validation mIoU with their epochs, mAcc, day,
+//! night), the last validation's per-class IoU as bars by class name, the training curves (each
+//! loss term, learning rates, validation mIoU / mAcc, day and night), and the configuration
+//! last, collapsed. Several runs: first a table of final and best metrics, the curves overlaid
+//! and only the configuration settings that differ. Per `rtf eval --json` file: the scores
+//! (all / day / night, missing-modality rows), per-class IoU bars (day / night) and the
+//! confusion matrix as a heat map (rows = truth, normalised per row). With weights in the run
+//! folders and a dataset (`--data`, else the first run's validation split), a prediction grid:
+//! RGB | thermal | truth | each run's prediction, column titles and class legend
+//! ([`rtf_eval::figure::annotated_grid`]).
 //!
 //! Charts are drawn with `plotters` (SVG backend: text is laid out by the browser, no font
 //! files needed); the grid is a PNG.
@@ -298,6 +301,19 @@ fn last_class_iou(log: &[Epoch]) -> Option<Vec<ClassRow>> {
 
 const W: u32 = 560;
 const H: u32 = 300;
+/// At most this many labelled ticks per axis, whatever the number of epochs: plotters picks
+/// "nice" values (1, 2, 5 × 10^k steps) up to this count, so a 500-epoch run stays legible.
+const X_TICKS: usize = 8;
+const Y_TICKS: usize = 6;
+
+/// An epoch tick: whole epochs without decimals, the half steps a 2-epoch run gets with one.
+fn epoch_label(x: &f64) -> String {
+    if x.fract().abs() < 1e-9 {
+        format!("{x:.0}")
+    } else {
+        format!("{x:.1}")
+    }
+}
 
 fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("drawing a chart: {e:?}")
@@ -379,6 +395,9 @@ fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result
                 .configure_mesh()
                 .x_desc("epoch")
                 .y_desc(y_desc)
+                .x_labels(X_TICKS)
+                .y_labels(Y_TICKS)
+                .x_label_formatter(&epoch_label)
                 .y_label_formatter(&|v| format!("{v:.0e}"))
                 .draw()
                 .map_err(plot_err)?;
@@ -410,6 +429,9 @@ fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result
                 .configure_mesh()
                 .x_desc("epoch")
                 .y_desc(y_desc)
+                .x_labels(X_TICKS)
+                .y_labels(Y_TICKS)
+                .x_label_formatter(&epoch_label)
                 .draw()
                 .map_err(plot_err)?;
             for (i, (name, pts)) in series.iter().enumerate() {
@@ -434,21 +456,37 @@ fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result
     Ok(svg)
 }
 
-/// Horizontal bars of per-class IoU, day and night side by side (names left of the bars).
+/// Longest class name drawn whole in the bar chart's name column; longer names are cut with
+/// an ellipsis so that they never run into the bars (DejaVu Sans 12 px ≈ 7 px a character).
+const CLASS_NAME_CHARS: usize = 20;
+
+fn short_name(name: &str) -> String {
+    if name.chars().count() <= CLASS_NAME_CHARS {
+        name.to_string()
+    } else {
+        let head: String = name.chars().take(CLASS_NAME_CHARS - 1).collect();
+        format!("{head}…")
+    }
+}
+
+/// Horizontal bars of per-class IoU by class name, day and night side by side. Three columns
+/// that cannot overlap: names (x < 0, cut to [`CLASS_NAME_CHARS`]), bars (0..1), values
+/// (x > 1); one 26 px row per class.
 fn class_bars(title: &str, rows: &[ClassRow], labels: [&str; 2]) -> Result<String> {
     register_font()?;
     let n = rows.len().max(1);
-    let height = 60 + 26 * n as u32;
+    let height = 76 + 26 * n as u32;
     let mut svg = String::new();
     {
-        let root = SVGBackend::with_string(&mut svg, (W, height)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut svg, (W + 80, height)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_err)?;
         let mut chart = ChartBuilder::on(&root)
             .caption(title, ("sans-serif", 16))
             .margin(10)
             .x_label_area_size(28)
             .y_label_area_size(4)
-            .build_cartesian_2d(-0.4f64..1.0f64, 0f64..n as f64)
+            // A strip above the rows for the legend.
+            .build_cartesian_2d(-0.6f64..1.3f64, 0f64..n as f64 + 0.6)
             .map_err(plot_err)?;
         chart
             .configure_mesh()
@@ -456,10 +494,11 @@ fn class_bars(title: &str, rows: &[ClassRow], labels: [&str; 2]) -> Result<Strin
             .y_labels(0)
             .x_desc("IoU")
             .x_label_formatter(&|x| {
-                if *x < 0.0 {
-                    String::new()
+                // The 0 tick may come out as -1e-17.
+                if (-1e-9..=1.0 + 1e-9).contains(x) {
+                    format!("{:.1}", x.abs())
                 } else {
-                    format!("{x:.1}")
+                    String::new()
                 }
             })
             .draw()
@@ -467,61 +506,64 @@ fn class_bars(title: &str, rows: &[ClassRow], labels: [&str; 2]) -> Result<Strin
         let has_second = rows.iter().any(|r| r.2.is_some());
         for (i, (name, a, b)) in rows.iter().enumerate() {
             let y = (n - 1 - i) as f64;
-            let (h0, h1) = if has_second { (0.5, 0.9) } else { (0.15, 0.85) };
-            if let Some(a) = a {
-                chart
-                    .draw_series([Rectangle::new(
-                        [
-                            (0.0, y + h0 - if has_second { 0.4 } else { 0.0 }),
-                            (*a, y + h1 - if has_second { 0.4 } else { 0.0 }),
-                        ],
-                        colour(0).filled(),
-                    )])
-                    .map_err(plot_err)?;
-            }
-            if let Some(b) = b {
-                chart
-                    .draw_series([Rectangle::new(
-                        [(0.0, y + 0.5), (*b, y + 0.9)],
-                        colour(1).filled(),
-                    )])
-                    .map_err(plot_err)?;
+            let bars = if has_second {
+                [(a, y + 0.1, y + 0.5, 0), (b, y + 0.5, y + 0.9, 1)]
+            } else {
+                [(a, y + 0.15, y + 0.85, 0), (&None, 0.0, 0.0, 1)]
+            };
+            for (v, lo, hi, c) in bars {
+                if let Some(v) = v {
+                    chart
+                        .draw_series([Rectangle::new([(0.0, lo), (*v, hi)], colour(c).filled())])
+                        .map_err(plot_err)?;
+                }
             }
             let value =
                 |v: &Option<f64>| v.map_or("-".to_string(), |v| format!("{:.1}", 100.0 * v));
-            let text = if has_second {
-                format!("{name} {}/{}", value(a), value(b))
+            let values = if has_second {
+                format!("{}/{}", value(a), value(b))
             } else {
-                format!("{name} {}", value(a))
+                value(a)
             };
+            let font = ("sans-serif", 12);
             chart
-                .draw_series([Text::new(text, (-0.39, y + 0.7), ("sans-serif", 12))])
+                .draw_series([
+                    Text::new(short_name(name), (-0.59, y + 0.7), font),
+                    Text::new(values, (1.02, y + 0.7), font),
+                ])
                 .map_err(plot_err)?;
         }
-        // Legend of the two bar colours.
-        for (k, label) in labels
-            .iter()
-            .enumerate()
-            .take(if has_second { 2 } else { 1 })
-        {
-            let x = 0.55 + 0.22 * k as f64;
-            chart
-                .draw_series([Rectangle::new(
-                    [(x, n as f64 - 0.05), (x + 0.04, n as f64 - 0.3)],
-                    colour(k).filled(),
-                )])
-                .map_err(plot_err)?;
-            chart
-                .draw_series([Text::new(
-                    label.to_string(),
-                    (x + 0.05, n as f64 - 0.05),
-                    ("sans-serif", 12),
-                )])
-                .map_err(plot_err)?;
-        }
+        bar_legend(&mut chart, n, &labels[..if has_second { 2 } else { 1 }])?;
         root.present().map_err(plot_err)?;
     }
     Ok(svg)
+}
+
+type BarChart<'a, 'b> = ChartContext<
+    'a,
+    SVGBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+>;
+
+/// The bar colours' legend, in the strip above the top row.
+fn bar_legend(chart: &mut BarChart, n: usize, labels: &[&str]) -> Result<()> {
+    for (k, label) in labels.iter().enumerate() {
+        let x = 0.55 + 0.22 * k as f64;
+        chart
+            .draw_series([Rectangle::new(
+                [(x, n as f64 + 0.5), (x + 0.04, n as f64 + 0.25)],
+                colour(k).filled(),
+            )])
+            .map_err(plot_err)?;
+        chart
+            .draw_series([Text::new(
+                label.to_string(),
+                (x + 0.05, n as f64 + 0.5),
+                ("sans-serif", 12),
+            )])
+            .map_err(plot_err)?;
+    }
+    Ok(())
 }
 
 /// Row-normalised confusion matrix as a heat map (rows = truth, columns = prediction).
@@ -637,13 +679,6 @@ fn flatten_config(prefix: &str, value: &Value, out: &mut Vec<(String, String)>) 
     }
 }
 
-fn best(series: &Series, name: &str) -> Option<f64> {
-    series
-        .iter()
-        .find(|(n, _)| n == name)
-        .and_then(|(_, p)| p.iter().map(|p| p.1).reduce(f64::max))
-}
-
 fn last(series: &Series, name: &str) -> Option<f64> {
     series
         .iter()
@@ -651,34 +686,113 @@ fn last(series: &Series, name: &str) -> Option<f64> {
         .and_then(|(_, p)| p.last().map(|p| p.1))
 }
 
-fn run_section(run: &Run, html: &mut String) -> Result<()> {
-    writeln!(
-        html,
-        "<section class=\"run\"><h2>Run {}</h2>",
-        esc(&run.label)
-    )?;
-    writeln!(
-        html,
-        "<p class=\"path\">{}</p>",
-        esc(&run.dir.display().to_string())
-    )?;
-    let mut rows = Vec::new();
-    flatten_config("", &run.config, &mut rows);
-    if !rows.is_empty() {
+/// An epoch number as people write it (`80`, not `80.0`).
+fn epoch_text(epoch: f64) -> String {
+    epoch_label(&epoch)
+}
+
+/// The (epoch, value) of the highest point of `name` (the first epoch on a tie).
+fn best_point(series: &Series, name: &str) -> Option<(f64, f64)> {
+    let (_, points) = series.iter().find(|(n, _)| n == name)?;
+    points
+        .iter()
+        .copied()
+        .fold(None, |acc: Option<(f64, f64)>, p| match acc {
+            Some(a) if a.1 >= p.1 => Some(a),
+            _ => Some(p),
+        })
+}
+
+fn last_point(series: &Series, name: &str) -> Option<(f64, f64)> {
+    let (_, points) = series.iter().find(|(n, _)| n == name)?;
+    points.last().copied()
+}
+
+/// The answer first: final and best validation mIoU (with its epoch), mAcc, day and night,
+/// each the last validation's value, as large figures.
+fn headline(run: &Run, html: &mut String) -> Result<()> {
+    let val = val_series(&run.log);
+    let Some((final_epoch, final_miou)) = last_point(&val, "miou") else {
+        let loss =
+            last(&loss_series(&run.log), "total").map_or("–".into(), |v| format!("{v:.4}"));
         writeln!(
             html,
-            "<details open><summary>Configuration</summary><table class=\"config\">"
+            "<p class=\"headline\">No validation score in the log (a run with <code>--val-split none</code>?); final training loss {loss}.</p>"
         )?;
-        for (k, v) in rows {
-            writeln!(html, "<tr><th>{}</th><td>{}</td></tr>", esc(&k), esc(&v))?;
-        }
-        writeln!(html, "</table></details>")?;
-    }
-    if run.log.is_empty() {
-        writeln!(html, "<p>No epoch finished yet (empty log).</p></section>")?;
         return Ok(());
+    };
+    let (best_epoch, best_miou) = best_point(&val, "miou").unwrap_or((final_epoch, final_miou));
+    let mut figures = vec![
+        (
+            pct(Some(final_miou)),
+            format!("final mIoU (epoch {})", epoch_text(final_epoch)),
+        ),
+        (
+            pct(Some(best_miou)),
+            format!("best mIoU (epoch {})", epoch_text(best_epoch)),
+        ),
+    ];
+    for (key, label) in [
+        ("macc", "mAcc"),
+        ("miou_day", "mIoU day"),
+        ("miou_night", "mIoU night"),
+    ] {
+        if let Some(v) = last(&val, key) {
+            figures.push((pct(Some(v)), label.to_string()));
+        }
     }
-    writeln!(html, "<div class=\"charts\">")?;
+    writeln!(html, "<div class=\"headline\">")?;
+    for (value, label) in figures {
+        writeln!(
+            html,
+            "<div class=\"figure\"><span class=\"value\">{value}</span><span class=\"label\">{}</span></div>",
+            esc(&label)
+        )?;
+    }
+    writeln!(html, "</div>")?;
+    Ok(())
+}
+
+/// A run's answer (headline, per-class IoU bars), then its curves, then (when `with_config`)
+/// its whole configuration, collapsed: what people look for first comes first.
+fn run_section(run: &Run, with_config: bool, html: &mut String) -> Result<()> {
+    writeln!(
+        html,
+        "<section class=\"run\"><h2>Run {}</h2>\n<p class=\"path\">{}</p>",
+        esc(&run.label),
+        esc(&run.dir.display().to_string())
+    )?;
+    if run.log.is_empty() {
+        writeln!(html, "<p>No epoch finished yet (empty log).</p>")?;
+    } else {
+        headline(run, html)?;
+        writeln!(html, "<div class=\"charts\">")?;
+        if let Some(classes) = last_class_iou(&run.log) {
+            let labels = if classes.iter().any(|c| c.2.is_some()) {
+                ["day", "night"]
+            } else {
+                ["all", ""]
+            };
+            let svg = class_bars("Per-class IoU (last validation), %", &classes, labels)?;
+            writeln!(html, "{}", svg_img(&svg, "per-class IoU bars"))?;
+        }
+        curves(run, html)?;
+        writeln!(html, "</div>")?;
+    }
+    if with_config {
+        config_details(&run.config, html)?;
+    }
+    writeln!(html, "</section>")?;
+    Ok(())
+}
+
+/// Validation, loss and learning-rate curves of one run.
+fn curves(run: &Run, html: &mut String) -> Result<()> {
+    let val = val_series(&run.log);
+    if !val.is_empty() {
+        let svg = line_chart("Validation", "score", &val, false)?;
+        writeln!(html, "{}", svg_img(&svg, "validation mIoU curves"))?;
+    }
     let losses = loss_series(&run.log);
     if !losses.is_empty() {
         let svg = line_chart("Training loss", "loss", &losses, false)?;
@@ -689,20 +803,25 @@ fn run_section(run: &Run, html: &mut String) -> Result<()> {
         let svg = line_chart("Learning rate", "lr", &lrs, true)?;
         writeln!(html, "{}", svg_img(&svg, "learning rate"))?;
     }
-    let val = val_series(&run.log);
-    if !val.is_empty() {
-        let svg = line_chart("Validation", "score", &val, false)?;
-        writeln!(html, "{}", svg_img(&svg, "validation mIoU curves"))?;
+    Ok(())
+}
+
+/// The whole configuration as `a.b.c = v` rows, collapsed (`<details>` without `open`).
+fn config_details(config: &Value, html: &mut String) -> Result<()> {
+    let mut rows = Vec::new();
+    flatten_config("", config, &mut rows);
+    if rows.is_empty() {
+        return Ok(());
     }
-    if let Some(classes) = last_class_iou(&run.log) {
-        let svg = class_bars(
-            "Per-class IoU (last validation), %",
-            &classes,
-            ["day", "night"],
-        )?;
-        writeln!(html, "{}", svg_img(&svg, "per-class IoU bars"))?;
+    writeln!(
+        html,
+        "<details class=\"config\"><summary>Configuration ({} settings)</summary><table class=\"config\">",
+        rows.len()
+    )?;
+    for (k, v) in rows {
+        writeln!(html, "<tr><th>{}</th><td>{}</td></tr>", esc(&k), esc(&v))?;
     }
-    writeln!(html, "</div></section>")?;
+    writeln!(html, "</table></details>")?;
     Ok(())
 }
 
@@ -831,17 +950,57 @@ fn eval_section(eval: &EvalFile, html: &mut String) -> Result<()> {
     Ok(())
 }
 
+fn model_name(run: &Run) -> String {
+    run.config
+        .pointer("/model/network")
+        .or_else(|| run.config.get("model"))
+        .map(|v| v.as_str().map_or_else(|| v.to_string(), str::to_string))
+        .unwrap_or_else(|| "?".into())
+}
+
+/// Several runs (or stages): the final and best metrics table, the curves overlaid, and the
+/// configuration settings that differ.
+fn compare_section(runs: &[Run], html: &mut String) -> Result<()> {
+    writeln!(html, "<section class=\"compare\"><h2>Side by side</h2>")?;
+    comparison_table(runs, html)?;
+    writeln!(html, "<div class=\"charts\">")?;
+    for (key, title, pick) in [
+        (
+            "miou",
+            "Validation mIoU",
+            val_series as fn(&[Epoch]) -> Series,
+        ),
+        ("total", "Training loss", loss_series),
+    ] {
+        let overlaid: Series = runs
+            .iter()
+            .filter_map(|r| {
+                let series = pick(&r.log);
+                let (_, points) = series.into_iter().find(|(n, _)| n == key)?;
+                Some((r.label.clone(), points))
+            })
+            .collect();
+        if !overlaid.is_empty() {
+            let svg = line_chart(title, key, &overlaid, false)?;
+            writeln!(
+                html,
+                "{}",
+                svg_img(&svg, &format!("{title}, runs overlaid"))
+            )?;
+        }
+    }
+    writeln!(html, "</div>")?;
+    config_differences(runs, html)?;
+    writeln!(html, "</section>")?;
+    Ok(())
+}
+
 fn comparison_table(runs: &[Run], html: &mut String) -> Result<()> {
-    writeln!(html, "<section><h2>Side by side</h2><table class=\"compare\"><tr><th>run</th><th>model</th><th>epochs</th><th>last loss</th><th>best val mIoU</th><th>last val mIoU</th><th>day</th><th>night</th><th>images/s</th></tr>")?;
+    writeln!(html, "<table class=\"compare\"><tr><th>run</th><th>model</th><th>epochs</th><th>final loss</th><th>final mIoU</th><th>best mIoU</th><th>best epoch</th><th>final mAcc</th><th>day</th><th>night</th><th>images/s</th></tr>")?;
     for run in runs {
         let val = val_series(&run.log);
         let loss = loss_series(&run.log);
-        let model = run
-            .config
-            .pointer("/model/network")
-            .or_else(|| run.config.get("model"))
-            .map(|v| v.as_str().map_or_else(|| v.to_string(), str::to_string))
-            .unwrap_or_else(|| "?".into());
+        let best = best_point(&val, "miou");
         let speed = run
             .log
             .last()
@@ -850,19 +1009,66 @@ fn comparison_table(runs: &[Run], html: &mut String) -> Result<()> {
             .map_or("–".into(), |v| format!("{v:.1}"));
         writeln!(
             html,
-            "<tr><th>{}</th><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            "<tr><th>{}</th><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
             esc(&run.label),
-            esc(&model),
+            esc(&model_name(run)),
             run.log.len(),
             last(&loss, "total").map_or("–".into(), |v| format!("{v:.4}")),
-            pct(best(&val, "miou")),
             pct(last(&val, "miou")),
+            pct(best.map(|b| b.1)),
+            best.map_or("–".into(), |b| epoch_text(b.0)),
+            pct(last(&val, "macc")),
             pct(last(&val, "miou_day")),
             pct(last(&val, "miou_night")),
             speed
         )?;
     }
-    writeln!(html, "</table></section>")?;
+    writeln!(html, "</table>")?;
+    Ok(())
+}
+
+/// The settings whose values are not the same in every run (missing counts as a value: `–`).
+fn differing_settings(runs: &[Run]) -> BTreeMap<String, Vec<String>> {
+    let flat: Vec<BTreeMap<String, String>> = runs
+        .iter()
+        .map(|r| {
+            let mut rows = Vec::new();
+            flatten_config("", &r.config, &mut rows);
+            rows.into_iter().collect()
+        })
+        .collect();
+    let keys: std::collections::BTreeSet<&String> = flat.iter().flat_map(|m| m.keys()).collect();
+    keys.into_iter()
+        .map(|k| {
+            let values = flat
+                .iter()
+                .map(|m| m.get(k).cloned().unwrap_or_else(|| "–".into()));
+            (k.clone(), values.collect::<Vec<_>>())
+        })
+        .filter(|(_, values)| values.iter().any(|v| *v != values[0]))
+        .collect()
+}
+
+fn config_differences(runs: &[Run], html: &mut String) -> Result<()> {
+    let differing = differing_settings(runs);
+    writeln!(html, "<h3>Configuration differences</h3>")?;
+    if differing.is_empty() {
+        writeln!(html, "<p>The runs have the same configuration.</p>")?;
+        return Ok(());
+    }
+    write!(html, "<table class=\"config-diff\"><tr><th>setting</th>")?;
+    for run in runs {
+        write!(html, "<th>{}</th>", esc(&run.label))?;
+    }
+    writeln!(html, "</tr>")?;
+    for (key, values) in differing {
+        write!(html, "<tr><th>{}</th>", esc(&key))?;
+        for v in values {
+            write!(html, "<td>{}</td>", esc(&v))?;
+        }
+        writeln!(html, "</tr>")?;
+    }
+    writeln!(html, "</table>")?;
     Ok(())
 }
 
@@ -968,7 +1174,11 @@ h1{margin-bottom:4px}h2{border-bottom:1px solid #ccc;padding-bottom:4px}
 table{border-collapse:collapse;margin:8px 0}td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}
 th{background:#f4f4f4;text-align:left}table.config td{text-align:left;font-family:monospace}
 .charts img{margin:6px;border:1px solid #eee;vertical-align:top}.path{color:#777;font-family:monospace}
-img.grid{max-width:100%;border:1px solid #eee}";
+img.grid{max-width:100%;border:1px solid #eee}
+.headline{display:flex;flex-wrap:wrap;gap:12px;margin:8px 0 12px}
+.headline .figure{border:1px solid #ddd;border-radius:6px;padding:8px 16px;min-width:120px}
+.headline .value{display:block;font-size:30px;font-weight:bold}.headline .label{color:#555}
+table.config-diff td{text-align:left;font-family:monospace}details.config{margin:8px 0}";
 
 pub fn run(args: Args) -> Result<()> {
     let mut runs = Vec::new();
@@ -993,11 +1203,13 @@ pub fn run(args: Args) -> Result<()> {
         },
         env!("CARGO_PKG_VERSION")
     )?;
-    if runs.len() > 1 {
-        comparison_table(&runs, &mut html)?;
+    let comparing = runs.len() > 1;
+    if comparing {
+        compare_section(&runs, &mut html)?;
     }
     for run in &runs {
-        run_section(run, &mut html)?;
+        // Comparing: the differences above stand for the configurations.
+        run_section(run, !comparing, &mut html)?;
     }
     for eval in &evals {
         eval_section(eval, &mut html)?;
@@ -1055,7 +1267,7 @@ mod tests {
             "sorted by name; the flat `lr` only where a record has no `lrs`"
         );
         let val = val_series(&log);
-        assert_eq!(best(&val, "miou"), Some(0.2));
+        assert_eq!(best_point(&val, "miou"), Some((2.0, 0.2)));
         assert_eq!(last(&val, "miou_night"), Some(0.1));
         let classes = last_class_iou(&log).unwrap();
         assert_eq!(classes[0], ("car".to_string(), Some(0.5), Some(0.25)));
@@ -1075,7 +1287,8 @@ mod tests {
             ["day", "night"],
         )
         .unwrap();
-        assert!(bars.contains("car 50.0/25.0"));
+        let texts = svg_texts(&bars);
+        assert!(texts.contains(&"car".to_string()) && texts.contains(&"50.0/25.0".to_string()));
         let heat = heat_map(
             "Confusion",
             &["a".into(), "b".into()],
@@ -1083,5 +1296,61 @@ mod tests {
         )
         .unwrap();
         assert!(heat.contains("Confusion") && heat.matches("<rect").count() >= 4);
+    }
+
+    /// The contents of an SVG's `<text>` elements (plotters writes them on their own lines).
+    fn svg_texts(svg: &str) -> Vec<String> {
+        svg.split("<text")
+            .skip(1)
+            .filter_map(|t| {
+                let body = &t[t.find('>')? + 1..t.find("</text>")?];
+                Some(body.trim().to_string())
+            })
+            .collect()
+    }
+
+    fn run_with(label: &str, config: Value) -> Run {
+        Run {
+            label: label.into(),
+            dir: PathBuf::from(label),
+            config,
+            log: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn only_differing_settings_are_compared() {
+        let runs = [
+            run_with(
+                "a",
+                serde_json::json!({"model": {"network": "mfnet"}, "lr": 0.01, "seed": 1}),
+            ),
+            run_with(
+                "b",
+                serde_json::json!({"model": {"network": "rtfnet"}, "lr": 0.01}),
+            ),
+        ];
+        let differing = differing_settings(&runs);
+        assert_eq!(
+            differing.into_iter().collect::<Vec<_>>(),
+            [
+                (
+                    "model.network".to_string(),
+                    vec!["\"mfnet\"".to_string(), "\"rtfnet\"".into()]
+                ),
+                ("seed".to_string(), vec!["1".to_string(), "–".into()]),
+            ]
+        );
+    }
+
+    #[test]
+    fn long_class_names_are_cut_before_the_bars() {
+        assert_eq!(short_name("car"), "car");
+        let long = "a_very_long_class_name_indeed";
+        let cut = short_name(long);
+        assert_eq!(cut.chars().count(), CLASS_NAME_CHARS);
+        assert!(cut.ends_with('…') && long.starts_with(cut.trim_end_matches('…')));
+        assert_eq!(epoch_label(&80.0), "80");
+        assert_eq!(epoch_label(&1.5), "1.5");
     }
 }
