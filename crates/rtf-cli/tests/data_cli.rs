@@ -263,13 +263,9 @@ fn check_refuses_16_bit_thermal_without_a_rule_and_a_bad_description() {
     );
 }
 
-/// A PST900 root (train and test only, 5 classes) trains without validation, says so, and
-/// its weights have 5 outputs that `rtf eval` scores by class name.
-#[test]
-fn a_five_class_pst900_root_trains_without_val_and_evaluates_by_class_name() {
+/// A PST900 root (train and test, 4 frames each, 64x48, 5 classes in horizontal bands).
+fn pst900_root(data: &std::path::Path) {
     use rtf_data::pngio::write_png_u8;
-    let tmp = tempfile::tempdir().unwrap();
-    let (data, run) = (tmp.path().join("pst900"), tmp.path().join("run"));
     let (w, h) = (64, 48);
     for split in ["train", "test"] {
         for k in 0..4u8 {
@@ -282,6 +278,64 @@ fn a_five_class_pst900_root_trains_without_val_and_evaluates_by_class_name() {
             write_png_u8(&file("labels"), w, h, 1, &ids).unwrap();
         }
     }
+}
+
+/// Fine-tuning onto a new class set (issue 26 §4): a 9-class MF run's weights start a
+/// 5-class PST900 run under `--reset-head` (stderr names the tensors that start fresh);
+/// without it the error names the head's tensors and suggests the flag.
+#[test]
+fn nine_class_weights_fine_tune_onto_five_classes_with_reset_head() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (mf, pst) = (tmp.path().join("mf"), tmp.path().join("pst900"));
+    synth_mf(&mf, "8", "1", "64x48");
+    pst900_root(&pst);
+    let first = tmp.path().join("mf-run");
+    ok(&short_train(
+        &mf,
+        &first,
+        "1",
+        &["--model", "mfnet", "--val-split", "none"],
+    ));
+    let nine = first.join("final.safetensors");
+    let init = ["--model", "mfnet", "--init", s(&nine)];
+
+    let refused = tmp.path().join("refused");
+    let err = fails(&short_train(&pst, &refused, "1", &init));
+    assert!(
+        err.contains("decode1.conv.weight") && err.contains("--reset-head"),
+        "{err}"
+    );
+    assert!(
+        !refused.exists(),
+        "nothing written for weights that do not fit"
+    );
+
+    let run = tmp.path().join("tuned");
+    let mut args = init.to_vec();
+    args.push("--reset-head");
+    let out = rtf(&short_train(&pst, &run, "1", &args));
+    let printed = text(&out);
+    assert!(out.status.success(), "{printed}");
+    assert!(
+        printed.contains("init: 222 of 228 tensors loaded from"),
+        "{printed}"
+    );
+    assert!(
+        printed.contains("start fresh (--reset-head): decode1.bn.bias, decode1.bn.running_mean"),
+        "{printed}"
+    );
+    let config = json_file(&run.join("config.json"));
+    assert_eq!(config["init_reset_head"], true, "{config}");
+    assert_eq!(config["model"]["num_classes"], 5, "{config}");
+}
+
+/// A PST900 root (train and test only, 5 classes) trains without validation, says so, and
+/// its weights have 5 outputs that `rtf eval` scores by class name.
+#[test]
+fn a_five_class_pst900_root_trains_without_val_and_evaluates_by_class_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, run) = (tmp.path().join("pst900"), tmp.path().join("run"));
+    pst900_root(&data);
     let out = rtf(&short_train(&data, &run, "1", &["--model", "mfnet"]));
     let printed = text(&out);
     assert!(out.status.success(), "{printed}");

@@ -135,6 +135,18 @@ impl ModelConfig {
         }
     }
 
+    /// The same network with another class count (fine-tuning onto a new class set).
+    pub fn with_num_classes(&self, num_classes: i64) -> Self {
+        let mut cfg = self.clone();
+        match &mut cfg {
+            Self::Mfnet(c) => c.num_classes = num_classes,
+            Self::Rtfnet(c) => c.num_classes = num_classes,
+            Self::Heatnet(c) => c.num_classes = num_classes,
+            Self::Baseline(c) => c.num_classes = num_classes,
+        }
+        cfg
+    }
+
     pub fn input_convention(&self) -> rtf_core::InputConvention {
         match self {
             Self::Mfnet(c) => c.input,

@@ -20,7 +20,7 @@
 //! Library errors of the `safetensors` crate are translated into what is wrong with the file
 //! (e.g. `HeaderTooLarge` on a PyTorch `.pth` archive).
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
 
 use safetensors::{tensor::TensorView, Dtype, SafeTensorError, SafeTensors};
@@ -412,10 +412,50 @@ pub fn load_named(
     tensors: Vec<(String, Tensor)>,
     source: &Path,
 ) -> Result<(), ModelError> {
-    let vars: BTreeMap<String, Tensor> = vs.variables().into_iter().collect();
+    load_named_except(vs, tensors, source, &BTreeSet::new())
+}
+
+/// The variables of a network whose shapes depend on its class count (the classifier head):
+/// found by building the network with `cfg`'s class count and with one more, without
+/// initialising any weights, and comparing every variable's shape.
+pub fn class_dependent_names(cfg: &ModelConfig) -> Result<BTreeSet<String>, ModelError> {
+    let shapes = |cfg: &ModelConfig| -> Result<BTreeMap<String, Vec<i64>>, ModelError> {
+        crate::layers::with_zero_init(|| {
+            let vs = VarStore::new(tch::Device::Cpu);
+            crate::build(&vs.root(), cfg)?;
+            Ok(vs
+                .variables()
+                .into_iter()
+                .map(|(name, t)| (name, t.size()))
+                .collect())
+        })
+    };
+    let own = shapes(cfg)?;
+    let other = shapes(&cfg.with_num_classes(cfg.num_classes() + 1))?;
+    Ok(own
+        .into_iter()
+        .filter(|(name, size)| other.get(name) != Some(size))
+        .map(|(name, _)| name)
+        .collect())
+}
+
+/// [`load_named`], except that the variables named in `keep_fresh` keep their initial values:
+/// the file need not hold them, and what it holds under those names (of any shape) is not
+/// loaded. Every other variable is checked and loaded strictly.
+pub fn load_named_except(
+    vs: &mut VarStore,
+    tensors: Vec<(String, Tensor)>,
+    source: &Path,
+    keep_fresh: &BTreeSet<String>,
+) -> Result<(), ModelError> {
+    let vars: BTreeMap<String, Tensor> = vs
+        .variables()
+        .into_iter()
+        .filter(|(name, _)| !keep_fresh.contains(name))
+        .collect();
     let file: BTreeMap<String, Tensor> = tensors
         .into_iter()
-        .filter(|(name, _)| !is_ignored_name(name))
+        .filter(|(name, _)| !is_ignored_name(name) && !keep_fresh.contains(name))
         .collect();
     let missing: Vec<String> = vars
         .keys()
@@ -620,6 +660,42 @@ mod tests {
         save_named(&named, &file).unwrap();
         let (mut vs_b, _net_b) = mfnet(2);
         load_safetensors(&mut vs_b, &file).unwrap();
+    }
+
+    #[test]
+    fn a_nine_class_file_loads_into_a_five_class_network_except_its_head() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("nine.safetensors");
+        let (vs9, _net9) = mfnet(1);
+        save_safetensors(&vs9, &mfnet_cfg("mfnet"), Modality::RgbT, &file).unwrap();
+        let five = ModelConfig::from_name("mfnet", 5).unwrap();
+        let head = class_dependent_names(&five).unwrap();
+        assert_eq!(
+            head.iter().map(String::as_str).collect::<Vec<_>>(),
+            [
+                "decode1.bn.bias",
+                "decode1.bn.running_mean",
+                "decode1.bn.running_var",
+                "decode1.bn.weight",
+                "decode1.conv.bias",
+                "decode1.conv.weight"
+            ]
+        );
+        tch::manual_seed(2);
+        let mut vs5 = VarStore::new(Device::Cpu);
+        let _net5 = build(&vs5.root(), &five).unwrap();
+        let fresh_head = vs5.variables()["decode1.conv.weight"].copy();
+        assert!(
+            load_safetensors(&mut vs5, &file).is_err(),
+            "strict load refuses"
+        );
+        load_named_except(&mut vs5, read_safetensors(&file).unwrap(), &file, &head).unwrap();
+        let (loaded, nine) = (vs5.variables(), vs9.variables());
+        assert!(loaded["conv1_rgb.conv.weight"].equal(&nine["conv1_rgb.conv.weight"]));
+        assert!(
+            loaded["decode1.conv.weight"].equal(&fresh_head),
+            "head untouched"
+        );
     }
 
     #[test]

@@ -49,6 +49,12 @@ pub struct TrainConfig {
     /// Weights the network starts from (a stage's fine-tuning: HeatNet's second stage).
     #[serde(default)]
     pub init_from: Option<WeightsRef>,
+    /// The class-dependent tensors of the network (its classifier head: those whose shapes
+    /// depend on the class count) start fresh instead of from `init_from`, which then may
+    /// come from a network of another class set (fine-tuning onto new classes; `rtf train
+    /// --reset-head`). Every other tensor still loads strictly. Written only when true.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub init_reset_head: bool,
     /// The validation score that picks `best.safetensors`; None = the dataset's usual one
     /// (HeatNet's day/night mIoU on Freiburg, mIoU on MF).
     #[serde(default)]
@@ -839,6 +845,7 @@ impl TrainConfig {
             procedure: Procedure::Supervised,
             inputs: Modality::RgbT,
             init_from: None,
+            init_reset_head: false,
             select_by: None,
             tb_images_every: None,
             precision: Precision::Fp32,

@@ -25,7 +25,7 @@ use rtf_models::Network;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{self, Part, PartialEpoch, TrainState};
-use crate::config::{DatasetConfig, SelectMetric, TrainConfig, WeightsRef};
+use crate::config::{DatasetConfig, SelectMetric, TrainConfig};
 use crate::ddp::Ddp;
 pub use crate::error::TrainError;
 use crate::procedure::{self, Procedure, StepBatches};
@@ -553,14 +553,10 @@ fn start(
     if let Some(path) = &cfg.backbone_weights {
         rtf_models::backbone::load_backbone_weights(student, &cfg.model, path)?;
     }
-    match &cfg.init_from {
-        Some(WeightsRef::File(path)) => rtf_models::weights::load_safetensors(student, path)?,
-        Some(WeightsRef::Stage(name)) => {
-            return Err(TrainError::Config(format!(
-                "init_from stage `{name}` was not resolved (stage references only work inside a multi-stage run)"
-            )))
+    if let Some(report) = crate::init::load_init(student, cfg)? {
+        if folder.is_root {
+            eprintln!("{report}");
         }
-        None => {}
     }
     Ok(TrainState {
         epochs_done: 0,

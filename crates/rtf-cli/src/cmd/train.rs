@@ -125,6 +125,12 @@ pub struct Args {
     /// error names those that do not. Single-stage runs only. Recorded in config.json.
     #[arg(long)]
     pub init: Option<PathBuf>,
+    /// With --init: the network's class-dependent tensors (its classifier head) start fresh,
+    /// so that weights trained on another class set (e.g. MF's 9 classes) fine-tune onto this
+    /// dataset's classes. Every other tensor must still match; stderr lists the tensors that
+    /// start fresh. Recorded in config.json.
+    #[arg(long, requires = "init")]
+    pub reset_head: bool,
     #[arg(long)]
     pub seed: Option<u64>,
     /// MF and described layouts (dataset.yaml, MSRS, PST900, FMB): the training split.
@@ -580,7 +586,7 @@ fn new_run(args: &Args) -> Result<RunConfig> {
         apply_parity_controls(stage, args);
     }
     if let Some(path) = &args.init {
-        apply_init(&mut cfg, path)?;
+        apply_init(&mut cfg, path, args)?;
     }
     cfg.validate()?;
     Ok(cfg)
@@ -598,14 +604,25 @@ fn apply_parity_controls(cfg: &mut TrainConfig, args: &Args) {
 
 /// `--init WEIGHTS`: the single stage starts from this file, checked now so that weights that
 /// do not fit leave no run folder behind.
-fn apply_init(cfg: &mut RunConfig, path: &Path) -> Result<()> {
+fn apply_init(cfg: &mut RunConfig, path: &Path, args: &Args) -> Result<()> {
     let RunConfig::Single(single) = cfg else {
         bail!("--init goes with a single-stage run (a pipeline's stages start from their own weights)");
     };
     let path = std::fs::canonicalize(path)
         .with_context(|| format!("{}: cannot open the --init weights", path.display()))?;
     single.init_from = Some(WeightsRef::File(path));
-    rtf_train::init::check_init_weights(single)?;
+    single.init_reset_head = args.reset_head;
+    rtf_train::init::check_init_weights(single).map_err(|e| match e {
+        rtf_train::TrainError::Model(m @ rtf_models::ModelError::Mismatch { .. })
+            if !args.reset_head =>
+        {
+            anyhow::Error::new(m).context(
+                "--init: these weights do not fit the network (--reset-head starts the \
+                 classifier head fresh when only the class count differs)",
+            )
+        }
+        other => other.into(),
+    })?;
     Ok(())
 }
 
