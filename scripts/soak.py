@@ -5,7 +5,7 @@ process's resident memory, open file descriptors, threads and (training) the run
 size. Writes soak.csv and soak.svg (no plotting library needed) into --out and prints the
 growth from step --warm-up to the end.
 
-  /work/main/.venv/bin/python scripts/soak.py --out /tmp/soak --steps 2000 --every 100
+  .venv/bin/python scripts/soak.py --out /tmp/soak --steps 2000 --every 100
 
 Standard library only; Linux (/proc).
 """
