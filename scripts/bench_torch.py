@@ -348,6 +348,10 @@ def main():
     ap.add_argument("--shared-process", action="store_true",
                     help="run the PyTorch configurations one after another in this process instead of a "
                          "fresh process each (they then inherit each other's allocator state)")
+    ap.add_argument("--precisions", default="fp32,bf16",
+                    help="comma-separated: fp32 (PyTorch NCHW and channels_last, rtf fp32), bf16 (PyTorch "
+                         "autocast, rtf bf16)")
+    ap.add_argument("--json-out", help="also write the rows (median and min ms per frame) here, as JSON")
     ap.add_argument("--worker", choices=sorted(TORCH_CONFIGS), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
@@ -363,10 +367,12 @@ def main():
           + ("PyTorch configurations sharing one process" if args.shared_process else "a fresh process per configuration")
           + (", PyTorch with rtf's allocator policy" if args.torch_retain_memory else ""))
     samples = {}
+    precisions = [p for p in ("fp32", "bf16") if p in args.precisions.split(",")]
     for _ in range(args.rounds):
-        for label in TORCH_CONFIGS:
-            samples.setdefault(label, []).extend(torch_times(args, label))
-        for precision in ("fp32", "bf16"):
+        for label, (_, bf16) in TORCH_CONFIGS.items():
+            if ("bf16" if bf16 else "fp32") in precisions:
+                samples.setdefault(label, []).extend(torch_times(args, label))
+        for precision in precisions:
             report = rtf_bench(args, precision, args.iterations)
             # rtf reports only median and min per call; keep both as samples of that round.
             samples.setdefault(f"rtf fast {precision}", []).extend([report["median_ms"], report["min_ms"]])
@@ -374,6 +380,13 @@ def main():
                 report = rtf_bench(args, precision, args.iterations, "nchw")
                 samples.setdefault(f"rtf fast {precision} nchw", []).extend([report["median_ms"], report["min_ms"]])
     rows = {k: (statistics.median(v), min(v)) for k, v in samples.items()}
+    if args.json_out:
+        with open(args.json_out, "w") as f:
+            json.dump({"model": args.model, "batch": args.batch, "threads": args.threads, "torch": torch.__version__,
+                       "rounds": args.rounds, "iterations": args.iterations, "warmup": args.warmup,
+                       "rows": {k: {"median_ms": m, "min_ms": n} for k, (m, n) in rows.items()}}, f, indent=1)
+    if "fp32" not in precisions:
+        return
     base, base_min = rows["torch eager fp32 NCHW"]
     cl, cl_min = rows["torch channels_last fp32"]
     print(f"{'':26} {'median ms':>9} {'min ms':>8} {'vs eager (median/min)':>22} {'vs ch-last (median/min)':>24}")

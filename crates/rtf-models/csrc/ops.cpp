@@ -4,18 +4,22 @@
 //   uses 0.1. Calling ATen here goes through the dispatcher, autograd included, so the result is
 //   differentiable exactly like `torch.nn.functional.leaky_relu(x, slope, inplace)`.
 // - A bf16 convolution for CPUs without bf16 arithmetic (below, `Bf16EmulatedConvolution`).
+// - oneDNN weight packing for the inference path's convolutions (`rtf_pack_conv_weight`).
 // - ATen's fused SGD update (one pass over parameter, gradient and momentum buffer), which tch
 //   does not bind (list arguments).
 // Tensors arrive as `at::Tensor*`, which is what tch's `C_tensor*` is. Every C++ exception is
 // caught and returned as a malloc'd message (NULL = success).
 
 #include <ATen/ATen.h>
+#include <ATen/Parallel.h>
 #include <c10/core/impl/LocalDispatchKeySet.h>
 #include <torch/csrc/autograd/custom_function.h>
 
 #include <cstdlib>
 #include <cstring>
+#include <algorithm>
 #include <exception>
+#include <vector>
 
 namespace {
 
@@ -98,6 +102,165 @@ struct Bf16EmulatedConvolution : public torch::autograd::Function<Bf16EmulatedCo
   }
 };
 
+
+// ---- Winograd F(4x4, 3x3) (Lavin & Gray 2016) for the inference path (winograd.rs) ----------
+// A 3x3 convolution (stride 1, padding 1) of an NHWC float map, 4x4 output tiles: each 6x6
+// input tile d becomes V = Bt d B (36 values per channel), the channels are summed by 36 matrix
+// products M[xi] = V[xi] U[xi] (U = G g Gt, made once in Rust), and each tile's outputs are
+// At M A. Tiles go in chunks that keep V and M in cache; the transforms are loops over the
+// channels, which the compiler vectorises (a copy per instruction set, picked at run time).
+
+// Scratch rows of C floats: out[r] = Bt · in (6 rows) for r in 0..6.
+#define RTF_WINO_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+
+RTF_WINO_CLONES
+void wino43_bt(const float* const in[6], float* const out[6], int64_t c_count) {
+  for (int64_t c = 0; c < c_count; ++c) {
+    float d0 = in[0][c], d1 = in[1][c], d2 = in[2][c], d3 = in[3][c], d4 = in[4][c],
+          d5 = in[5][c];
+    out[0][c] = 4.f * d0 - 5.f * d2 + d4;
+    out[1][c] = -4.f * d1 - 4.f * d2 + d3 + d4;
+    out[2][c] = 4.f * d1 - 4.f * d2 - d3 + d4;
+    out[3][c] = -2.f * d1 - d2 + 2.f * d3 + d4;
+    out[4][c] = 2.f * d1 - d2 - 2.f * d3 + d4;
+    out[5][c] = 4.f * d1 - 5.f * d3 + d5;
+  }
+}
+
+// out[r] = At · in (6 rows -> 4) for r in 0..4.
+RTF_WINO_CLONES
+void wino43_at(const float* const in[6], float* const out[4], int64_t c_count) {
+  for (int64_t c = 0; c < c_count; ++c) {
+    float m0 = in[0][c], m1 = in[1][c], m2 = in[2][c], m3 = in[3][c], m4 = in[4][c],
+          m5 = in[5][c];
+    out[0][c] = m0 + m1 + m2 + m3 + m4;
+    out[1][c] = m1 - m2 + 2.f * (m3 - m4);
+    out[2][c] = m1 + m2 + 4.f * (m3 + m4);
+    out[3][c] = m1 - m2 + 8.f * (m3 - m4) + m5;
+  }
+}
+
+// out = act(in + bias (+ residual)), c_count floats.
+RTF_WINO_CLONES
+void wino43_finish(const float* in, const float* bias, const float* residual, bool relu,
+                   float* out, int64_t c_count) {
+  for (int64_t c = 0; c < c_count; ++c) {
+    float v = in[c] + (bias != nullptr ? bias[c] : 0.f) + (residual != nullptr ? residual[c] : 0.f);
+    out[c] = relu ? (v > 0.f ? v : 0.f) : v;
+  }
+}
+
+struct Wino43Map {
+  const float* x;  // NHWC [N, H, W, C]
+  int64_t n, h, w, c, k, tiles_h, tiles_w;
+};
+
+// V[xi, t, :] for the chunk's tiles [t0, t1) (tile t = (n, i, j) in row-major order).
+void wino43_input(const Wino43Map& m, const float* zeros, int64_t t0, int64_t t1, float* v) {
+  int64_t chunk = t1 - t0;
+  at::parallel_for(t0, t1, 1, [&](int64_t begin, int64_t end) {
+    std::vector<float> scratch(36 * m.c);
+    for (int64_t t = begin; t < end; ++t) {
+      int64_t n = t / (m.tiles_h * m.tiles_w), r = t % (m.tiles_h * m.tiles_w);
+      int64_t y0 = 4 * (r / m.tiles_w) - 1, x0 = 4 * (r % m.tiles_w) - 1;
+      // Rows: tmp[a][col] = Bt · d[:, col], per column of the tile.
+      for (int col = 0; col < 6; ++col) {
+        const float* in[6];
+        float* out[6];
+        for (int row = 0; row < 6; ++row) {
+          int64_t y = y0 + row, x = x0 + col;
+          bool inside = y >= 0 && y < m.h && x >= 0 && x < m.w;
+          in[row] = inside ? m.x + ((n * m.h + y) * m.w + x) * m.c : zeros;
+          out[row] = scratch.data() + (row * 6 + col) * m.c;
+        }
+        wino43_bt(in, out, m.c);
+      }
+      // Columns: V[a * 6 + b] = (tmp[a] · B)[b].
+      for (int a = 0; a < 6; ++a) {
+        const float* in[6];
+        float* out[6];
+        for (int b = 0; b < 6; ++b) {
+          in[b] = scratch.data() + (a * 6 + b) * m.c;
+          out[b] = v + ((a * 6 + b) * chunk + (t - t0)) * m.c;
+        }
+        wino43_bt(in, out, m.c);
+      }
+    }
+  });
+}
+
+// The chunk's outputs from M[xi, t, :]: act(At M A + bias (+ residual)) into NHWC `y`.
+void wino43_output(const Wino43Map& m, const float* mm, int64_t t0, int64_t t1,
+                   const float* bias, const float* residual, bool relu, float* y) {
+  int64_t chunk = t1 - t0;
+  at::parallel_for(t0, t1, 1, [&](int64_t begin, int64_t end) {
+    std::vector<float> scratch(24 * m.k + 16 * m.k);
+    float* rows = scratch.data();            // [4][6][K]
+    float* tile = scratch.data() + 24 * m.k;  // [4][4][K]
+    for (int64_t t = begin; t < end; ++t) {
+      int64_t n = t / (m.tiles_h * m.tiles_w), r = t % (m.tiles_h * m.tiles_w);
+      int64_t y0 = 4 * (r / m.tiles_w), x0 = 4 * (r % m.tiles_w);
+      for (int b = 0; b < 6; ++b) {
+        const float* in[6];
+        float* out[4];
+        for (int a = 0; a < 6; ++a) in[a] = mm + ((a * 6 + b) * chunk + (t - t0)) * m.k;
+        for (int a = 0; a < 4; ++a) out[a] = rows + (a * 6 + b) * m.k;
+        wino43_at(in, out, m.k);
+      }
+      for (int a = 0; a < 4; ++a) {
+        const float* in[6];
+        float* out[4];
+        for (int b = 0; b < 6; ++b) in[b] = rows + (a * 6 + b) * m.k;
+        for (int b = 0; b < 4; ++b) out[b] = tile + (a * 4 + b) * m.k;
+        wino43_at(in, out, m.k);
+      }
+      for (int a = 0; a < 4 && y0 + a < m.h; ++a) {
+        for (int b = 0; b < 4 && x0 + b < m.w; ++b) {
+          int64_t at_ = ((n * m.h + y0 + a) * m.w + x0 + b) * m.k;
+          wino43_finish(tile + (a * 4 + b) * m.k, bias, residual != nullptr ? residual + at_ : nullptr,
+                        relu, y + at_, m.k);
+        }
+      }
+    }
+  });
+}
+
+// act(conv3x3(x) + bias (+ residual)) with U [36, C, K]; x, residual channels-last [N, C|K, H, W].
+at::Tensor wino43_conv(const at::Tensor& x_in, const at::Tensor& u, const at::Tensor* bias,
+                       const at::Tensor* residual_in, bool relu) {
+  at::NoGradGuard no_grad;
+  TORCH_CHECK(x_in.scalar_type() == at::kFloat && u.scalar_type() == at::kFloat,
+              "winograd F(4x4, 3x3): float32 only");
+  TORCH_CHECK(u.dim() == 3 && u.size(0) == 36 && u.size(1) == x_in.size(1),
+              "winograd F(4x4, 3x3): expected U [36, C, K]");
+  at::Tensor x = x_in.permute({0, 2, 3, 1}).contiguous();
+  at::Tensor u_c = u.contiguous();
+  Wino43Map m{x.data_ptr<float>(), x.size(0), x.size(1), x.size(2), x.size(3), u.size(2), 0, 0};
+  m.tiles_h = (m.h + 3) / 4;
+  m.tiles_w = (m.w + 3) / 4;
+  at::Tensor b = bias != nullptr ? bias->contiguous() : at::Tensor();
+  at::Tensor res = residual_in != nullptr ? residual_in->permute({0, 2, 3, 1}).contiguous() : at::Tensor();
+  at::Tensor y = at::empty({m.n, m.h, m.w, m.k}, x.options());
+  at::Tensor zeros = at::zeros({m.c}, x.options());
+  int64_t tiles = m.n * m.tiles_h * m.tiles_w;
+  // V and M of a chunk within ~8 MB each.
+  int64_t per_chunk = std::max<int64_t>(16, (8 << 20) / (36 * 4 * std::max(m.c, m.k)));
+  at::Tensor v = at::empty({36, std::min(per_chunk, tiles), m.c}, x.options());
+  at::Tensor mm = at::empty({36, std::min(per_chunk, tiles), m.k}, x.options());
+  for (int64_t t0 = 0; t0 < tiles; t0 += per_chunk) {
+    int64_t t1 = std::min(tiles, t0 + per_chunk), chunk = t1 - t0;
+    at::Tensor vc = v.narrow(1, 0, chunk), mc = mm.narrow(1, 0, chunk);
+    if (chunk != v.size(1)) {
+      vc = at::empty({36, chunk, m.c}, x.options());
+      mc = at::empty({36, chunk, m.k}, x.options());
+    }
+    wino43_input(m, zeros.data_ptr<float>(), t0, t1, vc.data_ptr<float>());
+    at::bmm_out(mc, vc, u_c);
+    wino43_output(m, mc.data_ptr<float>(), t0, t1, b.defined() ? b.data_ptr<float>() : nullptr,
+                  res.defined() ? res.data_ptr<float>() : nullptr, relu, y.data_ptr<float>());
+  }
+  return y.permute({0, 3, 1, 2});
+}
 }  // namespace
 
 extern "C" {
@@ -164,6 +327,45 @@ char* rtf_fused_sgd(at::Tensor* param, at::Tensor* grad, at::Tensor* buf, double
     return strdup(e.what());
   } catch (...) {
     return strdup("unknown C++ exception in rtf_fused_sgd");
+  }
+}
+
+// `*out` = the convolution weight `w` (float or bf16, dense) reordered once into the blocked
+// layout oneDNN's convolution kernels read, as an MKLDNN tensor: a `_convolution_pointwise`
+// given it skips the reorder it otherwise makes of a dense weight on every call. No input size
+// is given, so oneDNN assumes one; for k×k kernels with k > 1 its layout is the one the kernels
+// pick at every size measured (docs/src/models.md), for 1×1 kernels it is not (callers keep
+// those dense). Geometry arrays hold (H, W) pairs.
+char* rtf_pack_conv_weight(at::Tensor* w, const int64_t* padding, const int64_t* stride,
+                           const int64_t* dilation, int64_t groups, at::Tensor** out) {
+  try {
+    *out = nullptr;
+    at::NoGradGuard no_grad;
+    at::Tensor mkldnn = w->contiguous().to_mkldnn();
+    at::Tensor packed = at::mkldnn_reorder_conv2d_weight(
+        mkldnn, {padding[0], padding[1]}, {stride[0], stride[1]}, {dilation[0], dilation[1]},
+        groups, std::nullopt);
+    *out = new at::Tensor(std::move(packed));
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_pack_conv_weight");
+  }
+}
+
+// `*out` = act(conv3x3(x) + b (+ residual)) by Winograd F(4x4, 3x3) with the transformed weight
+// `u` [36, C, K] (see wino43_conv); b and residual may be NULL; relu != 0 applies a ReLU.
+char* rtf_winograd43_conv(at::Tensor* x, at::Tensor* u, at::Tensor* b, at::Tensor* residual,
+                          int relu, at::Tensor** out) {
+  try {
+    *out = nullptr;
+    *out = new at::Tensor(wino43_conv(*x, *u, b, residual, relu != 0));
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_winograd43_conv");
   }
 }
 

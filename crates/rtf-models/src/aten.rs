@@ -34,6 +34,22 @@ pub(crate) mod ffi {
             lr: f64,
             is_first_step: c_int,
         ) -> *mut c_char;
+        pub fn rtf_pack_conv_weight(
+            w: *mut torch_sys::C_tensor,
+            padding: *const i64,
+            stride: *const i64,
+            dilation: *const i64,
+            groups: i64,
+            out: *mut *mut torch_sys::C_tensor,
+        ) -> *mut c_char;
+        pub fn rtf_winograd43_conv(
+            x: *mut torch_sys::C_tensor,
+            u: *mut torch_sys::C_tensor,
+            b: *mut torch_sys::C_tensor,
+            residual: *mut torch_sys::C_tensor,
+            relu: c_int,
+            out: *mut *mut torch_sys::C_tensor,
+        ) -> *mut c_char;
         pub fn rtf_ops_free_error(error: *mut c_char);
     }
 }

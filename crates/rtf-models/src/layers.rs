@@ -386,10 +386,43 @@ fn weight_init(init: WeightInit, dims: &[i64]) -> nn::Init {
     }
 }
 
+/// A folded convolution weight in the form the inference path runs it in.
+#[derive(Debug)]
+enum FoldedWeight {
+    /// Dense, in the layout [`with_fused_layout`] asked for.
+    Dense(Tensor),
+    /// Packed once into oneDNN's blocked layout ([`crate::onednn::pack_weight`]); only oneDNN's
+    /// fused entry points take it, every other use goes through [`FoldedWeight::dense`].
+    Packed(Tensor),
+    /// Winograd's transformed weight [16, c_in, c_out] ([`crate::winograd`]), in place of the
+    /// dense one.
+    Winograd(Tensor),
+}
+
+impl FoldedWeight {
+    /// The weight oneDNN's fused convolutions take (none for the Winograd form).
+    fn for_onednn(&self) -> Option<&Tensor> {
+        match self {
+            FoldedWeight::Dense(w) | FoldedWeight::Packed(w) => Some(w),
+            FoldedWeight::Winograd(_) => None,
+        }
+    }
+
+    /// The dense weight (a copy out of oneDNN's layout where packed; only where oneDNN refused
+    /// a fused call). The Winograd form never takes this path.
+    fn dense(&self) -> Tensor {
+        match self {
+            FoldedWeight::Dense(w) => w.shallow_clone(),
+            FoldedWeight::Packed(w) => crate::onednn::dense_weight(w),
+            FoldedWeight::Winograd(_) => unreachable!("Winograd weights run through winograd.rs"),
+        }
+    }
+}
+
 /// Folded, inference-ready weights of a unit.
 #[derive(Debug)]
 struct Fused {
-    weight: Tensor,
+    weight: FoldedWeight,
     bias: Option<Tensor>,
     /// Nearest ×2 upsampling followed by this 3×3 convolution, as the four output phases of
     /// one 2×2 convolution of the small map (see [`ConvBnAct::forward_upsampled`]).
@@ -550,27 +583,46 @@ impl ConvBnAct {
         }
     }
 
-    /// The folded weights where the activation (and a residual add) should be fused into the
-    /// convolution: bfloat16 inference (MFNet 27.7 → 26.6 ms, RTFNet-50 489 → 474 ms here). In
-    /// float32, oneDNN's fused kernels measured no faster than the separate in-place passes
-    /// (MFNet, RTFNet-50, within the run-to-run noise), so fp32 keeps those.
+    /// The folded weights on the inference path, where the activation (and a residual add) is
+    /// fused into the convolution: oneDNN's kernels apply it as they write each output block
+    /// (bf16: MFNet 27.7 → 26.6 ms, RTFNet-50 489 → 474 ms), and they take the weights packed
+    /// once at fold time (fp32 and bf16; with dense weights, fp32's fused kernels measured no
+    /// faster than the separate in-place passes), or the Winograd form runs.
     fn fusing_post_ops(&self, train: bool) -> Option<&Fused> {
-        self.fused
-            .as_ref()
-            .filter(|f| !train && f.weight.kind() == Kind::BFloat16)
+        self.fused.as_ref().filter(|_| !train)
     }
 
-    /// The folded convolution with the activation fused into it, where oneDNN can and it pays
-    /// (see [`Self::fusing_post_ops`]), `None` otherwise.
+    /// The folded convolution with the activation fused into it, where oneDNN can (or in the
+    /// Winograd form), `None` otherwise.
     fn fused_conv_act(&self, xs: &Tensor, train: bool) -> Option<Tensor> {
         let f = self.fusing_post_ops(train)?;
-        conv_with_post_op(
-            xs,
-            &f.weight,
-            f.bias.as_ref(),
-            self.geometry(),
-            self.act.post_op(),
-        )
+        match &f.weight {
+            FoldedWeight::Winograd(u) => Some(self.winograd_conv(xs, u, f, None)),
+            weight => conv_with_post_op(
+                xs,
+                weight.for_onednn()?,
+                f.bias.as_ref(),
+                self.geometry(),
+                self.act.post_op(),
+            ),
+        }
+    }
+
+    /// The Winograd form of this folded unit: act(conv(xs) + bias (+ residual)).
+    fn winograd_conv(
+        &self,
+        xs: &Tensor,
+        u: &Tensor,
+        f: &Fused,
+        residual: Option<&Tensor>,
+    ) -> Tensor {
+        let relu = self.act == Act::Relu;
+        let ys = crate::winograd::conv3x3(xs, u, f.bias.as_ref(), residual, relu);
+        if relu {
+            ys
+        } else {
+            self.act.apply_inference(ys)
+        }
     }
 
     fn geometry(&self) -> Geometry {
@@ -587,7 +639,12 @@ impl ConvBnAct {
     /// Convolution and BatchNorm, no activation.
     fn conv_bn(&self, xs: &Tensor, train: bool) -> Tensor {
         match (&self.fused, train) {
-            (Some(f), false) => self.conv(xs, &f.weight, f.bias.as_ref()),
+            (Some(f), false) => match &f.weight {
+                FoldedWeight::Winograd(u) => {
+                    crate::winograd::conv3x3(xs, u, f.bias.as_ref(), None, false)
+                }
+                weight => self.conv(xs, &weight.dense(), f.bias.as_ref()),
+            },
             _ => self.batch_norm(self.conv(xs, &self.weight, self.bias.as_ref()), train),
         }
     }
@@ -683,14 +740,19 @@ impl ConvBnAct {
     /// conv → bn → (+ residual) → act, the residual add in place on the inference path.
     pub fn forward_add(&self, xs: &Tensor, residual: &Tensor, train: bool) -> Tensor {
         if let Some(f) = self.fusing_post_ops(train) {
-            let fused = conv_add_with_post_op(
-                xs,
-                residual,
-                &f.weight,
-                f.bias.as_ref(),
-                self.geometry(),
-                self.act.post_op(),
-            );
+            let fused = match &f.weight {
+                FoldedWeight::Winograd(u) => Some(self.winograd_conv(xs, u, f, Some(residual))),
+                weight => weight.for_onednn().and_then(|w| {
+                    conv_add_with_post_op(
+                        xs,
+                        residual,
+                        w,
+                        f.bias.as_ref(),
+                        self.geometry(),
+                        self.act.post_op(),
+                    )
+                }),
+            };
             if let Some(ys) = fused {
                 return ys;
             }
@@ -762,11 +824,38 @@ impl Fuse for ConvBnAct {
             weight: lay_out(nearest_up2_conv3x3_as_phases(&weight)),
             bias: bias.as_ref().map(|b| b.repeat([4]).to_kind(kind)),
         });
+        let weight = self.inference_form(weight, kind, lay_out);
         self.fused = Some(Fused {
-            weight: lay_out(weight),
+            weight,
             bias: bias.map(|b| b.to_kind(kind)),
             upsampled,
         });
+    }
+}
+
+impl ConvBnAct {
+    /// The folded float32 `weight` in the form inference runs it in: Winograd's where
+    /// [`crate::winograd::applies`] (fp32 on the CPU), else laid out by `lay_out` (in `kind`)
+    /// and packed for oneDNN where it can be.
+    fn inference_form(
+        &self,
+        weight: Tensor,
+        kind: Kind,
+        lay_out: impl Fn(Tensor) -> Tensor,
+    ) -> FoldedWeight {
+        let geometry = self.geometry();
+        let dims = weight.size();
+        let winograd = (kind == Kind::Float && weight.device() == tch::Device::Cpu)
+            .then(|| crate::winograd::form(self.spec.kernel, geometry, dims[1], dims[0]))
+            .flatten();
+        if let (Some(form), false) = (winograd, self.spec.transposed) {
+            return FoldedWeight::Winograd(crate::winograd::weight_transform(&weight, form));
+        }
+        let dense = lay_out(weight);
+        match crate::onednn::pack_weight(&dense, geometry) {
+            Some(packed) => FoldedWeight::Packed(packed),
+            None => FoldedWeight::Dense(dense),
+        }
     }
 }
 
@@ -917,6 +1006,56 @@ mod tests {
                 let fused_add =
                     tch::no_grad(|| unit.forward_add(&bf16(&x), &bf16(&residual), false));
                 assert!(close(&plain_add, &fused_add), "{spec:?} bf16 + residual");
+            }
+        }
+    }
+
+    /// Wide 3×3 units fold into a Winograd form (F(4×4, 3×3) from 128 channels, F(2×2, 3×3)
+    /// from 1024), other units into packed oneDNN weights; either way the folded unit computes
+    /// what conv → BatchNorm → (+ residual) → ReLU does.
+    #[test]
+    fn wide_units_fold_into_winograd_forms_with_the_same_values() {
+        tch::manual_seed(4);
+        for (c, h, w, form) in [
+            (128, 9, 11, Some(36)),
+            (1024, 3, 5, Some(16)),
+            (64, 6, 7, None),
+        ] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let spec = ConvSpec::new(3);
+            let mut unit = ConvBnAct::new(
+                vs.root() / "conv",
+                Some(vs.root() / "bn"),
+                c,
+                c,
+                spec,
+                Act::Relu,
+            );
+            randomise_bn(&vs);
+            let x = Tensor::randn([1, c, h, w], (Kind::Float, Device::Cpu));
+            let residual = Tensor::randn([1, c, h, w], (Kind::Float, Device::Cpu));
+            let plain = tch::no_grad(|| unit.forward_t(&x, false));
+            let plain_add = tch::no_grad(|| unit.forward_add(&x, &residual, false));
+            unit.fuse(Kind::Float);
+            match (&unit.fused.as_ref().unwrap().weight, form) {
+                (FoldedWeight::Winograd(u), Some(positions)) => assert_eq!(u.size()[0], positions),
+                (FoldedWeight::Packed(_), None) => {}
+                (other, _) => panic!("{c} channels folded into {other:?}"),
+            }
+            let x = to_channels_last(&x);
+            let fused = tch::no_grad(|| unit.forward_t(&x, false));
+            let fused_add =
+                tch::no_grad(|| unit.forward_add(&x, &to_channels_last(&residual), false));
+            for (name, a, b) in [
+                ("conv", &plain, &fused),
+                ("+ residual", &plain_add, &fused_add),
+            ] {
+                let scale = a.abs().max().double_value(&[]);
+                let worst = (a - b).abs().max().double_value(&[]);
+                assert!(
+                    worst <= 1e-4 * scale,
+                    "{c} channels, {name}: {worst} of {scale}"
+                );
             }
         }
     }

@@ -23,6 +23,7 @@ pub mod rtfnet;
 pub mod sync_bn;
 pub mod tolerance;
 pub mod weights;
+pub mod winograd;
 
 use serde::{Deserialize, Serialize};
 use tch::nn;

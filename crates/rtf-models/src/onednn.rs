@@ -197,6 +197,57 @@ fn optional(tensor: Option<&Tensor>, slot: &mut Handle) -> *mut Handle {
     }
 }
 
+/// `weight` (a dense float or bf16 convolution weight [c_out, c_in/groups, k, k] on the CPU)
+/// reordered once into oneDNN's blocked layout, for [`conv_with_post_op`] and
+/// [`conv_add_with_post_op`]: given a dense weight, each of their calls reorders it first
+/// (RTFNet-50's fp32 pass: ≈ 190 ms of weight reorders, most for the decoder's 2048×2048×3×3
+/// kernels). `None` for transposed convolutions, 1×1 kernels (packed without the input's size,
+/// oneDNN picks a layout its 1×1 kernels then reorder again: 1024→1024 at 30×40, 13 → 41 ms),
+/// other devices, or where libtorch refuses (no oneDNN); callers then keep the dense weight.
+/// The packed tensor is an MKLDNN tensor: only the fused entry points above take it
+/// ([`dense_weight`] gives the dense form back).
+pub fn pack_weight(weight: &Tensor, geometry: Geometry) -> Option<Tensor> {
+    let size = weight.size();
+    let one_by_one = size.len() == 4 && size[2] == 1 && size[3] == 1;
+    if weight.device() != Device::Cpu || geometry.transposed || one_by_one || size.len() != 4 {
+        return None;
+    }
+    let pair = |v: i64| [v, v];
+    let (padding, stride, dilation) = (
+        pair(geometry.padding),
+        pair(geometry.stride),
+        pair(geometry.dilation),
+    );
+    let mut out: Handle = ptr::null_mut();
+    // SAFETY: `weight.as_ptr()` is a live `at::Tensor*` for the call; the arrays hold the two
+    // values the shim reads; on success `out` is a new `at::Tensor*` owned from here on, on
+    // failure the shim's malloc'd message is freed here.
+    unsafe {
+        let error = crate::aten::ffi::rtf_pack_conv_weight(
+            weight.as_ptr() as Handle,
+            padding.as_ptr(),
+            stride.as_ptr(),
+            dilation.as_ptr(),
+            geometry.groups,
+            &mut out,
+        );
+        if !error.is_null() {
+            crate::aten::ffi::rtf_ops_free_error(error);
+            return None;
+        }
+        (!out.is_null()).then(|| Tensor::from_ptr(out))
+    }
+}
+
+/// The dense form of a weight [`pack_weight`] may have packed (a copy if it did).
+pub fn dense_weight(weight: &Tensor) -> Tensor {
+    if weight.is_mkldnn() {
+        weight.to_dense(None, false)
+    } else {
+        weight.shallow_clone()
+    }
+}
+
 /// `post_op(conv(xs, weight) + bias)` in one oneDNN primitive, or `None` where the fused path
 /// is unavailable (not CPU, a transposed convolution, a libtorch without it, or libtorch
 /// refused the call).

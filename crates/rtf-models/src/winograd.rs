@@ -1,0 +1,313 @@
+//! 3×3 convolutions (stride 1, padding 1, no dilation or groups) by Winograd's minimal
+//! filtering F(2×2, 3×3) (Lavin & Gray, CVPR 2016), for the inference path's widest layers.
+//!
+//! Each 2×2 output tile is `Aᵀ [(G g Gᵀ) ⊙ (Bᵀ d B)] A` of the 4×4 input tile `d` around it:
+//! summed over input channels, the elementwise product becomes 16 independent matrix products
+//! [tiles × C] · [C × K], 16 multiply-adds per tile and channel pair instead of 36 (2.25×
+//! fewer). The weight transform `G g Gᵀ` is made once, when the network is folded; the input
+//! and output transforms are additions over the (small) maps. The transform matrices hold only
+//! 0, ±1 and ½, so the rounding is that of a direct convolution's sums (relative 1e-6 on
+//! RTFNet-50's layers); F(4×4, 3×3)'s hold up to 8 and 1/24, a little more (tests: 1e-4).
+//!
+//! Two forms ([`form`] picks by width): F(2×2, 3×3) by libtorch ops for the widest layers
+//! (RTFNet-50's decoder at 1/32 and 1/16: 2048 and 1024 channels on 15×20 and 30×40 maps at
+//! 480×640), where the matrix products dominate and whole-map transforms cost little; and
+//! F(4×4, 3×3) (36 products per 4×4 tile, 4× fewer multiply-adds than direct) for 128 to 1023
+//! channels, whose larger maps need the transforms done in cache-sized chunks of tiles, in C++
+//! (csrc/ops.cpp `wino43_conv`; by libtorch ops over whole maps F(2×2, 3×3) lost: 512 channels
+//! at 60×80, 99 → 110 ms).
+
+use tch::{Kind, Tensor};
+
+use crate::onednn::Geometry;
+
+/// Input and output channels from which [`form`] takes F(2×2, 3×3).
+pub const MIN_CHANNELS: i64 = 1024;
+/// Input and output channels from which (up to [`MIN_CHANNELS`]) [`form`] takes F(4×4, 3×3).
+pub const MIN_CHANNELS_F43: i64 = 128;
+
+/// Which Winograd form a convolution takes on the inference path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Form {
+    /// F(2×2, 3×3): 16 products, libtorch ops (maps of the widest layers are small).
+    F23,
+    /// F(4×4, 3×3): 36 products per 4×4 tile, 4× fewer multiply-adds than direct, with the
+    /// transforms in C++ (csrc/ops.cpp `wino43_conv`) over chunks of tiles kept in cache.
+    F43,
+}
+
+/// The Winograd form of a convolution of this shape on the inference path, if any: 3×3,
+/// stride 1, padding 1, no dilation, no groups, not transposed; F(2×2, 3×3) from
+/// [`MIN_CHANNELS`] input and output channels, F(4×4, 3×3) from [`MIN_CHANNELS_F43`].
+/// `RTF_WINOGRAD=off` turns both forms off, `RTF_WINOGRAD=f23` keeps only F(2×2, 3×3) (to
+/// compare speeds; read once per process).
+pub fn form(kernel: i64, geometry: Geometry, c_in: i64, c_out: i64) -> Option<Form> {
+    let g = geometry;
+    let plain = kernel == 3 && (g.stride, g.padding, g.dilation, g.groups) == (1, 1, 1, 1);
+    let channels = c_in.min(c_out);
+    let (f23, f43) = enabled();
+    if !plain || g.transposed || channels < MIN_CHANNELS_F43 {
+        None
+    } else if channels >= MIN_CHANNELS {
+        f23.then_some(Form::F23)
+    } else {
+        f43.then_some(Form::F43)
+    }
+}
+
+/// Which forms `RTF_WINOGRAD` leaves on: (F(2×2, 3×3), F(4×4, 3×3)).
+fn enabled() -> (bool, bool) {
+    static ENABLED: std::sync::OnceLock<(bool, bool)> = std::sync::OnceLock::new();
+    *ENABLED.get_or_init(|| match std::env::var("RTF_WINOGRAD").as_deref() {
+        Ok("off") => (false, false),
+        Ok("f23") => (true, false),
+        _ => (true, true),
+    })
+}
+
+/// Bᵀ (input transform), row-major 4×4.
+const BT: [f32; 16] = [
+    1., 0., -1., 0., //
+    0., 1., 1., 0., //
+    0., -1., 1., 0., //
+    0., 1., 0., -1.,
+];
+/// G (weight transform), row-major 4×3.
+const G: [f32; 12] = [
+    1., 0., 0., //
+    0.5, 0.5, 0.5, //
+    0.5, -0.5, 0.5, //
+    0., 0., 1.,
+];
+/// Aᵀ (output transform), row-major 2×4.
+const AT: [f32; 8] = [
+    1., 1., 1., 0., //
+    0., 1., -1., -1.,
+];
+/// F(4×4, 3×3)'s G, row-major 6×3 (its Bᵀ and Aᵀ are in csrc/ops.cpp).
+const G43: [f32; 18] = [
+    1. / 4.,
+    0.,
+    0., //
+    -1. / 6.,
+    -1. / 6.,
+    -1. / 6., //
+    -1. / 6.,
+    1. / 6.,
+    -1. / 6., //
+    1. / 24.,
+    1. / 12.,
+    1. / 6., //
+    1. / 24.,
+    -1. / 12.,
+    1. / 6., //
+    0.,
+    0.,
+    1.,
+];
+
+fn matrix(values: &[f32], rows: i64, xs: &Tensor) -> Tensor {
+    Tensor::from_slice(values)
+        .view([rows, -1])
+        .to_device(xs.device())
+}
+
+/// The transformed weight: [K, C, 3, 3] -> float32 [α², C, K] (`G g Gᵀ` per channel pair, its
+/// α×α positions first; α = 4 for F(2×2, 3×3), 6 for F(4×4, 3×3)).
+pub fn weight_transform(weight: &Tensor, form: Form) -> Tensor {
+    let size = weight.size();
+    assert!(
+        size.len() == 4 && size[2] == 3 && size[3] == 3,
+        "winograd::weight_transform: expected [K, C, 3, 3], got {size:?}"
+    );
+    let (g, alpha) = match form {
+        Form::F23 => (matrix(&G, 4, weight), 4),
+        Form::F43 => (matrix(&G43, 6, weight), 6),
+    };
+    Tensor::einsum(
+        "ai,kcij,bj->abck",
+        &[&g, &weight.to_kind(Kind::Float), &g],
+        None::<&[i64]>,
+    )
+    .reshape([alpha * alpha, size[1], size[0]])
+    .contiguous()
+}
+
+/// `act(conv3x3(xs) + bias (+ residual))` with `u` from [`weight_transform`] (either form):
+/// float32 input [N, C, H, W] (any layout; channels-last avoids a copy), `residual`
+/// [N, K, H, W], output float32 [N, K, H, W] laid out channels-last. `relu` applies a ReLU last.
+pub fn conv3x3(
+    xs: &Tensor,
+    u: &Tensor,
+    bias: Option<&Tensor>,
+    residual: Option<&Tensor>,
+    relu: bool,
+) -> Tensor {
+    if u.size()[0] == 36 {
+        conv3x3_f43(xs, u, bias, residual, relu)
+    } else {
+        conv3x3_f23(xs, u, bias, residual, relu)
+    }
+}
+
+/// [`conv3x3`] in F(4×4, 3×3), by csrc/ops.cpp (CPU float32 tensors).
+fn conv3x3_f43(
+    xs: &Tensor,
+    u: &Tensor,
+    bias: Option<&Tensor>,
+    residual: Option<&Tensor>,
+    relu: bool,
+) -> Tensor {
+    let ptr = |t: Option<&Tensor>| {
+        t.map_or(std::ptr::null_mut(), |t| {
+            t.as_ptr() as *mut torch_sys::C_tensor
+        })
+    };
+    let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
+    // SAFETY: the `as_ptr` are live `at::Tensor*` for the call (bias and residual may be null,
+    // which the shim reads as absent); the result is taken as `shim_result` requires.
+    unsafe {
+        let error = crate::aten::ffi::rtf_winograd43_conv(
+            ptr(Some(xs)),
+            ptr(Some(u)),
+            ptr(bias),
+            ptr(residual),
+            std::ffi::c_int::from(relu),
+            &mut out,
+        );
+        crate::aten::shim_result("winograd F(4x4, 3x3)", error, out)
+    }
+}
+
+/// [`conv3x3`] in F(2×2, 3×3), by libtorch ops.
+fn conv3x3_f23(
+    xs: &Tensor,
+    u: &Tensor,
+    bias: Option<&Tensor>,
+    residual: Option<&Tensor>,
+    relu: bool,
+) -> Tensor {
+    let (n, c, h, w) = xs.size4().expect("winograd::conv3x3 takes [N, C, H, W]");
+    let k = u.size()[2];
+    // Tiles of 2×2 outputs; the padded map holds every tile's 4×4 input.
+    let (th, tw) = ((h + 1) / 2, (w + 1) / 2);
+    let (hp, wp) = (2 * th + 2, 2 * tw + 2);
+    // [N, H, W, C] (a view of a channels-last map), zero-padded by 1 before and to whole tiles
+    // after: [N, Hp, Wp, C]
+    let padded = xs
+        .permute([0, 2, 3, 1])
+        .constant_pad_nd([0, 0, 1, wp - w - 1, 1, hp - h - 1]);
+    // Tile (t, u)'s input: rows 2t..2t+3, columns 2u..2u+3. [4, 4, N, th, tw, C]
+    let tiles = padded.as_strided(
+        [4, 4, n, th, tw, c],
+        [wp * c, c, hp * wp * c, 2 * wp * c, 2 * c, 1],
+        None,
+    );
+    let bt = matrix(&BT, 4, xs);
+    // Bᵀ d B: [16, N·th·tw, C]
+    let v = Tensor::einsum("ai,bj,ijntuc->abntuc", &[&bt, &bt, &tiles], None::<&[i64]>).reshape([
+        16,
+        n * th * tw,
+        c,
+    ]);
+    // The 16 products over the channels: [16, N·th·tw, K]
+    let m = v.bmm(u).view([4, 4, n, th, tw, k]);
+    let at = matrix(&AT, 2, xs);
+    // Aᵀ m A, tiles back in place: [N, 2·th, 2·tw, K], cropped to [N, H, W, K]
+    let y = Tensor::einsum("ai,bj,ijntuk->ntaubk", &[&at, &at, &m], None::<&[i64]>)
+        .reshape([n, 2 * th, 2 * tw, k])
+        .narrow(1, 0, h)
+        .narrow(2, 0, w);
+    // A fresh dense [N, H, W, K] map from here on, changed in place.
+    let mut out = match bias {
+        Some(b) => y + b,
+        None => y.contiguous(),
+    };
+    if let Some(r) = residual {
+        let _ = out.g_add_(&r.permute([0, 2, 3, 1]));
+    }
+    if relu {
+        let _ = out.relu_();
+    }
+    out.permute([0, 3, 1, 2])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::Device;
+
+    fn to_channels_last(xs: &Tensor) -> Tensor {
+        xs.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
+    }
+
+    fn is_channels_last(xs: &Tensor) -> bool {
+        let (size, stride) = (xs.size(), xs.stride());
+        stride == [size[1] * size[2] * size[3], 1, size[3] * size[1], size[1]]
+    }
+
+    fn geometry(stride: i64, padding: i64, dilation: i64, transposed: bool) -> Geometry {
+        Geometry {
+            stride,
+            padding,
+            dilation,
+            groups: 1,
+            transposed,
+        }
+    }
+
+    #[test]
+    fn equals_the_direct_convolution_at_odd_and_even_sizes() {
+        tch::manual_seed(11);
+        let opts = (Kind::Float, Device::Cpu);
+        for (n, c, k, h, w) in [(1, 5, 7, 6, 8), (2, 3, 4, 7, 5), (1, 8, 6, 1, 1)] {
+            let x = Tensor::randn([n, c, h, w], opts);
+            let weight = Tensor::randn([k, c, 3, 3], opts);
+            let bias = Tensor::randn([k], opts);
+            let residual = Tensor::randn([n, k, h, w], opts);
+            let direct = x.conv2d(&weight, Some(&bias), [1], [1], [1], 1);
+            for (form, alpha) in [(Form::F23, 4), (Form::F43, 6)] {
+                let u = weight_transform(&weight, form);
+                assert_eq!(u.size(), [alpha * alpha, c, k]);
+                for input in [x.shallow_clone(), to_channels_last(&x)] {
+                    let y = conv3x3(&input, &u, Some(&bias), None, false);
+                    assert_eq!(y.size(), [n, k, h, w]);
+                    assert!(is_channels_last(&y));
+                    let scale = direct.abs().max().double_value(&[]);
+                    let worst = (&y - &direct).abs().max().double_value(&[]);
+                    // F(4×4, 3×3)'s transforms hold 4, 5, 1/6, 1/24: a little more rounding.
+                    let tolerance = if form == Form::F23 { 1e-5 } else { 1e-4 };
+                    assert!(
+                        worst <= tolerance * scale,
+                        "{form:?} {n}x{c}x{h}x{w}: {worst} of {scale}"
+                    );
+                    let y = conv3x3(&input, &u, Some(&bias), Some(&residual), true);
+                    let expected = (&direct + &residual).relu();
+                    let close = |a: &Tensor, b: &Tensor| {
+                        let scale = b.abs().max().double_value(&[]);
+                        (a - b).abs().max().double_value(&[]) <= tolerance * scale
+                    };
+                    assert!(close(&y, &expected), "{form:?} + residual, ReLU");
+                    let y = conv3x3(&input, &u, None, None, true);
+                    let expected = x.conv2d(&weight, None::<Tensor>, [1], [1], [1], 1).relu();
+                    assert!(close(&y, &expected), "{form:?} no bias");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn forms_by_width_and_only_for_plain_3x3_convolutions() {
+        let plain = geometry(1, 1, 1, false);
+        assert_eq!(form(3, plain, 1024, 2048), Some(Form::F23));
+        assert_eq!(form(3, plain, 512, 2048), Some(Form::F43));
+        assert_eq!(form(3, plain, 2048, 128), Some(Form::F43));
+        assert_eq!(form(3, plain, 64, 64), None);
+        assert_eq!(form(3, geometry(2, 1, 1, false), 2048, 2048), None);
+        assert_eq!(form(3, geometry(1, 2, 2, false), 2048, 2048), None);
+        assert_eq!(form(1, geometry(1, 0, 1, false), 2048, 2048), None);
+        assert_eq!(form(3, geometry(1, 1, 1, true), 2048, 2048), None);
+        let grouped = Geometry { groups: 2, ..plain };
+        assert_eq!(form(3, grouped, 2048, 2048), None);
+    }
+}
