@@ -1,0 +1,186 @@
+#!/usr/bin/env python3
+"""Regenerates the speed tables of docs/src/models.md ("Speed against PyTorch") in one command:
+runs scripts/bench_torch.py (inference, batch 1, 480x640) and scripts/bench_torch_train.py
+(training steps) for each network, PyTorch and `rtf bench` side by side in fresh processes,
+and writes a Markdown block and a JSON file in which every row names the CPU it was measured
+on (`lscpu` model, family/model, and the flags that decide the kernels: avx2, avx512f,
+avx512_bf16, amx_bf16), with the date, the PyTorch version and the rtf commit.
+
+Usage (from the repo root, after `cargo build --release -p rtf-cli`):
+    .venv/bin/python scripts/speed_tables.py --out target/speed
+    .venv/bin/python scripts/speed_tables.py --models rtfnet50 --train-models "" --out target/speed \\
+        --prefix "flock /work/bench.lock scripts/quiet.sh nice -n -15"
+
+`--prefix` is put before every benchmark command (each network's run is one command, so a lock
+taken that way is held for one network at a time). Writes OUT/speed_tables.md and
+OUT/speed_tables.json; `--from-json OUT/speed_tables.json` rewrites the Markdown without
+running anything.
+"""
+import argparse
+import datetime
+import json
+import os
+import shlex
+import subprocess
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_bf16")
+
+
+def cpu():
+    """Model name, family/model and the kernel-deciding flags of this machine (lscpu)."""
+    fields = {}
+    for line in subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout.splitlines():
+        key, _, value = line.partition(":")
+        fields[key.strip()] = value.strip()
+    flags = set(fields.get("Flags", "").split())
+    return {"model": fields.get("Model name", "?"), "family": fields.get("CPU family", "?"),
+            "model_number": fields.get("Model", "?"), "cpus": fields.get("CPU(s)", "?"),
+            "flags": [f for f in FLAGS if f in flags], "flags_absent": [f for f in FLAGS if f not in flags]}
+
+
+def cpu_label(c):
+    flags = " ".join(c["flags"]) or "none of " + ", ".join(FLAGS)
+    return f"{c['model']} (family {c['family']}, model {c['model_number']}, {c['cpus']} CPUs): {flags}"
+
+
+def git_commit():
+    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True)
+    return out.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
+
+
+def run(prefix, script, args, json_path):
+    cmd = shlex.split(prefix) + [sys.executable, os.path.join(HERE, script)] + args + ["--json-out", json_path]
+    print("+", " ".join(cmd), flush=True)
+    subprocess.run(cmd, check=True)
+    with open(json_path) as f:
+        return json.load(f), " ".join(shlex.quote(x) for x in [os.path.join("scripts", script)] + args)
+
+
+def inference(a, model, out):
+    args = ["--model", model, "--rounds", str(a.rounds), "--iterations", str(a.iterations), "--warmup",
+            str(a.warmup), "--threads", str(a.threads), "--precisions", a.precisions, "--rtf", a.rtf]
+    result, command = run(a.prefix, "bench_torch.py", args, os.path.join(out, f"infer_{model}.json"))
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return {"model": model, "finished": stamp, "command": command,
+            "rows": {k: v["median_ms"] for k, v in result["rows"].items()}, "torch": result["torch"]}
+
+
+def training(a, model, out):
+    args = ["--model", model, "--batch", str(a.train_batch), "--size", a.train_size, "--threads", str(a.threads),
+            "--rounds", "1", "--warmup", "1", "--steps", str(a.train_steps), "--precisions", a.train_precisions,
+            "--rtf", a.rtf] + (["--skip", a.train_skip] if a.train_skip else [])
+    samples, command = run(a.prefix, "bench_torch_train.py", args, os.path.join(out, f"train_{model}.json"))
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    rows = {label: {k: sorted(r[k] for r in runs)[len(runs) // 2] for k in ("images_per_s", "peak_rss_mb")}
+            for label, runs in samples.items()}
+    return {"model": model, "finished": stamp, "command": command, "rows": rows}
+
+
+def ratio(x):
+    """A speed ratio (rtf over PyTorch), bold where rtf is ahead."""
+    return f"**{x:.2f}×**" if x >= 1 else f"{x:.2f}×"
+
+
+def inference_table(results, label):
+    head = ("| network | torch eager NCHW | torch channels_last | torch bf16 autocast | rtf fp32 | rtf bf16 "
+            "| rtf fp32 vs fastest torch fp32 | rtf bf16 vs torch bf16 | measured | CPU |")
+    lines = [head, "| --- " + "| ---: " * 7 + "| --- | --- |"]
+    for r in results:
+        rows = r["rows"]
+        cell = lambda k: f"{rows[k]:.1f}" if k in rows else "—"  # noqa: E731
+        fastest = min(rows.get("torch eager fp32 NCHW", float("inf")), rows.get("torch channels_last fp32", float("inf")))
+        fp32 = ratio(fastest / rows["rtf fast fp32"]) if "rtf fast fp32" in rows and fastest < float("inf") else "—"
+        bf16 = (ratio(rows["torch bf16 autocast"] / rows["rtf fast bf16"])
+                if "rtf fast bf16" in rows and "torch bf16 autocast" in rows else "—")
+        lines.append(f"| {r['model']} | {cell('torch eager fp32 NCHW')} | {cell('torch channels_last fp32')} | "
+                     f"{cell('torch bf16 autocast')} | {cell('rtf fast fp32')} | {cell('rtf fast bf16')} | {fp32} | "
+                     f"{bf16} | {r['finished']} | {label} |")
+    return lines
+
+
+def training_table(results, label):
+    lines = ["| network | configuration | images/s | peak RSS MiB | rtf vs best torch, same precision | measured "
+             "| CPU |", "| --- | --- | ---: | ---: | ---: | --- | --- |"]
+    for r in results:
+        rows = r["rows"]
+        for name, v in rows.items():
+            vs = ""
+            if name.startswith("rtf"):
+                precision = name.split()[1]
+                torch_rows = [t for k, t in rows.items() if k.startswith("torch") and precision in k]
+                if torch_rows:
+                    vs = ratio(v["images_per_s"] / max(t["images_per_s"] for t in torch_rows))
+            lines.append(f"| {r['model']} | {name} | {v['images_per_s']:.3f} | {v['peak_rss_mb']:.0f} | {vs} | "
+                         f"{r['finished']} | {label} |")
+    return lines
+
+
+def markdown(report):
+    c = report["cpu"]
+    label = f"{c['model']} fam {c['family']}/{c['model_number']}: {' '.join(c['flags'])}"
+    out = [f"Generated by `{report['command']}` on {report['date']}, rtf {report['rtf_commit']}, "
+           f"PyTorch {report['torch']}, {report['threads']} threads.",
+           f"CPU: {cpu_label(c)}" + (f"; absent: {' '.join(c['flags_absent'])}." if c["flags_absent"] else "."), ""]
+    if report["inference"]:
+        out += ["Inference, batch 1, 480×640, median ms per frame (fresh process per configuration, interleaved "
+                "rounds; commands: " + "; ".join(f"`{r['command']}`" for r in report["inference"]) + "):", ""]
+        out += inference_table(report["inference"], label) + [""]
+    if report["training"]:
+        out += ["Training steps (forward, loss, backward, SGD), median of the timed steps (commands: "
+                + "; ".join(f"`{r['command']}`" for r in report["training"]) + "):", ""]
+        out += training_table(report["training"], label) + [""]
+    return "\n".join(out)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--models", default="mfnet,rtfnet18,rtfnet50,rtfnet152,heatnet",
+                    help="inference comparisons (comma-separated; empty for none)")
+    ap.add_argument("--train-models", default="rtfnet50", help="training comparisons (comma-separated)")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--iterations", type=int, default=3)
+    ap.add_argument("--warmup", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--precisions", default="fp32,bf16", help="inference precisions")
+    ap.add_argument("--train-precisions", default="fp32")
+    ap.add_argument("--train-batch", type=int, default=4)
+    ap.add_argument("--train-size", default="640x480")
+    ap.add_argument("--train-steps", type=int, default=2)
+    ap.add_argument("--train-skip", default="", help="PyTorch training configurations to leave out (bench_torch_train.py "
+                    "--skip)")
+    ap.add_argument("--rtf", default="target/release/rtf")
+    ap.add_argument("--prefix", default="", help="command prefix for every benchmark (e.g. a lock)")
+    ap.add_argument("--out", default="target/speed")
+    ap.add_argument("--from-json", help="rewrite the Markdown from this JSON report, running nothing")
+    a = ap.parse_args()
+    if a.from_json:
+        with open(a.from_json) as f:
+            report = json.load(f)
+    else:
+        os.makedirs(a.out, exist_ok=True)
+        report = {"command": "scripts/speed_tables.py " + " ".join(shlex.quote(x) for x in sys.argv[1:]),
+                  "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+                  "cpu": cpu(), "rtf_commit": git_commit(), "threads": a.threads,
+                  "inference": [inference(a, m, a.out) for m in a.models.split(",") if m],
+                  "training": [training(a, m, a.out) for m in a.train_models.split(",") if m]}
+        report["torch"] = report["inference"][0]["torch"] if report["inference"] else "see the commands"
+        write(os.path.join(a.out, "speed_tables.json"), json.dumps(report, indent=1))
+    text = markdown(report)
+    if not a.from_json:
+        write(os.path.join(a.out, "speed_tables.md"), text + "\n")
+    print(text)
+
+
+def write(path, text):
+    """Atomic: a temporary file beside `path`, renamed over it."""
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+if __name__ == "__main__":
+    main()
