@@ -207,9 +207,7 @@ fn train_stage(
     if started {
         // The stage's own config.json says how many processes trained it (the trainer
         // refuses to continue it exactly with another number).
-        if let Ok(RunConfig::Single(saved)) = trainer::read_config(&dir) {
-            resolved.world_size = saved.world_size;
-        }
+        resolved.world_size = saved_stage(&stage.name, &resolved, &dir)?.world_size;
     }
     if ddp.as_ref().is_none_or(|d| d.is_root()) {
         eprintln!(
@@ -232,6 +230,38 @@ fn train_stage(
     // Rank 0 has written the stage's weights before any rank reads them.
     barrier(ddp.as_deref())?;
     Ok(Some(outcome))
+}
+
+/// The configuration a started stage's folder holds, which must be this stage's: the same
+/// network, procedure and inputs (a folder copied from another recipe's run, or a corrupt
+/// config.json, is refused rather than continued as this stage).
+fn saved_stage(name: &str, stage: &TrainConfig, dir: &Path) -> Result<TrainConfig, TrainError> {
+    let path = dir.join(CONFIG_FILE);
+    let RunConfig::Single(saved) = trainer::read_config(dir)? else {
+        return Err(run_error(
+            &path,
+            format!("holds a multi-stage run, not stage {name}"),
+        ));
+    };
+    let model = |c: &TrainConfig| serde_json::to_value(&c.model).ok();
+    let differs = [
+        ("network", model(stage) != model(&saved)),
+        (
+            "procedure",
+            stage.procedure.name() != saved.procedure.name(),
+        ),
+        ("inputs", stage.inputs != saved.inputs),
+    ];
+    if let Some((what, _)) = differs.iter().find(|(_, d)| *d) {
+        return Err(run_error(
+            &path,
+            format!(
+                "holds a run of another {what} than stage {name} of this run (a folder from \
+                 another run?); remove it to train the stage again"
+            ),
+        ));
+    }
+    Ok(*saved)
 }
 
 /// The last stage's final and best weights, copied to the run folder.
