@@ -126,7 +126,7 @@ pub fn cases(f: &Fixture) -> Vec<Case> {
         case(
             "ddp: a 2-process run resumed by one process",
             &[],
-            &["world_size", "2"],
+            &["ddp_kill1", "2 process(es)", "torchrun"],
         )
         .runner(move || resume_one_more(&run, &log)),
     );

@@ -85,7 +85,7 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         ("inputs", inputs::datasets),
         ("inputs", inputs::memory),
         ("recipes", recipes::cases),
-        ("recipes", recipes::stage_folders),
+        ("stages", recipes::stage_folders),
         ("report", report::cases),
         ("export", export::cases),
         ("modality", modality::cases),
@@ -93,7 +93,8 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         ("owndata", owndata::cases),
         ("calib", calib::cases),
     ];
-    // RTF_HOSTILE_ONLY=recipes,report runs those modules alone (while working on them).
+    // RTF_HOSTILE_ONLY=recipes,report runs those modules alone (while working on them);
+    // `stages` is the stage-folder half of the recipes.
     let only = std::env::var("RTF_HOSTILE_ONLY").unwrap_or_default();
     let started = Instant::now();
     let mut rows = Vec::new();

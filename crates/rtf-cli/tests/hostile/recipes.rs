@@ -274,7 +274,8 @@ pub fn stage_folders(f: &Fixture) -> Vec<Case> {
     let mut cases = Vec::new();
     for (name, folder, mutate, must) in variants {
         let (run, prepare) = altered(f, folder, mutate);
-        let args = ["train", "--resume", s(&run), "--epochs", "2"];
+        // Three epochs: the last stage (finished at 2) must read its folder to go on.
+        let args = ["train", "--resume", s(&run), "--epochs", "3"];
         cases.push(case(&format!("recipe: {name}, resumed"), &args, &must).before(prepare));
     }
     let (run, prepare) = altered(f, "rs_nolast", |r| {
