@@ -1,7 +1,10 @@
-//! `cargo xtask hostile`: replays the catalogue of bad inputs (crates/rtf-cli/tests/hostile.rs)
-//! against the release `rtf` binary, huge frames under `ulimit -v` included, and prints each
-//! case's exit code and verdict with the counts: cases tried, clear errors, panics and silent
-//! wrong results (both must be 0; the run fails otherwise). docs/src/reliability.md.
+//! `cargo xtask hostile`: replays the catalogue of bad inputs and interruptions
+//! (crates/rtf-cli/tests/hostile/, one module per surface: predict/eval/data inputs, recipes,
+//! report, export, `--drop`/`--precision`, DDP, dataset.yaml, rig.yaml's prior) against the
+//! release `rtf` binary, huge frames under `ulimit -v` included, and prints each case's exit
+//! code and verdict, the counts per group as a Markdown table and in all: cases tried, clear
+//! outcomes, panics and silent wrong results (both must be 0; the run fails otherwise).
+//! `RTF_HOSTILE_ONLY=recipes,report` runs those modules alone. docs/src/reliability.md.
 
 use anyhow::Result;
 use std::path::Path;

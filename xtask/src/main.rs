@@ -21,7 +21,8 @@ tasks:
   calib-check  full-size accuracy/timing run of `rtf calibrate` on real-imagery and synthetic rigs with ground truth
   reproduce <table>|all  run the experiments behind a paper's table, beside the paper's numbers
            (--list: the tables; --help: options)
-  hostile  replay bad inputs (broken files, NaN weights, huge frames...) against rtf; counts
+  hostile  replay bad inputs and interruptions (broken files, NaN weights, huge frames, kill -9
+           mid-recipe, a killed DDP rank, bad dataset.yaml...) against rtf; counts
 ";
 
 fn main() -> Result<()> {

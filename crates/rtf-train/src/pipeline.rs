@@ -142,6 +142,9 @@ fn open_run_folder(
     for stage in &cfg.stages {
         crate::procedure::check_teachers(&stage.config)?;
     }
+    if resume {
+        check_stage_folders(cfg, run_dir)?;
+    }
     // Every rank has looked at the folder before rank 0 writes to it.
     barrier(ddp)?;
     if !ddp.is_none_or(|d| d.is_root()) {
@@ -152,6 +155,33 @@ fn open_run_folder(
     let lock = rundir::RunLock::acquire(run_dir)?;
     rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &run)?;
     Ok(Some(lock))
+}
+
+/// A resumed run whose stage has no folder while a later stage has started is refused:
+/// training the earlier stage again would leave the later one half learnt from weights that
+/// are gone (a mixed run).
+fn check_stage_folders(cfg: &PipelineConfig, run_dir: &Path) -> Result<(), TrainError> {
+    let started: Vec<bool> = cfg
+        .stages
+        .iter()
+        .map(|s| rundir::holds_run(&run_dir.join(&s.name)))
+        .collect();
+    let Some(missing) = started.iter().position(|s| !s) else {
+        return Ok(());
+    };
+    match started[missing..].iter().position(|s| *s) {
+        None => Ok(()),
+        Some(later) => Err(run_error(
+            &run_dir.join(&cfg.stages[missing].name),
+            format!(
+                "stage {} holds no run, but stage {} after it has started: restore the \
+                 stage's folder, or remove the folders from stage {} on to train them again",
+                cfg.stages[missing].name,
+                cfg.stages[missing + later].name,
+                cfg.stages[missing].name
+            ),
+        )),
+    }
 }
 
 /// Trains one stage (resumes it if it started, extends it if asked for more epochs); None
@@ -177,9 +207,7 @@ fn train_stage(
     if started {
         // The stage's own config.json says how many processes trained it (the trainer
         // refuses to continue it exactly with another number).
-        if let Ok(RunConfig::Single(saved)) = trainer::read_config(&dir) {
-            resolved.world_size = saved.world_size;
-        }
+        resolved.world_size = saved_stage(&stage.name, &resolved, &dir)?.world_size;
     }
     if ddp.as_ref().is_none_or(|d| d.is_root()) {
         eprintln!(
@@ -204,6 +232,38 @@ fn train_stage(
     Ok(Some(outcome))
 }
 
+/// The configuration a started stage's folder holds, which must be this stage's: the same
+/// network, procedure and inputs (a folder copied from another recipe's run, or a corrupt
+/// config.json, is refused rather than continued as this stage).
+fn saved_stage(name: &str, stage: &TrainConfig, dir: &Path) -> Result<TrainConfig, TrainError> {
+    let path = dir.join(CONFIG_FILE);
+    let RunConfig::Single(saved) = trainer::read_config(dir)? else {
+        return Err(run_error(
+            &path,
+            format!("holds a multi-stage run, not stage {name}"),
+        ));
+    };
+    let model = |c: &TrainConfig| serde_json::to_value(&c.model).ok();
+    let differs = [
+        ("network", model(stage) != model(&saved)),
+        (
+            "procedure",
+            stage.procedure.name() != saved.procedure.name(),
+        ),
+        ("inputs", stage.inputs != saved.inputs),
+    ];
+    if let Some((what, _)) = differs.iter().find(|(_, d)| *d) {
+        return Err(run_error(
+            &path,
+            format!(
+                "holds a run of another {what} than stage {name} of this run (a folder from \
+                 another run?); remove it to train the stage again"
+            ),
+        ));
+    }
+    Ok(*saved)
+}
+
 /// The last stage's final and best weights, copied to the run folder.
 fn copy_last_stage_weights(cfg: &PipelineConfig, run_dir: &Path) -> Result<(), TrainError> {
     let last = run_dir.join(&cfg.stages.last().expect("validated: a stage").name);
@@ -216,4 +276,41 @@ fn copy_last_stage_weights(cfg: &PipelineConfig, run_dir: &Path) -> Result<(), T
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn two_stages(root: &Path) -> PipelineConfig {
+        let stage = |name: &str| StageConfig {
+            name: name.into(),
+            config: TrainConfig::mfnet_paper(root.to_path_buf()),
+        };
+        PipelineConfig {
+            recipe: None,
+            stages: vec![stage("teacher"), stage("student")],
+        }
+    }
+
+    #[test]
+    fn a_missing_stage_before_a_started_one_is_refused_naming_both() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = two_stages(dir.path());
+        let started = |stage: &str| {
+            std::fs::create_dir_all(dir.path().join(stage)).unwrap();
+            std::fs::write(dir.path().join(stage).join(CONFIG_FILE), b"{}").unwrap();
+        };
+        check_stage_folders(&cfg, dir.path()).expect("nothing started");
+        started("student");
+        let err = check_stage_folders(&cfg, dir.path())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("stage teacher holds no run") && err.contains("student"),
+            "{err}"
+        );
+        started("teacher");
+        check_stage_folders(&cfg, dir.path()).expect("both started");
+    }
 }

@@ -213,7 +213,14 @@ pub fn run(args: Args) -> Result<()> {
         .transpose()?;
     let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
     let heatnet = print_scores(&args, format, &report, loaded.inputs);
-    let dropped = scores_without_modalities(&args, network.as_ref(), &split, &options, device)?;
+    let dropped = scores_without_modalities(
+        &args,
+        network.as_ref(),
+        loaded.inputs,
+        &split,
+        &options,
+        device,
+    )?;
     if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
         let n = report.confusion.num_classes();
         let json = serde_json::to_string_pretty(&Report {
@@ -303,6 +310,7 @@ fn print_scores(
 fn scores_without_modalities(
     args: &Args,
     network: &dyn rtf_models::Network,
+    sees: rtf_models::Modality,
     split: &Arc<dyn FrameSource>,
     options: &EvalOptions,
     device: tch::Device,
@@ -319,6 +327,9 @@ fn scores_without_modalities(
                 FillArg::Mean => rtf_eval::DropFill::Mean,
             },
         };
+        if let Some(note) = single_modality_note(drop.modality, sees) {
+            eprintln!("note: --drop {}: {note}", drop.modality.name());
+        }
         let r = rtf_eval::evaluate_with_drop(network, split.clone(), options, Some(drop), device)?;
         let pct = |s: &Option<Scores>| {
             s.as_ref()
@@ -343,6 +354,27 @@ fn scores_without_modalities(
     Ok(dropped)
 }
 
+/// What `--drop` means for a network that sees one modality (None: it sees both).
+fn single_modality_note(
+    dropped: rtf_models::Modality,
+    sees: rtf_models::Modality,
+) -> Option<String> {
+    use rtf_models::Modality::RgbT;
+    match sees {
+        RgbT => None,
+        only if only == dropped => Some(format!(
+            "the network sees only {} (its weights' inputs): without it, it sees nothing",
+            only.name()
+        )),
+        only => Some(format!(
+            "the network sees only {} (its weights' inputs), never {}: the scores equal the \
+             plain ones",
+            only.name(),
+            dropped.name()
+        )),
+    }
+}
+
 /// `--figure`: a grid of `--figure-frames` frames (RGB, thermal, truth, prediction).
 fn write_figure(
     args: &Args,
@@ -361,4 +393,22 @@ fn write_figure(
     rtf_eval::figure::save_png(&grid, path)?;
     println!("figure: {}", path.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::single_modality_note;
+    use rtf_models::Modality::{Rgb, RgbT, Thermal};
+
+    #[test]
+    fn drop_notes_say_what_a_single_modality_network_sees() {
+        assert_eq!(single_modality_note(Rgb, RgbT), None);
+        let unseen = single_modality_note(Thermal, Rgb).unwrap();
+        assert!(
+            unseen.contains("never thermal") && unseen.contains("equal"),
+            "{unseen}"
+        );
+        let only = single_modality_note(Thermal, Thermal).unwrap();
+        assert!(only.contains("sees nothing"), "{only}");
+    }
 }

@@ -67,21 +67,17 @@ pub const EXPORT_SCHEMA: &str = "rtf-export/1";
 fn metadata(
     network: &dyn rtf_models::Network,
     classes: i64,
+    names: Option<(Vec<String>, String)>,
     in_channels: i64,
     inputs: rtf_models::Modality,
     size: (usize, usize),
     precision: Precision,
 ) -> serde_json::Value {
     let convention = network.input_convention();
-    let class_names = [rtf_core::ClassSet::mf(), rtf_core::ClassSet::freiburg()]
-        .into_iter()
-        .find(|set| set.len() as i64 == classes)
-        .map(|set| {
-            set.names()
-                .iter()
-                .map(|s| s.to_string())
-                .collect::<Vec<_>>()
-        });
+    let (class_names, class_names_from) = match names {
+        Some((names, from)) => (Some(names), from),
+        None => (None, "unknown".to_string()),
+    };
     let scaling = match convention {
         rtf_core::InputConvention::UnitRange => {
             "R,G,B = pixel / 255; T = thermal in [0, 1] (MF: byte / 255)".to_string()
@@ -104,6 +100,7 @@ fn metadata(
         "model": network.name(),
         "num_classes": classes,
         "class_names": class_names,
+        "class_names_from": class_names_from,
         "input": {
             "name": "input",
             "shape": [1, in_channels, size.0, size.1],
@@ -119,6 +116,53 @@ fn metadata(
                    "dtype": "float32", "meaning": "class scores; argmax over dim 1 = class id"},
         "precision": format!("{precision:?}").to_lowercase(),
     })
+}
+
+/// The class names of the weights, and where they come from: the dataset of the run folder
+/// the weights sit in (its config.json; a dataset.yaml's own names), else MF's or Freiburg's
+/// names when the class count is theirs (said as an assumption), else none.
+fn class_names(weights: &Path, classes: i64) -> Option<(Vec<String>, String)> {
+    let names = |set: &rtf_core::ClassSet| set.names().iter().map(|s| s.to_string()).collect();
+    let builtin = |format: &str| match format {
+        "mf" => Some(rtf_core::ClassSet::mf()),
+        "freiburg" => Some(rtf_core::ClassSet::freiburg()),
+        _ => None,
+    };
+    let config_path = weights.parent()?.join("config.json");
+    let config: Option<serde_json::Value> = std::fs::read_to_string(&config_path)
+        .ok()
+        .and_then(|text| serde_json::from_str(&text).ok());
+    let dataset = config.as_ref().map(|c| match c["stages"].as_array() {
+        Some(stages) => stages
+            .last()
+            .map_or(serde_json::Value::Null, |s| s["config"]["dataset"].clone()),
+        None => c["dataset"].clone(),
+    });
+    if let Some(dataset) = dataset {
+        let root = dataset["root"].as_str().map(PathBuf::from);
+        let described = root
+            .and_then(|r| rtf_data::layouts::describe(&r))
+            .and_then(|d| d.ok());
+        let set = described
+            .map(|d| d.class_set)
+            .or_else(|| builtin(dataset["format"].as_str().unwrap_or_default()));
+        if let Some(set) = set.filter(|set| set.len() as i64 == classes) {
+            return Some((
+                names(&set),
+                format!("the run's dataset ({})", config_path.display()),
+            ));
+        }
+    }
+    [rtf_core::ClassSet::mf(), rtf_core::ClassSet::freiburg()]
+        .into_iter()
+        .find(|set| set.len() as i64 == classes)
+        .map(|set| {
+            let from = format!(
+                "assumed from the class count: {}'s {classes} classes",
+                set.name
+            );
+            (names(&set), from)
+        })
 }
 
 /// Adds `<archive>/extra/rtf.json` to a TorchScript archive written by libtorch.
@@ -242,7 +286,22 @@ fn trace(
     Ok(module)
 }
 
+/// `--out` naming the weights it reads (also through `..` or a link) is refused before any
+/// work: the export would replace them.
+fn refuse_overwriting_weights(args: &Args) -> Result<()> {
+    if let (Ok(out), Ok(weights)) = (args.out.canonicalize(), args.weights.canonicalize()) {
+        if out == weights {
+            bail!(
+                "--out {}: is the --weights file; refusing to overwrite the weights with the export",
+                args.out.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn run(args: Args) -> Result<()> {
+    refuse_overwriting_weights(&args)?;
     let classes = args
         .classes
         .unwrap_or_else(|| rtf_models::default_num_classes(&args.model));
@@ -273,6 +332,7 @@ pub fn run(args: Args) -> Result<()> {
     let meta = metadata(
         network,
         classes,
+        class_names(&args.weights, classes),
         in_channels,
         inputs,
         args.size,

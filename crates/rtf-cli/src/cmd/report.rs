@@ -1180,6 +1180,28 @@ img.grid{max-width:100%;border:1px solid #eee}
 .headline .value{display:block;font-size:30px;font-weight:bold}.headline .label{color:#555}
 table.config-diff td{text-align:left;font-family:monospace}details.config{margin:8px 0}";
 
+/// `--out` naming a file the report reads (a run's config.json or log.jsonl, an --eval file;
+/// also through `..` or a link) is refused before anything is written.
+fn refuse_overwriting_inputs(out: &Path, runs: &[Run], evals: &[PathBuf]) -> Result<()> {
+    let Ok(out_path) = out.canonicalize() else {
+        return Ok(());
+    };
+    let inputs = runs
+        .iter()
+        .flat_map(|r| [r.dir.join("config.json"), r.dir.join("log.jsonl")])
+        .chain(evals.iter().cloned());
+    for input in inputs {
+        if input.canonicalize().is_ok_and(|p| p == out_path) {
+            bail!(
+                "--out {}: is {}, which the report reads; refusing to overwrite it",
+                out.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn run(args: Args) -> Result<()> {
     let mut runs = Vec::new();
     for dir in &args.runs {
@@ -1190,6 +1212,7 @@ pub fn run(args: Args) -> Result<()> {
         .iter()
         .map(|p| load_eval(p))
         .collect::<Result<Vec<_>>>()?;
+    refuse_overwriting_inputs(&args.out, &runs, &args.evals)?;
     let mut html = String::new();
     writeln!(html, "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>rtf report</title><style>{STYLE}</style></head><body>")?;
     writeln!(

@@ -1,111 +1,23 @@
-//! The hostile-input catalogue (project issue 15): bad inputs for `predict`, `eval` and
-//! `data`, each run through the `rtf` binary and classified as
-//!
-//! - **clear error**: exit 1 or 2, output naming the path (or value) at fault, no panic text;
-//! - **panic**: exit 101 (a Rust panic) or a signal (abort, segfault, OOM kill);
-//! - **silent wrong**: exit 0 where the input must be refused, or a side effect the refusal
-//!   must not have (an input overwritten, a file written);
-//! - **unclear**: any other failure (a message that does not name the path).
-//!
-//! The test prints the table and the counts (`cargo xtask hostile` shows them) and fails on
-//! any panic, silent wrong result or unclear error. Huge frames under `ulimit -v` need a few
-//! GB of address space and ~10 s each: they run with `RTF_HOSTILE_MEMORY=1` (the xtask sets
-//! it).
+//! The catalogue of issue 15: bad images, outputs, weights and datasets for `predict`,
+//! `eval` and `data`, and huge frames under `ulimit -v`.
 
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-mod common;
-use common::*;
+use crate::common::*;
+use crate::verdict::{case, copy_dir, run_limited, Case};
+use crate::Fixture;
 
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Verdict {
-    Clear,
-    Panic,
-    Silent,
-    Unclear,
+/// The check of a refusal: nothing written into `dir`.
+pub fn nothing_written(dir: PathBuf) -> Box<dyn Fn() -> bool> {
+    Box::new(move || !dir.exists() || std::fs::read_dir(&dir).unwrap().count() == 0)
 }
 
-struct Case {
-    name: String,
-    args: Vec<String>,
-    /// Strings the error must contain (the path at fault, the tensor, ...).
-    must_name: Vec<String>,
-    /// Address-space limit (bytes) for the run, as `ulimit -v`.
-    limit_as: Option<u64>,
-    /// A side-effect check: false = the refusal still did damage (silent wrong).
-    intact: Option<Box<dyn Fn() -> bool>>,
-}
-
-fn case(name: &str, args: &[&str], must_name: &[&str]) -> Case {
-    Case {
-        name: name.into(),
-        args: args.iter().map(|s| s.to_string()).collect(),
-        must_name: must_name.iter().map(|s| s.to_string()).collect(),
-        limit_as: None,
-        intact: None,
-    }
-}
-
-fn run_limited(args: &[String], limit_as: Option<u64>) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_rtf"));
-    cmd.args(args);
-    if let Some(limit) = limit_as {
-        // SAFETY: setrlimit is async-signal-safe; it runs in the child before exec.
-        unsafe {
-            cmd.pre_exec(move || {
-                let rl = libc::rlimit {
-                    rlim_cur: limit as libc::rlim_t,
-                    rlim_max: limit as libc::rlim_t,
-                };
-                if libc::setrlimit(libc::RLIMIT_AS, &rl) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
-    }
-    cmd.output().expect("rtf runs")
-}
-
-fn classify(out: &Output, must_name: &[String]) -> Verdict {
-    // `rtf data check` lists its problems on stdout, other commands report on stderr.
-    let stderr = text(out);
-    match out.status.code() {
-        None | Some(101) => Verdict::Panic,
-        Some(0) => Verdict::Silent,
-        Some(1 | 2)
-            if must_name.iter().all(|n| stderr.contains(n.as_str()))
-                && !stderr.contains("panicked") =>
-        {
-            Verdict::Clear
-        }
-        Some(_) => Verdict::Unclear,
-    }
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        let target = to.join(e.file_name());
-        if e.path().is_dir() {
-            copy_dir(&e.path(), &target);
-        } else {
-            std::fs::copy(e.path(), target).unwrap();
-        }
-    }
-}
-
-fn first_line(path: &Path) -> String {
-    std::fs::read_to_string(path)
-        .unwrap()
-        .lines()
-        .next()
-        .unwrap()
-        .trim()
-        .to_string()
+/// A copy of the fixture's dataset at `t/name`, changed by `mutate`.
+fn variant(f: &Fixture, name: &str, mutate: &dyn Fn(&Path)) -> PathBuf {
+    let root = f.t.join(name);
+    copy_dir(&f.data, &root);
+    mutate(&root);
+    root
 }
 
 /// A copy of a safetensors file with its header edited by `edit` (JSON) and its data by
@@ -160,21 +72,27 @@ fn working_limit(weights: &Path, image: &Path, out: &Path) -> Option<u64> {
         })
 }
 
-#[test]
-fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
-    let tmp = tempfile::tempdir().unwrap();
-    let t = tmp.path();
-    let data = t.join("data");
-    let run = t.join("run");
-    synth_mf(&data, "8", "1", "32x32");
-    ok(&short_train(&data, &run, "1", &["--val-split", "none"]));
-    let weights = run.join("final.safetensors");
-    let frame = first_line(&data.join("test.txt"));
-    let good_image = data.join("images").join(format!("{frame}.png"));
+fn first_line(path: &Path) -> String {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .next()
+        .unwrap()
+        .trim()
+        .to_string()
+}
+
+/// predict: images (truncated, text, empty, channels, 16-bit, directory, missing, thermal partners)
+pub fn predict_images(f: &Fixture) -> Vec<Case> {
+    let (t, data, weights, good_image, frame) =
+        (&f.t, &f.data, &f.weights, &f.good_image, f.frame.clone());
+    let _ = (data, &frame, t);
     let p = |name: &str| t.join(name);
     let out = p("out");
+    let w = s(weights);
+    let o = s(&out);
+    let _ = (w, o, good_image);
     let mut cases: Vec<Case> = Vec::new();
-
     // --- predict: images ---
     let bytes = std::fs::read(&good_image).unwrap();
     std::fs::write(p("truncated.png"), &bytes[..bytes.len() / 2]).unwrap();
@@ -241,15 +159,26 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         ],
         &["rgb_ir.png"],
     ));
+    cases
+}
+
+/// predict: outputs (same stem twice, overlapping outputs, the input folder, a file)
+pub fn predict_outputs(f: &Fixture) -> Vec<Case> {
+    let (t, data, weights, good_image, frame) =
+        (&f.t, &f.data, &f.weights, &f.good_image, f.frame.clone());
+    let _ = (data, &frame, t);
+    let p = |name: &str| t.join(name);
+    let out = p("out");
+    let w = s(weights);
+    let o = s(&out);
+    let _ = (w, o, good_image);
+    let mut cases: Vec<Case> = Vec::new();
     // Outputs: name collisions and inputs overwritten.
     for d in ["a", "b"] {
         std::fs::create_dir_all(p(d)).unwrap();
         std::fs::copy(&good_image, p(d).join("x.png")).unwrap();
     }
     std::fs::copy(&good_image, p("a").join("x_color.png")).unwrap();
-    let nothing_written = |dir: PathBuf| -> Box<dyn Fn() -> bool> {
-        Box::new(move || !dir.exists() || std::fs::read_dir(&dir).unwrap().count() == 0)
-    };
     let mut c = case(
         "predict: two inputs with one stem",
         &[
@@ -305,6 +234,20 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         &["outfile"],
     ));
 
+    cases
+}
+
+/// predict + eval: weights (NaN, -inf, I32, another network, truncated, zip, empty, directory, missing)
+pub fn weights(f: &Fixture) -> Vec<Case> {
+    let (t, data, weights, good_image, frame) =
+        (&f.t, &f.data, &f.weights, &f.good_image, f.frame.clone());
+    let _ = (data, &frame, t);
+    let p = |name: &str| t.join(name);
+    let out = p("out");
+    let w = s(weights);
+    let o = s(&out);
+    let _ = (w, o, good_image);
+    let mut cases: Vec<Case> = Vec::new();
     // --- weights (predict and eval) ---
     let nan = p("nan.safetensors");
     let target = "decode1.conv.weight";
@@ -424,13 +367,22 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         }
     }
 
+    cases
+}
+
+/// eval + data check + fingerprint: datasets
+pub fn datasets(f: &Fixture) -> Vec<Case> {
+    let (t, data, weights, good_image, frame) =
+        (&f.t, &f.data, &f.weights, &f.good_image, f.frame.clone());
+    let _ = (data, &frame, t);
+    let p = |name: &str| t.join(name);
+    let out = p("out");
+    let w = s(weights);
+    let o = s(&out);
+    let _ = (w, o, good_image);
+    let mut cases: Vec<Case> = Vec::new();
     // --- eval and data check: datasets ---
-    let variant = |name: &str, mutate: &dyn Fn(&Path)| -> PathBuf {
-        let root = p(name);
-        copy_dir(&data, &root);
-        mutate(&root);
-        root
-    };
+    let variant = |name: &str, mutate: &dyn Fn(&Path)| variant(f, name, mutate);
     let test_frame = frame.clone();
     let odd = variant("odd", &|r| {
         let img = r.join("images").join(format!("{test_frame}.png"));
@@ -561,6 +513,21 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         &["nosuch"],
     ));
 
+    cases
+}
+
+/// huge frames under an address-space limit (with RTF_HOSTILE_MEMORY)
+pub fn memory(f: &Fixture) -> Vec<Case> {
+    let (t, data, weights, good_image, frame) =
+        (&f.t, &f.data, &f.weights, &f.good_image, f.frame.clone());
+    let _ = (data, &frame, t);
+    let p = |name: &str| t.join(name);
+    let out = p("out");
+    let w = s(weights);
+    let o = s(&out);
+    let _ = (w, o, good_image);
+    let mut cases: Vec<Case> = Vec::new();
+    let variant = |name: &str, mutate: &dyn Fn(&Path)| variant(f, name, mutate);
     // --- memory: huge frames under an address-space limit ---
     if std::env::var_os("RTF_HOSTILE_MEMORY").is_some() {
         let base = working_limit(&weights, &good_image, &p("ok_out"))
@@ -615,47 +582,5 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         cases.push(c);
     }
 
-    // --- run and report ---
-    let mut rows = Vec::new();
-    for c in &cases {
-        let output = run_limited(&c.args, c.limit_as);
-        let mut verdict = classify(&output, &c.must_name);
-        if let Some(intact) = &c.intact {
-            if !intact() {
-                verdict = Verdict::Silent;
-            }
-        }
-        rows.push((c, verdict, output));
-    }
-    println!("\n{:<62} {:>6}  verdict", "case", "exit");
-    for (c, verdict, output) in &rows {
-        let code = output
-            .status
-            .code()
-            .map_or("signal".to_string(), |c| c.to_string());
-        println!("{:<62} {code:>6}  {verdict:?}", c.name);
-    }
-    let count = |v: Verdict| rows.iter().filter(|r| r.1 == v).count();
-    println!(
-        "\nhostile: {} cases tried, {} clear errors, {} panics, {} silent wrong, {} unclear",
-        rows.len(),
-        count(Verdict::Clear),
-        count(Verdict::Panic),
-        count(Verdict::Silent),
-        count(Verdict::Unclear)
-    );
-    let bad: Vec<String> = rows
-        .iter()
-        .filter(|r| r.1 != Verdict::Clear)
-        .map(|(c, v, o)| {
-            format!(
-                "{} ({v:?}, exit {:?}, expected {:?}):\n{}",
-                c.name,
-                o.status.code(),
-                c.must_name,
-                text(o)
-            )
-        })
-        .collect();
-    assert!(bad.is_empty(), "{}", bad.join("\n---\n"));
+    cases
 }

@@ -1,0 +1,136 @@
+//! Calibration (issue 28): rig.yaml's `prior:` block, malformed one way per case, and a
+//! prior far from what the images say (a named warning, exit 0).
+
+use std::path::{Path, PathBuf};
+
+use crate::common::*;
+use crate::verdict::{case, recovers, Case};
+use crate::Fixture;
+
+/// A synthetic 64×48 rig of two frames with depth (`rtf synth --format calibration-rig`).
+fn rig(f: &Fixture) -> PathBuf {
+    let dir = f.t.join("rig");
+    ok(&[
+        "synth",
+        "--format",
+        "calibration-rig",
+        "--out",
+        s(&dir),
+        "--size",
+        "64x48",
+        "--count",
+        "2",
+        "--rig-depth",
+        "given",
+        "--seed",
+        "1",
+    ]);
+    dir.join("rig.yaml")
+}
+
+/// A copy of `rig` (beside it, so its relative paths hold) with `prior` appended.
+fn with_prior(rig: &Path, name: &str, prior: &str) -> PathBuf {
+    let text = std::fs::read_to_string(rig).unwrap();
+    let path = rig.with_file_name(format!("{name}.yaml"));
+    std::fs::write(&path, format!("{text}\nprior:\n{prior}")).unwrap();
+    path
+}
+
+fn calibrate(name: &str, rig: &Path, out: &Path, must: &[&str]) -> Case {
+    let args = [
+        "calibrate",
+        "--rig",
+        s(rig),
+        "--out",
+        s(out),
+        "--iterations",
+        "5",
+    ];
+    let written = out.to_path_buf();
+    case(&format!("calibrate: {name}"), &args, must).intact(move || !written.exists())
+}
+
+pub fn cases(f: &Fixture) -> Vec<Case> {
+    let rig = rig(f);
+    let out = f.t.join("calib.yaml");
+    let malformed: [(&str, &str, &[&str]); 9] = [
+        (
+            "negative translation sigma",
+            "  translation_m: [0.1, 0, 0]\n  translation_sigma_m: -0.02\n",
+            &["prior.translation_sigma_m", "-0.02"],
+        ),
+        (
+            "zero rotation sigma",
+            "  rotation_deg: [0, 0, 0]\n  rotation_sigma_deg: 0\n",
+            &["prior.rotation_sigma_deg"],
+        ),
+        (
+            "negative principal-point sigma",
+            "  principal_point_sigma_px: -10\n",
+            &["prior.principal_point_sigma_px"],
+        ),
+        (
+            "translation of 2 numbers",
+            "  translation_m: [0.1, 0]\n  translation_sigma_m: 0.02\n",
+            &["prior.translation_m", "needs 3 numbers, got 2"],
+        ),
+        (
+            "rotation of 4 numbers",
+            "  rotation_deg: [0, 0, 0, 1]\n  rotation_sigma_deg: 2\n",
+            &["prior.rotation_deg", "got 4"],
+        ),
+        (
+            "principal point of 1 number",
+            "  principal_point_px: [32]\n  principal_point_sigma_px: 5\n",
+            &["prior.principal_point_px"],
+        ),
+        (
+            "a value without its sigma",
+            "  translation_m: [0.1, 0, 0]\n",
+            &["prior.translation_m", "translation_sigma_m"],
+        ),
+        (
+            "a sigma without its value",
+            "  rotation_sigma_deg: 2\n",
+            &["prior.rotation_sigma_deg", "rotation_deg"],
+        ),
+        (
+            "unknown key in prior",
+            "  translaton_m: [0.1, 0, 0]\n",
+            &["rig", "translaton_m"],
+        ),
+    ];
+    let mut cases: Vec<Case> = malformed
+        .iter()
+        .enumerate()
+        .map(|(i, (name, prior, must))| {
+            let path = with_prior(&rig, &format!("prior{i}"), prior);
+            calibrate(&format!("prior, {name}"), &path, &out, must)
+        })
+        .collect();
+    // 60 cm from where the synthetic rig's thermal camera sits, σ 1 cm: the images disagree.
+    let far = with_prior(
+        &rig,
+        "prior_far",
+        "  translation_m: [0.7, 0.6, 0.5]\n  translation_sigma_m: 0.01\n",
+    );
+    let far_out = f.t.join("calib_far.yaml");
+    let written = far_out.clone();
+    cases.push(recovers(
+        "calibrate: prior far from the images (warning, exit 0)",
+        &[
+            "calibrate",
+            "--rig",
+            s(&far),
+            "--out",
+            s(&far_out),
+            "--iterations",
+            "10",
+        ],
+        &["prior_far_from_images"],
+        Box::new(move || {
+            std::fs::read_to_string(&written).is_ok_and(|t| t.contains("prior_far_from_images"))
+        }),
+    ));
+    cases
+}
