@@ -26,6 +26,7 @@ pub fn hostile(root: &Path, extra: &[String]) -> Result<()> {
     let status = Command::new("cargo")
         .args(&args)
         .env("RTF_HOSTILE_MEMORY", "1")
+        .env("RTF_HOSTILE_SLOW", "1")
         .current_dir(root)
         .status()?;
     if !status.success() {
