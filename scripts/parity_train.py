@@ -20,8 +20,17 @@ on real frames (issue 27 §3).
    ‖Δrtf − Δref‖ / ‖Δref‖ over every parameter and BatchNorm statistic, and the largest
    relative difference of the per-step losses.
 
+5. With --adversarial NETS: one HeatNet adversarial stage per network (scripts/
+   reference_train_heatnet.py against `rtf train --recipe heatnet-v5 --critic-code`, the
+   published code's critic procedure through an option), on --frames/2 day and --frames/2
+   night scenes, from the same network and critic weights (--init, --critic-init), the
+   published MFNet as the day teacher, RMSprop 1e-4, λ 0.01: the update differences of the
+   segmentation network (with and without BatchNorm statistics) and of the critic, and the
+   per-step losses (critic steps: the critic's loss).
+
     .venv/bin/python scripts/parity_train.py --rtf target/release/rtf --work /tmp/parity \\
-        --models mfnet,rtfnet18 --frames 48 --size 160x128 --epochs 2 --batch-size 4
+        --models mfnet,rtfnet18 --frames 48 --size 160x128 --epochs 2 --batch-size 4 \\
+        --adversarial mfnet
 """
 import argparse
 import json
@@ -41,11 +50,18 @@ SHARED = os.path.join(HERE, "..", "..", "shared", "data")
 MFNET_WEIGHTS = "mf-samples/mfnet_final.safetensors"
 
 
-def build_dataset(args, root):
-    """MF layout from the first --frames MSRS scenes, resized, labelled by the published MFNet."""
+def build_dataset(args, root, balanced=False):
+    """MF layout from the first --frames MSRS scenes (balanced: the first --frames/2 day and
+    night scenes, in frames.txt order), resized, labelled by the published MFNet."""
     msrs = os.path.join(args.shared, "msrs-samples")
     with open(os.path.join(msrs, "frames.txt")) as f:
-        names = [line.strip() for line in f if line.strip()][: args.frames]
+        names = [line.strip() for line in f if line.strip()]
+    if balanced:
+        half = args.frames // 2
+        chosen = set([n for n in names if n.endswith("D")][:half] + [n for n in names if n.endswith("N")][:half])
+        names = [n for n in names if n in chosen]
+    else:
+        names = names[: args.frames]
     w, h = args.size
     os.makedirs(os.path.join(root, "images"), exist_ok=True)
     for name in names:
@@ -76,11 +92,14 @@ def run(cmd, threads=None):
     return done.stdout
 
 
-def relative_update_difference(init, rtf, ref):
-    """‖Δrtf − Δref‖ / ‖Δref‖ over every tensor of the reference (num_batches_tracked aside)."""
+def relative_update_difference(init, rtf, ref, parameters_only=False):
+    """‖Δrtf − Δref‖ / ‖Δref‖ over every tensor of the reference (num_batches_tracked aside;
+    parameters_only: BatchNorm's running statistics aside too)."""
     diff, norm = 0.0, 0.0
     for name, w0 in init.items():
         if name.endswith("num_batches_tracked"):
+            continue
+        if parameters_only and name.endswith(("running_mean", "running_var")):
             continue
         d_rtf = rtf[name].double() - w0.double()
         d_ref = ref[name].double() - w0.double()
@@ -122,6 +141,53 @@ def one_network(args, data, model):
             "init": init, "rtf_final": final, "ref_final": ref_weights}
 
 
+def adversarial(args, data, model):
+    """One HeatNet adversarial stage: `rtf train --recipe heatnet-v5 --critic-code` (the
+    published code's critic procedure, where rtf's default is the paper's) against
+    scripts/reference_train_heatnet.py, both from the same network and critic weights, the
+    published MFNet as the day teacher, RMSprop 1e-4, λ 0.01."""
+    work = os.path.join(args.work, "adversarial-" + model)
+    os.makedirs(work, exist_ok=True)
+    ref_script = os.path.join(HERE, "reference_train_heatnet.py")
+    init, critic_init = os.path.join(work, "init.safetensors"), os.path.join(work, "critic_init.safetensors")
+    run([sys.executable, os.path.join(HERE, "reference_train.py"), "init", "--model", model, "--out", init])
+    run([sys.executable, ref_script, "init-critic", "--classes", "9", "--out", critic_init])
+    teacher = os.path.join(args.shared, MFNET_WEIGHTS)
+    schedule = ["--epochs", str(args.epochs), "--batch-size", str(args.batch_size), "--lr", "1e-4",
+                "--lambda", "0.01"]
+    rtf_run = os.path.join(work, "rtf")
+    run([args.rtf, "train", "--recipe", "heatnet-v5", "--model", model, "--data", data, "--out", rtf_run,
+         "--teacher", teacher, "--teacher-model", "mfnet", "--init", init, "--critic-init", critic_init,
+         *(["--critic-code"] if args.rtf_critic == "code" else []), "--no-shuffle", "--no-augment", "--precision", "fp32", "--val-split", "none",
+         "--tb-images-every", "0", "--workers", "1", *schedule], args.threads)
+    stage = os.path.join(rtf_run, "v5")
+    ref = {k: os.path.join(work, f) for k, f in
+           [("net", "ref.safetensors"), ("critic", "ref_critic.safetensors"), ("losses", "ref_losses.json")]}
+    run([sys.executable, ref_script, "train", "--data", data, "--model", model, "--init", init,
+         "--critic-init", critic_init, "--teacher", teacher, "--teacher-model", "mfnet", "--out", ref["net"],
+         "--critic-out", ref["critic"], "--losses", ref["losses"], "--threads", str(args.threads), *schedule],
+        args.threads)
+    with open(os.path.join(stage, "steps.jsonl")) as f:
+        rtf_steps = [json.loads(line)["loss"] for line in f]
+    with open(ref["losses"]) as f:
+        ref_records = json.load(f)
+    ref_steps = [r["loss"] for r in ref_records]
+    if len(rtf_steps) != len(ref_steps) and args.rtf_critic == "code":
+        sys.exit(f"parity_train: adversarial: rtf took {len(rtf_steps)} steps, the reference {len(ref_steps)}")
+    checkpoint = reference_train.read_safetensors(os.path.join(stage, "checkpoint.safetensors"))
+    rtf_critic = {k[len("critic/w/"):]: v for k, v in checkpoint.items() if k.startswith("critic/w/")}
+    read = reference_train.read_safetensors
+    weights = (read(init), read(os.path.join(stage, "final.safetensors")), read(ref["net"]))
+    return {"model": model, "procedure": "adversarial", "rtf_critic": args.rtf_critic, "steps": len(ref_steps),
+            "update_rel_diff": relative_update_difference(*weights),
+            "update_rel_diff_parameters": relative_update_difference(*weights, parameters_only=True),
+            "critic_update_rel_diff": relative_update_difference(read(critic_init), rtf_critic, read(ref["critic"])),
+            "max_loss_rel_diff": max(abs(a - b) / abs(b) for a, b in zip(rtf_steps, ref_steps)),
+            "phases": [r["phase"] for r in ref_records], "rtf_losses": rtf_steps, "ref_losses": ref_steps,
+            "init": init, "critic_init": critic_init, "rtf_run": stage, "ref_final": ref["net"],
+            "ref_critic": ref["critic"]}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rtf", required=True, help="the rtf binary")
@@ -133,10 +199,20 @@ def main():
     ap.add_argument("--epochs", type=int, default=2)
     ap.add_argument("--batch-size", type=int, default=4)
     ap.add_argument("--threads", type=int, default=torch.get_num_threads())
+    ap.add_argument("--adversarial", default="",
+                    help="segmentation networks for one HeatNet adversarial stage each (e.g. mfnet), "
+                         "on --frames/2 day and --frames/2 night scenes")
+    ap.add_argument("--rtf-critic", choices=["code", "paper"], default="code",
+                    help="rtf's critic procedure: the published code's (--critic-code, the parity run) or the "
+                         "paper's (rtf's default; a control: it should not agree)")
     args = ap.parse_args()
     data = os.path.join(args.work, "data")
-    names = build_dataset(args, data)
-    results = [one_network(args, data, m) for m in args.models.split(",")]
+    names = build_dataset(args, data) if args.models else []
+    results = [one_network(args, data, m) for m in args.models.split(",") if m]
+    if args.adversarial:
+        balanced = os.path.join(args.work, "data-day-night")
+        names = build_dataset(args, balanced, balanced=True)
+        results += [adversarial(args, balanced, m) for m in args.adversarial.split(",")]
     print(json.dumps({"frames": len(names), "size": list(args.size), "epochs": args.epochs,
                       "batch_size": args.batch_size, "results": results}))
 

@@ -4,8 +4,11 @@
 # scenes of ../shared/data/msrs-samples at 160×128 labelled by the published MFNet, two epochs
 # of batch 4 (24 steps) for MFNet and RTFNet-18, same starting weights, no shuffle, no
 # augmentation, fp32, the official code's SGD schedule, one thread each side (another thread
-# count's rounding is amplified by RTFNet-18's random-init trajectory: docs). Prints one JSON
-# object.
+# count's rounding is amplified by RTFNet-18's random-init trajectory: docs), then one HeatNet
+# adversarial stage (MFNet + HeatNet's critic, 24 day and 24 night scenes, the published code's
+# critic procedure: `rtf train --critic-code` against scripts/reference_train_heatnet.py).
+# Prints one JSON object. `--models ""` skips the supervised runs, `--adversarial ""` the
+# adversarial one.
 #   scripts/parity_train.sh [WORK_DIR] [extra scripts/parity_train.py flags]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,4 +17,4 @@ shift || true
 export LIBTORCH="${LIBTORCH:-$PWD/.libtorch}"
 cargo build --release -q -p rtf-cli
 exec .venv/bin/python scripts/parity_train.py --rtf target/release/rtf --work "$work" \
-    --models mfnet,rtfnet18 --frames 48 --size 160x128 --epochs 2 --batch-size 4 --threads 1 "$@"
+    --models mfnet,rtfnet18 --adversarial mfnet --frames 48 --size 160x128 --epochs 2 --batch-size 4 --threads 1 "$@"

@@ -9,6 +9,12 @@
 //! docs/src/training.md gives its numbers. The set-up and both runs are scripts/parity_train.py;
 //! this test recomputes both measures from the files the runs wrote. Needs the project's .venv
 //! (PyTorch) and the shared data; says so and passes without them.
+//!
+//! One HeatNet adversarial stage likewise (`rtf train --recipe heatnet-v5 --critic-code`
+//! against scripts/reference_train_heatnet.py): MFNet as the segmentation network, HeatNet's
+//! critic, both from the same weights (`--init`, `--critic-init`), the published MFNet as the
+//! day teacher; 4 day and 4 night scenes at 96×64, 2 epochs of 2 steps (critic, segmentation,
+//! critic, segmentation). Both networks' updates within 1 %, every step's loss within 0.5 %.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -68,31 +74,25 @@ fn losses_of_reference(path: &Path) -> Vec<f64> {
         .collect()
 }
 
-#[test]
-fn rtf_trains_step_for_step_like_the_reference_on_real_frames() {
+/// scripts/parity_train.py with `args` (and 96×64 frames, 2 epochs of batch 2, 1 thread) into
+/// `work`; its summary. None (with a notice) without the .venv or the shared data.
+fn parity_run(work: &Path, args: &[&str]) -> Option<Value> {
     let python = repo().join(".venv/bin/python");
     if !python.exists() || !shared_data().join("msrs-samples").is_dir() {
         eprintln!(
             "notice: no .venv/bin/python or ../shared/data/msrs-samples; training parity skipped"
         );
-        return;
+        return None;
     }
-    let work = tempfile::tempdir().unwrap();
     let out = Command::new(&python)
         .arg(repo().join("scripts/parity_train.py"))
         .args(["--rtf", env!("CARGO_BIN_EXE_rtf"), "--work"])
-        .arg(work.path())
+        .arg(work)
         .arg("--shared")
         .arg(shared_data())
-        .args([
-            "--models",
-            "mfnet,rtfnet18",
-            "--frames",
-            "4",
-            "--size",
-            "96x64",
-        ])
-        .args(["--epochs", "2", "--batch-size", "2", "--threads", "1"])
+        .args(args)
+        .args(["--size", "96x64", "--epochs", "2", "--batch-size", "2"])
+        .args(["--threads", "1"])
         .output()
         .expect("the .venv python runs");
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -101,7 +101,28 @@ fn rtf_trains_step_for_step_like_the_reference_on_real_frames() {
         "parity_train.py failed:\n{stdout}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let summary: Value = serde_json::from_str(stdout.trim()).unwrap();
+    Some(serde_json::from_str(stdout.trim()).unwrap())
+}
+
+/// Every step's loss within 0.5 % of the reference's.
+fn assert_losses_agree(what: &str, rtf: &[f64], reference: &[f64], steps: usize) {
+    assert_eq!(rtf.len(), steps, "{what}: 2 epochs of 2 steps");
+    assert_eq!(rtf.len(), reference.len(), "{what}");
+    for (step, (a, b)) in rtf.iter().zip(reference).enumerate() {
+        assert!(
+            (a - b).abs() <= 0.005 * b.abs() && *b > 0.0,
+            "{what} step {step}: rtf loss {a}, reference {b}"
+        );
+    }
+}
+
+#[test]
+fn rtf_trains_step_for_step_like_the_reference_on_real_frames() {
+    let work = tempfile::tempdir().unwrap();
+    let models = ["--models", "mfnet,rtfnet18", "--frames", "4"];
+    let Some(summary) = parity_run(work.path(), &models) else {
+        return;
+    };
     for result in summary["results"].as_array().unwrap() {
         let model = result["model"].as_str().unwrap();
         let dir = work.path().join(model);
@@ -109,14 +130,7 @@ fn rtf_trains_step_for_step_like_the_reference_on_real_frames() {
             losses_of_rtf(&dir.join("rtf")),
             losses_of_reference(&dir.join("ref_losses.json")),
         );
-        assert_eq!(rtf_losses.len(), 4, "{model}: 2 epochs of 2 steps");
-        assert_eq!(rtf_losses.len(), ref_losses.len(), "{model}");
-        for (step, (a, b)) in rtf_losses.iter().zip(&ref_losses).enumerate() {
-            assert!(
-                (a - b).abs() <= 0.005 * b.abs() && *b > 0.0,
-                "{model} step {step}: rtf loss {a}, reference {b}"
-            );
-        }
+        assert_losses_agree(model, &rtf_losses, &ref_losses, 4);
         let init = PathBuf::from(result["init"].as_str().unwrap());
         let (relative, moved) = update_difference(
             &init,
@@ -133,4 +147,73 @@ fn rtf_trains_step_for_step_like_the_reference_on_real_frames() {
         );
         eprintln!("{model}: update difference {relative:.2e} of ‖Δref‖ {moved:.3e}; losses {rtf_losses:?} vs {ref_losses:?}");
     }
+}
+
+/// The critic's weights of an rtf run's checkpoint (`critic/w/NAME`), as a weights file.
+fn critic_of_checkpoint(checkpoint: &Path, out: &Path) -> PathBuf {
+    let critic: Vec<(String, Tensor)> = rtf_models::weights::read_safetensors(checkpoint)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .into_iter()
+        .filter_map(|(name, t)| Some((name.strip_prefix("critic/w/")?.to_string(), t)))
+        .collect();
+    assert_eq!(critic.len(), 10, "five convolutions with biases");
+    rtf_models::weights::save_named(&critic, out).unwrap();
+    out.to_path_buf()
+}
+
+#[test]
+fn one_adversarial_stage_trains_like_the_published_code_on_real_frames() {
+    let work = tempfile::tempdir().unwrap();
+    let args = ["--models", "", "--adversarial", "mfnet", "--frames", "8"];
+    if parity_run(work.path(), &args).is_none() {
+        return;
+    }
+    let dir = work.path().join("adversarial-mfnet");
+    let run = dir.join("rtf/v5");
+    let reference: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("ref_losses.json")).unwrap())
+            .unwrap();
+    let phases: Vec<&str> = reference
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["phase"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        phases,
+        ["critic", "segmentation", "critic", "segmentation"],
+        "the code's order: critic first, one step each"
+    );
+    let (rtf_losses, ref_losses) = (
+        losses_of_rtf(&run),
+        losses_of_reference(&dir.join("ref_losses.json")),
+    );
+    assert_losses_agree("adversarial", &rtf_losses, &ref_losses, 4);
+    let rtf_critic = critic_of_checkpoint(
+        &run.join("checkpoint.safetensors"),
+        &work.path().join("rtf_critic.safetensors"),
+    );
+    for (what, init, rtf, reference) in [
+        (
+            "segmentation network",
+            dir.join("init.safetensors"),
+            run.join("final.safetensors"),
+            dir.join("ref.safetensors"),
+        ),
+        (
+            "critic",
+            dir.join("critic_init.safetensors"),
+            rtf_critic,
+            dir.join("ref_critic.safetensors"),
+        ),
+    ] {
+        let (relative, moved) = update_difference(&init, &rtf, &reference);
+        assert!(moved > 1e-5, "{what}: the reference moved it ({moved})");
+        assert!(
+            relative < 0.01,
+            "{what}: ‖Δrtf − Δref‖/‖Δref‖ = {relative:.2e} (‖Δref‖ = {moved:.3e})"
+        );
+        eprintln!("adversarial {what}: update difference {relative:.2e} of ‖Δref‖ {moved:.3e}");
+    }
+    eprintln!("adversarial losses {rtf_losses:?} vs {ref_losses:?}");
 }

@@ -345,6 +345,24 @@ pub struct CriticOptions {
     /// The critic's own optimiser (paper: RMSprop 1e-4, halved every 30 epochs).
     #[serde(default = "OptimizerConfig::heatnet_paper")]
     pub optimizer: OptimizerConfig,
+    /// The critic starts from these weights (safetensors under the reference names `conv1`
+    /// … `classifier`; parity runs) instead of a fresh initialisation.
+    #[serde(default)]
+    pub init: Option<PathBuf>,
+    /// Published code: the critic's targets flipped (day → 1, night → 0; paper: day → 0,
+    /// night → 1).
+    #[serde(default)]
+    pub flip_targets: bool,
+    /// Published code: the segmentation step also scores the day outputs, pushing them toward
+    /// the day target (toward the night target with `multidir`).
+    #[serde(default)]
+    pub day_term: bool,
+    /// Published code's alternation: each step is either critic steps or one segmentation
+    /// step, each on its own batches and its own forward pass, the critic's first (`steps`
+    /// critic steps, then one segmentation step, and again). Paper (false): every step is a
+    /// segmentation step followed by `steps` critic steps on the same batches' outputs.
+    #[serde(default)]
+    pub alternate: bool,
 }
 
 fn lambda_paper() -> f64 {
@@ -360,6 +378,10 @@ impl Default for CriticOptions {
             confidence_weighting: false,
             steps: 1,
             optimizer: OptimizerConfig::heatnet_paper(),
+            init: None,
+            flip_targets: false,
+            day_term: false,
+            alternate: false,
         }
     }
 }

@@ -779,6 +779,7 @@ impl<'a> Run<'a> {
             true => restore(&folder, procedure.as_mut())?,
             false => start(cfg, &folder, procedure.as_mut())?,
         };
+        procedure.resume_at(state.steps_done);
         if let Some(d) = &ddp {
             // DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every
             // trained network's gradients averaged from now on.

@@ -10,6 +10,7 @@ mod budget;
 mod cells;
 mod figure;
 mod io;
+mod paper_time;
 mod report;
 mod speed;
 mod tables;

@@ -136,7 +136,9 @@ pub fn collect(
     });
     out["claims"] = json!(claims(table.id, &out)
         .iter()
-        .map(|c| json!({"claim": c.text, "held": c.held, "detail": c.detail}))
+        .map(
+            |c| json!({"claim": c.text, "held": c.held, "untested": c.untested, "detail": c.detail})
+        )
         .collect::<Vec<_>>());
     out
 }
@@ -191,12 +193,57 @@ fn measured_column(ctx: &Context, table: &Table, m: &Measure, seeds: usize) -> O
         return None;
     }
     let (mean, std) = mean_std(&values);
-    Some(json!({
+    let mut column = json!({
         "mean": round(mean),
         "std": round(std),
         "seeds": per_seed.iter().map(|v| v.map(round)).collect::<Vec<_>>(),
-    }))
+    });
+    let scores: Vec<(f64, f64)> = (0..seeds)
+        .filter_map(|seed| read_json(&ctx.cell_dir(table, cell, seed).join(EVAL_FILE)))
+        .filter_map(|eval| miou_and_trivial(&eval))
+        .collect();
+    if let Some(learned) = learned(&scores) {
+        column["learned"] = json!(learned);
+    }
+    Some(column)
 }
+
+/// An evaluation's mIoU (RTFNet convention: every class, an undefined one counted 0) and the
+/// mIoU of the trivial answer, every pixel the most frequent true class (MF: unlabelled), from
+/// its confusion matrix: that class's IoU is its pixel share, every other class's 0. None
+/// without a confusion matrix.
+pub fn miou_and_trivial(eval: &Value) -> Option<(f64, f64)> {
+    let rows: Vec<u64> = eval["confusion"]
+        .as_array()?
+        .iter()
+        .map(|r| {
+            r.as_array()
+                .map(|r| r.iter().filter_map(Value::as_u64).sum())
+        })
+        .collect::<Option<_>>()?;
+    let total: u64 = rows.iter().sum();
+    let largest = rows.iter().copied().max()?;
+    if total == 0 {
+        return None;
+    }
+    let trivial = largest as f64 / total as f64 / rows.len() as f64;
+    Some((eval["miou"].as_f64()?, trivial))
+}
+
+/// Whether a cell's network left the trivial answer: its mIoU (mean over the seeds) at least
+/// twice the trivial answer's. None without scores.
+pub fn learned(scores: &[(f64, f64)]) -> Option<bool> {
+    if scores.is_empty() {
+        return None;
+    }
+    let n = scores.len() as f64;
+    let miou = scores.iter().map(|s| s.0).sum::<f64>() / n;
+    let trivial = scores.iter().map(|s| s.1).sum::<f64>() / n;
+    Some(miou >= 2.0 * trivial)
+}
+
+/// The verdict of a claim judged on a cell whose network did not learn.
+pub const UNTESTED: &str = "untested (network did not train at this budget)";
 
 /// The `rtf train`/`rtf eval` command lines of every cell, by cell id.
 fn cell_recipes(ctx: &Context, table: &Table) -> serde_json::Map<String, Value> {
@@ -361,10 +408,11 @@ fn markdown_claims(v: &Value) -> String {
     }
     let mut s = String::from("\nThe paper's claims, checked on the measured means:\n\n");
     for c in claims {
-        let verdict = match c["held"].as_bool() {
-            Some(true) => "**held**",
-            Some(false) => "**not held**",
-            None => "not checkable (numbers missing)",
+        let verdict = match (c["held"].as_bool(), c["untested"].as_bool()) {
+            (_, Some(true)) => UNTESTED,
+            (Some(true), _) => "**held**",
+            (Some(false), _) => "**not held**",
+            (None, _) => "not checkable (numbers missing)",
         };
         let _ = writeln!(
             s,
@@ -410,13 +458,27 @@ pub fn csv(v: &Value) -> String {
 /// A qualitative claim of a paper, checked on the measured means.
 pub struct Claim {
     pub text: String,
+    /// None when a number is missing or the claim is untested.
     pub held: Option<bool>,
+    /// A compared cell's network did not leave the trivial answer (`learned`: false): the
+    /// claim compares untrained networks and is not judged.
+    pub untested: bool,
     pub detail: String,
+}
+
+/// Measured column (row label, column) of a results JSON.
+fn measured_entry<'a>(v: &'a Value, row: &str, col: &str) -> Option<&'a Value> {
+    Some(&v["rows"].as_array()?.iter().find(|r| r["label"] == row)?["measured"][col])
 }
 
 /// Measured mean of (row label, column) in a results JSON.
 fn measured(v: &Value, row: &str, col: &str) -> Option<f64> {
-    v["rows"].as_array()?.iter().find(|r| r["label"] == row)?["measured"][col]["mean"].as_f64()
+    measured_entry(v, row, col)?["mean"].as_f64()
+}
+
+/// Whether the network behind (row label, column) stayed at the trivial answer.
+fn untrained(v: &Value, row: &str, col: &str) -> bool {
+    measured_entry(v, row, col).is_some_and(|m| m["learned"].as_bool() == Some(false))
 }
 
 /// A (row label, column) of a results table.
@@ -426,7 +488,13 @@ type Cell<'a> = (&'a str, &'a str);
 fn greater(v: &Value, text: &str, pairs: &[(Cell, Cell)]) -> Claim {
     let mut detail = Vec::new();
     let mut held = Some(true);
+    let mut not_learned = Vec::new();
     for ((ra, ca), (rb, cb)) in pairs {
+        for (r, c) in [(ra, ca), (rb, cb)] {
+            if untrained(v, r, c) && !not_learned.contains(r) {
+                not_learned.push(*r);
+            }
+        }
         match (measured(v, ra, ca), measured(v, rb, cb)) {
             (Some(a), Some(b)) => {
                 detail.push(format!("{ra} {ca} {a:.1} vs {rb} {cb} {b:.1}"));
@@ -440,9 +508,17 @@ fn greater(v: &Value, text: &str, pairs: &[(Cell, Cell)]) -> Claim {
             }
         }
     }
+    let untested = held.is_some() && !not_learned.is_empty();
+    if untested {
+        detail.push(format!(
+            "mIoU below twice the all-unlabelled answer's: {}",
+            not_learned.join(", ")
+        ));
+    }
     Claim {
         text: text.into(),
-        held,
+        held: if untested { None } else { held },
+        untested,
         detail: detail.join("; "),
     }
 }
@@ -515,27 +591,23 @@ pub fn claims(table: &str, v: &Value) -> Vec<Claim> {
     }
 }
 
-/// Paper-budget time estimates from the quick run's training rates (`log.jsonl`): images per
-/// second at the quick size, scaled by pixels to the paper's frames, times the paper's images.
+/// Paper-budget time estimates from the quick run's training rates (`log.jsonl`): the CPU time
+/// by pixel scaling, the H100 time from the measured GPU rates (`paper_time`).
 pub fn estimate(ctx: &Context, table: &Table) -> Option<Value> {
     use super::budget::Budget;
     use super::tables::{Data, RecipeFamily, Train};
-    let (q_frames, q_size) = ctx.budget.synth(Data::Mf);
-    let _ = q_frames;
+    let (_, q_size) = ctx.budget.synth(Data::Mf);
     let pixels = |s: &str| -> f64 {
         let (w, h) = s.split_once('x').unwrap_or(("1", "1"));
         w.parse::<f64>().unwrap_or(1.0) * h.parse::<f64>().unwrap_or(1.0)
     };
-    let scale = pixels(q_size) / pixels("640x480");
     // Paper budget: training images per run (MF: 784 training frames per epoch).
-    let (epochs, frames) = match table.recipe {
-        RecipeFamily::Mfnet => (80.0, 784.0),
-        RecipeFamily::Rtfnet => (100.0, 784.0),
+    let epochs = match table.recipe {
+        RecipeFamily::Mfnet => 80.0,
+        RecipeFamily::Rtfnet => 100.0,
         RecipeFamily::Heatnet => return None,
     };
-    let mut cpu_s = 0.0;
-    let mut gpu_s = 0.0;
-    let mut n = 0;
+    let mut rates = Vec::new();
     for cell in &table.cells {
         let Train::Model(name) = cell.train else {
             continue;
@@ -546,46 +618,43 @@ pub fn estimate(ctx: &Context, table: &Table) -> Option<Value> {
             .and_then(|c| c["reused_from"].as_str().map(std::path::PathBuf::from))
             .unwrap_or(dir)
             .join("log.jsonl");
-        let Some(rate) = std::fs::read_to_string(&log).ok().and_then(|t| {
+        if let Some(rate) = std::fs::read_to_string(&log).ok().and_then(|t| {
             let last = t.lines().rfind(|l| !l.trim().is_empty())?.to_string();
             serde_json::from_str::<Value>(&last).ok()?["images_per_s"].as_f64()
-        }) else {
-            continue;
-        };
-        let cpu_rate = rate * scale;
-        cpu_s += epochs * frames / cpu_rate;
-        // GPU: the H100 rates of docs/src/getting-started.md at 480×640 (MFNet 108, RTFNet-50
-        // 42, RTFNet-152 22 images/s); other networks by their CPU rate relative to MFNet's.
-        let gpu_rate = match name {
-            "mfnet" => 108.0,
-            n if n.starts_with("rtfnet50") => 42.0,
-            n if n.starts_with("rtfnet152") => 22.0,
-            _ => 108.0 * cpu_rate / MFNET_CPU_RATE_480,
-        };
-        gpu_s += epochs * frames / gpu_rate;
-        n += 1;
+        }) {
+            rates.push((name, rate));
+        }
     }
     // Only the quick budget's rates mean something (smoke's are start-up costs).
-    if n == 0 || ctx.budget != Budget::Quick {
+    if rates.is_empty() || ctx.budget != Budget::Quick {
         return None;
     }
-    let text = format!(
-        "Paper-budget estimate for the {n} cells measured here (one seed): about {:.0} h on this \
-         CPU and {:.1} h on one H100. Method: each cell's last-epoch training rate of this run \
-         (images/s at {q_size}) scaled by pixel count to 480×640, times {epochs:.0} epochs × 784 \
-         frames; GPU rates from docs/src/getting-started.md (MFNet 108, RTFNet-50 42, RTFNet-152 \
-         22 images/s), other networks scaled from MFNet's by their CPU rate. Rates on this \
-         shared 2-core machine are disturbed by other jobs.",
-        cpu_s / 3600.0,
-        gpu_s / 3600.0
-    );
+    let e = super::paper_time::estimate(&rates, pixels(q_size), epochs * 784.0);
     Some(
-        json!({"cpu_hours": round(cpu_s / 3600.0), "gpu_hours": round(gpu_s / 3600.0), "text": text}),
+        json!({"cpu_hours": round(e.cpu_hours), "gpu_hours": round(e.gpu_hours.1),
+                "gpu_hours_range": [round(e.gpu_hours.0), round(e.gpu_hours.1)],
+                "text": estimate_text(&e, q_size, epochs)}),
     )
 }
 
-/// MFNet's training rate on this CPU at 480×640 (the brief's 1–1.5 images/s).
-const MFNET_CPU_RATE_480: f64 = 1.25;
+fn estimate_text(e: &super::paper_time::Estimate, q_size: &str, epochs: f64) -> String {
+    let (fast, slow) = e.gpu_hours;
+    let gpu = match (slow - fast).abs() < 0.05 {
+        true => format!("{slow:.1} h"),
+        false => format!("{fast:.1}–{slow:.1} h"),
+    };
+    format!(
+        "Paper-budget estimate for the {} cells measured here (one seed), {epochs:.0} epochs × 784 \
+         frames at 480×640 each: {gpu} on one H100 and at most about {:.0} h on this CPU. GPU: \
+         the H100 training rates of docs/src/getting-started.md (MFNet 108, RTFNet-50 42, \
+         RTFNet-152 22 images/s); a network without its own rate gets the measured range \
+         (108–22 images/s), never a rate scaled from a CPU one. CPU: each cell's last-epoch \
+         training rate of this run (images/s at {q_size}) scaled by pixel count, an upper \
+         bound (small frames and short epochs weigh fixed per-step costs more; rates on this \
+         shared 2-core machine are disturbed by other jobs).",
+        e.cells, e.cpu_hours
+    )
+}
 
 /// Writes `<out>/<table>.{json,md,csv}`.
 pub fn write(out: &Path, v: &Value) -> Result<()> {
@@ -665,6 +734,72 @@ mod tests {
             ],
             "claims": [], "command": "cargo xtask reproduce mfnet-tab3"
         })
+    }
+
+    /// A cell's network learned when its mIoU is at least twice the trivial answer's, read from
+    /// the confusion matrix of its `rtf eval --json` (rows = truth).
+    #[test]
+    fn the_trivial_answer_comes_from_the_confusion_matrix() {
+        // 90 % of the pixels unlabelled, 3 classes: the all-unlabelled answer scores 0.9 / 3.
+        let eval =
+            |miou: f64| json!({"miou": miou, "confusion": [[80, 10, 0], [5, 5, 0], [0, 0, 0]]});
+        let (miou, trivial) = miou_and_trivial(&eval(0.25)).unwrap();
+        assert!((miou - 0.25).abs() < 1e-12 && (trivial - 0.3).abs() < 1e-12);
+        assert_eq!(learned(&[(0.25, 0.3)]), Some(false));
+        assert_eq!(learned(&[(0.61, 0.3)]), Some(true));
+        // The mean over seeds decides.
+        assert_eq!(learned(&[(0.9, 0.3), (0.4, 0.3)]), Some(true));
+        assert_eq!(learned(&[(0.7, 0.3), (0.4, 0.3)]), Some(false));
+        assert_eq!(learned(&[]), None);
+        assert_eq!(miou_and_trivial(&json!({"miou": 0.2})), None, "no matrix");
+    }
+
+    /// rtfnet-tab4's quick run: four untrained networks tie at the trivial answer, which must
+    /// not read as a verdict either way.
+    #[test]
+    fn claims_on_networks_that_did_not_learn_are_untested() {
+        let col = |mean: f64, learned: bool| json!({"mean": mean, "std": 0.0, "seeds": [mean], "learned": learned});
+        let mut v = json!({
+            "table": "rtfnet-tab4", "title": "T", "source": "S", "budget": {"name": "quick"},
+            "data": "synthetic", "seeds": 1, "device": "cpu", "protocol": {"convention": "C"},
+            "columns": [{"name": "Daytime NRE"}, {"name": "Daytime NTE"},
+                        {"name": "Nighttime NRE"}, {"name": "Nighttime NTE"}],
+            "rows": [
+                {"label": "ResNet-50", "paper": {}, "measured": {
+                    "Daytime NRE": col(11.6, false), "Daytime NTE": col(11.6, false),
+                    "Nighttime NRE": col(12.2, false), "Nighttime NTE": col(11.1, false)}},
+                {"label": "ResNet-152", "paper": {}, "measured": {
+                    "Daytime NRE": col(31.2, true), "Daytime NTE": col(41.6, true),
+                    "Nighttime NRE": col(41.5, true), "Nighttime NTE": col(30.8, true)}}
+            ],
+            "claims": [], "command": "cargo xtask reproduce rtfnet-tab4"
+        });
+        validate(&v).unwrap();
+        let c = claims("rtfnet-tab4", &v);
+        assert_eq!(c.len(), 2);
+        for claim in &c {
+            assert!(claim.untested && claim.held.is_none(), "{}", claim.detail);
+            assert!(claim.detail.contains("ResNet-50"), "{}", claim.detail);
+            assert!(!claim.detail.contains("ResNet-152,"), "{}", claim.detail);
+        }
+        v["claims"] = json!(c
+            .iter()
+            .map(|c| json!({"claim": c.text, "held": c.held, "untested": c.untested, "detail": c.detail}))
+            .collect::<Vec<_>>());
+        let md = markdown(&v);
+        assert_eq!(md.matches(UNTESTED).count(), 2, "{md}");
+        assert!(!md.contains("not held") && !md.contains("**held**"), "{md}");
+
+        // Every network learned: the claims are judged again.
+        for row in v["rows"].as_array_mut().unwrap() {
+            for (_, m) in row["measured"].as_object_mut().unwrap() {
+                m["learned"] = json!(true);
+            }
+        }
+        let c = claims("rtfnet-tab4", &v);
+        assert!(c.iter().all(|c| !c.untested));
+        assert_eq!(c[0].held, Some(true), "{}", c[0].detail);
+        assert_eq!(c[1].held, Some(false), "day: 11.6 vs 11.6 is no win");
     }
 
     #[test]

@@ -6,8 +6,8 @@ use rtf_core::ClassSet;
 use rtf_data::inspect::DatasetFormat;
 use rtf_models::ModelConfig;
 use rtf_train::config::{
-    available_device, CriticInput, Precision, Procedure, SelectMetric, TeacherRef, TrainConfig,
-    WeightsRef,
+    available_device, CriticInput, CriticOptions, Precision, Procedure, SelectMetric, TeacherRef,
+    TrainConfig, WeightsRef,
 };
 use rtf_train::recipe::{self, RecipeInputs};
 use rtf_train::{DatasetConfig, Modality, OptimizerConfig, OptimizerKind, RunConfig};
@@ -79,6 +79,16 @@ pub struct Args {
     /// Critic steps per segmentation step.
     #[arg(long)]
     pub critic_steps: Option<usize>,
+    /// The critic starts from these weights (safetensors, reference names `conv1` …
+    /// `classifier`), as --init does for the segmentation network. Recorded in config.json.
+    #[arg(long)]
+    pub critic_init: Option<PathBuf>,
+    /// The published code's critic procedure instead of the paper's: the critic reads logits,
+    /// its targets are flipped (day 1, night 0), the segmentation step also keeps day outputs
+    /// on the day side, and steps alternate (--critic-steps critic steps, then one
+    /// segmentation step, each on its own batches, critic first). For parity runs.
+    #[arg(long)]
+    pub critic_code: bool,
     /// Validation score that picks best.safetensors: miou, day_night_miou, heatnet_miou,
     /// day_miou, night_miou (default: heatnet_miou on Freiburg, miou on MF).
     #[arg(long, value_parser = parse_select)]
@@ -605,9 +615,12 @@ fn apply_parity_controls(cfg: &mut TrainConfig, args: &Args) {
 /// `--init WEIGHTS`: the single stage starts from this file, checked now so that weights that
 /// do not fit leave no run folder behind.
 fn apply_init(cfg: &mut RunConfig, path: &Path, args: &Args) -> Result<()> {
-    let RunConfig::Single(single) = cfg else {
+    // A single run, or a recipe left with one stage (its teachers given as weights).
+    let mut stages = cfg.stages_mut();
+    let [single] = stages.as_mut_slice() else {
         bail!("--init goes with a single-stage run (a pipeline's stages start from their own weights)");
     };
+    let single = &mut **single;
     let path = std::fs::canonicalize(path)
         .with_context(|| format!("{}: cannot open the --init weights", path.display()))?;
     single.init_from = Some(WeightsRef::File(path));
@@ -698,13 +711,25 @@ fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Res
         } => {
             targets.threshold = args.threshold.or(targets.threshold);
             targets.soft |= args.soft;
-            critic.lambda = args.lambda.unwrap_or(critic.lambda);
-            critic.input = args.critic_input.unwrap_or(critic.input);
-            critic.multidir |= args.multidir;
-            critic.steps = args.critic_steps.unwrap_or(critic.steps);
+            apply_critic_flags(critic, args);
         }
     }
     Ok(())
+}
+
+/// The critic's flags (--lambda, --critic-*, --multidir) over a recipe's or config's values.
+fn apply_critic_flags(critic: &mut CriticOptions, args: &Args) {
+    critic.lambda = args.lambda.unwrap_or(critic.lambda);
+    critic.input = args.critic_input.unwrap_or(critic.input);
+    critic.multidir |= args.multidir;
+    critic.steps = args.critic_steps.unwrap_or(critic.steps);
+    critic.init = args.critic_init.clone().or(critic.init.take());
+    if args.critic_code {
+        critic.input = CriticInput::Logits;
+        critic.flip_targets = true;
+        critic.day_term = true;
+        critic.alternate = true;
+    }
 }
 
 /// Set by the first Ctrl-C or SIGTERM (what schedulers and preemption send); training then

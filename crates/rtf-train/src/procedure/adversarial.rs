@@ -9,7 +9,9 @@
 //! Options from the published code: the critic reads raw logits instead of the softmax;
 //! `multidir` also pushes day outputs toward the night target; a night teacher adds its
 //! cross-entropy weighted by its confidence, and weights the adversarial term per pixel by
-//! (1 − confidence).
+//! (1 − confidence); `flip_targets` (day → 1, night → 0); `day_term` (the segmentation step
+//! also keeps day outputs on the day side); `alternate` (the code's loop: each step is either
+//! a critic step or a segmentation step, on its own batches, critic first).
 
 use std::collections::BTreeMap;
 
@@ -22,9 +24,9 @@ use crate::config::{CriticInput, CriticOptions, TargetOptions};
 use crate::error::TrainError;
 use crate::loss::least_squares;
 
-/// The critic's target for day outputs (paper eq. 2; the published code flips both).
+/// The critic's target for day outputs (paper eq. 2; the published code flips both:
+/// `flip_targets`).
 const DAY: f64 = 0.0;
-const NIGHT: f64 = 1.0;
 
 pub struct Adversarial {
     pub student: Student,
@@ -34,6 +36,9 @@ pub struct Adversarial {
     night_teacher: Option<Labeller>,
     targets: TargetOptions,
     options: CriticOptions,
+    /// Steps taken (resumed runs: set by [`Procedure::resume_at`]); picks the phase under
+    /// `alternate`.
+    steps: u64,
 }
 
 impl Adversarial {
@@ -48,12 +53,22 @@ impl Adversarial {
         // The critic trains in the student's arithmetic.
         let critic =
             Trained::new(CRITIC, device, &options.optimizer).mixed(student.trained.precision)?;
+        let mut critic = critic;
         let critic_net = Critic::new(
             critic.vs.root(),
             &CriticConfig {
                 in_channels: student.net.inner.num_classes(),
             },
         )?;
+        if let Some(path) = &options.init {
+            let tensors = rtf_models::weights::read_safetensors(path)?;
+            rtf_models::weights::load_named_except(
+                &mut critic.vs,
+                tensors,
+                path,
+                &Default::default(),
+            )?;
+        }
         critic.channels_last_weights();
         Ok(Self {
             student,
@@ -63,7 +78,16 @@ impl Adversarial {
             night_teacher,
             targets,
             options,
+            steps: 0,
         })
+    }
+
+    /// The critic's targets for day and night outputs.
+    fn day_night(&self) -> (f64, f64) {
+        match self.options.flip_targets {
+            false => (DAY, 1.0 - DAY),
+            true => (1.0 - DAY, DAY),
+        }
     }
 
     /// The critic's score map [B, 1, H, W] of segmentation logits [B, C, H, W].
@@ -131,31 +155,53 @@ impl Adversarial {
                 adversarial_weights = Some(1.0 - confidence);
             }
         }
-        // Eq. 3: λ·(0 − C(S_N))² — night outputs should look like day to the critic.
-        let adv = least_squares(
-            &self.critic_scores(&night_logits),
-            DAY,
-            adversarial_weights.as_ref(),
-        ) * self.options.lambda;
-        terms.insert("adv".to_string(), f64::try_from(&adv).unwrap_or(f64::NAN));
-        loss = loss + adv;
-        if self.options.multidir {
-            let adv_day =
-                least_squares(&self.critic_scores(&day_logits), NIGHT, None) * self.options.lambda;
-            terms.insert(
-                "adv_day".to_string(),
-                f64::try_from(&adv_day).unwrap_or(f64::NAN),
+        let loss = loss
+            + self.adversarial_terms(
+                &night_logits,
+                &day_logits,
+                adversarial_weights.as_ref(),
+                &mut terms,
             );
-            loss = loss + adv_day;
-        }
         self.student.trained.minimise(&loss, epoch);
         self.critic.vs.unfreeze();
         let total = f64::try_from(&loss).unwrap_or(f64::NAN);
         Ok((total, terms, night_logits, day_logits))
     }
 
-    /// Step 2: the critic learns from the student's outputs, detached (eq. 2). Returns the
-    /// critic's loss and its day / night accuracy (score on the right side of 0.5).
+    /// The segmentation step's critic terms, each recorded in `terms`: eq. 3's λ·(0 − C(S_N))²
+    /// (night outputs should look like day to the critic), weighted per pixel if given, and the
+    /// day outputs toward the night target (`multidir`) or kept on the day side (`day_term`).
+    fn adversarial_terms(
+        &self,
+        night_logits: &Tensor,
+        day_logits: &Tensor,
+        weights: Option<&Tensor>,
+        terms: &mut BTreeMap<String, f64>,
+    ) -> Tensor {
+        let (day, night) = self.day_night();
+        let lambda = self.options.lambda;
+        let adv = least_squares(&self.critic_scores(night_logits), day, weights) * lambda;
+        terms.insert("adv".to_string(), f64::try_from(&adv).unwrap_or(f64::NAN));
+        let day_term = match (self.options.multidir, self.options.day_term) {
+            (true, _) => Some(night),
+            (false, true) => Some(day),
+            (false, false) => None,
+        };
+        match day_term {
+            None => adv,
+            Some(target) => {
+                let adv_day = least_squares(&self.critic_scores(day_logits), target, None) * lambda;
+                terms.insert(
+                    "adv_day".to_string(),
+                    f64::try_from(&adv_day).unwrap_or(f64::NAN),
+                );
+                adv + adv_day
+            }
+        }
+    }
+
+    /// Step 2: the critic learns from the student's outputs, detached (eq. 2), `steps` times.
+    /// Returns the critic's loss and its day / night accuracy (score on the right side of 0.5).
     pub fn critic_step(
         &mut self,
         day_logits: &Tensor,
@@ -163,27 +209,91 @@ impl Adversarial {
         epoch: usize,
     ) -> (f64, f64, f64) {
         let (day, night) = (day_logits.detach(), night_logits.detach());
-        let (mut loss_value, mut acc_day, mut acc_night) = (0.0, 0.0, 0.0);
+        let mut last = (f64::NAN, f64::NAN, f64::NAN);
         for _ in 0..self.options.steps {
-            let day_scores = self.critic_scores(&day);
-            let night_scores = self.critic_scores(&night);
-            let loss =
-                least_squares(&day_scores, DAY, None) + least_squares(&night_scores, NIGHT, None);
-            self.critic.minimise(&loss, epoch);
-            loss_value = f64::try_from(&loss).unwrap_or(f64::NAN);
-            let middle = (DAY + NIGHT) / 2.0;
-            acc_day = f64::try_from(day_scores.lt(middle).to_kind(Kind::Float).mean(Kind::Float))
-                .unwrap_or(f64::NAN);
-            acc_night = f64::try_from(
-                night_scores
-                    .ge(middle)
-                    .to_kind(Kind::Float)
-                    .mean(Kind::Float),
-            )
-            .unwrap_or(f64::NAN);
+            last = self.critic_update(&day, &night, epoch);
         }
-        (loss_value, acc_day, acc_night)
+        last
     }
+
+    /// One critic update on detached outputs: (loss, day accuracy, night accuracy).
+    fn critic_update(&mut self, day: &Tensor, night: &Tensor, epoch: usize) -> (f64, f64, f64) {
+        let (day_target, night_target) = self.day_night();
+        let day_scores = self.critic_scores(day);
+        let night_scores = self.critic_scores(night);
+        let loss = least_squares(&day_scores, day_target, None)
+            + least_squares(&night_scores, night_target, None);
+        self.critic.minimise(&loss, epoch);
+        let middle = (day_target + night_target) / 2.0;
+        // The share of pixels the critic puts on the right side of the middle.
+        let right_side = |scores: &Tensor, target: f64| {
+            let side = match target > middle {
+                true => scores.ge(middle),
+                false => scores.lt(middle),
+            };
+            f64::try_from(side.to_kind(Kind::Float).mean(Kind::Float)).unwrap_or(f64::NAN)
+        };
+        let loss = f64::try_from(&loss).unwrap_or(f64::NAN);
+        (
+            loss,
+            right_side(&day_scores, day_target),
+            right_side(&night_scores, night_target),
+        )
+    }
+
+    /// The published code's critic step (`alternate`): the student, frozen, runs its own
+    /// training-mode forward pass on this step's batches (its BatchNorm statistics move, as in
+    /// the code), and the critic learns from those outputs once.
+    fn critic_phase(
+        &mut self,
+        batches: &StepBatches,
+        epoch: usize,
+    ) -> Result<StepReport, TrainError> {
+        let night = batches.night.as_ref().ok_or_else(|| {
+            TrainError::Config("the adversarial procedure needs night frames".into())
+        })?;
+        let (day_logits, night_logits) = tch::no_grad(|| {
+            let day = self.student.logits(&batches.main.input);
+            (day, self.student.logits(&night.input))
+        });
+        let (loss, acc_day, acc_night) = self.critic_update(&day_logits, &night_logits, epoch);
+        Ok(StepReport {
+            total: loss,
+            terms: BTreeMap::from([("critic".to_string(), loss)]),
+            metrics: accuracies(acc_day, acc_night),
+        })
+    }
+
+    /// Whether this step is a critic step under `alternate`: `steps` critic steps, then one
+    /// segmentation step, from the run's first step on.
+    fn critic_turn(&self) -> bool {
+        let cycle = self.options.steps as u64 + 1;
+        self.steps % cycle < cycle - 1
+    }
+
+    /// The paper's step: a segmentation step, then the critic's on the same outputs.
+    fn paper_step(
+        &mut self,
+        batches: &StepBatches,
+        epoch: usize,
+    ) -> Result<StepReport, TrainError> {
+        let (total, mut terms, night_logits, day_logits) =
+            self.segmentation_step(batches, epoch)?;
+        let (critic_loss, acc_day, acc_night) = self.critic_step(&day_logits, &night_logits, epoch);
+        terms.insert("critic".to_string(), critic_loss);
+        Ok(StepReport {
+            total,
+            terms,
+            metrics: accuracies(acc_day, acc_night),
+        })
+    }
+}
+
+fn accuracies(day: f64, night: f64) -> BTreeMap<String, f64> {
+    BTreeMap::from([
+        ("critic_acc_day".to_string(), day),
+        ("critic_acc_night".to_string(), night),
+    ])
 }
 
 impl Procedure for Adversarial {
@@ -201,18 +311,23 @@ impl Procedure for Adversarial {
     }
 
     fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError> {
-        let (total, mut terms, night_logits, day_logits) =
-            self.segmentation_step(batches, epoch)?;
-        let (critic_loss, acc_day, acc_night) = self.critic_step(&day_logits, &night_logits, epoch);
-        terms.insert("critic".to_string(), critic_loss);
-        let metrics = BTreeMap::from([
-            ("critic_acc_day".to_string(), acc_day),
-            ("critic_acc_night".to_string(), acc_night),
-        ]);
-        Ok(StepReport {
-            total,
-            terms,
-            metrics,
-        })
+        let report = match (self.options.alternate, self.critic_turn()) {
+            (false, _) => self.paper_step(batches, epoch),
+            (true, true) => self.critic_phase(batches, epoch),
+            (true, false) => {
+                let (total, terms, _, _) = self.segmentation_step(batches, epoch)?;
+                Ok(StepReport {
+                    total,
+                    terms,
+                    metrics: BTreeMap::new(),
+                })
+            }
+        };
+        self.steps += 1;
+        report
+    }
+
+    fn resume_at(&mut self, steps_done: u64) {
+        self.steps = steps_done;
     }
 }

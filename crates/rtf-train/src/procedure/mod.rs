@@ -335,6 +335,9 @@ pub trait Procedure {
     fn labellers(&self) -> (Option<&Labeller>, Option<&Labeller>) {
         (None, None)
     }
+    /// The run's steps done before this process (a resumed run), for procedures whose step
+    /// body depends on the step count.
+    fn resume_at(&mut self, _steps_done: u64) {}
 }
 
 /// Builds the procedure `cfg` names, teachers resolved to weights files. The student is built
