@@ -416,7 +416,7 @@ pub fn run(args: Args) -> Result<()> {
         .iter()
         .filter(|p| !(args.skip_existing && p.done()))
         .collect();
-    let mut pair = read_pair_checked(&args, &todo, network.as_ref(), device)?;
+    let pair = read_pair_checked(&args, &todo, network.as_ref(), device)?;
     let mf: Vec<&Path> = todo
         .iter()
         .map(|p| p.source.as_path())
@@ -433,9 +433,26 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     let skipped = planned.len() - todo.len();
+    let summary = predict_all(&args, todo, pair, network.as_ref(), &classes, device)?;
+    match args.skip_existing {
+        true => eprintln!("{summary}; skipped {skipped} already predicted"),
+        false => eprintln!("{summary}"),
+    }
+    Ok(())
+}
+
+/// Predicts `todo` one frame at a time (read, run, written and dropped: memory bounded by a
+/// frame) under a progress display; returns the summary line.
+fn predict_all(
+    args: &Args,
+    todo: Vec<&Planned>,
+    mut pair: Option<Frame>,
+    network: &dyn Network,
+    classes: &ClassSet,
+    device: tch::Device,
+) -> Result<String> {
     let mut progress = Progress::new(todo.len(), args.progress_every);
     let _guard = tch::no_grad_guard();
-    // One frame at a time: read, predicted, written and dropped (memory bounded by a frame).
     for plan in todo {
         let frame = match pair.take() {
             Some(frame) if Some(plan.source.as_path()) == args.rgb.as_deref() => frame,
@@ -444,16 +461,11 @@ pub fn run(args: Args) -> Result<()> {
                 rtf_data::mf::read_mf_image(&plan.source)?
             }
         };
-        predict_frame(network.as_ref(), &frame, plan, &classes, device)?;
+        predict_frame(network, &frame, plan, classes, device)?;
         println!("{} -> {}", plan.source.display(), plan.ids.display());
         progress.tick();
     }
-    let summary = progress.finish();
-    match args.skip_existing {
-        true => eprintln!("{summary}; skipped {skipped} already predicted"),
-        false => eprintln!("{summary}"),
-    }
-    Ok(())
+    Ok(progress.finish())
 }
 
 /// The separate RGB + thermal pair (one frame, read whole and its memory checked before
