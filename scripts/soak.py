@@ -43,43 +43,113 @@ def folder_mib(path):
     return total / 2**20
 
 
-def watch(cmd, phase, progress, rows, every_s=0.5):
-    """Runs cmd, appending a row per sample: phase, progress() (steps or frames), rss, fds,
-    threads, folder size."""
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+def file_kib(path):
+    """Size of a file, or of a folder's files, in KiB (0 when absent)."""
+    path = Path(path)
+    if path.is_dir():
+        return folder_mib(path) * 1024
+    try:
+        return path.stat().st_size / 1024
+    except FileNotFoundError:
+        return 0.0
+
+
+def watch(cmd, phase, progress, rows, every_s=1.0, minutes=None):
+    """Runs cmd, appending a row per sample: phase, seconds since start, then progress()
+    (steps or frames, then sizes), rss, fds, threads. After `minutes` the process gets SIGTERM
+    (rtf train then checkpoints and stops); returns whether that happened."""
+    err = open(f"/tmp/soak-{os.getpid()}-{phase}.stderr", "w+")
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, text=True)
+    start, stopped = time.monotonic(), False
     while proc.poll() is None:
         s = sample(proc.pid)
         if s is not None:
-            done, size = progress()
-            rows.append((phase, done, *s, size))
+            done, *sizes = progress()
+            rows.append((phase, round(time.monotonic() - start, 1), done, *s, *sizes))
+        if minutes is not None and not stopped and time.monotonic() - start > 60 * minutes:
+            proc.terminate()
+            stopped = True
         time.sleep(every_s)
-    if proc.returncode != 0:
-        sys.exit(f"{' '.join(cmd)} failed:\n{proc.stderr.read()}")
+    if proc.returncode != 0 and not stopped:
+        err.seek(0)
+        sys.exit(f"{' '.join(cmd)} failed:\n{err.read()[-4000:]}")
+    return stopped
+
+
+KEYS = ["phase", "seconds", "done", "rss_mib", "fds", "threads", "run_mib", "log_kib",
+        "steps_kib", "tb_kib"]
+
+
+def panel(out, x, y, w, h, title, series):
+    """One line chart at (x, y): series is [(colour, [(x, y)])], axes from 0."""
+    pad = 40
+    pts = [p for _, s in series for p in s]
+    if not pts:
+        return
+    x1 = max(p[0] for p in pts) or 1
+    y1 = max(p[1] for p in pts) * 1.1 or 1
+    sx = lambda v: x + pad + v / x1 * (w - 1.5 * pad)
+    sy = lambda v: y + h - pad + 10 - v / y1 * (h - 2 * pad)
+    out.append(f'<text x="{x + pad}" y="{y + 14}">{title}</text>')
+    for colour, s in series:
+        line = " ".join(f"{sx(a):.1f},{sy(b):.1f}" for a, b in s)
+        out.append(f'<polyline fill="none" stroke="{colour}" points="{line}"/>')
+    out.append(f'<line x1="{sx(0)}" y1="{sy(0)}" x2="{sx(x1)}" y2="{sy(0)}" stroke="#000"/>')
+    out.append(f'<line x1="{sx(0)}" y1="{sy(0)}" x2="{sx(0)}" y2="{sy(y1)}" stroke="#000"/>')
+    out.append(f'<text x="{sx(0) - 36}" y="{sy(y1) + 4}">{y1:.0f}</text>')
+    out.append(f'<text x="{sx(0) - 12}" y="{sy(0) + 4}">0</text>')
+    out.append(f'<text x="{sx(x1) - 24}" y="{sy(0) + 14}">{x1:.0f}</text>')
 
 
 def svg(rows, path):
-    """One panel per measure, training steps on x, a line per phase."""
-    measures = ["rss_mib", "fds", "threads", "run_mib"]
-    w, h, pad = 360, 200, 40
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w * 4}" height="{h + 20}" font-size="11">']
-    for i, m in enumerate(measures):
-        pts = [(r["done"], r[m]) for r in rows if r["phase"] == "train"]
-        if not pts:
-            continue
-        x0, x1 = min(p[0] for p in pts), max(p[0] for p in pts) or 1
-        y0, y1 = 0, max(p[1] for p in pts) * 1.1 or 1
-        sx = lambda x: i * w + pad + (x - x0) / max(x1 - x0, 1) * (w - 2 * pad)
-        sy = lambda y: h - pad + 20 - (y - y0) / (y1 - y0) * (h - 2 * pad)
-        line = " ".join(f"{sx(x):.1f},{sy(y):.1f}" for x, y in pts)
-        out.append(f'<text x="{i * w + pad}" y="14">{m} (train, x: step)</text>')
-        out.append(f'<polyline fill="none" stroke="#c33" points="{line}"/>')
-        out.append(f'<line x1="{sx(x0)}" y1="{sy(y0)}" x2="{sx(x1)}" y2="{sy(y0)}" stroke="#000"/>')
-        out.append(f'<line x1="{sx(x0)}" y1="{sy(y0)}" x2="{sx(x0)}" y2="{sy(y1)}" stroke="#000"/>')
-        out.append(f'<text x="{sx(x0) - 35}" y="{sy(y1) + 4}">{y1:.0f}</text>')
-        out.append(f'<text x="{sx(x0) - 10}" y="{sy(y0) + 14}">{x0:.0f}</text>')
-        out.append(f'<text x="{sx(x1) - 20}" y="{sy(y0) + 14}">{x1:.0f}</text>')
+    """Top row: training against steps (RSS; fds and threads; log, steps and TensorBoard
+    files). Bottom row: eval and predict against seconds (RSS; fds and threads)."""
+    w, h = 360, 210
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w * 3}" height="{2 * h}" '
+           'font-size="11" font-family="sans-serif"><rect width="100%" height="100%" fill="#fff"/>']
+    train = [r for r in rows if r["phase"] == "train"]
+    col = lambda rs, k, x="done": [(r[x], r[k]) for r in rs]
+    panel(out, 0, 0, w, h, "train: RSS MiB (x: step)", [("#c33", col(train, "rss_mib"))])
+    panel(out, w, 0, w, h, "train: fds (blue), threads (red)",
+          [("#36c", col(train, "fds")), ("#c33", col(train, "threads"))])
+    panel(out, 2 * w, 0, w, h, "train: KiB of log.jsonl (red), steps.jsonl (blue), tb/ (green)",
+          [("#c33", col(train, "log_kib")), ("#36c", col(train, "steps_kib")),
+           ("#393", col(train, "tb_kib"))])
+    other = {p: [r for r in rows if r["phase"] == p] for p in ("eval", "predict")}
+    panel(out, 0, h, w, h, "RSS MiB: eval (blue), predict (red) (x: seconds)",
+          [("#36c", col(other["eval"], "rss_mib", "seconds")),
+           ("#c33", col(other["predict"], "rss_mib", "seconds"))])
+    panel(out, w, h, w, h, "eval, predict: fds (blue), threads (red)",
+          [(c, col(other[p], k, "seconds")) for p in other for c, k in (("#36c", "fds"), ("#c33", "threads"))])
+    panel(out, 2 * w, h, w, h, "predict: frames written (x: seconds)",
+          [("#c33", col(other["predict"], "done", "seconds"))])
     out.append("</svg>")
     Path(path).write_text("\n".join(out))
+
+
+def growth(rows, phase, warm_up):
+    """The growth summary of a phase: training from step `warm_up`, others after their first
+    quarter (start-up)."""
+    rs = [d for d in rows if d["phase"] == phase]
+    if not rs:
+        return None
+    later = [d for d in rs if d["done"] >= warm_up] if phase == "train" else rs[len(rs) // 4:]
+    later = later or rs
+    first, last = later[0], later[-1]
+    summary = {"phase": phase, "samples": len(rs), "from": first["done"], "to": last["done"],
+               "rss_from": round(first["rss_mib"], 1), "rss_to": round(last["rss_mib"], 1),
+               "rss_peak": round(max(d["rss_mib"] for d in rs), 1),
+               "rss_max_after_warm_up": round(max(d["rss_mib"] for d in later), 1),
+               "fds": [min(d["fds"] for d in later), max(d["fds"] for d in later)],
+               "threads": [min(d["threads"] for d in later), max(d["threads"] for d in later)],
+               "growth_pct": round(100 * (last["rss_mib"] / first["rss_mib"] - 1), 2)}
+    if phase == "train" and last["done"] > first["done"]:
+        # Linear files: KiB per 1,000 steps over the first and the second half after warm-up.
+        mid = min(later, key=lambda d: abs(d["done"] - (first["done"] + last["done"]) / 2))
+        for k in ("log_kib", "steps_kib", "tb_kib"):
+            rate = lambda a, b: round(1000 * (b[k] - a[k]) / max(b["done"] - a["done"], 1), 1)
+            summary[k + "_per_1000_steps"] = [rate(first, mid), rate(mid, last)]
+    return summary
 
 
 def main():
@@ -87,73 +157,80 @@ def main():
     ap.add_argument("--rtf", default="target/release/rtf")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--steps", type=int, default=20000)
+    ap.add_argument("--train-minutes", type=float, help="stop training (SIGTERM) after this long")
     ap.add_argument("--every", type=int, default=500, help="report every N steps")
     ap.add_argument("--warm-up", type=int, default=1000, help="growth is measured from this step")
     ap.add_argument("--frames", type=int, default=2000, help="frames for predict and eval")
     ap.add_argument("--size", default="64x48")
+    ap.add_argument("--count", type=int, default=64, help="synthetic frames (half of them train)")
+    ap.add_argument("--batch-size", type=int, default=4)
     args = ap.parse_args()
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     data, run = out / "data", out / "run"
     rtf = args.rtf
     if not data.exists():
-        subprocess.run([rtf, "synth", "--out", str(data), "--count", "64", "--size", args.size], check=True)
-    # 32 training frames at batch 4: 8 steps an epoch, validation on 16 frames every epoch.
-    steps_per_epoch = 8
+        subprocess.run([rtf, "synth", "--out", str(data), "--count", str(args.count), "--size", args.size],
+                       check=True, stdout=subprocess.DEVNULL)
+    # Every epoch trains on the train split and validates on the val split.
+    train_frames = len((data / "train.txt").read_text().split())
+    steps_per_epoch = -(-train_frames // args.batch_size)
     epochs = max(1, args.steps // steps_per_epoch)
     rows = []
 
+    def lines(path):
+        with open(path, "rb") as f:
+            return sum(chunk.count(b"\n") for chunk in iter(lambda: f.read(1 << 20), b""))
+
     def steps_done():
         log = run / "log.jsonl"
-        n = log.read_text().count("\n") if log.exists() else 0
-        return n * steps_per_epoch, folder_mib(run)
+        n = lines(log) if log.exists() else 0
+        return (n * steps_per_epoch, folder_mib(run), file_kib(log), file_kib(run / "steps.jsonl"),
+                file_kib(run / "tb"))
 
-    watch([rtf, "train", "--model", "mfnet", "--data", str(data), "--out", str(run),
-           "--batch-size", "4", "--epochs", str(epochs)], "train", steps_done, rows)
+    stopped = watch([rtf, "train", "--model", "mfnet", "--data", str(data), "--out", str(run),
+                     "--batch-size", str(args.batch_size), "--epochs", str(epochs)], "train",
+                    steps_done, rows, minutes=args.train_minutes)
+    if stopped:
+        print(f"training stopped after {args.train_minutes} min (SIGTERM)", file=sys.stderr)
     # Predict and eval over many frames: a split of `--frames` names cycling over the set.
     names = (data / "train.txt").read_text().split() + (data / "val.txt").read_text().split()
     big = [names[i % len(names)] for i in range(args.frames)]
     (data / "soak.txt").write_text("\n".join(big) + "\n")
     weights = run / "final.safetensors"
+    if not weights.exists():
+        weights = run / "best.safetensors"
+    none = lambda: (0, 0.0, 0.0, 0.0, 0.0)
     watch([rtf, "eval", "--weights", str(weights), "--data", str(data), "--split", "soak"],
-          "eval", lambda: (0, 0.0), rows)
+          "eval", none, rows)
     preds = out / "pred"
-    # `rtf predict` takes files with distinct names: links to the set's images up to --frames.
+    # `rtf predict` over a folder of `--frames` distinct names: links to the set's images.
     images = sorted((data / "images").glob("*.png"))
     links = out / "predict_in"
     links.mkdir(exist_ok=True)
-    files = []
     for i in range(args.frames):
         link = links / f"{i:05d}_{images[i % len(images)].name}"
         if not link.exists():
             link.symlink_to(images[i % len(images)].resolve())
-        files.append(str(link))
-    watch([rtf, "predict", "--weights", str(weights), "--out", str(preds), *files], "predict",
-          lambda: (len(list(preds.glob("*"))) if preds.exists() else 0, 0.0), rows)
-    keys = ["phase", "done", "rss_mib", "fds", "threads", "run_mib"]
-    dicts = [dict(zip(keys, r)) for r in rows]
-    # Training: the last sample of every --every steps (the samples are taken twice a second).
+    done = lambda: (len(list(preds.glob("*_color.png"))) if preds.exists() else 0, 0.0, 0.0, 0.0, 0.0)
+    watch([rtf, "predict", "--weights", str(weights), "--out", str(preds), str(links)], "predict",
+          done, rows)
+    dicts = [dict(zip(KEYS, r)) for r in rows]
+    # Training: the last sample of every --every steps.
     last_of = {}
     for d in dicts:
         if d["phase"] == "train":
             last_of[d["done"] // args.every] = d
     dicts = sorted(last_of.values(), key=lambda d: d["done"]) + [d for d in dicts if d["phase"] != "train"]
     with open(out / "soak.csv", "w", newline="") as f:
-        wr = csv.DictWriter(f, fieldnames=keys)
+        wr = csv.DictWriter(f, fieldnames=KEYS)
         wr.writeheader()
         wr.writerows(dicts)
     svg(dicts, out / "soak.svg")
     for phase in ("train", "eval", "predict"):
-        rs = [d for d in dicts if d["phase"] == phase]
-        if not rs:
-            continue
-        later = [d for d in rs if d["done"] >= args.warm_up] if phase == "train" else rs[len(rs) // 4:]
-        later = later or rs
-        first, last = later[0], later[-1]
-        print(json.dumps({"phase": phase, "samples": len(rs), "rss_from": round(first["rss_mib"], 1),
-                          "rss_to": round(last["rss_mib"], 1), "rss_peak": round(max(d["rss_mib"] for d in rs), 1),
-                          "fds": [first["fds"], last["fds"]], "threads": [first["threads"], last["threads"]],
-                          "growth_pct": round(100 * (last["rss_mib"] / first["rss_mib"] - 1), 2)}))
+        summary = growth(dicts, phase, args.warm_up)
+        if summary:
+            print(json.dumps(summary))
 
 
 if __name__ == "__main__":

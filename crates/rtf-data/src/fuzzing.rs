@@ -46,6 +46,108 @@ pub fn freiburg_triple(
     )
 }
 
+/// `cases` inputs for a reader made from a valid file, the same for a given `seed`: one in
+/// eight random bytes, the others the file with bit flips, a truncation, an inserted, an
+/// overwritten or a removed run of bytes (half of the edits in the first 512 bytes, where
+/// headers are).
+pub fn mutations(valid: &[u8], seed: u64, cases: usize) -> impl Iterator<Item = Vec<u8>> {
+    use rand::{Rng, SeedableRng};
+    let valid = valid.to_vec();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    (0..cases).map(move |_| {
+        let mut b = valid.clone();
+        let kind = rng.random_range(0..8);
+        if kind == 0 || b.is_empty() {
+            let mut random = vec![0u8; rng.random_range(0..2 * valid.len().clamp(16, 4096))];
+            rng.fill(random.as_mut_slice());
+            return random;
+        }
+        let at = |rng: &mut rand_chacha::ChaCha8Rng, len: usize| match rng.random_bool(0.5) {
+            true => rng.random_range(0..len.min(512)),
+            false => rng.random_range(0..len),
+        };
+        match kind {
+            1 | 2 => {
+                for _ in 0..rng.random_range(1..9) {
+                    let i = at(&mut rng, b.len());
+                    b[i] ^= 1 << rng.random_range(0..8);
+                }
+            }
+            3 => b.truncate(at(&mut rng, b.len())),
+            4 => {
+                let i = at(&mut rng, b.len());
+                let mut run = vec![0u8; rng.random_range(1..64)];
+                rng.fill(run.as_mut_slice());
+                b.splice(i..i, run);
+            }
+            5 => {
+                let i = at(&mut rng, b.len());
+                let n = rng.random_range(1..64).min(b.len() - i);
+                rng.fill(&mut b[i..i + n]);
+            }
+            6 => {
+                let i = at(&mut rng, b.len());
+                let n = rng.random_range(1..64).min(b.len() - i);
+                b.drain(i..i + n);
+            }
+            _ => {
+                // A number-like or delimiter byte: what text formats (JSON, YAML) turn on.
+                const TOKENS: &[u8] = b"0123456789-.:,[]{}\"' \n#e";
+                let i = at(&mut rng, b.len());
+                b[i] = TOKENS[rng.random_range(0..TOKENS.len())];
+            }
+        }
+        b
+    })
+}
+
+/// How a reader fared in [`check_reader`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReaderOutcome {
+    pub accepted: usize,
+    pub refused: usize,
+}
+
+/// Runs `read` on `valid` (which it must accept) and on its `cases` [`mutations`] from `seed`:
+/// every input must give a value or an error whose text contains `names` (the file's name;
+/// "" for readers of bytes without one); a panic fails with the case's number and seed.
+pub fn check_reader<T, E: std::fmt::Display>(
+    what: &str,
+    valid: &[u8],
+    seed: u64,
+    cases: usize,
+    names: &str,
+    read: impl Fn(&[u8]) -> Result<T, E>,
+) -> ReaderOutcome {
+    if let Err(e) = read(valid) {
+        panic!("{what}: the valid input is refused: {e}");
+    }
+    let mut outcome = ReaderOutcome {
+        accepted: 0,
+        refused: 0,
+    };
+    for (case, bytes) in mutations(valid, seed, cases).enumerate() {
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            read(&bytes).map(|_| ()).map_err(|e| e.to_string())
+        }));
+        match result {
+            Err(_) => panic!(
+                "{what}: case {case} of seed {seed} panicked ({} bytes)",
+                bytes.len()
+            ),
+            Ok(Ok(())) => outcome.accepted += 1,
+            Ok(Err(text)) => {
+                assert!(
+                    text.contains(names),
+                    "{what}: case {case} of seed {seed}: error without `{names}`: {text}"
+                );
+                outcome.refused += 1;
+            }
+        }
+    }
+    outcome
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

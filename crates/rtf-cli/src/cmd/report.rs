@@ -1321,6 +1321,49 @@ mod tests {
         assert!(heat.contains("Confusion") && heat.matches("<rect").count() >= 4);
     }
 
+    /// Randomised run (`rtf_data::fuzzing`): seeded mutations of a run's `log.jsonl` and
+    /// `config.json` and random bytes; the run loads and its section renders, or an error
+    /// names the file; never a panic.
+    #[test]
+    fn mutated_logs_and_configs_never_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        let record = |epoch: usize, miou: f64| {
+            serde_json::json!({"epoch": epoch, "lr": 0.01, "train_loss": 2.0 - miou,
+                "losses": {"ce": 1.5}, "lrs": {"student": 0.01}, "images": 16,
+                "val": {"miou": miou, "macc": miou + 0.1, "miou_day": miou, "miou_night": null,
+                        "per_class_iou": {"car": miou, "person": 0.5, "bike": null}}})
+            .to_string()
+        };
+        let log: String = (0..4).map(|e| record(e, 0.1 * e as f64) + "\n").collect();
+        let config = serde_json::json!({"model": {"network": "mfnet", "num_classes": 9},
+            "epochs": 4, "batch_size": 2, "stages": null, "optimizer": {"lr": 0.01}})
+        .to_string();
+        std::fs::write(dir.path().join("config.json"), &config).unwrap();
+        let render = || {
+            let runs = load_runs(dir.path())?;
+            let mut html = String::new();
+            for run in &runs {
+                run_section(run, true, &mut html)?;
+            }
+            anyhow::Ok(html.len())
+        };
+        let log_path = dir.path().join("log.jsonl");
+        let outcome =
+            rtf_data::fuzzing::check_reader("log.jsonl", log.as_bytes(), 21, 150, "", |b| {
+                std::fs::write(&log_path, b).unwrap();
+                render()
+            });
+        assert!(outcome.refused > 20, "{outcome:?}");
+        std::fs::write(&log_path, &log).unwrap();
+        let config_path = dir.path().join("config.json");
+        let outcome =
+            rtf_data::fuzzing::check_reader("config.json", config.as_bytes(), 22, 150, "", |b| {
+                std::fs::write(&config_path, b).unwrap();
+                render()
+            });
+        assert!(outcome.refused > 20, "{outcome:?}");
+    }
+
     /// The contents of an SVG's `<text>` elements (plotters writes them on their own lines).
     fn svg_texts(svg: &str) -> Vec<String> {
         svg.split("<text")
