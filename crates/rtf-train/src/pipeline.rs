@@ -47,19 +47,19 @@ pub fn resolve(
             .find(|s| s.name == name)
             .ok_or_else(|| TrainError::Config(format!("no stage named `{name}`")))
     };
-    for teacher in cfg.procedure.teachers_mut() {
+    for teacher in cfg.learning.procedure.teachers_mut() {
         if let TeacherRef::Stage(name) = teacher {
             let stage = find(name)?;
             *teacher = TeacherRef::Weights {
                 path: stage_weights(&run_dir.join(&stage.name)),
-                model: stage.config.model.clone(),
-                inputs: stage.config.inputs,
+                model: stage.config.network.model.clone(),
+                inputs: stage.config.network.inputs,
             };
         }
     }
-    if let Some(WeightsRef::Stage(name)) = &cfg.init_from {
+    if let Some(WeightsRef::Stage(name)) = &cfg.network.init_from {
         let stage = find(name)?;
-        cfg.init_from = Some(WeightsRef::File(run_dir.join(&stage.name).join(FINAL_FILE)));
+        cfg.network.init_from = Some(WeightsRef::File(run_dir.join(&stage.name).join(FINAL_FILE)));
     }
     Ok(cfg)
 }
@@ -166,7 +166,7 @@ fn train_stage(
 ) -> Result<Option<TrainOutcome>, TrainError> {
     let dir = run_dir.join(&stage.name);
     // Finished means every epoch it is asked for: a resume may extend a finished stage.
-    let done = crate::resume::is_finished(&dir, stage.config.epochs)?;
+    let done = crate::resume::is_finished(&dir, stage.config.schedule.epochs)?;
     let started = rundir::holds_run(&dir);
     // Every rank has read the stage's state before rank 0 starts writing it.
     barrier(ddp.as_deref())?;
@@ -178,16 +178,16 @@ fn train_stage(
         // The stage's own config.json says how many processes trained it (the trainer
         // refuses to continue it exactly with another number).
         if let Ok(RunConfig::Single(saved)) = trainer::read_config(&dir) {
-            resolved.world_size = saved.world_size;
+            resolved.compute.world_size = saved.compute.world_size;
         }
     }
     if ddp.as_ref().is_none_or(|d| d.is_root()) {
         eprintln!(
             "stage {} ({}, {}): {} epochs into {}",
             stage.name,
-            resolved.procedure.name(),
-            resolved.model.name(),
-            resolved.epochs,
+            resolved.learning.procedure.name(),
+            resolved.network.model.name(),
+            resolved.schedule.epochs,
             dir.display()
         );
     }

@@ -66,10 +66,10 @@ pub fn finished(run: &RunConfig, run_dir: &Path) -> Result<Option<Finished>, Tra
     let mut last = None;
     for (name, cfg) in &stages {
         let dir = run_dir.join(name);
-        if !is_finished(&dir, cfg.epochs)? {
+        if !is_finished(&dir, cfg.schedule.epochs)? {
             return Ok(None);
         }
-        last = Some((name, saved_state(&dir)?, cfg.epochs));
+        last = Some((name, saved_state(&dir)?, cfg.schedule.epochs));
     }
     let Some((name, state, epochs)) = last else {
         return Ok(None);
@@ -89,14 +89,14 @@ pub fn finished(run: &RunConfig, run_dir: &Path) -> Result<Option<Finished>, Tra
 pub fn extend(run: &mut RunConfig, run_dir: &Path, epochs: usize) -> Result<(), TrainError> {
     let pipeline = match run {
         RunConfig::Single(single) => {
-            single.epochs = epochs;
+            single.schedule.epochs = epochs;
             return Ok(());
         }
         RunConfig::Pipeline(pipeline) => pipeline,
     };
     let mut first = pipeline.stages.len().saturating_sub(1);
     for (i, stage) in pipeline.stages.iter().enumerate() {
-        if !is_finished(&run_dir.join(&stage.name), stage.config.epochs)? {
+        if !is_finished(&run_dir.join(&stage.name), stage.config.schedule.epochs)? {
             first = i;
             break;
         }
@@ -111,7 +111,7 @@ pub fn extend(run: &mut RunConfig, run_dir: &Path, epochs: usize) -> Result<(), 
                 stage.name
             )));
         }
-        stage.config.epochs = epochs;
+        stage.config.schedule.epochs = epochs;
     }
     Ok(())
 }

@@ -214,15 +214,15 @@ fn padding(p: i64) -> nn::ConvConfig {
 /// MFNet (train-mode BatchNorm, per rank) on the tiny dataset, 2 epochs.
 fn mfnet(root: &Path) -> TrainConfig {
     let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
-    cfg.dataset = DatasetConfig::Mf {
+    cfg.data.dataset = DatasetConfig::Mf {
         root: root.to_path_buf(),
         train_split: "train".into(),
         val_split: Some("val".into()),
     };
-    cfg.epochs = 2;
-    cfg.batch_size = 2;
-    cfg.seed = 5;
-    cfg.workers = 1;
+    cfg.schedule.epochs = 2;
+    cfg.schedule.batch_size = 2;
+    cfg.schedule.seed = 5;
+    cfg.data.workers = 1;
     cfg
 }
 
@@ -423,19 +423,17 @@ fn two_rank_pipeline_trains_every_stage_data_parallel_and_resumes_exactly() {
 /// MFNet teacher (RGB only, 1 epoch), then an MFNet student labelled by it (2 epochs).
 fn pipeline(data: &Path) -> rtf_train::PipelineConfig {
     use rtf_train::config::{StageConfig, TeacherRef};
-    let teacher = TrainConfig {
-        epochs: 1,
-        inputs: rtf_train::Modality::Rgb,
-        ..mfnet(data)
-    };
-    let student = TrainConfig {
-        procedure: rtf_train::Procedure::TeacherStudent {
+    let teacher = mfnet(data).with(|c| {
+        c.schedule.epochs = 1;
+        c.network.inputs = rtf_train::Modality::Rgb;
+    });
+    let student = mfnet(data).with(|c| {
+        c.learning.procedure = rtf_train::Procedure::TeacherStudent {
             day_teacher: TeacherRef::Stage("teacher".into()),
             night_teacher: None,
             targets: Default::default(),
-        },
-        ..mfnet(data)
-    };
+        };
+    });
     rtf_train::PipelineConfig {
         recipe: None,
         stages: vec![
@@ -487,7 +485,7 @@ fn two_rank_adversarial_run_keeps_both_networks_identical() {
         return;
     };
     let mut cfg = mfnet(&dir.join("data"));
-    cfg.procedure = rtf_train::Procedure::Adversarial {
+    cfg.learning.procedure = rtf_train::Procedure::Adversarial {
         day_teacher: rtf_train::config::TeacherRef::Weights {
             path: dir.join("teacher.safetensors"),
             model: rtf_models::ModelConfig::from_name("mfnet", 9).unwrap(),

@@ -212,11 +212,11 @@ pub fn run(args: Args) -> Result<()> {
     }
     let mut slow = None;
     for (i, (_, stage)) in cfg.stages().into_iter().enumerate() {
-        let device = available_device(&stage.device).map_err(anyhow::Error::msg)?;
-        slow = slow.or_else(|| crate::bf16_warning::training(stage.precision, device));
+        let device = available_device(&stage.compute.device).map_err(anyhow::Error::msg)?;
+        slow = slow.or_else(|| crate::bf16_warning::training(stage.learning.precision, device));
         // The allocator's policy follows the first stage's arithmetic (process-wide).
         if i == 0 {
-            crate::allocator::set_purge_delay_for_training(stage.precision, device);
+            crate::allocator::set_purge_delay_for_training(stage.learning.precision, device);
         }
     }
     if let Some(warning) = slow.filter(|_| root) {
@@ -238,9 +238,9 @@ pub fn run(args: Args) -> Result<()> {
             if root {
                 eprintln!(
                     "training {} ({}) for {} epochs into {}",
-                    single.model.name(),
-                    single.procedure.name(),
-                    single.epochs,
+                    single.network.model.name(),
+                    single.learning.procedure.name(),
+                    single.schedule.epochs,
                     run_dir.display()
                 );
             }
@@ -300,10 +300,10 @@ fn join_job(
     // device (one process group serves them all).
     let mut devices = Vec::new();
     for stage in cfg.stages_mut() {
-        if stage.device.starts_with("cuda") {
-            stage.device = format!("cuda:{}", env.local_rank);
+        if stage.compute.device.starts_with("cuda") {
+            stage.compute.device = format!("cuda:{}", env.local_rank);
         }
-        devices.push(available_device(&stage.device).map_err(anyhow::Error::msg)?);
+        devices.push(available_device(&stage.compute.device).map_err(anyhow::Error::msg)?);
     }
     let device = devices[0];
     if devices.iter().any(|d| d.is_cuda() != device.is_cuda()) {
@@ -465,8 +465,8 @@ fn teacher_ref(
         );
         return Ok(TeacherRef::Weights {
             path: std::fs::canonicalize(&weights)?,
-            model: last.model,
-            inputs: inputs.unwrap_or(last.inputs),
+            model: last.network.model,
+            inputs: inputs.unwrap_or(last.network.inputs),
         });
     }
     anyhow::ensure!(
@@ -533,15 +533,15 @@ fn new_run(args: &Args) -> Result<RunConfig> {
             let (dataset, classes) = dataset_of(data, args)?;
             let mut single = TrainConfig::mfnet_paper(PathBuf::new());
             let model = args.model.as_deref().unwrap_or("mfnet");
-            single.model = ModelConfig::from_name(model, classes.len() as i64)?;
+            single.network.model = ModelConfig::from_name(model, classes.len() as i64)?;
             // The reference preprocessing leaves 700×320; HeatNet trains on a 640×320 window.
             if matches!(dataset, DatasetConfig::Freiburg { .. }) && args.resize.is_none() {
-                single.augment.window = Some((640, 320));
+                single.data.augment.window = Some((640, 320));
             }
-            single.dataset = dataset;
+            single.data.dataset = dataset;
             if let Some(teacher) = &args.teacher {
-                let n = single.model.num_classes();
-                single.procedure = Procedure::TeacherStudent {
+                let n = single.network.model.num_classes();
+                single.learning.procedure = Procedure::TeacherStudent {
                     day_teacher: teacher_ref(
                         teacher,
                         &args.teacher_model,
@@ -573,7 +573,7 @@ fn new_run(args: &Args) -> Result<RunConfig> {
             let (dataset, _) = dataset_of(data, args)?;
             cfg.stages_mut()
                 .into_iter()
-                .for_each(|c| c.dataset = dataset.clone());
+                .for_each(|c| c.data.dataset = dataset.clone());
         }
         anyhow::ensure!(
             args.teacher.is_none() && args.night_teacher.is_none(),
@@ -595,10 +595,10 @@ fn new_run(args: &Args) -> Result<RunConfig> {
 /// `--no-augment` and `--no-shuffle` (issue 27's controls for parity runs).
 fn apply_parity_controls(cfg: &mut TrainConfig, args: &Args) {
     if args.no_augment {
-        cfg.augment = Default::default();
+        cfg.data.augment = Default::default();
     }
     if args.no_shuffle {
-        cfg.shuffle = false;
+        cfg.data.shuffle = false;
     }
 }
 
@@ -610,8 +610,8 @@ fn apply_init(cfg: &mut RunConfig, path: &Path, args: &Args) -> Result<()> {
     };
     let path = std::fs::canonicalize(path)
         .with_context(|| format!("{}: cannot open the --init weights", path.display()))?;
-    single.init_from = Some(WeightsRef::File(path));
-    single.init_reset_head = args.reset_head;
+    single.network.init_from = Some(WeightsRef::File(path));
+    single.network.init_reset_head = args.reset_head;
     rtf_train::init::check_init_weights(single).map_err(|e| match e {
         rtf_train::TrainError::Model(m @ rtf_models::ModelError::Mismatch { .. })
             if !args.reset_head =>
@@ -629,65 +629,65 @@ fn apply_init(cfg: &mut RunConfig, path: &Path, args: &Args) -> Result<()> {
 /// Flags the user gave override the recipe's or config's values, in every stage.
 fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Result<()> {
     if let (Some(model), false) = (&args.model, recipe_networks) {
-        cfg.model = ModelConfig::from_name(model, cfg.model.num_classes())?;
+        cfg.network.model = ModelConfig::from_name(model, cfg.network.model.num_classes())?;
     }
     if let Some(kind) = args.optimizer {
-        cfg.optimizer = match kind {
+        cfg.learning.optimizer = match kind {
             OptimizerKind::Sgd => OptimizerConfig::mfnet_paper(),
             OptimizerKind::Rmsprop => OptimizerConfig::heatnet_paper(),
         };
     }
-    let o = &mut cfg.optimizer;
+    let o = &mut cfg.learning.optimizer;
     o.lr = args.lr.unwrap_or(o.lr);
     o.lr_decay = args.lr_decay.unwrap_or(o.lr_decay);
     o.decay_every = args.decay_every.unwrap_or(o.decay_every);
     o.momentum = args.momentum.unwrap_or(o.momentum);
     o.weight_decay = args.weight_decay.unwrap_or(o.weight_decay);
     if let Some(v) = args.epochs {
-        cfg.epochs = v;
+        cfg.schedule.epochs = v;
     }
     if let Some(v) = args.batch_size {
-        cfg.batch_size = v;
+        cfg.schedule.batch_size = v;
     }
     if let Some(v) = args.seed {
-        cfg.seed = v;
+        cfg.schedule.seed = v;
     }
     if args.no_flip {
-        cfg.augment.hflip = false;
+        cfg.data.augment.hflip = false;
     }
     if args.resize.is_some() {
-        cfg.resize = args.resize;
-        cfg.augment.window = None;
+        cfg.data.resize = args.resize;
+        cfg.data.augment.window = None;
     }
     if args.max_steps.is_some() {
-        cfg.max_steps_per_epoch = args.max_steps;
+        cfg.schedule.max_steps_per_epoch = args.max_steps;
     }
     if args.checkpoint_every.is_some() {
-        cfg.checkpoint_every = args.checkpoint_every;
+        cfg.schedule.checkpoint_every = args.checkpoint_every;
     }
     if let Some(v) = args.workers {
-        cfg.workers = v;
+        cfg.data.workers = v;
     }
     if let Some(v) = &args.device {
-        cfg.device = v.clone();
+        cfg.compute.device = v.clone();
     }
     if let Some(v) = args.precision {
-        cfg.precision = v;
+        cfg.learning.precision = v;
     }
     if args.sync_bn {
-        cfg.sync_batch_norm = true;
+        cfg.network.sync_batch_norm = true;
     }
     if args.backbone_weights.is_some() {
-        cfg.backbone_weights = args.backbone_weights.clone();
+        cfg.network.backbone_weights = args.backbone_weights.clone();
     }
     if let (Some(v), false) = (args.inputs, recipe_networks) {
-        cfg.inputs = v;
+        cfg.network.inputs = v;
     }
     if args.select_by.is_some() {
-        cfg.select_by = args.select_by;
+        cfg.schedule.select_by = args.select_by;
     }
-    cfg.tb_images_every = Some(args.tb_images_every);
-    match &mut cfg.procedure {
+    cfg.schedule.tb_images_every = Some(args.tb_images_every);
+    match &mut cfg.learning.procedure {
         Procedure::Supervised => {}
         Procedure::TeacherStudent { targets, .. } => {
             targets.threshold = args.threshold.or(targets.threshold);
