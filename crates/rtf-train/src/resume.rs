@@ -115,3 +115,36 @@ pub fn extend(run: &mut RunConfig, run_dir: &Path, epochs: usize) -> Result<(), 
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{PipelineConfig, StageConfig, TrainConfig};
+
+    /// A multi-stage run interrupted in its second stage: `--epochs` sets that stage's epochs
+    /// and those of the stages after it; the finished first stage keeps its own.
+    #[test]
+    fn extending_an_interrupted_pipeline_sets_the_interrupted_stage_and_those_after() {
+        let dir = tempfile::tempdir().unwrap();
+        let stage = |name: &str, epochs| StageConfig {
+            name: name.into(),
+            config: TrainConfig::mfnet_paper("data".into()).with(|c| c.schedule.epochs = epochs),
+        };
+        let mut run = RunConfig::Pipeline(PipelineConfig {
+            recipe: None,
+            stages: vec![stage("a", 2), stage("b", 2), stage("c", 2)],
+        });
+        // Stage a finished (final weights, no checkpoint left); b was interrupted before its
+        // first checkpoint; c has not started.
+        std::fs::create_dir_all(dir.path().join("a")).unwrap();
+        std::fs::write(dir.path().join("a").join(FINAL_FILE), b"").unwrap();
+        extend(&mut run, dir.path(), 5).unwrap();
+        let epochs: Vec<usize> = run
+            .stages()
+            .iter()
+            .map(|(_, c)| c.schedule.epochs)
+            .collect();
+        assert_eq!(epochs, [2, 5, 5]);
+        assert_eq!(finished(&run, dir.path()).unwrap(), None);
+    }
+}
