@@ -102,7 +102,7 @@ fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole()
     // TensorBoard events beside the log, and the data's fingerprint in each stage's config.
     tensorboard_matches_log(&run.join("v5"));
     let stage = json_file(&run.join("v5/config.json"));
-    assert!(stage["data_fingerprint"]["hash"].is_string(), "{stage}");
+    assert!(stage["data"]["fingerprint"]["hash"].is_string(), "{stage}");
     assert!(record["val"]["miou_heatnet"].is_number() || record["val"]["miou_heatnet"].is_null());
     // The same folder again without --resume: refused. With it: nothing left to do.
     let err = fails(&args);

@@ -230,7 +230,7 @@ fn mfnet(root: &Path) -> TrainConfig {
 /// trainer, and by their digests here); a Ctrl-C on rank 1 alone stops both ranks after the
 /// same step with a checkpoint from rank 0; resumed on 2 processes, the run ends bit-identical
 /// to the uninterrupted one. Only rank 0 writes the run folder, whose config.json records
-/// `world_size`; a resume on another number of processes is refused.
+/// `compute.world_size`; a resume on another number of processes is refused.
 #[test]
 fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
     let test = "two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly";
@@ -245,7 +245,7 @@ fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
         assert_eq!(read("straight.rank0"), read("straight.rank1"));
         let config: serde_json::Value =
             serde_json::from_str(&read("straight/config.json")).unwrap();
-        assert_eq!(config["world_size"], 2);
+        assert_eq!(config["compute"]["world_size"], 2);
         assert_eq!(read("straight/log.jsonl").lines().count(), 2);
         // Rank 1 is asked to stop before its first step: both ranks stop after it.
         launch(test, dir, "stop");
@@ -358,7 +358,7 @@ fn two_rank_pipeline_trains_every_stage_data_parallel_and_resumes_exactly() {
         for stage in ["teacher", "student"] {
             let config: serde_json::Value =
                 serde_json::from_str(&read(&format!("straight/{stage}/config.json"))).unwrap();
-            assert_eq!(config["world_size"], 2, "{stage}");
+            assert_eq!(config["compute"]["world_size"], 2, "{stage}");
         }
         assert!(dir.join("straight/final.safetensors").is_file());
         launch(test, dir, "stop");
