@@ -13,6 +13,9 @@
 
 use std::ffi::c_int;
 
+mod precision;
+pub use precision::Precision;
+
 use tch::{Device, Kind};
 
 extern "C" {

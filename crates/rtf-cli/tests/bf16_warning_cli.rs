@@ -50,7 +50,10 @@ fn bf16_under_an_avx2_cap_warns_once_in_every_command_and_fp32_never() {
         &[],
     );
     assert!(one_warning(&out).contains("bf16 step is slower than fp32"));
-    assert_eq!(json_file(&run.join("config.json"))["precision"], "bf16");
+    assert_eq!(
+        json_file(&run.join("config.json"))["learning"]["precision"],
+        "bf16"
+    );
     let weights = run.join("final.safetensors");
     let bench_train = |precision| {
         let mut a = vec!["bench", "train", "--model", "mfnet", "--batch", "1"];

@@ -325,8 +325,8 @@ fn nine_class_weights_fine_tune_onto_five_classes_with_reset_head() {
         "{printed}"
     );
     let config = json_file(&run.join("config.json"));
-    assert_eq!(config["init_reset_head"], true, "{config}");
-    assert_eq!(config["model"]["num_classes"], 5, "{config}");
+    assert_eq!(config["network"]["init_reset_head"], true, "{config}");
+    assert_eq!(config["network"]["model"]["num_classes"], 5, "{config}");
 }
 
 /// A PST900 root (train and test only, 5 classes) trains without validation, says so, and
@@ -342,7 +342,7 @@ fn a_five_class_pst900_root_trains_without_val_and_evaluates_by_class_name() {
     assert!(printed.contains("PST900 layout; 5 classes"), "{printed}");
     assert!(printed.contains("validation skipped"), "{printed}");
     let config = json_file(&run.join("config.json"));
-    assert_eq!(config["model"]["num_classes"], 5, "{config}");
+    assert_eq!(config["network"]["model"]["num_classes"], 5, "{config}");
     let weights = run.join("final.safetensors");
     let table = ok(&[
         "eval",

@@ -112,8 +112,8 @@ fn a_two_process_run_survives_a_killed_rank_and_resumes() {
     assert!(run.join("checkpoint.safetensors").exists());
     assert!(!run.join("final.safetensors").exists());
     let config = json_file(&run.join("config.json"));
-    assert_eq!(config["world_size"], 2);
-    assert_eq!(config["sync_batch_norm"], true);
+    assert_eq!(config["compute"]["world_size"], 2);
+    assert_eq!(config["network"]["sync_batch_norm"], true);
     let done = std::fs::read_to_string(&log).unwrap().lines().count();
     assert!(done < 400, "killed before the end");
     // Resumed by 2 processes, it runs to (a shortened) end.

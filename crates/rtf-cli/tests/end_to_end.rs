@@ -30,8 +30,8 @@ fn synth_train_resume_eval_predict() {
     let train = short_train(&data, &run, "2", &["--model", "mfnet"]);
     ok(&train);
     let config = json_file(&run.join("config.json"));
-    assert_eq!(config["model"]["network"], "mfnet");
-    assert_eq!(config["seed"], 0);
+    assert_eq!(config["network"]["model"]["network"], "mfnet");
+    assert_eq!(config["schedule"]["seed"], 0);
     assert!(run.join("final.safetensors").exists() && run.join("checkpoint.safetensors").exists());
     let err = fails(&train);
     assert!(
@@ -188,17 +188,20 @@ fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style
     let train = short_train(&data, &run, "1", &["--optimizer", "rmsprop"]);
     ok(&train);
     let config = json_file(&run.join("config.json"));
-    assert_eq!(config["dataset"]["format"], "freiburg");
-    assert_eq!(config["model"]["num_classes"], 13);
+    assert_eq!(config["data"]["dataset"]["format"], "freiburg");
+    assert_eq!(config["network"]["model"]["num_classes"], 13);
     // --optimizer rmsprop takes the HeatNet paper's schedule.
-    let optimizer = &config["optimizer"];
+    let optimizer = &config["learning"]["optimizer"];
     assert_eq!(optimizer["kind"], "rmsprop");
     assert_eq!(
         (optimizer["lr"].as_f64(), optimizer["decay_every"].as_u64()),
         (Some(1e-4), Some(30))
     );
     // The reference preprocessing leaves 700×320, trained through a 640×320 window.
-    assert_eq!(config["augment"]["window"], serde_json::json!([640, 320]));
+    assert_eq!(
+        config["data"]["augment"]["window"],
+        serde_json::json!([640, 320])
+    );
     let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
     let record: serde_json::Value = serde_json::from_str(log.lines().next().unwrap()).unwrap();
     assert!(

@@ -86,7 +86,7 @@ fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole()
     let config = json_file(&run.join("config.json"));
     assert_eq!(config["recipe"], "heatnet-v5");
     // The resolved data path: absolute, so the run resumes from any directory.
-    let root = config["stages"][0]["config"]["dataset"]["root"]
+    let root = config["stages"][0]["config"]["data"]["dataset"]["root"]
         .as_str()
         .unwrap();
     assert!(std::path::Path::new(root).is_absolute(), "{root}");
@@ -102,7 +102,7 @@ fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole()
     // TensorBoard events beside the log, and the data's fingerprint in each stage's config.
     tensorboard_matches_log(&run.join("v5"));
     let stage = json_file(&run.join("v5/config.json"));
-    assert!(stage["data_fingerprint"]["hash"].is_string(), "{stage}");
+    assert!(stage["data"]["fingerprint"]["hash"].is_string(), "{stage}");
     assert!(record["val"]["miou_heatnet"].is_number() || record["val"]["miou_heatnet"].is_null());
     // The same folder again without --resume: refused. With it: nothing left to do.
     let err = fails(&args);
@@ -450,12 +450,12 @@ fn init_no_shuffle_and_no_augment_are_recorded_and_resumed() {
     ];
     ok(&short_train(&data, &run, "2", &controls));
     let config = json_file(&run.join("config.json"));
-    assert_eq!(config["shuffle"], false, "{config}");
-    assert!(config["init_from"]["file"]
+    assert_eq!(config["data"]["shuffle"], false, "{config}");
+    assert!(config["network"]["init_from"]["file"]
         .as_str()
         .unwrap()
         .ends_with("final.safetensors"));
-    let augment = config["augment"].as_object().unwrap();
+    let augment = config["data"]["augment"].as_object().unwrap();
     assert!(
         augment.values().all(|v| v.is_null() || v == false),
         "every augmentation off: {config}"
@@ -463,9 +463,12 @@ fn init_no_shuffle_and_no_augment_are_recorded_and_resumed() {
     let before = std::fs::read_to_string(run.join("config.json")).unwrap();
     ok(&["train", "--resume", s(&run), "--epochs", "2"]);
     let after = json_file(&run.join("config.json"));
-    assert_eq!(after["shuffle"], false);
-    assert_eq!(after["augment"], config["augment"]);
-    assert_eq!(after["init_from"], config["init_from"], "{before}");
+    assert_eq!(after["data"]["shuffle"], false);
+    assert_eq!(after["data"]["augment"], config["data"]["augment"]);
+    assert_eq!(
+        after["network"]["init_from"], config["network"]["init_from"],
+        "{before}"
+    );
     let steps = std::fs::read_to_string(run.join("steps.jsonl")).unwrap();
     let epochs: Vec<u64> = steps
         .lines()

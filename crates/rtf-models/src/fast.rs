@@ -8,48 +8,10 @@ use crate::error::ModelError;
 use crate::layers::to_channels_last;
 use crate::Network;
 
-/// Arithmetic precision of inference.
-#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum Precision {
-    #[default]
-    Fp32,
-    Bf16,
-}
-
-impl Precision {
-    pub fn kind(self) -> Kind {
-        match self {
-            Precision::Fp32 => Kind::Float,
-            Precision::Bf16 => Kind::BFloat16,
-        }
-    }
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Precision::Fp32 => "fp32",
-            Precision::Bf16 => "bf16",
-        }
-    }
-}
-
-impl std::str::FromStr for Precision {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "fp32" | "float32" => Ok(Precision::Fp32),
-            "bf16" | "bfloat16" => Ok(Precision::Bf16),
-            other => Err(format!(
-                "unknown precision {other:?} (expected fp32 or bf16)"
-            )),
-        }
-    }
-}
-
-impl std::fmt::Display for Precision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
+/// Arithmetic precision of inference: fp32 or bf16 (one type with training's, which also has
+/// fp16; the fast path refuses fp16, and the CLI parses inference precisions with
+/// [`Precision::parse_inference`]).
+pub use rtf_amp::Precision;
 
 /// Memory layout of activations (and weights) on the fast path.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -95,6 +57,12 @@ impl InferenceNet {
         precision: Precision,
         layout: Layout,
     ) -> Result<Self, ModelError> {
+        if precision == Precision::Fp16 {
+            return Err(ModelError::InvalidConfig {
+                network: net.name(),
+                reason: "the fast inference path runs fp32 or bf16, not fp16".into(),
+            });
+        }
         let channels_last = layout == Layout::ChannelsLast;
         let fused = crate::layers::with_fused_layout(channels_last, || {
             net.fuse_for_inference(precision.kind())
@@ -197,4 +165,28 @@ pub fn argmax_agreement(a: &Tensor, b: &Tensor) -> f64 {
     same.to_kind(Kind::Double)
         .mean(Kind::Double)
         .double_value(&[])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Precision is one type with training's, which has fp16: the fast path refuses it by
+    /// name rather than folding weights into a type it does not run.
+    #[test]
+    fn the_fast_path_refuses_fp16_with_the_reason() {
+        let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+        let cfg = crate::ModelConfig::from_name("mfnet", 9).unwrap();
+        let net = crate::build(&vs.root(), &cfg).unwrap();
+        let err = InferenceNet::new(net, Precision::Fp16)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("runs fp32 or bf16, not fp16"), "{err}");
+        assert_eq!(
+            "fp16".parse::<Precision>().unwrap(),
+            Precision::Fp16,
+            "training's parser"
+        );
+        assert!(Precision::parse_inference("fp16").is_err());
+    }
 }

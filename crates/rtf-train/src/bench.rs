@@ -87,11 +87,11 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
     }
     let model = rtf_models::ModelConfig::from_name(&opts.model, 9)?;
     let mut cfg = TrainConfig::mfnet_paper("unused".into());
-    cfg.model = model;
-    cfg.optimizer = opts.optimizer.clone();
-    cfg.precision = opts.precision;
-    cfg.batch_size = opts.batch;
-    cfg.device = match opts.device {
+    cfg.network.model = model;
+    cfg.learning.optimizer = opts.optimizer.clone();
+    cfg.learning.precision = opts.precision;
+    cfg.schedule.batch_size = opts.batch;
+    cfg.compute.device = match opts.device {
         Device::Cpu => "cpu".into(),
         Device::Cuda(i) => format!("cuda:{i}"),
         other => {
@@ -103,12 +103,12 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
     cfg.validate()?;
     tch::manual_seed(0);
     let mut student = Student::build(&cfg, opts.device)?;
-    let loss_fn = cfg.loss.build(None);
+    let loss_fn = cfg.learning.loss.build(None);
     let (w, h) = (opts.size.0 as i64, opts.size.1 as i64);
     let b = opts.batch as i64;
     let input = Tensor::rand([b, 4, h, w], (Kind::Float, opts.device));
     let target = Tensor::randint(9, [b, h, w], (Kind::Int64, opts.device));
-    let lr = cfg.optimizer.lr_at(0);
+    let lr = cfg.learning.optimizer.lr_at(0);
     let (mut fwd, mut bwd, mut opt, mut total) = (vec![], vec![], vec![], 0.0);
     for i in 0..opts.warmup + opts.steps {
         // The body of `Supervised::step`, timed part by part.
@@ -147,7 +147,7 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         size: format!("{}x{}", opts.size.0, opts.size.1),
         precision: opts.precision.name().into(),
         convolutions: opts.precision.convolutions_on(opts.device),
-        device: cfg.device.clone(),
+        device: cfg.compute.device.clone(),
         threads: tch::get_num_threads(),
         images_per_s: (opts.steps * opts.batch) as f64 / total,
         step_s: median(&mut steps),

@@ -36,12 +36,12 @@ impl std::fmt::Display for InitReport {
     }
 }
 
-/// Loads the run's `init_from` file into `vs` (built from `cfg.model`): strictly, or with the
+/// Loads the run's `init_from` file into `vs` (built from `cfg.network.model`): strictly, or with the
 /// class-dependent tensors left fresh under `init_reset_head` (then the file may come from a
 /// network of another class count; any other difference is still an error naming the
 /// tensors). None without a file to load.
 pub fn load_init(vs: &mut VarStore, cfg: &TrainConfig) -> Result<Option<InitReport>, TrainError> {
-    let path = match &cfg.init_from {
+    let path = match &cfg.network.init_from {
         None => return Ok(None),
         Some(WeightsRef::File(path)) => path,
         Some(WeightsRef::Stage(name)) => {
@@ -50,8 +50,8 @@ pub fn load_init(vs: &mut VarStore, cfg: &TrainConfig) -> Result<Option<InitRepo
             )))
         }
     };
-    let fresh = if cfg.init_reset_head {
-        rtf_models::weights::class_dependent_names(&cfg.model)?
+    let fresh = if cfg.network.init_reset_head {
+        rtf_models::weights::class_dependent_names(&cfg.network.model)?
     } else {
         BTreeSet::new()
     };
@@ -81,11 +81,12 @@ fn report(vs: &VarStore, path: &Path, fresh: &BTreeSet<String>) -> InitReport {
 /// written: the error names the file and each tensor that is missing, unexpected or of
 /// another shape. A stage reference or no `init_from` passes.
 pub fn check_init_weights(cfg: &TrainConfig) -> Result<Option<InitReport>, TrainError> {
-    if !matches!(cfg.init_from, Some(WeightsRef::File(_))) {
+    if !matches!(cfg.network.init_from, Some(WeightsRef::File(_))) {
         return Ok(None);
     }
     let mut vs = VarStore::new(tch::Device::Cpu);
-    let _net = rtf_models::layers::with_zero_init(|| rtf_models::build(&vs.root(), &cfg.model))?;
+    let _net =
+        rtf_models::layers::with_zero_init(|| rtf_models::build(&vs.root(), &cfg.network.model))?;
     load_init(&mut vs, cfg)
 }
 
@@ -96,8 +97,8 @@ mod tests {
 
     fn mfnet_with_init(path: &std::path::Path) -> TrainConfig {
         let mut cfg = TrainConfig::mfnet_paper(std::path::PathBuf::new());
-        cfg.model = ModelConfig::from_name("mfnet", 9).unwrap();
-        cfg.init_from = Some(WeightsRef::File(path.to_path_buf()));
+        cfg.network.model = ModelConfig::from_name("mfnet", 9).unwrap();
+        cfg.network.init_from = Some(WeightsRef::File(path.to_path_buf()));
         cfg
     }
 
@@ -112,12 +113,12 @@ mod tests {
         check_init_weights(&mfnet_with_init(&path)).unwrap();
 
         let mut other = mfnet_with_init(&path);
-        other.model = ModelConfig::from_name("mfnet", 5).unwrap();
+        other.network.model = ModelConfig::from_name("mfnet", 5).unwrap();
         let err = check_init_weights(&other).unwrap_err().to_string();
         assert!(err.contains("mfnet.safetensors"), "{err}");
         assert!(err.contains("decode1.conv.weight"), "{err}");
 
-        other.init_reset_head = true;
+        other.network.init_reset_head = true;
         let report = check_init_weights(&other).unwrap().unwrap();
         assert_eq!(report.fresh.len(), 6, "{report}");
         assert!(report.fresh.contains(&"decode1.conv.weight".to_string()));
@@ -143,8 +144,8 @@ mod tests {
             .collect();
         rtf_models::weights::save_named(&named, &path).unwrap();
         let mut cfg = mfnet_with_init(&path);
-        cfg.model = ModelConfig::from_name("mfnet", 5).unwrap();
-        cfg.init_reset_head = true;
+        cfg.network.model = ModelConfig::from_name("mfnet", 5).unwrap();
+        cfg.network.init_reset_head = true;
         let err = check_init_weights(&cfg).unwrap_err().to_string();
         assert!(err.contains("other.safetensors"), "{err}");
         assert!(err.contains("conv1_rgb"), "{err}");

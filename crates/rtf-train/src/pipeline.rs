@@ -47,19 +47,19 @@ pub fn resolve(
             .find(|s| s.name == name)
             .ok_or_else(|| TrainError::Config(format!("no stage named `{name}`")))
     };
-    for teacher in cfg.procedure.teachers_mut() {
+    for teacher in cfg.learning.procedure.teachers_mut() {
         if let TeacherRef::Stage(name) = teacher {
             let stage = find(name)?;
             *teacher = TeacherRef::Weights {
                 path: stage_weights(&run_dir.join(&stage.name)),
-                model: stage.config.model.clone(),
-                inputs: stage.config.inputs,
+                model: stage.config.network.model.clone(),
+                inputs: stage.config.network.inputs,
             };
         }
     }
-    if let Some(WeightsRef::Stage(name)) = &cfg.init_from {
+    if let Some(WeightsRef::Stage(name)) = &cfg.network.init_from {
         let stage = find(name)?;
-        cfg.init_from = Some(WeightsRef::File(run_dir.join(&stage.name).join(FINAL_FILE)));
+        cfg.network.init_from = Some(WeightsRef::File(run_dir.join(&stage.name).join(FINAL_FILE)));
     }
     Ok(cfg)
 }
@@ -196,7 +196,7 @@ fn train_stage(
 ) -> Result<Option<TrainOutcome>, TrainError> {
     let dir = run_dir.join(&stage.name);
     // Finished means every epoch it is asked for: a resume may extend a finished stage.
-    let done = crate::resume::is_finished(&dir, stage.config.epochs)?;
+    let done = crate::resume::is_finished(&dir, stage.config.schedule.epochs)?;
     let started = rundir::holds_run(&dir);
     // Every rank has read the stage's state before rank 0 starts writing it.
     barrier(ddp.as_deref())?;
@@ -207,15 +207,17 @@ fn train_stage(
     if started {
         // The stage's own config.json says how many processes trained it (the trainer
         // refuses to continue it exactly with another number).
-        resolved.world_size = saved_stage(&stage.name, &resolved, &dir)?.world_size;
+        resolved.compute.world_size = saved_stage(&stage.name, &resolved, &dir)?
+            .compute
+            .world_size;
     }
     if ddp.as_ref().is_none_or(|d| d.is_root()) {
         eprintln!(
             "stage {} ({}, {}): {} epochs into {}",
             stage.name,
-            resolved.procedure.name(),
-            resolved.model.name(),
-            resolved.epochs,
+            resolved.learning.procedure.name(),
+            resolved.network.model.name(),
+            resolved.schedule.epochs,
             dir.display()
         );
     }
@@ -243,14 +245,14 @@ fn saved_stage(name: &str, stage: &TrainConfig, dir: &Path) -> Result<TrainConfi
             format!("holds a multi-stage run, not stage {name}"),
         ));
     };
-    let model = |c: &TrainConfig| serde_json::to_value(&c.model).ok();
+    let model = |c: &TrainConfig| serde_json::to_value(&c.network.model).ok();
     let differs = [
         ("network", model(stage) != model(&saved)),
         (
             "procedure",
-            stage.procedure.name() != saved.procedure.name(),
+            stage.learning.procedure.name() != saved.learning.procedure.name(),
         ),
-        ("inputs", stage.inputs != saved.inputs),
+        ("inputs", stage.network.inputs != saved.network.inputs),
     ];
     if let Some((what, _)) = differs.iter().find(|(_, d)| *d) {
         return Err(run_error(

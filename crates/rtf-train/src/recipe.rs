@@ -318,16 +318,16 @@ impl Schedule {
         match self {
             Schedule::MfnetPaper => {}
             Schedule::RtfnetCode => {
-                cfg.optimizer.lr_decay = 0.95;
-                cfg.batch_size = 2;
-                cfg.epochs = 100;
-                cfg.augment.crop = Some(0.1);
+                cfg.learning.optimizer.lr_decay = 0.95;
+                cfg.schedule.batch_size = 2;
+                cfg.schedule.epochs = 100;
+                cfg.data.augment.crop = Some(0.1);
             }
             Schedule::HeatnetPaper => {
-                cfg.optimizer = OptimizerConfig::heatnet_paper();
-                cfg.batch_size = 8;
-                cfg.epochs = 100;
-                cfg.augment = AugmentConfig {
+                cfg.learning.optimizer = OptimizerConfig::heatnet_paper();
+                cfg.schedule.batch_size = 8;
+                cfg.schedule.epochs = 100;
+                cfg.data.augment = AugmentConfig {
                     hflip: true,
                     rotation_deg: Some(20.0),
                     ir_scale: Some((0.1, 1.0)),
@@ -336,8 +336,8 @@ impl Schedule {
             }
         }
         // The reference preprocessing leaves 700×320; HeatNet trains on a 640×320 window.
-        if freiburg && cfg.resize.is_none() {
-            cfg.augment.window = Some((640, 320));
+        if freiburg && cfg.data.resize.is_none() {
+            cfg.data.augment.window = Some((640, 320));
         }
     }
 }
@@ -381,11 +381,11 @@ pub fn instantiate(recipe: &Recipe, inputs: &RecipeInputs) -> Result<RunConfig, 
             continue;
         }
         let mut cfg = TrainConfig::mfnet_paper(PathBuf::new());
-        cfg.model = network_for(spec.role, spec.inputs, inputs)?;
-        cfg.dataset = inputs.dataset.clone();
-        cfg.inputs = spec.inputs;
+        cfg.network.model = network_for(spec.role, spec.inputs, inputs)?;
+        cfg.data.dataset = inputs.dataset.clone();
+        cfg.network.inputs = spec.inputs;
         recipe.schedule.apply(&mut cfg, freiburg);
-        cfg.procedure = match spec.procedure {
+        cfg.learning.procedure = match spec.procedure {
             Supervised => Procedure::Supervised,
             TeacherStudent { day, night } => Procedure::TeacherStudent {
                 day_teacher: teacher(day),
@@ -399,7 +399,7 @@ pub fn instantiate(recipe: &Recipe, inputs: &RecipeInputs) -> Result<RunConfig, 
                 critic: CriticOptions::default(),
             },
         };
-        cfg.init_from = spec.init_from.map(|s| WeightsRef::Stage(s.to_string()));
+        cfg.network.init_from = spec.init_from.map(|s| WeightsRef::Stage(s.to_string()));
         stages.push(StageConfig {
             name: spec.name.to_string(),
             config: cfg,
@@ -501,7 +501,11 @@ mod tests {
         let inputs_of = |name: &str| {
             let cfg = instantiate(recipe(name).unwrap(), &inputs(None)).unwrap();
             let (_, last) = *cfg.stages().last().unwrap();
-            (last.inputs, last.model.name(), last.procedure.name())
+            (
+                last.network.inputs,
+                last.network.model.name(),
+                last.learning.procedure.name(),
+            )
         };
         assert_eq!(
             inputs_of("heatnet-v1"),
@@ -550,7 +554,7 @@ mod tests {
         let RunConfig::Pipeline(p) = &with_teacher else {
             panic!()
         };
-        assert!(matches!(&p.stages[0].config.procedure,
+        assert!(matches!(&p.stages[0].config.learning.procedure,
             Procedure::TeacherStudent { day_teacher, .. } if *day_teacher == given));
         let distill = recipe("heatnet-distill").unwrap();
         let mut both = inputs(Some(given));
@@ -579,7 +583,10 @@ mod tests {
         let mut light = inputs(None);
         light.model = Some("mfnet".into());
         let cfg = instantiate(recipe("heatnet-v5").unwrap(), &light).unwrap();
-        assert!(cfg.stages().iter().all(|(_, c)| c.model.name() == "mfnet"));
+        assert!(cfg
+            .stages()
+            .iter()
+            .all(|(_, c)| c.network.model.name() == "mfnet"));
         let err = recipe("heatnet-v7").unwrap_err().0;
         assert!(
             err.contains("heatnet-v7") && err.contains("heatnet-v6"),

@@ -66,10 +66,10 @@ pub fn finished(run: &RunConfig, run_dir: &Path) -> Result<Option<Finished>, Tra
     let mut last = None;
     for (name, cfg) in &stages {
         let dir = run_dir.join(name);
-        if !is_finished(&dir, cfg.epochs)? {
+        if !is_finished(&dir, cfg.schedule.epochs)? {
             return Ok(None);
         }
-        last = Some((name, saved_state(&dir)?, cfg.epochs));
+        last = Some((name, saved_state(&dir)?, cfg.schedule.epochs));
     }
     let Some((name, state, epochs)) = last else {
         return Ok(None);
@@ -89,14 +89,14 @@ pub fn finished(run: &RunConfig, run_dir: &Path) -> Result<Option<Finished>, Tra
 pub fn extend(run: &mut RunConfig, run_dir: &Path, epochs: usize) -> Result<(), TrainError> {
     let pipeline = match run {
         RunConfig::Single(single) => {
-            single.epochs = epochs;
+            single.schedule.epochs = epochs;
             return Ok(());
         }
         RunConfig::Pipeline(pipeline) => pipeline,
     };
     let mut first = pipeline.stages.len().saturating_sub(1);
     for (i, stage) in pipeline.stages.iter().enumerate() {
-        if !is_finished(&run_dir.join(&stage.name), stage.config.epochs)? {
+        if !is_finished(&run_dir.join(&stage.name), stage.config.schedule.epochs)? {
             first = i;
             break;
         }
@@ -111,7 +111,40 @@ pub fn extend(run: &mut RunConfig, run_dir: &Path, epochs: usize) -> Result<(), 
                 stage.name
             )));
         }
-        stage.config.epochs = epochs;
+        stage.config.schedule.epochs = epochs;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{PipelineConfig, StageConfig, TrainConfig};
+
+    /// A multi-stage run interrupted in its second stage: `--epochs` sets that stage's epochs
+    /// and those of the stages after it; the finished first stage keeps its own.
+    #[test]
+    fn extending_an_interrupted_pipeline_sets_the_interrupted_stage_and_those_after() {
+        let dir = tempfile::tempdir().unwrap();
+        let stage = |name: &str, epochs| StageConfig {
+            name: name.into(),
+            config: TrainConfig::mfnet_paper("data".into()).with(|c| c.schedule.epochs = epochs),
+        };
+        let mut run = RunConfig::Pipeline(PipelineConfig {
+            recipe: None,
+            stages: vec![stage("a", 2), stage("b", 2), stage("c", 2)],
+        });
+        // Stage a finished (final weights, no checkpoint left); b was interrupted before its
+        // first checkpoint; c has not started.
+        std::fs::create_dir_all(dir.path().join("a")).unwrap();
+        std::fs::write(dir.path().join("a").join(FINAL_FILE), b"").unwrap();
+        extend(&mut run, dir.path(), 5).unwrap();
+        let epochs: Vec<usize> = run
+            .stages()
+            .iter()
+            .map(|(_, c)| c.schedule.epochs)
+            .collect();
+        assert_eq!(epochs, [2, 5, 5]);
+        assert_eq!(finished(&run, dir.path()).unwrap(), None);
+    }
 }

@@ -217,8 +217,8 @@ fn step_log_error(run_dir: &Path, e: std::io::Error) -> TrainError {
 }
 
 fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
-    let labels = cfg.procedure.reads_labels();
-    let (train, val, freiburg) = open_dataset(&cfg.dataset, labels)?;
+    let labels = cfg.learning.procedure.reads_labels();
+    let (train, val, freiburg) = open_dataset(&cfg.data.dataset, labels)?;
     let ignore_id = train.class_set().ignore_id;
     if labels {
         return Ok(Sources {
@@ -235,13 +235,13 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
             "the training frames hold no day frame (MF: names ending in D; Freiburg: paths without `night`)".into(),
         ));
     }
-    let night = match cfg.procedure.uses_night() {
+    let night = match cfg.learning.procedure.uses_night() {
         true => {
             let night: Source = Arc::new(Subset::of_daytime(train, Daytime::Night, false));
             if night.is_empty() {
                 return Err(TrainError::Config(format!(
                     "the {} procedure needs night frames; the training frames hold none",
-                    cfg.procedure.name()
+                    cfg.learning.procedure.name()
                 )));
             }
             Some(night)
@@ -267,14 +267,14 @@ fn loader(
     Loader::new(
         source,
         LoaderConfig {
-            batch_size: cfg.batch_size,
-            shuffle: cfg.shuffle,
+            batch_size: cfg.schedule.batch_size,
+            shuffle: cfg.data.shuffle,
             drop_last: false,
             seed,
-            workers: cfg.workers,
+            workers: cfg.data.workers,
             prefetch: 2,
-            augment: cfg.augment.clone(),
-            resize: cfg.resize,
+            augment: cfg.data.augment.clone(),
+            resize: cfg.data.resize,
         },
         input,
     )
@@ -383,7 +383,7 @@ pub fn train_distributed(
     let device = cfg.device().map_err(TrainError::Config)?;
     let folder = RunFolder::open(cfg, run_dir, resume, ddp.as_deref())?;
     let (mut run, streams) = Run::restore_or_start(cfg, folder, ddp, device)?;
-    for epoch in run.state.epochs_done..cfg.epochs {
+    for epoch in run.state.epochs_done..cfg.schedule.epochs {
         if let EpochEnd::Stopped = run.epoch(&streams, epoch, on_epoch, stop)? {
             return Ok(run.stopped());
         }
@@ -414,12 +414,12 @@ impl<'a> RunFolder<'a> {
         let checkpoint = dir.join(CHECKPOINT_FILE);
         let is_root = ddp.is_none_or(|d| d.is_root());
         let world = ddp.map(|d| d.world_size());
-        if cfg.world_size.unwrap_or(1) != world.unwrap_or(1) && resume {
+        if cfg.compute.world_size.unwrap_or(1) != world.unwrap_or(1) && resume {
             return Err(TrainError::Config(format!(
                 "{}: the run was trained by {} process(es), this is {}; resume it with as many \
                  (torchrun --nproc-per-node ...) so that it continues exactly",
                 dir.display(),
-                cfg.world_size.unwrap_or(1),
+                cfg.compute.world_size.unwrap_or(1),
                 world.unwrap_or(1)
             )));
         }
@@ -462,7 +462,7 @@ fn check_resume_epochs(cfg: &TrainConfig, dir: &Path, checkpoint: &Path) -> Resu
     // A checkpoint inside an epoch holds weights past the epochs done: ending the run
     // there would call mid-epoch weights final.
     let stands_at = saved.epochs_done + saved.partial.is_some() as usize;
-    if cfg.epochs < stands_at {
+    if cfg.schedule.epochs < stands_at {
         return Err(TrainError::Config(format!(
             "{}: the run has done {} epochs{}; --epochs {} would end it before where it stands",
             dir.display(),
@@ -471,7 +471,7 @@ fn check_resume_epochs(cfg: &TrainConfig, dir: &Path, checkpoint: &Path) -> Resu
                 true => format!(" and part of epoch {stands_at}"),
                 false => String::new(),
             },
-            cfg.epochs
+            cfg.schedule.epochs
         )));
     }
     Ok(())
@@ -485,23 +485,24 @@ fn record_config(
     sources: &Sources,
 ) -> Result<(), TrainError> {
     let classes = sources.main.class_set().clone();
-    if classes.len() as i64 != cfg.model.num_classes() {
+    if classes.len() as i64 != cfg.network.model.num_classes() {
         return Err(TrainError::Config(format!(
             "the dataset has {} classes but the model is configured for {}",
             classes.len(),
-            cfg.model.num_classes()
+            cfg.network.model.num_classes()
         )));
     }
     procedure::check_teachers(cfg)?;
     let mut cfg_written = cfg.clone();
-    let root = match &cfg.dataset {
+    let root = match &cfg.data.dataset {
         DatasetConfig::Mf { root, .. }
         | DatasetConfig::Freiburg { root, .. }
         | DatasetConfig::Described { root, .. } => root,
     };
     let fingerprint = rtf_data::fingerprint(root)?;
     if let Some(before) = cfg
-        .data_fingerprint
+        .data
+        .fingerprint
         .as_ref()
         .filter(|f| f.hash != fingerprint.hash)
     {
@@ -512,9 +513,9 @@ fn record_config(
             &fingerprint.hash[..12.min(fingerprint.hash.len())]
         );
     }
-    cfg_written.data_fingerprint = Some(fingerprint);
+    cfg_written.data.fingerprint = Some(fingerprint);
     if folder.world.is_some() {
-        cfg_written.world_size = folder.world;
+        cfg_written.compute.world_size = folder.world;
     }
     if folder.is_root {
         rundir::write_json_atomic(&folder.dir.join(CONFIG_FILE), &cfg_written)?;
@@ -550,8 +551,8 @@ fn start(
         let _ = std::fs::remove_file(folder.dir.join(LOG_FILE));
     }
     let student = &mut procedure.trained_mut()[0].vs;
-    if let Some(path) = &cfg.backbone_weights {
-        rtf_models::backbone::load_backbone_weights(student, &cfg.model, path)?;
+    if let Some(path) = &cfg.network.backbone_weights {
+        rtf_models::backbone::load_backbone_weights(student, &cfg.network.model, path)?;
     }
     if let Some(report) = crate::init::load_init(student, cfg)? {
         if folder.is_root {
@@ -578,7 +579,7 @@ fn cache_labels(
     device: tch::Device,
 ) -> Result<Option<crate::ddp::ScratchDir>, TrainError> {
     let input = procedure.student().net.input_convention();
-    let threshold = match &cfg.procedure {
+    let threshold = match &cfg.learning.procedure {
         crate::config::Procedure::TeacherStudent { targets, .. }
         | crate::config::Procedure::Adversarial { targets, .. } => targets.threshold,
         crate::config::Procedure::Supervised => None,
@@ -630,8 +631,8 @@ impl Streams {
         input: rtf_core::InputConvention,
         ddp: Option<&Ddp>,
     ) -> Result<Self, TrainError> {
-        let main = loader(cfg, sources.main.clone(), cfg.seed, input);
-        let night_seed = rtf_data::loader::mix(cfg.seed, 0x6e69676874, 0);
+        let main = loader(cfg, sources.main.clone(), cfg.schedule.seed, input);
+        let night_seed = rtf_data::loader::mix(cfg.schedule.seed, 0x6e69676874, 0);
         let night = sources
             .night
             .clone()
@@ -773,7 +774,7 @@ impl<'a> Run<'a> {
     ) -> Result<(Self, Streams), TrainError> {
         let mut sources = open_sources(cfg)?;
         record_config(cfg, &folder, &sources)?;
-        tch::manual_seed(cfg.seed as i64);
+        tch::manual_seed(cfg.schedule.seed as i64);
         let mut procedure = procedure::build(cfg, sources.ignore_id, device)?;
         let state = match folder.resume {
             true => restore(&folder, procedure.as_mut())?,
@@ -791,7 +792,9 @@ impl<'a> Run<'a> {
         // Synchronised BatchNorm: the training-mode forwards of this thread (every step runs
         // here) use the whole data-parallel batch's statistics until the run returns.
         let sync_batch_norm = match &ddp {
-            Some(d) if cfg.sync_batch_norm => Some(rtf_models::SyncBatchNorm::install(d.clone())),
+            Some(d) if cfg.network.sync_batch_norm => {
+                Some(rtf_models::SyncBatchNorm::install(d.clone()))
+            }
             _ => None,
         };
         let scratch = cache_labels(cfg, &folder, procedure.as_ref(), &mut sources, device)?;
@@ -806,15 +809,16 @@ impl<'a> Run<'a> {
         let streams = Streams::open(cfg, &sources, input, ddp.as_deref())?;
         let val = sources.val.clone().map(|val| {
             let options = EvalOptions {
-                batch_size: cfg.batch_size,
-                resize: cfg.resize,
-                workers: cfg.workers,
+                batch_size: cfg.schedule.batch_size,
+                resize: cfg.data.resize,
+                workers: cfg.data.workers,
             };
             rtf_eval::evaluate::split_loader(val, &options, input)
         });
         let step_log = crate::step_log::StepLog::open(folder.dir, folder.is_root, state.steps_done)
             .map_err(|e| step_log_error(folder.dir, e))?;
         let steps_per_epoch = cfg
+            .schedule
             .max_steps_per_epoch
             .map_or(streams.main.num_batches(), |m| {
                 m.min(streams.main.num_batches())
@@ -829,8 +833,9 @@ impl<'a> Run<'a> {
             step_log,
             freiburg: sources.freiburg,
             select: cfg
+                .schedule
                 .select_by
-                .unwrap_or_else(|| default_select_metric(&cfg.dataset)),
+                .unwrap_or_else(|| default_select_metric(&cfg.data.dataset)),
             steps_per_epoch,
             tb,
             records: Vec::new(),
@@ -881,7 +886,7 @@ impl<'a> Run<'a> {
             }
         };
         // Stopped on an epoch's last step: its checkpoint is the epoch-end one.
-        match stopping && self.state.epochs_done < self.cfg.epochs {
+        match stopping && self.state.epochs_done < self.cfg.schedule.epochs {
             true => Ok(EpochEnd::Stopped),
             false => Ok(EpochEnd::Done),
         }
@@ -897,7 +902,7 @@ impl<'a> Run<'a> {
     ) -> Result<Option<EpochProgress>, TrainError> {
         let steps_per_epoch = self.steps_per_epoch;
         let bar = match self.folder.is_root {
-            true => progress_bar(steps_per_epoch, epoch, self.cfg.epochs),
+            true => progress_bar(steps_per_epoch, epoch, self.cfg.schedule.epochs),
             false => ProgressBar::hidden(),
         };
         let mut progress =
@@ -914,9 +919,11 @@ impl<'a> Run<'a> {
         let mut night_batches = streams.night_from(epoch * steps_per_epoch + first);
         for (step, batch) in (first..).zip(batches) {
             // Reseeded per step so a resumed run draws the same random numbers (dropout, ...).
-            tch::manual_seed(
-                rtf_data::loader::mix(self.cfg.seed, epoch as u64, step as u64) as i64,
-            );
+            tch::manual_seed(rtf_data::loader::mix(
+                self.cfg.schedule.seed,
+                epoch as u64,
+                step as u64,
+            ) as i64);
             let batch = batch?;
             let night_batch = match night_batches.as_mut() {
                 Some(it) => Some(
@@ -932,7 +939,7 @@ impl<'a> Run<'a> {
                 progress.images as f64 / progress.elapsed().as_secs_f64().max(1e-9)
             ));
             bar.inc(1);
-            let scheduled = self.cfg.checkpoint_every.is_some_and(|every| {
+            let scheduled = self.cfg.schedule.checkpoint_every.is_some_and(|every| {
                 every > 0 && self.state.steps_done.is_multiple_of(every as u64)
             });
             // On an epoch's last step the epoch-end checkpoint does the work.
@@ -1112,7 +1119,7 @@ impl<'a> Run<'a> {
             .partition(|(k, _)| !k.starts_with("critic_acc"));
         EpochRecord {
             epoch,
-            lr: self.cfg.optimizer.lr_at(epoch),
+            lr: self.cfg.learning.optimizer.lr_at(epoch),
             train_loss: progress.loss_sum / steps,
             images: progress.images,
             seconds,
@@ -1158,7 +1165,7 @@ impl<'a> Run<'a> {
     fn save(&mut self, epoch: usize, record: &EpochRecord) -> Result<(), TrainError> {
         self.save_checkpoint(epoch)?;
         rundir::append_log(self.folder.dir, record)?;
-        let grid = match (&self.val, self.cfg.tb_images_every) {
+        let grid = match (&self.val, self.cfg.schedule.tb_images_every) {
             (Some(val), Some(every)) if every > 0 && (epoch + 1).is_multiple_of(every) => {
                 Some(prediction_grid_png(
                     self.procedure.student(),
@@ -1200,8 +1207,8 @@ impl<'a> Run<'a> {
     fn save_student(&self, path: &Path) -> Result<(), TrainError> {
         rtf_models::weights::save_safetensors(
             &self.procedure.student().trained.vs,
-            &self.cfg.model,
-            self.cfg.inputs,
+            &self.cfg.network.model,
+            self.cfg.network.inputs,
             path,
         )?;
         Ok(())
@@ -1246,9 +1253,9 @@ fn prediction_grid_png(
     cfg: &TrainConfig,
     device: tch::Device,
 ) -> Result<Vec<u8>, TrainError> {
-    let rows = rtf_eval::figure::rows_for(&student.net, val, 4, cfg.resize, device)?;
+    let rows = rtf_eval::figure::rows_for(&student.net, val, 4, cfg.data.resize, device)?;
     let column = rtf_eval::figure::PredictionColumn {
-        title: cfg.model.name(),
+        title: cfg.network.model.name(),
         ids: rows.iter().map(|r| r.prediction.clone()).collect(),
     };
     let grid = rtf_eval::figure::annotated_grid(&rows, &[column], val.class_set());

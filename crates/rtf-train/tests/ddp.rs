@@ -214,15 +214,15 @@ fn padding(p: i64) -> nn::ConvConfig {
 /// MFNet (train-mode BatchNorm, per rank) on the tiny dataset, 2 epochs.
 fn mfnet(root: &Path) -> TrainConfig {
     let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
-    cfg.dataset = DatasetConfig::Mf {
+    cfg.data.dataset = DatasetConfig::Mf {
         root: root.to_path_buf(),
         train_split: "train".into(),
         val_split: Some("val".into()),
     };
-    cfg.epochs = 2;
-    cfg.batch_size = 2;
-    cfg.seed = 5;
-    cfg.workers = 1;
+    cfg.schedule.epochs = 2;
+    cfg.schedule.batch_size = 2;
+    cfg.schedule.seed = 5;
+    cfg.data.workers = 1;
     cfg
 }
 
@@ -230,7 +230,7 @@ fn mfnet(root: &Path) -> TrainConfig {
 /// trainer, and by their digests here); a Ctrl-C on rank 1 alone stops both ranks after the
 /// same step with a checkpoint from rank 0; resumed on 2 processes, the run ends bit-identical
 /// to the uninterrupted one. Only rank 0 writes the run folder, whose config.json records
-/// `world_size`; a resume on another number of processes is refused.
+/// `compute.world_size`; a resume on another number of processes is refused.
 #[test]
 fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
     let test = "two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly";
@@ -245,7 +245,7 @@ fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
         assert_eq!(read("straight.rank0"), read("straight.rank1"));
         let config: serde_json::Value =
             serde_json::from_str(&read("straight/config.json")).unwrap();
-        assert_eq!(config["world_size"], 2);
+        assert_eq!(config["compute"]["world_size"], 2);
         assert_eq!(read("straight/log.jsonl").lines().count(), 2);
         // Rank 1 is asked to stop before its first step: both ranks stop after it.
         launch(test, dir, "stop");
@@ -358,7 +358,7 @@ fn two_rank_pipeline_trains_every_stage_data_parallel_and_resumes_exactly() {
         for stage in ["teacher", "student"] {
             let config: serde_json::Value =
                 serde_json::from_str(&read(&format!("straight/{stage}/config.json"))).unwrap();
-            assert_eq!(config["world_size"], 2, "{stage}");
+            assert_eq!(config["compute"]["world_size"], 2, "{stage}");
         }
         assert!(dir.join("straight/final.safetensors").is_file());
         launch(test, dir, "stop");
@@ -423,19 +423,17 @@ fn two_rank_pipeline_trains_every_stage_data_parallel_and_resumes_exactly() {
 /// MFNet teacher (RGB only, 1 epoch), then an MFNet student labelled by it (2 epochs).
 fn pipeline(data: &Path) -> rtf_train::PipelineConfig {
     use rtf_train::config::{StageConfig, TeacherRef};
-    let teacher = TrainConfig {
-        epochs: 1,
-        inputs: rtf_train::Modality::Rgb,
-        ..mfnet(data)
-    };
-    let student = TrainConfig {
-        procedure: rtf_train::Procedure::TeacherStudent {
+    let teacher = mfnet(data).with(|c| {
+        c.schedule.epochs = 1;
+        c.network.inputs = rtf_train::Modality::Rgb;
+    });
+    let student = mfnet(data).with(|c| {
+        c.learning.procedure = rtf_train::Procedure::TeacherStudent {
             day_teacher: TeacherRef::Stage("teacher".into()),
             night_teacher: None,
             targets: Default::default(),
-        },
-        ..mfnet(data)
-    };
+        };
+    });
     rtf_train::PipelineConfig {
         recipe: None,
         stages: vec![
@@ -487,7 +485,7 @@ fn two_rank_adversarial_run_keeps_both_networks_identical() {
         return;
     };
     let mut cfg = mfnet(&dir.join("data"));
-    cfg.procedure = rtf_train::Procedure::Adversarial {
+    cfg.learning.procedure = rtf_train::Procedure::Adversarial {
         day_teacher: rtf_train::config::TeacherRef::Weights {
             path: dir.join("teacher.safetensors"),
             model: rtf_models::ModelConfig::from_name("mfnet", 9).unwrap(),

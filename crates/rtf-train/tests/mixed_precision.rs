@@ -17,23 +17,23 @@ static TORCH_RNG: Mutex<()> = Mutex::new(());
 
 fn config(root: &Path, epochs: usize, precision: Precision) -> TrainConfig {
     let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
-    cfg.dataset = DatasetConfig::Mf {
+    cfg.data.dataset = DatasetConfig::Mf {
         root: root.to_path_buf(),
         train_split: "train".into(),
         val_split: Some("val".into()),
     };
-    cfg.epochs = epochs;
-    cfg.batch_size = 2;
-    cfg.seed = 11;
-    cfg.workers = 1;
-    cfg.max_steps_per_epoch = Some(2);
-    cfg.precision = precision;
+    cfg.schedule.epochs = epochs;
+    cfg.schedule.batch_size = 2;
+    cfg.schedule.seed = 11;
+    cfg.data.workers = 1;
+    cfg.schedule.max_steps_per_epoch = Some(2);
+    cfg.learning.precision = precision;
     cfg
 }
 
 /// `cfg` without its validation pass (the procedure tests check training, not scores).
 fn no_validation(mut cfg: TrainConfig) -> TrainConfig {
-    if let DatasetConfig::Mf { val_split, .. } = &mut cfg.dataset {
+    if let DatasetConfig::Mf { val_split, .. } = &mut cfg.data.dataset {
         *val_split = None;
     }
     cfg
@@ -63,26 +63,24 @@ fn assert_resumes_exactly(cfg: &TrainConfig, dir: &Path) -> rtf_train::TrainOutc
             .unwrap();
     assert_eq!(
         written["precision"],
-        cfg.precision.name(),
+        cfg.learning.precision.name(),
         "recorded in config.json"
     );
 
     let split = dir.join("split");
-    let first = TrainConfig {
-        epochs: 1,
-        ..cfg.clone()
-    };
+    let first = cfg.clone().with(|c| {
+        c.schedule.epochs = 1;
+    });
     rtf_train::train(&first, &split, false, &mut |_| {}).unwrap();
     let resumed_cfg = rtf_train::trainer::read_config(&split).unwrap();
     let resumed_cfg = match resumed_cfg {
-        rtf_train::RunConfig::Single(c) => TrainConfig {
-            epochs: cfg.epochs,
-            ..*c
-        },
+        rtf_train::RunConfig::Single(c) => (*c).with(|c| {
+            c.schedule.epochs = cfg.schedule.epochs;
+        }),
         other => panic!("a single run was written, got {other:?}"),
     };
     assert_eq!(
-        resumed_cfg.precision, cfg.precision,
+        resumed_cfg.learning.precision, cfg.learning.precision,
         "read back from config.json"
     );
     rtf_train::train(&resumed_cfg, &split, true, &mut |_| {}).unwrap();
@@ -152,8 +150,8 @@ fn bf16_teacher_student_and_adversarial_runs_resume_exactly() {
         momentum: 0.5,
         ..OptimizerConfig::heatnet_paper()
     };
-    let distillation = TrainConfig {
-        procedure: Procedure::TeacherStudent {
+    let distillation = no_validation(config(&data, 2, Precision::Bf16)).with(|c| {
+        c.learning.procedure = Procedure::TeacherStudent {
             day_teacher: common::teacher(tmp.path(), 1),
             night_teacher: Some(common::teacher(tmp.path(), 2)),
             targets: TargetOptions {
@@ -161,16 +159,15 @@ fn bf16_teacher_student_and_adversarial_runs_resume_exactly() {
                 soft: true,
                 cache: false,
             },
-        },
-        inputs: Modality::Rgb,
-        optimizer: optimizer.clone(),
-        ..no_validation(config(&data, 2, Precision::Bf16))
-    };
+        };
+        c.network.inputs = Modality::Rgb;
+        c.learning.optimizer = optimizer.clone();
+    });
     let run = assert_resumes_exactly(&distillation, &tmp.path().join("ts"));
     assert!(run.records[0].losses["ce_night"].is_finite());
 
-    let adversarial = TrainConfig {
-        procedure: Procedure::Adversarial {
+    let adversarial = no_validation(config(&data, 2, Precision::Bf16)).with(|c| {
+        c.learning.procedure = Procedure::Adversarial {
             day_teacher: common::teacher(tmp.path(), 1),
             night_teacher: None,
             targets: TargetOptions::default(),
@@ -178,10 +175,9 @@ fn bf16_teacher_student_and_adversarial_runs_resume_exactly() {
                 optimizer: optimizer.clone(),
                 ..CriticOptions::default()
             },
-        },
-        optimizer,
-        ..no_validation(config(&data, 2, Precision::Bf16))
-    };
+        };
+        c.learning.optimizer = optimizer;
+    });
     let run = assert_resumes_exactly(&adversarial, &tmp.path().join("adv"));
     for term in ["ce_day", "adv", "critic"] {
         assert!(run.records[1].losses[term].is_finite(), "{term}");

@@ -29,16 +29,16 @@ fn write_dataset(root: &Path) {
 
 fn base(root: &Path, epochs: usize) -> TrainConfig {
     let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
-    cfg.dataset = DatasetConfig::Mf {
+    cfg.data.dataset = DatasetConfig::Mf {
         root: root.to_path_buf(),
         train_split: "train".into(),
         val_split: Some("val".into()),
     };
-    cfg.epochs = epochs;
-    cfg.batch_size = 2;
-    cfg.seed = 3;
-    cfg.workers = 1;
-    cfg.optimizer = OptimizerConfig {
+    cfg.schedule.epochs = epochs;
+    cfg.schedule.batch_size = 2;
+    cfg.schedule.seed = 3;
+    cfg.data.workers = 1;
+    cfg.learning.optimizer = OptimizerConfig {
         lr: 1e-3,
         momentum: 0.5,
         ..OptimizerConfig::heatnet_paper()
@@ -47,8 +47,8 @@ fn base(root: &Path, epochs: usize) -> TrainConfig {
 }
 
 fn adversarial(root: &Path, epochs: usize, day: TeacherRef) -> TrainConfig {
-    TrainConfig {
-        procedure: Procedure::Adversarial {
+    base(root, epochs).with(|c| {
+        c.learning.procedure = Procedure::Adversarial {
             day_teacher: day,
             night_teacher: None,
             targets: TargetOptions::default(),
@@ -60,9 +60,8 @@ fn adversarial(root: &Path, epochs: usize, day: TeacherRef) -> TrainConfig {
                 },
                 ..CriticOptions::default()
             },
-        },
-        ..base(root, epochs)
-    }
+        };
+    })
 }
 
 /// Every tensor of a safetensors file, sorted by name.
@@ -115,10 +114,9 @@ fn adversarial_runs_and_resumes_exactly_after_an_epoch_and_inside_one() {
     // Stopped after epoch 1, then resumed.
     let split = tmp.path().join("split");
     rtf_train::train(
-        &TrainConfig {
-            epochs: 1,
-            ..cfg.clone()
-        },
+        &cfg.clone().with(|c| {
+            c.schedule.epochs = 1;
+        }),
         &split,
         false,
         &mut |_| {},
@@ -162,7 +160,7 @@ fn the_codes_alternation_resumes_exactly_and_the_critic_starts_from_its_init() {
         .collect();
     let critic_file = tmp.path().join("critic.safetensors");
     rtf_models::weights::save_named(&halved, &critic_file).unwrap();
-    let Procedure::Adversarial { critic, .. } = &mut cfg.procedure else {
+    let Procedure::Adversarial { critic, .. } = &mut cfg.learning.procedure else {
         unreachable!()
     };
     critic.init = Some(critic_file);
@@ -316,18 +314,16 @@ fn two_stage_run_stopped_in_stage_two_resumes_exactly() {
     let (tmp, data) = setup();
     let day = common::teacher(tmp.path(), 1);
     let night = common::teacher(tmp.path(), 2);
-    let stage1 = TrainConfig {
-        procedure: Procedure::TeacherStudent {
+    let stage1 = base(&data, 1).with(|c| {
+        c.learning.procedure = Procedure::TeacherStudent {
             day_teacher: day.clone(),
             night_teacher: Some(night),
             targets: TargetOptions::default(),
-        },
-        ..base(&data, 1)
-    };
-    let stage2 = TrainConfig {
-        init_from: Some(WeightsRef::Stage("stage1".into())),
-        ..adversarial(&data, 2, day)
-    };
+        };
+    });
+    let stage2 = adversarial(&data, 2, day).with(|c| {
+        c.network.init_from = Some(WeightsRef::Stage("stage1".into()));
+    });
     let pipeline = PipelineConfig {
         recipe: None,
         stages: vec![
@@ -354,7 +350,7 @@ fn two_stage_run_stopped_in_stage_two_resumes_exactly() {
         panic!("a stage is a single run")
     };
     assert_eq!(
-        s2.init_from,
+        s2.network.init_from,
         Some(WeightsRef::File(straight.join("stage1/final.safetensors")))
     );
 
@@ -398,8 +394,8 @@ fn two_stage_run_stopped_in_stage_two_resumes_exactly() {
 fn label_free_procedures_train_without_night_labels_and_supervised_needs_them() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let (tmp, data) = setup();
-    let cfg = TrainConfig {
-        procedure: Procedure::TeacherStudent {
+    let cfg = base(&data, 1).with(|c| {
+        c.learning.procedure = Procedure::TeacherStudent {
             day_teacher: common::teacher(tmp.path(), 1),
             night_teacher: Some(common::teacher(tmp.path(), 2)),
             targets: TargetOptions {
@@ -407,10 +403,9 @@ fn label_free_procedures_train_without_night_labels_and_supervised_needs_them() 
                 soft: true,
                 cache: false,
             },
-        },
-        inputs: Modality::Rgb,
-        ..base(&data, 1)
-    };
+        };
+        c.network.inputs = Modality::Rgb;
+    });
     let run = rtf_train::train(&cfg, &tmp.path().join("ts"), false, &mut |_| {}).unwrap();
     assert!(run.records[0].losses.contains_key("ce_night"));
     // Supervised training reads every label of the split: the garbage night labels fail it,
@@ -510,18 +505,18 @@ fn a_label_cache_trains_like_the_teacher_run_every_step() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
     let (tmp, data) = setup();
     let day = common::teacher(tmp.path(), 1);
-    let config = |cache: bool| TrainConfig {
-        procedure: Procedure::TeacherStudent {
-            day_teacher: day.clone(),
-            night_teacher: None,
-            targets: TargetOptions {
-                cache,
-                ..TargetOptions::default()
-            },
-        },
-        // No augmentation: the teacher then sees the same frames either way.
-        augment: Default::default(),
-        ..base(&data, 2)
+    let config = |cache: bool| {
+        base(&data, 2).with(|c| {
+            c.learning.procedure = Procedure::TeacherStudent {
+                day_teacher: day.clone(),
+                night_teacher: None,
+                targets: TargetOptions {
+                    cache,
+                    ..TargetOptions::default()
+                },
+            }; // No augmentation: the teacher then sees the same frames either way.
+            c.data.augment = Default::default();
+        })
     };
     let live =
         rtf_train::train(&config(false), &tmp.path().join("live"), false, &mut |_| {}).unwrap();
@@ -538,8 +533,8 @@ fn a_label_cache_trains_like_the_teacher_run_every_step() {
             "epoch loss {a} vs {b}"
         );
     }
-    let soft_cache = TrainConfig {
-        procedure: Procedure::TeacherStudent {
+    let soft_cache = base(&data, 1).with(|c| {
+        c.learning.procedure = Procedure::TeacherStudent {
             day_teacher: day.clone(),
             night_teacher: None,
             targets: TargetOptions {
@@ -547,9 +542,8 @@ fn a_label_cache_trains_like_the_teacher_run_every_step() {
                 soft: true,
                 threshold: None,
             },
-        },
-        ..base(&data, 1)
-    };
+        };
+    });
     let err = soft_cache.validate().unwrap_err().to_string();
     assert!(err.contains("procedure.targets.cache"), "{err}");
 }

@@ -58,7 +58,7 @@ fn safetensors_weights_never_panic() {
     });
     assert!(outcome.refused > 150, "{outcome:?}");
     // A whole network's weights, loaded with the name, shape and value checks.
-    let mut vs = VarStore::new(Device::Cpu);
+    let vs = VarStore::new(Device::Cpu);
     rtf_models::build(&vs.root(), &cfg).unwrap();
     rtf_models::weights::save_safetensors(&vs, &cfg, Modality::RgbT, &path).unwrap();
     let network = std::fs::read(&path).unwrap();

@@ -17,15 +17,15 @@ static TORCH_RNG: Mutex<()> = Mutex::new(());
 
 fn config(root: &Path, epochs: usize) -> TrainConfig {
     let mut cfg = TrainConfig::mfnet_paper(root.to_path_buf());
-    cfg.dataset = DatasetConfig::Mf {
+    cfg.data.dataset = DatasetConfig::Mf {
         root: root.to_path_buf(),
         train_split: "train".into(),
         val_split: Some("val".into()),
     };
-    cfg.epochs = epochs;
-    cfg.batch_size = 2;
-    cfg.seed = 7;
-    cfg.workers = 1;
+    cfg.schedule.epochs = epochs;
+    cfg.schedule.batch_size = 2;
+    cfg.schedule.seed = 7;
+    cfg.data.workers = 1;
     cfg
 }
 
@@ -47,9 +47,10 @@ fn resumed_run_equals_uninterrupted_run() {
         ),
     ];
     for (label, optimizer) in optimizers {
-        let config = |epochs| TrainConfig {
-            optimizer: optimizer.clone(),
-            ..config(&data, epochs)
+        let config = |epochs| {
+            config(&data, epochs).with(|c| {
+                c.learning.optimizer = optimizer.clone();
+            })
         };
         let straight = tmp.path().join(format!("{label}-straight"));
         let outcome = rtf_train::train(&config(2), &straight, false, &mut |_| {}).unwrap();
@@ -88,13 +89,12 @@ fn run_stopped_inside_an_epoch_resumes_exactly() {
     let data = tmp.path().join("data");
     common::write_split_dataset(&data, 6, 12345, 4);
     // HeatNet's optimiser with momentum: its state must survive a mid-epoch stop too.
-    let cfg = TrainConfig {
-        optimizer: OptimizerConfig {
+    let cfg = config(&data, 2).with(|c| {
+        c.learning.optimizer = OptimizerConfig {
             momentum: 0.5,
             ..OptimizerConfig::heatnet_paper()
-        },
-        ..config(&data, 2)
-    };
+        };
+    });
     let straight = tmp.path().join("straight");
     let expected = rtf_train::train(&cfg, &straight, false, &mut |_| {}).unwrap();
 
@@ -108,10 +108,9 @@ fn run_stopped_inside_an_epoch_resumes_exactly() {
     assert!(!stopped.join("final.safetensors").exists());
 
     // Checkpointing every step must not change the result either.
-    let resumed_cfg = TrainConfig {
-        checkpoint_every: Some(1),
-        ..cfg.clone()
-    };
+    let resumed_cfg = cfg.clone().with(|c| {
+        c.schedule.checkpoint_every = Some(1);
+    });
     let resumed = rtf_train::train(&resumed_cfg, &stopped, true, &mut |_| {}).unwrap();
     assert_eq!(
         resumed.records.len(),
@@ -141,8 +140,8 @@ fn training_lowers_the_loss() {
     let data = tmp.path().join("data");
     common::write_split_dataset(&data, 6, 12345, 4);
     let mut cfg = config(&data, 20);
-    cfg.optimizer.lr = 0.05;
-    cfg.dataset = DatasetConfig::Mf {
+    cfg.learning.optimizer.lr = 0.05;
+    cfg.data.dataset = DatasetConfig::Mf {
         root: data.clone(),
         train_split: "train".into(),
         val_split: None,
@@ -166,18 +165,18 @@ fn backbone_weights_are_loaded_before_the_first_step() {
     imagenet.save(&backbone).unwrap();
 
     let mut cfg = config(&data, 1);
-    cfg.model = rtf_models::ModelConfig::from_name("rtfnet18", 9).unwrap();
-    cfg.dataset = DatasetConfig::Mf {
+    cfg.network.model = rtf_models::ModelConfig::from_name("rtfnet18", 9).unwrap();
+    cfg.data.dataset = DatasetConfig::Mf {
         root: data.clone(),
         train_split: "train".into(),
         val_split: None,
     };
-    cfg.backbone_weights = Some(backbone.clone());
+    cfg.network.backbone_weights = Some(backbone.clone());
     // No visible update (a rate of 0 is refused as a configuration error): 1e-30 × any
     // gradient is far below one ulp of these weights, so the written weights are the initial ones.
-    cfg.optimizer.lr = 1e-30;
-    cfg.optimizer.weight_decay = 0.0;
-    cfg.max_steps_per_epoch = Some(1);
+    cfg.learning.optimizer.lr = 1e-30;
+    cfg.learning.optimizer.weight_decay = 0.0;
+    cfg.schedule.max_steps_per_epoch = Some(1);
     let run = tmp.path().join("run");
     rtf_train::train(&cfg, &run, false, &mut |_| {}).unwrap();
     let written = common::weights(&run.join("final.safetensors"));
@@ -209,7 +208,7 @@ fn backbone_weights_are_loaded_before_the_first_step() {
     );
 
     let mut missing = cfg.clone();
-    missing.backbone_weights = Some(tmp.path().join("nope.safetensors"));
+    missing.network.backbone_weights = Some(tmp.path().join("nope.safetensors"));
     let err = rtf_train::train(&missing, &tmp.path().join("run2"), false, &mut |_| {}).unwrap_err();
     assert!(err.to_string().contains("nope.safetensors"), "{err}");
 }
@@ -244,7 +243,7 @@ fn a_diverging_run_stops_and_never_writes_non_finite_weights() {
     let data = tmp.path().join("data");
     common::write_split_dataset(&data, 6, 12345, 4);
     let mut cfg = config(&data, 3);
-    cfg.optimizer.lr = 1e12;
+    cfg.learning.optimizer.lr = 1e12;
     let run = tmp.path().join("run");
     let err = rtf_train::train(&cfg, &run, false, &mut |_| {}).unwrap_err();
     assert!(err.to_string().contains("diverged"), "{err}");
@@ -297,7 +296,7 @@ fn a_finished_run_extended_equals_an_uninterrupted_run() {
     let RunConfig::Single(cfg) = &run else {
         panic!("a single run stays single")
     };
-    assert_eq!(cfg.epochs, 4);
+    assert_eq!(cfg.schedule.epochs, 4);
     let resumed = rtf_train::train(cfg, &extended, true, &mut |_| {}).unwrap();
     assert_eq!(resumed.records.len(), 2, "epochs 3 and 4 train");
     assert_eq!(resumed.state.steps_done, expected.state.steps_done);
@@ -348,10 +347,9 @@ fn a_finished_multi_stage_run_extends_its_last_stage_exactly() {
                 },
                 StageConfig {
                     name: "second".into(),
-                    config: TrainConfig {
-                        init_from: Some(WeightsRef::Stage("first".into())),
-                        ..config(&data, last_epochs)
-                    },
+                    config: config(&data, last_epochs).with(|c| {
+                        c.network.init_from = Some(WeightsRef::Stage("first".into()));
+                    }),
                 },
             ],
         })
@@ -382,7 +380,10 @@ fn a_finished_multi_stage_run_extends_its_last_stage_exactly() {
         panic!("a pipeline")
     };
     assert_eq!(
-        p.stages.iter().map(|s| s.config.epochs).collect::<Vec<_>>(),
+        p.stages
+            .iter()
+            .map(|s| s.config.schedule.epochs)
+            .collect::<Vec<_>>(),
         [1, 4],
         "only the last stage is extended"
     );
@@ -404,4 +405,53 @@ fn a_finished_multi_stage_run_extends_its_last_stage_exactly() {
     // Fewer epochs than the last stage has done: refused before anything trains.
     let err = resume::extend(&mut run.clone(), &extended, 3).unwrap_err();
     assert!(err.to_string().contains("--epochs 3"), "{err}");
+}
+
+/// A run folder started before `config.json` had sections (its flat config.json written by
+/// the `rtf` of that time, tests/fixtures/README.md) resumes, here extended from 1 to 2
+/// epochs, and ends as the same run trained 2 epochs in one go; the resume writes its config
+/// back in sections.
+#[test]
+fn a_run_folder_with_a_flat_config_json_from_before_the_sections_resumes_exactly() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    common::write_split_dataset(&data, 6, 12345, 4);
+    let mut flat: serde_json::Value =
+        serde_json::from_str(include_str!("fixtures/flat_single_config.json")).unwrap();
+    flat["dataset"]["root"] = data.to_str().unwrap().into();
+    flat["batch_size"] = 2.into();
+    let flat = flat.to_string();
+    let RunConfig::Single(old) = RunConfig::parse(&flat, false).unwrap() else {
+        panic!("a single run")
+    };
+    assert_eq!(old.schedule.epochs, 1);
+
+    let straight = tmp.path().join("straight");
+    let two = old.clone().with(|c| c.schedule.epochs = 2);
+    rtf_train::train(&two, &straight, false, &mut |_| {}).unwrap();
+
+    // The folder as that build left it after one epoch: its checkpoint, its flat config.
+    let folder = tmp.path().join("old");
+    rtf_train::train(&old, &folder, false, &mut |_| {}).unwrap();
+    std::fs::write(folder.join("config.json"), &flat).unwrap();
+    // What `rtf train --resume old --epochs 2` does.
+    let mut run = rtf_train::trainer::read_config(&folder).unwrap();
+    assert!(resume::finished(&run, &folder).unwrap().is_some());
+    resume::extend(&mut run, &folder, 2).unwrap();
+    let RunConfig::Single(cfg) = &run else {
+        panic!("a single run stays single")
+    };
+    let resumed = rtf_train::train(cfg, &folder, true, &mut |_| {}).unwrap();
+    assert_eq!(resumed.records.len(), 1, "epoch 2 trains");
+    assert_eq!(
+        common::weights(&straight.join("final.safetensors")),
+        common::weights(&folder.join("final.safetensors")),
+        "1 epoch under the flat config, extended to 2 = 2 epochs"
+    );
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(folder.join("config.json")).unwrap())
+            .unwrap();
+    assert_eq!(written["schedule"]["epochs"], 2, "{written}");
+    assert!(written.get("epochs").is_none() && written.get("dataset").is_none());
 }

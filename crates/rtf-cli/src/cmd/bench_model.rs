@@ -15,7 +15,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     pub batch: i64,
     /// fp32 or bf16 (bf16 needs the fast path).
-    #[arg(long, default_value = "fp32")]
+    #[arg(long, default_value = "fp32", value_parser = Precision::parse_inference)]
     pub precision: Precision,
     /// Time the plain eval forward (NCHW, unfolded BatchNorm) instead of the fast path.
     #[arg(long)]

@@ -44,7 +44,7 @@ pub struct Args {
     #[arg(long, value_parser = parse_hw, default_value = "480x640")]
     pub size: (usize, usize),
     /// Weights and arithmetic inside the graph; input and logits stay fp32.
-    #[arg(long, default_value = "fp32")]
+    #[arg(long, default_value = "fp32", value_parser = Precision::parse_inference)]
     pub precision: Precision,
     /// Class count of the weights (default: the network's usual count, see `rtf models`).
     #[arg(long)]

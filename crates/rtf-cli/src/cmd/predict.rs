@@ -44,7 +44,7 @@ pub struct Args {
     pub device: String,
     /// Run the fast inference path (BatchNorm folded, channels-last) in fp32 or bf16; default:
     /// the plain path.
-    #[arg(long)]
+    #[arg(long, value_parser = rtf_models::fast::Precision::parse_inference)]
     pub precision: Option<rtf_models::fast::Precision>,
     /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed). Default: what the
     /// weights file records (rtf writes it), else all four; needed only for files without it.

@@ -951,11 +951,25 @@ fn eval_section(eval: &EvalFile, html: &mut String) -> Result<()> {
 }
 
 fn model_name(run: &Run) -> String {
-    run.config
-        .pointer("/model/network")
-        .or_else(|| run.config.get("model"))
+    let model = setting(&run.config, "model");
+    model
+        .get("network")
+        .or_else(|| (!model.is_null()).then_some(model))
         .map(|v| v.as_str().map_or_else(|| v.to_string(), str::to_string))
         .unwrap_or_else(|| "?".into())
+}
+
+/// A setting of a run's `config.json`, in its section (`data.dataset`) or at the top level
+/// (the flat layout written before the sections); null when absent.
+fn setting<'a>(config: &'a Value, key: &str) -> &'a Value {
+    config
+        .get(key)
+        .or_else(|| {
+            rtf_train::config::SECTIONS
+                .iter()
+                .find_map(|s| config.get(s)?.get(key))
+        })
+        .unwrap_or(&Value::Null)
 }
 
 /// Several runs (or stages): the final and best metrics table, the curves overlaid, and the
@@ -1093,7 +1107,7 @@ fn prediction_grid(args: &Args, runs: &[Run]) -> Result<Option<Vec<u8>>, String>
     let (root, split) = match &args.data {
         Some(root) => (root.clone(), args.split.clone()),
         None => {
-            let ds = &with_weights[0].0.config["dataset"];
+            let ds = setting(&with_weights[0].0.config, "dataset");
             let root = ds
                 .get("root")
                 .and_then(Value::as_str)
@@ -1119,27 +1133,25 @@ fn prediction_grid(args: &Args, runs: &[Run]) -> Result<Option<Vec<u8>>, String>
         let mut rows = None;
         let mut columns = Vec::new();
         for (run, weights) in &with_weights {
-            let cfg: rtf_models::ModelConfig = serde_json::from_value(run.config["model"].clone())
-                .with_context(|| {
-                    format!(
-                        "{}: `model` is not a network configuration",
-                        run.dir.join("config.json").display()
-                    )
-                })?;
+            let cfg: rtf_models::ModelConfig = serde_json::from_value(
+                setting(&run.config, "model").clone(),
+            )
+            .with_context(|| {
+                format!(
+                    "{}: `model` is not a network configuration",
+                    run.dir.join("config.json").display()
+                )
+            })?;
             let mut vs = tch::nn::VarStore::new(device);
             let net = rtf_models::build(&vs.root(), &cfg)?;
             rtf_models::weights::load_safetensors(&mut vs, weights)?;
             // Behind the mask it was trained with (RGB-only, thermal-only runs).
-            let inputs = run
-                .config
-                .get("inputs")
-                .and_then(|i| serde_json::from_value(i.clone()).ok())
+            let inputs = serde_json::from_value(setting(&run.config, "inputs").clone())
+                .ok()
                 .unwrap_or_default();
             let net = rtf_models::masked(net, inputs);
-            let resize = run
-                .config
-                .get("resize")
-                .and_then(|r| serde_json::from_value(r.clone()).ok())
+            let resize = serde_json::from_value(setting(&run.config, "resize").clone())
+                .ok()
                 .flatten();
             let rows = match &mut rows {
                 Some(rows) => rows,

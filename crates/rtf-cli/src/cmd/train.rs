@@ -220,81 +220,111 @@ pub fn run(args: Args) -> Result<()> {
         }
         return Ok(());
     }
+    prepare_arithmetic(&cfg, root)?;
+    let stop = stop_on_signals();
+    match &cfg {
+        RunConfig::Single(single) => train_single(single, &run_dir, resume, stop, ddp),
+        RunConfig::Pipeline(pipeline) => train_pipeline(pipeline, &run_dir, resume, stop, ddp),
+    }
+}
+
+/// Warns (on the root process) when a stage's precision will train slowly on its device, and
+/// sets the allocator's policy for the first stage's arithmetic (process-wide).
+fn prepare_arithmetic(cfg: &RunConfig, root: bool) -> Result<()> {
     let mut slow = None;
     for (i, (_, stage)) in cfg.stages().into_iter().enumerate() {
-        let device = available_device(&stage.device).map_err(anyhow::Error::msg)?;
-        slow = slow.or_else(|| crate::bf16_warning::training(stage.precision, device));
-        // The allocator's policy follows the first stage's arithmetic (process-wide).
+        let device = available_device(&stage.compute.device).map_err(anyhow::Error::msg)?;
+        slow = slow.or_else(|| crate::bf16_warning::training(stage.learning.precision, device));
         if i == 0 {
-            crate::allocator::set_purge_delay_for_training(stage.precision, device);
+            crate::allocator::set_purge_delay_for_training(stage.learning.precision, device);
         }
     }
     if let Some(warning) = slow.filter(|_| root) {
         eprintln!("warning: {warning}");
     }
-    let stop = stop_on_signals();
-    let interrupted = |stage: &str, state: &rtf_train::checkpoint::TrainState| -> ! {
-        let batch = state.partial.as_ref().map_or(0, |p| p.batches);
+    Ok(())
+}
+
+type Stop = &'static AtomicBool;
+type Group = Option<std::sync::Arc<rtf_train::ddp::Ddp>>;
+
+fn train_single(
+    single: &TrainConfig,
+    run_dir: &Path,
+    resume: bool,
+    stop: Stop,
+    ddp: Group,
+) -> Result<()> {
+    let root = ddp.as_ref().is_none_or(|d| d.is_root());
+    if root {
         eprintln!(
-            "interrupted{stage} in epoch {} after batch {batch}: checkpoint written; continue with \
-             `rtf train --resume {}`",
-            state.epochs_done + 1,
+            "training {} ({}) for {} epochs into {}",
+            single.network.model.name(),
+            single.learning.procedure.name(),
+            single.schedule.epochs,
             run_dir.display()
         );
-        std::process::exit(130);
-    };
-    match &cfg {
-        RunConfig::Single(single) => {
-            if root {
-                eprintln!(
-                    "training {} ({}) for {} epochs into {}",
-                    single.model.name(),
-                    single.procedure.name(),
-                    single.epochs,
-                    run_dir.display()
-                );
-            }
-            let outcome = rtf_train::trainer::train_distributed(
-                single,
-                &run_dir,
-                resume,
-                &mut print_epoch(""),
-                stop,
-                ddp,
-            )?;
-            match &outcome.final_weights {
-                Some(path) if root => println!("{}", path.display()),
-                Some(_) => {}
-                None => interrupted("", &outcome.state),
-            }
-        }
-        RunConfig::Pipeline(pipeline) => {
-            let names: Vec<&str> = pipeline.stages.iter().map(|s| s.name.as_str()).collect();
-            if root {
-                eprintln!(
-                    "training {} stage(s) ({}) into {}",
-                    names.len(),
-                    names.join(" → "),
-                    run_dir.display()
-                );
-            }
-            let outcome = rtf_train::pipeline::run_pipeline_distributed(
-                pipeline,
-                &run_dir,
-                resume,
-                &mut |stage, r| print_epoch(stage)(r),
-                stop,
-                ddp,
-            )?;
-            match (&outcome.final_weights, &outcome.interrupted) {
-                (Some(path), _) if root => println!("{}", path.display()),
-                (Some(_), _) => {}
-                (None, Some((stage, o))) => interrupted(&format!(" (stage {stage})"), &o.state),
-                (None, None) => bail!("the run stopped without final weights"),
-            }
-        }
+    }
+    let outcome = rtf_train::trainer::train_distributed(
+        single,
+        run_dir,
+        resume,
+        &mut print_epoch(""),
+        stop,
+        ddp,
+    )?;
+    match &outcome.final_weights {
+        Some(path) if root => println!("{}", path.display()),
+        Some(_) => {}
+        None => interrupted(run_dir, "", &outcome.state),
     }
     Ok(())
+}
+
+fn train_pipeline(
+    pipeline: &rtf_train::PipelineConfig,
+    run_dir: &Path,
+    resume: bool,
+    stop: Stop,
+    ddp: Group,
+) -> Result<()> {
+    let root = ddp.as_ref().is_none_or(|d| d.is_root());
+    let names: Vec<&str> = pipeline.stages.iter().map(|s| s.name.as_str()).collect();
+    if root {
+        eprintln!(
+            "training {} stage(s) ({}) into {}",
+            names.len(),
+            names.join(" → "),
+            run_dir.display()
+        );
+    }
+    let outcome = rtf_train::pipeline::run_pipeline_distributed(
+        pipeline,
+        run_dir,
+        resume,
+        &mut |stage, r| print_epoch(stage)(r),
+        stop,
+        ddp,
+    )?;
+    match (&outcome.final_weights, &outcome.interrupted) {
+        (Some(path), _) if root => println!("{}", path.display()),
+        (Some(_), _) => {}
+        (None, Some((stage, o))) => interrupted(run_dir, &format!(" (stage {stage})"), &o.state),
+        (None, None) => bail!("the run stopped without final weights"),
+    }
+    Ok(())
+}
+
+/// A run stopped by a signal: its checkpoint is written; says how to continue, exits 130.
+fn interrupted(run_dir: &Path, stage: &str, state: &rtf_train::checkpoint::TrainState) -> ! {
+    let batch = state.partial.as_ref().map_or(0, |p| p.batches);
+    eprintln!(
+        "interrupted{stage} in epoch {} after batch {batch}: checkpoint written; continue with \
+         `rtf train --resume {}`",
+        state.epochs_done + 1,
+        run_dir.display()
+    );
+    std::process::exit(130);
 }
 
 /// Under a launcher (torchrun, Slurm, a PyTorchJob: `WORLD_SIZE` set), joins the job's c10d
@@ -310,10 +340,10 @@ fn join_job(
     // device (one process group serves them all).
     let mut devices = Vec::new();
     for stage in cfg.stages_mut() {
-        if stage.device.starts_with("cuda") {
-            stage.device = format!("cuda:{}", env.local_rank);
+        if stage.compute.device.starts_with("cuda") {
+            stage.compute.device = format!("cuda:{}", env.local_rank);
         }
-        devices.push(available_device(&stage.device).map_err(anyhow::Error::msg)?);
+        devices.push(available_device(&stage.compute.device).map_err(anyhow::Error::msg)?);
     }
     let device = devices[0];
     if devices.iter().any(|d| d.is_cuda() != device.is_cuda()) {
@@ -475,8 +505,8 @@ fn teacher_ref(
         );
         return Ok(TeacherRef::Weights {
             path: std::fs::canonicalize(&weights)?,
-            model: last.model,
-            inputs: inputs.unwrap_or(last.inputs),
+            model: last.network.model,
+            inputs: inputs.unwrap_or(last.network.inputs),
         });
     }
     anyhow::ensure!(
@@ -499,91 +529,16 @@ fn teacher_ref(
 
 fn new_run(args: &Args) -> Result<RunConfig> {
     let mut cfg = match (&args.recipe, &args.config) {
-        (_, Some(path)) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("{}: cannot read", path.display()))?;
-            let yaml = path
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml"));
-            RunConfig::parse(&text, yaml).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
-        }
-        (Some(name), None) => {
-            let recipe = recipe::recipe(name)?;
-            let data = args.data.as_ref().context("--data is required")?;
-            let (dataset, classes) = dataset_of(data, args)?;
-            let n = classes.len() as i64;
-            let teacher = |p: &Option<PathBuf>, m: &Option<String>, i, flag| {
-                p.as_ref()
-                    .map(|p| teacher_ref(p, m, i, n, flag))
-                    .transpose()
-            };
-            recipe::instantiate(
-                recipe,
-                &RecipeInputs {
-                    dataset,
-                    num_classes: n,
-                    model: args.model.clone(),
-                    teacher: teacher(
-                        &args.teacher,
-                        &args.teacher_model,
-                        args.teacher_inputs,
-                        "--teacher",
-                    )?,
-                    night_teacher: teacher(
-                        &args.night_teacher,
-                        &args.night_teacher_model,
-                        args.night_teacher_inputs,
-                        "--night-teacher",
-                    )?,
-                },
-            )?
-        }
-        (None, None) => {
-            let data = args.data.as_ref().context("--data is required")?;
-            let (dataset, classes) = dataset_of(data, args)?;
-            let mut single = TrainConfig::mfnet_paper(PathBuf::new());
-            let model = args.model.as_deref().unwrap_or("mfnet");
-            single.model = ModelConfig::from_name(model, classes.len() as i64)?;
-            // The reference preprocessing leaves 700×320; HeatNet trains on a 640×320 window.
-            if matches!(dataset, DatasetConfig::Freiburg { .. }) && args.resize.is_none() {
-                single.augment.window = Some((640, 320));
-            }
-            single.dataset = dataset;
-            if let Some(teacher) = &args.teacher {
-                let n = single.model.num_classes();
-                single.procedure = Procedure::TeacherStudent {
-                    day_teacher: teacher_ref(
-                        teacher,
-                        &args.teacher_model,
-                        args.teacher_inputs,
-                        n,
-                        "--teacher",
-                    )?,
-                    night_teacher: args
-                        .night_teacher
-                        .as_ref()
-                        .map(|p| {
-                            teacher_ref(
-                                p,
-                                &args.night_teacher_model,
-                                args.night_teacher_inputs,
-                                n,
-                                "--night-teacher",
-                            )
-                        })
-                        .transpose()?,
-                    targets: Default::default(),
-                };
-            }
-            RunConfig::Single(Box::new(single))
-        }
+        (_, Some(path)) => config_file_run(path)?,
+        (Some(name), None) => recipe_run(name, args)?,
+        (None, None) => plain_run(args)?,
     };
     if args.config.is_some() {
         if let Some(data) = &args.data {
             let (dataset, _) = dataset_of(data, args)?;
             cfg.stages_mut()
                 .into_iter()
-                .for_each(|c| c.dataset = dataset.clone());
+                .for_each(|c| c.data.dataset = dataset.clone());
         }
         anyhow::ensure!(
             args.teacher.is_none() && args.night_teacher.is_none(),
@@ -602,13 +557,97 @@ fn new_run(args: &Args) -> Result<RunConfig> {
     Ok(cfg)
 }
 
+/// A `--config` file (YAML or JSON, the schema of config.json).
+fn config_file_run(path: &Path) -> Result<RunConfig> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    let yaml = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml"));
+    RunConfig::parse(&text, yaml).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// A recipe's stages on the `--data` root, with the teachers given on the command line.
+fn recipe_run(name: &str, args: &Args) -> Result<RunConfig> {
+    let recipe = recipe::recipe(name)?;
+    let data = args.data.as_ref().context("--data is required")?;
+    let (dataset, classes) = dataset_of(data, args)?;
+    let n = classes.len() as i64;
+    let teacher = |p: &Option<PathBuf>, m: &Option<String>, i, flag| {
+        p.as_ref()
+            .map(|p| teacher_ref(p, m, i, n, flag))
+            .transpose()
+    };
+    Ok(recipe::instantiate(
+        recipe,
+        &RecipeInputs {
+            dataset,
+            num_classes: n,
+            model: args.model.clone(),
+            teacher: teacher(
+                &args.teacher,
+                &args.teacher_model,
+                args.teacher_inputs,
+                "--teacher",
+            )?,
+            night_teacher: teacher(
+                &args.night_teacher,
+                &args.night_teacher_model,
+                args.night_teacher_inputs,
+                "--night-teacher",
+            )?,
+        },
+    )?)
+}
+
+/// One supervised (or, with `--teacher`, teacher-student) training on the `--data` root.
+fn plain_run(args: &Args) -> Result<RunConfig> {
+    let data = args.data.as_ref().context("--data is required")?;
+    let (dataset, classes) = dataset_of(data, args)?;
+    let mut single = TrainConfig::mfnet_paper(PathBuf::new());
+    let model = args.model.as_deref().unwrap_or("mfnet");
+    single.network.model = ModelConfig::from_name(model, classes.len() as i64)?;
+    // The reference preprocessing leaves 700×320; HeatNet trains on a 640×320 window.
+    if matches!(dataset, DatasetConfig::Freiburg { .. }) && args.resize.is_none() {
+        single.data.augment.window = Some((640, 320));
+    }
+    single.data.dataset = dataset;
+    if let Some(teacher) = &args.teacher {
+        let n = single.network.model.num_classes();
+        single.learning.procedure = Procedure::TeacherStudent {
+            day_teacher: teacher_ref(
+                teacher,
+                &args.teacher_model,
+                args.teacher_inputs,
+                n,
+                "--teacher",
+            )?,
+            night_teacher: args
+                .night_teacher
+                .as_ref()
+                .map(|p| {
+                    teacher_ref(
+                        p,
+                        &args.night_teacher_model,
+                        args.night_teacher_inputs,
+                        n,
+                        "--night-teacher",
+                    )
+                })
+                .transpose()?,
+            targets: Default::default(),
+        };
+    }
+    Ok(RunConfig::Single(Box::new(single)))
+}
+
 /// `--no-augment` and `--no-shuffle` (issue 27's controls for parity runs).
 fn apply_parity_controls(cfg: &mut TrainConfig, args: &Args) {
     if args.no_augment {
-        cfg.augment = Default::default();
+        cfg.data.augment = Default::default();
     }
     if args.no_shuffle {
-        cfg.shuffle = false;
+        cfg.data.shuffle = false;
     }
 }
 
@@ -623,8 +662,8 @@ fn apply_init(cfg: &mut RunConfig, path: &Path, args: &Args) -> Result<()> {
     let single = &mut **single;
     let path = std::fs::canonicalize(path)
         .with_context(|| format!("{}: cannot open the --init weights", path.display()))?;
-    single.init_from = Some(WeightsRef::File(path));
-    single.init_reset_head = args.reset_head;
+    single.network.init_from = Some(WeightsRef::File(path));
+    single.network.init_reset_head = args.reset_head;
     rtf_train::init::check_init_weights(single).map_err(|e| match e {
         rtf_train::TrainError::Model(m @ rtf_models::ModelError::Mismatch { .. })
             if !args.reset_head =>
@@ -642,65 +681,65 @@ fn apply_init(cfg: &mut RunConfig, path: &Path, args: &Args) -> Result<()> {
 /// Flags the user gave override the recipe's or config's values, in every stage.
 fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Result<()> {
     if let (Some(model), false) = (&args.model, recipe_networks) {
-        cfg.model = ModelConfig::from_name(model, cfg.model.num_classes())?;
+        cfg.network.model = ModelConfig::from_name(model, cfg.network.model.num_classes())?;
     }
     if let Some(kind) = args.optimizer {
-        cfg.optimizer = match kind {
+        cfg.learning.optimizer = match kind {
             OptimizerKind::Sgd => OptimizerConfig::mfnet_paper(),
             OptimizerKind::Rmsprop => OptimizerConfig::heatnet_paper(),
         };
     }
-    let o = &mut cfg.optimizer;
+    let o = &mut cfg.learning.optimizer;
     o.lr = args.lr.unwrap_or(o.lr);
     o.lr_decay = args.lr_decay.unwrap_or(o.lr_decay);
     o.decay_every = args.decay_every.unwrap_or(o.decay_every);
     o.momentum = args.momentum.unwrap_or(o.momentum);
     o.weight_decay = args.weight_decay.unwrap_or(o.weight_decay);
     if let Some(v) = args.epochs {
-        cfg.epochs = v;
+        cfg.schedule.epochs = v;
     }
     if let Some(v) = args.batch_size {
-        cfg.batch_size = v;
+        cfg.schedule.batch_size = v;
     }
     if let Some(v) = args.seed {
-        cfg.seed = v;
+        cfg.schedule.seed = v;
     }
     if args.no_flip {
-        cfg.augment.hflip = false;
+        cfg.data.augment.hflip = false;
     }
     if args.resize.is_some() {
-        cfg.resize = args.resize;
-        cfg.augment.window = None;
+        cfg.data.resize = args.resize;
+        cfg.data.augment.window = None;
     }
     if args.max_steps.is_some() {
-        cfg.max_steps_per_epoch = args.max_steps;
+        cfg.schedule.max_steps_per_epoch = args.max_steps;
     }
     if args.checkpoint_every.is_some() {
-        cfg.checkpoint_every = args.checkpoint_every;
+        cfg.schedule.checkpoint_every = args.checkpoint_every;
     }
     if let Some(v) = args.workers {
-        cfg.workers = v;
+        cfg.data.workers = v;
     }
     if let Some(v) = &args.device {
-        cfg.device = v.clone();
+        cfg.compute.device = v.clone();
     }
     if let Some(v) = args.precision {
-        cfg.precision = v;
+        cfg.learning.precision = v;
     }
     if args.sync_bn {
-        cfg.sync_batch_norm = true;
+        cfg.network.sync_batch_norm = true;
     }
     if args.backbone_weights.is_some() {
-        cfg.backbone_weights = args.backbone_weights.clone();
+        cfg.network.backbone_weights = args.backbone_weights.clone();
     }
     if let (Some(v), false) = (args.inputs, recipe_networks) {
-        cfg.inputs = v;
+        cfg.network.inputs = v;
     }
     if args.select_by.is_some() {
-        cfg.select_by = args.select_by;
+        cfg.schedule.select_by = args.select_by;
     }
-    cfg.tb_images_every = Some(args.tb_images_every);
-    match &mut cfg.procedure {
+    cfg.schedule.tb_images_every = Some(args.tb_images_every);
+    match &mut cfg.learning.procedure {
         Procedure::Supervised => {}
         Procedure::TeacherStudent { targets, .. } => {
             targets.threshold = args.threshold.or(targets.threshold);

@@ -138,14 +138,15 @@ pub struct Student {
 impl Student {
     /// Built under `seed` as the supervised loop always did (same initial weights).
     pub fn build(cfg: &TrainConfig, device: Device) -> Result<Self, TrainError> {
-        let trained = Trained::new(STUDENT, device, &cfg.optimizer).mixed(cfg.precision)?;
-        let inner = rtf_models::build(&trained.vs.root(), &cfg.model)?;
+        let trained =
+            Trained::new(STUDENT, device, &cfg.learning.optimizer).mixed(cfg.learning.precision)?;
+        let inner = rtf_models::build(&trained.vs.root(), &cfg.network.model)?;
         trained.channels_last_weights();
         Ok(Self {
             trained,
             net: Masked {
                 inner,
-                inputs: cfg.inputs,
+                inputs: cfg.network.inputs,
             },
         })
     }
@@ -223,14 +224,14 @@ impl Frozen {
 /// Checks, before anything is written, that the teachers of `cfg` given as files can teach its
 /// student (stage teachers are checked by their stage).
 pub fn check_teachers(cfg: &TrainConfig) -> Result<(), TrainError> {
-    for teacher in cfg.procedure.teachers() {
+    for teacher in cfg.learning.procedure.teachers() {
         if let crate::config::TeacherRef::Weights {
             path,
             model,
             inputs,
         } = teacher
         {
-            check_teacher(model, path, *inputs, &cfg.model)?;
+            check_teacher(model, path, *inputs, &cfg.network.model)?;
         }
     }
     Ok(())
@@ -348,10 +349,10 @@ pub fn build(
     ignore_id: Option<u8>,
     device: Device,
 ) -> Result<Box<dyn Procedure>, TrainError> {
-    Ok(match &cfg.procedure {
+    Ok(match &cfg.learning.procedure {
         ProcedureConfig::Supervised => Box::new(Supervised {
             student: Student::build(cfg, device)?,
-            loss: cfg.loss.build(ignore_id),
+            loss: cfg.learning.loss.build(ignore_id),
         }),
         ProcedureConfig::TeacherStudent {
             day_teacher,
@@ -385,7 +386,7 @@ pub fn build_adversarial(
         night_teacher,
         targets,
         critic,
-    } = &cfg.procedure
+    } = &cfg.learning.procedure
     else {
         return Err(TrainError::Config(
             "not an adversarial configuration".into(),
@@ -412,7 +413,7 @@ fn labeller(
     ignore_id: Option<u8>,
     device: Device,
 ) -> Result<Labeller, TrainError> {
-    let cached = match &cfg.procedure {
+    let cached = match &cfg.learning.procedure {
         ProcedureConfig::TeacherStudent { targets, .. }
         | ProcedureConfig::Adversarial { targets, .. } => targets.cache,
         ProcedureConfig::Supervised => false,
@@ -423,7 +424,7 @@ fn labeller(
             model,
             inputs,
         } => Ok(Labeller {
-            teacher: Frozen::load(model, path, *inputs, &cfg.model, device)?,
+            teacher: Frozen::load(model, path, *inputs, &cfg.network.model, device)?,
             cached: cached.then(|| ignore_id.map_or(crate::loss::PSEUDO_IGNORE, i64::from)),
         }),
         crate::config::TeacherRef::Stage(name) => Err(TrainError::Config(format!(
@@ -440,7 +441,7 @@ mod tests {
     fn student(precision: Precision) -> Student {
         tch::manual_seed(5);
         let mut cfg = TrainConfig::mfnet_paper("unused".into());
-        cfg.precision = precision;
+        cfg.learning.precision = precision;
         Student::build(&cfg, Device::Cpu).unwrap()
     }
 
@@ -486,7 +487,7 @@ mod tests {
     #[test]
     fn fp16_student_on_a_cpu_is_refused() {
         let mut cfg = TrainConfig::mfnet_paper("unused".into());
-        cfg.precision = Precision::Fp16;
+        cfg.learning.precision = Precision::Fp16;
         let err = Student::build(&cfg, Device::Cpu).err().unwrap().to_string();
         assert!(err.contains("fp16"), "{err}");
     }

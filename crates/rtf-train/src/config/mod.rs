@@ -6,42 +6,30 @@ use rtf_data::{AugmentConfig, FreiburgPreprocess};
 use rtf_models::ModelConfig;
 use serde::{Deserialize, Serialize};
 
+mod legacy;
+
+/// One training: five sections, one per concern, each its own type (written nested to
+/// `config.json`; a flat `config.json` written before the sections existed still reads,
+/// see [`legacy`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrainConfig {
+    /// The network trained and where its weights start.
+    pub network: NetworkConfig,
+    /// The frames it learns from and how they are read.
+    pub data: DataConfig,
+    /// How it learns: procedure, optimiser, loss, arithmetic.
+    pub learning: LearningConfig,
+    /// How long, in what batches, with which checkpoints and hooks.
+    pub schedule: ScheduleConfig,
+    /// Where it runs.
+    pub compute: ComputeConfig,
+}
+
+/// The network trained and where its weights start.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct TrainConfig {
+pub struct NetworkConfig {
     pub model: ModelConfig,
-    pub dataset: DatasetConfig,
-    pub epochs: usize,
-    pub batch_size: usize,
-    pub seed: u64,
-    pub optimizer: OptimizerConfig,
-    pub loss: LossConfig,
-    pub augment: AugmentConfig,
-    /// Batches in a new random order every epoch; false = in the order of the split list
-    /// (parity runs against a reference trainer). True for configs written before there was a
-    /// choice; written only when false.
-    #[serde(default = "yes", skip_serializing_if = "is_yes")]
-    pub shuffle: bool,
-    /// Resize frames to (width, height) for training and validation; None = as stored.
-    pub resize: Option<(usize, usize)>,
-    /// Stop each epoch after this many steps (quick experiments); None = full epochs.
-    pub max_steps_per_epoch: Option<usize>,
-    /// Also write the checkpoint every this many steps inside an epoch (long epochs,
-    /// preemptible machines); None = at the end of each epoch only.
-    #[serde(default)]
-    pub checkpoint_every: Option<usize>,
-    /// Decode/augment threads.
-    pub workers: usize,
-    /// "cpu", "cuda" or "cuda:N".
-    pub device: String,
-    /// ImageNet ResNet weights (torchvision names, safetensors) loaded into the encoders before
-    /// the first step (RTFNet and the ResNet-based baselines).
-    #[serde(default)]
-    pub backbone_weights: Option<PathBuf>,
-    /// How the network learns (HeatNet §III-A); supervised for configs written before there
-    /// was a choice.
-    #[serde(default)]
-    pub procedure: Procedure,
     /// Which input channels the trained network sees (the others are zeroed): RGB-only and
     /// thermal-only variants of any network (HeatNet Tab. II V1, V2; the RGB teacher).
     #[serde(default)]
@@ -55,6 +43,64 @@ pub struct TrainConfig {
     /// --reset-head`). Every other tensor still loads strictly. Written only when true.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub init_reset_head: bool,
+    /// ImageNet ResNet weights (torchvision names, safetensors) loaded into the encoders before
+    /// the first step (RTFNet and the ResNet-based baselines).
+    #[serde(default)]
+    pub backbone_weights: Option<PathBuf>,
+    /// Under data-parallel training, BatchNorm normalises with the statistics of the whole
+    /// batch of every rank (`torch.nn.SyncBatchNorm`) instead of each rank's own (DDP's
+    /// default). No effect on a single process.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub sync_batch_norm: bool,
+}
+
+/// The frames a run learns from and how they are read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    pub dataset: DatasetConfig,
+    /// Resize frames to (width, height) for training and validation; None = as stored.
+    pub resize: Option<(usize, usize)>,
+    pub augment: AugmentConfig,
+    /// Batches in a new random order every epoch; false = in the order of the split list
+    /// (parity runs against a reference trainer). Written only when false.
+    #[serde(default = "yes", skip_serializing_if = "is_yes")]
+    pub shuffle: bool,
+    /// Decode/augment threads.
+    pub workers: usize,
+    /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fingerprint: Option<rtf_data::Fingerprint>,
+}
+
+/// How a network learns.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LearningConfig {
+    /// The procedure (HeatNet §III-A): supervised, teacher-student or adversarial.
+    #[serde(default)]
+    pub procedure: Procedure,
+    pub optimizer: OptimizerConfig,
+    pub loss: LossConfig,
+    /// Arithmetic of the training step: fp32, or autocast mixed precision (bf16; fp16 on CUDA,
+    /// with loss scaling) over fp32 master weights and optimiser state.
+    #[serde(default)]
+    pub precision: Precision,
+}
+
+/// How long a run trains, in what batches, and what it saves and shows along the way.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScheduleConfig {
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub seed: u64,
+    /// Stop each epoch after this many steps (quick experiments); None = full epochs.
+    pub max_steps_per_epoch: Option<usize>,
+    /// Also write the checkpoint every this many steps inside an epoch (long epochs,
+    /// preemptible machines); None = at the end of each epoch only.
+    #[serde(default)]
+    pub checkpoint_every: Option<usize>,
     /// The validation score that picks `best.safetensors`; None = the dataset's usual one
     /// (HeatNet's day/night mIoU on Freiburg, mIoU on MF).
     #[serde(default)]
@@ -63,123 +109,63 @@ pub struct TrainConfig {
     /// (`val/predictions`); None or 0 = never.
     #[serde(default)]
     pub tb_images_every: Option<usize>,
-    /// Arithmetic of the training step: fp32, or autocast mixed precision (bf16; fp16 on CUDA,
-    /// with loss scaling) over fp32 master weights and optimiser state. fp32 for configs
-    /// written before there was a choice.
-    #[serde(default)]
-    pub precision: Precision,
-    /// Under data-parallel training, BatchNorm normalises with the statistics of the whole
-    /// batch of every rank (`torch.nn.SyncBatchNorm`) instead of each rank's own (DDP's
-    /// default). No effect on a single process.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub sync_batch_norm: bool,
-    /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub data_fingerprint: Option<rtf_data::Fingerprint>,
+}
+
+/// Where a run computes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ComputeConfig {
+    /// "cpu", "cuda" or "cuda:N".
+    pub device: String,
     /// Processes of a data-parallel run (`torchrun`), recorded by rank 0 when the run starts; a
     /// resume needs as many. None = a single-process run.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub world_size: Option<usize>,
 }
 
+/// The sections as they are read: every one required, no other key.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Sections {
+    network: NetworkConfig,
+    data: DataConfig,
+    learning: LearningConfig,
+    schedule: ScheduleConfig,
+    compute: ComputeConfig,
+}
+
+/// The keys of [`TrainConfig`]'s sections.
+pub const SECTIONS: [&str; 5] = ["network", "data", "learning", "schedule", "compute"];
+
+/// Reads the sections, or the flat layout written before them (a document without any section
+/// key). Unknown keys are refused in both.
+impl<'de> Deserialize<'de> for TrainConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        let value = serde_json::Value::deserialize(d)?;
+        if !SECTIONS.iter().any(|key| value.get(key).is_some()) {
+            return serde_json::from_value::<legacy::LegacyFlatConfig>(value)
+                .map(Into::into)
+                .map_err(D::Error::custom);
+        }
+        let s: Sections = serde_json::from_value(value).map_err(D::Error::custom)?;
+        Ok(TrainConfig {
+            network: s.network,
+            data: s.data,
+            learning: s.learning,
+            schedule: s.schedule,
+            compute: s.compute,
+        })
+    }
+}
+
 /// Which input channels a network sees (defined beside the networks, and recorded in their
 /// weights files, so that evaluation applies the same mask).
 pub use rtf_models::Modality;
 
-/// The arithmetic of a training step (PyTorch's automatic mixed precision): the forward passes
-/// and losses run inside an autocast region of the given type (convolutions and matrix
-/// products in it, reductions, losses and BatchNorm statistics in fp32); weights, gradients
-/// and optimiser state stay fp32. fp16 also scales the loss (a dynamic loss scale, PyTorch's
-/// `GradScaler`) so small gradients do not flush to zero; bf16 has fp32's exponent range and
-/// needs none.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Precision {
-    #[default]
-    Fp32,
-    Bf16,
-    Fp16,
-}
-
-impl Precision {
-    pub fn name(self) -> &'static str {
-        match self {
-            Precision::Fp32 => "fp32",
-            Precision::Bf16 => "bf16",
-            Precision::Fp16 => "fp16",
-        }
-    }
-
-    pub fn parse(text: &str) -> Result<Self, String> {
-        match text {
-            "fp32" | "float32" => Ok(Precision::Fp32),
-            "bf16" | "bfloat16" => Ok(Precision::Bf16),
-            "fp16" | "float16" | "half" => Ok(Precision::Fp16),
-            other => Err(format!(
-                "unknown precision `{other}` (expected fp32, bf16 or fp16)"
-            )),
-        }
-    }
-
-    /// The autocast type; None = fp32, no autocast region.
-    pub fn autocast_kind(self) -> Option<tch::Kind> {
-        match self {
-            Precision::Fp32 => None,
-            Precision::Bf16 => Some(tch::Kind::BFloat16),
-            Precision::Fp16 => Some(tch::Kind::Half),
-        }
-    }
-
-    /// A warning when this precision will train far slower than fp32 on `device`: bf16 on a CPU
-    /// without native bf16 arithmetic (rtf_amp::cpu_has_native_bf16) where libtorch's own bf16
-    /// convolutions were chosen (`RTF_BF16_CONVOLUTIONS=native`) over rtf's emulated ones.
-    pub fn slow_on(self, device: tch::Device) -> Option<String> {
-        (self == Precision::Bf16
-            && device == tch::Device::Cpu
-            && rtf_amp::cpu_has_native_bf16() == Some(false)
-            && matches!(
-                rtf_amp::cpu_bf16_convolutions(),
-                Ok(rtf_amp::Bf16Convolutions::Native)
-            ))
-        .then(|| {
-            "this CPU has no native bf16 arithmetic (no avx512_bf16, amx_bf16 or bf16 in \
-             /proc/cpuinfo) and RTF_BF16_CONVOLUTIONS=native picks libtorch's generic bf16 \
-             convolutions: several times slower than fp32 (MFNet at 640x480: about 10x, \
-             docs/src/benchmarks.md); unset it for rtf's emulated bf16 convolutions"
-                .to_owned()
-        })
-    }
-
-    /// The convolution arithmetic of this precision on `device`, for reports: "fp32", "bf16
-    /// emulated" / "bf16 native" on a CPU ([`rtf_amp::cpu_bf16_convolutions`]), else the type.
-    pub fn convolutions_on(self, device: tch::Device) -> String {
-        match (self, device) {
-            (Precision::Bf16, tch::Device::Cpu) => match rtf_amp::cpu_bf16_convolutions() {
-                Ok(choice) => format!("bf16 {}", choice.name()),
-                Err(_) => "bf16 (bad RTF_BF16_CONVOLUTIONS)".to_owned(),
-            },
-            _ => self.name().to_owned(),
-        }
-    }
-
-    /// Whether the loss is scaled (fp16 only).
-    pub fn scales_loss(self) -> bool {
-        self == Precision::Fp16
-    }
-}
-
-impl std::fmt::Display for Precision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for Precision {
-    type Err = String;
-    fn from_str(text: &str) -> Result<Self, String> {
-        Self::parse(text)
-    }
-}
+/// The arithmetic of a training step (PyTorch's automatic mixed precision; defined in rtf-amp,
+/// one type with the fast inference path's).
+pub use rtf_amp::Precision;
 
 /// How a network learns.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -445,11 +431,11 @@ pub enum DatasetConfig {
     },
 }
 
-fn yes() -> bool {
+pub(crate) fn yes() -> bool {
     true
 }
 
-fn is_yes(value: &bool) -> bool {
+pub(crate) fn is_yes(value: &bool) -> bool {
     *value
 }
 
@@ -626,7 +612,13 @@ impl RunConfig {
 
     /// The network the run ends with (the last stage's).
     pub fn final_model(&self) -> &ModelConfig {
-        &self.stages().last().expect("a run has a stage").1.model
+        &self
+            .stages()
+            .last()
+            .expect("a run has a stage")
+            .1
+            .network
+            .model
     }
 
     /// Every check of [`TrainConfig::validate`] per stage, plus stage names and references
@@ -680,13 +672,13 @@ impl RunConfig {
                     ))
                 }
             };
-            for teacher in cfg.procedure.teachers() {
+            for teacher in cfg.learning.procedure.teachers() {
                 if let TeacherRef::Stage(stage) = teacher {
-                    check_stage("procedure (teacher)", stage)?;
+                    check_stage("learning.procedure (teacher)", stage)?;
                 }
             }
-            if let Some(WeightsRef::Stage(stage)) = &cfg.init_from {
-                check_stage("init_from", stage)?;
+            if let Some(WeightsRef::Stage(stage)) = &cfg.network.init_from {
+                check_stage("network.init_from", stage)?;
             }
         }
         Ok(())
@@ -755,55 +747,142 @@ impl OptimizerConfig {
 
 impl TrainConfig {
     /// Every value checked in one place: flags, `--config` files and edited `config.json`s of
-    /// resumed runs all pass here before anything is written. Errors name the field.
+    /// resumed runs all pass here before anything is written. Errors name the field by its
+    /// path in the sections (`schedule.epochs`).
     pub fn validate(&self) -> Result<(), ConfigError> {
-        let positive = |field: &str, v: usize| match v {
-            0 => Err(ConfigError::field(field, "must be at least 1")),
-            _ => Ok(()),
-        };
-        positive("epochs", self.epochs)?;
-        positive("batch_size", self.batch_size)?;
-        if let Some(steps) = self.max_steps_per_epoch {
-            positive("max_steps_per_epoch", steps)?;
-        }
-        if let Some(every) = self.checkpoint_every {
-            positive("checkpoint_every", every)?;
-        }
-        if let Some((w, h)) = self.resize {
+        self.schedule.validate()?;
+        if let Some((w, h)) = self.data.resize {
             if w == 0 || h == 0 {
-                return Err(ConfigError::field("resize", "width and height must be ≥ 1"));
+                return Err(ConfigError::field(
+                    "data.resize",
+                    "width and height must be ≥ 1",
+                ));
             }
         }
-        let device = parse_device(&self.device).map_err(|m| ConfigError::field("device", &m))?;
+        let device = parse_device(&self.compute.device)
+            .map_err(|m| ConfigError::field("compute.device", &m))?;
+        self.learning
+            .validate(device, self.network.model.num_classes())
+    }
+
+    /// MFNet paper's recipe on an MF-layout dataset (spec §3): 80 epochs, batch 6, SGD ×0.94,
+    /// horizontal flips.
+    pub fn mfnet_paper(root: PathBuf) -> Self {
+        Self {
+            network: NetworkConfig {
+                model: ModelConfig::from_name("mfnet", 9).expect("mfnet is a known network"),
+                inputs: Modality::RgbT,
+                init_from: None,
+                init_reset_head: false,
+                backbone_weights: None,
+                sync_batch_norm: false,
+            },
+            data: DataConfig {
+                dataset: DatasetConfig::Mf {
+                    root,
+                    train_split: "train".into(),
+                    val_split: Some("val".into()),
+                },
+                resize: None,
+                augment: AugmentConfig {
+                    hflip: true,
+                    ..Default::default()
+                },
+                shuffle: true,
+                workers: 2,
+                fingerprint: None,
+            },
+            learning: LearningConfig {
+                procedure: Procedure::Supervised,
+                optimizer: OptimizerConfig::mfnet_paper(),
+                loss: LossConfig::CrossEntropy {
+                    class_weights: None,
+                },
+                precision: Precision::Fp32,
+            },
+            schedule: ScheduleConfig {
+                epochs: 80,
+                batch_size: 6,
+                seed: 0,
+                max_steps_per_epoch: None,
+                checkpoint_every: None,
+                select_by: None,
+                tb_images_every: None,
+            },
+            compute: ComputeConfig {
+                device: "cpu".into(),
+                world_size: None,
+            },
+        }
+    }
+
+    /// This config with `edit` applied: a variant in one expression
+    /// (`base.with(|c| c.schedule.epochs = 4)`).
+    pub fn with(mut self, edit: impl FnOnce(&mut Self)) -> Self {
+        edit(&mut self);
+        self
+    }
+
+    /// The configured device, checked to exist on this machine.
+    pub fn device(&self) -> Result<tch::Device, String> {
+        available_device(&self.compute.device)
+    }
+}
+
+fn at_least_one(field: &str, v: usize) -> Result<(), ConfigError> {
+    match v {
+        0 => Err(ConfigError::field(field, "must be at least 1")),
+        _ => Ok(()),
+    }
+}
+
+impl ScheduleConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        at_least_one("schedule.epochs", self.epochs)?;
+        at_least_one("schedule.batch_size", self.batch_size)?;
+        if let Some(steps) = self.max_steps_per_epoch {
+            at_least_one("schedule.max_steps_per_epoch", steps)?;
+        }
+        if let Some(every) = self.checkpoint_every {
+            at_least_one("schedule.checkpoint_every", every)?;
+        }
+        Ok(())
+    }
+}
+
+impl LearningConfig {
+    /// The arithmetic on `device`, the optimiser, the loss's class weights (one per class of
+    /// the network's `num_classes`) and the procedure's options.
+    fn validate(&self, device: tch::Device, num_classes: i64) -> Result<(), ConfigError> {
         if self.precision == Precision::Fp16 && device == tch::Device::Cpu {
             return Err(ConfigError::field(
-                "precision",
+                "learning.precision",
                 "fp16 needs a CUDA device (libtorch's CPU autocast is bf16 only); use bf16 on the CPU",
             ));
         }
         if self.precision == Precision::Bf16 && device == tch::Device::Cpu {
             // A bad RTF_BF16_CONVOLUTIONS is refused here, before a run folder is written.
             rtf_amp::cpu_bf16_convolutions()
-                .map_err(|e| ConfigError::field("precision", &e.to_string()))?;
+                .map_err(|e| ConfigError::field("learning.precision", &e.to_string()))?;
         }
-        self.optimizer.validate("optimizer")?;
+        self.optimizer.validate("learning.optimizer")?;
         let LossConfig::CrossEntropy { class_weights } = &self.loss;
         if let Some(w) = class_weights {
-            if w.len() as i64 != self.model.num_classes()
-                || w.iter().any(|v| !(v.is_finite() && *v >= 0.0))
-            {
+            if w.len() as i64 != num_classes || w.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
                 return Err(ConfigError::field(
-                    "loss.class_weights",
-                    &format!(
-                        "needs {} finite values ≥ 0 (one per class), got {w:?}",
-                        self.model.num_classes()
-                    ),
+                    "learning.loss.class_weights",
+                    &format!("needs {num_classes} finite values ≥ 0 (one per class), got {w:?}"),
                 ));
             }
         }
+        self.validate_procedure()
+    }
+
+    fn validate_procedure(&self) -> Result<(), ConfigError> {
+        let field = |name: &str| format!("learning.procedure.{name}");
         match &self.procedure {
-            Procedure::Supervised => {}
-            Procedure::TeacherStudent { targets, .. } => targets.validate()?,
+            Procedure::Supervised => Ok(()),
+            Procedure::TeacherStudent { targets, .. } => targets.validate(),
             Procedure::Adversarial {
                 targets,
                 critic,
@@ -813,73 +892,27 @@ impl TrainConfig {
                 targets.validate()?;
                 if !(critic.lambda.is_finite() && critic.lambda >= 0.0) {
                     return Err(ConfigError::field(
-                        "procedure.critic.lambda",
+                        &field("critic.lambda"),
                         &format!("must be ≥ 0, got {}", critic.lambda),
                     ));
                 }
-                positive("procedure.critic.steps", critic.steps)?;
-                critic.optimizer.validate("procedure.critic.optimizer")?;
+                at_least_one(&field("critic.steps"), critic.steps)?;
+                critic.optimizer.validate(&field("critic.optimizer"))?;
                 if critic.confidence_weighting && targets.cache {
                     return Err(ConfigError::field(
-                        "procedure.critic.confidence_weighting",
+                        &field("critic.confidence_weighting"),
                         "needs the night teacher's confidence, which a label cache does not keep",
                     ));
                 }
                 if critic.confidence_weighting && night_teacher.is_none() {
                     return Err(ConfigError::field(
-                        "procedure.critic.confidence_weighting",
-                        "weights by the night teacher's confidence: set procedure.night_teacher",
+                        &field("critic.confidence_weighting"),
+                        "weights by the night teacher's confidence: set learning.procedure.night_teacher",
                     ));
                 }
+                Ok(())
             }
         }
-        Ok(())
-    }
-
-    /// MFNet paper's recipe on an MF-layout dataset (spec §3): 80 epochs, batch 6, SGD ×0.94,
-    /// horizontal flips.
-    pub fn mfnet_paper(root: PathBuf) -> Self {
-        Self {
-            model: ModelConfig::from_name("mfnet", 9).expect("mfnet is a known network"),
-            dataset: DatasetConfig::Mf {
-                root,
-                train_split: "train".into(),
-                val_split: Some("val".into()),
-            },
-            epochs: 80,
-            batch_size: 6,
-            seed: 0,
-            optimizer: OptimizerConfig::mfnet_paper(),
-            loss: LossConfig::CrossEntropy {
-                class_weights: None,
-            },
-            augment: AugmentConfig {
-                hflip: true,
-                ..Default::default()
-            },
-            shuffle: true,
-            resize: None,
-            max_steps_per_epoch: None,
-            checkpoint_every: None,
-            workers: 2,
-            device: "cpu".into(),
-            backbone_weights: None,
-            procedure: Procedure::Supervised,
-            inputs: Modality::RgbT,
-            init_from: None,
-            init_reset_head: false,
-            select_by: None,
-            tb_images_every: None,
-            precision: Precision::Fp32,
-            sync_batch_norm: false,
-            data_fingerprint: None,
-            world_size: None,
-        }
-    }
-
-    /// The configured device, checked to exist on this machine.
-    pub fn device(&self) -> Result<tch::Device, String> {
-        available_device(&self.device)
     }
 }
 
@@ -887,13 +920,13 @@ impl TargetOptions {
     fn validate(&self) -> Result<(), ConfigError> {
         if self.cache && self.soft {
             return Err(ConfigError::field(
-                "procedure.targets.cache",
+                "learning.procedure.targets.cache",
                 "a label cache holds hard labels: it cannot go with soft targets",
             ));
         }
         match self.threshold {
             Some(t) if !(t.is_finite() && (0.0..1.0).contains(&t)) => Err(ConfigError::field(
-                "procedure.targets.threshold",
+                "learning.procedure.targets.threshold",
                 &format!("must be in [0, 1), got {t}"),
             )),
             _ => Ok(()),
@@ -944,13 +977,99 @@ mod tests {
     fn shuffle_defaults_to_on_and_is_recorded_when_off() {
         let mut cfg = TrainConfig::mfnet_paper(PathBuf::from("/data"));
         let old = serde_json::to_value(&cfg).unwrap();
-        assert!(old.get("shuffle").is_none(), "{old}");
+        assert!(old["data"].get("shuffle").is_none(), "{old}");
         let back: TrainConfig = serde_json::from_value(old).unwrap();
-        assert!(back.shuffle);
-        cfg.shuffle = false;
+        assert!(back.data.shuffle);
+        cfg.data.shuffle = false;
         let text = serde_json::to_string(&cfg).unwrap();
         assert!(text.contains("\"shuffle\":false"), "{text}");
-        assert!(!serde_json::from_str::<TrainConfig>(&text).unwrap().shuffle);
+        assert!(
+            !serde_json::from_str::<TrainConfig>(&text)
+                .unwrap()
+                .data
+                .shuffle
+        );
+    }
+
+    /// A config.json written by `rtf train` before the sections (tests/fixtures/README.md)
+    /// reads into them, and is written back in sections that read to the same config.
+    #[test]
+    fn a_flat_config_json_from_before_the_sections_reads_into_them() {
+        let text = include_str!("../../tests/fixtures/flat_single_config.json");
+        let RunConfig::Single(cfg) = RunConfig::parse(text, false).unwrap() else {
+            panic!("a single run")
+        };
+        assert_eq!(cfg.network.model.name(), "mfnet");
+        assert_eq!(
+            cfg.data.dataset,
+            DatasetConfig::Mf {
+                root: "/tmp/house/fx/mf".into(),
+                train_split: "train".into(),
+                val_split: Some("val".into()),
+            }
+        );
+        assert!(cfg.data.shuffle && cfg.data.augment.hflip);
+        assert_eq!(cfg.data.workers, 2);
+        assert_eq!(cfg.data.fingerprint.as_ref().unwrap().splits.len(), 5);
+        assert_eq!(cfg.learning.optimizer, OptimizerConfig::mfnet_paper());
+        assert_eq!(cfg.learning.precision, Precision::Fp32);
+        assert_eq!((cfg.schedule.epochs, cfg.schedule.batch_size), (1, 6));
+        assert_eq!(cfg.schedule.tb_images_every, Some(5));
+        assert_eq!(cfg.compute.device, "cpu");
+        let nested = serde_json::to_value(&*cfg).unwrap();
+        let keys: Vec<&String> = nested.as_object().unwrap().keys().collect();
+        assert_eq!(keys.len(), SECTIONS.len());
+        assert!(SECTIONS.iter().all(|s| nested.get(s).is_some()), "{nested}");
+        assert_eq!(serde_json::from_value::<TrainConfig>(nested).unwrap(), *cfg);
+    }
+
+    /// A multi-stage recipe's config.json and a stage's own (teachers by weights file) of
+    /// the flat layout read too.
+    #[test]
+    fn a_flat_recipe_config_and_its_stage_config_read_into_sections() {
+        let text = include_str!("../../tests/fixtures/flat_recipe_config.json");
+        let RunConfig::Pipeline(p) = RunConfig::parse(text, false).unwrap() else {
+            panic!("a pipeline")
+        };
+        assert_eq!(p.recipe.as_deref(), Some("heatnet-v3"));
+        let names: Vec<&str> = p.stages.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["teacher-rgb", "v3"]);
+        assert!(matches!(
+            &p.stages[1].config.learning.procedure,
+            Procedure::TeacherStudent { day_teacher: TeacherRef::Stage(s), .. } if s == "teacher-rgb"
+        ));
+        assert_eq!(p.stages[0].config.network.inputs, Modality::Rgb);
+        RunConfig::Pipeline(p).validate().unwrap();
+        let text = include_str!("../../tests/fixtures/flat_recipe_stage_config.json");
+        let RunConfig::Single(stage) = RunConfig::parse(text, false).unwrap() else {
+            panic!("a stage is a single run")
+        };
+        assert!(matches!(
+            &stage.learning.procedure,
+            Procedure::TeacherStudent { day_teacher: TeacherRef::Weights { path, .. }, .. }
+                if path.ends_with("teacher-rgb/best.safetensors")
+        ));
+    }
+
+    /// Unknown keys are refused in both layouts, by name: a flat config's misspelt setting, a
+    /// setting left at the top of a sectioned one, a misspelt key inside a section.
+    #[test]
+    fn unknown_keys_are_refused_in_both_layouts() {
+        let flat = r#"{"model": {"network": "mfnet", "num_classes": 9}, "epochz": 3}"#;
+        let err = RunConfig::parse(flat, false).unwrap_err();
+        assert!(err.contains("epochz"), "{err}");
+        let cfg = TrainConfig::mfnet_paper("data".into());
+        let mut nested = serde_json::to_value(&cfg).unwrap();
+        nested["epochs"] = 3.into();
+        let err = RunConfig::parse(&nested.to_string(), false).unwrap_err();
+        assert!(err.contains("unknown field `epochs`"), "{err}");
+        let mut nested = serde_json::to_value(&cfg).unwrap();
+        nested["schedule"]["epochz"] = 3.into();
+        let err = RunConfig::parse(&nested.to_string(), false).unwrap_err();
+        assert!(err.contains("unknown field `epochz`"), "{err}");
+        let yaml = "network: {model: {network: mfnet, num_classes: 9}}\nschedul: {}\n";
+        let err = RunConfig::parse(yaml, true).unwrap_err();
+        assert!(err.contains("schedul"), "{err}");
     }
 
     #[test]
