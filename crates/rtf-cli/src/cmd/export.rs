@@ -46,7 +46,8 @@ pub struct Args {
     /// Weights and arithmetic inside the graph; input and logits stay fp32.
     #[arg(long, default_value = "fp32")]
     pub precision: Precision,
-    /// Class count of the weights (default: the network's usual count, see `rtf models`).
+    /// Class count of the weights. Default: the class set the weights record (rtf train writes
+    /// it), else the network's usual count (see `rtf models`).
     #[arg(long)]
     pub classes: Option<i64>,
     /// Channels the network sees (rgb_t, rgb, thermal; the others are zeroed inside the
@@ -64,24 +65,42 @@ fn parse_hw(text: &str) -> Result<(usize, usize), String> {
 pub const EXPORT_SCHEMA: &str = "rtf-export/1";
 
 /// The metadata written into the exported file.
+/// Class names and colours (the weights' record, else MF's or Freiburg's set of that count)
+/// and the thermal rule the network was trained with, where known.
+struct Trained {
+    classes: Option<rtf_core::ClassSet>,
+    thermal: Option<String>,
+}
+
+impl Trained {
+    fn of(record: Option<rtf_data::TrainedOn>, classes: i64) -> Self {
+        let thermal = record
+            .as_ref()
+            .and_then(|t| t.thermal.as_ref())
+            .map(|t| t.describe());
+        let known = [rtf_core::ClassSet::mf(), rtf_core::ClassSet::freiburg()];
+        let classes = record
+            .map(|t| t.classes)
+            .or_else(|| known.into_iter().find(|set| set.len() as i64 == classes));
+        Self { classes, thermal }
+    }
+}
+
 fn metadata(
     network: &dyn rtf_models::Network,
-    classes: i64,
+    trained: &Trained,
     in_channels: i64,
     inputs: rtf_models::Modality,
     size: (usize, usize),
     precision: Precision,
 ) -> serde_json::Value {
     let convention = network.input_convention();
-    let class_names = [rtf_core::ClassSet::mf(), rtf_core::ClassSet::freiburg()]
-        .into_iter()
-        .find(|set| set.len() as i64 == classes)
-        .map(|set| {
-            set.names()
-                .iter()
-                .map(|s| s.to_string())
-                .collect::<Vec<_>>()
-        });
+    let classes = network.num_classes();
+    let class_names = trained.classes.as_ref().map(|set| set.names());
+    let class_colors = trained
+        .classes
+        .as_ref()
+        .map(|set| set.classes.iter().map(|c| c.color).collect::<Vec<_>>());
     let scaling = match convention {
         rtf_core::InputConvention::UnitRange => {
             "R,G,B = pixel / 255; T = thermal in [0, 1] (MF: byte / 255)".to_string()
@@ -104,6 +123,9 @@ fn metadata(
         "model": network.name(),
         "num_classes": classes,
         "class_names": class_names,
+        "class_colors": class_colors,
+        // How the T channel was made [0, 1] in training (a dataset.yaml's `thermal:`).
+        "thermal": trained.thermal,
         "input": {
             "name": "input",
             "shape": [1, in_channels, size.0, size.1],
@@ -243,8 +265,19 @@ fn trace(
 }
 
 pub fn run(args: Args) -> Result<()> {
+    let record = super::trained_on(&args.weights)?;
+    let recorded = record.as_ref().map(|t| t.classes.len() as i64);
+    if let (Some(asked), Some(recorded)) = (args.classes, &record) {
+        anyhow::ensure!(
+            asked == recorded.classes.len() as i64,
+            "{}: trained on {}; --classes {asked} does not fit (drop --classes)",
+            args.weights.display(),
+            rtf_data::trained_on::list(&recorded.classes)
+        );
+    }
     let classes = args
         .classes
+        .or(recorded)
         .unwrap_or_else(|| rtf_models::default_num_classes(&args.model));
     let super::LoadedNetwork {
         mut vs,
@@ -272,7 +305,7 @@ pub fn run(args: Args) -> Result<()> {
     let module = trace(network, in_channels, args.size, args.precision)?;
     let meta = metadata(
         network,
-        classes,
+        &Trained::of(record, classes),
         in_channels,
         inputs,
         args.size,

@@ -3,7 +3,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use rtf_core::ClassSet;
 use rtf_data::pngio::{read_png, PngImage, Samples};
-use rtf_data::Frame;
+use rtf_data::thermal::ThermalNormalisation;
+use rtf_data::{Frame, TrainedOn};
 use rtf_train::config::available_device;
 use tch::Kind;
 
@@ -24,8 +25,9 @@ pub struct Args {
     #[arg(long)]
     pub logits: bool,
     /// Class set of the weights: mf (9), freiburg (13), or a dataset root / dataset.yaml whose
-    /// class set (its N classes and palette) the weights were trained on; default from the
-    /// model (HeatNet: freiburg).
+    /// class set (its N classes and palette) the weights were trained on. Default: the class
+    /// set the weights record (rtf train writes it), else from the model (HeatNet: freiburg,
+    /// others mf). Refused when the weights record another class set.
     #[arg(long)]
     pub classes: Option<String>,
     /// RGB image of a pair given as separate files (with --thermal).
@@ -34,8 +36,9 @@ pub struct Args {
     /// Thermal image (8- or 16-bit grey PNG) of a pair given as separate files (with --rgb).
     #[arg(long, requires = "rgb")]
     pub thermal: Option<PathBuf>,
-    /// 16-bit thermal: raw counts LO:HI mapped to [0, 1] (clipped). Default: HeatNet models use
-    /// the Freiburg reference 21800:25000, others each frame's own min:max.
+    /// 16-bit thermal: raw counts LO:HI mapped to [0, 1] (clipped). Default: the thermal rule
+    /// the weights record (a dataset.yaml's `thermal:`), else HeatNet models use the Freiburg
+    /// reference 21800:25000 and others each frame's own min:max.
     #[arg(long, value_parser = parse_range)]
     pub thermal_range: Option<(u16, u16)>,
     #[arg(long, default_value = "cpu")]
@@ -96,8 +99,16 @@ fn stem(path: &Path) -> String {
         .unwrap_or_default()
 }
 
+/// How `--thermal` becomes [0, 1]: `--thermal-range`, else the rule the weights were trained
+/// with (except byte / 255, which leaves 16-bit files to the default), else the default.
+#[derive(Clone, Copy)]
+enum ThermalRule<'a> {
+    Range(Option<(u16, u16)>),
+    Trained(&'a ThermalNormalisation),
+}
+
 /// Reads an RGB PNG and a grey thermal PNG (8- or 16-bit) of the same size into a frame.
-fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) -> Result<Frame> {
+fn read_pair(rgb_path: &Path, thermal_path: &Path, rule: ThermalRule) -> Result<Frame> {
     let rgb_png = read_png(rgb_path)?;
     let rgb = match (&rgb_png.samples, rgb_png.channels, rgb_png.indexed) {
         (Samples::U8(v), 3, false) => v.clone(),
@@ -121,7 +132,10 @@ fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) ->
             rgb_png.height
         );
     }
-    let thermal = thermal_unit(&thermal_png, thermal_path, range)?;
+    let thermal = match rule {
+        ThermalRule::Range(range) => thermal_unit(&thermal_png, thermal_path, range)?,
+        ThermalRule::Trained(rule) => trained_thermal(&thermal_png, thermal_path, rule)?,
+    };
     let name = stem(rgb_path);
     Ok(Frame {
         daytime: None,
@@ -134,8 +148,18 @@ fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) ->
     })
 }
 
-/// Thermal samples in [0, 1]: 8-bit / 255; 16-bit clipped to `range` (or the frame's min:max).
-fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Result<Vec<f32>> {
+/// Thermal samples in [0, 1] by the rule the weights were trained with (as the dataset
+/// loader applies it).
+fn trained_thermal(png: &PngImage, path: &Path, rule: &ThermalNormalisation) -> Result<Vec<f32>> {
+    check_grey(png, path)?;
+    let (samples, bits): (Vec<u16>, u8) = match &png.samples {
+        Samples::U8(v) => (v.iter().map(|&x| x as u16).collect(), 8),
+        Samples::U16(v) => (v.clone(), 16),
+    };
+    Ok(rule.apply(&samples, bits, path)?)
+}
+
+fn check_grey(png: &PngImage, path: &Path) -> Result<()> {
     if png.channels != 1 || png.indexed {
         bail!(
             "{}: {} channel(s), expected a single grey thermal channel",
@@ -143,6 +167,12 @@ fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Resul
             png.channels
         );
     }
+    Ok(())
+}
+
+/// Thermal samples in [0, 1]: 8-bit / 255; 16-bit clipped to `range` (or the frame's min:max).
+fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Result<Vec<f32>> {
+    check_grey(png, path)?;
     Ok(match &png.samples {
         Samples::U8(v) => v.iter().map(|&x| x as f32 / 255.0).collect(),
         Samples::U16(v) => {
@@ -245,13 +275,23 @@ pub fn run(args: Args) -> Result<()> {
     let planned = plan_outputs(&args.out, &sources, &inputs, args.logits)?;
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let heatnet = args.model.starts_with("heatnet");
-    let classes = match args.classes.as_deref() {
-        Some("mf") => ClassSet::mf(),
-        Some("freiburg") => ClassSet::freiburg(),
-        Some(other) => described_class_set(Path::new(other))?,
-        None if heatnet => ClassSet::freiburg(),
-        None => ClassSet::mf(),
+    let trained = super::trained_on(&args.weights)?;
+    let classes = match (args.classes.as_deref(), &trained) {
+        (Some("mf"), _) => ClassSet::mf(),
+        (Some("freiburg"), _) => ClassSet::freiburg(),
+        (Some(other), _) => described_class_set(Path::new(other))?,
+        (None, Some(t)) => {
+            let list = rtf_data::trained_on::list(&t.classes);
+            eprintln!("classes: the weights' {list}");
+            t.classes.clone()
+        }
+        (None, None) if heatnet => ClassSet::freiburg(),
+        (None, None) => ClassSet::mf(),
     };
+    if let (Some(t), Some(given)) = (&trained, &args.classes) {
+        let hint = rtf_data::trained_on::WEIGHTS_HINT;
+        t.check_data(&args.weights, Path::new(given), &classes, hint)?;
+    }
     let network = load_network(
         &args.model,
         classes.len() as i64,
@@ -270,8 +310,11 @@ pub fn run(args: Args) -> Result<()> {
         .map(|p| rtf_data::mf::read_mf_image(p).map_err(anyhow::Error::from))
         .collect::<Result<Vec<_>>>()?;
     if let (Some(rgb), Some(thermal)) = (&args.rgb, &args.thermal) {
-        let range = args.thermal_range.or(heatnet.then_some((21800, 25000)));
-        frames.push(read_pair(rgb, thermal, range)?);
+        frames.push(read_pair(
+            rgb,
+            thermal,
+            thermal_rule(&args, trained.as_ref()),
+        )?);
     }
     // Frames larger than memory allows are refused before anything is written.
     for (frame, path) in frames.iter().zip(&sources) {
@@ -315,6 +358,20 @@ pub fn run(args: Args) -> Result<()> {
         println!("{} -> {}", path.display(), ids_path.display());
     }
     Ok(())
+}
+
+/// `--thermal-range`, else the weights' rule (announced), else the model's default.
+fn thermal_rule<'a>(args: &Args, trained: Option<&'a TrainedOn>) -> ThermalRule<'a> {
+    let rule = trained.and_then(|t| t.thermal.as_ref());
+    match (args.thermal_range, rule) {
+        (None, Some(rule)) if *rule != ThermalNormalisation::Byte => {
+            eprintln!("thermal: the weights' rule, {}", rule.describe());
+            ThermalRule::Trained(rule)
+        }
+        (range, _) => ThermalRule::Range(
+            range.or(args.model.starts_with("heatnet").then_some((21800, 25000))),
+        ),
+    }
 }
 
 fn save_png(path: &Path, image: image::DynamicImage) -> Result<()> {

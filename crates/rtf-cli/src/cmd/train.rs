@@ -440,6 +440,7 @@ fn described_dataset(root: PathBuf, args: &Args) -> Result<(DatasetConfig, Class
         root,
         train_split,
         val_split,
+        trained_on: Some(rtf_data::TrainedOn::of(&description)),
     };
     Ok((dataset, classes))
 }
