@@ -379,3 +379,56 @@ fn resuming_a_run_whose_dataset_changed_its_classes_is_refused() {
         "{err}"
     );
 }
+
+/// ONNX of 3-class weights: 3 outputs in onnxruntime, the class names in `metadata_props`.
+/// Slow (the PyTorch exporter, about a minute on two cores): RTF_TEST_ONNX=1.
+#[test]
+fn onnx_export_of_three_class_weights_has_three_outputs() {
+    if std::env::var_os("RTF_TEST_ONNX").is_none() {
+        eprintln!("skipped: set RTF_TEST_ONNX=1 to run the ONNX export check");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("yard");
+    plain_root(&data);
+    let weights = train(&data, &tmp.path().join("run"));
+    let onnx = tmp.path().join("net.onnx");
+    ok(&[
+        "export",
+        "--model",
+        "mfnet",
+        "--weights",
+        s(&weights),
+        "--out",
+        s(&onnx),
+        "--format",
+        "onnx",
+        "--size",
+        "48x64",
+    ]);
+    let script = r#"
+import json, sys
+import numpy as np, onnx, onnxruntime as ort
+model = onnx.load(sys.argv[1])
+meta = {p.key: p.value for p in model.metadata_props}
+s = ort.InferenceSession(sys.argv[1], providers=["CPUExecutionProvider"])
+y = s.run(None, {"input": np.random.rand(1, 4, 48, 64).astype(np.float32)})[0]
+print(json.dumps({"shape": list(y.shape), "meta": meta}))
+"#;
+    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
+    let res = std::process::Command::new(python)
+        .arg("-c")
+        .arg(script)
+        .arg(&onnx)
+        .output()
+        .unwrap();
+    assert!(res.status.success(), "{}", text(&res));
+    let v: serde_json::Value = serde_json::from_slice(&res.stdout).unwrap();
+    assert_eq!(v["shape"], serde_json::json!([1, 3, 48, 64]), "{v}");
+    let names: serde_json::Value =
+        serde_json::from_str(v["meta"]["class_names"].as_str().unwrap()).unwrap();
+    assert_eq!(
+        names,
+        serde_json::json!(["background", "person", "forklift"])
+    );
+}

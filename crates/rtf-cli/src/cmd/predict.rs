@@ -274,24 +274,8 @@ pub fn run(args: Args) -> Result<()> {
     inputs.push(&args.weights);
     let planned = plan_outputs(&args.out, &sources, &inputs, args.logits)?;
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
-    let heatnet = args.model.starts_with("heatnet");
     let trained = super::trained_on(&args.weights)?;
-    let classes = match (args.classes.as_deref(), &trained) {
-        (Some("mf"), _) => ClassSet::mf(),
-        (Some("freiburg"), _) => ClassSet::freiburg(),
-        (Some(other), _) => described_class_set(Path::new(other))?,
-        (None, Some(t)) => {
-            let list = rtf_data::trained_on::list(&t.classes);
-            eprintln!("classes: the weights' {list}");
-            t.classes.clone()
-        }
-        (None, None) if heatnet => ClassSet::freiburg(),
-        (None, None) => ClassSet::mf(),
-    };
-    if let (Some(t), Some(given)) = (&trained, &args.classes) {
-        let hint = rtf_data::trained_on::WEIGHTS_HINT;
-        t.check_data(&args.weights, Path::new(given), &classes, hint)?;
-    }
+    let classes = class_set(&args, trained.as_ref())?;
     let network = load_network(
         &args.model,
         classes.len() as i64,
@@ -358,6 +342,28 @@ pub fn run(args: Args) -> Result<()> {
         println!("{} -> {}", path.display(), ids_path.display());
     }
     Ok(())
+}
+
+/// `--classes`, else the class set the weights record (announced), else the model's; a
+/// `--classes` other than the weights' record is refused naming both.
+fn class_set(args: &Args, trained: Option<&TrainedOn>) -> Result<ClassSet> {
+    let classes = match (args.classes.as_deref(), trained) {
+        (Some("mf"), _) => ClassSet::mf(),
+        (Some("freiburg"), _) => ClassSet::freiburg(),
+        (Some(other), _) => described_class_set(Path::new(other))?,
+        (None, Some(t)) => {
+            let list = rtf_data::trained_on::list(&t.classes);
+            eprintln!("classes: the weights' {list}");
+            t.classes.clone()
+        }
+        (None, None) if args.model.starts_with("heatnet") => ClassSet::freiburg(),
+        (None, None) => ClassSet::mf(),
+    };
+    if let (Some(t), Some(given)) = (trained, &args.classes) {
+        let hint = rtf_data::trained_on::WEIGHTS_HINT;
+        t.check_data(&args.weights, Path::new(given), &classes, hint)?;
+    }
+    Ok(classes)
 }
 
 /// `--thermal-range`, else the weights' rule (announced), else the model's default.
