@@ -432,3 +432,37 @@ print(json.dumps({"shape": list(y.shape), "meta": meta}))
         serde_json::json!(["background", "person", "forklift"])
     );
 }
+
+/// Bad frames stop `rtf train` before a run folder is written, naming the file: a label id
+/// outside the class list, partners of different sizes, an RGB without its thermal partner.
+#[test]
+fn bad_frames_stop_training_before_a_run_folder_is_written() {
+    use rtf_data::pngio::write_png_u8;
+    let tmp = tempfile::tempdir().unwrap();
+    let cases: [(&str, &dyn Fn(&Path), &str); 3] = [
+        (
+            "label id",
+            &|d| write_png_u8(&d.join("train/labels/f2.png"), W, H, 1, &[3; W * H]).unwrap(),
+            "train/labels/f2.png: label id 3 at (x 0, y 0) is not a class id",
+        ),
+        (
+            "size",
+            &|d| write_png_u8(&d.join("train/rgb/f1.png"), 32, 16, 3, &[0; 32 * 16 * 3]).unwrap(),
+            "but its partner",
+        ),
+        (
+            "partner",
+            &|d| std::fs::remove_file(d.join("train/thermal/f3.png")).unwrap(),
+            "train/thermal/f3.png",
+        ),
+    ];
+    for (case, corrupt, expected) in cases {
+        let data = tmp.path().join(case);
+        plain_root(&data);
+        corrupt(&data);
+        let run = tmp.path().join(format!("{case}-run"));
+        let err = fails(&short_train(&data, &run, "1", &["--model", "mfnet"]));
+        assert!(err.contains(expected), "{case}: {err}");
+        assert!(!run.exists(), "{case}: no run folder for bad data");
+    }
+}

@@ -264,7 +264,9 @@ fn trace(
     Ok(module)
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// `--classes`, else the count the weights record, else the network's usual count; with the
+/// weights' record. A `--classes` that contradicts the record is refused.
+fn class_count(args: &Args) -> Result<(i64, Option<rtf_data::TrainedOn>)> {
     let record = super::trained_on(&args.weights)?;
     let recorded = record.as_ref().map(|t| t.classes.len() as i64);
     if let (Some(asked), Some(recorded)) = (args.classes, &record) {
@@ -279,6 +281,11 @@ pub fn run(args: Args) -> Result<()> {
         .classes
         .or(recorded)
         .unwrap_or_else(|| rtf_models::default_num_classes(&args.model));
+    Ok((classes, record))
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let (classes, record) = class_count(&args)?;
     let super::LoadedNetwork {
         mut vs,
         net: network,
