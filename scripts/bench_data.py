@@ -4,19 +4,25 @@
 bicubic image / nearest label, float32 [0, 1] CHW, batches of 8 stacked), single process as in
 the MFNet/RTFNet reference loaders with num_workers=0.
 
+A root with a dataset.yaml (the plain layout, e.g. `rtf synth --format plain`) is read as
+`SPLIT/{rgb,thermal,labels}/NAME.png`: 8-bit RGB, 16-bit thermal mapped to [0, 1] by the
+yaml's `thermal: range: [lo, hi]` (clipped), the same crop resizing thermal bicubically as a
+float image; the default split is `train`.
+
 Usage: .venv/bin/python scripts/bench_data.py --data DIR [--split test] [--frames 96] [--json]
 """
 import argparse
 import json
 import os
 import random
+import re
 import time
 
 import numpy as np
 from PIL import Image
 
 
-def load(root, name, rng):
+def load_mf(root, name, rng):
     img = Image.open(os.path.join(root, "images", name + ".png"))
     img.load()
     lab = Image.open(os.path.join(root, "labels", name + ".png"))
@@ -37,6 +43,42 @@ def load(root, name, rng):
     return x, y
 
 
+def thermal_range(root):
+    """`range: [lo, hi]` of dataset.yaml's thermal rule (the only rule this reference reads)."""
+    with open(os.path.join(root, "dataset.yaml")) as f:
+        m = re.search(r"range:\s*\[\s*([0-9.]+)\s*,\s*([0-9.]+)\s*\]", f.read())
+    if not m:
+        raise SystemExit(f"{root}/dataset.yaml: no `thermal: range: [lo, hi]`")
+    return float(m.group(1)), float(m.group(2))
+
+
+def load_plain(root, split, name, rng, lo, hi):
+    """One plain-layout frame: RGB, 16-bit thermal through the range, labels; flip and crop."""
+    rgb = Image.open(os.path.join(root, split, "rgb", name + ".png")).convert("RGB")
+    th = Image.open(os.path.join(root, split, "thermal", name + ".png"))
+    th.load()
+    lab = Image.open(os.path.join(root, split, "labels", name + ".png"))
+    lab.load()
+    t = (np.asarray(th, dtype=np.float32) - lo) / (hi - lo)
+    th = Image.fromarray(np.clip(t, 0.0, 1.0), mode="F")
+    w, h = rgb.size
+    if rng.random() < 0.5:
+        rgb, th, lab = (im.transpose(Image.FLIP_LEFT_RIGHT) for im in (rgb, th, lab))
+    x0 = rng.randrange(0, int(0.1 * w))
+    y0 = rng.randrange(0, int(0.1 * h))
+    x1 = rng.randrange(int(0.9 * w + 0.999), w + 1)
+    y1 = rng.randrange(int(0.9 * h + 0.999), h + 1)
+    box = (x0, y0, x1, y1)
+    rgb = rgb.crop(box).resize((w, h), Image.BICUBIC)
+    th = th.crop(box).resize((w, h), Image.BICUBIC)
+    lab = lab.crop(box).resize((w, h), Image.NEAREST)
+    x = np.empty((4, h, w), dtype=np.float32)
+    x[:3] = np.asarray(rgb, dtype=np.float32).transpose(2, 0, 1) / 255.0
+    x[3] = np.asarray(th, dtype=np.float32)
+    y = np.asarray(lab, dtype=np.int64)
+    return x, y
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", required=True)
@@ -46,10 +88,18 @@ def main():
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     split = args.split
-    if split is None:
-        split = sorted(f[:-4] for f in os.listdir(args.data) if f.endswith(".txt"))[0]
-    with open(os.path.join(args.data, split + ".txt")) as f:
-        names = [line.strip() for line in f if line.strip()]
+    if os.path.exists(os.path.join(args.data, "dataset.yaml")):
+        split = split or "train"
+        lo, hi = thermal_range(args.data)
+        folder = os.path.join(args.data, split, "rgb")
+        names = sorted(f[:-4] for f in os.listdir(folder) if f.endswith(".png"))
+        load = lambda root, name, rng: load_plain(root, split, name, rng, lo, hi)  # noqa: E731
+    else:
+        if split is None:
+            split = sorted(f[:-4] for f in os.listdir(args.data) if f.endswith(".txt"))[0]
+        with open(os.path.join(args.data, split + ".txt")) as f:
+            names = [line.strip() for line in f if line.strip()]
+        load = load_mf
     rng = random.Random(0)
     load(args.data, names[0], rng)  # warm-up, not timed
     frames = 0

@@ -68,6 +68,22 @@ impl DescribedDataset {
     }
 }
 
+/// Decodes every frame of `split` (in parallel) and returns the first problem in frame order
+/// (a label id outside the class list, a colour outside the palette, partners of different
+/// sizes, 16-bit thermal without a rule, …) with the number of frames: what `rtf train` runs
+/// before it writes a run folder, so that bad data stops it there and not mid-epoch.
+pub fn check_frames(split: &dyn FrameSource) -> Result<usize, DataError> {
+    use rayon::prelude::*;
+    let first = (0..split.len())
+        .into_par_iter()
+        .filter_map(|i| split.load(i).err().map(|e| (i, e)))
+        .min_by_key(|(i, _)| *i);
+    match first {
+        Some((_, e)) => Err(e),
+        None => Ok(split.len()),
+    }
+}
+
 /// The held-out validation part named as `--val-split holdout:N`: every N-th training frame
 /// (N >= 2), taken out of training.
 pub fn parse_holdout(val_split: &str) -> Option<usize> {

@@ -91,6 +91,15 @@ pub enum DataError {
         partner_w: usize,
         partner_h: usize,
     },
+    /// Weights (or a run) trained on one class set, data with another.
+    #[error("{weights}: trained on {trained}, but {data} has {found}: {hint}")]
+    ClassSetMismatch {
+        weights: PathBuf,
+        data: PathBuf,
+        trained: String,
+        found: String,
+        hint: String,
+    },
     #[error("invalid configuration: {0}")]
     Config(String),
     #[error("frame '{name}': {message}")]

@@ -22,6 +22,7 @@ pub mod npy;
 pub mod pngio;
 pub mod synth;
 pub mod thermal;
+pub mod trained_on;
 
 pub use augment::{resize_frame, AugmentConfig};
 pub use described::{DescribedDataset, DescribedSplit};
@@ -32,6 +33,7 @@ pub use frame::{Frame, FrameSource, MemorySource};
 pub use freiburg::{FreiburgPart, FreiburgPreprocess, FreiburgSplit};
 pub use loader::{Batch, Loader, LoaderConfig};
 pub use mf::{MfDataset, MfSplit};
+pub use trained_on::TrainedOn;
 
 #[cfg(test)]
 pub(crate) mod testutil;

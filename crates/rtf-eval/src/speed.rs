@@ -32,6 +32,8 @@ pub enum ForwardPath {
 #[derive(Clone, Debug)]
 pub struct BenchOptions {
     pub model: String,
+    /// Outputs of the network (a dataset's class count); None = the network's usual count.
+    pub num_classes: Option<i64>,
     pub batch: i64,
     pub precision: Precision,
     pub path: ForwardPath,
@@ -51,6 +53,7 @@ impl Default for BenchOptions {
     fn default() -> Self {
         Self {
             model: "mfnet".into(),
+            num_classes: None,
             batch: 1,
             precision: Precision::Fp32,
             path: ForwardPath::Fast,
@@ -68,6 +71,9 @@ impl Default for BenchOptions {
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct BenchReport {
     pub model: String,
+    /// Outputs of the network timed (reports written before it was recorded: 0).
+    #[serde(default)]
+    pub num_classes: i64,
     pub batch: i64,
     pub precision: Precision,
     /// Median milliseconds per frame (one pass / batch).
@@ -117,7 +123,10 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
             "the plain path runs in fp32 only".into(),
         ));
     }
-    let cfg = ModelConfig::from_name(&opts.model, rtf_models::default_num_classes(&opts.model))?;
+    let classes = opts
+        .num_classes
+        .unwrap_or_else(|| rtf_models::default_num_classes(&opts.model));
+    let cfg = ModelConfig::from_name(&opts.model, classes)?;
     tch::manual_seed(0);
     let mut vs = nn::VarStore::new(opts.device);
     let net = rtf_models::build(&vs.root(), &cfg)?;
@@ -159,6 +168,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     let (median_ms, min_ms) = median_min(&per_frame_ms);
     Ok(BenchReport {
         model: cfg.name(),
+        num_classes: classes,
         batch: opts.batch,
         precision: opts.precision,
         median_ms,
@@ -200,6 +210,7 @@ mod tests {
         };
         let report = bench_model(&opts).unwrap();
         assert_eq!(report.model, "mfnet");
+        assert_eq!(report.num_classes, 9);
         assert!(report.min_ms > 0.0 && report.min_ms <= report.median_ms);
         assert!((report.fps - 1e3 / report.median_ms).abs() < 1e-9);
         let json = serde_json::to_value(&report).unwrap();

@@ -19,7 +19,9 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 use rtf_core::Daytime;
 use rtf_data::frame::Subset;
-use rtf_data::{FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset};
+use rtf_data::{
+    FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset, TrainedOn,
+};
 use rtf_eval::{EvalOptions, EvalReport};
 use rtf_models::Network;
 use serde::{Deserialize, Serialize};
@@ -123,14 +125,16 @@ struct Sources {
     val: Option<Source>,
     ignore_id: Option<u8>,
     freiburg: bool,
+    /// The class set and thermal rule the weights record (rtf_data::trained_on).
+    trained_on: TrainedOn,
 }
 
-/// A dataset's training frames (labelled ones when `labels`), its validation frames, and
-/// whether it is Freiburg.
-fn open_dataset(
-    dataset: &DatasetConfig,
-    labels: bool,
-) -> Result<(Source, Option<Source>, bool), TrainError> {
+/// A dataset's training frames, validation frames, whether it is Freiburg, and what the
+/// weights trained on it record.
+type Opened = (Source, Option<Source>, bool, TrainedOn);
+
+/// A dataset's training frames (labelled ones when `labels`) and the rest of [`Opened`].
+fn open_dataset(dataset: &DatasetConfig, labels: bool) -> Result<Opened, TrainError> {
     match dataset {
         DatasetConfig::Mf {
             root,
@@ -146,7 +150,11 @@ fn open_dataset(
                 Some(name) => Some(Arc::new(mf.split(name)?) as Source),
                 None => None,
             };
-            Ok((train, val, false))
+            let trained_on = TrainedOn {
+                classes: rtf_core::ClassSet::mf(),
+                thermal: Some(rtf_data::thermal::ThermalNormalisation::Byte),
+            };
+            Ok((train, val, false, trained_on))
         }
         DatasetConfig::Freiburg {
             root,
@@ -179,36 +187,55 @@ fn open_dataset(
             }
             .filter(|v| !v.is_empty())
             .map(|v| Arc::new(v) as Source);
-            Ok((Arc::new(train), val, true))
+            let trained_on = TrainedOn {
+                classes: rtf_core::ClassSet::freiburg(),
+                thermal: None,
+            };
+            Ok((Arc::new(train), val, true, trained_on))
         }
         DatasetConfig::Described {
             root,
             train_split,
             val_split,
-        } => described_sources(root, train_split, val_split.as_deref()),
+            trained_on,
+        } => described_sources(root, train_split, val_split.as_deref(), trained_on.as_ref()),
     }
 }
 
 /// The training split and the validation split (if named) of a described root (not Freiburg).
+/// A root whose classes differ from those `recorded` when the run started is refused.
 fn described_sources(
     root: &Path,
     train_split: &str,
     val_split: Option<&str>,
-) -> Result<(Source, Option<Source>, bool), TrainError> {
+    recorded: Option<&TrainedOn>,
+) -> Result<Opened, TrainError> {
     let description = rtf_data::layouts::describe(root)
         .ok_or_else(|| run_error(root, rtf_data::inspect::NOT_A_DATASET))??;
+    let trained_on = TrainedOn::of(&description);
+    if let Some(recorded) = recorded {
+        let origin = &description.origin;
+        let hint = "the dataset's classes changed since the run started (its config.json \
+                    records them): restore them, or start a new run";
+        recorded.check_data(
+            Path::new(rundir::CONFIG_FILE),
+            origin,
+            &trained_on.classes,
+            hint,
+        )?;
+    }
     let dataset = rtf_data::DescribedDataset::new(description);
     let train = dataset.split(train_split)?;
     let holdout = val_split.and_then(rtf_data::described::parse_holdout);
     if let Some(every) = holdout {
         let (kept, held) = train.hold_out(every);
-        return Ok((Arc::new(kept), Some(Arc::new(held)), false));
+        return Ok((Arc::new(kept), Some(Arc::new(held)), false, trained_on));
     }
     let val = match val_split {
         Some(name) => Some(Arc::new(dataset.split(name)?) as Source),
         None => None,
     };
-    Ok((Arc::new(train), val, false))
+    Ok((Arc::new(train), val, false, trained_on))
 }
 
 /// An error writing RUN/steps.jsonl, naming the file.
@@ -218,7 +245,7 @@ fn step_log_error(run_dir: &Path, e: std::io::Error) -> TrainError {
 
 fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
     let labels = cfg.learning.procedure.reads_labels();
-    let (train, val, freiburg) = open_dataset(&cfg.data.dataset, labels)?;
+    let (train, val, freiburg, trained_on) = open_dataset(&cfg.data.dataset, labels)?;
     let ignore_id = train.class_set().ignore_id;
     if labels {
         return Ok(Sources {
@@ -227,6 +254,7 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
             val,
             ignore_id,
             freiburg,
+            trained_on,
         });
     }
     let day: Source = Arc::new(Subset::of_daytime(train.clone(), Daytime::Day, false));
@@ -255,6 +283,7 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
         night,
         val,
         freiburg,
+        trained_on,
     })
 }
 
@@ -751,6 +780,8 @@ struct Run<'a> {
     /// Each step's loss terms (RUN/steps.jsonl), for step-by-step comparison with a reference.
     step_log: crate::step_log::StepLog,
     freiburg: bool,
+    /// Recorded in the weights' metadata beside the network.
+    trained_on: TrainedOn,
     select: SelectMetric,
     steps_per_epoch: usize,
     tb: Option<crate::tensorboard::TbWriter>,
@@ -832,6 +863,7 @@ impl<'a> Run<'a> {
             val,
             step_log,
             freiburg: sources.freiburg,
+            trained_on: sources.trained_on.clone(),
             select: cfg
                 .schedule
                 .select_by
@@ -1204,13 +1236,13 @@ impl<'a> Run<'a> {
         }
     }
 
+    /// The student's weights with the network, its inputs and its classes in the metadata.
     fn save_student(&self, path: &Path) -> Result<(), TrainError> {
-        rtf_models::weights::save_safetensors(
-            &self.procedure.student().trained.vs,
-            &self.cfg.network.model,
-            self.cfg.network.inputs,
-            path,
-        )?;
+        use rtf_models::weights::{model_metadata, save_named_with_metadata, state_dict};
+        let mut metadata = model_metadata(&self.cfg.network.model, self.cfg.network.inputs);
+        metadata.extend([self.trained_on.metadata_entry()]);
+        let vs = &self.procedure.student().trained.vs;
+        save_named_with_metadata(&state_dict(vs), Some(metadata), path)?;
         Ok(())
     }
 

@@ -1,5 +1,7 @@
-//! `rtf bench data`: input-pipeline throughput (decode + flip + RTFNet crop + tensor) on MF
-//! frames at batch 8, the work `scripts/bench_data.py` does with PIL + NumPy.
+//! `rtf bench data`: input-pipeline throughput (decode + flip + RTFNet crop + tensor) at
+//! batch 8 on MF frames or a described root (dataset.yaml, MSRS, PST900, FMB: RGB, thermal
+//! (8- or 16-bit, normalised by its rule) and labels in separate files), the work
+//! `scripts/bench_data.py` does with PIL + NumPy.
 
 use anyhow::{bail, Context, Result};
 use rtf_data::{AugmentConfig, FrameSource, Loader, LoaderConfig, MfDataset};
@@ -9,10 +11,11 @@ use std::time::{Duration, Instant};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// MF-layout dataset root.
+    /// Dataset root: MF layout, or a described one (dataset.yaml, MSRS, PST900, FMB).
     #[arg(long)]
     pub data: PathBuf,
-    /// Split to read (default: the first split file found, e.g. `test`).
+    /// Split to read (default: MF's first split file, e.g. `test`; a described root's first
+    /// split).
     #[arg(long)]
     pub split: Option<String>,
     #[arg(long, default_value_t = 8)]
@@ -28,9 +31,23 @@ pub struct Args {
     pub json: bool,
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// The split to time and its name.
+fn open(args: &Args) -> Result<(Arc<dyn FrameSource>, String)> {
+    if super::segmentation_format(&args.data, "a benchmark")?.is_described() {
+        let description = super::described(&args.data)?;
+        let name = match &args.split {
+            Some(s) => s.clone(),
+            None => description
+                .split_names()
+                .first()
+                .context("no splits")?
+                .to_string(),
+        };
+        let split = rtf_data::DescribedDataset::new(description).split(&name)?;
+        return Ok((Arc::new(split), name));
+    }
     let ds = MfDataset::open(&args.data)?;
-    let split_name = match &args.split {
+    let name = match &args.split {
         Some(s) => s.clone(),
         None => ds
             .split_names()
@@ -38,12 +55,15 @@ pub fn run(args: Args) -> Result<()> {
             .cloned()
             .context("no split files")?,
     };
-    let split = ds.split(&split_name)?;
+    Ok((Arc::new(ds.split(&name)?), name))
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let (source, split_name) = open(&args)?;
     let (w, h) = {
-        let f = split.load(0)?;
+        let f = source.load(0)?;
         (f.width, f.height)
     };
-    let source: Arc<dyn FrameSource> = Arc::new(split);
     let cfg = LoaderConfig {
         batch_size: args.batch,
         shuffle: true,

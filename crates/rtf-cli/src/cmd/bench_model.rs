@@ -11,6 +11,10 @@ pub struct Args {
     /// Network name (see `rtf models`).
     #[arg(long)]
     pub model: String,
+    /// Outputs of the network (a dataset's class count). Default: the count recorded in
+    /// --weights, else the network's usual count (see `rtf models`).
+    #[arg(long)]
+    pub classes: Option<i64>,
     /// Frames per forward pass.
     #[arg(long, default_value_t = 1)]
     pub batch: i64,
@@ -68,8 +72,14 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(warning) = crate::bf16_warning::inference(bf16, device) {
         eprintln!("warning: {warning}");
     }
+    let num_classes = match (args.classes, &args.weights) {
+        (Some(n), _) => Some(n),
+        (None, Some(weights)) => super::weights_config(weights)?.map(|c| c.num_classes()),
+        (None, None) => None,
+    };
     let opts = BenchOptions {
         model: args.model,
+        num_classes,
         batch: args.batch,
         precision: args.precision,
         path: if args.plain {
@@ -90,8 +100,9 @@ pub fn run(args: Args) -> Result<()> {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!(
-            "{} batch {} {} on {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, min {:.2} ms/frame, {:.2} FPS",
+            "{} ({} classes) batch {} {} on {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, min {:.2} ms/frame, {:.2} FPS",
             report.model,
+            report.num_classes,
             report.batch,
             report.precision,
             report.device,

@@ -19,7 +19,8 @@ pub struct Args {
     /// Weights (safetensors, reference names), e.g. RUN/final.safetensors.
     #[arg(long)]
     pub weights: PathBuf,
-    /// Dataset root, MF or Freiburg Thermal layout (recognised by its folders).
+    /// Dataset root: MF, Freiburg Thermal, MSRS, PST900, FMB, or a dataset.yaml (recognised
+    /// by its folders). Its class set must be the one the weights record, if they do.
     #[arg(long)]
     pub data: PathBuf,
     /// Split to evaluate; its day and night frames are also scored separately. Freiburg:
@@ -189,6 +190,8 @@ pub fn run(args: Args) -> Result<()> {
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let (split, format) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();
+    // Weights that record their classes score only data with the same ones (by name).
+    super::check_classes(&args.weights, &args.data, &classes)?;
     let loaded = load_network(
         &args.model,
         classes.len() as i64,

@@ -46,7 +46,8 @@ pub struct Args {
     /// Weights and arithmetic inside the graph; input and logits stay fp32.
     #[arg(long, default_value = "fp32", value_parser = Precision::parse_inference)]
     pub precision: Precision,
-    /// Class count of the weights (default: the network's usual count, see `rtf models`).
+    /// Class count of the weights. Default: the class set the weights record (rtf train writes
+    /// it), else the network's usual count (see `rtf models`).
     #[arg(long)]
     pub classes: Option<i64>,
     /// Channels the network sees (rgb_t, rgb, thermal; the others are zeroed inside the
@@ -64,20 +65,52 @@ fn parse_hw(text: &str) -> Result<(usize, usize), String> {
 pub const EXPORT_SCHEMA: &str = "rtf-export/1";
 
 /// The metadata written into the exported file.
+/// Class names and colours (the weights' record, else MF's or Freiburg's set of that count)
+/// and the thermal rule the network was trained with, where known.
+struct Trained {
+    classes: Option<rtf_core::ClassSet>,
+    /// Where the class names come from (the weights' record, the run's dataset, or an
+    /// assumption from the class count), written as `class_names_from`.
+    from: String,
+    thermal: Option<String>,
+}
+
+impl Trained {
+    fn of(record: Option<rtf_data::TrainedOn>, weights: &Path, classes: i64) -> Self {
+        let thermal = record
+            .as_ref()
+            .and_then(|t| t.thermal.as_ref())
+            .map(|t| t.describe());
+        let (classes, from) = match record {
+            Some(t) => (Some(t.classes), "the weights' record".to_string()),
+            None => match class_set_of_run(weights, classes) {
+                Some((set, from)) => (Some(set), from),
+                None => (None, "unknown".to_string()),
+            },
+        };
+        Self {
+            classes,
+            from,
+            thermal,
+        }
+    }
+}
+
 fn metadata(
     network: &dyn rtf_models::Network,
-    classes: i64,
-    names: Option<(Vec<String>, String)>,
+    trained: &Trained,
     in_channels: i64,
     inputs: rtf_models::Modality,
     size: (usize, usize),
     precision: Precision,
 ) -> serde_json::Value {
     let convention = network.input_convention();
-    let (class_names, class_names_from) = match names {
-        Some((names, from)) => (Some(names), from),
-        None => (None, "unknown".to_string()),
-    };
+    let classes = network.num_classes();
+    let class_names = trained.classes.as_ref().map(|set| set.names());
+    let class_colors = trained
+        .classes
+        .as_ref()
+        .map(|set| set.classes.iter().map(|c| c.color).collect::<Vec<_>>());
     let scaling = match convention {
         rtf_core::InputConvention::UnitRange => {
             "R,G,B = pixel / 255; T = thermal in [0, 1] (MF: byte / 255)".to_string()
@@ -100,7 +133,10 @@ fn metadata(
         "model": network.name(),
         "num_classes": classes,
         "class_names": class_names,
-        "class_names_from": class_names_from,
+        "class_names_from": trained.from,
+        "class_colors": class_colors,
+        // How the T channel was made [0, 1] in training (a dataset.yaml's `thermal:`).
+        "thermal": trained.thermal,
         "input": {
             "name": "input",
             "shape": [1, in_channels, size.0, size.1],
@@ -118,11 +154,10 @@ fn metadata(
     })
 }
 
-/// The class names of the weights, and where they come from: the dataset of the run folder
+/// The class set of weights without a record, and where it comes from: the dataset of the run folder
 /// the weights sit in (its config.json; a dataset.yaml's own names), else MF's or Freiburg's
 /// names when the class count is theirs (said as an assumption), else none.
-fn class_names(weights: &Path, classes: i64) -> Option<(Vec<String>, String)> {
-    let names = |set: &rtf_core::ClassSet| set.names().iter().map(|s| s.to_string()).collect();
+fn class_set_of_run(weights: &Path, classes: i64) -> Option<(rtf_core::ClassSet, String)> {
     let builtin = |format: &str| match format {
         "mf" => Some(rtf_core::ClassSet::mf()),
         "freiburg" => Some(rtf_core::ClassSet::freiburg()),
@@ -132,11 +167,16 @@ fn class_names(weights: &Path, classes: i64) -> Option<(Vec<String>, String)> {
     let config: Option<serde_json::Value> = std::fs::read_to_string(&config_path)
         .ok()
         .and_then(|text| serde_json::from_str(&text).ok());
+    // The dataset sits under `data` (sectioned config.json) or at the top (older flat ones).
+    let dataset_of = |c: &serde_json::Value| match c["data"]["dataset"].is_null() {
+        true => c["dataset"].clone(),
+        false => c["data"]["dataset"].clone(),
+    };
     let dataset = config.as_ref().map(|c| match c["stages"].as_array() {
         Some(stages) => stages
             .last()
-            .map_or(serde_json::Value::Null, |s| s["config"]["dataset"].clone()),
-        None => c["dataset"].clone(),
+            .map_or(serde_json::Value::Null, |s| dataset_of(&s["config"])),
+        None => dataset_of(c),
     });
     if let Some(dataset) = dataset {
         let root = dataset["root"].as_str().map(PathBuf::from);
@@ -148,7 +188,7 @@ fn class_names(weights: &Path, classes: i64) -> Option<(Vec<String>, String)> {
             .or_else(|| builtin(dataset["format"].as_str().unwrap_or_default()));
         if let Some(set) = set.filter(|set| set.len() as i64 == classes) {
             return Some((
-                names(&set),
+                set,
                 format!("the run's dataset ({})", config_path.display()),
             ));
         }
@@ -161,7 +201,7 @@ fn class_names(weights: &Path, classes: i64) -> Option<(Vec<String>, String)> {
                 "assumed from the class count: {}'s {classes} classes",
                 set.name
             );
-            (names(&set), from)
+            (set, from)
         })
 }
 
@@ -300,11 +340,29 @@ fn refuse_overwriting_weights(args: &Args) -> Result<()> {
     Ok(())
 }
 
-pub fn run(args: Args) -> Result<()> {
-    refuse_overwriting_weights(&args)?;
+/// `--classes`, else the count the weights record, else the network's usual count; with the
+/// weights' record. A `--classes` that contradicts the record is refused.
+fn class_count(args: &Args) -> Result<(i64, Option<rtf_data::TrainedOn>)> {
+    let record = super::trained_on(&args.weights)?;
+    let recorded = record.as_ref().map(|t| t.classes.len() as i64);
+    if let (Some(asked), Some(recorded)) = (args.classes, &record) {
+        anyhow::ensure!(
+            asked == recorded.classes.len() as i64,
+            "{}: trained on {}; --classes {asked} does not fit (drop --classes)",
+            args.weights.display(),
+            rtf_data::trained_on::list(&recorded.classes)
+        );
+    }
     let classes = args
         .classes
+        .or(recorded)
         .unwrap_or_else(|| rtf_models::default_num_classes(&args.model));
+    Ok((classes, record))
+}
+
+pub fn run(args: Args) -> Result<()> {
+    refuse_overwriting_weights(&args)?;
+    let (classes, record) = class_count(&args)?;
     let super::LoadedNetwork {
         mut vs,
         net: network,
@@ -331,8 +389,7 @@ pub fn run(args: Args) -> Result<()> {
     let module = trace(network, in_channels, args.size, args.precision)?;
     let meta = metadata(
         network,
-        classes,
-        class_names(&args.weights, classes),
+        &Trained::of(record, &args.weights, classes),
         in_channels,
         inputs,
         args.size,

@@ -107,6 +107,37 @@ pub fn load_network(
     })
 }
 
+/// The network configuration recorded in a weights file (`rtf.config`); None for weights
+/// without it (converted published weights).
+pub fn weights_config(
+    weights: &std::path::Path,
+) -> anyhow::Result<Option<rtf_models::ModelConfig>> {
+    let file = rtf_models::weights::read_weights_metadata(weights)?;
+    Ok(file.saved_config(weights)?)
+}
+
+/// The class set and thermal rule recorded in a weights file (`rtf.data`,
+/// rtf_data::trained_on); None for weights without it (converted published weights, runs
+/// of older builds: MF's 9 classes unless told otherwise).
+pub fn trained_on(weights: &std::path::Path) -> anyhow::Result<Option<rtf_data::TrainedOn>> {
+    let file = rtf_models::weights::read_weights_metadata(weights)?;
+    Ok(rtf_data::TrainedOn::from_metadata(&file.metadata, weights)?)
+}
+
+/// Refuses data whose class set is not the one `weights` were trained on (when they record
+/// it), naming the weights, the data and both class lists.
+pub fn check_classes(
+    weights: &std::path::Path,
+    data: &std::path::Path,
+    classes: &rtf_core::ClassSet,
+) -> anyhow::Result<Option<rtf_data::TrainedOn>> {
+    let trained = trained_on(weights)?;
+    if let Some(t) = &trained {
+        t.check_data(weights, data, classes, rtf_data::trained_on::WEIGHTS_HINT)?;
+    }
+    Ok(trained)
+}
+
 /// A described root's description (dataset.yaml read and checked, or a built-in layout),
 /// announced on stderr: rtf says which layout, classes and thermal rule it inferred.
 pub fn described(root: &std::path::Path) -> anyhow::Result<rtf_data::DatasetDescription> {

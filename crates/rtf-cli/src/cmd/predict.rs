@@ -3,7 +3,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use rtf_core::ClassSet;
 use rtf_data::pngio::{read_png, PngImage, Samples};
-use rtf_data::Frame;
+use rtf_data::thermal::ThermalNormalisation;
+use rtf_data::{Frame, TrainedOn};
 use rtf_train::config::available_device;
 use tch::Kind;
 
@@ -26,8 +27,9 @@ pub struct Args {
     #[arg(long)]
     pub logits: bool,
     /// Class set of the weights: mf (9), freiburg (13), or a dataset root / dataset.yaml whose
-    /// class set (its N classes and palette) the weights were trained on; default from the
-    /// model (HeatNet: freiburg).
+    /// class set (its N classes and palette) the weights were trained on. Default: the class
+    /// set the weights record (rtf train writes it), else from the model (HeatNet: freiburg,
+    /// others mf). Refused when the weights record another class set.
     #[arg(long)]
     pub classes: Option<String>,
     /// RGB image of a pair given as separate files (with --thermal).
@@ -36,8 +38,9 @@ pub struct Args {
     /// Thermal image (8- or 16-bit grey PNG) of a pair given as separate files (with --rgb).
     #[arg(long, requires = "rgb")]
     pub thermal: Option<PathBuf>,
-    /// 16-bit thermal: raw counts LO:HI mapped to [0, 1] (clipped). Default: HeatNet models use
-    /// the Freiburg reference 21800:25000, others each frame's own min:max.
+    /// 16-bit thermal: raw counts LO:HI mapped to [0, 1] (clipped). Default: the thermal rule
+    /// the weights record (a dataset.yaml's `thermal:`), else HeatNet models use the Freiburg
+    /// reference 21800:25000 and others each frame's own min:max.
     #[arg(long, value_parser = parse_range)]
     pub thermal_range: Option<(u16, u16)>,
     #[arg(long, default_value = "cpu")]
@@ -107,8 +110,16 @@ fn stem(path: &Path) -> String {
         .unwrap_or_default()
 }
 
+/// How `--thermal` becomes [0, 1]: `--thermal-range`, else the rule the weights were trained
+/// with (except byte / 255, which leaves 16-bit files to the default), else the default.
+#[derive(Clone, Copy)]
+enum ThermalRule<'a> {
+    Range(Option<(u16, u16)>),
+    Trained(&'a ThermalNormalisation),
+}
+
 /// Reads an RGB PNG and a grey thermal PNG (8- or 16-bit) of the same size into a frame.
-fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) -> Result<Frame> {
+fn read_pair(rgb_path: &Path, thermal_path: &Path, rule: ThermalRule) -> Result<Frame> {
     let rgb_png = read_png(rgb_path)?;
     let rgb = match (&rgb_png.samples, rgb_png.channels, rgb_png.indexed) {
         (Samples::U8(v), 3, false) => v.clone(),
@@ -132,7 +143,10 @@ fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) ->
             rgb_png.height
         );
     }
-    let thermal = thermal_unit(&thermal_png, thermal_path, range)?;
+    let thermal = match rule {
+        ThermalRule::Range(range) => thermal_unit(&thermal_png, thermal_path, range)?,
+        ThermalRule::Trained(rule) => trained_thermal(&thermal_png, thermal_path, rule)?,
+    };
     let name = stem(rgb_path);
     Ok(Frame {
         daytime: None,
@@ -145,8 +159,18 @@ fn read_pair(rgb_path: &Path, thermal_path: &Path, range: Option<(u16, u16)>) ->
     })
 }
 
-/// Thermal samples in [0, 1]: 8-bit / 255; 16-bit clipped to `range` (or the frame's min:max).
-fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Result<Vec<f32>> {
+/// Thermal samples in [0, 1] by the rule the weights were trained with (as the dataset
+/// loader applies it).
+fn trained_thermal(png: &PngImage, path: &Path, rule: &ThermalNormalisation) -> Result<Vec<f32>> {
+    check_grey(png, path)?;
+    let (samples, bits): (Vec<u16>, u8) = match &png.samples {
+        Samples::U8(v) => (v.iter().map(|&x| x as u16).collect(), 8),
+        Samples::U16(v) => (v.clone(), 16),
+    };
+    Ok(rule.apply(&samples, bits, path)?)
+}
+
+fn check_grey(png: &PngImage, path: &Path) -> Result<()> {
     if png.channels != 1 || png.indexed {
         bail!(
             "{}: {} channel(s), expected a single grey thermal channel",
@@ -154,6 +178,12 @@ fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Resul
             png.channels
         );
     }
+    Ok(())
+}
+
+/// Thermal samples in [0, 1]: 8-bit / 255; 16-bit clipped to `range` (or the frame's min:max).
+fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Result<Vec<f32>> {
+    check_grey(png, path)?;
     Ok(match &png.samples {
         Samples::U8(v) => v.iter().map(|&x| x as f32 / 255.0).collect(),
         Samples::U16(v) => {
@@ -379,17 +409,6 @@ fn remove_stale_temporaries(out: &Path, planned: &[Planned]) -> usize {
     removed
 }
 
-/// The class set the weights were trained on (`--classes`, else the model's default).
-fn class_set(args: &Args) -> Result<ClassSet> {
-    Ok(match args.classes.as_deref() {
-        Some("mf") => ClassSet::mf(),
-        Some("freiburg") => ClassSet::freiburg(),
-        Some(other) => described_class_set(Path::new(other))?,
-        None if args.model.starts_with("heatnet") => ClassSet::freiburg(),
-        None => ClassSet::mf(),
-    })
-}
-
 pub fn run(args: Args) -> Result<()> {
     let images = expand_images(&args.images)?;
     let mut sources: Vec<PathBuf> = images.clone();
@@ -400,7 +419,8 @@ pub fn run(args: Args) -> Result<()> {
     inputs.push(&args.weights);
     let planned = plan_outputs(&args.out, &sources, &inputs, args.logits)?;
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
-    let classes = class_set(&args)?;
+    let trained = super::trained_on(&args.weights)?;
+    let classes = class_set(&args, trained.as_ref())?;
     let network = load_network(
         &args.model,
         classes.len() as i64,
@@ -416,7 +436,7 @@ pub fn run(args: Args) -> Result<()> {
         .iter()
         .filter(|p| !(args.skip_existing && p.done()))
         .collect();
-    let pair = read_pair_checked(&args, &todo, network.as_ref(), device)?;
+    let pair = read_pair_checked(&args, trained.as_ref(), &todo, network.as_ref(), device)?;
     let mf: Vec<&Path> = todo
         .iter()
         .map(|p| p.source.as_path())
@@ -472,6 +492,7 @@ fn predict_all(
 /// anything is written), unless it is not given or skipped.
 fn read_pair_checked(
     args: &Args,
+    trained: Option<&TrainedOn>,
     todo: &[&Planned],
     network: &dyn Network,
     device: tch::Device,
@@ -482,9 +503,7 @@ fn read_pair_checked(
     if !todo.iter().any(|p| &p.source == rgb) {
         return Ok(None);
     }
-    let heatnet = args.model.starts_with("heatnet");
-    let range = args.thermal_range.or(heatnet.then_some((21800, 25000)));
-    let frame = read_pair(rgb, thermal, range)?;
+    let frame = read_pair(rgb, thermal, thermal_rule(args, trained))?;
     rtf_eval::evaluate::check_memory(network, 1, frame.height, frame.width, device)
         .with_context(|| rgb.display().to_string())?;
     Ok(Some(frame))
@@ -600,6 +619,42 @@ fn duration(seconds: f64) -> String {
         (0, 0, s) => format!("{s}s"),
         (0, m, s) => format!("{m}m{s:02}s"),
         (h, m, s) => format!("{h}h{m:02}m{s:02}s"),
+    }
+}
+
+/// `--classes`, else the class set the weights record (announced), else the model's; a
+/// `--classes` other than the weights' record is refused naming both.
+fn class_set(args: &Args, trained: Option<&TrainedOn>) -> Result<ClassSet> {
+    let classes = match (args.classes.as_deref(), trained) {
+        (Some("mf"), _) => ClassSet::mf(),
+        (Some("freiburg"), _) => ClassSet::freiburg(),
+        (Some(other), _) => described_class_set(Path::new(other))?,
+        (None, Some(t)) => {
+            let list = rtf_data::trained_on::list(&t.classes);
+            eprintln!("classes: the weights' {list}");
+            t.classes.clone()
+        }
+        (None, None) if args.model.starts_with("heatnet") => ClassSet::freiburg(),
+        (None, None) => ClassSet::mf(),
+    };
+    if let (Some(t), Some(given)) = (trained, &args.classes) {
+        let hint = rtf_data::trained_on::WEIGHTS_HINT;
+        t.check_data(&args.weights, Path::new(given), &classes, hint)?;
+    }
+    Ok(classes)
+}
+
+/// `--thermal-range`, else the weights' rule (announced), else the model's default.
+fn thermal_rule<'a>(args: &Args, trained: Option<&'a TrainedOn>) -> ThermalRule<'a> {
+    let rule = trained.and_then(|t| t.thermal.as_ref());
+    match (args.thermal_range, rule) {
+        (None, Some(rule)) if *rule != ThermalNormalisation::Byte => {
+            eprintln!("thermal: the weights' rule, {}", rule.describe());
+            ThermalRule::Trained(rule)
+        }
+        (range, _) => ThermalRule::Range(
+            range.or(args.model.starts_with("heatnet").then_some((21800, 25000))),
+        ),
     }
 }
 

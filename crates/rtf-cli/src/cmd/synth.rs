@@ -9,6 +9,9 @@ pub enum Format {
     Mf,
     /// Freiburg Thermal layout: 8-bit RGB, 16-bit IR, 13 classes.
     Freiburg,
+    /// The plain layout (dataset.yaml; docs "Your own data"): 8-bit RGB, 16-bit radiometric
+    /// thermal with its range, MF's 9 classes as ids.
+    Plain,
     /// A calibration rig for `rtf calibrate`: rig.yaml, RGB stereo pairs, depth, thermal
     /// frames rendered through a known thermal camera, and ground_truth.yaml.
     CalibrationRig,
@@ -56,6 +59,7 @@ pub fn run(args: Args) -> Result<()> {
     let format = match args.format {
         Format::Mf => SynthFormat::Mf,
         Format::Freiburg => SynthFormat::Freiburg,
+        Format::Plain => SynthFormat::Plain,
         Format::CalibrationRig => return calibration_rig(&args),
     };
     let cfg = SynthConfig {

@@ -467,7 +467,8 @@ fn described_dataset(root: PathBuf, args: &Args) -> Result<(DatasetConfig, Class
         );
     }
     let named = val_split.iter().filter(|_| holdout.is_none());
-    for name in std::iter::once(&train_split).chain(named) {
+    let read: Vec<&String> = std::iter::once(&train_split).chain(named).collect();
+    for name in &read {
         anyhow::ensure!(
             has(name),
             "{}: no split `{name}` (available: {})",
@@ -475,11 +476,18 @@ fn described_dataset(root: PathBuf, args: &Args) -> Result<(DatasetConfig, Class
             description.split_names().join(", ")
         );
     }
+    // Every frame the run reads decoded now: bad data stops it before a run folder exists.
+    let dataset = rtf_data::DescribedDataset::new(description.clone());
+    for name in read {
+        let frames = rtf_data::described::check_frames(&dataset.split(name)?)?;
+        eprintln!("data: `{name}`: {frames} frames decoded, no problem");
+    }
     let classes = description.class_set.clone();
     let dataset = DatasetConfig::Described {
         root,
         train_split,
         val_split,
+        trained_on: Some(rtf_data::TrainedOn::of(&description)),
     };
     Ok((dataset, classes))
 }

@@ -8,6 +8,7 @@
 
 mod freiburg;
 pub mod noise;
+mod plain;
 pub mod scene;
 
 use crate::augment::{gaussian, Planar};
@@ -28,6 +29,8 @@ pub enum SynthFormat {
     Mf,
     /// Freiburg Thermal layout (spec §5): 8-bit RGB, 16-bit IR, 13 classes.
     Freiburg,
+    /// The plain layout (dataset.yaml): 8-bit RGB, 16-bit thermal, MF's 9 classes.
+    Plain,
 }
 
 /// RGB–thermal misalignment, as between the MF cameras: a random shift, rotation and time
@@ -254,6 +257,7 @@ pub fn generate(out: &Path, cfg: &SynthConfig) -> Result<SynthSummary, DataError
     match cfg.format {
         SynthFormat::Mf => write_mf(out, cfg, &splits),
         SynthFormat::Freiburg => freiburg::write_synthetic(out, cfg, &splits),
+        SynthFormat::Plain => plain::write_synthetic(out, cfg, &splits),
     }
 }
 

@@ -428,6 +428,11 @@ pub enum DatasetConfig {
         train_split: String,
         /// None: no validation (the public sets ship only train and test).
         val_split: Option<String>,
+        /// The class set and thermal rule read when the run started (`rtf train` records
+        /// them; the weights carry them too): a resume refuses a root whose classes changed.
+        /// None in configs written before it was recorded.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        trained_on: Option<rtf_data::TrainedOn>,
     },
 }
 
@@ -1104,6 +1109,10 @@ mod tests {
             root: "data/pst900".into(),
             train_split: "train".into(),
             val_split: Some("holdout:10".into()),
+            trained_on: Some(rtf_data::TrainedOn {
+                classes: rtf_core::ClassSet::mf(),
+                thermal: Some(rtf_data::thermal::ThermalNormalisation::Byte),
+            }),
         };
         let json = serde_json::to_string(&cfg).unwrap();
         assert!(json.contains(r#""format":"described""#), "{json}");
