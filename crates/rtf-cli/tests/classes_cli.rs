@@ -239,8 +239,8 @@ fn end_to_end(data: &Path, names: &[&str], dir: &Path) -> PathBuf {
     let run = dir.join("run");
     let weights = train(data, &run);
     let config = json_file(&run.join("config.json"));
-    assert_eq!(config["model"]["num_classes"], n, "{config}");
-    let recorded = &config["dataset"]["trained_on"]["classes"]["classes"];
+    assert_eq!(config["network"]["model"]["num_classes"], n, "{config}");
+    let recorded = &config["data"]["dataset"]["trained_on"]["classes"]["classes"];
     assert_eq!(recorded.as_array().map(Vec::len), Some(n), "{config}");
     assert_eq!(metadata(&weights).classes.names(), names);
     eval_by_name(&weights, data, names, dir);

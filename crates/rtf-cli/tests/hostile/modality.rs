@@ -73,7 +73,7 @@ fn precision_cases(f: &Fixture) -> Vec<Case> {
                 &[],
                 Box::new(move || {
                     let config = json_file(&config);
-                    config["precision"].as_str().unwrap_or("fp32") == keep
+                    config["learning"]["precision"].as_str().unwrap_or("fp32") == keep
                         && epochs_in_order(&log2).is_some_and(|n| n >= 2)
                 }),
             )

@@ -65,7 +65,7 @@ fn base(f: &Fixture) -> (PathBuf, PathBuf) {
 fn config_with(f: &Fixture, done: &Path, epochs: [u64; 2]) -> PathBuf {
     let mut config = json_file(&done.join("config.json"));
     for (i, e) in epochs.iter().enumerate() {
-        config["stages"][i]["config"]["epochs"] = (*e).into();
+        config["stages"][i]["config"]["schedule"]["epochs"] = (*e).into();
     }
     let path = f.t.join(format!("recipe_{}_{}.json", epochs[0], epochs[1]));
     std::fs::write(&path, serde_json::to_string_pretty(&config).unwrap()).unwrap();
