@@ -62,7 +62,7 @@ fn assert_resumes_exactly(cfg: &TrainConfig, dir: &Path) -> rtf_train::TrainOutc
         serde_json::from_str(&std::fs::read_to_string(straight.join("config.json")).unwrap())
             .unwrap();
     assert_eq!(
-        written["precision"],
+        written["learning"]["precision"],
         cfg.learning.precision.name(),
         "recorded in config.json"
     );

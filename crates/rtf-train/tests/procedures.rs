@@ -481,7 +481,7 @@ fn bad_teachers_and_configs_are_refused_before_anything_is_written() {
     let err = RunConfig::parse(unknown, false).unwrap_err();
     assert!(err.contains("epochz"), "{err}");
     let mut edited = serde_json::to_value(base(&data, 1)).unwrap();
-    edited["optimizer"]["lr"] = serde_json::json!(-1.0);
+    edited["learning"]["optimizer"]["lr"] = serde_json::json!(-1.0);
     let parsed = RunConfig::parse(&edited.to_string(), false).unwrap();
     let err = parsed.validate().unwrap_err().to_string();
     assert!(err.contains("optimizer.lr"), "{err}");
