@@ -9,7 +9,7 @@ avx512_bf16, amx_bf16), with the date, the PyTorch version and the rtf commit.
 Usage (from the repo root, after `cargo build --release -p rtf-cli`):
     .venv/bin/python scripts/speed_tables.py --out target/speed
     .venv/bin/python scripts/speed_tables.py --models rtfnet50 --train-models "" --out target/speed \\
-        --prefix "flock /work/bench.lock scripts/quiet.sh nice -n -15"
+        --prefix "flock /tmp/bench.lock scripts/quiet.sh nice -n -15"
 
 `--prefix` is put before every benchmark command (each network's run is one command, so a lock
 taken that way is held for one network at a time). Writes OUT/speed_tables.md and
