@@ -158,40 +158,13 @@ fn metadata(
 /// the weights sit in (its config.json; a dataset.yaml's own names), else MF's or Freiburg's
 /// names when the class count is theirs (said as an assumption), else none.
 fn class_set_of_run(weights: &Path, classes: i64) -> Option<(rtf_core::ClassSet, String)> {
-    let builtin = |format: &str| match format {
-        "mf" => Some(rtf_core::ClassSet::mf()),
-        "freiburg" => Some(rtf_core::ClassSet::freiburg()),
-        _ => None,
-    };
-    let config_path = weights.parent()?.join("config.json");
-    let config: Option<serde_json::Value> = std::fs::read_to_string(&config_path)
-        .ok()
-        .and_then(|text| serde_json::from_str(&text).ok());
-    // The dataset sits under `data` (sectioned config.json) or at the top (older flat ones).
-    let dataset_of = |c: &serde_json::Value| match c["data"]["dataset"].is_null() {
-        true => c["dataset"].clone(),
-        false => c["data"]["dataset"].clone(),
-    };
-    let dataset = config.as_ref().map(|c| match c["stages"].as_array() {
-        Some(stages) => stages
-            .last()
-            .map_or(serde_json::Value::Null, |s| dataset_of(&s["config"])),
-        None => dataset_of(c),
-    });
-    if let Some(dataset) = dataset {
-        let root = dataset["root"].as_str().map(PathBuf::from);
-        let described = root
-            .and_then(|r| rtf_data::layouts::describe(&r))
-            .and_then(|d| d.ok());
-        let set = described
-            .map(|d| d.class_set)
-            .or_else(|| builtin(dataset["format"].as_str().unwrap_or_default()));
-        if let Some(set) = set.filter(|set| set.len() as i64 == classes) {
-            return Some((
-                set,
-                format!("the run's dataset ({})", config_path.display()),
-            ));
-        }
+    let dir = weights.parent()?;
+    if let Some(set) = run_class_set(dir).filter(|set| set.len() as i64 == classes) {
+        let config_path = dir.join(rtf_train::trainer::CONFIG_FILE);
+        return Some((
+            set,
+            format!("the run's dataset ({})", config_path.display()),
+        ));
     }
     [rtf_core::ClassSet::mf(), rtf_core::ClassSet::freiburg()]
         .into_iter()
@@ -203,6 +176,24 @@ fn class_set_of_run(weights: &Path, classes: i64) -> Option<(rtf_core::ClassSet,
             );
             (set, from)
         })
+}
+
+/// The class set of the dataset a run folder trained on (its last stage's, for a recipe), read
+/// through rtf-train's own config reader (sectioned or older flat config.json); None when the
+/// folder holds no readable run.
+fn run_class_set(dir: &Path) -> Option<rtf_core::ClassSet> {
+    use rtf_train::config::{DatasetConfig, RunConfig};
+    let dataset = match rtf_train::trainer::read_config(dir).ok()? {
+        RunConfig::Single(cfg) => cfg.data.dataset,
+        RunConfig::Pipeline(p) => p.stages.last()?.config.data.dataset.clone(),
+    };
+    match dataset {
+        DatasetConfig::Mf { .. } => Some(rtf_core::ClassSet::mf()),
+        DatasetConfig::Freiburg { .. } => Some(rtf_core::ClassSet::freiburg()),
+        DatasetConfig::Described { root, .. } => rtf_data::layouts::describe(&root)?
+            .ok()
+            .map(|d| d.class_set),
+    }
 }
 
 /// Adds `<archive>/extra/rtf.json` to a TorchScript archive written by libtorch.
