@@ -33,8 +33,9 @@ pub struct TrainState {
     /// Progress inside epoch `epochs_done` when the checkpoint was written mid-epoch.
     #[serde(default)]
     pub partial: Option<PartialEpoch>,
-    /// The log records of the epochs done (`log.jsonl` is rewritten from them on resume, so a
-    /// line lost to a kill between checkpoint and log comes back).
+    /// The log record of the last finished epoch (the log is appended after the checkpoint:
+    /// on resume `log.jsonl` gets it back if a kill came between them). Checkpoints written
+    /// before issue 30 carry every epoch's record; both read.
     #[serde(default)]
     pub records: Vec<serde_json::Value>,
 }

@@ -1,7 +1,7 @@
 //! The run folder: its files, its lock, its log. A run folder holds `config.json` (written
 //! before the first step), `log.jsonl` (one record per epoch), `checkpoint.safetensors` (every
-//! trained network, optimisers and progress; the log's records too, so a log line lost to a
-//! kill is written back on resume), `best.safetensors` and `final.safetensors` (the student's
+//! trained network, optimisers and progress; the last epoch's log record too, so a log line
+//! lost to a kill is written back on resume), `best.safetensors` and `final.safetensors` (the student's
 //! weights under reference names), and `run.lock` while a process trains in it.
 
 use std::io::Write;
@@ -147,17 +147,48 @@ pub fn append_log<T: serde::Serialize>(run_dir: &Path, record: &T) -> Result<(),
         .map_err(|e| run_error(&path, format!("cannot append: {e}")))
 }
 
-/// Rewrites `log.jsonl` from the records a checkpoint carries (repairs a log that lost its last
-/// line to a kill, or holds lines of epochs the checkpoint does not have).
-pub fn rewrite_log(run_dir: &Path, records: &[serde_json::Value]) -> Result<(), TrainError> {
+/// Restores `log.jsonl` on resume to the epochs a checkpoint has done. The checkpoint carries
+/// only its last finished epoch's record (the log is appended after the checkpoint's rename,
+/// so a kill between the two loses at most that line; carrying every record made memory and
+/// the checkpoint grow with each epoch, issue 30). The log keeps its own lines of the epochs
+/// before the carried ones, in order; lines of later epochs (a log ahead of its checkpoint),
+/// duplicates and unreadable lines go; the carried records follow. Returns the epochs before
+/// the carried records that the log lacked (edited or truncated by hand): they cannot come back.
+pub fn restore_log(
+    run_dir: &Path,
+    epochs_done: usize,
+    carried: &[serde_json::Value],
+) -> Result<Vec<usize>, TrainError> {
     let path = run_dir.join(LOG_FILE);
+    let first_carried = carried
+        .first()
+        .and_then(|r| r["epoch"].as_u64())
+        .map_or(epochs_done, |e| e as usize);
+    let old = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
+        Err(e) => return Err(run_error(&path, format!("cannot read: {e}"))),
+    };
     let mut text = String::new();
-    for r in records {
+    let mut kept = Vec::new();
+    for line in old.lines() {
+        let epoch = serde_json::from_str::<serde_json::Value>(line)
+            .ok()
+            .and_then(|r| r["epoch"].as_u64())
+            .map(|e| e as usize);
+        if let Some(epoch) = epoch.filter(|&e| e < first_carried && kept.last() < Some(&e)) {
+            kept.push(epoch);
+            text.push_str(line);
+            text.push('\n');
+        }
+    }
+    for r in carried {
         text.push_str(&serde_json::to_string(r).expect("record serialises"));
         text.push('\n');
     }
     rtf_core::write_bytes_atomic(&path, text.as_bytes())
-        .map_err(|e| run_error(&path, e.to_string()))
+        .map_err(|e| run_error(&path, e.to_string()))?;
+    Ok((0..first_carried).filter(|e| !kept.contains(e)).collect())
 }
 
 #[cfg(test)]
@@ -201,4 +232,42 @@ mod tests {
         assert!(!dead.exists());
         assert!(mine.exists() && other.exists());
     }
+    fn log_epochs(dir: &Path) -> Vec<u64> {
+        std::fs::read_to_string(dir.join(LOG_FILE))
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"].as_u64().unwrap())
+            .collect()
+    }
+
+    #[test]
+    fn the_log_is_restored_to_the_checkpoint_from_its_lines_and_the_carried_record() {
+        let dir = tempfile::tempdir().unwrap();
+        let record = |e: u64| serde_json::json!({"epoch": e, "train_loss": 0.1 + e as f64});
+        let log = |lines: &[String]| std::fs::write(dir.path().join(LOG_FILE), lines.join("\n")).unwrap();
+        let line = |e: u64| serde_json::to_string(&record(e)).unwrap();
+        // A kill between the checkpoint (3 epochs done) and the log's append of epoch 2.
+        log(&[line(0), line(1)]);
+        let lacking = restore_log(dir.path(), 3, &[record(2)]).unwrap();
+        assert_eq!((log_epochs(dir.path()), lacking), (vec![0, 1, 2], vec![]));
+        // A log ahead of its checkpoint, a garbage line and a duplicate: those lines go.
+        log(&[line(0), "{not json".into(), line(0), line(1), line(2), line(3)]);
+        restore_log(dir.path(), 3, &[record(2)]).unwrap();
+        assert_eq!(log_epochs(dir.path()), [0, 1, 2]);
+        // A log that lost an early line by hand: the gap is reported, not invented.
+        log(&[line(1)]);
+        let lacking = restore_log(dir.path(), 3, &[record(2)]).unwrap();
+        assert_eq!((log_epochs(dir.path()), lacking), (vec![1, 2], vec![0]));
+        // A checkpoint of an older version carries every record: they replace the log.
+        log(&[line(0)]);
+        restore_log(dir.path(), 2, &[record(0), record(1)]).unwrap();
+        assert_eq!(log_epochs(dir.path()), [0, 1]);
+        // The kept lines stay as they were written, to the last bit.
+        let exact = r#"{"epoch":0,"train_loss":0.30000000000000004}"#;
+        std::fs::write(dir.path().join(LOG_FILE), format!("{exact}\n")).unwrap();
+        restore_log(dir.path(), 2, &[record(1)]).unwrap();
+        let text = std::fs::read_to_string(dir.path().join(LOG_FILE)).unwrap();
+        assert_eq!(text.lines().next(), Some(exact));
+    }
 }
+

@@ -95,6 +95,8 @@ pub struct TrainOutcome {
     /// `final.safetensors`; None when the run was interrupted (its checkpoint holds where it
     /// stopped, `--resume` continues it).
     pub final_weights: Option<PathBuf>,
+    /// The records of the epochs this call trained, as `log.jsonl` holds them (rank 0; the
+    /// other ranks of a data-parallel run: none).
     pub records: Vec<EpochRecord>,
     pub state: TrainState,
     /// Data-parallel runs: the digest of every trained variable at the end, checked equal on
@@ -414,7 +416,7 @@ pub fn train_distributed(
     let (mut run, streams) = Run::restore_or_start(cfg, folder, ddp, device)?;
     for epoch in run.state.epochs_done..cfg.schedule.epochs {
         if let EpochEnd::Stopped = run.epoch(&streams, epoch, on_epoch, stop)? {
-            return Ok(run.stopped());
+            return run.stopped();
         }
     }
     run.finish()
@@ -552,8 +554,8 @@ fn record_config(
     Ok(())
 }
 
-/// A resumed run's networks, optimisers and progress from its checkpoint; its log rewritten
-/// from the checkpoint's records (a line lost to a kill comes back).
+/// A resumed run's networks, optimisers and progress from its checkpoint; its log restored to
+/// the checkpoint's epochs (a line lost to a kill comes back from the record it carries).
 fn restore(folder: &RunFolder, procedure: &mut dyn Procedure) -> Result<TrainState, TrainError> {
     let mut trained = procedure.trained_mut();
     let mut parts: Vec<(&str, &mut tch::nn::VarStore)> =
@@ -565,7 +567,14 @@ fn restore(folder: &RunFolder, procedure: &mut dyn Procedure) -> Result<TrainSta
             .set_state(optimizers.remove(t.role).unwrap_or_default());
     }
     if folder.is_root {
-        rundir::rewrite_log(folder.dir, &saved.records)?;
+        let lacking = rundir::restore_log(folder.dir, saved.epochs_done, &saved.records)?;
+        if !lacking.is_empty() {
+            eprintln!(
+                "warning: {} lacks the records of epochs {lacking:?} (edited or truncated?); \
+                 the checkpoint carries only the last one, so they stay missing",
+                folder.dir.join(LOG_FILE).display()
+            );
+        }
     }
     Ok(saved)
 }
@@ -785,7 +794,9 @@ struct Run<'a> {
     select: SelectMetric,
     steps_per_epoch: usize,
     tb: Option<crate::tensorboard::TbWriter>,
-    records: Vec<EpochRecord>,
+    /// The first epoch this call trains (its records are the outcome's, read back from the
+    /// log at the end: nothing per epoch stays in memory).
+    first_epoch: usize,
     /// Data-parallel: the stop every rank agreed on at the last step.
     stop_agreed: bool,
     _sync_batch_norm: Option<rtf_models::SyncBatchNorm>,
@@ -854,6 +865,7 @@ impl<'a> Run<'a> {
             .map_or(streams.main.num_batches(), |m| {
                 m.min(streams.main.num_batches())
             });
+        let first_epoch = state.epochs_done;
         let run = Self {
             cfg,
             ddp,
@@ -870,7 +882,7 @@ impl<'a> Run<'a> {
                 .unwrap_or_else(|| default_select_metric(&cfg.data.dataset)),
             steps_per_epoch,
             tb,
-            records: Vec::new(),
+            first_epoch,
             stop_agreed: false,
             _sync_batch_norm: sync_batch_norm,
             _scratch: scratch,
@@ -896,21 +908,18 @@ impl<'a> Run<'a> {
         self.state.epochs_done = epoch + 1;
         let record = self.epoch_record(epoch, progress, seconds, val);
         self.keep_best(epoch, &record)?;
-        self.state
-            .records
-            .push(serde_json::to_value(&record).expect("record serialises"));
+        // The checkpoint carries this epoch's record only: the log holds the others.
+        self.state.records = vec![serde_json::to_value(&record).expect("record serialises")];
         let data_parallel = self.ddp.is_some();
         let stopping = match (data_parallel, self.folder.is_root) {
             (_, false) => {
                 // Rank 0 writes the checkpoint, the log and TensorBoard.
                 check_finite(self.procedure.as_ref(), epoch, self.state.steps_done)?;
-                self.records.push(record);
                 self.stop_agreed
             }
             (data_parallel, true) => {
                 self.save(epoch, &record)?;
                 on_epoch(&record);
-                self.records.push(record);
                 match data_parallel {
                     true => self.stop_agreed,
                     false => stop.load(Ordering::Relaxed),
@@ -1247,14 +1256,38 @@ impl<'a> Run<'a> {
     }
 
     /// The outcome of a stopped run (`--resume` continues it from its checkpoint).
-    fn stopped(self) -> TrainOutcome {
-        TrainOutcome {
+    fn stopped(self) -> Result<TrainOutcome, TrainError> {
+        Ok(TrainOutcome {
             run_dir: self.folder.dir.to_path_buf(),
             final_weights: None,
-            records: self.records,
+            records: self.records_trained()?,
             state: self.state,
             weights_digest: None,
+        })
+    }
+
+    /// The records of the epochs this call trained, from `log.jsonl` (rank 0; the other ranks
+    /// write no log and return none).
+    fn records_trained(&self) -> Result<Vec<EpochRecord>, TrainError> {
+        if !self.folder.is_root {
+            return Ok(Vec::new());
         }
+        let path = self.folder.dir.join(LOG_FILE);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(text) => text,
+            // Stopped inside its first epoch: no epoch, no log yet.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
+            Err(e) => return Err(run_error(&path, format!("cannot read: {e}"))),
+        };
+        let mut records = Vec::new();
+        for (n, line) in text.lines().enumerate() {
+            let record: EpochRecord = serde_json::from_str(line)
+                .map_err(|e| run_error(&path, format!("line {}: {e}", n + 1)))?;
+            if record.epoch >= self.first_epoch {
+                records.push(record);
+            }
+        }
+        Ok(records)
     }
 
     /// Phase 6, finish: every rank holds the same weights (data-parallel), and rank 0 writes
@@ -1271,7 +1304,7 @@ impl<'a> Run<'a> {
         Ok(TrainOutcome {
             run_dir: self.folder.dir.to_path_buf(),
             final_weights: Some(final_weights),
-            records: self.records,
+            records: self.records_trained()?,
             state: self.state,
             weights_digest,
         })
