@@ -327,6 +327,20 @@ fn interrupted(run_dir: &Path, stage: &str, state: &rtf_train::checkpoint::Train
     std::process::exit(130);
 }
 
+/// A rank's sockets to its peers: when a peer dies, a write to its socket must fail with
+/// EPIPE, which gloo reports as an error (the survivors then stop with a clear message and
+/// rank 0 checkpoints), not kill this rank with SIGPIPE, whose default `main` restores for
+/// `rtf … | head`. Which of the two a killed peer caused depended on whether this rank was
+/// reading or writing at that moment (a flaky CI failure: rank 0 died of signal 13).
+fn ignore_broken_pipes() {
+    #[cfg(unix)]
+    // SAFETY: sets the process-wide disposition of one signal to "ignore"; no handler runs,
+    // so no code is executed in signal context.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
+    }
+}
+
 /// Under a launcher (torchrun, Slurm, a PyTorchJob: `WORLD_SIZE` set), joins the job's c10d
 /// group: gloo on CPU, NCCL on CUDA, each rank on the GPU of its `LOCAL_RANK`.
 fn join_job(
@@ -336,6 +350,7 @@ fn join_job(
     let Some(env) = rtf_dist::DistEnv::from_env()? else {
         return Ok(None);
     };
+    ignore_broken_pipes();
     // Each rank on the GPU of its LOCAL_RANK; every stage of a pipeline on the same kind of
     // device (one process group serves them all).
     let mut devices = Vec::new();
