@@ -236,7 +236,11 @@ mod tests {
         std::fs::read_to_string(dir.join(LOG_FILE))
             .unwrap()
             .lines()
-            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"].as_u64().unwrap())
+            .map(|l| {
+                serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"]
+                    .as_u64()
+                    .unwrap()
+            })
             .collect()
     }
 
@@ -244,14 +248,22 @@ mod tests {
     fn the_log_is_restored_to_the_checkpoint_from_its_lines_and_the_carried_record() {
         let dir = tempfile::tempdir().unwrap();
         let record = |e: u64| serde_json::json!({"epoch": e, "train_loss": 0.1 + e as f64});
-        let log = |lines: &[String]| std::fs::write(dir.path().join(LOG_FILE), lines.join("\n")).unwrap();
+        let log =
+            |lines: &[String]| std::fs::write(dir.path().join(LOG_FILE), lines.join("\n")).unwrap();
         let line = |e: u64| serde_json::to_string(&record(e)).unwrap();
         // A kill between the checkpoint (3 epochs done) and the log's append of epoch 2.
         log(&[line(0), line(1)]);
         let lacking = restore_log(dir.path(), 3, &[record(2)]).unwrap();
         assert_eq!((log_epochs(dir.path()), lacking), (vec![0, 1, 2], vec![]));
         // A log ahead of its checkpoint, a garbage line and a duplicate: those lines go.
-        log(&[line(0), "{not json".into(), line(0), line(1), line(2), line(3)]);
+        log(&[
+            line(0),
+            "{not json".into(),
+            line(0),
+            line(1),
+            line(2),
+            line(3),
+        ]);
         restore_log(dir.path(), 3, &[record(2)]).unwrap();
         assert_eq!(log_epochs(dir.path()), [0, 1, 2]);
         // A log that lost an early line by hand: the gap is reported, not invented.
@@ -270,4 +282,3 @@ mod tests {
         assert_eq!(text.lines().next(), Some(exact));
     }
 }
-

@@ -236,6 +236,39 @@ fn a_log_line_lost_to_a_kill_comes_back_on_resume() {
     assert_eq!(epochs, [0, 1]);
 }
 
+/// Issue 30: the checkpoint carried every epoch's log record, so it (and the run's memory)
+/// grew with each epoch. It carries the last one only: its size after 2 epochs and after 8
+/// differs by no more than a record's numbers can change length (a few bytes each).
+#[test]
+fn the_checkpoint_does_not_grow_with_the_epochs() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    common::write_split_dataset(&data, 6, 12345, 4);
+    let run = tmp.path().join("run");
+    let checkpoint = run.join("checkpoint.safetensors");
+    let size = || std::fs::metadata(&checkpoint).unwrap().len() as i64;
+    rtf_train::train(&config(&data, 2), &run, false, &mut |_| {}).unwrap();
+    let after_2 = size();
+    let extended = rtf_train::train(&config(&data, 8), &run, true, &mut |_| {}).unwrap();
+    assert_eq!(
+        extended.records.len(),
+        6,
+        "the outcome holds the 6 epochs this call trained"
+    );
+    let record_bytes = std::fs::read_to_string(run.join("log.jsonl"))
+        .unwrap()
+        .lines()
+        .last()
+        .unwrap()
+        .len() as i64;
+    assert!(
+        (size() - after_2).abs() < record_bytes / 4,
+        "checkpoint {after_2} → {} bytes over 6 epochs (a record is {record_bytes})",
+        size()
+    );
+}
+
 #[test]
 fn a_diverging_run_stops_and_never_writes_non_finite_weights() {
     let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
