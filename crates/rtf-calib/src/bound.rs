@@ -297,7 +297,8 @@ impl<'a> Profile<'a> {
     /// re-minimised at each t (from the straight-line point or the previous step's valley
     /// point moved on, whichever costs less). t doubles from `start` (the straight-line
     /// extent, which the profile can only lengthen: its points cost at most the straight
-    /// line's) until the re-minimised point's rise is significant; one geometric bisection as
+    /// line's; its end is where the chain starts) until the re-minimised point's rise is
+    /// significant; one geometric bisection as
     /// in [`Profile::extent`]. Returns the last indistinguishable valley point (None if none
     /// beyond the solution) and whether the largest step was reached.
     fn profile_extent(
@@ -319,8 +320,10 @@ impl<'a> Profile<'a> {
             }
             self.reminimise(&from, others, frames, PROFILE_ITERATIONS)
         };
-        let mut ok: Option<(f64, [f64; NUM_PARAMS])> = None;
-        let mut t = start.max(FIRST_STEP);
+        // The straight line's end is already indistinguishable: the chain starts there and
+        // the first re-minimised step is the next one (it costs at most the straight line's).
+        let mut ok: Option<(f64, [f64; NUM_PARAMS])> = (start > 0.0).then(|| (start, at(start)));
+        let mut t = if start > 0.0 { 2.0 * start } else { FIRST_STEP };
         while t <= MAX_STEP {
             let p = valley(t, ok);
             if !self.indistinguishable(&p) {
