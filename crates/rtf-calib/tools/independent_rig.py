@@ -22,6 +22,8 @@ numpy and Pillow only, its own registration of the MSRS pairs, depth, camera and
 
 Usage: independent_rig.py OUT --seed S [--frames 20] [--data ../shared/data]
            [--lens division|radial]       # the thermal lens (default division)
+           [--source ir|rgb]              # rgb: the control, the RGB image rendered as the
+                                          # thermal one (no pair registration in the truth)
            [--prior-offset-m 0.02]        # also write rig_prior.yaml, a prior that far off
        independent_rig.py --evaluate OUT CALIB.yaml   # the map error of a calib.yaml
        independent_rig.py --fit-lens OUT --seed S [--frames 20] [--lens ...]
@@ -176,7 +178,7 @@ def render(truth, registered, rng_depth):
     return img, depth
 
 
-def write_rig(out, seed, frames, data, lens):
+def write_rig(out, seed, frames, data, lens, source="ir"):
     rng = np.random.default_rng(seed)
     truth = draw_truth(rng, seed, lens)
     msrs = os.path.join(data, "msrs-samples")
@@ -186,8 +188,12 @@ def write_rig(out, seed, frames, data, lens):
     entries = []
     for i, name in enumerate(chosen):
         vi = Image.open(os.path.join(msrs, "vi", name)).convert("RGB")
-        ir = np.asarray(Image.open(os.path.join(msrs, "ir", name)).convert("L"), np.float64)
-        img, depth = render(truth, register_ir(ir), np.random.default_rng(seed * 1000 + i))
+        if source == "rgb":  # the control: the RGB image itself, which needs no registration
+            src = np.asarray(vi.convert("L"), np.float64)
+        else:
+            ir = np.asarray(Image.open(os.path.join(msrs, "ir", name)).convert("L"), np.float64)
+            src = register_ir(ir)
+        img, depth = render(truth, src, np.random.default_rng(seed * 1000 + i))
         vi.save(os.path.join(out, "f", f"{i:03}_rgb.png"))
         Image.fromarray(np.clip(img * 256, 0, 65535).astype(np.uint16)).save(
             os.path.join(out, "f", f"{i:03}_thermal.png"))
@@ -345,6 +351,7 @@ def main():
     ap.add_argument("--data", default=os.path.join(os.path.dirname(__file__), "../../../../shared/data"))
     ap.add_argument("--prior-offset-m", type=float, default=0.02)
     ap.add_argument("--lens", choices=["division", "radial"], default="division")
+    ap.add_argument("--source", choices=["ir", "rgb"], default="ir")
     ap.add_argument("--evaluate", action="store_true")
     ap.add_argument("--fit-lens", action="store_true")
     a = ap.parse_args()
@@ -355,7 +362,7 @@ def main():
         for square in (True, False):
             print(json.dumps(fit_lens(a.seed, a.frames, a.lens, square)))
         return
-    truth, head = write_rig(a.out, a.seed, a.frames, a.data, a.lens)
+    truth, head = write_rig(a.out, a.seed, a.frames, a.data, a.lens, a.source)
     write_prior_rig(a.out, truth, head, a.prior_offset_m, a.seed)
     print(json.dumps({k: v for k, v in truth.items() if k != "scenes"}))
 
