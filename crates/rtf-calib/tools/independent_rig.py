@@ -11,8 +11,8 @@ numpy and Pillow only, its own registration of the MSRS pairs, depth, camera and
 - Depth: a ground plane (camera 1.3–1.9 m above it, pitched ±2°) meeting a slanted back wall
   at 8–40 m; every pixel has depth. (rtf's writer: a street corridor.)
 - Camera: RGB f = 525 px; thermal 480×384, f = ratio × 525 · (480/640), a *division-model*
-  lens (r_u = r_d / (1 + λ r_d²)), which rtf's k1, k2, p1, p2 model can only approximate
-  (`--fit-lens` measures how well), or with `--lens radial` a radial lens r_d = r_u(1 + k1 r_u²
+  lens (r_u = r_d / (1 + λ r_d²)), which rtf's k1, k2, p1, p2 model approximates (to
+  0.0002 px mean on seed 101, 0.0007 px on 202: `--fit-lens` measures it), or with `--lens radial` a radial lens r_d = r_u(1 + k1 r_u²
   + k2 r_u⁴) that rtf's model contains exactly (k1 drawn over the division λ's range, k2
   ±0.02, from a separate random stream: the same seed gives the same scenes, depth, pose and
   focal length with either lens); rotation up to 2.5°, thermal centre up to 15 cm from the RGB
