@@ -666,6 +666,38 @@ fn profile_endpoints(
         .enumerate()
         .flat_map(|(j, d)| [(j, *d), (j, d.map(|x| -x))])
         .collect();
+    let walks = run_walks(profile, theta, &eigen, &jobs, frames);
+    let mut out = Endpoints::default();
+    for ((_, unit), w) in jobs.iter().zip(walks) {
+        let at = |t: f64| std::array::from_fn::<f64, NUM_PARAMS, _>(|i| theta[i] + t * unit[i]);
+        if std::env::var_os("RTF_CALIB_DEBUG").is_some() {
+            let d = |e: &[f64; NUM_PARAMS]| map_distance(&profile.level, profile.scaling, theta, e);
+            eprintln!(
+                "bound walk: straight t {:.2} ({:.3} px), profile t {:.2} ({:.3} px), valley {:.3} px",
+                w.straight_t,
+                d(&at(w.straight_t)),
+                w.profile_t,
+                d(&at(w.profile_t)),
+                w.valley.map_or(f64::NAN, |v| d(&v))
+            );
+        }
+        out.straight.push(at(w.straight_t));
+        out.ends.push(at(w.profile_t));
+        out.valleys.extend(w.valley);
+        out.capped |= w.capped;
+    }
+    out
+}
+
+/// The walks of `jobs` (eigen-direction index, signed unit direction), in order, on two
+/// threads: interleaved halves, so that flat and stiff directions are shared between them.
+fn run_walks(
+    profile: &Profile,
+    theta: &[f64; NUM_PARAMS],
+    eigen: &[[f64; NUM_PARAMS]],
+    jobs: &[(usize, [f64; NUM_PARAMS])],
+    frames: &[i64],
+) -> Vec<Walk> {
     let run = |p: &Profile, part: &[(usize, [f64; NUM_PARAMS])]| -> Vec<Walk> {
         let _guard = tch::no_grad_guard();
         part.iter()
@@ -678,10 +710,8 @@ fn profile_endpoints(
             })
             .collect()
     };
-    // Interleaved halves, so that flat and stiff directions are shared between the threads.
-    let (even, odd): (Vec<_>, Vec<_>) = jobs.iter().enumerate().partition(|(i, _)| i % 2 == 0);
-    let even: Vec<_> = even.into_iter().map(|(_, j)| *j).collect();
-    let odd: Vec<_> = odd.into_iter().map(|(_, j)| *j).collect();
+    let even: Vec<_> = jobs.iter().step_by(2).copied().collect();
+    let odd: Vec<_> = jobs.iter().skip(1).step_by(2).copied().collect();
     let copy = profile.shallow();
     let (a, b) = std::thread::scope(|scope| {
         let run = &run;
@@ -691,34 +721,15 @@ fn profile_endpoints(
             h.join().expect("profile thread panicked"),
         )
     });
-    let mut walks: Vec<Option<Walk>> = (0..jobs.len()).map(|_| None).collect();
-    for (k, w) in a.into_iter().enumerate() {
-        walks[2 * k] = Some(w);
-    }
-    for (k, w) in b.into_iter().enumerate() {
-        walks[2 * k + 1] = Some(w);
-    }
-    let mut out = Endpoints::default();
-    for ((_, unit), w) in jobs.iter().zip(walks.into_iter().flatten()) {
-        let at = |t: f64| std::array::from_fn::<f64, NUM_PARAMS, _>(|i| theta[i] + t * unit[i]);
-        if std::env::var_os("RTF_CALIB_DEBUG").is_some() {
-            let d = |t: f64| map_distance(&profile.level, profile.scaling, theta, &at(t));
-            eprintln!(
-                "bound walk: straight t {:.2} ({:.3} px), profile t {:.2} ({:.3} px), valley {:.3} px",
-                w.straight_t,
-                d(w.straight_t),
-                w.profile_t,
-                d(w.profile_t),
-                w.valley.map_or(f64::NAN, |v| map_distance(&profile.level, profile.scaling, theta, &v))
-            );
-        }
-        out.straight.push(at(w.straight_t));
-        out.ends.push(at(w.profile_t));
-        out.valleys.extend(w.valley);
-        out.capped |= w.capped;
-    }
-    out
+    // Re-interleave: even jobs from `a`, odd ones from `b`.
+    let mut b = b.into_iter();
+    a.into_iter()
+        .flat_map(|w| std::iter::once(w).chain(b.next()))
+        .collect()
 }
+
+/// The Gauss-Newton Hessians (images alone, with the priors) and their directions.
+type Hessians<'a> = (&'a [Vec<f64>], &'a [Vec<f64>], &'a [[f64; NUM_PARAMS]]);
 
 /// What [`profile_endpoints`] found.
 #[derive(Default)]
@@ -756,7 +767,7 @@ fn summarise(
     profile: &Profile,
     (centre, solution): (&[f64; NUM_PARAMS], &[f64; NUM_PARAMS]),
     ends: &Endpoints,
-    (data_h, total_h, dirs): (&[Vec<f64>], &[Vec<f64>], &[[f64; NUM_PARAMS]]),
+    (data_h, total_h, dirs): Hessians,
     inputs: &BoundInputs,
 ) -> (f64, Bound) {
     let scaling = profile.scaling;
@@ -824,7 +835,7 @@ fn prior_roles(
     rig: &Rig,
     scaling: &Scaling,
     theta: &[f64; NUM_PARAMS],
-    (data_h, total_h, dirs): (&[Vec<f64>], &[Vec<f64>], &[[f64; NUM_PARAMS]]),
+    (data_h, total_h, dirs): Hessians,
     half: &BTreeMap<String, f64>,
 ) -> (BTreeMap<String, PriorRole>, Vec<String>) {
     let (mut roles, mut warnings) = (BTreeMap::new(), Vec::new());
