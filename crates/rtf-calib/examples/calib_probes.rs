@@ -26,6 +26,7 @@ use tch::{Device, Kind, Tensor};
 
 /// (name, the environment variable that gated it as a test, the probe).
 const PROBES: &[(&str, Option<&str>, fn())] = &[
+    ("bound_of_file", None, bound_of_file),
     ("explore", Some("RTF_CALIB_DEBUG"), explore),
     ("probe_pairs", Some("RTF_CALIB_PROBE_PAIRS"), probe_pairs),
     (
@@ -1262,4 +1263,47 @@ fn with_gain(mut level: Level, scaling: &Scaling, theta: &[f64; NUM_PARAMS]) -> 
     level.thermal_src = &level.thermal_src * &beta;
     level.thermal_grad = &level.thermal_grad * &beta;
     level
+}
+
+/// The stated bound (issue 28) of an existing calib.yaml, without re-calibrating: RIG=rig.yaml
+/// CALIB=calib.yaml (the solution, its `split_px` and restart spread); the start is the rig's
+/// nominal one, the frames the rig's first 20 (`rtf calibrate` assesses on the first 20 it
+/// used, in its own order, so the pixel subsets differ slightly). Prints the bound, the
+/// straight-line bound and the seconds it took.
+fn bound_of_file() {
+    use rtf_calib::bound::{bound, BoundInputs};
+    use rtf_calib::calibfile::CalibFile;
+    tch::set_num_threads(1);
+    let var = |k: &str| std::env::var(k).unwrap_or_else(|_| panic!("{k}=... needed"));
+    let rig = Rig::load(std::path::Path::new(&var("RIG"))).unwrap();
+    let file = CalibFile::load(std::path::Path::new(&var("CALIB"))).unwrap();
+    let frames = load_frames(&rig, &mut |w| eprintln!("{w}")).unwrap();
+    let chosen: Vec<&Frame> = frames.iter().take(20).collect();
+    let a = file.quality.as_ref().and_then(|q| q.assessment.clone());
+    let split_px = a.as_ref().map_or(0.0, |a| a.split_px);
+    let spread = a
+        .as_ref()
+        .and_then(|a| a.restarts.as_ref())
+        .map_or(0.0, |r| r.spread_px);
+    let initial = model::to_calibration(&initial_params(&rig));
+    let t0 = std::time::Instant::now();
+    let (px, b) = bound(
+        &rig,
+        &chosen,
+        &BoundInputs {
+            initial: &initial,
+            solution: &file.calibration(),
+            split_px,
+            restart_spread_px: spread,
+        },
+    );
+    println!(
+        "bound {px:.3} px (straight-line ellipsoid {:.3}, flattest {:.3}, objective gap {:.3}, \
+         split {split_px:.3}, spread {spread:.3}, capped {}) in {:.1} s",
+        b.straight_line_px,
+        b.flattest_px,
+        b.objective_gap_px,
+        b.capped,
+        t0.elapsed().as_secs_f64()
+    );
 }

@@ -39,6 +39,9 @@ struct Trial {
     restart_improved_px: f64,
     restart_spread_px: f64,
     restart_cost_drop: f64,
+    /// The stated bound on the map error (issue 28; absent in files written before it).
+    #[serde(default)]
+    bound_px: Option<f64>,
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -147,9 +150,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             restart_improved_px: a.restarts.as_ref().map_or(0.0, |r| r.improved_px),
             restart_spread_px: a.restarts.as_ref().map_or(0.0, |r| r.spread_px),
             restart_cost_drop: a.restarts.as_ref().map_or(0.0, |r| r.cost_drop),
+            bound_px: a.map_error_bound_px,
         };
         println!(
-            "trial seed {seed} ({}, thermal f/rgb f {ratio:.2}): map error {start_px:.2} -> {final_px:.3} px, fx/fy error {:.3} %, {seconds:.1} s, score {:.3}, sharpness {:.3}, agree {:.2}, moved {:.1} px, split {:.3} px, restarts improved {:.2} px (cost -{:.2} %) spread {:.2} px, verdict {} ({})",
+            "trial seed {seed} ({}, thermal f/rgb f {ratio:.2}): map error {start_px:.2} -> {final_px:.3} px, fx/fy error {:.3} %, {seconds:.1} s, score {:.3}, sharpness {:.3}, agree {:.2}, moved {:.1} px, split {:.3} px, restarts improved {:.2} px (cost -{:.2} %) spread {:.2} px, bound {:.3} px, verdict {} ({})",
             t.daylight,
             100.0 * t.aspect_error,
             t.score,
@@ -160,6 +164,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             t.restart_improved_px,
             100.0 * t.restart_cost_drop,
             t.restart_spread_px,
+            t.bound_px.unwrap_or(f64::NAN),
             t.verdict,
             t.reason
         );
@@ -174,15 +179,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .iter()
         .filter(|t| t.final_px >= 1.0 && t.verdict == "ok")
         .count();
+    let stated: Vec<&Trial> = results.iter().filter(|t| t.bound_px.is_some()).collect();
+    let covered = stated
+        .iter()
+        .filter(|t| t.bound_px.is_some_and(|b| t.final_px <= b))
+        .count();
     let mut md = format!(
-        "{ok}/{} trials < 1 px; failures flagged uncertain/failed: {}/{}\n\n| seed | frames | thermal f / RGB f | start px | final px | fx/fy error | s | sharpness | agree | split px | verdict |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "{ok}/{} trials < 1 px; failures flagged uncertain/failed: {}/{}; the bound covers the true error in {covered}/{}\n\n| seed | frames | thermal f / RGB f | start px | final px | fx/fy error | s | sharpness | agree | split px | bound px | verdict |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         results.len(),
         results.len() - ok - silent,
-        results.len() - ok
+        results.len() - ok,
+        stated.len()
     );
     for t in &results {
         md += &format!(
-            "| {} | {} | {:.2} | {:.2} | {:.3} | {:.3} % | {:.1} | {:.3} | {:.2} | {:.3} | {} |\n",
+            "| {} | {} | {:.2} | {:.2} | {:.3} | {:.3} % | {:.1} | {:.3} | {:.2} | {:.3} | {} | {} |\n",
             t.seed,
             t.daylight,
             t.focal_ratio,
@@ -193,6 +204,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             t.sharpness,
             t.frames_agreeing,
             t.split_px,
+            t.bound_px.map_or("–".into(), |b| format!("{b:.3}")),
             t.verdict
         );
     }

@@ -11,14 +11,25 @@ numpy and Pillow only, its own registration of the MSRS pairs, depth, camera and
 - Depth: a ground plane (camera 1.3–1.9 m above it, pitched ±2°) meeting a slanted back wall
   at 8–40 m; every pixel has depth. (rtf's writer: a street corridor.)
 - Camera: RGB f = 525 px; thermal 480×384, f = ratio × 525 · (480/640), a *division-model*
-  lens (r_u = r_d / (1 + λ r_d²)), which rtf's k1, k2, p1, p2 model can only approximate;
-  rotation up to 2.5°, thermal centre up to 15 cm from the RGB one.
+  lens (r_u = r_d / (1 + λ r_d²)), which rtf's k1, k2, p1, p2 model approximates (to
+  0.0002 px mean on seed 101, 0.0007 px on 202: `--fit-lens` measures it), or with `--lens radial` a radial lens r_d = r_u(1 + k1 r_u²
+  + k2 r_u⁴) that rtf's model contains exactly (k1 drawn over the division λ's range, k2
+  ±0.02, from a separate random stream: the same seed gives the same scenes, depth, pose and
+  focal length with either lens); rotation up to 2.5°, thermal centre up to 15 cm from the RGB
+  one.
 - Rendering: every RGB pixel, supersampled 2×2, is moved into the thermal image with its
   depth and splatted bilinearly (weighted mean), then vignetting and noise.
 
 Usage: independent_rig.py OUT --seed S [--frames 20] [--data ../shared/data]
+           [--lens division|radial]       # the thermal lens (default division)
+           [--source ir|rgb]              # rgb: the control, the RGB image rendered as the
+                                          # thermal one (no pair registration in the truth)
            [--prior-offset-m 0.02]        # also write rig_prior.yaml, a prior that far off
        independent_rig.py --evaluate OUT CALIB.yaml   # the map error of a calib.yaml
+       independent_rig.py --fit-lens OUT --seed S [--frames 20] [--lens ...]
+           # the best k1, k2, p1, p2 (and fx, fy, cx, cy) for the truth's lens, with the pose
+           # at the truth, over the evaluator's pixels: how far rtf's lens model can follow
+           # it (nothing is rendered; OUT is not written)
 
 Writes OUT/rig.yaml, OUT/f/NNN_{rgb,thermal,depth}.png and OUT/truth.json (the division-model
 truth; the true map is computed from it, not from a calib.yaml).
@@ -83,10 +94,10 @@ def depth_model(rng, xs, ys):
     return np.minimum(np.minimum(ground, back), 80.0)
 
 
-def draw_truth(rng):
+def draw_truth(rng, seed=0, lens="division"):
     ratio = rng.uniform(0.8, 1.3)
     f = ratio * RGB_F * TH_W / RGB_W
-    return {
+    truth = {
         "f": f,
         "nominal_f": f * rng.uniform(0.96, 1.04),
         "cx": (TH_W - 1) / 2 + rng.uniform(-0.03, 0.03) * TH_W,
@@ -95,21 +106,37 @@ def draw_truth(rng):
         "rotation_vector": list(rng.normal(size=3) * math.radians(2.5) / math.sqrt(3)),
         "centre_m": list(rng.uniform(-1, 1, size=3) * np.array([0.15, 0.08, 0.05])),
     }
+    truth["lens"] = lens
+    if lens == "radial":
+        # A separate stream, so the scenes and the pose match the division rig of this seed.
+        lr = np.random.default_rng(seed + 5000)
+        truth["radial_k"] = [lr.uniform(-0.12, 0.02), lr.uniform(-0.02, 0.02)]
+        del truth["division_lambda"]  # drawn all the same, to keep the stream aligned
+    return truth
+
+
+def distort_radius(truth, ru):
+    """Undistorted normalised radius → distorted one, for the truth's lens."""
+    if truth.get("lens", "division") == "radial":
+        k1, k2 = truth["radial_k"]
+        return ru * (1 + k1 * ru ** 2 + k2 * ru ** 4)
+    lam = truth["division_lambda"]
+    # r_u = r_d / (1 + λ r_d²)  ⇒  λ r_u r_d² − r_d + r_u = 0.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(np.abs(lam * ru) > 1e-9,
+                        (1 - np.sqrt(np.maximum(1 - 4 * lam * ru * ru, 0))) / (2 * lam * ru), ru)
 
 
 def project_thermal(truth, X):
-    """RGB-frame points X (N, 3) → thermal pixels (u, v), division-model lens."""
+    """RGB-frame points X (N, 3) → thermal pixels (u, v) through the truth's lens."""
     R = rodrigues(np.array(truth["rotation_vector"]))
     C = np.array(truth["centre_m"])
     P = (X - C) @ R.T  # X_T = R (X − C)
     z = P[:, 2]
     xu, yu = P[:, 0] / z, P[:, 1] / z
     ru = np.hypot(xu, yu)
-    lam = truth["division_lambda"]
-    # r_u = r_d / (1 + λ r_d²)  ⇒  λ r_u r_d² − r_d + r_u = 0.
+    rd = distort_radius(truth, ru)
     with np.errstate(divide="ignore", invalid="ignore"):
-        rd = np.where(np.abs(lam * ru) > 1e-9,
-                      (1 - np.sqrt(np.maximum(1 - 4 * lam * ru * ru, 0))) / (2 * lam * ru), ru)
         s = np.where(ru > 1e-12, rd / ru, 1.0)
     return truth["f"] * xu * s + truth["cx"], truth["f"] * yu * s + truth["cy"], z
 
@@ -151,9 +178,9 @@ def render(truth, registered, rng_depth):
     return img, depth
 
 
-def write_rig(out, seed, frames, data):
+def write_rig(out, seed, frames, data, lens, source="ir"):
     rng = np.random.default_rng(seed)
-    truth = draw_truth(rng)
+    truth = draw_truth(rng, seed, lens)
     msrs = os.path.join(data, "msrs-samples")
     names = sorted(os.listdir(os.path.join(msrs, "vi")))
     chosen = [names[i] for i in rng.choice(len(names), size=frames, replace=False)]
@@ -161,8 +188,12 @@ def write_rig(out, seed, frames, data):
     entries = []
     for i, name in enumerate(chosen):
         vi = Image.open(os.path.join(msrs, "vi", name)).convert("RGB")
-        ir = np.asarray(Image.open(os.path.join(msrs, "ir", name)).convert("L"), np.float64)
-        img, depth = render(truth, register_ir(ir), np.random.default_rng(seed * 1000 + i))
+        if source == "rgb":  # the control: the RGB image itself, which needs no registration
+            src = np.asarray(vi.convert("L"), np.float64)
+        else:
+            ir = np.asarray(Image.open(os.path.join(msrs, "ir", name)).convert("L"), np.float64)
+            src = register_ir(ir)
+        img, depth = render(truth, src, np.random.default_rng(seed * 1000 + i))
         vi.save(os.path.join(out, "f", f"{i:03}_rgb.png"))
         Image.fromarray(np.clip(img * 256, 0, 65535).astype(np.uint16)).save(
             os.path.join(out, "f", f"{i:03}_thermal.png"))
@@ -256,6 +287,61 @@ def evaluate(out, calib_path):
                       "covered": bool(c["bound"] is not None and err <= c["bound"])}))
 
 
+def radtan(q, x, y):
+    """rtf's lens (spec §6) at normalised undistorted (x, y): q = fx, fy, cx, cy, k1, k2, p1, p2."""
+    fx, fy, cx, cy, k1, k2, p1, p2 = q
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 * r2
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return fx * xd + cx, fy * yd + cy
+
+
+def fit_lens(seed, frames, lens, square):
+    """The best rtf lens for the truth's (least squares over the evaluator's pixels, pose at
+    the truth, Gauss-Newton with a numerical Jacobian): mean and largest residual in px."""
+    rng = np.random.default_rng(seed)
+    truth = draw_truth(rng, seed, lens)
+    ys, xs = np.mgrid[0:RGB_H:2, 0:RGB_W:2].astype(np.float64)
+    pts = []
+    for i in range(frames):  # the depth render() draws for frame i (same stream)
+        z = depth_model(np.random.default_rng(seed * 1000 + i), xs, ys)
+        pts.append(back_project(xs, ys, np.round(z * 1000) / 1000))  # as the 16-bit PNG
+    X = np.concatenate(pts)
+    ut, vt, _ = project_thermal(truth, X)
+    ok = (X[:, 2] > 0) & (ut >= 0) & (vt >= 0) & (ut <= TH_W - 1) & (vt <= TH_H - 1)
+    X, ut, vt = X[ok], ut[ok], vt[ok]
+    P = (X - np.array(truth["centre_m"])) @ rodrigues(np.array(truth["rotation_vector"])).T
+    x, y = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]
+    q = np.array([truth["f"], truth["f"], truth["cx"], truth["cy"], 0, 0, 0, 0], float)
+    free = [i for i in range(8) if not (square and i == 1)]
+
+    def resid(q):
+        qq = q.copy()
+        if square:
+            qq[1] = qq[0]
+        u, v = radtan(qq, x, y)
+        return np.concatenate([u - ut, v - vt])
+    for _ in range(20):
+        r = resid(q)
+        J = np.stack([(resid(q + 1e-6 * np.eye(8)[i]) - r) / 1e-6 for i in free], 1)
+        step = np.linalg.lstsq(J, -r, rcond=None)[0]
+        q[free] += step
+        if np.abs(step).max() < 1e-10:
+            break
+    if square:
+        q[1] = q[0]
+    r = resid(q).reshape(2, -1)
+    d = np.hypot(r[0], r[1])
+    u0, v0 = radtan(np.array([truth["f"], truth["f"], truth["cx"], truth["cy"], 0, 0, 0, 0]), x, y)
+    return {"seed": seed, "lens": lens, "square_pixels": square,
+            "best_fit": dict(zip(["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"], q.tolist())),
+            "mean_residual_px": float(d.mean()), "p95_residual_px": float(np.percentile(d, 95)),
+            "max_residual_px": float(d.max()),
+            "no_distortion_mean_px": float(np.hypot(u0 - ut, v0 - vt).mean()),
+            "points": int(d.size)}
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("out")
@@ -264,12 +350,19 @@ def main():
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--data", default=os.path.join(os.path.dirname(__file__), "../../../../shared/data"))
     ap.add_argument("--prior-offset-m", type=float, default=0.02)
+    ap.add_argument("--lens", choices=["division", "radial"], default="division")
+    ap.add_argument("--source", choices=["ir", "rgb"], default="ir")
     ap.add_argument("--evaluate", action="store_true")
+    ap.add_argument("--fit-lens", action="store_true")
     a = ap.parse_args()
     if a.evaluate:
         evaluate(a.out, a.calib)
         return
-    truth, head = write_rig(a.out, a.seed, a.frames, a.data)
+    if a.fit_lens:
+        for square in (True, False):
+            print(json.dumps(fit_lens(a.seed, a.frames, a.lens, square)))
+        return
+    truth, head = write_rig(a.out, a.seed, a.frames, a.data, a.lens, a.source)
     write_prior_rig(a.out, truth, head, a.prior_offset_m, a.seed)
     print(json.dumps({k: v for k, v in truth.items() if k != "scenes"}))
 
