@@ -7,9 +7,10 @@ use crate::common::*;
 use crate::verdict::{case, recovers, Case};
 use crate::Fixture;
 
-/// A synthetic 64×48 rig of two frames with depth (`rtf synth --format calibration-rig`).
-fn rig(f: &Fixture) -> PathBuf {
-    let dir = f.t.join("rig");
+/// A synthetic 64×48 rig of `frames` frames with depth (`rtf synth --format
+/// calibration-rig`), in `f.t/name`.
+fn rig(f: &Fixture, name: &str, frames: &str) -> PathBuf {
+    let dir = f.t.join(name);
     ok(&[
         "synth",
         "--format",
@@ -19,7 +20,7 @@ fn rig(f: &Fixture) -> PathBuf {
         "--size",
         "64x48",
         "--count",
-        "2",
+        frames,
         "--rig-depth",
         "given",
         "--seed",
@@ -51,7 +52,8 @@ fn calibrate(name: &str, rig: &Path, out: &Path, must: &[&str]) -> Case {
 }
 
 pub fn cases(f: &Fixture) -> Vec<Case> {
-    let rig = rig(f);
+    // Two frames are enough to be refused for a malformed prior.
+    let two = rig(f, "rig", "2");
     let out = f.t.join("calib.yaml");
     let malformed: [(&str, &str, &[&str]); 9] = [
         (
@@ -104,13 +106,17 @@ pub fn cases(f: &Fixture) -> Vec<Case> {
         .iter()
         .enumerate()
         .map(|(i, (name, prior, must))| {
-            let path = with_prior(&rig, &format!("prior{i}"), prior);
+            let path = with_prior(&two, &format!("prior{i}"), prior);
             calibrate(&format!("prior, {name}"), &path, &out, must)
         })
         .collect();
     // 60 cm from where the synthetic rig's thermal camera sits, σ 1 cm: the images disagree.
+    // "Significantly" is judged over the frames with their standard error estimated from
+    // them (Student-t, rtf_calib::bound::critical_value): with two frames (1 degree of
+    // freedom) the cut-off is 13.7 standard errors and no disagreement is significant, so
+    // this case has six (cut-off 2.65).
     let far = with_prior(
-        &rig,
+        &rig(f, "rig6", "6"),
         "prior_far",
         "  translation_m: [0.7, 0.6, 0.5]\n  translation_sigma_m: 0.01\n",
     );
