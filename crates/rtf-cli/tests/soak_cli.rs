@@ -1,9 +1,10 @@
-//! The soak script (`scripts/soak.py`, issue 30) in small: 320 training steps (40 epochs, each
+//! The soak script (`scripts/soak.py`, issue 30) in small: 640 training steps (80 epochs, each
 //! validated and checkpointed), then eval and predict over 80 frames, sampled from `/proc`.
-//! What it keeps fixed at this size: no descriptor or thread growth in any phase, the run's
-//! files growing linearly with what they record, and the checkpoint's size not growing with
-//! the epochs (it carried every epoch's log record before). Memory at length is the full
-//! soak's (docs/src/reliability.md) and `memory_cli`'s. Linux only (elsewhere it says so).
+//! What it keeps fixed at this size: no descriptor or thread growth in any phase, and the
+//! checkpoint's size not growing with the epochs (it carried every epoch's log record
+//! before). Linear file growth and memory at length are the full soak's
+//! (docs/src/reliability.md); memory across epochs is also `memory_cli`'s. Linux only
+//! (elsewhere it says so).
 
 mod common;
 
@@ -12,9 +13,11 @@ use std::process::Command;
 
 use common::*;
 
-const STEPS: &str = "320";
-const EVERY: &str = "40";
-const WARM_UP: &str = "80";
+const STEPS: &str = "640";
+/// 640 steps, 8 an epoch (16 training frames, batch 2).
+const EPOCHS: usize = 80;
+const EVERY: &str = "80";
+const WARM_UP: &str = "160";
 
 fn summaries(stdout: &str) -> std::collections::HashMap<String, serde_json::Value> {
     stdout
@@ -64,30 +67,27 @@ fn a_short_soak_keeps_descriptors_threads_and_the_checkpoint_flat() {
     assert!(out.status.success(), "{}", text(&out));
     let phases = summaries(&stdout);
     let train = &phases["train"];
-    assert!(train["to"].as_u64().unwrap() >= 300, "{stdout}");
+    // Every epoch ran (the script samples once a second, so how many samples a fast machine
+    // takes before training ends varies: the log, not the samples, says how far it got).
+    let run = out_dir.path().join("run");
+    let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
+    assert_eq!(log.lines().count(), EPOCHS, "{stdout}");
     let (fds, threads) = (range(train, "fds"), range(train, "threads"));
     // One more descriptor while a checkpoint or log line is being written.
     assert!(fds.1 - fds.0 <= 1 && threads.0 == threads.1, "{stdout}");
+    // Eval and predict of 80 frames may end before the script's first sample on a fast
+    // machine; where they were sampled, nothing grows.
     for phase in ["eval", "predict"] {
-        let (fds, threads) = (
-            range(&phases[phase], "fds"),
-            range(&phases[phase], "threads"),
-        );
+        let Some(summary) = phases.get(phase) else {
+            continue;
+        };
+        let (fds, threads) = (range(summary, "fds"), range(summary, "threads"));
         assert!(fds.1 - fds.0 <= 1, "{phase}: {stdout}");
         assert!(threads.1 <= 8, "{phase}: {stdout}");
     }
-    // log.jsonl grows by the same amount per 1,000 steps in both halves (a line per epoch).
-    let log = &train["log_kib_per_1000_steps"];
-    let (first, second) = (log[0].as_f64().unwrap(), log[1].as_f64().unwrap());
-    assert!(
-        first > 0.0 && (second / first - 1.0).abs() < 0.25,
-        "{stdout}"
-    );
     // The checkpoint's size: that of the last epoch, against a fresh 2-epoch run of the same
     // data, within a quarter of one log record (numbers change length by a few bytes).
-    let run = out_dir.path().join("run");
-    let last_record = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
-    let record_bytes = last_record.lines().last().unwrap().len() as i64;
+    let record_bytes = log.lines().last().unwrap().len() as i64;
     let short = out_dir.path().join("short");
     let data = out_dir.path().join("data");
     ok(&[
@@ -109,7 +109,7 @@ fn a_short_soak_keeps_descriptors_threads_and_the_checkpoint_flat() {
     };
     assert!(
         (size(&run) - size(&short)).abs() < record_bytes / 4,
-        "checkpoint after 40 epochs {} bytes, after 2 {} (a record is {record_bytes})",
+        "checkpoint after 80 epochs {} bytes, after 2 {} (a record is {record_bytes})",
         size(&run),
         size(&short)
     );
