@@ -147,6 +147,24 @@ pub fn append_log<T: serde::Serialize>(run_dir: &Path, record: &T) -> Result<(),
         .map_err(|e| run_error(&path, format!("cannot append: {e}")))
 }
 
+/// The text of `log.jsonl` (empty before the first epoch has ended: no log yet).
+pub(crate) fn read_log(run_dir: &Path) -> Result<String, TrainError> {
+    let path = run_dir.join(LOG_FILE);
+    match std::fs::read_to_string(&path) {
+        Ok(text) => Ok(text),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(String::new()),
+        Err(e) => Err(run_error(&path, format!("cannot read: {e}"))),
+    }
+}
+
+/// The epoch a log line records (None: not JSON, or no epoch).
+pub(crate) fn line_epoch(line: &str) -> Option<usize> {
+    serde_json::from_str::<serde_json::Value>(line)
+        .ok()
+        .and_then(|r| r["epoch"].as_u64())
+        .map(|e| e as usize)
+}
+
 /// Restores `log.jsonl` on resume to the epochs a checkpoint has done. The checkpoint carries
 /// only its last finished epoch's record (the log is appended after the checkpoint's rename,
 /// so a kill between the two loses at most that line; carrying every record made memory and
@@ -164,18 +182,11 @@ pub fn restore_log(
         .first()
         .and_then(|r| r["epoch"].as_u64())
         .map_or(epochs_done, |e| e as usize);
-    let old = match std::fs::read_to_string(&path) {
-        Ok(text) => text,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
-        Err(e) => return Err(run_error(&path, format!("cannot read: {e}"))),
-    };
+    let old = read_log(run_dir)?;
     let mut text = String::new();
     let mut kept = Vec::new();
     for line in old.lines() {
-        let epoch = serde_json::from_str::<serde_json::Value>(line)
-            .ok()
-            .and_then(|r| r["epoch"].as_u64())
-            .map(|e| e as usize);
+        let epoch = line_epoch(line);
         if let Some(epoch) = epoch.filter(|&e| e < first_carried && kept.last() < Some(&e)) {
             kept.push(epoch);
             text.push_str(line);

@@ -1273,23 +1273,12 @@ impl<'a> Run<'a> {
             return Ok(Vec::new());
         }
         let path = self.folder.dir.join(LOG_FILE);
-        let text = match std::fs::read_to_string(&path) {
-            Ok(text) => text,
-            // Stopped inside its first epoch: no epoch, no log yet.
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
-            Err(e) => return Err(run_error(&path, format!("cannot read: {e}"))),
-        };
         let mut records = Vec::new();
-        for (n, line) in text.lines().enumerate() {
-            // Lines of earlier epochs may be an older build's schema: only this call's are read.
-            let value: serde_json::Value = serde_json::from_str(line)
-                .map_err(|e| run_error(&path, format!("line {}: {e}", n + 1)))?;
-            if value["epoch"]
-                .as_u64()
-                .is_some_and(|e| e as usize >= self.first_epoch)
-            {
+        // Lines of earlier epochs may be an older build's schema: only this call's are read.
+        for (n, line) in rundir::read_log(self.folder.dir)?.lines().enumerate() {
+            if rundir::line_epoch(line).is_some_and(|e| e >= self.first_epoch) {
                 records.push(
-                    serde_json::from_value(value)
+                    serde_json::from_str(line)
                         .map_err(|e| run_error(&path, format!("line {}: {e}", n + 1)))?,
                 );
             }
