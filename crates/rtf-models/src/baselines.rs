@@ -9,7 +9,7 @@ use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
-use crate::layers::{Act, BatchNorm, ConvBnAct, ConvSpec, Fuse, InitScheme};
+use crate::layers::{Act, BatchNorm, ConvBnAct, ConvSpec, Fuse, InitScheme, WeightInit};
 use crate::resnet::{self, BlockGeometry, BlockKind, ResLayer};
 use crate::Network;
 
@@ -288,7 +288,10 @@ impl Fusenet {
 // ------------------------------------------------------------------------------ U-Net
 
 /// U-Net (Ronneberger et al., MICCAI 2015) with padded 3×3 convolutions (the original's are
-/// unpadded and crop the skips; padding keeps the output at the input size).
+/// unpadded and crop the skips; padding keeps the output at the input size). No BatchNorm, so
+/// the paper's initialisation matters (§3: N(0, √(2/N)), N the incoming connections): with
+/// PyTorch's default U(±1/√N) the 23 ReLU layers shrink the signal and the network never
+/// leaves the all-background answer (measured: scripts/quick_budget_sweep.sh).
 #[derive(Debug)]
 struct Unet {
     down: Vec<(ConvBnAct, ConvBnAct)>,
@@ -296,8 +299,11 @@ struct Unet {
     out: ConvBnAct,
 }
 
+/// U-Net's initialisation (paper §3).
+const UNET_INIT: WeightInit = WeightInit::KaimingNormalFanIn;
+
 fn double_conv(p: &nn::Path, c_in: i64, c_out: i64) -> (ConvBnAct, ConvBnAct) {
-    let spec = ConvSpec::new(3).bias(true);
+    let spec = ConvSpec::new(3).bias(true).init(UNET_INIT);
     (
         ConvBnAct::new(p / "conv1", None, c_in, c_out, spec, Act::Relu),
         ConvBnAct::new(p / "conv2", None, c_out, c_out, spec, Act::Relu),
@@ -319,7 +325,7 @@ fn unet(p: nn::Path, c_in: i64, num_classes: i64) -> Unet {
         .map(|i| {
             let (c, half) = (widths[4 - i], widths[3 - i]);
             let sp = &p / "up" / i;
-            let spec = ConvSpec::new(2).stride(2).transposed().bias(true);
+            let spec = ConvSpec::new(2).stride(2).transposed().bias(true).init(UNET_INIT);
             let upconv = ConvBnAct::new(&sp / "upconv", None, c, half, spec, Act::Identity);
             let (a, b) = double_conv(&sp, c, half);
             (upconv, a, b)
@@ -330,7 +336,7 @@ fn unet(p: nn::Path, c_in: i64, num_classes: i64) -> Unet {
         None,
         64,
         num_classes,
-        ConvSpec::new(1).bias(true),
+        ConvSpec::new(1).bias(true).init(UNET_INIT),
         Act::Identity,
     );
     Unet { down, up, out }
@@ -1284,6 +1290,27 @@ mod tests {
             assert_eq!(fast.is_fused(), arch != Arch::Erfnet);
             let agreement = argmax_agreement(&plain, &fast.forward(&x).unwrap());
             assert!(agreement >= 0.999, "{arch:?}: {agreement}");
+        }
+    }
+
+    #[test]
+    fn unet_starts_from_its_papers_initialisation() {
+        // U-Net §3: N(0, √(2/N)), N = incoming connections (k·k·c_in). With PyTorch's default
+        // U(±1/√N) (std √(1/(3N))) the BatchNorm-free network stayed at the all-background
+        // answer on the quick budget's data.
+        tch::manual_seed(3);
+        let vs = nn::VarStore::new(Device::Cpu);
+        Baseline::new(vs.root(), &Config::new(Arch::Unet, 3, 9)).unwrap();
+        let vars = vs.variables();
+        for (name, fan_in) in [
+            ("down.0.conv1.weight", 3.0 * 9.0),
+            ("down.3.conv2.weight", 512.0 * 9.0),
+            ("out.weight", 64.0),
+        ] {
+            let w = vars.get(name).unwrap_or_else(|| panic!("no {name}"));
+            let std = w.std(true).double_value(&[]);
+            let expected = (2.0 / fan_in as f64).sqrt();
+            assert!((std / expected - 1.0).abs() < 0.1, "{name}: std {std} vs {expected}");
         }
     }
 

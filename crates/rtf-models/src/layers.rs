@@ -178,6 +178,9 @@ pub enum WeightInit {
     TorchDefault,
     /// torchvision ResNet: kaiming_normal, fan_out, ReLU gain.
     KaimingNormalFanOut,
+    /// kaiming_normal, fan_in, ReLU gain: N(0, √(2/N)) with N the incoming connections
+    /// (U-Net, Ronneberger et al. 2015, §3).
+    KaimingNormalFanIn,
     /// Xavier/Glorot uniform (RTFNet decoder).
     XavierUniform,
     /// N(0, std) (HeatNet).
@@ -374,6 +377,10 @@ fn weight_init(init: WeightInit, dims: &[i64]) -> nn::Init {
         WeightInit::KaimingNormalFanOut => nn::Init::Randn {
             mean: 0.0,
             stdev: (2.0 / fan_out).sqrt(),
+        },
+        WeightInit::KaimingNormalFanIn => nn::Init::Randn {
+            mean: 0.0,
+            stdev: (2.0 / fan_in).sqrt(),
         },
         WeightInit::XavierUniform => {
             let bound = (6.0 / (fan_in + fan_out)).sqrt();

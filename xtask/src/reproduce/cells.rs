@@ -108,7 +108,7 @@ impl Context {
         let mut train: Vec<String> = match &cell.train {
             Train::Model(m) => {
                 let mut v = vec!["--model".to_string(), m.to_string()];
-                v.extend(self.budget.train_args(table.recipe, *train_real));
+                v.extend(self.budget.train_args(table.recipe, m, *train_real));
                 if cell.data == Data::Freiburg {
                     // Freiburg's only labelled held-out part is its test layout: no
                     // validation on it (the protocol never picks a checkpoint on test).
@@ -472,7 +472,7 @@ fn rtf_command(ctx: &Context) -> Command {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     #[test]
@@ -527,7 +527,7 @@ case "$1" in
 esac
 "#;
 
-    fn fake_context(tmp: &Path) -> Context {
+    pub(in crate::reproduce) fn fake_context(tmp: &Path) -> Context {
         use std::os::unix::fs::PermissionsExt;
         let bin = tmp.join("bin");
         std::fs::create_dir_all(&bin).unwrap();

@@ -113,6 +113,10 @@ options:
   --out DIR                   results folder (default results/): <table>.md/.json/.csv, cells
   --mf DIR | --freiburg DIR | --bdd DIR   real datasets (default: synthetic, from `rtf synth`)
   --device cpu|cuda           (default cpu)
+  --jobs N                    cells trained at once (default 1; more for a GPU or many cores:
+                              each `rtf train` process also takes the threads it is given)
+  --no-build                  use target/release/rtf as it is instead of building it with
+                              cargo (a machine without the Rust toolchain, e.g. a lent GPU)
   --backbone-weights FILE     ImageNet ResNet weights for RTFNet encoders (paper budget)
   speed tables: --precision fp32|bf16, --warmup N, --iterations N
 
@@ -142,6 +146,8 @@ struct Options {
     out: PathBuf,
     roots: BTreeMap<Data, PathBuf>,
     device: String,
+    jobs: usize,
+    no_build: bool,
     backbone_weights: Option<PathBuf>,
     precision: String,
     warmup: Option<usize>,
@@ -169,6 +175,8 @@ fn parse(args: &[String]) -> Result<Options> {
         out: PathBuf::from("results"),
         roots: BTreeMap::new(),
         device: "cpu".into(),
+        jobs: 1,
+        no_build: false,
         backbone_weights: None,
         precision: "fp32".into(),
         warmup: None,
@@ -200,6 +208,13 @@ fn parse(args: &[String]) -> Result<Options> {
                 o.roots.insert(Data::Bdd, PathBuf::from(value()?));
             }
             "--device" => o.device = value()?.clone(),
+            "--jobs" => {
+                o.jobs = number(value()?, "--jobs")?;
+                if o.jobs == 0 {
+                    bail!("--jobs must be at least 1");
+                }
+            }
+            "--no-build" => o.no_build = true,
             "--backbone-weights" => o.backbone_weights = Some(PathBuf::from(value()?)),
             "--precision" => o.precision = value()?.clone(),
             "--warmup" => o.warmup = Some(number(value()?, "--warmup")?),
@@ -339,7 +354,11 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
         .collect();
     check_inputs(&o, &selected)?;
 
-    let rtf = build_rtf(root, &selected)?;
+    let rtf = if o.no_build {
+        prebuilt_rtf(root, &selected)?
+    } else {
+        build_rtf(root, &selected)?
+    };
     let recipes = available_recipes(root);
     check_recipes(&o, &selected, &recipes)?;
     let (jobs, mut missing) = plan(&selected, &recipes, o.seeds);
@@ -359,7 +378,7 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
         cells::check_spec(&ctx.cell_dir(t, c, *s), &ctx.spec(t, c, *s)?)?;
     }
 
-    let progress = run_jobs(&ctx, &jobs, &mut missing);
+    let progress = run_jobs(&ctx, &jobs, o.jobs, &mut missing);
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     write_tables(&ctx, &selected, o.seeds, &missing, &command)?;
     if !progress.interrupted {
@@ -395,6 +414,17 @@ fn build_rtf(root: &Path, selected: &[Table]) -> Result<PathBuf> {
     crate::run(root, "cargo", &["build", "--release", "-p", "rtf-cli"])?;
     check_networks(root, selected)?;
     Ok(root.join("target/release/rtf"))
+}
+
+/// `--no-build`: the `rtf` already in target/release, which must build every network of the
+/// selected tables.
+fn prebuilt_rtf(root: &Path, selected: &[Table]) -> Result<PathBuf> {
+    let rtf = root.join("target/release/rtf");
+    if !rtf.is_file() {
+        bail!("--no-build: {} does not exist (build it, or leave out --no-build)", rtf.display());
+    }
+    check_networks(root, selected)?;
+    Ok(rtf)
 }
 
 /// A single table whose HeatNet recipes this rtf lacks stops here; under `all` their cells are
@@ -485,75 +515,104 @@ struct Progress {
     /// Cells trained or evaluated now (not skipped, reused or interrupted), and their time.
     ran: usize,
     ran_seconds: f64,
+    /// Cells run at once (`--jobs`): the ETA divides by it.
+    workers: usize,
     interrupted: bool,
 }
 
-/// Runs every job in order: skips finished cells, resumes interrupted ones, records failures
-/// in `missing` and goes on; stops at the first interrupted cell.
-fn run_jobs(ctx: &Context, jobs: &[Job], missing: &mut Vec<MissingCell>) -> Progress {
-    let mut p = Progress {
+/// Runs every job: skips finished cells, resumes interrupted ones, records failures in
+/// `missing` and goes on; stops taking new cells at the first interrupted one. `workers` cells
+/// run at once, taken in order (1: one after the other).
+fn run_jobs(ctx: &Context, jobs: &[Job], workers: usize, missing: &mut Vec<MissingCell>) -> Progress {
+    let progress = std::sync::Mutex::new(Progress {
         started: Instant::now(),
         ran: 0,
         ran_seconds: 0.0,
+        workers: workers.max(1),
         interrupted: false,
-    };
-    let total = jobs.len();
-    for (k, (t, c, s)) in jobs.iter().enumerate() {
-        let dir = ctx.cell_dir(t, c, *s);
-        let st = cells::state(&dir, c.bench);
-        let at = format!("[{}/{total}] {}/{}/seed{s}", k + 1, t.id, c.id);
-        if st == cells::State::Done {
-            eprintln!("{at}: done, skipped");
-            continue;
+    });
+    let failed = std::sync::Mutex::new(Vec::new());
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    std::thread::scope(|scope| {
+        for _ in 0..workers.min(jobs.len()).max(1) {
+            scope.spawn(|| loop {
+                let k = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                if k >= jobs.len() || lock(&progress).interrupted {
+                    break;
+                }
+                if let Some(m) = run_job(ctx, jobs, k, &progress) {
+                    lock(&failed).push(m);
+                }
+            });
         }
+    });
+    missing.extend(failed.into_inner().unwrap_or_else(|e| e.into_inner()));
+    progress.into_inner().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A mutex's guard, also after a panicking holder (the data are counters and lists).
+fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Runs job `k`; its failure, if it failed.
+fn run_job(
+    ctx: &Context,
+    jobs: &[Job],
+    k: usize,
+    progress: &std::sync::Mutex<Progress>,
+) -> Option<MissingCell> {
+    let (t, c, s) = jobs[k];
+    let dir = ctx.cell_dir(t, c, s);
+    let st = cells::state(&dir, c.bench);
+    let at = format!("[{}/{}] {}/{}/seed{s}", k + 1, jobs.len(), t.id, c.id);
+    if st == cells::State::Done {
+        eprintln!("{at}: done, skipped");
+        return None;
+    }
+    let (eta, elapsed) = {
+        let p = lock(progress);
         let eta = if p.ran > 0 {
             let left = trainings_left(ctx, &jobs[k..]) as f64;
-            format!(
-                ", about {} left",
-                duration(p.ran_seconds / p.ran as f64 * left)
-            )
+            format!(", about {} left", duration(p.ran_seconds / p.ran as f64 * left / p.workers as f64))
         } else {
             String::new()
         };
-        eprintln!(
-            "{at}: {} (elapsed {}{eta})",
-            match st {
-                cells::State::Resume => "resuming training",
-                cells::State::Evaluate => "evaluating",
-                _ => "training",
-            },
-            duration(p.started.elapsed().as_secs_f64())
-        );
-        let t0 = Instant::now();
-        match cells::run(ctx, t, c, *s) {
-            Ok(Outcome::Ran) => {
-                p.ran += 1;
-                p.ran_seconds += t0.elapsed().as_secs_f64();
-            }
-            Ok(Outcome::Reused(from)) => {
-                eprintln!("    same training as {}: reused", from.display());
-            }
-            Ok(Outcome::Interrupted) => {
-                eprintln!(
-                    "interrupted: checkpoint written in {}; run the same command again to resume",
-                    dir.display()
-                );
-                p.interrupted = true;
-                break;
-            }
-            Err(e) => {
-                eprintln!("    FAILED: {e:#}");
-                missing.push((
-                    t.id.to_string(),
-                    report::Missing {
-                        cell: c.id.clone(),
-                        reason: format!("failed (seed {s}): {e:#}"),
-                    },
-                ));
-            }
+        (eta, duration(p.started.elapsed().as_secs_f64()))
+    };
+    let doing = match st {
+        cells::State::Resume => "resuming training",
+        cells::State::Evaluate => "evaluating",
+        _ => "training",
+    };
+    eprintln!("{at}: {doing} (elapsed {elapsed}{eta})");
+    let t0 = Instant::now();
+    match cells::run(ctx, t, c, s) {
+        Ok(Outcome::Ran) => {
+            let mut p = lock(progress);
+            p.ran += 1;
+            p.ran_seconds += t0.elapsed().as_secs_f64();
+        }
+        Ok(Outcome::Reused(from)) => eprintln!("{at}: same training as {}: reused", from.display()),
+        Ok(Outcome::Interrupted) => {
+            eprintln!(
+                "interrupted: checkpoint written in {}; run the same command again to resume",
+                dir.display()
+            );
+            lock(progress).interrupted = true;
+        }
+        Err(e) => {
+            eprintln!("{at}: FAILED: {e:#}");
+            return Some((
+                t.id.to_string(),
+                report::Missing {
+                    cell: c.id.clone(),
+                    reason: format!("failed (seed {s}): {e:#}"),
+                },
+            ));
         }
     }
-    p
+    None
 }
 
 /// Cells of `jobs` left to train: identical ones (another table's same run) count once.
@@ -894,14 +953,18 @@ data from `rtf synth` and every title and JSON says so (`\"data\": \"synthetic\"
 numbers show the pipeline and the trends, not the papers' values.
 
 **Budgets.** `smoke` checks the pipeline (CI runs `reproduce all --budget smoke` inside `cargo
-xtask test`); `quick` trains every cell for 3 epochs of batch 4 on 96×64 frames (160
-synthetic frames, 80 for training) with SGD lr 0.01 ×0.8 per epoch — tiny, because the 2 CPU
-cores of this machine are shared with other jobs; `paper` follows the
-papers' recipes (MFNet: SGD lr 0.01 ×0.94, 80 epochs, batch 6, flips, 480×640; RTFNet: SGD lr
-0.01, momentum 0.9, weight decay 5e-4, exponential decay ×0.95, flips, 100 epochs, batch 2 —
-the paper trains \"until convergence\"; HeatNet: the `rtf recipes` procedures) and is meant
-for a GPU. The budget and each cell's exact `rtf train` / `rtf eval` flags are written into
-the results.
+xtask test`). `quick` trains on 96×64 frames (160 synthetic frames, 80 for training) in
+batches of 4 with each paper's SGD schedule (MFNet's tables lr 0.01 ×0.94 per epoch, RTFNet's
+×0.95), for as many epochs as the network was measured to need to leave the all-unlabelled
+answer: 20 for MFNet and its variants, 30 for MFNet-B, 20 for the rest, which do not learn at
+any CPU budget tried ([Sizing the quick budget](quick-budget.md)); the HeatNet recipes run MFNet
+in every role at 192×96 with RMSprop 1e-3. `paper` follows the papers' recipes (MFNet: SGD lr
+0.01 ×0.94, 80 epochs, batch 6, flips, 480×640; RTFNet: SGD lr 0.01, momentum 0.9, weight
+decay 5e-4, exponential decay ×0.95, flips, 100 epochs, batch 2 — the paper trains \"until
+convergence\"; HeatNet: the `rtf recipes` procedures) and is meant for a GPU. The budget and
+each cell's exact `rtf train` / `rtf eval` flags are written into the results. `--jobs N`
+trains N cells at once (a GPU or many cores); `--no-build` uses the `rtf` already in
+`target/release` (a machine without the Rust toolchain).
 
 **Protocol** (written into every result): train on the training split, pick the checkpoint
 on validation (`best.safetensors`, never on test), report the test split; MF day/night from
@@ -989,6 +1052,33 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("needs a value"));
+    }
+
+    #[test]
+    fn parallel_jobs_run_every_cell_once() {
+        let tmp = tempfile::tempdir().unwrap();
+        let ctx = cells::tests::fake_context(tmp.path());
+        let selected: Vec<Table> = tables::all(false)
+            .into_iter()
+            .filter(|t| t.id == "mfnet-tab2")
+            .collect();
+        let (jobs, _) = plan(&selected, &BTreeMap::new(), 2);
+        let mut missing = Vec::new();
+        let p = run_jobs(&ctx, &jobs, 3, &mut missing);
+        assert!(missing.is_empty() && !p.interrupted);
+        assert_eq!(p.ran, jobs.len());
+        for (t, c, s) in &jobs {
+            assert_eq!(cells::state(&ctx.cell_dir(t, c, *s), c.bench), cells::State::Done);
+        }
+        let calls = std::fs::read_to_string(tmp.path().join("bin/calls.txt")).unwrap();
+        let trains = calls.lines().filter(|l| l.starts_with("train ")).count();
+        assert_eq!(trains, jobs.len(), "each cell trained once:\n{calls}");
+        // A second run finds every cell done.
+        let again = run_jobs(&ctx, &jobs, 3, &mut missing);
+        assert_eq!(again.ran, 0);
+        let o = parse(&args(&["mfnet-tab2", "--jobs", "4", "--no-build"])).unwrap();
+        assert_eq!((o.jobs, o.no_build), (4, true));
+        assert!(parse(&args(&["mfnet-tab2", "--jobs", "0"])).is_err());
     }
 
     #[test]

@@ -114,7 +114,7 @@ pub fn collect(
         "table": table.id,
         "title": title(table, synthetic),
         "source": table.source,
-        "budget": ctx.budget.describe(table.recipe, !synthetic),
+        "budget": ctx.budget.describe(table.recipe, &super::tables::networks(std::slice::from_ref(table)), !synthetic),
         "data": if synthetic { "synthetic" } else { "real" },
         "datasets": data_roots,
         "seeds": seeds,
