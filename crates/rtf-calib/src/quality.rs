@@ -125,10 +125,14 @@ impl Assessment {
     pub fn with_bound(mut self, bound_px: f64, bound: Bound) -> Self {
         if self.verdict == Verdict::Ok && !(bound_px < BOUND_OK_PX) {
             self.verdict = Verdict::Uncertain;
+            let spread = if bound.capped {
+                format!("the data do not bound the map (solutions they cannot tell apart reach the search's edge, {bound_px:.0} px)")
+            } else {
+                format!("solutions the data cannot tell apart map pixels up to {bound_px:.2} px apart (bound ≥ {BOUND_OK_PX} px)")
+            };
             self.reason = format!(
-                "solutions the data cannot tell apart map pixels up to {bound_px:.2} px apart \
-                 (bound ≥ {BOUND_OK_PX} px): add frames with structure at several depths, or \
-                 priors (rig.yaml `prior:`) for what you know of the rig"
+                "{spread}: add frames with structure at several depths, or priors (rig.yaml \
+                 `prior:`) for what you know of the rig"
             );
         }
         if self.verdict == Verdict::Ok && !bound.warnings.is_empty() {
@@ -507,6 +511,58 @@ pub fn assess(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn ok_assessment() -> Assessment {
+        Assessment {
+            verdict: Verdict::Ok,
+            reason: String::new(),
+            score: Scores {
+                at_solution: 0.3,
+                at_start: 0.2,
+                perturbed_mean: 0.25,
+                perturbed_best: 0.28,
+                sharpness: 0.1,
+                delta_px: DELTA_PX,
+            },
+            frames_agreeing: 1.0,
+            moved_px: 5.0,
+            split_px: 0.1,
+            restarts: None,
+            sigma: BTreeMap::new(),
+            conditioning: BTreeMap::new(),
+            map_error_bound_px: None,
+            bound: None,
+        }
+    }
+
+    fn bound(capped: bool) -> Bound {
+        Bound {
+            flattest_px: 3.0,
+            capped,
+            objective_gap_px: 0.0,
+            straight_line_px: 3.0,
+            intervals: BTreeMap::new(),
+            priors: BTreeMap::new(),
+            warnings: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_bound_at_one_px_or_more_makes_ok_uncertain_and_an_unbounded_fit_says_so() {
+        let small = ok_assessment().with_bound(0.4, bound(false));
+        assert_eq!(small.verdict, Verdict::Ok);
+        let wide = ok_assessment().with_bound(3.0, bound(false));
+        assert_eq!(wide.verdict, Verdict::Uncertain);
+        assert!(wide.reason.contains("up to 3.00 px apart"), "{}", wide.reason);
+        // A 2-frame rig: the walks reach the search's edge; the number is no bound.
+        let free = ok_assessment().with_bound(2.4e6, bound(true));
+        assert_eq!(free.verdict, Verdict::Uncertain);
+        assert!(
+            free.reason.contains("do not bound the map") && !free.reason.contains("up to"),
+            "{}",
+            free.reason
+        );
+    }
 
     /// Figures of the 640×480 real-imagery trial seed 1 (day, thermal f / RGB f 0.77), which
     /// ended 1.09 px off with the earlier 5 % sharpness threshold calling it `ok`.

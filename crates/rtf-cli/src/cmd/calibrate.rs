@@ -302,11 +302,19 @@ fn print_bound(a: &Assessment) {
     let (Some(px), Some(b)) = (a.map_error_bound_px, &a.bound) else {
         return;
     };
-    println!(
-        "map error bound: {px:.2} px (solutions the data cannot tell apart; flattest direction {:.2} px{})",
-        b.flattest_px,
-        if b.capped { ", unbounded within the search" } else { "" }
-    );
+    if b.capped {
+        // The walks reached the search's edge: the number is where the search stopped, not a
+        // bound (on a 2-frame rig it runs to millions of px).
+        println!(
+            "map error bound: none — the data leave the map free (solutions they cannot tell \
+             apart reach the search's edge, {px:.0} px); add frames or rig.yaml priors"
+        );
+    } else {
+        println!(
+            "map error bound: {px:.2} px (solutions the data cannot tell apart; flattest direction {:.2} px)",
+            b.flattest_px
+        );
+    }
     for (name, r) in &b.priors {
         println!(
             "  {name}: set by the {} ({:.0} % of the information from the prior; ±{:.4} after, prior σ {})",

@@ -1,0 +1,68 @@
+#!/usr/bin/env bash
+# Builds `rtf` for the lent GPU machine, whose image carries PyTorch 2.11 (+cu130) rather than
+# the 2.13 that tch 0.26 is generated for (docs/src/getting-started.md, GPUs). Run it here, on
+# the build machine:
+#   1. fetches the torch 2.11.0 wheel from the package registry (about 530 MB) and unpacks its
+#      headers and libraries;
+#   2. copies torch-sys 0.26 from cargo's registry and makes the generated wrapper functions
+#      that 2.11 lacks raise instead (they are found by compiling: philox RNG, lanczos
+#      upsampling, an in-place flash-attention variant, an MPS attention signature; rtf uses
+#      none of them);
+#   3. builds `rtf` in a separate worktree and target folder, with torch-sys patched, and writes
+#      a stripped copy to OUT (default .gpu/rtf, git-ignored; carry `.gpu` to the machine).
+# There: LD_LIBRARY_PATH=<torch>/lib plus its nvidia/*/lib folders (see docs/src/
+# getting-started.md); `cargo xtask reproduce ... --no-build` after copying it to
+# target/release/rtf.
+# Usage: scripts/gpu_build.sh [OUT] [WORK]   (WORK default /tmp/rtf-gpu-build)
+set -euo pipefail
+repo=$(git rev-parse --show-toplevel)
+out=$(realpath -m "${1:-$repo/.gpu/rtf}")
+work=$(realpath -m "${2:-/tmp/rtf-gpu-build}")
+version=2.11.0
+mkdir -p "$work"
+cd "$work"
+if [ ! -d torch/include ]; then
+    python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 \
+        --implementation cp --platform manylinux_2_28_x86_64 -d wheel "torch==$version"
+    unzip -q wheel/torch-"$version"-*.whl 'torch/include/*' 'torch/lib/*' 'torch/share/*'
+fi
+sys=$work/torch-sys
+if [ ! -d "$sys" ]; then
+    cp -r "$(ls -d ~/.cargo/registry/src/*/torch-sys-0.26.0 | head -1)" "$sys"
+fi
+tree=$work/tree
+if [ ! -d "$tree" ]; then
+    git -C "$repo" worktree add --detach "$tree" HEAD
+fi
+git -C "$tree" checkout -q --detach "$(git -C "$repo" rev-parse HEAD)"
+ln -sfn "$work/torch" "$tree/.libtorch"
+
+build() {
+    (cd "$tree" && CARGO_TARGET_DIR="$tree/target" cargo build --release -p rtf-cli \
+        --config "patch.crates-io.torch-sys.path=\"$sys\"" 2>&1 | tee "$work/build.log")
+}
+# Each failing build names the wrapper lines 2.11 cannot compile; make those functions raise.
+for attempt in 1 2 3; do
+    if build; then break; fi
+    python3 - "$sys/libtch/torch_api_generated.cpp" "$work/build.log" <<'PY'
+import re, sys
+src_path, log_path = sys.argv[1:]
+lines = sorted({int(m.group(1)) for m in re.finditer(
+    r"torch_api_generated\.cpp:(\d+):\d+: error", open(log_path).read())}, reverse=True)
+if not lines:
+    sys.exit("the build failed for another reason: see " + log_path)
+src = open(src_path).read().split("\n")
+for n in lines:
+    i = n - 1
+    assert "outputs__ =" in src[i], src[i]
+    j = i + 1
+    while src[j].strip() != ")":
+        j += 1
+    src[i:j] = ['    throw std::runtime_error("not in libtorch 2.11 (rtf GPU build)");']
+open(src_path, "w").write("\n".join(src))
+print(f"patched {len(lines)} wrapper functions")
+PY
+done
+mkdir -p "$(dirname "$out")"
+strip -o "$out" "$tree/target/release/rtf"
+echo "wrote $out"
