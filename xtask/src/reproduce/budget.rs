@@ -51,82 +51,30 @@ impl Budget {
     /// `rtf train` flags (after --model/--data/--out/--seed) for a `Train::Model` cell of
     /// `network`.
     pub fn train_args(self, family: RecipeFamily, network: &str, real_data: bool) -> Vec<String> {
-        let quick_epochs = quick_epochs(network).to_string();
-        let v: Vec<&str> = match (self, family) {
-            (Budget::Smoke, _) => vec![
-                "--epochs",
-                "1",
-                "--batch-size",
-                "2",
-                "--max-steps",
-                "2",
-                "--workers",
-                "1",
-            ],
+        let e = quick_epochs(network);
+        let flags = match (self, family) {
+            (Budget::Smoke, _) => "--epochs 1 --batch-size 2 --max-steps 2 --workers 1".into(),
             // 80 training frames at 96×64 in batches of 4 with the paper's SGD schedule
             // (MFNet: lr 0.01 ×0.94 per epoch, rtf train's default; RTFNet: ×0.95), for as many
             // epochs as the network needs to leave the all-unlabelled answer (`quick_epochs`).
-            (Budget::Quick, RecipeFamily::Mfnet) => {
-                vec!["--epochs", &quick_epochs, "--batch-size", "4"]
+            (Budget::Quick, RecipeFamily::Mfnet) => format!("--epochs {e} --batch-size 4"),
+            (Budget::Quick, RecipeFamily::Rtfnet) => {
+                format!("--epochs {e} --batch-size 4 --lr-decay 0.95")
             }
-            (Budget::Quick, RecipeFamily::Rtfnet) => vec![
-                "--epochs",
-                &quick_epochs,
-                "--batch-size",
-                "4",
-                "--lr-decay",
-                "0.95",
-            ],
-            (Budget::Quick, RecipeFamily::Heatnet) => vec![
-                "--epochs",
-                &quick_epochs,
-                "--batch-size",
-                "4",
-                "--optimizer",
-                "rmsprop",
-            ],
-            (Budget::Paper, RecipeFamily::Mfnet) => vec![
-                "--epochs",
-                "80",
-                "--batch-size",
-                "6",
-                "--optimizer",
-                "sgd",
-                "--lr",
-                "0.01",
-                "--lr-decay",
-                "0.94",
-                "--momentum",
-                "0.9",
-                "--weight-decay",
-                "0.0005",
-            ],
-            (Budget::Paper, RecipeFamily::Rtfnet) => vec![
-                "--epochs",
-                "100",
-                "--batch-size",
-                "2",
-                "--optimizer",
-                "sgd",
-                "--lr",
-                "0.01",
-                "--lr-decay",
-                "0.95",
-                "--momentum",
-                "0.9",
-                "--weight-decay",
-                "0.0005",
-            ],
-            (Budget::Paper, RecipeFamily::Heatnet) => vec![
-                "--epochs",
-                "100",
-                "--batch-size",
-                "8",
-                "--optimizer",
-                "rmsprop",
-            ],
+            (Budget::Quick, RecipeFamily::Heatnet) => {
+                format!("--epochs {e} --batch-size 4 --optimizer rmsprop")
+            }
+            (Budget::Paper, RecipeFamily::Mfnet) => "--epochs 80 --batch-size 6 --optimizer sgd \
+                --lr 0.01 --lr-decay 0.94 --momentum 0.9 --weight-decay 0.0005"
+                .into(),
+            (Budget::Paper, RecipeFamily::Rtfnet) => "--epochs 100 --batch-size 2 --optimizer \
+                sgd --lr 0.01 --lr-decay 0.95 --momentum 0.9 --weight-decay 0.0005"
+                .into(),
+            (Budget::Paper, RecipeFamily::Heatnet) => {
+                "--epochs 100 --batch-size 8 --optimizer rmsprop".into()
+            }
         };
-        let mut v: Vec<String> = v.into_iter().map(String::from).collect();
+        let mut v: Vec<String> = flags.split_whitespace().map(String::from).collect();
         // Real MF frames are 480×640; the quick budget shrinks them like its synthetic data.
         if real_data && self != Budget::Paper {
             v.extend(["--resize".to_string(), self.synth(Data::Mf).1.to_string()]);
@@ -294,6 +242,12 @@ mod tests {
                 b.train_args(RecipeFamily::Rtfnet, "rtfnet152", false)
             );
         }
+        let paper = Budget::Paper.train_args(RecipeFamily::Rtfnet, "rtfnet50", false).join(" ");
+        assert_eq!(
+            paper,
+            "--epochs 100 --batch-size 2 --optimizer sgd --lr 0.01 --lr-decay 0.95 --momentum 0.9 \
+             --weight-decay 0.0005"
+        );
         let described = q.describe(RecipeFamily::Mfnet, &["mfnet", "mfnet-b"], false);
         assert!(described["rtf_train_flags"]["mfnet-b"]
             .as_str()
