@@ -174,8 +174,8 @@ impl Budget {
 }
 
 /// Quick-budget epochs per network, read off the validation curves of
-/// `scripts/quick_budget_curves.sh` and `scripts/quick_budget_sweep.sh` (measured on a lent
-/// H200; docs/src/reproduction.md, "Sizing the quick budget"). The MFNet variants that learn
+/// `scripts/quick_budget_curves.sh` (modes curves and sweep; measured on a lent
+/// H200; docs/src/quick-budget.md). The MFNet variants that learn
 /// stay above twice the all-unlabelled mIoU from epoch 3–7 and are at 27–33 % by epoch 20;
 /// MFNet-B (RGB only) creeps along the threshold (21.0 % at 10 epochs, 21.6 % at 40) and gets
 /// 30. Every other network listed did not leave the all-unlabelled answer within 20–40 epochs
