@@ -553,7 +553,11 @@ mod tests {
         assert_eq!(small.verdict, Verdict::Ok);
         let wide = ok_assessment().with_bound(3.0, bound(false));
         assert_eq!(wide.verdict, Verdict::Uncertain);
-        assert!(wide.reason.contains("up to 3.00 px apart"), "{}", wide.reason);
+        assert!(
+            wide.reason.contains("up to 3.00 px apart"),
+            "{}",
+            wide.reason
+        );
         // A 2-frame rig: the walks reach the search's edge; the number is no bound.
         let free = ok_assessment().with_bound(2.4e6, bound(true));
         assert_eq!(free.verdict, Verdict::Uncertain);

@@ -325,7 +325,11 @@ fn unet(p: nn::Path, c_in: i64, num_classes: i64) -> Unet {
         .map(|i| {
             let (c, half) = (widths[4 - i], widths[3 - i]);
             let sp = &p / "up" / i;
-            let spec = ConvSpec::new(2).stride(2).transposed().bias(true).init(UNET_INIT);
+            let spec = ConvSpec::new(2)
+                .stride(2)
+                .transposed()
+                .bias(true)
+                .init(UNET_INIT);
             let upconv = ConvBnAct::new(&sp / "upconv", None, c, half, spec, Act::Identity);
             let (a, b) = double_conv(&sp, c, half);
             (upconv, a, b)
@@ -1310,7 +1314,10 @@ mod tests {
             let w = vars.get(name).unwrap_or_else(|| panic!("no {name}"));
             let std = w.std(true).double_value(&[]);
             let expected = (2.0 / fan_in as f64).sqrt();
-            assert!((std / expected - 1.0).abs() < 0.1, "{name}: std {std} vs {expected}");
+            assert!(
+                (std / expected - 1.0).abs() < 0.1,
+                "{name}: std {std} vs {expected}"
+            );
         }
     }
 

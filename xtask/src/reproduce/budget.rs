@@ -228,13 +228,21 @@ mod tests {
     #[test]
     fn the_quick_budget_gives_each_network_its_own_epochs() {
         let q = Budget::Quick;
-        assert_eq!(epochs_flag(&q.train_args(RecipeFamily::Mfnet, "mfnet", false)), "20");
-        assert_eq!(epochs_flag(&q.train_args(RecipeFamily::Mfnet, "mfnet-b", false)), "30");
+        assert_eq!(
+            epochs_flag(&q.train_args(RecipeFamily::Mfnet, "mfnet", false)),
+            "20"
+        );
+        assert_eq!(
+            epochs_flag(&q.train_args(RecipeFamily::Mfnet, "mfnet-b", false)),
+            "30"
+        );
         let rtfnet = q.train_args(RecipeFamily::Rtfnet, "rtfnet50", false);
         assert_eq!(epochs_flag(&rtfnet), QUICK_EPOCHS_OTHERS.to_string());
         // Each paper's schedule: RTFNet's ×0.95, MFNet's ×0.94 (rtf train's default).
         assert!(rtfnet.join(" ").contains("--lr-decay 0.95"));
-        assert!(!q.train_args(RecipeFamily::Mfnet, "mfnet", false).contains(&"--lr-decay".into()));
+        assert!(!q
+            .train_args(RecipeFamily::Mfnet, "mfnet", false)
+            .contains(&"--lr-decay".into()));
         // Smoke and paper budgets do not depend on the network.
         for b in [Budget::Smoke, Budget::Paper] {
             assert_eq!(
@@ -242,7 +250,9 @@ mod tests {
                 b.train_args(RecipeFamily::Rtfnet, "rtfnet152", false)
             );
         }
-        let paper = Budget::Paper.train_args(RecipeFamily::Rtfnet, "rtfnet50", false).join(" ");
+        let paper = Budget::Paper
+            .train_args(RecipeFamily::Rtfnet, "rtfnet50", false)
+            .join(" ");
         assert_eq!(
             paper,
             "--epochs 100 --batch-size 2 --optimizer sgd --lr 0.01 --lr-decay 0.95 --momentum 0.9 \

@@ -421,7 +421,10 @@ fn build_rtf(root: &Path, selected: &[Table]) -> Result<PathBuf> {
 fn prebuilt_rtf(root: &Path, selected: &[Table]) -> Result<PathBuf> {
     let rtf = root.join("target/release/rtf");
     if !rtf.is_file() {
-        bail!("--no-build: {} does not exist (build it, or leave out --no-build)", rtf.display());
+        bail!(
+            "--no-build: {} does not exist (build it, or leave out --no-build)",
+            rtf.display()
+        );
     }
     check_networks(root, selected)?;
     Ok(rtf)
@@ -523,7 +526,12 @@ struct Progress {
 /// Runs every job: skips finished cells, resumes interrupted ones, records failures in
 /// `missing` and goes on; stops taking new cells at the first interrupted one. `workers` cells
 /// run at once, taken in order (1: one after the other).
-fn run_jobs(ctx: &Context, jobs: &[Job], workers: usize, missing: &mut Vec<MissingCell>) -> Progress {
+fn run_jobs(
+    ctx: &Context,
+    jobs: &[Job],
+    workers: usize,
+    missing: &mut Vec<MissingCell>,
+) -> Progress {
     let progress = std::sync::Mutex::new(Progress {
         started: Instant::now(),
         ran: 0,
@@ -574,7 +582,10 @@ fn run_job(
         let p = lock(progress);
         let eta = if p.ran > 0 {
             let left = trainings_left(ctx, &jobs[k..]) as f64;
-            format!(", about {} left", duration(p.ran_seconds / p.ran as f64 * left / p.workers as f64))
+            format!(
+                ", about {} left",
+                duration(p.ran_seconds / p.ran as f64 * left / p.workers as f64)
+            )
         } else {
             String::new()
         };
@@ -1068,7 +1079,10 @@ mod tests {
         assert!(missing.is_empty() && !p.interrupted);
         assert_eq!(p.ran, jobs.len());
         for (t, c, s) in &jobs {
-            assert_eq!(cells::state(&ctx.cell_dir(t, c, *s), c.bench), cells::State::Done);
+            assert_eq!(
+                cells::state(&ctx.cell_dir(t, c, *s), c.bench),
+                cells::State::Done
+            );
         }
         let calls = std::fs::read_to_string(tmp.path().join("bin/calls.txt")).unwrap();
         let trains = calls.lines().filter(|l| l.starts_with("train ")).count();
