@@ -967,15 +967,17 @@ numbers show the pipeline and the trends, not the papers' values.
 xtask test`). `quick` trains on 96×64 frames (160 synthetic frames, 80 for training) in
 batches of 4 with each paper's SGD schedule (MFNet's tables lr 0.01 ×0.94 per epoch, RTFNet's
 ×0.95), for as many epochs as the network was measured to need to leave the all-unlabelled
-answer: 20 for MFNet and its variants, 30 for MFNet-B, 20 for the rest, which do not learn at
-any CPU budget tried ([Sizing the quick budget](quick-budget.md)); the HeatNet recipes run MFNet
-in every role at 192×96 with RMSprop 1e-3. `paper` follows the papers' recipes (MFNet: SGD lr
-0.01 ×0.94, 80 epochs, batch 6, flips, 480×640; RTFNet: SGD lr 0.01, momentum 0.9, weight
-decay 5e-4, exponential decay ×0.95, flips, 100 epochs, batch 2 — the paper trains \"until
-convergence\"; HeatNet: the `rtf recipes` procedures) and is meant for a GPU. The budget and
-each cell's exact `rtf train` / `rtf eval` flags are written into the results. `--jobs N`
-trains N cells at once (a GPU or many cores); `--no-build` uses the `rtf` already in
-`target/release` (a machine without the Rust toolchain).
+answer: 20 (MFNet-B 30). MFNet and 8 of its variants learn in that (MFNet-B passes on
+validation, not on test); the ablations H, I, J, M
+and every other network did not learn at any CPU budget tried, and the claims on them read
+`untested` ([Sizing the quick budget](quick-budget.md)). The HeatNet recipes run MFNet in
+every role at 192×96 with RMSprop 1e-3, 15 epochs a stage. `paper` follows the papers'
+recipes (MFNet: SGD lr 0.01 ×0.94, 80 epochs, batch 6, flips, 480×640; RTFNet: SGD lr 0.01,
+momentum 0.9, weight decay 5e-4, exponential decay ×0.95, flips, 100 epochs, batch 2 — the
+paper trains \"until convergence\"; HeatNet: the `rtf recipes` procedures) and is meant for a
+GPU. The budget and each cell's exact `rtf train` / `rtf eval` flags are written into the
+results. `--jobs N` trains N cells at once (a GPU or many cores); `--no-build` uses the `rtf`
+already in `target/release` (a machine without the Rust toolchain).
 
 **Protocol** (written into every result): train on the training split, pick the checkpoint
 on validation (`best.safetensors`, never on test), report the test split; MF day/night from
