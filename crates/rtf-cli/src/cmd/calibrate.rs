@@ -305,9 +305,9 @@ fn print_bound(a: &Assessment) {
     if b.capped {
         // The walks reached the search's edge: the number is where the search stopped, not a
         // bound (on a 2-frame rig it runs to millions of px).
+        // What to do about it is the verdict's reason (quality::Assessment::with_bound).
         println!(
-            "map error bound: none — the data leave the map free (solutions they cannot tell \
-             apart reach the search's edge, {px:.0} px); add frames or rig.yaml priors"
+            "map error bound: none — the data leave the map free (search stopped at {px:.0} px)"
         );
     } else {
         println!(
