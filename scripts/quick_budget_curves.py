@@ -55,7 +55,11 @@ def main():
     mf160 = f"{out}/mf160"
     big_val = [f"{mf160}/labels/{n.strip()}.png" for n in open(f"{mf160}/val.txt") if n.strip()] \
         if os.path.isdir(mf160) else []
+    mf1280 = f"{out}/mf1280"
+    frames_val = [f"{mf1280}/labels/{n.strip()}.png" for n in open(f"{mf1280}/val80.txt")
+                  if n.strip()] if os.path.isdir(mf1280) else []
     thresholds = {
+        "frames": 2 * trivial(frames_val, 9) if frames_val else float("nan"),
         "model": 2 * trivial(mf_val, 9),
         "sweep": 2 * trivial(mf_val, 9),
         "sweep-big": 2 * trivial(big_val, 9) if big_val else float("nan"),

@@ -13,6 +13,9 @@
 #   sgd5  SGD lr 0.05 (momentum 0.9, weight decay 5e-4, ×0.95 per epoch), 96×64 frames;
 #   big   SGD lr 0.01 ×0.95, 160×128 frames (the demo's size, 3.3× the pixels);
 #   base  SGD lr 0.01 ×0.95, 96×64 (the curves' schedule, for networks they did not reach).
+# MODE frames: 8× the training frames (`rtf synth --count 1280`: 640 training frames at 96×64,
+#   validated on 80 of the 320 validation frames, half day, half night), RMSprop lr 1e-3, for
+#   every network of the quick tables (MFNet as the reference).
 #
 # Usage: scripts/quick_budget_curves.sh RTF OUT [EPOCHS] [DEVICE] [PARALLEL] [MODE]
 #   then: python3 scripts/quick_budget_curves.py OUT   (numpy and Pillow)
@@ -41,6 +44,16 @@ if [ "$mode" = curves ]; then
     done
     for v in 1 2 3 4 5 6; do
         jobs+=("recipe-heatnet-v$v --recipe heatnet-v$v --data fr --model mfnet --resize 192x96 --lr 1e-3")
+    done
+elif [ "$mode" = frames ]; then
+    if [ ! -d mf1280 ]; then
+        "$rtf" synth --out mf1280 --count 1280 --size 96x64 --seed 0 --format mf
+        awk 'NR % 8 == 1 || NR % 8 == 2' mf1280/val.txt >mf1280/val80.txt
+    fi
+    for m in ${FRAMES_NETS:-mfnet mfnet-b mfnet-h mfnet-i mfnet-j mfnet-m segnet-3c segnet-4c \
+        enet-3c erfnet-3c erfnet-4c unet-3c pspnet-3c duchdc-3c fusenet rtfnet50 rtfnet152}; do
+        jobs+=("frames-rms-$m --model $m --data mf1280 --val-split val80 --batch-size 4 \
+            --optimizer rmsprop --lr 1e-3")
     done
 else
     [ -d mf160 ] || "$rtf" synth --out mf160 --count 160 --size 160x128 --seed 0 --format mf

@@ -823,9 +823,12 @@ fn synthesise(root: &Path, rtf: &Path, out: &Path, budget: Budget, data: Data) -
         Data::Freiburg => "freiburg",
         Data::Bdd => bail!("BDD100K cannot be synthesised"),
     };
-    let dir = out.join("data").join(format!("{format}-{}", budget.name()));
+    // The count and size in the name: a results folder of an older budget keeps its data apart.
+    let (count, size) = budget.synth(data);
+    let dir = out
+        .join("data")
+        .join(format!("{format}-{}-{count}-{size}", budget.name()));
     if !dir.exists() {
-        let (count, size) = budget.synth(data);
         let tmp = dir.with_extension("partial");
         if tmp.exists() {
             std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
