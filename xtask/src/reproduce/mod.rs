@@ -967,14 +967,13 @@ data from `rtf synth` and every title and JSON says so (`\"data\": \"synthetic\"
 numbers show the pipeline and the trends, not the papers' values.
 
 **Budgets.** `smoke` checks the pipeline (CI runs `reproduce all --budget smoke` inside `cargo
-xtask test`). `quick` trains on 96×64 frames (160 synthetic frames, 80 for training) in
-batches of 4 with each paper's SGD schedule (MFNet's tables lr 0.01 ×0.94 per epoch, RTFNet's
-×0.95), for as many epochs as the network was measured to need to leave the all-unlabelled
-answer: 20 (MFNet-B 30). MFNet and 8 of its variants learn in that (MFNet-B passes on
-validation, not on test); the ablations H, I, J, M
-and every other network did not learn at any CPU budget tried, and the claims on them read
-`untested` ([Sizing the quick budget](quick-budget.md)). The HeatNet recipes run MFNet in
-every role at 192×96 with RMSprop 1e-3, 15 epochs a stage. `paper` follows the papers'
+xtask test`). `quick` trains the MF tables' networks on 96×64 frames (1280 synthetic frames,
+640 for training) in batches of 4 with RMSprop lr 1e-3 for every network (not the papers'
+SGD: from scratch on a CPU budget it leaves most networks at the all-unlabelled answer), for
+as many epochs as the network was measured to need to leave that answer: 15 by default, 20–40
+for the slow learners (SegNet-3c 40, RTFNet 40). A claim judged on a cell that still did not
+learn reads `untested` ([Sizing the quick budget](quick-budget.md)). The HeatNet recipes run
+MFNet in every role at 192×96 with RMSprop 1e-3, 15 epochs a stage. `paper` follows the papers'
 recipes (MFNet: SGD lr 0.01 ×0.94, 80 epochs, batch 6, flips, 480×640; RTFNet: SGD lr 0.01,
 momentum 0.9, weight decay 5e-4, exponential decay ×0.95, flips, 100 epochs, batch 2 — the
 paper trains \"until convergence\"; HeatNet: the `rtf recipes` procedures) and is meant for a
