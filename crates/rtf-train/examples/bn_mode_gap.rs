@@ -7,7 +7,6 @@ use std::sync::Arc;
 
 use rtf_data::{AugmentConfig, FrameSource, Loader, LoaderConfig, MfDataset};
 use rtf_eval::metrics::ConfusionMatrix;
-use tch::nn::ModuleT;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -815,8 +815,8 @@ fn available_recipes(root: &Path) -> BTreeMap<String, Value> {
         .collect()
 }
 
-/// `rtf synth` into `<out>/data/<format>-<budget>/` (written beside and renamed, so an
-/// interrupted synthesis is redone).
+/// `rtf synth` into `<out>/data/<format>-<budget>-<count>-<size>/` (written beside and renamed,
+/// so an interrupted synthesis is redone).
 fn synthesise(root: &Path, rtf: &Path, out: &Path, budget: Budget, data: Data) -> Result<PathBuf> {
     let format = match data {
         Data::Mf => "mf",
