@@ -40,7 +40,7 @@ impl Budget {
         match (self, data) {
             (Budget::Smoke, _) => (12, "96x64"),
             // 640 training frames: on 80 most networks never left the all-unlabelled answer
-            // (docs/src/quick-budget.md, "More frames").
+            // (docs/src/quick-budget.md, "Round 2").
             (Budget::Quick, Data::Mf) => (1280, "96x64"),
             (Budget::Quick, _) => (120, "192x96"),
             // The MF dataset's size (1569 frames at 640×480); Freiburg: its labelled count is
@@ -183,7 +183,7 @@ const QUICK_OPTIMIZER: &str = "--optimizer rmsprop --lr 1e-3";
 /// `frames` (640 training frames, RMSprop 1e-3; measured on a lent H200, 2026-11-26; validation
 /// mIoU on 80 frames; twice the all-unlabelled answer is 20.2 %; docs/src/quick-budget.md):
 /// the first epoch after which the curve stays above that, with a margin. MFNet (above from
-/// epoch 5, 48 % at 10), MFNet-B, H, I, J (from 3–7) and ERFNet-4c, FuseNet (from 4–6) take the
+/// epoch 2, 48 % at 10), MFNet-B, H, I, J (from 4–7) and ERFNet-4c, FuseNet (from 4–6) take the
 /// default; the others are listed. Not measured with this lever (they take the default):
 /// MFNet C–G, K, L, N (they learned on 80 frames with SGD), U-Net, PSPNet-4c, DUC-HDC-4c, the
 /// RTFNet variants. Measured not to learn within what ran: DUC-HDC-3c (16.9 % at 17 epochs),
