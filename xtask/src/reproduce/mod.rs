@@ -115,6 +115,8 @@ options:
   --device cpu|cuda           (default cpu)
   --jobs N                    cells trained at once (default 1; more for a GPU or many cores:
                               each `rtf train` process also takes the threads it is given)
+  --cells ID[,ID...]          only these cells of the table (e.g. mfnet,enet-3c); the others
+                              are reported as not selected
   --no-build                  use target/release/rtf as it is instead of building it with
                               cargo (a machine without the Rust toolchain, e.g. a lent GPU)
   --backbone-weights FILE     ImageNet ResNet weights for RTFNet encoders (paper budget)
@@ -148,6 +150,8 @@ struct Options {
     device: String,
     jobs: usize,
     no_build: bool,
+    /// `--cells`: only these cells of the selected tables (None: every cell).
+    cells: Option<Vec<String>>,
     backbone_weights: Option<PathBuf>,
     precision: String,
     warmup: Option<usize>,
@@ -177,6 +181,7 @@ fn parse(args: &[String]) -> Result<Options> {
         device: "cpu".into(),
         jobs: 1,
         no_build: false,
+        cells: None,
         backbone_weights: None,
         precision: "fp32".into(),
         warmup: None,
@@ -215,6 +220,7 @@ fn parse(args: &[String]) -> Result<Options> {
                 }
             }
             "--no-build" => o.no_build = true,
+            "--cells" => o.cells = Some(value()?.split(',').map(String::from).collect()),
             "--backbone-weights" => o.backbone_weights = Some(PathBuf::from(value()?)),
             "--precision" => o.precision = value()?.clone(),
             "--warmup" => o.warmup = Some(number(value()?, "--warmup")?),
@@ -223,6 +229,24 @@ fn parse(args: &[String]) -> Result<Options> {
         }
     }
     Ok(o)
+}
+
+/// `--cells` names only cells of the selected tables.
+fn check_cells(cells: Option<&[String]>, selected: &[Table]) -> Result<()> {
+    let known: Vec<&str> = selected
+        .iter()
+        .flat_map(|t| t.cells.iter().map(|c| c.id.as_str()))
+        .collect();
+    for cell in cells.unwrap_or_default() {
+        if !known.contains(&cell.as_str()) {
+            bail!(
+                "--cells: `{cell}` is not a cell of {} (its cells: {})",
+                selected.iter().map(|t| t.id).collect::<Vec<_>>().join(", "),
+                known.join(", ")
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Checks a dataset root's layout (the folders `rtf` recognises it by; spec §1, §6).
@@ -286,6 +310,7 @@ fn has_dir_named(dir: &Path, names: &[&str], depth: usize) -> bool {
 
 /// The checks that need no binary: roots' layouts and which tables read them.
 fn check_inputs(o: &Options, selected: &[Table]) -> Result<()> {
+    check_cells(o.cells.as_deref(), selected)?;
     for (data, root) in &o.roots {
         check_root(*data, root)?;
         if o.all {
@@ -361,7 +386,7 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
     };
     let recipes = available_recipes(root);
     check_recipes(&o, &selected, &recipes)?;
-    let (jobs, mut missing) = plan(&selected, &recipes, o.seeds);
+    let (jobs, mut missing) = plan(&selected, &recipes, o.seeds, o.cells.as_deref());
     let data = datasets(root, &rtf, &out, &o, &jobs)?;
     let ctx = Context {
         root: root.to_path_buf(),
@@ -453,12 +478,15 @@ fn plan<'a>(
     selected: &'a [Table],
     recipes: &BTreeMap<String, Value>,
     seeds: usize,
+    only: Option<&[String]>,
 ) -> (Vec<Job<'a>>, Vec<MissingCell>) {
     let mut jobs = Vec::new();
     let mut missing = Vec::new();
     for t in selected {
         for c in &t.cells {
+            let unselected = only.is_some_and(|cells| !cells.contains(&c.id));
             let reason = c.blocked.map(String::from).or_else(|| match c.train {
+                _ if unselected => Some("not selected (--cells)".to_string()),
                 Train::Recipe(r) if !recipes.contains_key(r) => Some(format!(
                     "needs the recipe `{r}` (`rtf recipes` does not list it yet)"
                 )),
@@ -978,8 +1006,9 @@ recipes (MFNet: SGD lr 0.01 ×0.94, 80 epochs, batch 6, flips, 480×640; RTFNet:
 momentum 0.9, weight decay 5e-4, exponential decay ×0.95, flips, 100 epochs, batch 2 — the
 paper trains \"until convergence\"; HeatNet: the `rtf recipes` procedures) and is meant for a
 GPU. The budget and each cell's exact `rtf train` / `rtf eval` flags are written into the
-results. `--jobs N` trains N cells at once (a GPU or many cores); `--no-build` uses the `rtf`
-already in `target/release` (a machine without the Rust toolchain).
+results. `--jobs N` trains N cells at once (a GPU or many cores); `--cells a,b` runs only those
+cells of the table; `--no-build` uses the `rtf` already in `target/release` (a machine without
+the Rust toolchain).
 
 **Protocol** (written into every result): train on the training split, pick the checkpoint
 on validation (`best.safetensors`, never on test), report the test split; MF day/night from
@@ -1077,7 +1106,7 @@ mod tests {
             .into_iter()
             .filter(|t| t.id == "mfnet-tab2")
             .collect();
-        let (jobs, _) = plan(&selected, &BTreeMap::new(), 2);
+        let (jobs, _) = plan(&selected, &BTreeMap::new(), 2, None);
         let mut missing = Vec::new();
         let p = run_jobs(&ctx, &jobs, 3, &mut missing);
         assert!(missing.is_empty() && !p.interrupted);
@@ -1094,6 +1123,18 @@ mod tests {
         // A second run finds every cell done.
         let again = run_jobs(&ctx, &jobs, 3, &mut missing);
         assert_eq!(again.ran, 0);
+        // --cells plans only the cells it names; the others are reported, an unknown one refused.
+        let (only, left_out) = plan(&selected, &BTreeMap::new(), 2, Some(&["enet-3c".into()]));
+        assert_eq!(only.len(), 2);
+        assert!(only.iter().all(|(_, c, _)| c.id == "enet-3c"));
+        assert!(left_out.iter().any(|(_, m)| m.reason.contains("--cells")));
+        let o = parse(&args(&["mfnet-tab2", "--cells", "mfnet,enet"])).unwrap();
+        let err = check_cells(o.cells.as_deref(), &selected).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("`enet` is not a cell of mfnet-tab2"),
+            "{err}"
+        );
         let o = parse(&args(&["mfnet-tab2", "--jobs", "4", "--no-build"])).unwrap();
         assert_eq!((o.jobs, o.no_build), (4, true));
         assert!(parse(&args(&["mfnet-tab2", "--jobs", "0"])).is_err());
