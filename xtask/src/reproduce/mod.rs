@@ -473,6 +473,9 @@ fn check_recipes(o: &Options, selected: &[Table], recipes: &BTreeMap<String, Val
     Ok(())
 }
 
+/// The reason recorded for a cell that `--cells` leaves out.
+const NOT_SELECTED: &str = "not selected (--cells)";
+
 /// The cells to run (each seed a job), and the ones that cannot run with the reason.
 fn plan<'a>(
     selected: &'a [Table],
@@ -484,9 +487,9 @@ fn plan<'a>(
     let mut missing = Vec::new();
     for t in selected {
         for c in &t.cells {
-            let unselected = only.is_some_and(|cells| !cells.contains(&c.id));
+            let selected = only.is_none_or(|cells| cells.contains(&c.id));
             let reason = c.blocked.map(String::from).or_else(|| match c.train {
-                _ if unselected => Some("not selected (--cells)".to_string()),
+                _ if !selected => Some(NOT_SELECTED.to_string()),
                 Train::Recipe(r) if !recipes.contains_key(r) => Some(format!(
                     "needs the recipe `{r}` (`rtf recipes` does not list it yet)"
                 )),
@@ -740,7 +743,11 @@ fn finish(p: &Progress, total: usize, missing: &[MissingCell], out: &Path) -> Re
         .filter(|(_, m)| m.reason.starts_with("failed"))
         .map(|(t, m)| format!("{t}/{}: {}", m.cell, m.reason))
         .collect();
-    let unavailable = missing.len() - failed.len();
+    let unselected = missing
+        .iter()
+        .filter(|(_, m)| m.reason == NOT_SELECTED)
+        .count();
+    let unavailable = missing.len() - failed.len() - unselected;
     eprintln!(
         "reproduce: {total} cell runs ({} trained or evaluated now) in {}; results in {}",
         p.ran,
@@ -749,6 +756,9 @@ fn finish(p: &Progress, total: usize, missing: &[MissingCell], out: &Path) -> Re
     );
     if unavailable > 0 {
         eprintln!("reproduce: {unavailable} cells cannot run with this rtf yet (see `Not measured` in the tables)");
+    }
+    if unselected > 0 {
+        eprintln!("reproduce: {unselected} cells left out by --cells");
     }
     if p.interrupted {
         bail!("interrupted; re-run the same command to resume");
