@@ -10,6 +10,9 @@ use rtf_eval::metrics::ConfusionMatrix;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.len() < 3 {
+        return Err("usage: bn_mode_gap MODEL WEIGHTS DATA [SPLIT] [BATCH]".into());
+    }
     let [model, weights, data] = [&args[0], &args[1], &args[2]];
     let split = args.get(3).map_or("train", String::as_str);
     let batch_size: usize = args.get(4).map_or(Ok(4), |b| b.parse())?;
