@@ -439,7 +439,6 @@ mod tests {
     use super::*;
 
     fn student(precision: Precision) -> Student {
-        tch::manual_seed(5);
         let mut cfg = TrainConfig::mfnet_paper("unused".into());
         cfg.learning.precision = precision;
         Student::build(&cfg, Device::Cpu).unwrap()
@@ -450,8 +449,11 @@ mod tests {
     /// stay fp32.
     #[test]
     fn bf16_logits_are_fp32_and_close_to_fp32_logits() {
-        let (fp32, bf16) = (student(Precision::Fp32), student(Precision::Bf16));
-        tch::manual_seed(6);
+        let (fp32, mut bf16) = (student(Precision::Fp32), student(Precision::Bf16));
+        // The seed is process-wide and other tests train beside this one: the same seed does
+        // not promise the same weights, so the bf16 student gets the fp32 one's (the CI run of
+        // stop 36 compared two different networks).
+        bf16.trained.vs.copy(&fp32.trained.vs).unwrap();
         let x = Tensor::rand([2, 4, 32, 32], (Kind::Float, Device::Cpu));
         let (a, b) = (fp32.logits(&x), bf16.logits(&x));
         assert_eq!(b.kind(), Kind::Float);
