@@ -25,6 +25,9 @@ Usage: independent_rig.py OUT --seed S [--frames 20] [--data ../shared/data]
            [--source ir|rgb]              # rgb: the control, the RGB image rendered as the
                                           # thermal one (no pair registration in the truth)
            [--prior-offset-m 0.02]        # also write rig_prior.yaml, a prior that far off
+           [--registration nmi.json]      # register each pair with its own model measured
+                                          # by nmi_registration.py (normalised mutual
+                                          # information) instead of the global 2 % one
        independent_rig.py --evaluate OUT CALIB.yaml   # the map error of a calib.yaml
        independent_rig.py --fit-lens OUT --seed S [--frames 20] [--lens ...]
            # the best k1, k2, p1, p2 (and fx, fy, cx, cy) for the truth's lens, with the pose
@@ -76,6 +79,25 @@ def register_ir(ir):
     rho2 = ((xs - c[0]) ** 2 + (ys - c[1]) ** 2) / (c[0] ** 2 + c[1] ** 2)
     m = 1.02 - 0.02 * rho2
     return bilinear(ir, c[0] + m * (xs - c[0]), c[1] + m * (ys - c[1]))
+
+
+def register_ir_measured(ir, entry):
+    """The thermal image on the RGB grid under a per-scene measured registration (an entry of
+    nmi_registration.py's output): row' = y + b(y), b linear between the centres of 8 bands of
+    60 rows (flat bands filled from the scenes' common profile), then
+    c + s(1 + k r² + k₂ r⁴)R(α)((x, row') − c) + (u, v), r = |· − c| / half the width."""
+    s, k, k2, alpha, u, v = entry["model"]
+    bands = np.array(entry["bands_filled"])
+    c = np.array([(RGB_W - 1) / 2, (RGB_H - 1) / 2])
+    ys, xs = np.mgrid[0:RGB_H, 0:RGB_W].astype(np.float64)
+    t = np.clip((ys + 0.5) / 60.0 - 0.5, 0, len(bands) - 1)
+    i = np.minimum(np.floor(t).astype(int), len(bands) - 2)
+    row = ys + bands[i] + (bands[i + 1] - bands[i]) * (t - i)
+    x, y = xs - c[0], row - c[1]
+    r2 = (x * x + y * y) / (c[0] * c[0])
+    g = s * (1 + k * r2 + k2 * r2 * r2)
+    sn, cs = math.sin(math.radians(alpha)), math.cos(math.radians(alpha))
+    return bilinear(ir, c[0] + g * (cs * x - sn * y) + u, c[1] + g * (sn * x + cs * y) + v)
 
 
 def depth_model(rng, xs, ys):
@@ -178,7 +200,7 @@ def render(truth, registered, rng_depth):
     return img, depth
 
 
-def write_rig(out, seed, frames, data, lens, source="ir"):
+def write_rig(out, seed, frames, data, lens, source="ir", registration=None):
     rng = np.random.default_rng(seed)
     truth = draw_truth(rng, seed, lens)
     msrs = os.path.join(data, "msrs-samples")
@@ -192,7 +214,9 @@ def write_rig(out, seed, frames, data, lens, source="ir"):
             src = np.asarray(vi.convert("L"), np.float64)
         else:
             ir = np.asarray(Image.open(os.path.join(msrs, "ir", name)).convert("L"), np.float64)
-            src = register_ir(ir)
+            scene = name.rsplit(".", 1)[0]
+            src = (register_ir(ir) if registration is None
+                   else register_ir_measured(ir, registration["scenes"][scene]))
         img, depth = render(truth, src, np.random.default_rng(seed * 1000 + i))
         vi.save(os.path.join(out, "f", f"{i:03}_rgb.png"))
         Image.fromarray(np.clip(img * 256, 0, 65535).astype(np.uint16)).save(
@@ -209,6 +233,7 @@ def write_rig(out, seed, frames, data, lens, source="ir"):
     with open(os.path.join(out, "rig.yaml"), "w") as fh:
         fh.write(head)
     truth["scenes"] = chosen
+    truth["registration"] = registration["objective"] if registration else "1.02 - 0.02 rho^2"
     with open(os.path.join(out, "truth.json"), "w") as fh:
         json.dump(truth, fh, indent=1)
     return truth, head
@@ -352,6 +377,8 @@ def main():
     ap.add_argument("--prior-offset-m", type=float, default=0.02)
     ap.add_argument("--lens", choices=["division", "radial"], default="division")
     ap.add_argument("--source", choices=["ir", "rgb"], default="ir")
+    ap.add_argument("--registration", help="nmi_registration.py's output: register each pair "
+                    "with its measured model instead of the 2 %% one")
     ap.add_argument("--evaluate", action="store_true")
     ap.add_argument("--fit-lens", action="store_true")
     a = ap.parse_args()
@@ -362,7 +389,8 @@ def main():
         for square in (True, False):
             print(json.dumps(fit_lens(a.seed, a.frames, a.lens, square)))
         return
-    truth, head = write_rig(a.out, a.seed, a.frames, a.data, a.lens, a.source)
+    registration = json.load(open(a.registration)) if a.registration else None
+    truth, head = write_rig(a.out, a.seed, a.frames, a.data, a.lens, a.source, registration)
     write_prior_rig(a.out, truth, head, a.prior_offset_m, a.seed)
     print(json.dumps({k: v for k, v in truth.items() if k != "scenes"}))
 

@@ -15,7 +15,12 @@ scenes (mean over scenes, then mean |·| over the image), in MSRS pixels and in 
 (least squares on the fields its parameters make at far depth). Measured with rtf's own edge features, so this is an estimate of the
 registration gap, not an independent truth.
 
-Usage: registration_gap.py RIG_DIR [--real-rig crates/rtf-calib/src/real_rig.rs]
+A third registration, by normalised mutual information of the intensities (no edges;
+`nmi_registration.py`), is the referee: `--nmi FILE --compare nmi,generator` (or `nmi,rtf`)
+measures either against it.
+
+Usage: registration_gap.py RIG_DIR|all [--real-rig crates/rtf-calib/src/real_rig.rs]
+           [--nmi nmi.json] [--compare rtf,generator]
 """
 import argparse
 import json
@@ -61,29 +66,27 @@ def generator_position(xs, ys):
     return c[0] + m * (xs - c[0]), c[1] + m * (ys - c[1])
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("rig")
-    ap.add_argument("--real-rig", default=os.path.join(os.path.dirname(__file__),
-                                                       "../src/real_rig.rs"))
-    a = ap.parse_args()
-    truth = json.load(open(os.path.join(a.rig, "truth.json")))
-    reg, par = tables(a.real_rig)
-    ys, xs = np.mgrid[0:H:4, 0:W:4].astype(np.float64)
-    gu, gv = generator_position(xs, ys)
-    fields, per_scene = [], {}
-    for name in truth["scenes"]:
-        scene = name.rsplit(".", 1)[0]
-        ru, rv = rtf_position(reg[scene], par.get(scene, [0.0] * 8), xs, ys)
-        du, dv = ru - gu, rv - gv
-        fields.append((du, dv))
-        per_scene[scene] = float(np.hypot(du, dv).mean())
-    mu = np.mean([f[0] for f in fields], 0)
-    mv = np.mean([f[1] for f in fields], 0)
-    to_thermal = truth["f"] / 525.0
-    common = float(np.hypot(mu, mv).mean())
-    # The part of the common field a calibration can absorb: least squares on the fields the
-    # parameters make at far depth (shift, scale, roll, k1, k2, p1, p2; square pixels).
+def nmi_tables(path):
+    """nmi_registration.py's answers as rtf_position's (model, bands), flat bands filled."""
+    scenes = json.load(open(path))["scenes"]
+    return ({k: e["model"] for k, e in scenes.items()},
+            {k: e["bands_filled"] for k, e in scenes.items()})
+
+
+def positions(source, scene, xs, ys, tables_rtf, tables_nmi):
+    """Where registration `source` samples the MSRS ir image of `scene` for vi pixels."""
+    if source == "generator":
+        return generator_position(xs, ys)
+    reg, par = tables_rtf if source == "rtf" else tables_nmi
+    if scene not in reg:
+        raise SystemExit(f"registration_gap.py: no {source} registration for scene {scene}")
+    bands = par.get(scene, [0.0] * 8)
+    return rtf_position(reg[scene], bands + [bands[-1]] * (9 - len(bands)), xs, ys)
+
+
+def absorbable(mu, mv, xs, ys):
+    """The part of a common field a calibration can absorb: least squares on the fields the
+    parameters make at far depth (shift, scale, roll, k1, k2, p1, p2; square pixels)."""
     x, y = (xs - (W - 1) / 2) / 525.0, (ys - (H - 1) / 2) / 525.0
     r2 = x * x + y * y
     one, zero = np.ones_like(x), np.zeros_like(x)
@@ -93,15 +96,48 @@ def main():
     b = np.concatenate([mu.ravel(), mv.ravel()])
     fit = A @ np.linalg.lstsq(A, b, rcond=None)[0]
     n = mu.size
-    absorbed = float(np.hypot(fit[:n], fit[n:]).mean())
+    return float(np.hypot(fit[:n], fit[n:]).mean())
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("rig", help="a rig directory (its truth.json's scenes and f), or 'all' "
+                                "for the 48 scenes in MSRS pixels")
+    ap.add_argument("--real-rig", default=os.path.join(os.path.dirname(__file__),
+                                                       "../src/real_rig.rs"))
+    ap.add_argument("--nmi", help="nmi_registration.py's output, for --compare with nmi")
+    ap.add_argument("--compare", default="rtf,generator",
+                    help="two of rtf, generator, nmi: the field second − first")
+    a = ap.parse_args()
+    first, second = a.compare.split(",")
+    tables_rtf = tables(a.real_rig)
+    tables_nmi = nmi_tables(a.nmi) if a.nmi else ({}, {})
+    if a.rig == "all":
+        scenes, to_thermal = sorted(tables_rtf[0]), 1.0
+    else:
+        truth = json.load(open(os.path.join(a.rig, "truth.json")))
+        scenes = [n.rsplit(".", 1)[0] for n in truth["scenes"]]
+        to_thermal = truth["f"] / 525.0
+    ys, xs = np.mgrid[0:H:4, 0:W:4].astype(np.float64)
+    fields, per_scene = [], {}
+    for scene in scenes:
+        au, av = positions(first, scene, xs, ys, tables_rtf, tables_nmi)
+        bu, bv = positions(second, scene, xs, ys, tables_rtf, tables_nmi)
+        du, dv = bu - au, bv - av
+        fields.append((du, dv))
+        per_scene[scene] = float(np.hypot(du, dv).mean())
+    mu = np.mean([f[0] for f in fields], 0)
+    mv = np.mean([f[1] for f in fields], 0)
+    common = float(np.hypot(mu, mv).mean())
     print(json.dumps({
+        "compare": f"{second} - {first}",
         "scenes": len(fields),
         "per_scene_mean_px": per_scene,
         "mean_over_scenes_px": float(np.mean(list(per_scene.values()))),
         "common_field_mean_px": common,
         "common_field_mean_thermal_px": common * to_thermal,
         "common_shift_px": [float(mu.mean()), float(mv.mean())],
-        "absorbable_part_thermal_px": absorbed * to_thermal,
+        "absorbable_part_thermal_px": absorbable(mu, mv, xs, ys) * to_thermal,
         "thermal_px_per_msrs_px": to_thermal,
     }, indent=1))
 
