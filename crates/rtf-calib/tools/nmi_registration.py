@@ -22,6 +22,7 @@ null (sky, dark night areas) and, in "bands_filled", follows the scenes' common 
 
 Usage: nmi_registration.py OUT.json [--data ../shared/data] [--scenes N] [--stride 2]
        nmi_registration.py OUT.json --refill   # recompute bands_filled only
+       nmi_registration.py OUT.json --merge A.json B.json   # runs split with --scenes/--skip
 Writes {"scenes": {name: {"model": [s, k, k2, alpha_deg, u, v], "nmi": x, "bands": [...],
 "bands_filled": [...]}}}.
 """
@@ -201,6 +202,9 @@ def main():
     ap.add_argument("--data", default=os.path.join(os.path.dirname(__file__),
                                                    "../../../../shared/data"))
     ap.add_argument("--scenes", type=int, default=0, help="only the first N (0: all)")
+    ap.add_argument("--skip", type=int, default=0, help="leave out the first N (to split a run)")
+    ap.add_argument("--merge", nargs="*", default=[],
+                    help="only merge these outputs of split runs into OUT.json")
     ap.add_argument("--stride", type=int, default=2, help="pixel stride of the samples")
     ap.add_argument("--refill", action="store_true",
                     help="only recompute bands_filled of an existing OUT.json")
@@ -208,13 +212,25 @@ def main():
     if a.refill:
         write(json.load(open(a.out)), a.out)
         return
+    if a.merge:
+        parts = [json.load(open(p)) for p in a.merge]
+        merged = {"objective": parts[0]["objective"], "scenes": {}}
+        for part in parts:
+            merged["scenes"].update(part["scenes"])
+        write(merged, a.out)
+        return
     names = open(os.path.join(a.data, "msrs-samples/frames.txt")).read().split()
     names = [n if n.endswith(".png") else n + ".png" for n in names]
     if a.scenes:
         names = names[:a.scenes]
+    names = names[a.skip:]
     result = {"objective": f"NMI, {BINS} bins, border {BORDER}, stride {a.stride}",
               "scenes": {}}
+    if os.path.exists(a.out):  # resume: scenes already written are kept
+        result = json.load(open(a.out))
     for name in names:
+        if name.rsplit(".", 1)[0] in result["scenes"]:
+            continue
         luma, ir = load(a.data, name)
         p, score = fit_model(luma, ir, a.stride)
         bands = band_shifts(luma, ir, p, a.stride)
@@ -224,7 +240,7 @@ def main():
         print(scene, " ".join(f"{x:.4f}" for x in p), f"nmi {score:.4f}",
               "bands", " ".join("-" if b is None else f"{b:+.2f}" for b in bands),
               file=sys.stderr, flush=True)
-    write(result, a.out)
+        write(result, a.out)  # after every scene: a stopped run resumes
 
 
 if __name__ == "__main__":
