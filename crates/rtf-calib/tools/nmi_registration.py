@@ -43,8 +43,10 @@ import sys
 import numpy as np
 from PIL import Image
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import registration_gap  # noqa: E402  (the model's form and rtf's tables, read as text)
+
 W, H = 640, 480
-CU, CV = (W - 1) / 2, (H - 1) / 2
 BINS = 32
 BORDER = 16
 BAND_ROWS = 60
@@ -75,13 +77,9 @@ def bilinear(img, x, y):
 
 
 def position(p, xs, ys):
-    """The thermal position of RGB pixels (xs, ys) under model p = (s, k, k2, alpha, u, v)."""
-    s, k, k2, alpha, u, v = p
-    x, y = xs - CU, ys - CV
-    r2 = (x * x + y * y) / (CU * CU)
-    g = s * (1 + k * r2 + k2 * r2 * r2)
-    sn, cs = np.sin(np.radians(alpha)), np.cos(np.radians(alpha))
-    return CU + g * (cs * x - sn * y) + u, CV + g * (sn * x + cs * y) + v
+    """The thermal position of RGB pixels (xs, ys) under model p = (s, k, k2, alpha, u, v):
+    registration_gap.py's form of rtf's model, without band shifts."""
+    return registration_gap.rtf_position(p, [0.0] * 8, xs, ys)
 
 
 def nmi(a, b):
@@ -155,16 +153,13 @@ def grid(stride, rows=(BORDER, H - BORDER)):
 
 
 def rtf_tables():
-    """rtf's per-scene registration, read as text from real_rig.rs (registration_gap.py)."""
-    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    import registration_gap
-    return registration_gap, registration_gap.tables(
-        os.path.join(os.path.dirname(__file__), "../src/real_rig.rs"))
+    """rtf's per-scene registration, read as text from real_rig.rs."""
+    return registration_gap.tables(os.path.join(os.path.dirname(__file__), "../src/real_rig.rs"))
 
 
 def referee(pairs, stride):
     """Mean NMI of each existing registration, and in how many scenes rtf's beats the 2 %."""
-    gap, (reg, par) = rtf_tables()
+    gap, (reg, par) = registration_gap, rtf_tables()
     ys, xs = grid(stride)
     gen, rtf, med = [], [], []
     median = [1.030, -0.031, 0.0, 0.0, -0.1, 2.3]  # real_rig.rs: the medians over the 48
