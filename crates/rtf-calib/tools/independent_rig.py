@@ -7,7 +7,9 @@ numpy and Pillow only, its own registration of the MSRS pairs, depth, camera and
 - Registration: MSRS's thermal image is taken to be magnified 2 % at the centre relative to
   the RGB one, falling to 0 % at the corners (m(ρ) = 1.02 − 0.02 ρ², ρ = radius / corner
   radius); the thermal image is resampled onto the RGB grid with that model. (rtf's own
-  writer measures a per-scene model with its edge features plus per-band parallax.)
+  writer measures a per-scene model with its edge features plus per-band parallax.) With
+  `--registration`, a model measured by nmi_registration.py (intensities, not rtf's edge
+  features), applied in the form it was fitted in (registration_gap.py's).
 - Depth: a ground plane (camera 1.3–1.9 m above it, pitched ±2°) meeting a slanted back wall
   at 8–40 m; every pixel has depth. (rtf's writer: a street corridor.)
 - Camera: RGB f = 525 px; thermal 480×384, f = ratio × 525 · (480/640), a *division-model*
@@ -46,6 +48,9 @@ import sys
 import numpy as np
 from PIL import Image
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import registration_gap  # noqa: E402  (the form of a measured registration; a tool, not rtf)
+
 RGB_W, RGB_H, RGB_F = 640, 480, 525.0
 TH_W, TH_H = 480, 384
 PITCH_MM = 0.017
@@ -83,21 +88,12 @@ def register_ir(ir):
 
 def register_ir_measured(ir, entry):
     """The thermal image on the RGB grid under a per-scene measured registration (an entry of
-    nmi_registration.py's output): row' = y + b(y), b linear between the centres of 8 bands of
-    60 rows (flat bands filled from the scenes' common profile), then
-    c + s(1 + k r² + k₂ r⁴)R(α)((x, row') − c) + (u, v), r = |· − c| / half the width."""
-    s, k, k2, alpha, u, v = entry["model"]
-    bands = np.array(entry["bands_filled"])
-    c = np.array([(RGB_W - 1) / 2, (RGB_H - 1) / 2])
+    nmi_registration.py's output), applied with the very function the registration was fitted
+    with (registration_gap.py's form of the model: per-band vertical shifts, then scale, two
+    radial terms, roll and shift)."""
     ys, xs = np.mgrid[0:RGB_H, 0:RGB_W].astype(np.float64)
-    t = np.clip((ys + 0.5) / 60.0 - 0.5, 0, len(bands) - 1)
-    i = np.minimum(np.floor(t).astype(int), len(bands) - 2)
-    row = ys + bands[i] + (bands[i + 1] - bands[i]) * (t - i)
-    x, y = xs - c[0], row - c[1]
-    r2 = (x * x + y * y) / (c[0] * c[0])
-    g = s * (1 + k * r2 + k2 * r2 * r2)
-    sn, cs = math.sin(math.radians(alpha)), math.cos(math.radians(alpha))
-    return bilinear(ir, c[0] + g * (cs * x - sn * y) + u, c[1] + g * (sn * x + cs * y) + v)
+    return bilinear(ir, *registration_gap.rtf_position(entry["model"], entry["bands_filled"],
+                                                       xs, ys))
 
 
 def depth_model(rng, xs, ys):

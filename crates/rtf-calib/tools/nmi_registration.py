@@ -148,18 +148,15 @@ def peak(offsets, scores):
     return float(offsets[i] + (offsets[1] - offsets[0]) * np.clip(frac, -0.5, 0.5))
 
 
-def grid(stride, rows=(BORDER, H - BORDER)):
-    return np.mgrid[rows[0]:rows[1]:stride, BORDER:W - BORDER:stride].astype(np.float64)
-
-
-def rtf_tables():
-    """rtf's per-scene registration, read as text from real_rig.rs."""
-    return registration_gap.tables(os.path.join(os.path.dirname(__file__), "../src/real_rig.rs"))
+def grid(stride):
+    """Sample positions over the image less the border."""
+    return np.mgrid[BORDER:H - BORDER:stride, BORDER:W - BORDER:stride].astype(np.float64)
 
 
 def referee(pairs, stride):
     """Mean NMI of each existing registration, and in how many scenes rtf's beats the 2 %."""
-    gap, (reg, par) = registration_gap, rtf_tables()
+    gap = registration_gap
+    reg, par = gap.tables(os.path.join(os.path.dirname(__file__), "../src/real_rig.rs"))
     ys, xs = grid(stride)
     gen, rtf, med = [], [], []
     median = [1.030, -0.031, 0.0, 0.0, -0.1, 2.3]  # real_rig.rs: the medians over the 48
