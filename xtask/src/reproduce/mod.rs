@@ -487,9 +487,9 @@ fn plan<'a>(
     let mut missing = Vec::new();
     for t in selected {
         for c in &t.cells {
-            let selected = only.is_none_or(|cells| cells.contains(&c.id));
+            let chosen = only.is_none_or(|cells| cells.contains(&c.id));
             let reason = c.blocked.map(String::from).or_else(|| match c.train {
-                _ if !selected => Some(NOT_SELECTED.to_string()),
+                _ if !chosen => Some(NOT_SELECTED.to_string()),
                 Train::Recipe(r) if !recipes.contains_key(r) => Some(format!(
                     "needs the recipe `{r}` (`rtf recipes` does not list it yet)"
                 )),
