@@ -491,6 +491,7 @@ mod tests {
     use rtf_models::{build, ModelConfig};
 
     fn mfnet() -> (tch::nn::VarStore, Box<dyn Network>) {
+        let _rng = crate::seeded_rng_lock();
         tch::manual_seed(0);
         let vs = tch::nn::VarStore::new(Device::Cpu);
         let net = build(&vs.root(), &ModelConfig::from_name("mfnet", 9).unwrap()).unwrap();

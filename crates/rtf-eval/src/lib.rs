@@ -11,3 +11,11 @@ pub use evaluate::{
     ModalityDrop,
 };
 pub use metrics::{ClassScore, ConfusionMatrix, Scores};
+
+/// libtorch's generator is process-wide: a test that seeds it and expects the same draws
+/// holds this while it draws, so tests running in parallel cannot interleave theirs.
+#[cfg(test)]
+pub(crate) fn seeded_rng_lock() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}

@@ -200,6 +200,8 @@ mod tests {
 
     #[test]
     fn bench_reports_consistent_numbers_on_a_small_input() {
+        // bench_model seeds, builds and draws its input: the lock keeps other tests' draws out.
+        let _rng = crate::seeded_rng_lock();
         let opts = BenchOptions {
             height: 32,
             width: 48,
@@ -233,6 +235,7 @@ mod tests {
 
     #[test]
     fn bad_options_are_refused() {
+        let _rng = crate::seeded_rng_lock();
         let opts = BenchOptions {
             height: 30,
             width: 48,
