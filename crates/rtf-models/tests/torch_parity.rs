@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use rtf_models::fast::{argmax_agreement, InferenceNet, Precision};
+use rtf_models::fast::{argmax_agreement, max_relative_difference, InferenceNet, Precision};
 use rtf_models::{build, weights, ModelConfig};
 use tch::{nn, Device, Kind};
 
@@ -74,8 +74,7 @@ fn check(model: &str) {
 
     let plain = tch::no_grad(|| net.forward_t(&input, false));
     assert_eq!(plain.size(), expected.size());
-    let scale = expected.abs().max().double_value(&[]).max(1e-6);
-    let diff = (&plain - &expected).abs().max().double_value(&[]) / scale;
+    let diff = max_relative_difference(&expected, &plain);
     assert!(
         diff < 1e-4,
         "{model}: plain path differs from PyTorch by {diff} (relative)"
@@ -83,7 +82,7 @@ fn check(model: &str) {
 
     let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
     let fused = fast.forward(&input).unwrap();
-    let diff = (&fused - &expected).abs().max().double_value(&[]) / scale;
+    let diff = max_relative_difference(&expected, &fused);
     assert!(
         diff < 1e-3,
         "{model}: fast path differs from PyTorch by {diff} (relative)"
