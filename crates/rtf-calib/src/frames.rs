@@ -44,68 +44,43 @@ fn edge_share(p: &Plane) -> f64 {
     strong as f64 / (p.width * p.height).max(1) as f64
 }
 
+/// Fails with an error naming `path` unless `plane` is `want` (width, height); `what` (empty
+/// or ending in a space) and `other` name the two sides in the message.
+fn check_size(
+    path: &Path,
+    plane: &Plane,
+    what: &str,
+    other: &str,
+    want: (usize, usize),
+) -> Result<()> {
+    if (plane.width, plane.height) == want {
+        return Ok(());
+    }
+    Err(bad(
+        path,
+        format!(
+            "{what}is {}×{}, {other} {}×{}",
+            plane.width, plane.height, want.0, want.1
+        ),
+    ))
+}
+
 fn load_one(rig: &Rig, spec: &FrameSpec) -> Result<Frame> {
     let rgb = read_gray(&spec.rgb)?;
-    if (rgb.width, rgb.height) != (rig.rgb.width, rig.rgb.height) {
-        return Err(bad(
-            &spec.rgb,
-            format!(
-                "is {}×{}, rig.yaml says rgb {}×{}",
-                rgb.width, rgb.height, rig.rgb.width, rig.rgb.height
-            ),
-        ));
-    }
+    let rig_rgb = (rig.rgb.width, rig.rgb.height);
+    check_size(&spec.rgb, &rgb, "", "rig.yaml says rgb", rig_rgb)?;
     let raw = read_thermal_raw(&spec.thermal)?;
-    if (raw.width, raw.height) != (rig.thermal.width, rig.thermal.height) {
-        return Err(bad(
-            &spec.thermal,
-            format!(
-                "is {}×{}, rig.yaml says thermal {}×{}",
-                raw.width, raw.height, rig.thermal.width, rig.thermal.height
-            ),
-        ));
-    }
+    let rig_thermal = (rig.thermal.width, rig.thermal.height);
+    check_size(
+        &spec.thermal,
+        &raw,
+        "",
+        "rig.yaml says thermal",
+        rig_thermal,
+    )?;
     let thermal = normalise_robust(&raw)
         .ok_or_else(|| bad(&spec.thermal, "thermal image is flat (featureless)"))?;
-    let (depth, from_stereo) = match (&spec.depth, &spec.rgb_right) {
-        (Some(path), _) => {
-            let d = read_depth(path)?;
-            if (d.width, d.height) != (rgb.width, rgb.height) {
-                return Err(bad(
-                    path,
-                    format!(
-                        "depth is {}×{}, the RGB frame {}×{}",
-                        d.width, d.height, rgb.width, rgb.height
-                    ),
-                ));
-            }
-            (d, false)
-        }
-        (None, Some(path)) => {
-            let right = read_gray(path)?;
-            if (right.width, right.height) != (rgb.width, rgb.height) {
-                return Err(bad(
-                    path,
-                    format!(
-                        "right image is {}×{}, the left {}×{}",
-                        right.width, right.height, rgb.width, rgb.height
-                    ),
-                ));
-            }
-            let baseline = rig.stereo.map(|s| s.baseline_m).unwrap_or(0.0);
-            (
-                crate::stereo::depth_from_stereo(
-                    &rgb,
-                    &right,
-                    rig.rgb.fx,
-                    baseline,
-                    &Default::default(),
-                ),
-                true,
-            )
-        }
-        (None, None) => return Err(bad(&spec.rgb, "frame has neither depth nor rgb_right")),
-    };
+    let (depth, from_stereo) = frame_depth(rig, spec, &rgb)?;
     let with_depth =
         depth.data.iter().filter(|&&d| d > 0.0).count() as f64 / depth.data.len() as f64;
     if with_depth < 0.05 {
@@ -127,6 +102,33 @@ fn load_one(rig: &Rig, spec: &FrameSpec) -> Result<Frame> {
         depth,
         depth_from_stereo: from_stereo,
     })
+}
+
+/// The frame's depth, read from its depth file or computed from its stereo pair, and
+/// whether it came from stereo.
+fn frame_depth(rig: &Rig, spec: &FrameSpec, rgb: &Plane) -> Result<(Plane, bool)> {
+    let size = (rgb.width, rgb.height);
+    match (&spec.depth, &spec.rgb_right) {
+        (Some(path), _) => {
+            let d = read_depth(path)?;
+            check_size(path, &d, "depth ", "the RGB frame", size)?;
+            Ok((d, false))
+        }
+        (None, Some(path)) => {
+            let right = read_gray(path)?;
+            check_size(path, &right, "right image ", "the left", size)?;
+            let baseline = rig.stereo.map(|s| s.baseline_m).unwrap_or(0.0);
+            let depth = crate::stereo::depth_from_stereo(
+                rgb,
+                &right,
+                rig.rgb.fx,
+                baseline,
+                &Default::default(),
+            );
+            Ok((depth, true))
+        }
+        (None, None) => Err(bad(&spec.rgb, "frame has neither depth nor rgb_right")),
+    }
 }
 
 /// Loads every frame of `rig`, calling `warn` for each skipped one.

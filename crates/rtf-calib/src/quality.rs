@@ -240,85 +240,13 @@ pub(crate) struct Figures<'a> {
     pub at_bounds: &'a [String],
 }
 
-/// The verdict and its reason, from the figures (rules in order; the first that fires wins).
+/// The verdict and its reason, from the figures (rules in order; the first that fires wins):
+/// failures first, then doubts, else `ok`.
 pub(crate) fn decide(f: &Figures) -> (Verdict, String) {
-    if let Some(why) = f.stopped {
-        (
-            Verdict::Failed,
-            format!("the optimiser stopped early: {why}"),
-        )
-    } else if f.at_solution < 0.05 {
-        (
-            Verdict::Failed,
-            format!("the frames share too little edge structure: alignment score {:.3} at the solution (aligned real frames score 0.13–0.21 at 320×240)", f.at_solution),
-        )
-    } else if f.agreeing < 0.5 {
-        (
-            Verdict::Failed,
-            format!(
-                "only {:.0} % of the frames agree with the solution (their own best alignment is elsewhere): the thermal and RGB frames may not show the same scene",
-                f.agreeing * 100.0
-            ),
-        )
-    } else if f.sharpness < 0.02 {
-        (
-            Verdict::Failed,
-            format!("no clear optimum: perturbing the solution by {DELTA_PX} px lowers the alignment score by only {:.1} %", f.sharpness * 100.0),
-        )
-    } else if f.agreeing < 0.8 {
-        (
-            Verdict::Uncertain,
-            format!(
-                "only {:.0} % of the frames agree with the solution",
-                f.agreeing * 100.0
-            ),
-        )
-    } else if f.sharpness < SHARPNESS_UNCERTAIN {
-        (
-            Verdict::Uncertain,
-            format!(
-                "a shallow optimum: perturbing by {DELTA_PX} px lowers the score by only {:.1} % (below {:.0} %); on real-imagery rigs the map error was about 0.03–0.19 px divided by this sharpness, so < 1 px cannot be claimed (more frames with structure seen by both cameras help)",
-                f.sharpness * 100.0,
-                SHARPNESS_UNCERTAIN * 100.0
-            ),
-        )
-    } else if f.split_px > SPLIT_UNCERTAIN_PX {
-        (
-            Verdict::Uncertain,
-            format!(
-                "the frames disagree: solved on the even and on the odd frames alone, the maps differ by {:.2} px, so the solution is likely off by about {:.2} px (more frames, or frames with more structure seen by both cameras, help)",
-                2.0 * f.split_px,
-                f.split_px
-            ),
-        )
-    } else if let Some(r) = f.restarts.filter(|r| !r.settled) {
-        (
-            Verdict::Uncertain,
-            format!(
-                "wrong basins: restarts from the solution perturbed by {:.1} px kept finding better, distinct solutions ({} rounds, {:.2} px from the first run's); the objective has several optima here",
-                r.perturbation_px, r.rounds, r.improved_px
-            ),
-        )
-    } else if let Some(r) = f.restarts.filter(|r| r.spread_px > SPREAD_UNCERTAIN_PX) {
-        (
-            Verdict::Uncertain,
-            format!(
-                "several optima: restarts from the solution perturbed by {:.1} px reach solutions {:.2} px apart that score within {:.1} % of each other",
-                r.perturbation_px,
-                r.spread_px,
-                100.0 * crate::optimize::RESTART_TIE
-            ),
-        )
-    } else if f.moved_px > 5.0 && f.gain < 0.1 * f.at_solution.abs() {
-        (
-            Verdict::Uncertain,
-            format!("the map moved {:.1} px from the start while the alignment score improved by only {:.1} %", f.moved_px, 100.0 * f.gain / f.at_solution.abs().max(1e-9)),
-        )
-    } else if !f.at_bounds.is_empty() {
-        (
-            Verdict::Uncertain,
-            format!("implausible parameters: {}", f.at_bounds.join("; ")),
-        )
+    if let Some(why) = failure(f) {
+        (Verdict::Failed, why)
+    } else if let Some(why) = doubt(f) {
+        (Verdict::Uncertain, why)
     } else {
         (
             Verdict::Ok,
@@ -328,6 +256,76 @@ pub(crate) fn decide(f: &Figures) -> (Verdict, String) {
                 f.agreeing * 100.0
             ),
         )
+    }
+}
+
+/// Why the figures say the calibration failed, if they do.
+fn failure(f: &Figures) -> Option<String> {
+    if let Some(why) = f.stopped {
+        Some(format!("the optimiser stopped early: {why}"))
+    } else if f.at_solution < 0.05 {
+        Some(format!("the frames share too little edge structure: alignment score {:.3} at the solution (aligned real frames score 0.13–0.21 at 320×240)", f.at_solution))
+    } else if f.agreeing < 0.5 {
+        Some(format!(
+            "only {:.0} % of the frames agree with the solution (their own best alignment is elsewhere): the thermal and RGB frames may not show the same scene",
+            f.agreeing * 100.0
+        ))
+    } else if f.sharpness < 0.02 {
+        Some(format!("no clear optimum: perturbing the solution by {DELTA_PX} px lowers the alignment score by only {:.1} %", f.sharpness * 100.0))
+    } else {
+        None
+    }
+}
+
+/// Why the figures leave the calibration uncertain, if they do (after [`failure`]).
+fn doubt(f: &Figures) -> Option<String> {
+    if f.agreeing < 0.8 {
+        Some(format!(
+            "only {:.0} % of the frames agree with the solution",
+            f.agreeing * 100.0
+        ))
+    } else if f.sharpness < SHARPNESS_UNCERTAIN {
+        Some(format!(
+            "a shallow optimum: perturbing by {DELTA_PX} px lowers the score by only {:.1} % (below {:.0} %); on real-imagery rigs the map error was about 0.03–0.19 px divided by this sharpness, so < 1 px cannot be claimed (more frames with structure seen by both cameras help)",
+            f.sharpness * 100.0,
+            SHARPNESS_UNCERTAIN * 100.0
+        ))
+    } else if f.split_px > SPLIT_UNCERTAIN_PX {
+        Some(format!(
+            "the frames disagree: solved on the even and on the odd frames alone, the maps differ by {:.2} px, so the solution is likely off by about {:.2} px (more frames, or frames with more structure seen by both cameras, help)",
+            2.0 * f.split_px,
+            f.split_px
+        ))
+    } else if let Some(why) = f.restarts.and_then(restart_doubt) {
+        Some(why)
+    } else if f.moved_px > 5.0 && f.gain < 0.1 * f.at_solution.abs() {
+        Some(format!("the map moved {:.1} px from the start while the alignment score improved by only {:.1} %", f.moved_px, 100.0 * f.gain / f.at_solution.abs().max(1e-9)))
+    } else if !f.at_bounds.is_empty() {
+        Some(format!(
+            "implausible parameters: {}",
+            f.at_bounds.join("; ")
+        ))
+    } else {
+        None
+    }
+}
+
+/// What the restarts say against the solution: unsettled basins, or distinct optima that tie.
+fn restart_doubt(r: &Restarts) -> Option<String> {
+    if !r.settled {
+        Some(format!(
+            "wrong basins: restarts from the solution perturbed by {:.1} px kept finding better, distinct solutions ({} rounds, {:.2} px from the first run's); the objective has several optima here",
+            r.perturbation_px, r.rounds, r.improved_px
+        ))
+    } else if r.spread_px > SPREAD_UNCERTAIN_PX {
+        Some(format!(
+            "several optima: restarts from the solution perturbed by {:.1} px reach solutions {:.2} px apart that score within {:.1} % of each other",
+            r.perturbation_px,
+            r.spread_px,
+            100.0 * crate::optimize::RESTART_TIE
+        ))
+    } else {
+        None
     }
 }
 
@@ -415,6 +413,62 @@ fn beyond_bounds(rig: &Rig, solution: &Calibration, square: bool) -> Vec<String>
     at_bounds
 }
 
+/// Per-frame scores at the solution and at ±δ px along each probe direction.
+struct Perturbations {
+    at_solution: Vec<f64>,
+    /// (minus, plus) per direction, each per frame.
+    per_dir: Vec<(Vec<f64>, Vec<f64>)>,
+}
+
+impl Perturbations {
+    fn measure(
+        level: &Level,
+        scaling: &Scaling,
+        theta: &[f64; NUM_PARAMS],
+        dirs: &[[f64; NUM_PARAMS]],
+    ) -> Self {
+        // θ units move the map by ~1 px RMS, so ±δ along a unit direction is ±δ px.
+        let at = |d: &[f64; NUM_PARAMS], s: f64| -> [f64; NUM_PARAMS] {
+            std::array::from_fn(|i| theta[i] + s * DELTA_PX * d[i])
+        };
+        let per_dir = dirs
+            .iter()
+            .map(|d| {
+                let minus = frame_scores(level, scaling, &at(d, -1.0));
+                let plus = frame_scores(level, scaling, &at(d, 1.0));
+                (minus, plus)
+            })
+            .collect();
+        Perturbations {
+            at_solution: frame_scores(level, scaling, theta),
+            per_dir,
+        }
+    }
+
+    /// Mean score of each perturbed solution: −δ and +δ for each direction in turn.
+    fn means(&self) -> Vec<f64> {
+        self.per_dir
+            .iter()
+            .flat_map(|(m, p)| [mean(m), mean(p)])
+            .collect()
+    }
+
+    /// Fraction of frames that agree in u and v: the parabola's vertex within ±δ and a
+    /// maximum there (the first two directions are u and v).
+    fn agreeing(&self) -> f64 {
+        let s0 = &self.at_solution;
+        let agrees = |f: usize| -> bool {
+            s0[f] > 0.0
+                && self.per_dir[..2].iter().all(|(m, p)| {
+                    let curv = m[f] + p[f] - 2.0 * s0[f];
+                    let slope = (p[f] - m[f]) / 2.0;
+                    curv < 0.0 && (slope / curv).abs() <= 1.0
+                })
+        };
+        (0..s0.len()).filter(|&f| agrees(f)).count() as f64 / s0.len().max(1) as f64
+    }
+}
+
 /// Assesses `solution` (found from `initial`) on the frames `used` of `frames`.
 pub fn assess(
     rig: &Rig,
@@ -440,36 +494,16 @@ pub fn assess(
         d[i] = 1.0;
         d
     };
-    // θ units move the map by ~1 px RMS, so ±δ along a unit direction is ±δ px.
     let dirs = [axis(2), axis(3), focal, axis(13)];
-    let at = |d: &[f64; NUM_PARAMS], s: f64| -> [f64; NUM_PARAMS] {
-        std::array::from_fn(|i| theta[i] + s * DELTA_PX * d[i])
-    };
-    let s0 = frame_scores(&level, &scaling, &theta);
+    let probe = Perturbations::measure(&level, &scaling, &theta, &dirs);
+    let s0 = &probe.at_solution;
     let start = frame_scores(&level, &scaling, &[0.0; NUM_PARAMS]);
-    let mut perturbed = Vec::new();
-    let mut per_dir = Vec::new();
-    for d in &dirs {
-        let minus = frame_scores(&level, &scaling, &at(d, -1.0));
-        let plus = frame_scores(&level, &scaling, &at(d, 1.0));
-        perturbed.push(mean(&minus));
-        perturbed.push(mean(&plus));
-        per_dir.push((minus, plus));
-    }
-    let at_solution = mean(&s0);
+    let perturbed = probe.means();
+    let at_solution = mean(s0);
     let perturbed_mean = mean(&perturbed);
     let perturbed_best = perturbed.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let sharpness = (at_solution - perturbed_mean) / at_solution.abs().max(1e-9);
-    // Frame agreement in u and v: the parabola's vertex within ±δ and a maximum there.
-    let agrees = |f: usize| -> bool {
-        s0[f] > 0.0
-            && per_dir[..2].iter().all(|(m, p)| {
-                let curv = m[f] + p[f] - 2.0 * s0[f];
-                let slope = (p[f] - m[f]) / 2.0;
-                curv < 0.0 && (slope / curv).abs() <= 1.0
-            })
-    };
-    let agreeing = (0..s0.len()).filter(|&f| agrees(f)).count() as f64 / s0.len().max(1) as f64;
+    let agreeing = probe.agreeing();
     let (sigma, conditioning) = formal_sigma(&level, &scaling, &theta, chosen.len(), square);
     let moved_px = optimize::mean_map_error(rig, frames, solution, initial);
     let split_px = split_half(rig, frames, used, &chosen, factor, &scaling, &theta, square);

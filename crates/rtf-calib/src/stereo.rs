@@ -111,12 +111,25 @@ fn aggregate(
     }
 }
 
-/// Disparity of the left image (pixels, NaN = rejected).
+/// Disparity of the left image (pixels, NaN = rejected): census matching costs, aggregated
+/// along eight paths, winner-take-all both ways, left–right checked, 3×3 median.
 pub fn disparity(left: &Plane, right: &Plane, max_disparity: usize, prm: &SgmParams) -> Vec<f32> {
     let (w, h) = (left.width, left.height);
     let nd = max_disparity.max(2) + 1;
+    let cost = census_costs(left, right, nd);
+    let sum = aggregate_all(&cost, w, h, nd, prm);
+    drop(cost);
+    let left_disp = left_disparities(&sum, w, h, nd, prm);
+    let right_disp = right_disparities(&sum, w, h, nd);
+    let checked = left_right_checked(&left_disp, &right_disp, w);
+    median3(&checked, w, h)
+}
+
+/// Hamming distances of the census codes, `[y][x][d]` (24, the maximum, where x − d < 0).
+fn census_costs(left: &Plane, right: &Plane, nd: usize) -> Vec<u16> {
+    let w = left.width;
     let (cl, cr) = (census(left), census(right));
-    let mut cost = vec![24u16; w * h * nd];
+    let mut cost = vec![24u16; w * left.height * nd];
     cost.par_chunks_mut(w * nd)
         .enumerate()
         .for_each(|(y, row)| {
@@ -126,6 +139,11 @@ pub fn disparity(left: &Plane, right: &Plane, max_disparity: usize, prm: &SgmPar
                 }
             }
         });
+    cost
+}
+
+/// The costs aggregated along the eight SGM paths and summed.
+fn aggregate_all(cost: &[u16], w: usize, h: usize, nd: usize, prm: &SgmParams) -> Vec<u16> {
     let dirs = [
         (1, 0),
         (-1, 0),
@@ -140,20 +158,22 @@ pub fn disparity(left: &Plane, right: &Plane, max_disparity: usize, prm: &SgmPar
         .par_iter()
         .map(|&dir| {
             let mut s = vec![0u16; w * h * nd];
-            aggregate(&cost, w, h, nd, dir, prm, &mut s);
+            aggregate(cost, w, h, nd, dir, prm, &mut s);
             s
         })
         .collect();
-    drop(cost);
     let mut sum = vec![0u16; w * h * nd];
     for p in &partial {
         sum.par_iter_mut()
             .zip(p.par_iter())
             .for_each(|(a, b)| *a += b);
     }
-    drop(partial);
-    // Left disparities with uniqueness and sub-pixel refinement.
-    let left_disp: Vec<f32> = (0..w * h)
+    sum
+}
+
+/// Left disparities with the uniqueness test and parabolic sub-pixel refinement.
+fn left_disparities(sum: &[u16], w: usize, h: usize, nd: usize, prm: &SgmParams) -> Vec<f32> {
+    (0..w * h)
         .into_par_iter()
         .map(|i| {
             let s = &sum[i * nd..(i + 1) * nd];
@@ -183,9 +203,12 @@ pub fn disparity(left: &Plane, right: &Plane, max_disparity: usize, prm: &SgmPar
             };
             bd as f32 + offset
         })
-        .collect();
-    // Right disparities from the same aggregated costs: d_R(x) = argmin_d S(x + d, d).
-    let right_disp: Vec<f32> = (0..w * h)
+        .collect()
+}
+
+/// Right disparities from the same aggregated costs: d_R(x) = argmin_d S(x + d, d).
+fn right_disparities(sum: &[u16], w: usize, h: usize, nd: usize) -> Vec<f32> {
+    (0..w * h)
         .into_par_iter()
         .map(|i| {
             let (x, y) = (i % w, i / w);
@@ -206,8 +229,12 @@ pub fn disparity(left: &Plane, right: &Plane, max_disparity: usize, prm: &SgmPar
                 bd as f32
             }
         })
-        .collect();
-    let checked: Vec<f32> = (0..w * h)
+        .collect()
+}
+
+/// Left disparities that the right image confirms within 1 px, the others rejected.
+fn left_right_checked(left_disp: &[f32], right_disp: &[f32], w: usize) -> Vec<f32> {
+    (0..left_disp.len())
         .map(|i| {
             let d = left_disp[i];
             if d.is_nan() {
@@ -225,8 +252,7 @@ pub fn disparity(left: &Plane, right: &Plane, max_disparity: usize, prm: &SgmPar
                 f32::NAN
             }
         })
-        .collect();
-    median3(&checked, w, h)
+        .collect()
 }
 
 /// 3×3 median over valid neighbours (needs at least 5 valid, else rejected).
