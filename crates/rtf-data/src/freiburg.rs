@@ -116,6 +116,119 @@ fn list_pngs(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, DataError> {
     Ok(out)
 }
 
+/// The training tree's frames (`<seq>/fl_rgb/fl_rgb_<stamp>.png` with `fl_ir_aligned` and
+/// optional `fl_rgb_labels` beside it); frames without an aligned IR image become problems.
+fn scan_train_tree(
+    root: &Path,
+    entries: &mut Vec<Entry>,
+    problems: &mut Vec<DataError>,
+) -> Result<(), DataError> {
+    let mut train_dirs = Vec::new();
+    find_dirs(root, "fl_rgb", 6, &mut train_dirs)?;
+    for rgb_dir in train_dirs {
+        let seq = rgb_dir.parent().unwrap_or(root).to_path_buf();
+        for rgb in list_pngs(&rgb_dir, "png")? {
+            let fname = file_name(&rgb);
+            let stamp = fname.strip_prefix("fl_rgb_").unwrap_or(&fname).to_string();
+            let ir_candidates = [
+                seq.join("fl_ir_aligned")
+                    .join(format!("fl_ir_aligned_{stamp}")),
+                seq.join("fl_ir_aligned").join(&fname),
+            ];
+            let Some(ir) = ir_candidates.iter().find(|p| p.is_file()).cloned() else {
+                problems.push(DataError::Format {
+                    path: rgb.clone(),
+                    message: format!(
+                        "no aligned IR image (looked for {})",
+                        ir_candidates[0].display()
+                    ),
+                });
+                continue;
+            };
+            let label = [
+                seq.join("fl_rgb_labels").join(&fname),
+                seq.join("fl_rgb_labels")
+                    .join(format!("fl_rgb_labels_{stamp}")),
+            ]
+            .into_iter()
+            .find(|p| p.is_file())
+            .map(LabelFile::Png);
+            let name = rgb
+                .strip_prefix(root)
+                .unwrap_or(&rgb)
+                .with_extension("")
+                .to_string_lossy()
+                .into_owned();
+            entries.push(Entry {
+                name,
+                daytime: daytime_of(&rgb),
+                rgb,
+                ir,
+                label,
+                part: FreiburgPart::TrainTree,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The test layout's frames (`<dir>/ImagesRGB/<stem>_rgb.png` with `ImagesIR` and optional
+/// `SegmentationClass/*.npy`), under `val/` the validation part; frames without their IR
+/// image become problems.
+fn scan_test_layout(
+    root: &Path,
+    entries: &mut Vec<Entry>,
+    problems: &mut Vec<DataError>,
+) -> Result<(), DataError> {
+    let mut test_dirs = Vec::new();
+    find_dirs(root, "ImagesRGB", 4, &mut test_dirs)?;
+    for rgb_dir in test_dirs {
+        let dir = rgb_dir.parent().unwrap_or(root).to_path_buf();
+        for rgb in list_pngs(&rgb_dir, "png")? {
+            let fname = file_name(&rgb);
+            let stem = fname
+                .strip_suffix("_rgb.png")
+                .unwrap_or(fname.trim_end_matches(".png"))
+                .to_string();
+            let ir = dir.join("ImagesIR").join(format!("{stem}_ir.png"));
+            if !ir.is_file() {
+                problems.push(DataError::Format {
+                    path: rgb.clone(),
+                    message: format!("no IR image {}", ir.display()),
+                });
+                continue;
+            }
+            let label = [
+                dir.join("SegmentationClass").join(format!("{stem}.npy")),
+                dir.join("SegmentationClass")
+                    .join(format!("{stem}_rgb.npy")),
+            ]
+            .into_iter()
+            .find(|p| p.is_file())
+            .map(LabelFile::Npy);
+            let rel = dir.strip_prefix(root).unwrap_or(&dir);
+            let name = rel.join(&stem).to_string_lossy().into_owned();
+            let in_val = rel
+                .components()
+                .next()
+                .is_some_and(|c| c.as_os_str() == "val");
+            entries.push(Entry {
+                name,
+                daytime: daytime_of(&rgb),
+                rgb,
+                ir,
+                label,
+                part: if in_val {
+                    FreiburgPart::Validation
+                } else {
+                    FreiburgPart::TestLayout
+                },
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Directories under `root` (inclusive, up to `depth` levels) named `name`.
 fn find_dirs(
     root: &Path,
@@ -171,103 +284,8 @@ impl FreiburgSplit {
             });
         }
         let mut entries = Vec::new();
-        let mut train_dirs = Vec::new();
-        find_dirs(&root, "fl_rgb", 6, &mut train_dirs)?;
-        for rgb_dir in train_dirs {
-            let seq = rgb_dir.parent().unwrap_or(&root).to_path_buf();
-            for rgb in list_pngs(&rgb_dir, "png")? {
-                let fname = file_name(&rgb);
-                let stamp = fname.strip_prefix("fl_rgb_").unwrap_or(&fname).to_string();
-                let ir_candidates = [
-                    seq.join("fl_ir_aligned")
-                        .join(format!("fl_ir_aligned_{stamp}")),
-                    seq.join("fl_ir_aligned").join(&fname),
-                ];
-                let Some(ir) = ir_candidates.iter().find(|p| p.is_file()).cloned() else {
-                    problems.push(DataError::Format {
-                        path: rgb.clone(),
-                        message: format!(
-                            "no aligned IR image (looked for {})",
-                            ir_candidates[0].display()
-                        ),
-                    });
-                    continue;
-                };
-                let label = [
-                    seq.join("fl_rgb_labels").join(&fname),
-                    seq.join("fl_rgb_labels")
-                        .join(format!("fl_rgb_labels_{stamp}")),
-                ]
-                .into_iter()
-                .find(|p| p.is_file())
-                .map(LabelFile::Png);
-                let name = rgb
-                    .strip_prefix(&root)
-                    .unwrap_or(&rgb)
-                    .with_extension("")
-                    .to_string_lossy()
-                    .into_owned();
-                entries.push(Entry {
-                    name,
-                    daytime: daytime_of(&rgb),
-                    rgb,
-                    ir,
-                    label,
-                    part: FreiburgPart::TrainTree,
-                });
-            }
-        }
-        let mut test_dirs = Vec::new();
-        find_dirs(&root, "ImagesRGB", 4, &mut test_dirs)?;
-        for rgb_dir in test_dirs {
-            let dir = rgb_dir.parent().unwrap_or(&root).to_path_buf();
-            for rgb in list_pngs(&rgb_dir, "png")? {
-                let fname = file_name(&rgb);
-                let stem = fname
-                    .strip_suffix("_rgb.png")
-                    .unwrap_or(fname.trim_end_matches(".png"))
-                    .to_string();
-                let ir = dir.join("ImagesIR").join(format!("{stem}_ir.png"));
-                if !ir.is_file() {
-                    problems.push(DataError::Format {
-                        path: rgb.clone(),
-                        message: format!("no IR image {}", ir.display()),
-                    });
-                    continue;
-                }
-                let label = [
-                    dir.join("SegmentationClass").join(format!("{stem}.npy")),
-                    dir.join("SegmentationClass")
-                        .join(format!("{stem}_rgb.npy")),
-                ]
-                .into_iter()
-                .find(|p| p.is_file())
-                .map(LabelFile::Npy);
-                let name = dir
-                    .strip_prefix(&root)
-                    .unwrap_or(&dir)
-                    .join(&stem)
-                    .to_string_lossy()
-                    .into_owned();
-                let in_val = dir
-                    .strip_prefix(&root)
-                    .ok()
-                    .and_then(|rel| rel.components().next())
-                    .is_some_and(|c| c.as_os_str() == "val");
-                entries.push(Entry {
-                    name,
-                    daytime: daytime_of(&rgb),
-                    rgb,
-                    ir,
-                    label,
-                    part: if in_val {
-                        FreiburgPart::Validation
-                    } else {
-                        FreiburgPart::TestLayout
-                    },
-                });
-            }
-        }
+        scan_train_tree(&root, &mut entries, &mut problems)?;
+        scan_test_layout(&root, &mut entries, &mut problems)?;
         if entries.is_empty() && problems.is_empty() {
             return Err(DataError::Layout {
                 root,

@@ -249,19 +249,31 @@ struct EpochJob {
 
 impl EpochJob {
     fn batch(&self, b: usize, parallel: bool) -> Result<Batch, DataError> {
-        use rayon::prelude::*;
         let bs = self.cfg.batch_size;
         let positions: Vec<usize> = (b * bs..((b + 1) * bs).min(self.order.len())).collect();
+        let frames = self.load(&positions, parallel)?;
+        let (w, h) = self.output_size(&frames)?;
+        self.assemble(frames, &positions, (w, h), parallel)
+    }
+
+    /// The frames at these positions of the epoch's order, decoded and validated.
+    fn load(&self, positions: &[usize], parallel: bool) -> Result<Vec<Frame>, DataError> {
+        use rayon::prelude::*;
         let load = |&pos: &usize| -> Result<Frame, DataError> {
             let frame = self.source.load(self.order[pos])?;
             frame.validate()?;
             Ok(frame)
         };
-        let frames: Vec<Frame> = if parallel {
-            positions.par_iter().map(load).collect::<Result<_, _>>()?
+        if parallel {
+            positions.par_iter().map(load).collect()
         } else {
-            positions.iter().map(load).collect::<Result<_, _>>()?
-        };
+            positions.iter().map(load).collect()
+        }
+    }
+
+    /// The batch's (width, height): the resize, else the augmentation window, else the
+    /// frames' own size, which must then be the same for all.
+    fn output_size(&self, frames: &[Frame]) -> Result<(usize, usize), DataError> {
         let first = frames
             .first()
             .ok_or_else(|| DataError::Config("empty batch".into()))?;
@@ -284,6 +296,19 @@ impl EpochJob {
                 });
             }
         }
+        Ok((w, h))
+    }
+
+    /// The batch tensors: each frame prepared (with its own seeded generator) straight into
+    /// its slot of the input [N, 4, H, W] and target [N, H, W].
+    fn assemble(
+        &self,
+        frames: Vec<Frame>,
+        positions: &[usize],
+        (w, h): (usize, usize),
+        parallel: bool,
+    ) -> Result<Batch, DataError> {
+        use rayon::prelude::*;
         let n = frames.len();
         let input = tch::Tensor::f_empty(
             [n as i64, 4, h as i64, w as i64],
@@ -399,7 +424,7 @@ pub fn prepare_frame(
 /// ([4, H, W]) and `dst_label` ([H, W]).
 #[allow(clippy::too_many_arguments)]
 pub fn prepare_into(
-    frame: Frame,
+    mut frame: Frame,
     cfg: &LoaderConfig,
     ignore: Option<u8>,
     rng: &mut impl Rng,
@@ -411,7 +436,7 @@ pub fn prepare_into(
     frame.validate()?;
     let (w, h) = (frame.width, frame.height);
     let n = w * h;
-    let label = match frame.label {
+    let label = match frame.label.take() {
         Some(l) => l,
         None => match ignore {
             Some(id) => vec![id; n],
@@ -432,50 +457,10 @@ pub fn prepare_into(
             "output size {out_w}x{out_h} does not match the buffers"
         )));
     }
-    let mut data = augment::take_scratch(4 * n);
-    let (rgb_planes, t_plane) = data.split_at_mut(3 * n);
-    for (i, px) in frame.rgb.chunks_exact(3).enumerate() {
-        rgb_planes[i] = px[0] as f32 / 255.0;
-        rgb_planes[n + i] = px[1] as f32 / 255.0;
-        rgb_planes[2 * n + i] = px[2] as f32 / 255.0;
-    }
-    t_plane.copy_from_slice(&frame.thermal);
-    let image = Planar {
-        channels: 4,
-        width: w,
-        height: h,
-        data,
-    };
+    let image = unit_planes(&frame);
     let aug = &cfg.augment;
     // Random draws happen in a fixed order whether or not an augmentation changes anything.
-    let window = match aug.crop {
-        Some(f) if f > 0.0 => Window::random_crop(w, h, f, rng),
-        _ => Window::full(w, h),
-    };
-    let window = match aug.window {
-        None => window,
-        Some(_) if aug.crop.is_some() => {
-            return Err(DataError::Config(
-                "augment.crop and augment.window are alternatives; set one".into(),
-            ))
-        }
-        Some((ww, wh)) if ww > w || wh > h || ww == 0 || wh == 0 => {
-            return Err(DataError::Frame {
-                name: frame.name,
-                message: format!("{w}x{h} is smaller than the {ww}x{wh} augmentation window"),
-            })
-        }
-        Some((ww, wh)) => {
-            let x0 = rng.random_range(0..=w - ww) as f32;
-            let y0 = rng.random_range(0..=h - wh) as f32;
-            Window {
-                x0,
-                y0,
-                x1: x0 + ww as f32,
-                y1: y0 + wh as f32,
-            }
-        }
-    };
+    let window = draw_window(aug, w, h, rng, &frame.name)?;
     let angle = aug
         .rotation_deg
         .map(|d| rng.random_range(-d.abs()..=d.abs()));
@@ -511,6 +496,61 @@ pub fn prepare_into(
         *d = id as i64;
     }
     Ok((frame.name, frame.daytime))
+}
+
+/// The frame as four planes in [0, 1]: R, G, B (bytes / 255), thermal; in a scratch buffer
+/// that the caller returns with `augment::put_scratch`.
+fn unit_planes(frame: &Frame) -> Planar {
+    let n = frame.width * frame.height;
+    let mut data = augment::take_scratch(4 * n);
+    let (rgb_planes, t_plane) = data.split_at_mut(3 * n);
+    for (i, px) in frame.rgb.chunks_exact(3).enumerate() {
+        rgb_planes[i] = px[0] as f32 / 255.0;
+        rgb_planes[n + i] = px[1] as f32 / 255.0;
+        rgb_planes[2 * n + i] = px[2] as f32 / 255.0;
+    }
+    t_plane.copy_from_slice(&frame.thermal);
+    Planar {
+        channels: 4,
+        width: frame.width,
+        height: frame.height,
+        data,
+    }
+}
+
+/// The source window of a `w`×`h` frame: RTFNet's random crop, a random fixed-size window,
+/// or the whole frame. Draws from `rng` in the same order whatever the result.
+fn draw_window(
+    aug: &AugmentConfig,
+    w: usize,
+    h: usize,
+    rng: &mut impl Rng,
+    name: &str,
+) -> Result<Window, DataError> {
+    let window = match aug.crop {
+        Some(f) if f > 0.0 => Window::random_crop(w, h, f, rng),
+        _ => Window::full(w, h),
+    };
+    match aug.window {
+        None => Ok(window),
+        Some(_) if aug.crop.is_some() => Err(DataError::Config(
+            "augment.crop and augment.window are alternatives; set one".into(),
+        )),
+        Some((ww, wh)) if ww > w || wh > h || ww == 0 || wh == 0 => Err(DataError::Frame {
+            name: name.to_string(),
+            message: format!("{w}x{h} is smaller than the {ww}x{wh} augmentation window"),
+        }),
+        Some((ww, wh)) => {
+            let x0 = rng.random_range(0..=w - ww) as f32;
+            let y0 = rng.random_range(0..=h - wh) as f32;
+            Ok(Window {
+                x0,
+                y0,
+                x1: x0 + ww as f32,
+                y1: y0 + wh as f32,
+            })
+        }
+    }
 }
 
 /// One frame's place in the batch tensors: input [4, H, W] and target [H, W].
