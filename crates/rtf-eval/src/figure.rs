@@ -121,25 +121,7 @@ pub fn annotated_grid(
     let width = (columns * w + (columns - 1) * GAP).max(1);
     let scale = text_scale(w);
     let line = 8 * scale + 2 * GAP;
-    // Legend entries laid out left to right, wrapping at the figure's width.
-    let swatch = 8 * scale;
-    let entries: Vec<(u8, &str)> = classes
-        .classes
-        .iter()
-        .map(|c| (c.id, c.name.as_str()))
-        .collect();
-    let mut legend = Vec::new();
-    let (mut x, mut y) = (GAP, 0);
-    for (id, name) in &entries {
-        let entry = swatch + GAP + text_width(name, scale) + 3 * GAP;
-        if x > GAP && x + entry > width {
-            x = GAP;
-            y += line;
-        }
-        legend.push((x, y, *id, *name));
-        x += entry;
-    }
-    let legend_height = if entries.is_empty() { 0 } else { y + line };
+    let (legend, legend_height) = legend_layout(classes, width, scale, line);
     let grid_top = line;
     let grid_height = rows.len() as u32 * (h + GAP);
     let mut out = RgbImage::from_pixel(
@@ -155,35 +137,12 @@ pub fn annotated_grid(
         let x0 = c as u32 * (w + GAP) + (w.saturating_sub(text_width(&text, scale))) / 2;
         draw_text(&mut out, x0, GAP, &text, scale, [0, 0, 0]);
     }
-    let to_byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
     for (r, row) in rows.iter().enumerate() {
         let y0 = grid_top + r as u32 * (h + GAP);
-        for y in 0..row.height {
-            for x in 0..row.width {
-                let i = y * row.width + x;
-                let t = to_byte(row.thermal[i]);
-                let mut panels = vec![
-                    [
-                        to_byte(row.rgb[3 * i]),
-                        to_byte(row.rgb[3 * i + 1]),
-                        to_byte(row.rgb[3 * i + 2]),
-                    ],
-                    [t, t, t],
-                    classes.color(row.truth[i]),
-                ];
-                panels.extend(predictions.iter().map(|p| {
-                    p.ids
-                        .get(r)
-                        .and_then(|ids| ids.get(i))
-                        .map_or([255; 3], |&id| classes.color(id))
-                }));
-                for (p, color) in panels.into_iter().enumerate() {
-                    out.put_pixel(p as u32 * (w + GAP) + x as u32, y0 + y as u32, Rgb(color));
-                }
-            }
-        }
+        draw_grid_row(&mut out, row, r, predictions, classes, (w, y0));
     }
     let legend_top = grid_top + grid_height;
+    let swatch = 8 * scale;
     for (x, y, id, name) in legend {
         let y = legend_top + y + GAP;
         for dy in 0..swatch {
@@ -196,6 +155,68 @@ pub fn annotated_grid(
         draw_text(&mut out, x + swatch + GAP, y, name, scale, [0, 0, 0]);
     }
     out
+}
+
+/// Legend entries (x, y, class id, name) laid out left to right, wrapping at `width`, and
+/// the legend's height.
+fn legend_layout(
+    classes: &ClassSet,
+    width: u32,
+    scale: u32,
+    line: u32,
+) -> (Vec<(u32, u32, u8, &str)>, u32) {
+    let swatch = 8 * scale;
+    let mut legend = Vec::new();
+    let (mut x, mut y) = (GAP, 0);
+    for c in &classes.classes {
+        let name = c.name.as_str();
+        let entry = swatch + GAP + text_width(name, scale) + 3 * GAP;
+        if x > GAP && x + entry > width {
+            x = GAP;
+            y += line;
+        }
+        legend.push((x, y, c.id, name));
+        x += entry;
+    }
+    let height = if legend.is_empty() { 0 } else { y + line };
+    (legend, height)
+}
+
+/// Row `r` of the grid at height `y0`: its RGB, thermal, ground truth and each prediction
+/// (white where a prediction lacks the row), panels `w` + GAP apart.
+fn draw_grid_row(
+    out: &mut RgbImage,
+    row: &GridRow,
+    r: usize,
+    predictions: &[PredictionColumn],
+    classes: &ClassSet,
+    (w, y0): (u32, u32),
+) {
+    let to_byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+    for y in 0..row.height {
+        for x in 0..row.width {
+            let i = y * row.width + x;
+            let t = to_byte(row.thermal[i]);
+            let mut panels = vec![
+                [
+                    to_byte(row.rgb[3 * i]),
+                    to_byte(row.rgb[3 * i + 1]),
+                    to_byte(row.rgb[3 * i + 2]),
+                ],
+                [t, t, t],
+                classes.color(row.truth[i]),
+            ];
+            panels.extend(predictions.iter().map(|p| {
+                p.ids
+                    .get(r)
+                    .and_then(|ids| ids.get(i))
+                    .map_or([255; 3], |&id| classes.color(id))
+            }));
+            for (p, color) in panels.into_iter().enumerate() {
+                out.put_pixel(p as u32 * (w + GAP) + x as u32, y0 + y as u32, Rgb(color));
+            }
+        }
+    }
 }
 
 /// The prediction of `network` for a row already drawn (its RGB and thermal planes).
