@@ -401,23 +401,8 @@ fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result
                 .y_label_formatter(&|v| format!("{v:.0e}"))
                 .draw()
                 .map_err(plot_err)?;
-            for (i, (name, pts)) in series.iter().enumerate() {
-                let c = colour(i);
-                let pts: Vec<(f64, f64)> = pts.iter().copied().filter(|p| p.1 > 0.0).collect();
-                chart
-                    .draw_series(LineSeries::new(pts, c.stroke_width(2)))
-                    .map_err(plot_err)?
-                    .label(name.as_str())
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
-                    });
-            }
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .draw()
-                .map_err(plot_err)?;
+            // A log axis cannot show zero or negative values: those points are left out.
+            draw_lines(&mut chart, series, |p| p.1 > 0.0)?;
         } else {
             let lo = points().map(|p| p.1).fold(f64::MAX, f64::min).min(0.0);
             let hi = points().map(|p| p.1).fold(f64::MIN, f64::max);
@@ -434,26 +419,40 @@ fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result
                 .x_label_formatter(&epoch_label)
                 .draw()
                 .map_err(plot_err)?;
-            for (i, (name, pts)) in series.iter().enumerate() {
-                let c = colour(i);
-                chart
-                    .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
-                    .map_err(plot_err)?
-                    .label(name.as_str())
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
-                    });
-            }
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .draw()
-                .map_err(plot_err)?;
+            draw_lines(&mut chart, series, |_| true)?;
         }
         root.present().map_err(plot_err)?;
     }
     Ok(svg)
+}
+
+/// Each series as a coloured line (the points `keep` accepts) with its legend entry, then
+/// the legend box.
+fn draw_lines<'a, DB, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    series: &Series,
+    keep: impl Fn(&(f64, f64)) -> bool,
+) -> Result<()>
+where
+    DB: DrawingBackend + 'a,
+    CT: CoordTranslate<From = (f64, f64)>,
+{
+    for (i, (name, pts)) in series.iter().enumerate() {
+        let c = colour(i);
+        let pts: Vec<(f64, f64)> = pts.iter().copied().filter(|p| keep(p)).collect();
+        chart
+            .draw_series(LineSeries::new(pts, c.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)?;
+    Ok(())
 }
 
 /// Longest class name drawn whole in the bar chart's name column; longer names are cut with
@@ -885,6 +884,23 @@ fn eval_section(eval: &EvalFile, html: &mut String) -> Result<()> {
         writeln!(html, "{}", scores_row(&label, d))?;
     }
     writeln!(html, "</table><div class=\"charts\">")?;
+    let (rows, labels) = class_rows(j);
+    if !rows.is_empty() {
+        let svg = class_bars("Per-class IoU, %", &rows, labels)?;
+        writeln!(html, "{}", svg_img(&svg, "per-class IoU bars"))?;
+    }
+    if let (Some(names), Some(matrix)) = (j.get("class_names"), j.get("confusion")) {
+        let (names, matrix) = confusion(&eval.path, names, matrix)?;
+        let svg = heat_map("Confusion matrix", &names, &matrix)?;
+        writeln!(html, "{}", svg_img(&svg, "confusion matrix heat map"))?;
+    }
+    writeln!(html, "</div></section>")?;
+    Ok(())
+}
+
+/// Per-class IoU rows of an eval file (day and night where it has them, else all frames)
+/// and the two bar labels.
+fn class_rows(j: &Value) -> (Vec<ClassRow>, [&'static str; 2]) {
     let all = class_iou(Some(j));
     let day = class_iou(j.get("day"));
     let night = class_iou(j.get("night"));
@@ -897,57 +913,41 @@ fn eval_section(eval: &EvalFile, html: &mut String) -> Result<()> {
                 .collect()
         })
         .unwrap_or_default();
-    let rows: Vec<ClassRow> = if day.is_empty() && night.is_empty() {
-        names
+    if day.is_empty() && night.is_empty() {
+        let rows = names
             .iter()
             .map(|n| (n.clone(), all.get(n).copied().flatten(), None))
-            .collect()
-    } else {
-        names
-            .iter()
-            .map(|n| {
-                (
-                    n.clone(),
-                    day.get(n).copied().flatten(),
-                    night.get(n).copied().flatten(),
-                )
-            })
-            .collect()
-    };
-    if !rows.is_empty() {
-        let labels = if day.is_empty() && night.is_empty() {
-            ["all", ""]
-        } else {
-            ["day", "night"]
-        };
-        let svg = class_bars("Per-class IoU, %", &rows, labels)?;
-        writeln!(html, "{}", svg_img(&svg, "per-class IoU bars"))?;
+            .collect();
+        return (rows, ["all", ""]);
     }
-    if let (Some(names), Some(matrix)) = (j.get("class_names"), j.get("confusion")) {
-        let names: Vec<String> = serde_json::from_value(names.clone()).with_context(|| {
-            format!(
-                "{}: `class_names` is not a list of names",
-                eval.path.display()
+    let rows = names
+        .iter()
+        .map(|n| {
+            (
+                n.clone(),
+                day.get(n).copied().flatten(),
+                night.get(n).copied().flatten(),
             )
-        })?;
-        let matrix: Vec<Vec<u64>> = serde_json::from_value(matrix.clone()).with_context(|| {
-            format!(
-                "{}: `confusion` is not a matrix of counts",
-                eval.path.display()
-            )
-        })?;
-        if matrix.len() != names.len() || matrix.iter().any(|r| r.len() != names.len()) {
-            bail!(
-                "{}: `confusion` is not {n}×{n} like `class_names`",
-                eval.path.display(),
-                n = names.len()
-            );
-        }
-        let svg = heat_map("Confusion matrix", &names, &matrix)?;
-        writeln!(html, "{}", svg_img(&svg, "confusion matrix heat map"))?;
+        })
+        .collect();
+    (rows, ["day", "night"])
+}
+
+/// The eval file's class names and confusion counts, checked to be a square matrix of
+/// their size (errors name the file).
+fn confusion(path: &Path, names: &Value, matrix: &Value) -> Result<(Vec<String>, Vec<Vec<u64>>)> {
+    let names: Vec<String> = serde_json::from_value(names.clone())
+        .with_context(|| format!("{}: `class_names` is not a list of names", path.display()))?;
+    let matrix: Vec<Vec<u64>> = serde_json::from_value(matrix.clone())
+        .with_context(|| format!("{}: `confusion` is not a matrix of counts", path.display()))?;
+    if matrix.len() != names.len() || matrix.iter().any(|r| r.len() != names.len()) {
+        bail!(
+            "{}: `confusion` is not {n}×{n} like `class_names`",
+            path.display(),
+            n = names.len()
+        );
     }
-    writeln!(html, "</div></section>")?;
-    Ok(())
+    Ok((names, matrix))
 }
 
 fn model_name(run: &Run) -> String {
@@ -1104,81 +1104,100 @@ fn prediction_grid(args: &Args, runs: &[Run]) -> Result<Option<Vec<u8>>, String>
     if with_weights.is_empty() {
         return Err("no run folder holds final.safetensors or best.safetensors".into());
     }
-    let (root, split) = match &args.data {
-        Some(root) => (root.clone(), args.split.clone()),
-        None => {
-            let ds = setting(&with_weights[0].0.config, "dataset");
-            let root = ds
-                .get("root")
-                .and_then(Value::as_str)
-                .ok_or("no --data and the run's config names no dataset root")?;
-            let split = ds
-                .get("val_split")
-                .and_then(Value::as_str)
-                .unwrap_or(&args.split);
-            (PathBuf::from(root), split.to_string())
-        }
-    };
+    let (root, split) = grid_dataset(args, with_weights[0].0)?;
     if !root.exists() {
         return Err(format!(
             "dataset {} not found (give --data)",
             root.display()
         ));
     }
-    let grid = (|| -> Result<Vec<u8>> {
-        let device =
-            rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
-        let (source, _) = super::eval::open_split(&root, &split)?;
-        let classes = source.class_set().clone();
-        let mut rows = None;
-        let mut columns = Vec::new();
-        for (run, weights) in &with_weights {
-            let cfg: rtf_models::ModelConfig = serde_json::from_value(
-                setting(&run.config, "model").clone(),
+    draw_prediction_grid(args, &with_weights, &root, &split)
+        .map(Some)
+        .map_err(|e| format!("{e:#}"))
+}
+
+/// The dataset the grid is drawn from: `--data` and `--split`, else the first run's dataset
+/// root and validation split.
+fn grid_dataset(args: &Args, run: &Run) -> Result<(PathBuf, String), String> {
+    if let Some(root) = &args.data {
+        return Ok((root.clone(), args.split.clone()));
+    }
+    let ds = setting(&run.config, "dataset");
+    let root = ds
+        .get("root")
+        .and_then(Value::as_str)
+        .ok_or("no --data and the run's config names no dataset root")?;
+    let split = ds
+        .get("val_split")
+        .and_then(Value::as_str)
+        .unwrap_or(&args.split);
+    Ok((PathBuf::from(root), split.to_string()))
+}
+
+/// The PNG: the same frames for every run, one prediction column per run.
+fn draw_prediction_grid(
+    args: &Args,
+    with_weights: &[(&Run, PathBuf)],
+    root: &Path,
+    split: &str,
+) -> Result<Vec<u8>> {
+    let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
+    let (source, _) = super::eval::open_split(root, split)?;
+    let classes = source.class_set().clone();
+    let mut rows = None;
+    let mut columns = Vec::new();
+    for (run, weights) in with_weights {
+        let (net, resize) = run_network(run, weights, device)?;
+        let rows = match &mut rows {
+            Some(rows) => rows,
+            None => rows.insert(rtf_eval::figure::rows_for(
+                net.as_ref(),
+                source.as_ref(),
+                args.frames,
+                resize,
+                device,
+            )?),
+        };
+        let ids = rows
+            .iter()
+            .map(|row| rtf_eval::figure::predict_row(net.as_ref(), row, device))
+            .collect::<Result<Vec<_>, _>>()?;
+        columns.push(rtf_eval::figure::PredictionColumn {
+            title: run.label.clone(),
+            ids,
+        });
+    }
+    let image =
+        rtf_eval::figure::annotated_grid(rows.as_deref().unwrap_or(&[]), &columns, &classes);
+    let mut png = Vec::new();
+    image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+    Ok(png)
+}
+
+/// A run's network with its weights, behind the input mask it was trained with (RGB-only,
+/// thermal-only runs), and the resize it was trained at.
+fn run_network(
+    run: &Run,
+    weights: &Path,
+    device: tch::Device,
+) -> Result<(Box<dyn rtf_models::Network>, Option<(usize, usize)>)> {
+    let cfg: rtf_models::ModelConfig =
+        serde_json::from_value(setting(&run.config, "model").clone()).with_context(|| {
+            format!(
+                "{}: `model` is not a network configuration",
+                run.dir.join("config.json").display()
             )
-            .with_context(|| {
-                format!(
-                    "{}: `model` is not a network configuration",
-                    run.dir.join("config.json").display()
-                )
-            })?;
-            let mut vs = tch::nn::VarStore::new(device);
-            let net = rtf_models::build(&vs.root(), &cfg)?;
-            rtf_models::weights::load_safetensors(&mut vs, weights)?;
-            // Behind the mask it was trained with (RGB-only, thermal-only runs).
-            let inputs = serde_json::from_value(setting(&run.config, "inputs").clone())
-                .ok()
-                .unwrap_or_default();
-            let net = rtf_models::masked(net, inputs);
-            let resize = serde_json::from_value(setting(&run.config, "resize").clone())
-                .ok()
-                .flatten();
-            let rows = match &mut rows {
-                Some(rows) => rows,
-                None => rows.insert(rtf_eval::figure::rows_for(
-                    net.as_ref(),
-                    source.as_ref(),
-                    args.frames,
-                    resize,
-                    device,
-                )?),
-            };
-            let ids = rows
-                .iter()
-                .map(|row| rtf_eval::figure::predict_row(net.as_ref(), row, device))
-                .collect::<Result<Vec<_>, _>>()?;
-            columns.push(rtf_eval::figure::PredictionColumn {
-                title: run.label.clone(),
-                ids,
-            });
-        }
-        let image =
-            rtf_eval::figure::annotated_grid(rows.as_deref().unwrap_or(&[]), &columns, &classes);
-        let mut png = Vec::new();
-        image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
-        Ok(png)
-    })();
-    grid.map(Some).map_err(|e| format!("{e:#}"))
+        })?;
+    let mut vs = tch::nn::VarStore::new(device);
+    let net = rtf_models::build(&vs.root(), &cfg)?;
+    rtf_models::weights::load_safetensors(&mut vs, weights)?;
+    let inputs = serde_json::from_value(setting(&run.config, "inputs").clone())
+        .ok()
+        .unwrap_or_default();
+    let resize = serde_json::from_value(setting(&run.config, "resize").clone())
+        .ok()
+        .flatten();
+    Ok((rtf_models::masked(net, inputs), resize))
 }
 
 const STYLE: &str = "body{font-family:sans-serif;margin:24px;color:#222;max-width:1300px}
