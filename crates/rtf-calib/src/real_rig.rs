@@ -613,6 +613,106 @@ fn write_rgb_gray(path: &Path, p: &Plane) -> Result<()> {
     write_gray8(path, p.width, p.height, bytes)
 }
 
+/// The rig's `cfg.frames` scenes: the day, night or mixed MSRS scenes shuffled by `rng`,
+/// repeated when there are fewer.
+fn pick_scenes(cfg: &RealRigConfig, rng: &mut ChaCha8Rng) -> Result<Vec<String>> {
+    use rand::seq::SliceRandom;
+    let (day, night) = scene_names(&cfg.data_dir)?;
+    let mut pool: Vec<String> = match cfg.daylight {
+        Daylight::Day => day,
+        Daylight::Night => night,
+        Daylight::Mixed => day.into_iter().chain(night).collect(),
+    };
+    if pool.is_empty() {
+        return Err(CalibError::Setting(format!(
+            "no MSRS scenes listed in {}",
+            cfg.data_dir.join("msrs-samples/frames.txt").display()
+        )));
+    }
+    pool.shuffle(rng);
+    Ok((0..cfg.frames)
+        .map(|i| pool[i % pool.len()].clone())
+        .collect())
+}
+
+/// An MSRS pair (visible, thermal) at the rig's RGB size, box-blurred for a textureless rig.
+fn load_scene(cfg: &RealRigConfig, name: &str) -> Result<(Plane, Plane)> {
+    let msrs = cfg.data_dir.join("msrs-samples");
+    let (vi, ir) = load_msrs_pair(&msrs, name, true)?;
+    let (mut vi, mut ir) = (
+        resample(&vi, cfg.width, cfg.height),
+        resample(&ir, cfg.width, cfg.height),
+    );
+    if cfg.degrade == Degrade::Textureless {
+        let r = (cfg.width / 20).max(2);
+        vi = box_blur(&vi, r);
+        ir = box_blur(&ir, r);
+    }
+    Ok((vi, ir))
+}
+
+/// Depth of every RGB pixel in mm (0 = none): the corridor along the pixel's ray.
+fn corridor_depth(corridor: &Corridor, rgb: &RgbCamera) -> Vec<u16> {
+    (0..rgb.width * rgb.height)
+        .map(|k| {
+            let (u, v) = ((k % rgb.width) as f64, (k / rgb.width) as f64);
+            let d = [(u - rgb.cx) / rgb.fx, (v - rgb.cy) / rgb.fy, 1.0];
+            corridor
+                .hit([0.0; 3], d)
+                .map(|x| (x[2] * 1000.0).round().clamp(0.0, 65535.0) as u16)
+                .unwrap_or(0)
+        })
+        .collect()
+}
+
+/// The thermal image: each thermal pixel's ray (in RGB coordinates) meets the corridor; the
+/// real thermal image `ir` is sampled where that point appears in the RGB view.
+fn render_thermal(
+    truth: &Calibration,
+    spec: &ThermalSpec,
+    rgb: &RgbCamera,
+    corridor: &Corridor,
+    ir: &Plane,
+) -> Vec<f32> {
+    let origin = truth.extrinsic.inverse().translation;
+    let rt = transpose(&truth.extrinsic.rotation);
+    let k = truth.thermal;
+    (0..spec.height)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let rt = &rt;
+            (0..spec.width).map(move |x| {
+                let ray = k.ray(x as f64, y as f64);
+                let d = mat_vec(rt, ray);
+                match corridor.hit(origin, d) {
+                    Some(p) if p[2] > 1e-3 => bilinear_clamped(
+                        ir,
+                        rgb.fx * p[0] / p[2] + rgb.cx,
+                        rgb.fy * p[1] / p[2] + rgb.cy,
+                    ),
+                    _ => 0.0,
+                }
+            })
+        })
+        .collect()
+}
+
+/// Sensor effects on the rendered thermal values: mild vignetting and noise, then 8 bits.
+fn sensor_effects(values: &[f32], spec: &ThermalSpec, noise_seed: u64) -> Vec<u8> {
+    let mut nrng = ChaCha8Rng::seed_from_u64(noise_seed);
+    let (hx, hy) = (spec.width as f32 / 2.0, spec.height as f32 / 2.0);
+    values
+        .iter()
+        .enumerate()
+        .map(|(k, t)| {
+            let (x, y) = ((k % spec.width) as f32 - hx, (k / spec.width) as f32 - hy);
+            let r2 = (x * x + y * y) / (hx * hx + hy * hy);
+            let t = t * (1.0 - 0.05 * r2) + 0.01 * nrng.random_range(-1.0f32..1.0);
+            (255.0 * t).round().clamp(0.0, 255.0) as u8
+        })
+        .collect()
+}
+
 /// Writes `rig.yaml`, frames under `f/` (grey RGB PNG, 16-bit depth in mm, 8-bit thermal) and
 /// `ground_truth.yaml` into `out`, from real MSRS scenes.
 pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
@@ -627,50 +727,18 @@ pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
         cy: (cfg.height as f64 - 1.0) / 2.0,
     };
     let (truth, spec) = draw_truth(&mut rng, &rgb, &cfg.range, cfg.focal_ratio);
-    let (day, night) = scene_names(&cfg.data_dir)?;
-    let mut pool: Vec<String> = match cfg.daylight {
-        Daylight::Day => day,
-        Daylight::Night => night,
-        Daylight::Mixed => day.into_iter().chain(night).collect(),
-    };
-    if pool.is_empty() {
-        return Err(CalibError::Setting(format!(
-            "no MSRS scenes listed in {}",
-            cfg.data_dir.join("msrs-samples/frames.txt").display()
-        )));
-    }
-    use rand::seq::SliceRandom;
-    pool.shuffle(&mut rng);
-    let scenes: Vec<String> = (0..cfg.frames)
-        .map(|i| pool[i % pool.len()].clone())
-        .collect();
+    let scenes = pick_scenes(cfg, &mut rng)?;
     let dir = out.join("f");
     std::fs::create_dir_all(&dir).map_err(|e| CalibError::io(&dir, e))?;
-    let msrs = cfg.data_dir.join("msrs-samples");
-    let load = |name: &str| -> Result<(Plane, Plane)> {
-        let (vi, ir) = load_msrs_pair(&msrs, name, true)?;
-        let (mut vi, mut ir) = (
-            resample(&vi, cfg.width, cfg.height),
-            resample(&ir, cfg.width, cfg.height),
-        );
-        if cfg.degrade == Degrade::Textureless {
-            let r = (cfg.width / 20).max(2);
-            vi = box_blur(&vi, r);
-            ir = box_blur(&ir, r);
-        }
-        Ok((vi, ir))
-    };
-    let to_rgb = truth.extrinsic.inverse();
-    let rt = transpose(&truth.extrinsic.rotation);
     let mut frames = Vec::new();
     for (i, name) in scenes.iter().enumerate() {
         let corridor = Corridor::random(&mut rng);
-        let (mut vi, _) = load(name)?;
+        let (mut vi, _) = load_scene(cfg, name)?;
         let thermal_source = match cfg.degrade {
             Degrade::ShuffleThermal => &scenes[(i + 1) % scenes.len()],
             _ => name,
         };
-        let (vi_src, ir) = load(thermal_source)?;
+        let (vi_src, ir) = load_scene(cfg, thermal_source)?;
         let ir = if cfg.degrade == Degrade::RgbAsThermal {
             vi_src
         } else {
@@ -683,52 +751,9 @@ pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
                 *v += 0.03 * nrng.random_range(-1.0f32..1.0);
             }
         }
-        // Depth of every RGB pixel: the corridor along the pixel's ray.
-        let depth: Vec<u16> = (0..rgb.width * rgb.height)
-            .map(|k| {
-                let (u, v) = ((k % rgb.width) as f64, (k / rgb.width) as f64);
-                let d = [(u - rgb.cx) / rgb.fx, (v - rgb.cy) / rgb.fy, 1.0];
-                corridor
-                    .hit([0.0; 3], d)
-                    .map(|x| (x[2] * 1000.0).round().clamp(0.0, 65535.0) as u16)
-                    .unwrap_or(0)
-            })
-            .collect();
-        // The thermal image: each thermal pixel's ray (in RGB coordinates) meets the corridor;
-        // the real thermal image is sampled where that point appears in the RGB view.
-        let origin = to_rgb.translation;
-        let values: Vec<f32> = (0..spec.height)
-            .into_par_iter()
-            .flat_map_iter(|y| {
-                let k = truth.thermal;
-                let ir = &ir;
-                (0..spec.width).map(move |x| {
-                    let ray = k.ray(x as f64, y as f64);
-                    let d = mat_vec(&rt, ray);
-                    match corridor.hit(origin, d) {
-                        Some(p) if p[2] > 1e-3 => bilinear_clamped(
-                            ir,
-                            rgb.fx * p[0] / p[2] + rgb.cx,
-                            rgb.fy * p[1] / p[2] + rgb.cy,
-                        ),
-                        _ => 0.0,
-                    }
-                })
-            })
-            .collect();
-        // Sensor effects: mild vignetting and noise.
-        let mut nrng = ChaCha8Rng::seed_from_u64(noise_seed.wrapping_add(1));
-        let (hx, hy) = (spec.width as f32 / 2.0, spec.height as f32 / 2.0);
-        let raw: Vec<u8> = values
-            .iter()
-            .enumerate()
-            .map(|(k, t)| {
-                let (x, y) = ((k % spec.width) as f32 - hx, (k / spec.width) as f32 - hy);
-                let r2 = (x * x + y * y) / (hx * hx + hy * hy);
-                let t = t * (1.0 - 0.05 * r2) + 0.01 * nrng.random_range(-1.0f32..1.0);
-                (255.0 * t).round().clamp(0.0, 255.0) as u8
-            })
-            .collect();
+        let depth = corridor_depth(&corridor, &rgb);
+        let values = render_thermal(&truth, &spec, &rgb, &corridor, &ir);
+        let raw = sensor_effects(&values, &spec, noise_seed.wrapping_add(1));
         let file = |suffix: &str| format!("f/{i:03}_{name}_{suffix}.png");
         write_rgb_gray(&out.join(file("rgb")), &vi)?;
         write_gray16(&out.join(file("depth")), rgb.width, rgb.height, depth)?;

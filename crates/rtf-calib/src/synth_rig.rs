@@ -463,6 +463,52 @@ fn render_thermal(scene: &Scene, spec: &ThermalSpec, truth: &Calibration) -> Vec
         .collect()
 }
 
+/// Sensor effects on rendered thermal values: fixed-pattern vignetting and noise drawn
+/// from the frame's generator.
+fn sensor_effects(heat: &[f32], spec: &ThermalSpec, frame_rng: &mut ChaCha8Rng) -> Vec<f32> {
+    let (cx, cy) = (spec.width as f32 / 2.0, spec.height as f32 / 2.0);
+    heat.iter()
+        .enumerate()
+        .map(|(k, t)| {
+            let (x, y) = ((k % spec.width) as f32 - cx, (k / spec.width) as f32 - cy);
+            let r2 = (x * x + y * y) / (cx * cx + cy * cy);
+            t - 0.04 * r2 + 0.004 * frame_rng.random_range(-1.0f32..1.0)
+        })
+        .collect()
+}
+
+/// The thermal frame as a 16-bit PNG of raw-like counts (21000 + 4000·t) or an 8-bit one.
+fn write_thermal(path: &Path, spec: &ThermalSpec, values: &[f32], sixteen_bit: bool) -> Result<()> {
+    if sixteen_bit {
+        let raw = values
+            .iter()
+            .map(|t| (21000.0 + 4000.0 * t).round().clamp(0.0, 65535.0) as u16)
+            .collect();
+        write_gray16(path, spec.width, spec.height, raw)
+    } else {
+        let raw = values
+            .iter()
+            .map(|t| (255.0 * t).round().clamp(0.0, 255.0) as u8)
+            .collect();
+        write_gray8(path, spec.width, spec.height, raw)
+    }
+}
+
+/// The rig to evaluate against: a stereo-only rig's twin with the rendered depth listed
+/// (`rig_depth.yaml`), else the rig itself.
+fn save_eval_rig(out: &Path, rig: &Rig, rig_path: &Path, depth: DepthSource) -> Result<PathBuf> {
+    if depth != DepthSource::Stereo {
+        return Ok(rig_path.to_path_buf());
+    }
+    let mut with_depth = rig.clone();
+    for (i, f) in with_depth.frames.iter_mut().enumerate() {
+        f.depth = Some(format!("f/{i:03}_depth.png").into());
+    }
+    let path = out.join("rig_depth.yaml");
+    with_depth.save(&path)?;
+    Ok(path)
+}
+
 /// Writes `rig.yaml`, frames under `f/`, and `ground_truth.yaml` into `out`.
 pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
@@ -497,30 +543,13 @@ pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
             write_rgb8(&out.join(name("right")), rgb.width, rgb.height, right)?;
         }
         let heat = render_thermal(&scene, &spec, &truth);
-        // Sensor effects: fixed-pattern vignetting and noise.
-        let (cx, cy) = (spec.width as f32 / 2.0, spec.height as f32 / 2.0);
-        let values: Vec<f32> = heat
-            .iter()
-            .enumerate()
-            .map(|(k, t)| {
-                let (x, y) = ((k % spec.width) as f32 - cx, (k / spec.width) as f32 - cy);
-                let r2 = (x * x + y * y) / (cx * cx + cy * cy);
-                t - 0.04 * r2 + 0.004 * frame_rng.random_range(-1.0f32..1.0)
-            })
-            .collect();
-        if cfg.thermal_16bit {
-            let raw = values
-                .iter()
-                .map(|t| (21000.0 + 4000.0 * t).round().clamp(0.0, 65535.0) as u16)
-                .collect();
-            write_gray16(&out.join(name("thermal")), spec.width, spec.height, raw)?;
-        } else {
-            let raw = values
-                .iter()
-                .map(|t| (255.0 * t).round().clamp(0.0, 255.0) as u8)
-                .collect();
-            write_gray8(&out.join(name("thermal")), spec.width, spec.height, raw)?;
-        }
+        let values = sensor_effects(&heat, &spec, &mut frame_rng);
+        write_thermal(
+            &out.join(name("thermal")),
+            &spec,
+            &values,
+            cfg.thermal_16bit,
+        )?;
         frames.push(FrameSpec {
             rgb: name("rgb").into(),
             thermal: name("thermal").into(),
@@ -540,17 +569,7 @@ pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
     };
     let rig_path = out.join("rig.yaml");
     rig.save(&rig_path)?;
-    let eval_rig_path = if cfg.depth == DepthSource::Stereo {
-        let mut with_depth = rig.clone();
-        for (i, f) in with_depth.frames.iter_mut().enumerate() {
-            f.depth = Some(format!("f/{i:03}_depth.png").into());
-        }
-        let path = out.join("rig_depth.yaml");
-        with_depth.save(&path)?;
-        path
-    } else {
-        rig_path.clone()
-    };
+    let eval_rig_path = save_eval_rig(out, &rig, &rig_path, cfg.depth)?;
     // Hand back the rig as a reader sees it (paths resolved against `out`).
     let rig = Rig::load(&rig_path)?;
     let ground_truth_path = out.join("ground_truth.yaml");
