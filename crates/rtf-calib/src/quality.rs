@@ -123,7 +123,10 @@ impl Assessment {
     /// Records the bound; an `ok` verdict becomes `uncertain` when the bound is not below
     /// [`BOUND_OK_PX`], and the prior warnings join the reason.
     pub fn with_bound(mut self, bound_px: f64, bound: Bound) -> Self {
-        if self.verdict == Verdict::Ok && !(bound_px < BOUND_OK_PX) {
+        // A NaN bound is no bound: `!(x < 1)` is true for it, where `x >= 1` would not be.
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
+        let not_below = !(bound_px < BOUND_OK_PX);
+        if self.verdict == Verdict::Ok && not_below {
             self.verdict = Verdict::Uncertain;
             let spread = if bound.capped {
                 format!("the data do not bound the map (solutions they cannot tell apart reach the search's edge, {bound_px:.0} px)")

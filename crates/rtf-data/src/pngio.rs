@@ -107,13 +107,13 @@ pub fn decode_png(bytes: &[u8], path: &Path) -> Result<PngImage, DataError> {
     })
 }
 
+/// Width, height, interleaved RGB bytes and alpha / 255 of [`decode_rgba8_split`].
+pub type SplitRgba = (usize, usize, Vec<u8>, Vec<f32>);
+
 /// An 8-bit RGBA image split row by row into interleaved RGB and alpha / 255 (the MF layout),
 /// without a full-size intermediate buffer. `None` when the image is not a non-interlaced
 /// 8-bit RGBA PNG; the caller then takes the general path, which reports what is wrong.
-pub fn decode_rgba8_split(
-    bytes: &[u8],
-    path: &Path,
-) -> Option<Result<(usize, usize, Vec<u8>, Vec<f32>), DataError>> {
+pub fn decode_rgba8_split(bytes: &[u8], path: &Path) -> Option<Result<SplitRgba, DataError>> {
     let png_err = |e: png::DecodingError| DataError::Png {
         path: path.to_path_buf(),
         message: e.to_string(),

@@ -1316,7 +1316,7 @@ mod tests {
         ] {
             let w = vars.get(name).unwrap_or_else(|| panic!("no {name}"));
             let std = w.std(true).double_value(&[]);
-            let expected = (2.0 / fan_in as f64).sqrt();
+            let expected = (2.0f64 / fan_in).sqrt();
             assert!(
                 (std / expected - 1.0).abs() < 0.1,
                 "{name}: std {std} vs {expected}"

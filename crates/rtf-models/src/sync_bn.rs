@@ -81,6 +81,9 @@ impl ModuleT for BatchNorm {
 /// process computes them (mean, then the mean squared deviation), each summed over the ranks,
 /// in fp32 whatever the input's precision; running statistics take the unbiased variance with
 /// the layer's momentum, as `torch.nn.SyncBatchNorm`.
+// `x = x * y` on tensors, not `x *= y`: the compound forms are in-place ops, which autograd
+// cannot differentiate through.
+#[allow(clippy::assign_op_pattern)]
 fn synchronised(bn: &nn::BatchNorm, xs: &Tensor, reduce: &dyn StatsAllReduce) -> Tensor {
     let c = bn.running_mean.size()[0];
     // Per-channel shape for broadcasting: [1, C, 1, ...].

@@ -145,12 +145,15 @@ fn header(path: &Path, bytes: &[u8]) -> Result<(TrainState, bool), CheckpointErr
     Ok((state, namespaced))
 }
 
+/// Each role's optimiser state: role → (state name → tensor).
+pub type OptimizerStates = BTreeMap<String, BTreeMap<String, Tensor>>;
+
 /// Restores every role's weights (every variable must be present with its shape) and returns
 /// each role's optimiser state and the training state.
 pub fn load(
     path: &Path,
     parts: &mut [(&str, &mut VarStore)],
-) -> Result<(BTreeMap<String, BTreeMap<String, Tensor>>, TrainState), CheckpointError> {
+) -> Result<(OptimizerStates, TrainState), CheckpointError> {
     let invalid = |message: String| CheckpointError::Invalid {
         path: path.into(),
         message,
@@ -212,7 +215,7 @@ pub fn load(
         for name in tensors.names() {
             let key = match namespaced {
                 true => name.strip_prefix(&format!("{role}/opt/")),
-                false => (!name.starts_with("model/")).then_some(&name[..]),
+                false => (!name.starts_with("model/")).then_some(name),
             };
             if let Some(key) = key {
                 optimizer.insert(key.to_string(), read(name)?.to_device(device));

@@ -576,7 +576,7 @@ impl Progress {
         self.done += 1;
         match &self.bar {
             Some(bar) => bar.inc(1),
-            None if self.done as u64 % self.every == 0 || self.done == self.total => {
+            None if (self.done as u64).is_multiple_of(self.every) || self.done == self.total => {
                 eprintln!("{}", self.line())
             }
             None => {}

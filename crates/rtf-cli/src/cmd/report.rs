@@ -200,6 +200,8 @@ fn load_eval(path: &Path) -> Result<EvalFile> {
 
 /// A class's (name, day or overall IoU, night IoU).
 type ClassRow = (String, Option<f64>, Option<f64>);
+/// A run's masked network and the (width, height) it was trained at.
+type RunNetwork = (Box<dyn rtf_models::Network>, Option<(usize, usize)>);
 
 /// Named series of a run's log: (tag, points).
 type Series = Vec<(String, Vec<(f64, f64)>)>;
@@ -1176,11 +1178,7 @@ fn draw_prediction_grid(
 
 /// A run's network with its weights, behind the input mask it was trained with (RGB-only,
 /// thermal-only runs), and the resize it was trained at.
-fn run_network(
-    run: &Run,
-    weights: &Path,
-    device: tch::Device,
-) -> Result<(Box<dyn rtf_models::Network>, Option<(usize, usize)>)> {
+fn run_network(run: &Run, weights: &Path, device: tch::Device) -> Result<RunNetwork> {
     let cfg: rtf_models::ModelConfig =
         serde_json::from_value(setting(&run.config, "model").clone()).with_context(|| {
             format!(

@@ -94,7 +94,7 @@ pub fn predict_images(f: &Fixture) -> Vec<Case> {
     let _ = (w, o, good_image);
     let mut cases: Vec<Case> = Vec::new();
     // --- predict: images ---
-    let bytes = std::fs::read(&good_image).unwrap();
+    let bytes = std::fs::read(good_image).unwrap();
     std::fs::write(p("truncated.png"), &bytes[..bytes.len() / 2]).unwrap();
     std::fs::write(p("text.png"), b"this is not a PNG").unwrap();
     std::fs::write(p("empty.png"), b"").unwrap();
@@ -104,7 +104,7 @@ pub fn predict_images(f: &Fixture) -> Vec<Case> {
         .save(p("rgba16.png"))
         .unwrap();
     std::fs::create_dir_all(p("dir.png")).unwrap();
-    let w = s(&weights);
+    let w = s(weights);
     let o = s(&out);
     for (name, file) in [
         ("predict: truncated PNG", "truncated.png"),
@@ -176,9 +176,9 @@ pub fn predict_outputs(f: &Fixture) -> Vec<Case> {
     // Outputs: name collisions and inputs overwritten.
     for d in ["a", "b"] {
         std::fs::create_dir_all(p(d)).unwrap();
-        std::fs::copy(&good_image, p(d).join("x.png")).unwrap();
+        std::fs::copy(good_image, p(d).join("x.png")).unwrap();
     }
-    std::fs::copy(&good_image, p("a").join("x_color.png")).unwrap();
+    std::fs::copy(good_image, p("a").join("x_color.png")).unwrap();
     let mut c = case(
         "predict: two inputs with one stem",
         &[
@@ -229,7 +229,7 @@ pub fn predict_outputs(f: &Fixture) -> Vec<Case> {
             w,
             "--out",
             s(&p("outfile")),
-            s(&good_image),
+            s(good_image),
         ],
         &["outfile"],
     ));
@@ -257,17 +257,17 @@ pub fn weights(f: &Fixture) -> Vec<Case> {
             body[start..start + 4].copy_from_slice(&value.to_le_bytes());
         }
     };
-    edit_safetensors(&weights, &nan, |_| {}, poison(f32::NAN));
+    edit_safetensors(weights, &nan, |_| {}, poison(f32::NAN));
     let inf = p("inf.safetensors");
-    edit_safetensors(&weights, &inf, |_| {}, poison(f32::NEG_INFINITY));
+    edit_safetensors(weights, &inf, |_| {}, poison(f32::NEG_INFINITY));
     let int = p("int.safetensors");
     edit_safetensors(
-        &weights,
+        weights,
         &int,
         |h| h[target]["dtype"] = "I32".into(),
         |_, _| {},
     );
-    let bytes = std::fs::read(&weights).unwrap();
+    let bytes = std::fs::read(weights).unwrap();
     std::fs::write(p("truncated.safetensors"), &bytes[..bytes.len() - 4096]).unwrap();
     std::fs::write(p("cut_header.safetensors"), &bytes[..100]).unwrap();
     std::fs::write(
@@ -356,8 +356,8 @@ pub fn weights(f: &Fixture) -> Vec<Case> {
         for command in ["predict", "eval"] {
             let mut args = vec![command, "--model", model, "--weights", s(file)];
             match command {
-                "predict" => args.extend(["--out", s(&ow), s(&good_image)]),
-                _ => args.extend(["--data", s(&data)]),
+                "predict" => args.extend(["--out", s(&ow), s(good_image)]),
+                _ => args.extend(["--data", s(data)]),
             }
             let mut c = case(&format!("{command}: {what}"), &args, names);
             if command == "predict" {
@@ -486,7 +486,7 @@ pub fn datasets(f: &Fixture) -> Vec<Case> {
     ));
     cases.push(case(
         "data check: a file, not a root",
-        &["data", "check", s(&weights)],
+        &["data", "check", s(weights)],
         &["final.safetensors"],
     ));
     cases.push(case(
@@ -506,7 +506,7 @@ pub fn datasets(f: &Fixture) -> Vec<Case> {
             "--weights",
             w,
             "--data",
-            s(&data),
+            s(data),
             "--split",
             "nosuch",
         ],
@@ -530,7 +530,7 @@ pub fn memory(f: &Fixture) -> Vec<Case> {
     let variant = |name: &str, mutate: &dyn Fn(&Path)| variant(f, name, mutate);
     // --- memory: huge frames under an address-space limit ---
     if std::env::var_os("RTF_HOSTILE_MEMORY").is_some() {
-        let base = working_limit(&weights, &good_image, &p("ok_out"))
+        let base = working_limit(weights, good_image, &p("ok_out"))
             .expect("a tiny predict runs under some limit up to 8 GiB");
         let limit = base + (1 << 30);
         let huge = p("huge_4000x3000.png");

@@ -114,6 +114,9 @@ impl Adversarial {
 
     /// Step 1: the student learns; the critic is frozen. Returns (total, terms, night logits,
     /// day logits), the logits for the critic step.
+    // `x = x * y` on tensors, not `x *= y`: the compound forms are in-place ops, which autograd
+    // cannot differentiate through.
+    #[allow(clippy::assign_op_pattern)]
     pub fn segmentation_step(
         &mut self,
         batches: &StepBatches,

@@ -53,6 +53,9 @@ impl Procedure for TeacherStudent {
         (Some(&self.day_teacher), self.night_teacher.as_ref())
     }
 
+    // `x = x * y` on tensors, not `x *= y`: the compound forms are in-place ops, which autograd
+    // cannot differentiate through.
+    #[allow(clippy::assign_op_pattern)]
     fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError> {
         let threshold = self.targets.threshold;
         // Day: the day teacher's labels (eq. 1).
