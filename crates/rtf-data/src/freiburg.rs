@@ -74,6 +74,26 @@ struct Entry {
     part: FreiburgPart,
 }
 
+impl Entry {
+    /// An entry whose day or night is read from the RGB path.
+    fn new(
+        name: String,
+        rgb: PathBuf,
+        ir: PathBuf,
+        label: Option<LabelFile>,
+        part: FreiburgPart,
+    ) -> Self {
+        Entry {
+            name,
+            daytime: daytime_of(&rgb),
+            rgb,
+            ir,
+            label,
+            part,
+        }
+    }
+}
+
 /// Which of the two Freiburg layouts a frame comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -116,117 +136,111 @@ fn list_pngs(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, DataError> {
     Ok(out)
 }
 
-/// The training tree's frames (`<seq>/fl_rgb/fl_rgb_<stamp>.png` with `fl_ir_aligned` and
-/// optional `fl_rgb_labels` beside it); frames without an aligned IR image become problems.
-fn scan_train_tree(
+/// Every PNG in each directory named `dir_name` under `root` (up to `depth` levels), made an
+/// entry by `entry` (given the directory's parent, the PNG and its file name); what `entry`
+/// refuses becomes a problem, not an error.
+fn scan_frames(
     root: &Path,
+    (dir_name, depth): (&str, usize),
     entries: &mut Vec<Entry>,
     problems: &mut Vec<DataError>,
+    entry: impl Fn(&Path, PathBuf, &str) -> Result<Entry, DataError>,
 ) -> Result<(), DataError> {
-    let mut train_dirs = Vec::new();
-    find_dirs(root, "fl_rgb", 6, &mut train_dirs)?;
-    for rgb_dir in train_dirs {
-        let seq = rgb_dir.parent().unwrap_or(root).to_path_buf();
+    let mut dirs = Vec::new();
+    find_dirs(root, dir_name, depth, &mut dirs)?;
+    for rgb_dir in dirs {
+        let parent = rgb_dir.parent().unwrap_or(root).to_path_buf();
         for rgb in list_pngs(&rgb_dir, "png")? {
             let fname = file_name(&rgb);
-            let stamp = fname.strip_prefix("fl_rgb_").unwrap_or(&fname).to_string();
-            let ir_candidates = [
-                seq.join("fl_ir_aligned")
-                    .join(format!("fl_ir_aligned_{stamp}")),
-                seq.join("fl_ir_aligned").join(&fname),
-            ];
-            let Some(ir) = ir_candidates.iter().find(|p| p.is_file()).cloned() else {
-                problems.push(DataError::Format {
-                    path: rgb.clone(),
-                    message: format!(
-                        "no aligned IR image (looked for {})",
-                        ir_candidates[0].display()
-                    ),
-                });
-                continue;
-            };
-            let label = [
-                seq.join("fl_rgb_labels").join(&fname),
-                seq.join("fl_rgb_labels")
-                    .join(format!("fl_rgb_labels_{stamp}")),
-            ]
-            .into_iter()
-            .find(|p| p.is_file())
-            .map(LabelFile::Png);
-            let name = rgb
-                .strip_prefix(root)
-                .unwrap_or(&rgb)
-                .with_extension("")
-                .to_string_lossy()
-                .into_owned();
-            entries.push(Entry {
-                name,
-                daytime: daytime_of(&rgb),
-                rgb,
-                ir,
-                label,
-                part: FreiburgPart::TrainTree,
-            });
+            match entry(&parent, rgb, &fname) {
+                Ok(e) => entries.push(e),
+                Err(problem) => problems.push(problem),
+            }
         }
     }
     Ok(())
 }
 
-/// The test layout's frames (`<dir>/ImagesRGB/<stem>_rgb.png` with `ImagesIR` and optional
-/// `SegmentationClass/*.npy`), under `val/` the validation part; frames without their IR
-/// image become problems.
-fn scan_test_layout(
+/// The first of `candidates` that is a file.
+fn first_file(candidates: impl IntoIterator<Item = PathBuf>) -> Option<PathBuf> {
+    candidates.into_iter().find(|p| p.is_file())
+}
+
+/// A training-tree frame `<seq>/fl_rgb/fl_rgb_<stamp>.png`, with `fl_ir_aligned` and optional
+/// `fl_rgb_labels` beside it; without an aligned IR image it is a problem.
+fn train_tree_entry(
     root: &Path,
-    entries: &mut Vec<Entry>,
-    problems: &mut Vec<DataError>,
-) -> Result<(), DataError> {
-    let mut test_dirs = Vec::new();
-    find_dirs(root, "ImagesRGB", 4, &mut test_dirs)?;
-    for rgb_dir in test_dirs {
-        let dir = rgb_dir.parent().unwrap_or(root).to_path_buf();
-        for rgb in list_pngs(&rgb_dir, "png")? {
-            let fname = file_name(&rgb);
-            let stem = fname
-                .strip_suffix("_rgb.png")
-                .unwrap_or(fname.trim_end_matches(".png"))
-                .to_string();
-            let ir = dir.join("ImagesIR").join(format!("{stem}_ir.png"));
-            if !ir.is_file() {
-                problems.push(DataError::Format {
-                    path: rgb.clone(),
-                    message: format!("no IR image {}", ir.display()),
-                });
-                continue;
-            }
-            let label = [
-                dir.join("SegmentationClass").join(format!("{stem}.npy")),
-                dir.join("SegmentationClass")
-                    .join(format!("{stem}_rgb.npy")),
-            ]
-            .into_iter()
-            .find(|p| p.is_file())
-            .map(LabelFile::Npy);
-            let rel = dir.strip_prefix(root).unwrap_or(&dir);
-            let name = rel.join(&stem).to_string_lossy().into_owned();
-            let in_val = rel
-                .components()
-                .next()
-                .is_some_and(|c| c.as_os_str() == "val");
-            entries.push(Entry {
-                name,
-                daytime: daytime_of(&rgb),
-                rgb,
-                ir,
-                label,
-                part: if in_val {
-                    FreiburgPart::Validation
-                } else {
-                    FreiburgPart::TestLayout
-                },
-            });
-        }
+    seq: &Path,
+    rgb: PathBuf,
+    fname: &str,
+) -> Result<Entry, DataError> {
+    let stamp = fname.strip_prefix("fl_rgb_").unwrap_or(fname);
+    let ir_dir = seq.join("fl_ir_aligned");
+    let ir_candidates = [
+        ir_dir.join(format!("fl_ir_aligned_{stamp}")),
+        ir_dir.join(fname),
+    ];
+    let Some(ir) = first_file(ir_candidates.clone()) else {
+        return Err(DataError::Format {
+            path: rgb,
+            message: format!(
+                "no aligned IR image (looked for {})",
+                ir_candidates[0].display()
+            ),
+        });
+    };
+    let labels = seq.join("fl_rgb_labels");
+    let label = first_file([
+        labels.join(fname),
+        labels.join(format!("fl_rgb_labels_{stamp}")),
+    ])
+    .map(LabelFile::Png);
+    let name = rgb
+        .strip_prefix(root)
+        .unwrap_or(&rgb)
+        .with_extension("")
+        .to_string_lossy()
+        .into_owned();
+    Ok(Entry::new(name, rgb, ir, label, FreiburgPart::TrainTree))
+}
+
+/// A test-layout frame `<dir>/ImagesRGB/<stem>_rgb.png`, with `ImagesIR` and optional
+/// `SegmentationClass/*.npy`; under `val/` it belongs to the validation part; without its IR
+/// image it is a problem.
+fn test_layout_entry(
+    root: &Path,
+    dir: &Path,
+    rgb: PathBuf,
+    fname: &str,
+) -> Result<Entry, DataError> {
+    let stem = fname
+        .strip_suffix("_rgb.png")
+        .unwrap_or(fname.trim_end_matches(".png"));
+    let ir = dir.join("ImagesIR").join(format!("{stem}_ir.png"));
+    if !ir.is_file() {
+        return Err(DataError::Format {
+            path: rgb,
+            message: format!("no IR image {}", ir.display()),
+        });
     }
-    Ok(())
+    let labels = dir.join("SegmentationClass");
+    let label = first_file([
+        labels.join(format!("{stem}.npy")),
+        labels.join(format!("{stem}_rgb.npy")),
+    ])
+    .map(LabelFile::Npy);
+    let rel = dir.strip_prefix(root).unwrap_or(dir);
+    let name = rel.join(stem).to_string_lossy().into_owned();
+    let in_val = rel
+        .components()
+        .next()
+        .is_some_and(|c| c.as_os_str() == "val");
+    let part = if in_val {
+        FreiburgPart::Validation
+    } else {
+        FreiburgPart::TestLayout
+    };
+    Ok(Entry::new(name, rgb, ir, label, part))
 }
 
 /// Directories under `root` (inclusive, up to `depth` levels) named `name`.
@@ -284,8 +298,13 @@ impl FreiburgSplit {
             });
         }
         let mut entries = Vec::new();
-        scan_train_tree(&root, &mut entries, &mut problems)?;
-        scan_test_layout(&root, &mut entries, &mut problems)?;
+        let (e, p) = (&mut entries, &mut problems);
+        scan_frames(&root, ("fl_rgb", 6), e, p, |seq, rgb, fname| {
+            train_tree_entry(&root, seq, rgb, fname)
+        })?;
+        scan_frames(&root, ("ImagesRGB", 4), e, p, |dir, rgb, fname| {
+            test_layout_entry(&root, dir, rgb, fname)
+        })?;
         if entries.is_empty() && problems.is_empty() {
             return Err(DataError::Layout {
                 root,
