@@ -805,6 +805,28 @@ struct Run<'a> {
     folder: RunFolder<'a>,
 }
 
+/// DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every trained
+/// network's gradients averaged from now on; with synchronised BatchNorm, the guard that makes
+/// this thread's training-mode forwards (every step runs here) use the whole data-parallel
+/// batch's statistics until the run returns.
+fn start_data_parallel(
+    cfg: &TrainConfig,
+    ddp: Option<&Arc<Ddp>>,
+    procedure: &mut dyn Procedure,
+) -> Result<Option<rtf_models::SyncBatchNorm>, TrainError> {
+    let Some(d) = ddp else {
+        return Ok(None);
+    };
+    for t in procedure.trained_mut() {
+        d.broadcast_all(&t.vs)?;
+        t.ddp = Some(d.clone());
+    }
+    Ok(cfg
+        .network
+        .sync_batch_norm
+        .then(|| rtf_models::SyncBatchNorm::install(d.clone())))
+}
+
 impl<'a> Run<'a> {
     /// Phase 2, restore or start: the config recorded, the networks built and restored from
     /// the checkpoint or initialised, data-parallel started, label caches and the streams.
@@ -823,22 +845,7 @@ impl<'a> Run<'a> {
             false => start(cfg, &folder, procedure.as_mut())?,
         };
         procedure.resume_at(state.steps_done);
-        if let Some(d) = &ddp {
-            // DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every
-            // trained network's gradients averaged from now on.
-            for t in procedure.trained_mut() {
-                d.broadcast_all(&t.vs)?;
-                t.ddp = Some(d.clone());
-            }
-        }
-        // Synchronised BatchNorm: the training-mode forwards of this thread (every step runs
-        // here) use the whole data-parallel batch's statistics until the run returns.
-        let sync_batch_norm = match &ddp {
-            Some(d) if cfg.network.sync_batch_norm => {
-                Some(rtf_models::SyncBatchNorm::install(d.clone()))
-            }
-            _ => None,
-        };
+        let sync_batch_norm = start_data_parallel(cfg, ddp.as_ref(), procedure.as_mut())?;
         let scratch = cache_labels(cfg, &folder, procedure.as_ref(), &mut sources, device)?;
         let tb = match folder.is_root {
             true => Some(
