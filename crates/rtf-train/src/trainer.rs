@@ -20,7 +20,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rtf_core::Daytime;
 use rtf_data::frame::Subset;
 use rtf_data::{
-    FrameSource, FreiburgPart, FreiburgSplit, Loader, LoaderConfig, MfDataset, TrainedOn,
+    FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit, Loader, LoaderConfig, MfDataset,
+    TrainedOn,
 };
 use rtf_eval::{EvalOptions, EvalReport};
 use rtf_models::Network;
@@ -142,59 +143,13 @@ fn open_dataset(dataset: &DatasetConfig, labels: bool) -> Result<Opened, TrainEr
             root,
             train_split,
             val_split,
-        } => {
-            let mf = MfDataset::open(root)?;
-            let train: Source = match labels {
-                true => Arc::new(mf.split(train_split)?),
-                false => Arc::new(mf.split_images_only(train_split)?),
-            };
-            let val = match val_split {
-                Some(name) => Some(Arc::new(mf.split(name)?) as Source),
-                None => None,
-            };
-            let trained_on = TrainedOn {
-                classes: rtf_core::ClassSet::mf(),
-                thermal: Some(rtf_data::thermal::ThermalNormalisation::Byte),
-            };
-            Ok((train, val, false, trained_on))
-        }
+        } => mf_sources(root, train_split, val_split.as_deref(), labels),
         DatasetConfig::Freiburg {
             root,
             train_preprocess,
             val_preprocess,
             validate,
-        } => {
-            let tree =
-                FreiburgSplit::open(root, train_preprocess.clone())?.part(FreiburgPart::TrainTree);
-            let train = match labels {
-                true => tree.filter(|_, _, labelled| labelled),
-                false => tree,
-            };
-            if train.is_empty() {
-                return Err(run_error(
-                    root,
-                    match labels {
-                        true => "no labelled frames in a Freiburg training tree (<run>/<seq>/fl_rgb + fl_rgb_labels)",
-                        false => "no frames in a Freiburg training tree (<run>/<seq>/fl_rgb)",
-                    },
-                ));
-            }
-            let val = match validate {
-                true => Some(
-                    FreiburgSplit::open(root, val_preprocess.clone())?
-                        .part(FreiburgPart::Validation)
-                        .filter(|_, _, labelled| labelled),
-                ),
-                false => None,
-            }
-            .filter(|v| !v.is_empty())
-            .map(|v| Arc::new(v) as Source);
-            let trained_on = TrainedOn {
-                classes: rtf_core::ClassSet::freiburg(),
-                thermal: None,
-            };
-            Ok((Arc::new(train), val, true, trained_on))
-        }
+        } => freiburg_sources(root, (train_preprocess, val_preprocess), *validate, labels),
         DatasetConfig::Described {
             root,
             train_split,
@@ -202,6 +157,68 @@ fn open_dataset(dataset: &DatasetConfig, labels: bool) -> Result<Opened, TrainEr
             trained_on,
         } => described_sources(root, train_split, val_split.as_deref(), trained_on.as_ref()),
     }
+}
+
+/// An MF root's training split (images only unless `labels`) and validation split.
+fn mf_sources(
+    root: &Path,
+    train_split: &str,
+    val_split: Option<&str>,
+    labels: bool,
+) -> Result<Opened, TrainError> {
+    let mf = MfDataset::open(root)?;
+    let train: Source = match labels {
+        true => Arc::new(mf.split(train_split)?),
+        false => Arc::new(mf.split_images_only(train_split)?),
+    };
+    let val = match val_split {
+        Some(name) => Some(Arc::new(mf.split(name)?) as Source),
+        None => None,
+    };
+    let trained_on = TrainedOn {
+        classes: rtf_core::ClassSet::mf(),
+        thermal: Some(rtf_data::thermal::ThermalNormalisation::Byte),
+    };
+    Ok((train, val, false, trained_on))
+}
+
+/// A Freiburg root's training tree (its labelled frames when `labels`) and, when `validate`,
+/// the labelled frames of its validation part; each with its own preprocessing.
+fn freiburg_sources(
+    root: &Path,
+    (train_preprocess, val_preprocess): (&FreiburgPreprocess, &FreiburgPreprocess),
+    validate: bool,
+    labels: bool,
+) -> Result<Opened, TrainError> {
+    let tree = FreiburgSplit::open(root, train_preprocess.clone())?.part(FreiburgPart::TrainTree);
+    let train = match labels {
+        true => tree.filter(|_, _, labelled| labelled),
+        false => tree,
+    };
+    if train.is_empty() {
+        return Err(run_error(
+            root,
+            match labels {
+                true => "no labelled frames in a Freiburg training tree (<run>/<seq>/fl_rgb + fl_rgb_labels)",
+                false => "no frames in a Freiburg training tree (<run>/<seq>/fl_rgb)",
+            },
+        ));
+    }
+    let val = match validate {
+        true => Some(
+            FreiburgSplit::open(root, val_preprocess.clone())?
+                .part(FreiburgPart::Validation)
+                .filter(|_, _, labelled| labelled),
+        ),
+        false => None,
+    }
+    .filter(|v| !v.is_empty())
+    .map(|v| Arc::new(v) as Source);
+    let trained_on = TrainedOn {
+        classes: rtf_core::ClassSet::freiburg(),
+        thermal: None,
+    };
+    Ok((Arc::new(train), val, true, trained_on))
 }
 
 /// The training split and the validation split (if named) of a described root (not Freiburg).
