@@ -354,6 +354,23 @@ pub fn markdown(v: &Value) -> String {
     s
 }
 
+/// One measured value in Markdown: mean ± std over the table's `seeds`, the mean alone for one
+/// seed, and "(n of N seeds)" when only some seeds have finished (`null` in `seeds`).
+fn measured_cell(m: &Value, seeds: u64) -> String {
+    let done = m["seeds"]
+        .as_array()
+        .map_or(0, |a| a.iter().filter(|s| s.is_number()).count() as u64);
+    let value = match (m["mean"].as_f64(), m["std"].as_f64()) {
+        (Some(mean), Some(std)) if done > 1 => format!("{mean:.1} ± {std:.1}"),
+        (Some(mean), _) => format!("{mean:.1}"),
+        _ => return "—".into(),
+    };
+    match done < seeds {
+        true => format!("{value} ({done} of {seeds} seeds)"),
+        false => value,
+    }
+}
+
 /// The Markdown table itself (paper and measured value side by side per column), then the
 /// rows' "Not measured" notes.
 fn markdown_rows(v: &Value, columns: &[&str]) -> String {
@@ -371,14 +388,7 @@ fn markdown_rows(v: &Value, columns: &[&str]) -> String {
             let paper = row["paper"][c]
                 .as_f64()
                 .map_or("—".to_string(), |p| format!("{p:.1}"));
-            let m = &row["measured"][c];
-            let measured = match (m["mean"].as_f64(), m["std"].as_f64()) {
-                (Some(mean), Some(std)) if v["seeds"].as_u64().unwrap_or(1) > 1 => {
-                    format!("{mean:.1} ± {std:.1}")
-                }
-                (Some(mean), _) => format!("{mean:.1}"),
-                _ => "—".into(),
-            };
+            let measured = measured_cell(&row["measured"][c], v["seeds"].as_u64().unwrap_or(1));
             let _ = write!(s, " {paper} | {measured} |");
         }
         s += "\n";
@@ -709,6 +719,26 @@ mod tests {
         assert_eq!(read_metric(&e, None, &Metric::InferenceMs), None);
         let no_day = json!({"miou": 0.1, "day": null});
         assert_eq!(read_metric(&no_day, None, &Metric::MIoU(Subset::Day)), None);
+    }
+
+    /// A cell whose seeds have not all finished says how many it averages.
+    #[test]
+    fn partly_finished_cells_say_how_many_seeds_they_average() {
+        let cell = |seeds: Value| json!({"mean": 57.4, "std": 4.1, "seeds": seeds});
+        assert_eq!(
+            measured_cell(&cell(json!([54.6, 60.3, 57.3])), 3),
+            "57.4 ± 4.1"
+        );
+        assert_eq!(
+            measured_cell(&cell(json!([54.6, 60.3, null])), 3),
+            "57.4 ± 4.1 (2 of 3 seeds)"
+        );
+        assert_eq!(
+            measured_cell(&cell(json!([null, 57.4, null])), 3),
+            "57.4 (1 of 3 seeds)"
+        );
+        assert_eq!(measured_cell(&cell(json!([57.4])), 1), "57.4");
+        assert_eq!(measured_cell(&json!({}), 3), "—");
     }
 
     #[test]
