@@ -1037,7 +1037,9 @@ failed cell is reported and the others go on.
 **Outputs** (in `--out`, default `results/`): `<table>.md`, `<table>.json` —
 `{table, budget, data, protocol, rows: [{label, paper: {COLUMN: value}, measured: {COLUMN:
 {mean, std, seeds}}}], claims, …}` with COLUMN spelled as in the paper and values in percent
-(times in ms) — `<table>.csv`, and `rtfnet-fig3.png`.
+(times in ms) — `<table>.csv`, and `rtfnet-fig3.png`. A table written while some seeds of a
+cell are still to run averages the finished ones and says so (`57.4 ± 4.1 (2 of 3 seeds)`;
+`null` in the JSON's `seeds`).
 
 Below: this machine's quick runs (2 shared CPU cores, so every time is disturbed by other jobs).
 ";
