@@ -54,16 +54,19 @@ def file_kib(path):
         return 0.0
 
 
-def watch(cmd, phase, progress, rows, every_s=1.0, minutes=None):
+def watch(cmd, phase, progress, rows, every_s=1.0, minutes=None, finished=lambda: False):
     """Runs cmd, appending a row per sample: phase, seconds since start, then progress()
-    (steps or frames, then sizes), rss, fds, threads. After `minutes` the process gets SIGTERM
-    (rtf train then checkpoints and stops); returns whether that happened."""
+    (steps or frames, then sizes), rss, fds, threads. Once finished() says the command's work
+    is written, sampling stops: what follows is the process exiting (threads joined,
+    descriptors closed, memory freed), which a sample would misread as a change. After
+    `minutes` the process gets SIGTERM (rtf train then checkpoints and stops); returns whether
+    that happened."""
     err = open(f"/tmp/soak-{os.getpid()}-{phase}.stderr", "w+")
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, text=True)
     start, stopped = time.monotonic(), False
     while proc.poll() is None:
         s = sample(proc.pid)
-        if s is not None:
+        if s is not None and not finished():
             done, *sizes = progress()
             rows.append((phase, round(time.monotonic() - start, 1), done, *s, *sizes))
         if minutes is not None and not stopped and time.monotonic() - start > 60 * minutes:
@@ -190,7 +193,8 @@ def main():
 
     stopped = watch([rtf, "train", "--model", "mfnet", "--data", str(data), "--out", str(run),
                      "--batch-size", str(args.batch_size), "--epochs", str(epochs)], "train",
-                    steps_done, rows, minutes=args.train_minutes)
+                    steps_done, rows, minutes=args.train_minutes,
+                    finished=lambda: (run / "final.safetensors").exists())
     if stopped:
         print(f"training stopped after {args.train_minutes} min (SIGTERM)", file=sys.stderr)
     # Predict and eval over many frames: a split of `--frames` names cycling over the set.
@@ -201,8 +205,10 @@ def main():
     if not weights.exists():
         weights = run / "best.safetensors"
     none = lambda: (0, 0.0, 0.0, 0.0, 0.0)
-    watch([rtf, "eval", "--weights", str(weights), "--data", str(data), "--split", "soak"],
-          "eval", none, rows)
+    scores = out / "eval.json"
+    scores.unlink(missing_ok=True)
+    watch([rtf, "eval", "--weights", str(weights), "--data", str(data), "--split", "soak",
+           "--json", str(scores)], "eval", none, rows, finished=scores.exists)
     preds = out / "pred"
     # `rtf predict` over a folder of `--frames` distinct names: links to the set's images.
     images = sorted((data / "images").glob("*.png"))
@@ -214,7 +220,7 @@ def main():
             link.symlink_to(images[i % len(images)].resolve())
     done = lambda: (len(list(preds.glob("*_color.png"))) if preds.exists() else 0, 0.0, 0.0, 0.0, 0.0)
     watch([rtf, "predict", "--weights", str(weights), "--out", str(preds), str(links)], "predict",
-          done, rows)
+          done, rows, finished=lambda: done()[0] >= args.frames)
     dicts = [dict(zip(KEYS, r)) for r in rows]
     # Training: the last sample of every --every steps.
     last_of = {}
