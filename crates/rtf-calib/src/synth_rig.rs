@@ -150,84 +150,169 @@ struct Scene {
     seed: u32,
 }
 
+/// A block before it is placed on the ground: its kind, centre x, near z, size and heat.
+struct Spec {
+    kind: Kind,
+    x: f64,
+    z: f64,
+    size: Vec3,
+    heat: f32,
+}
+
+// Every function below draws from the generator in a fixed order that recorded rigs depend
+// on: the order of the draws must not change.
+impl Spec {
+    /// The far facade closing the street (sky above it has no depth).
+    fn far_facade(rng: &mut ChaCha8Rng) -> Spec {
+        let size = [200.0, rng.random_range(10.0..16.0), 5.0];
+        let heat = rng.random_range(0.35..0.5);
+        Spec {
+            kind: Kind::Building,
+            x: 0.0,
+            z: 60.0,
+            size,
+            heat,
+        }
+    }
+
+    /// A building on either side of the street.
+    fn building(rng: &mut ChaCha8Rng) -> Spec {
+        let z = rng.random_range(12.0..40.0);
+        let side = if rng.random_bool(0.5) { -1.0 } else { 1.0 };
+        let x = side * rng.random_range(6.0..14.0);
+        let size = [
+            rng.random_range(5.0..10.0),
+            rng.random_range(5.0..18.0),
+            rng.random_range(6.0..12.0),
+        ];
+        let heat = rng.random_range(0.35..0.55);
+        Spec {
+            kind: Kind::Building,
+            x,
+            z,
+            size,
+            heat,
+        }
+    }
+
+    /// An object of a fixed size at a random depth in `depth` and a lateral position within
+    /// `spread` of the depth (the field of view), with a random heat in `heat` or a fixed one.
+    fn street_object(
+        rng: &mut ChaCha8Rng,
+        kind: Kind,
+        depth: std::ops::Range<f64>,
+        spread: f64,
+        size: Vec3,
+        heat: HeatDraw,
+    ) -> Spec {
+        let z = rng.random_range(depth);
+        let x = rng.random_range(-spread * z..spread * z);
+        let heat = match heat {
+            HeatDraw::Fixed(h) => h,
+            HeatDraw::Between(lo, hi) => rng.random_range(lo..hi),
+        };
+        Spec {
+            kind,
+            x,
+            z,
+            size,
+            heat,
+        }
+    }
+
+    /// Clutter near the camera (boxes, bins): random size.
+    fn clutter(rng: &mut ChaCha8Rng) -> Spec {
+        let z = rng.random_range(2.5..5.0);
+        let size = [rng.random_range(0.5..1.2), rng.random_range(0.8..1.4), 0.6];
+        let x = rng.random_range(-0.4 * z..0.4 * z);
+        let heat = rng.random_range(0.4..0.7);
+        Spec {
+            kind: Kind::Clutter,
+            x,
+            z,
+            size,
+            heat,
+        }
+    }
+
+    /// The block standing on the ground at `ground_y`, with a random colour and texture seed.
+    fn place(self, ground_y: f64, rng: &mut ChaCha8Rng) -> Block {
+        let Spec {
+            kind,
+            x,
+            z,
+            size,
+            heat,
+        } = self;
+        Block {
+            min: [x - size[0] / 2.0, ground_y - size[1], z],
+            max: [x + size[0] / 2.0, ground_y, z + size[2]],
+            kind,
+            rgb: [
+                rng.random_range(0.1f32..0.9),
+                rng.random_range(0.1f32..0.9),
+                rng.random_range(0.1f32..0.9),
+            ],
+            heat,
+            seed: rng.random(),
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+enum HeatDraw {
+    Fixed(f32),
+    Between(f32, f32),
+}
+
 impl Scene {
     fn random(rng: &mut ChaCha8Rng) -> Scene {
         let ground_y = rng.random_range(1.3..1.7);
-        let mut specs: Vec<(Kind, f64, f64, Vec3, f32)> = Vec::new();
-        // Far facade closing the street (sky above it has no depth).
-        specs.push((
-            Kind::Building,
-            0.0,
-            60.0,
-            [200.0, rng.random_range(10.0..16.0), 5.0],
-            rng.random_range(0.35..0.5),
-        ));
+        let mut specs = vec![Spec::far_facade(rng)];
         for _ in 0..rng.random_range(4..7) {
-            let z = rng.random_range(12.0..40.0);
-            let side = if rng.random_bool(0.5) { -1.0 } else { 1.0 };
-            let x = side * rng.random_range(6.0..14.0);
-            let size = [
-                rng.random_range(5.0..10.0),
-                rng.random_range(5.0..18.0),
-                rng.random_range(6.0..12.0),
-            ];
-            specs.push((Kind::Building, x, z, size, rng.random_range(0.35..0.55)));
+            specs.push(Spec::building(rng));
         }
+        let car = HeatDraw::Between(0.55, 0.75);
         for _ in 0..rng.random_range(2..5) {
-            let z = rng.random_range(5.0..20.0);
-            specs.push((
+            specs.push(Spec::street_object(
+                rng,
                 Kind::Car,
-                rng.random_range(-0.45 * z..0.45 * z),
-                z,
+                5.0..20.0,
+                0.45,
                 [1.8, 1.5, 4.2],
-                rng.random_range(0.55..0.75),
+                car,
             ));
         }
         for _ in 0..rng.random_range(1..4) {
-            let z = rng.random_range(3.0..14.0);
-            specs.push((
+            let person = HeatDraw::Fixed(0.95);
+            let size = [0.5, 1.75, 0.4];
+            specs.push(Spec::street_object(
+                rng,
                 Kind::Person,
-                rng.random_range(-0.4 * z..0.4 * z),
-                z,
-                [0.5, 1.75, 0.4],
-                0.95,
+                3.0..14.0,
+                0.4,
+                size,
+                person,
             ));
         }
         for _ in 0..rng.random_range(1..4) {
-            let z = rng.random_range(4.0..25.0);
-            specs.push((
+            let pole = HeatDraw::Between(0.3, 0.5);
+            let size = [0.15, 5.0, 0.15];
+            specs.push(Spec::street_object(
+                rng,
                 Kind::Pole,
-                rng.random_range(-0.45 * z..0.45 * z),
-                z,
-                [0.15, 5.0, 0.15],
-                rng.random_range(0.3..0.5),
+                4.0..25.0,
+                0.45,
+                size,
+                pole,
             ));
         }
         for _ in 0..rng.random_range(1..3) {
-            let z = rng.random_range(2.5..5.0);
-            let size = [rng.random_range(0.5..1.2), rng.random_range(0.8..1.4), 0.6];
-            specs.push((
-                Kind::Clutter,
-                rng.random_range(-0.4 * z..0.4 * z),
-                z,
-                size,
-                rng.random_range(0.4..0.7),
-            ));
+            specs.push(Spec::clutter(rng));
         }
         let blocks = specs
             .into_iter()
-            .map(|(kind, x, z, size, heat)| Block {
-                min: [x - size[0] / 2.0, ground_y - size[1], z],
-                max: [x + size[0] / 2.0, ground_y, z + size[2]],
-                kind,
-                rgb: [
-                    rng.random_range(0.1f32..0.9),
-                    rng.random_range(0.1f32..0.9),
-                    rng.random_range(0.1f32..0.9),
-                ],
-                heat,
-                seed: rng.random(),
-            })
+            .map(|spec| spec.place(ground_y, rng))
             .collect();
         Scene {
             ground_y,
