@@ -125,10 +125,7 @@ pub fn read_state(path: &Path) -> Result<TrainState, CheckpointError> {
 }
 
 fn header(path: &Path, bytes: &[u8]) -> Result<(TrainState, bool), CheckpointError> {
-    let invalid = |message: String| CheckpointError::Invalid {
-        path: path.into(),
-        message,
-    };
+    let invalid = |message: String| invalid(path, message);
     let (_, metadata) = SafeTensors::read_metadata(bytes).map_err(|e| {
         invalid(format!(
             "not a safetensors file, or a truncated one ({e}); delete it to start the run over"
@@ -154,25 +151,60 @@ pub fn load(
     path: &Path,
     parts: &mut [(&str, &mut VarStore)],
 ) -> Result<(OptimizerStates, TrainState), CheckpointError> {
-    let invalid = |message: String| CheckpointError::Invalid {
-        path: path.into(),
-        message,
-    };
     let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io {
         path: path.into(),
         source,
     })?;
     let (state, namespaced) = header(path, &bytes)?;
-    let tensors = SafeTensors::deserialize(&bytes).map_err(|e| invalid(e.to_string()))?;
-    let read = |name: &str| -> Result<Tensor, CheckpointError> {
-        let view = tensors
+    let tensors = SafeTensors::deserialize(&bytes).map_err(|e| invalid(path, e.to_string()))?;
+    let file = Reader {
+        path,
+        tensors,
+        namespaced,
+    };
+    let mut optimizers = BTreeMap::new();
+    for (role, vs) in parts.iter_mut() {
+        if !namespaced && *role != "student" {
+            return Err(invalid(
+                path,
+                format!("written by an older rtf that trained one network; it holds no `{role}`"),
+            ));
+        }
+        file.restore_weights(role, vs)?;
+        optimizers.insert(role.to_string(), file.optimizer_state(role, vs.device())?);
+    }
+    Ok((optimizers, state))
+}
+
+fn invalid(path: &Path, message: String) -> CheckpointError {
+    CheckpointError::Invalid {
+        path: path.into(),
+        message,
+    }
+}
+
+/// A checkpoint file's tensors, and where each role's keys live in it: `ROLE/w/NAME` and
+/// `ROLE/opt/KEY` (namespaced), or `model/NAME` and bare optimiser keys (older single-network
+/// files).
+struct Reader<'a> {
+    path: &'a Path,
+    tensors: SafeTensors<'a>,
+    namespaced: bool,
+}
+
+impl Reader<'_> {
+    /// One F32 tensor by its key, on the CPU.
+    fn tensor(&self, name: &str) -> Result<Tensor, CheckpointError> {
+        let view = self
+            .tensors
             .tensor(name)
-            .map_err(|_| invalid(format!("missing tensor `{name}`")))?;
+            .map_err(|_| invalid(self.path, format!("missing tensor `{name}`")))?;
         if view.dtype() != Dtype::F32 {
-            return Err(invalid(format!(
-                "tensor `{name}` is {:?}, expected F32",
-                view.dtype()
-            )));
+            let dtype = view.dtype();
+            return Err(invalid(
+                self.path,
+                format!("tensor `{name}` is {dtype:?}, expected F32"),
+            ));
         }
         let values: Vec<f32> = view
             .data()
@@ -181,49 +213,54 @@ pub fn load(
             .collect();
         let shape: Vec<i64> = view.shape().iter().map(|&d| d as i64).collect();
         Ok(Tensor::from_slice(&values).view(shape.as_slice()))
-    };
-    // Where a role's weights and optimiser keys live in this file.
-    let weight_key = |role: &str, name: &str| match namespaced {
-        true => format!("{role}/w/{name}"),
-        false => format!("model/{name}"),
-    };
-    let mut optimizers = BTreeMap::new();
-    for (role, vs) in parts.iter_mut() {
-        if !namespaced && *role != "student" {
-            return Err(invalid(format!(
-                "written by an older rtf that trained one network; it holds no `{role}`"
-            )));
-        }
+    }
+
+    /// Copies the role's saved weights into every variable of `vs` (each must be present with
+    /// its shape).
+    fn restore_weights(&self, role: &str, vs: &VarStore) -> Result<(), CheckpointError> {
         let device = vs.device();
         let mut vars: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
         vars.sort_by(|a, b| a.0.cmp(&b.0));
-        tch::no_grad(|| -> Result<(), CheckpointError> {
+        tch::no_grad(|| {
             for (name, mut var) in vars {
-                let saved = read(&weight_key(role, &name))?;
+                let key = match self.namespaced {
+                    true => format!("{role}/w/{name}"),
+                    false => format!("model/{name}"),
+                };
+                let saved = self.tensor(&key)?;
                 if saved.size() != var.size() {
-                    return Err(invalid(format!(
+                    let message = format!(
                         "`{role}` `{name}` has shape {:?}, the network expects {:?}",
                         saved.size(),
                         var.size()
-                    )));
+                    );
+                    return Err(invalid(self.path, message));
                 }
                 var.copy_(&saved.to_device(device));
             }
             Ok(())
-        })?;
+        })
+    }
+
+    /// The role's optimiser state (state name → tensor), on `device`.
+    fn optimizer_state(
+        &self,
+        role: &str,
+        device: Device,
+    ) -> Result<BTreeMap<String, Tensor>, CheckpointError> {
         let mut optimizer = BTreeMap::new();
-        for name in tensors.names() {
-            let key = match namespaced {
-                true => name.strip_prefix(&format!("{role}/opt/")),
+        let prefix = format!("{role}/opt/");
+        for name in self.tensors.names() {
+            let key = match self.namespaced {
+                true => name.strip_prefix(&prefix),
                 false => (!name.starts_with("model/")).then_some(name),
             };
             if let Some(key) = key {
-                optimizer.insert(key.to_string(), read(name)?.to_device(device));
+                optimizer.insert(key.to_string(), self.tensor(name)?.to_device(device));
             }
         }
-        optimizers.insert(role.to_string(), optimizer);
+        Ok(optimizer)
     }
-    Ok((optimizers, state))
 }
 
 #[cfg(test)]
