@@ -80,27 +80,7 @@ fn sync(device: Device) {
 
 /// Times `opts.steps` training steps after `opts.warmup` untimed ones.
 pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainError> {
-    if opts.batch == 0 || opts.steps == 0 || opts.size.0 == 0 || opts.size.1 == 0 {
-        return Err(TrainError::Config(
-            "bench train: batch, steps, width and height must be at least 1".into(),
-        ));
-    }
-    let model = rtf_models::ModelConfig::from_name(&opts.model, 9)?;
-    let mut cfg = TrainConfig::mfnet_paper("unused".into());
-    cfg.network.model = model;
-    cfg.learning.optimizer = opts.optimizer.clone();
-    cfg.learning.precision = opts.precision;
-    cfg.schedule.batch_size = opts.batch;
-    cfg.compute.device = match opts.device {
-        Device::Cpu => "cpu".into(),
-        Device::Cuda(i) => format!("cuda:{i}"),
-        other => {
-            return Err(TrainError::Config(format!(
-                "bench train: unsupported device {other:?}"
-            )))
-        }
-    };
-    cfg.validate()?;
+    let cfg = bench_config(opts)?;
     tch::manual_seed(0);
     let mut student = Student::build(&cfg, opts.device)?;
     let loss_fn = cfg.learning.loss.build(None);
@@ -109,38 +89,28 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
     let input = Tensor::rand([b, 4, h, w], (Kind::Float, opts.device));
     let target = Tensor::randint(9, [b, h, w], (Kind::Int64, opts.device));
     let lr = cfg.learning.optimizer.lr_at(0);
-    let (mut fwd, mut bwd, mut opt, mut total) = (vec![], vec![], vec![], 0.0);
+    let (mut fwd, mut bwd, mut opt) = (vec![], vec![], vec![]);
     for i in 0..opts.warmup + opts.steps {
-        // The body of `Supervised::step`, timed part by part.
-        let t0 = Instant::now();
-        let logits = student.logits(&input);
-        let loss = loss_fn.compute(&logits, &target);
-        sync(opts.device);
-        let t1 = Instant::now();
-        let trained = &mut student.trained;
-        trained.optimizer.zero_grad(&trained.vs);
-        trained.optimizer.scale_loss(&loss).backward();
-        sync(opts.device);
-        let t2 = Instant::now();
-        trained.optimizer.step(&trained.vs, lr);
-        let value = f64::try_from(&loss).unwrap_or(f64::NAN);
-        sync(opts.device);
-        let t3 = Instant::now();
-        if !value.is_finite() {
-            return Err(TrainError::Diverged {
-                epoch: 0,
-                step: i as u64,
-                what: format!("loss is {value}"),
-            });
-        }
+        let [f, b, o] = timed_step(
+            &mut student,
+            loss_fn.as_ref(),
+            (&input, &target),
+            lr,
+            opts.device,
+        )
+        .map_err(|what| TrainError::Diverged {
+            epoch: 0,
+            step: i as u64,
+            what,
+        })?;
         if i >= opts.warmup {
-            fwd.push((t1 - t0).as_secs_f64());
-            bwd.push((t2 - t1).as_secs_f64());
-            opt.push((t3 - t2).as_secs_f64());
-            total += (t3 - t0).as_secs_f64();
+            fwd.push(f);
+            bwd.push(b);
+            opt.push(o);
         }
     }
     let mut steps: Vec<f64> = (0..fwd.len()).map(|i| fwd[i] + bwd[i] + opt[i]).collect();
+    let total: f64 = steps.iter().sum();
     Ok(TrainBenchReport {
         model: opts.model.clone(),
         batch: opts.batch,
@@ -157,6 +127,61 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         peak_rss_mb: peak_rss_mb(),
         steps: opts.steps,
     })
+}
+
+/// The supervised training config the benchmark's options describe (MFNet's paper recipe
+/// with the network, optimiser, precision, batch and device replaced).
+fn bench_config(opts: &TrainBenchOptions) -> Result<TrainConfig, TrainError> {
+    if opts.batch == 0 || opts.steps == 0 || opts.size.0 == 0 || opts.size.1 == 0 {
+        return Err(TrainError::Config(
+            "bench train: batch, steps, width and height must be at least 1".into(),
+        ));
+    }
+    let mut cfg = TrainConfig::mfnet_paper("unused".into());
+    cfg.network.model = rtf_models::ModelConfig::from_name(&opts.model, 9)?;
+    cfg.learning.optimizer = opts.optimizer.clone();
+    cfg.learning.precision = opts.precision;
+    cfg.schedule.batch_size = opts.batch;
+    cfg.compute.device = match opts.device {
+        Device::Cpu => "cpu".into(),
+        Device::Cuda(i) => format!("cuda:{i}"),
+        other => {
+            return Err(TrainError::Config(format!(
+                "bench train: unsupported device {other:?}"
+            )))
+        }
+    };
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// One step of `Supervised::step`, timed part by part: [forward and loss, backward,
+/// optimiser] in seconds; the loss's value when it is not finite.
+fn timed_step(
+    student: &mut Student,
+    loss_fn: &dyn crate::loss::Loss,
+    (input, target): (&Tensor, &Tensor),
+    lr: f64,
+    device: Device,
+) -> Result<[f64; 3], String> {
+    let t0 = Instant::now();
+    let logits = student.logits(input);
+    let loss = loss_fn.compute(&logits, target);
+    sync(device);
+    let t1 = Instant::now();
+    let trained = &mut student.trained;
+    trained.optimizer.zero_grad(&trained.vs);
+    trained.optimizer.scale_loss(&loss).backward();
+    sync(device);
+    let t2 = Instant::now();
+    trained.optimizer.step(&trained.vs, lr);
+    let value = f64::try_from(&loss).unwrap_or(f64::NAN);
+    sync(device);
+    let t3 = Instant::now();
+    if !value.is_finite() {
+        return Err(format!("loss is {value}"));
+    }
+    Ok([t1 - t0, t2 - t1, t3 - t2].map(|d| d.as_secs_f64()))
 }
 
 #[cfg(test)]
