@@ -259,6 +259,7 @@ impl Spec {
     }
 }
 
+/// A block's heat: fixed (people are at body temperature) or drawn from a range.
 #[derive(Clone, Copy)]
 enum HeatDraw {
     Fixed(f32),
