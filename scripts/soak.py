@@ -132,11 +132,11 @@ def svg(rows, path):
 
 def growth(rows, phase, warm_up):
     """The growth summary of a phase: training from step `warm_up`, others after their first
-    quarter (start-up)."""
+    quarter (start-up) and never from their first sample (taken as the process starts)."""
     rs = [d for d in rows if d["phase"] == phase]
     if not rs:
         return None
-    later = [d for d in rs if d["done"] >= warm_up] if phase == "train" else rs[len(rs) // 4:]
+    later = [d for d in rs if d["done"] >= warm_up] if phase == "train" else rs[max(1, len(rs) // 4):]
     later = later or rs
     first, last = later[0], later[-1]
     summary = {"phase": phase, "samples": len(rs), "from": first["done"], "to": last["done"],

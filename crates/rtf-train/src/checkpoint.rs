@@ -93,10 +93,7 @@ pub fn save(path: &Path, parts: &[Part], state: &TrainState) -> Result<(), Check
             TensorView::new(Dtype::F32, shape.clone(), bytes).map(|v| (n.clone(), v))
         })
         .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| CheckpointError::Invalid {
-            path: path.into(),
-            message: e.to_string(),
-        })?;
+        .map_err(|e| invalid(path, e.to_string()))?;
     let metadata = HashMap::from([
         (
             STATE_KEY.to_string(),
@@ -105,10 +102,7 @@ pub fn save(path: &Path, parts: &[Part], state: &TrainState) -> Result<(), Check
         (FORMAT_KEY.to_string(), FORMAT.to_string()),
     ]);
     let bytes =
-        safetensors::serialize(views, Some(metadata)).map_err(|e| CheckpointError::Invalid {
-            path: path.into(),
-            message: e.to_string(),
-        })?;
+        safetensors::serialize(views, Some(metadata)).map_err(|e| invalid(path, e.to_string()))?;
     rtf_core::write_bytes_atomic(path, &bytes).map_err(|e| CheckpointError::Io {
         path: path.into(),
         source: std::io::Error::other(e.to_string()),
@@ -125,18 +119,25 @@ pub fn read_state(path: &Path) -> Result<TrainState, CheckpointError> {
 }
 
 fn header(path: &Path, bytes: &[u8]) -> Result<(TrainState, bool), CheckpointError> {
-    let invalid = |message: String| invalid(path, message);
     let (_, metadata) = SafeTensors::read_metadata(bytes).map_err(|e| {
-        invalid(format!(
-            "not a safetensors file, or a truncated one ({e}); delete it to start the run over"
-        ))
+        invalid(
+            path,
+            format!(
+                "not a safetensors file, or a truncated one ({e}); delete it to start the run over"
+            ),
+        )
     })?;
     let meta = metadata.metadata().as_ref();
     let state: TrainState = meta
         .and_then(|m| m.get(STATE_KEY))
-        .ok_or_else(|| invalid("no training state in metadata (not an rtf checkpoint)".into()))
+        .ok_or_else(|| {
+            invalid(
+                path,
+                "no training state in metadata (not an rtf checkpoint)".into(),
+            )
+        })
         .and_then(|s| {
-            serde_json::from_str(s).map_err(|e| invalid(format!("bad training state: {e}")))
+            serde_json::from_str(s).map_err(|e| invalid(path, format!("bad training state: {e}")))
         })?;
     let namespaced = meta.and_then(|m| m.get(FORMAT_KEY)).is_some();
     Ok((state, namespaced))
