@@ -91,7 +91,7 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
     let lr = cfg.learning.optimizer.lr_at(0);
     let (mut fwd, mut bwd, mut opt) = (vec![], vec![], vec![]);
     for i in 0..opts.warmup + opts.steps {
-        let [f, b, o] = timed_step(
+        let [forward, backward, optimizer] = timed_step(
             &mut student,
             loss_fn.as_ref(),
             (&input, &target),
@@ -104,9 +104,9 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
             what,
         })?;
         if i >= opts.warmup {
-            fwd.push(f);
-            bwd.push(b);
-            opt.push(o);
+            fwd.push(forward);
+            bwd.push(backward);
+            opt.push(optimizer);
         }
     }
     let mut steps: Vec<f64> = (0..fwd.len()).map(|i| fwd[i] + bwd[i] + opt[i]).collect();
