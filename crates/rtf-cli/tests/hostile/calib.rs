@@ -110,15 +110,26 @@ pub fn cases(f: &Fixture) -> Vec<Case> {
             calibrate(&format!("prior, {name}"), &path, &out, must)
         })
         .collect();
-    // 60 cm from where the synthetic rig's thermal camera sits, σ 1 cm: the images disagree.
-    // "Significantly" is judged over the frames with their standard error estimated from
-    // them (Student-t, rtf_calib::bound::critical_value): with two frames (1 degree of
-    // freedom) the cut-off is 13.7 standard errors and no disagreement is significant, so
-    // this case has six (cut-off 2.65).
+    // A prior the images overrule: 55 cm from where the synthetic rig's thermal camera sits
+    // (x), σ 5 cm, so the images set the solution, every frame's own best alignment is near
+    // it and the prior is named as far from them. "Significantly" is judged over the frames
+    // with their standard error estimated from them (Student-t, rtf_calib::bound::
+    // critical_value): with two frames (1 degree of freedom) the cut-off is 13.7 standard
+    // errors and no disagreement is significant, so this case has six (cut-off 2.65).
+    //
+    // Why not a tighter prior (issue 44): with σ 1 cm the prior sets the translation and the
+    // frames cannot all be aligned at it, so how many agree (and so `ok`, `uncertain` or
+    // `failed`) turned on MKL's vendor-dependent kernels: `failed` (17 % agree) on Intel
+    // AVX-512, `uncertain` with MKL_ENABLE_INSTRUCTIONS=AVX2, `ok` on AMD. That case's
+    // invariant, the named warning whatever the verdict, is rtf-calib's unit test
+    // `a_prior_far_from_what_the_images_say_is_a_named_warning`. This one is decisive: on
+    // rigs of seeds 1–4, under Intel's AVX-512 and AVX2 kernels, every run ended exit 0 with
+    // 83–100 % of frames agreeing (the failure line is 50 %) and the prior 7–11.5 σ off
+    // (the warning's line is 3 σ).
     let far = with_prior(
         &rig(f, "rig6", "6"),
         "prior_far",
-        "  translation_m: [0.7, 0.6, 0.5]\n  translation_sigma_m: 0.01\n",
+        "  translation_m: [0.6, 0, 0]\n  translation_sigma_m: 0.05\n",
     );
     let far_out = f.t.join("calib_far.yaml");
     let written = far_out.clone();
