@@ -13,30 +13,59 @@
 //! images/s with emulation forced on an AVX-512 EPYC, docs/src/benchmarks.md round 5), saving
 //! only activation memory. Neither is expected to beat fp32 on such a CPU, hence the advice.
 //!
+//! Where bf16 is native, it can still be slower than fp32 (Intel AVX-512 without AMX, issue
+//! 41): [`crate::bf16_probe`] measures it once per CPU kind and the warning gives the times.
+//!
 //! No `--precision auto`: the precision stays what the user typed (default fp32), so the same
 //! command gives the same numbers and weights on every machine; docs/src/benchmarks.md says why.
 
+use crate::bf16_probe::Work;
 use rtf_amp::{Bf16Arithmetic, Bf16Convolutions};
 use rtf_train::config::Precision;
 use tch::Device;
 
-/// The warning for bf16 inference (`eval`, `predict`, `bench model`) on `device`, if any.
+/// The warning for bf16 inference (`eval`, `predict`, `bench model`) on `device`, if any:
+/// bf16 emulated, or native but measured slower than fp32 ([`crate::bf16_probe`]).
 pub fn inference(bf16: bool, device: Device) -> Option<String> {
-    inference_message(bf16, device, &rtf_amp::cpu_bf16_arithmetic())
+    let arithmetic = rtf_amp::cpu_bf16_arithmetic();
+    inference_message(bf16, device, &arithmetic)
+        .or_else(|| native_but_slower(bf16, device, &arithmetic, Work::Inference))
+}
+
+/// Where bf16 is native on the CPU: the probe's warning if bf16 measured slower than fp32
+/// there. A probe that fails is said as such (the work itself goes on).
+fn native_but_slower(
+    bf16: bool,
+    device: Device,
+    arithmetic: &Bf16Arithmetic,
+    work: Work,
+) -> Option<String> {
+    if !bf16 || device != Device::Cpu || arithmetic.is_native() != Some(true) {
+        return None;
+    }
+    match crate::bf16_probe::measured(work) {
+        Ok((m, cache)) => crate::bf16_probe::slower_message(work, &m, cache.as_deref()),
+        Err(e) => Some(format!(
+            "could not measure whether bf16 pays on this CPU ({e:#}); bf16 may be slower than fp32 here"
+        )),
+    }
 }
 
 /// The warning for training in `precision` on `device` (`train`, `bench train`), if any:
 /// rtf-train's own ([`Precision::slow_on`]: libtorch's generic bf16 convolutions chosen on a
 /// CPU without bf16) or, where rtf emulates the convolutions, this module's.
 pub fn training(precision: Precision, device: Device) -> Option<String> {
-    precision.slow_on(device).or_else(|| {
-        training_message(
-            precision == Precision::Bf16,
-            device,
-            &rtf_amp::cpu_bf16_arithmetic(),
-            rtf_amp::cpu_bf16_convolutions().ok(),
-        )
-    })
+    let bf16 = precision == Precision::Bf16;
+    let arithmetic = rtf_amp::cpu_bf16_arithmetic();
+    let convolutions = rtf_amp::cpu_bf16_convolutions().ok();
+    precision
+        .slow_on(device)
+        .or_else(|| training_message(bf16, device, &arithmetic, convolutions))
+        .or_else(|| {
+            // rtf's emulated convolutions forced on a native CPU already have their warning.
+            let native = convolutions == Some(Bf16Convolutions::Native);
+            native_but_slower(bf16 && native, device, &arithmetic, Work::Training)
+        })
 }
 
 fn inference_message(bf16: bool, device: Device, arithmetic: &Bf16Arithmetic) -> Option<String> {

@@ -134,6 +134,13 @@ pub enum Bench {
     Data(super::bench_data::Args),
     /// Training-step throughput (forward, loss, backward, optimiser): images/s, peak RSS.
     Train(super::bench_train::Args),
+    /// The bf16-against-fp32 probe (`--precision bf16` runs it in a child process of its own,
+    /// so the command's memory, allocator and random state are untouched): prints its JSON.
+    #[command(hide = true)]
+    Bf16Probe {
+        #[arg(long, value_parser = ["inference", "training"])]
+        work: String,
+    },
 }
 
 pub fn run_bench(bench: Bench) -> Result<()> {
@@ -141,5 +148,16 @@ pub fn run_bench(bench: Bench) -> Result<()> {
         Bench::Model(args) => run(args),
         Bench::Data(args) => super::bench_data::run(args),
         Bench::Train(args) => super::bench_train::run(args),
+        Bench::Bf16Probe { work } => {
+            let work = match work.as_str() {
+                "training" => crate::bf16_probe::Work::Training,
+                _ => crate::bf16_probe::Work::Inference,
+            };
+            println!(
+                "{}",
+                serde_json::to_string(&crate::bf16_probe::measure(work)?)?
+            );
+            Ok(())
+        }
     }
 }

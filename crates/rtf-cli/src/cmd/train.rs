@@ -234,12 +234,15 @@ fn prepare_arithmetic(cfg: &RunConfig, root: bool) -> Result<()> {
     let mut slow = None;
     for (i, (_, stage)) in cfg.stages().into_iter().enumerate() {
         let device = available_device(&stage.compute.device).map_err(anyhow::Error::msg)?;
-        slow = slow.or_else(|| crate::bf16_warning::training(stage.learning.precision, device));
+        // Only the root process warns, so only it may run the bf16 probe (issue 41).
+        if root {
+            slow = slow.or_else(|| crate::bf16_warning::training(stage.learning.precision, device));
+        }
         if i == 0 {
             crate::allocator::set_purge_delay_for_training(stage.learning.precision, device);
         }
     }
-    if let Some(warning) = slow.filter(|_| root) {
+    if let Some(warning) = slow {
         eprintln!("warning: {warning}");
     }
     Ok(())

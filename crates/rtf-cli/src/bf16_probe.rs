@@ -1,0 +1,347 @@
+//! Whether bf16 pays on this CPU where it has bf16 arithmetic, measured once (project issue 41).
+//!
+//! bf16 instructions do not make bf16 fast everywhere. On an Intel AVX-512 CPU without AMX
+//! (oneDNN's `avx512_core_bf16` / `avx10_1_512` kernels), measured on family 6 model 167 with
+//! AMX capped off by `ONEDNN_MAX_CPU_ISA`, rtf's bf16 inference ran at 0.72× (MFNet) and 0.54×
+//! (RTFNet-50) of its fp32 speed, and PyTorch's bf16 autocast was slower than its fp32 too: the
+//! bf16 dot-product instruction there has the throughput of the fp32 FMAs it replaces, so bf16
+//! saves memory traffic only, pays for conversions and reorders, and loses the Winograd 3×3
+//! convolutions of rtf's fp32 fast path. With AMX on the same CPU bf16 ran 2.7× and 4.4× faster
+//! than fp32; on AMD Zen 4 with `avx512_bf16` 1.6–1.9× (docs/src/benchmarks.md).
+//!
+//! So where bf16 is native, `--precision bf16` on the CPU times a small fixed workload once in
+//! each precision — MFNet at 320×240: the fast path's forward for inference, a training step
+//! (batch 2) for training — and caches the result per CPU model, oneDNN/libtorch/MKL caps,
+//! libtorch build and thread count in `$RTF_CACHE_DIR` (default `$XDG_CACHE_HOME/rtf`, else
+//! `~/.cache/rtf`), `bf16-probe.json`. The probe runs in a child process (about a second for
+//! inference, a few for training), so the command's own memory peak and state are untouched. Where bf16 measured slower, the command says so on
+//! stderr with the measured times before its work; the precision stays what the user typed.
+
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Which kind of work the probe times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Work {
+    Inference,
+    Training,
+}
+
+impl Work {
+    fn name(self) -> &'static str {
+        match self {
+            Work::Inference => "inference",
+            Work::Training => "training",
+        }
+    }
+
+    /// What was timed, for the message.
+    pub fn workload(self) -> &'static str {
+        match self {
+            Work::Inference => "MFNet's fast-path forward at 320x240, batch 1",
+            Work::Training => "an MFNet training step at 320x240, batch 2",
+        }
+    }
+}
+
+/// One measurement: seconds per unit of the work in each precision.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Measured {
+    pub fp32_s: f64,
+    pub bf16_s: f64,
+    /// When it was measured (seconds since the Unix epoch).
+    pub unix_time: u64,
+}
+
+impl Measured {
+    /// bf16's speed as a multiple of fp32's (below 1: bf16 is slower).
+    pub fn speedup(&self) -> f64 {
+        self.fp32_s / self.bf16_s
+    }
+}
+
+/// The cache file: measurements by [`key`].
+#[derive(Serialize, Deserialize, Default, Debug)]
+#[serde(deny_unknown_fields)]
+struct Cache {
+    measurements: BTreeMap<String, Measured>,
+}
+
+/// The cache file's path (`$RTF_CACHE_DIR`, `$XDG_CACHE_HOME/rtf` or `~/.cache/rtf`).
+pub fn cache_path() -> Option<PathBuf> {
+    let dir = std::env::var_os("RTF_CACHE_DIR")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|d| PathBuf::from(d).join("rtf")))
+        .or_else(|| std::env::var_os("HOME").map(|d| PathBuf::from(d).join(".cache/rtf")))?;
+    Some(dir.join("bf16-probe.json"))
+}
+
+/// What decides which kernels run: the CPU (vendor, family, model, name), the caps set in the
+/// environment, the libtorch build and the thread count.
+pub fn key(work: Work) -> String {
+    let caps: Vec<String> = [
+        "ATEN_CPU_CAPABILITY",
+        "ONEDNN_MAX_CPU_ISA",
+        "MKL_ENABLE_INSTRUCTIONS",
+    ]
+    .iter()
+    .filter_map(|var| std::env::var(var).ok().map(|v| format!("{var}={v}")))
+    .collect();
+    format!(
+        "{} | {} | caps [{}] | libtorch {} | {} threads",
+        work.name(),
+        cpu_identity(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default()),
+        caps.join(" "),
+        libtorch_identity(),
+        tch::get_num_threads()
+    )
+}
+
+/// "vendor family/model name" of the first processor in `/proc/cpuinfo`.
+fn cpu_identity(cpuinfo: &str) -> String {
+    let field = |name: &str| {
+        cpuinfo
+            .lines()
+            .find(|l| l.split(':').next().is_some_and(|k| k.trim() == name))
+            .and_then(|l| l.split_once(':'))
+            .map_or("?", |(_, v)| v.trim())
+            .to_string()
+    };
+    format!(
+        "{} family {} model {} {}",
+        field("vendor_id"),
+        field("cpu family"),
+        field("model"),
+        field("model name")
+    )
+}
+
+/// The libtorch this process runs: the version next to the loaded `libtorch_cpu.so` (a PyPI
+/// wheel's `version.py`, a libtorch archive's `build-version`), else its path.
+fn libtorch_identity() -> String {
+    let maps = std::fs::read_to_string("/proc/self/maps").unwrap_or_default();
+    let Some(lib) = maps
+        .lines()
+        .filter_map(|l| l.split_whitespace().nth(5))
+        .find(|p| p.ends_with("/libtorch_cpu.so"))
+        .map(PathBuf::from)
+    else {
+        return "?".into();
+    };
+    let root = lib
+        .parent()
+        .and_then(Path::parent)
+        .unwrap_or(Path::new("/"));
+    if let Ok(text) = std::fs::read_to_string(root.join("version.py")) {
+        if let Some(line) = text.lines().find(|l| l.starts_with("__version__")) {
+            return line.split('\'').nth(1).unwrap_or(line).to_string();
+        }
+    }
+    std::fs::read_to_string(root.join("build-version"))
+        .map(|v| v.trim().to_string())
+        .unwrap_or_else(|_| lib.display().to_string())
+}
+
+/// The cached measurement for `work` on this machine, measuring (and caching) it first if
+/// there is none. A cache that cannot be read or written costs a measurement, never the run.
+pub fn measured(work: Work) -> Result<(Measured, Option<PathBuf>)> {
+    let key = key(work);
+    let path = cache_path();
+    let mut cache = path.as_deref().map(read_cache).unwrap_or_default();
+    if let Some(m) = cache.measurements.get(&key) {
+        return Ok((m.clone(), path));
+    }
+    let m = measure_in_child(work)?;
+    cache.measurements.insert(key, m.clone());
+    let written = path.filter(|p| write_cache(p, &cache).is_ok());
+    Ok((m, written))
+}
+
+fn read_cache(path: &Path) -> Cache {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|text| serde_json::from_str(&text).ok())
+        .unwrap_or_default()
+}
+
+fn write_cache(path: &Path, cache: &Cache) -> Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let text = serde_json::to_string_pretty(cache)?;
+    rtf_core::write_bytes_atomic(path, text.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+/// [`measure`] in a child process (`rtf bench bf16-probe`), so this process's peak memory,
+/// allocator, oneDNN caches and random state are what they would be without the probe. The
+/// child inherits the environment and runs with this process's thread count.
+fn measure_in_child(work: Work) -> Result<Measured> {
+    let exe = std::env::current_exe().context("cannot find the rtf binary for the bf16 probe")?;
+    let out = std::process::Command::new(&exe)
+        .args(["bench", "bf16-probe", "--work", work.name()])
+        .env("OMP_NUM_THREADS", tch::get_num_threads().to_string())
+        .stderr(std::process::Stdio::inherit())
+        .output()
+        .with_context(|| format!("cannot start {}", exe.display()))?;
+    anyhow::ensure!(
+        out.status.success(),
+        "the bf16 probe failed ({})",
+        out.status
+    );
+    serde_json::from_slice(&out.stdout).context("the bf16 probe printed no measurement")
+}
+
+/// Times the work once in each precision (seconds per unit, median).
+pub fn measure(work: Work) -> Result<Measured> {
+    let (fp32_s, bf16_s) = match work {
+        Work::Inference => (inference_s(false)?, inference_s(true)?),
+        Work::Training => (training_s(false)?, training_s(true)?),
+    };
+    let unix_time = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    Ok(Measured {
+        fp32_s,
+        bf16_s,
+        unix_time,
+    })
+}
+
+fn inference_s(bf16: bool) -> Result<f64> {
+    use rtf_models::fast::Precision;
+    let opts = rtf_eval::speed::BenchOptions {
+        precision: if bf16 {
+            Precision::Bf16
+        } else {
+            Precision::Fp32
+        },
+        width: 320,
+        height: 240,
+        warmup: 2,
+        iterations: 5,
+        ..Default::default()
+    };
+    Ok(rtf_eval::speed::bench_model(&opts)?.median_ms / 1000.0)
+}
+
+fn training_s(bf16: bool) -> Result<f64> {
+    use rtf_train::config::Precision;
+    let opts = rtf_train::bench::TrainBenchOptions {
+        model: "mfnet".into(),
+        batch: 2,
+        size: (320, 240),
+        precision: if bf16 {
+            Precision::Bf16
+        } else {
+            Precision::Fp32
+        },
+        device: tch::Device::Cpu,
+        warmup: 1,
+        steps: 3,
+        optimizer: rtf_train::OptimizerConfig::mfnet_paper(),
+    };
+    Ok(rtf_train::bench::bench_train(&opts)?.step_s)
+}
+
+/// The warning for a measurement, if bf16 measured slower than fp32.
+pub fn slower_message(work: Work, m: &Measured, cache: Option<&Path>) -> Option<String> {
+    (m.speedup() < 1.0).then(|| {
+        let cached = cache.map_or("not cached".to_string(), |p| {
+            format!("cached in {}", p.display())
+        });
+        format!(
+            "bf16 measured slower than fp32 on this CPU: {} took {:.1} ms in bf16 against {:.1} ms \
+             in fp32 ({:.2}x fp32's speed; measured once for this CPU model, libtorch and thread \
+             count, {cached}); use --precision fp32",
+            work.workload(),
+            1000.0 * m.bf16_s,
+            1000.0 * m.fp32_s,
+            m.speedup()
+        )
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn m(fp32_s: f64, bf16_s: f64) -> Measured {
+        Measured {
+            fp32_s,
+            bf16_s,
+            unix_time: 0,
+        }
+    }
+
+    #[test]
+    fn only_a_slower_bf16_is_a_warning_and_it_names_the_times_and_the_cache() {
+        let line = slower_message(
+            Work::Inference,
+            &m(0.060, 0.084),
+            Some(Path::new("/c/p.json")),
+        )
+        .unwrap();
+        assert!(
+            line.contains("84.0 ms in bf16 against 60.0 ms in fp32 (0.71x"),
+            "{line}"
+        );
+        assert!(line.contains("cached in /c/p.json") && line.ends_with("use --precision fp32"));
+        assert!(!line.contains('\n'));
+        let line = slower_message(Work::Training, &m(1.0, 2.0), None).unwrap();
+        assert!(
+            line.contains("training step") && line.contains("not cached"),
+            "{line}"
+        );
+        assert_eq!(
+            slower_message(Work::Inference, &m(0.060, 0.020), None),
+            None
+        );
+        assert_eq!(
+            slower_message(Work::Inference, &m(0.060, 0.060), None),
+            None
+        );
+    }
+
+    #[test]
+    fn the_cpu_is_named_by_vendor_family_model_and_name() {
+        let info = "processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 167\n\
+                    model name\t: Intel(R) Xeon(R) Processor\nflags\t\t: avx2\nprocessor\t: 1\n\
+                    vendor_id\t: Other\n";
+        assert_eq!(
+            cpu_identity(info),
+            "GenuineIntel family 6 model 167 Intel(R) Xeon(R) Processor"
+        );
+        assert_eq!(cpu_identity(""), "? family ? model ? ?");
+    }
+
+    #[test]
+    fn the_key_tells_the_works_apart_and_names_libtorch() {
+        let (i, t) = (key(Work::Inference), key(Work::Training));
+        assert_ne!(i, t);
+        assert!(
+            i.starts_with("inference | ") && i.contains("libtorch "),
+            "{i}"
+        );
+        assert!(
+            !i.contains("libtorch ?"),
+            "libtorch_cpu.so is mapped in a test: {i}"
+        );
+    }
+
+    #[test]
+    fn a_cache_round_trips_and_a_broken_one_reads_as_empty() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sub/bf16-probe.json");
+        let mut cache = Cache::default();
+        cache.measurements.insert("k".into(), m(1.0, 0.5));
+        write_cache(&path, &cache).unwrap();
+        assert_eq!(read_cache(&path).measurements["k"], m(1.0, 0.5));
+        std::fs::write(&path, "{ not json").unwrap();
+        assert!(read_cache(&path).measurements.is_empty());
+    }
+}
