@@ -8,6 +8,7 @@ avx512_bf16, amx_bf16), with the date, the PyTorch version and the rtf commit.
 
 Usage (from the repo root, after `cargo build --release -p rtf-cli`):
     .venv/bin/python scripts/speed_tables.py --out target/speed
+    .venv/bin/python scripts/speed_tables.py --kind-dir docs/src/speed-kinds   # this CPU kind's page
     .venv/bin/python scripts/speed_tables.py --models rtfnet50 --train-models "" --out target/speed \\
         --prefix "flock /tmp/bench.lock scripts/quiet.sh nice -n -15"
 
@@ -25,7 +26,7 @@ import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_bf16")
+FLAGS = ("avx2", "avx512f", "avx512_bf16", "avx512_fp16", "amx_bf16")
 
 
 def cpu():
@@ -155,6 +156,8 @@ def main():
     ap.add_argument("--prefix", default="", help="command prefix for every benchmark (e.g. a lock)")
     ap.add_argument("--out", default="target/speed")
     ap.add_argument("--from-json", help="rewrite the Markdown from this JSON report, running nothing")
+    ap.add_argument("--kind-dir", help="also write the tables as this CPU kind's page, DIR/<kind>.md and .json "
+                    "(docs/src/speed-kinds: the speed matrix by CPU kind; other kinds' pages are left as they are)")
     a = ap.parse_args()
     if a.from_json:
         with open(a.from_json) as f:
@@ -171,7 +174,20 @@ def main():
     text = markdown(report)
     if not a.from_json:
         write(os.path.join(a.out, "speed_tables.md"), text + "\n")
+    if a.kind_dir:
+        os.makedirs(a.kind_dir, exist_ok=True)
+        slug = kind_slug(report["cpu"])
+        write(os.path.join(a.kind_dir, slug + ".md"), text + "\n")
+        write(os.path.join(a.kind_dir, slug + ".json"), json.dumps(report, indent=1))
+        print(f"wrote {os.path.join(a.kind_dir, slug)}.md (include it in docs/src/speed-by-kind.md if it is new)")
     print(text)
+
+
+def kind_slug(c):
+    """A file name for a CPU kind: model name, family, model and the kernel-deciding flags."""
+    name = "".join(ch if ch.isalnum() else "-" for ch in c["model"].lower().replace("(r)", ""))
+    name = "-".join(part for part in name.split("-") if part)
+    return f"{name}-fam{c['family']}-model{c['model_number']}-" + "-".join(c["flags"]).replace("_", "")
 
 
 def write(path, text):
