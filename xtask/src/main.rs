@@ -144,8 +144,9 @@ struct EmulatedKind {
 
 /// The kinds developers and CI run on (issues 33 and 44): AMD AVX2-only; AMD AVX-512 with
 /// bf16; Intel AVX-512 with bf16/fp16, with AMX usable on some. MKL takes its AVX-512 paths on
-/// Intel only, which turned the hostile calibration case of issue 44 from `ok` to `failed`;
-/// capping it at AVX2 gives an Intel machine the other vendor's kind of path.
+/// Intel only: issue 44's hostile calibration case ended `failed` there and `ok` on AMD, and
+/// capping MKL alone at AVX2 turned it to `uncertain` on an Intel machine; the cap gives an
+/// Intel machine a non-AVX-512 MKL path, as on AMD.
 const EMULATED_KINDS: [EmulatedKind; 2] = [
     EmulatedKind {
         name: "AVX2 only (libtorch, oneDNN and MKL capped at AVX2; bf16 convolutions emulated)",

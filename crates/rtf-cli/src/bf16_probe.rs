@@ -22,8 +22,8 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// Which kind of work the probe times.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Which kind of work the probe times (`rtf bench bf16-probe --work inference|training`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Work {
     Inference,
     Training,

@@ -138,8 +138,8 @@ pub enum Bench {
     /// so the command's memory, allocator and random state are untouched): prints its JSON.
     #[command(hide = true)]
     Bf16Probe {
-        #[arg(long, value_parser = ["inference", "training"])]
-        work: String,
+        #[arg(long, value_enum)]
+        work: crate::bf16_probe::Work,
     },
 }
 
@@ -149,10 +149,6 @@ pub fn run_bench(bench: Bench) -> Result<()> {
         Bench::Data(args) => super::bench_data::run(args),
         Bench::Train(args) => super::bench_train::run(args),
         Bench::Bf16Probe { work } => {
-            let work = match work.as_str() {
-                "training" => crate::bf16_probe::Work::Training,
-                _ => crate::bf16_probe::Work::Inference,
-            };
             println!(
                 "{}",
                 serde_json::to_string(&crate::bf16_probe::measure(work)?)?
