@@ -1274,29 +1274,44 @@ mod tests {
         assert!(count(Arch::Segnet, 4) - count(Arch::Segnet, 3) == 64 * 9);
     }
 
+    /// Max relative difference between the fused fp32 path and the plain path of one random
+    /// draw of `arch` (weights and input).
+    fn fused_against_plain(arch: Arch, seed: i64) -> f64 {
+        use crate::fast::{max_relative_difference, InferenceNet, Precision};
+        tch::manual_seed(seed);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net: Box<dyn Network> =
+            Box::new(Baseline::new(vs.root(), &Config::new(arch, 4, 9)).unwrap());
+        let x = Tensor::rand([1, 4, 32, 64], (Kind::Float, Device::Cpu));
+        let plain = tch::no_grad(|| net.forward_t(&x, false));
+        let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
+        assert_eq!(fast.is_fused(), arch != Arch::Erfnet);
+        max_relative_difference(&plain, &fast.forward(&x).unwrap())
+    }
+
     #[test]
     fn fused_baselines_agree_with_their_plain_path() {
-        use crate::fast::{max_relative_difference, InferenceNet, Precision, FUSED_FP32_TOLERANCE};
-        for arch in [
-            Arch::Segnet,
-            Arch::Unet,
-            Arch::Pspnet,
-            Arch::Fusenet,
-            Arch::Erfnet,
-        ] {
-            tch::manual_seed(1);
-            let vs = nn::VarStore::new(Device::Cpu);
-            let net: Box<dyn Network> =
-                Box::new(Baseline::new(vs.root(), &Config::new(arch, 4, 9)).unwrap());
-            let x = Tensor::rand([1, 4, 32, 64], (Kind::Float, Device::Cpu));
-            let plain = tch::no_grad(|| net.forward_t(&x, false));
-            let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
-            assert_eq!(fast.is_fused(), arch != Arch::Erfnet);
-            let rel = max_relative_difference(&plain, &fast.forward(&x).unwrap());
+        use crate::fast::FUSED_FP32_TOLERANCE;
+        for arch in [Arch::Unet, Arch::Pspnet, Arch::Erfnet] {
+            let rel = fused_against_plain(arch, 1);
             assert!(
                 rel < FUSED_FP32_TOLERANCE,
                 "{arch:?}: max relative difference {rel}"
             );
+        }
+        // SegNet and FuseNet route values through max-pooling indices. Where two activations
+        // of a 2×2 window are equal to within rounding, the fused path's other (equally
+        // correct) summation order may pick the other one, and the decoder then receives that
+        // value one pixel away: up to ~1e-3 of the output's scale, in about 1 random draw of
+        // 300 (measured: FuseNet, seeds 0–299; CI met one on seed 1, whose draws other tests
+        // running beside it change). Draws are independent chances of such a tie; a wrong
+        // fold fails every draw, so two of three must agree to the fp32 tolerance.
+        for arch in [Arch::Segnet, Arch::Fusenet] {
+            let rels: Vec<f64> = (1..=3)
+                .map(|seed| fused_against_plain(arch, seed))
+                .collect();
+            let agreeing = rels.iter().filter(|&&r| r < FUSED_FP32_TOLERANCE).count();
+            assert!(agreeing >= 2, "{arch:?}: max relative differences {rels:?}");
         }
     }
 
