@@ -21,6 +21,8 @@ enum Thermal {
     Grey8,
     /// Raw counts 21800.. (a plain layout's `range: [21800, 25000]`).
     Raw16,
+    /// Grey stored as three equal channels (FMB's release).
+    GreyAsRgb,
 }
 
 /// `root/{train,test}/{rgb,thermal,labels}/fK.png` (folder names as given), 4 frames per
@@ -36,6 +38,10 @@ fn rgbt_root(root: &Path, folders: [&str; 3], n: usize, thermal: Thermal) {
                 Thermal::Grey8 => {
                     let t: Vec<u8> = (0..W * H).map(|i| (i % 256) as u8).collect();
                     write_png_u8(&file(1), W, H, 1, &t).unwrap();
+                }
+                Thermal::GreyAsRgb => {
+                    let t: Vec<u8> = (0..W * H * 3).map(|i| (i / 3 % 256) as u8).collect();
+                    write_png_u8(&file(1), W, H, 3, &t).unwrap();
                 }
                 Thermal::Raw16 => {
                     let t: Vec<u16> = (0..W * H).map(|i| 21800 + (i % 3200) as u16).collect();
@@ -346,16 +352,23 @@ fn a_five_class_pst900_root_goes_end_to_end_and_its_weights_refuse_other_classes
     }
 }
 
-/// FMB's 15 classes (grey thermal stored as RGB, as the release does) train and evaluate.
+/// FMB's 15 classes (grey thermal stored as RGB, as the release does) train, evaluate and
+/// predict from FMB's own files (predict reads them by the datasets' readers).
 #[test]
-fn a_fifteen_class_fmb_root_trains_and_evaluates_by_class_name() {
+fn a_fifteen_class_fmb_root_trains_evaluates_and_predicts_from_its_own_files() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("fmb");
-    rgbt_root(&data, ["Visible", "Infrared", "Label"], 15, Thermal::Grey8);
+    rgbt_root(
+        &data,
+        ["Visible", "Infrared", "Label"],
+        15,
+        Thermal::GreyAsRgb,
+    );
     let weights = train(&data, &tmp.path().join("run"));
     let names = rtf_data::layouts::fmb::CLASSES.map(|(name, _)| name);
     assert_eq!(metadata(&weights).classes.names(), names);
     eval_by_name(&weights, &data, &names, tmp.path());
+    predict_in_the_weights_palette(&weights, &data, names.len(), tmp.path());
 }
 
 /// A run records its classes; resuming it on a root whose classes changed is refused.

@@ -12,9 +12,11 @@ use std::sync::Arc;
 
 use rtf_core::{ClassSet, Daytime};
 
-use crate::description::{DatasetDescription, LabelEncoding, NightRule, SplitSpec};
+use crate::description::{DatasetDescription, FilePattern, LabelEncoding, NightRule, SplitSpec};
 use crate::frame::check_label_ids;
-use crate::pngio::{read_png, PngImage, Samples};
+use crate::images::{read_label, read_rgb, read_thermal, RgbImage};
+use crate::pattern::{frame_key, frame_name, value, Fields};
+use crate::pngio::{PngImage, Samples};
 use crate::{DataError, Frame, FrameSource};
 
 /// A described dataset; [`Self::split`] opens one of its splits.
@@ -127,17 +129,16 @@ fn palette(d: &DatasetDescription) -> HashMap<[u8; 3], u8> {
 
 /// Frames named by a list file: each must have every file of the split.
 fn listed_entries(spec: &SplitSpec, list: &Path) -> Result<Vec<Entry>, DataError> {
-    let names = crate::mf::read_split_file(list)?;
-    names
+    crate::split_list::read_split_list(spec, list)?
         .into_iter()
-        .map(|(line, name)| {
-            let entry = entry_of(spec, &name);
+        .map(|(line, fields)| {
+            let entry = entry_of(spec, &fields);
             let files = [Some(&entry.rgb), Some(&entry.thermal), entry.label.as_ref()];
             if let Some(missing) = files.into_iter().flatten().find(|p| !p.is_file()) {
                 return Err(DataError::MissingFrame {
                     split_file: list.to_path_buf(),
                     line,
-                    name,
+                    name: entry.name,
                     missing: missing.clone(),
                 });
             }
@@ -146,12 +147,12 @@ fn listed_entries(spec: &SplitSpec, list: &Path) -> Result<Vec<Entry>, DataError
         .collect()
 }
 
-fn entry_of(spec: &SplitSpec, name: &str) -> Entry {
+fn entry_of(spec: &SplitSpec, fields: &Fields) -> Entry {
     Entry {
-        name: name.to_string(),
-        rgb: spec.rgb.path(name),
-        thermal: spec.thermal.path(name),
-        label: spec.labels.as_ref().map(|l| l.path(name)),
+        name: frame_name(fields),
+        rgb: spec.rgb.path(fields),
+        thermal: spec.thermal.path(fields),
+        label: spec.labels.as_ref().map(|l| l.path(fields)),
         daytime: None,
     }
 }
@@ -159,34 +160,50 @@ fn entry_of(spec: &SplitSpec, name: &str) -> Entry {
 /// Frames found by listing the folders: every RGB needs its thermal (and label, when the split
 /// has labels), and every thermal or label its RGB.
 fn paired_entries(spec: &SplitSpec) -> Result<Vec<Entry>, DataError> {
-    let rgb_names = spec.rgb.names()?;
-    if rgb_names.is_empty() {
+    let rgb_files = spec.rgb.find()?;
+    if rgb_files.is_empty() {
         return Err(DataError::EmptySplit {
             path: spec.rgb.dir.clone(),
         });
     }
-    let rgb_set: HashSet<&String> = rgb_names.iter().collect();
+    let rgb_set: HashSet<String> = rgb_files.iter().map(|(f, _)| frame_key(f)).collect();
     let partners = [
         Some((&spec.thermal, "thermal")),
         spec.labels.as_ref().map(|l| (l, "label")),
     ];
     for (pattern, what) in partners.into_iter().flatten() {
-        if let Some(name) = pattern.names()?.into_iter().find(|n| !rgb_set.contains(n)) {
+        let found = pattern.find()?;
+        if let Some((fields, path)) = found.iter().find(|(f, _)| !rgb_set.contains(&frame_key(f))) {
             return Err(DataError::MissingPartner {
-                path: pattern.path(&name),
+                path: path.clone(),
                 what: "RGB",
-                partner: spec.rgb.path(&name),
+                partner: spec.rgb.path(&reorder(fields, &spec.rgb)),
             });
         }
-        if let Some(name) = rgb_names.iter().find(|n| !pattern.path(n).is_file()) {
+        if let Some((fields, path)) = rgb_files.iter().find(|(f, _)| !pattern.path(f).is_file()) {
             return Err(DataError::MissingPartner {
-                path: spec.rgb.path(name),
+                path: path.clone(),
                 what,
-                partner: pattern.path(name),
+                partner: pattern.path(fields),
             });
         }
     }
-    Ok(rgb_names.iter().map(|n| entry_of(spec, n)).collect())
+    Ok(rgb_files
+        .iter()
+        .map(|(fields, path)| Entry {
+            rgb: path.clone(),
+            ..entry_of(spec, fields)
+        })
+        .collect())
+}
+
+/// `fields` in `pattern`'s field order.
+fn reorder(fields: &Fields, pattern: &FilePattern) -> Fields {
+    pattern
+        .fields()
+        .into_iter()
+        .map(|f| (f.to_string(), value(fields, f).to_string()))
+        .collect()
 }
 
 /// One split of a described dataset.
@@ -247,14 +264,18 @@ impl DescribedSplit {
             name: format!("#{index}"),
             message: format!("index out of range (len {})", self.entries.len()),
         })?;
-        let (width, height, rgb) = read_rgb(&entry.rgb)?;
-        let thermal_png = read_png(&entry.thermal)?;
-        same_size(&entry.rgb, (width, height), &entry.thermal, &thermal_png)?;
-        let (bits, samples) = thermal_samples(&thermal_png, &entry.thermal)?;
+        let RgbImage { width, height, rgb } = read_rgb(&entry.rgb)?;
+        let thermal_image = read_thermal(&entry.thermal)?;
+        same_size(
+            &entry.rgb,
+            (width, height),
+            &entry.thermal,
+            (thermal_image.width, thermal_image.height),
+        )?;
         let thermal = self
             .description
             .thermal
-            .apply(&samples, bits, &entry.thermal)?;
+            .apply_samples(&thermal_image.samples, &entry.thermal)?;
         let label = match (&entry.label, with_label) {
             (Some(path), true) => Some(self.read_label(path, &entry.rgb, (width, height))?),
             _ => None,
@@ -276,8 +297,8 @@ impl DescribedSplit {
         rgb: &Path,
         size: (usize, usize),
     ) -> Result<Vec<u8>, DataError> {
-        let png = read_png(path)?;
-        same_size(rgb, size, path, &png)?;
+        let png = read_label(path)?;
+        same_size(rgb, size, path, (png.width, png.height))?;
         let Samples::U8(samples) = &png.samples else {
             return Err(DataError::BitDepth {
                 path: path.to_path_buf(),
@@ -297,39 +318,13 @@ impl DescribedSplit {
     }
 }
 
-fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<u8>), DataError> {
-    let png = read_png(path)?;
-    let channels_error = || DataError::Channels {
-        path: path.to_path_buf(),
-        what: "RGB image",
-        expected: "3 or 4".into(),
-        found: png.channels,
-    };
-    let Samples::U8(samples) = &png.samples else {
-        return Err(DataError::BitDepth {
-            path: path.to_path_buf(),
-            expected: "8".into(),
-            found: png.bit_depth(),
-        });
-    };
-    let rgb = match png.channels {
-        3 if !png.indexed => samples.clone(),
-        4 => samples
-            .chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect(),
-        _ => return Err(channels_error()),
-    };
-    Ok((png.width, png.height, rgb))
-}
-
 fn same_size(
     path: &Path,
     (w, h): (usize, usize),
     partner: &Path,
-    png: &PngImage,
+    (partner_w, partner_h): (usize, usize),
 ) -> Result<(), DataError> {
-    if (png.width, png.height) == (w, h) {
+    if (partner_w, partner_h) == (w, h) {
         return Ok(());
     }
     Err(DataError::PartnerSize {
@@ -337,37 +332,8 @@ fn same_size(
         partner: partner.to_path_buf(),
         w,
         h,
-        partner_w: png.width,
-        partner_h: png.height,
-    })
-}
-
-/// The thermal plane as stored (bit depth, samples). Grey stored as RGB(A) or grey + alpha
-/// is read from its first channel; a thermal image whose colour channels differ (a colour-
-/// mapped rendering, not measurements) is refused.
-fn thermal_samples(png: &PngImage, path: &Path) -> Result<(u8, Vec<u16>), DataError> {
-    let widen = |s: &Samples| -> Vec<u16> {
-        match s {
-            Samples::U8(v) => v.iter().map(|&x| x as u16).collect(),
-            Samples::U16(v) => v.clone(),
-        }
-    };
-    let all = widen(&png.samples);
-    let c = png.channels;
-    if c == 1 && !png.indexed {
-        return Ok((png.bit_depth(), all));
-    }
-    let grey_as_colour =
-        (c == 3 || c == 4) && all.chunks_exact(c).all(|p| p[0] == p[1] && p[1] == p[2]);
-    if c == 2 || grey_as_colour {
-        return Ok((png.bit_depth(), all.chunks_exact(c).map(|p| p[0]).collect()));
-    }
-    Err(DataError::Format {
-        path: path.to_path_buf(),
-        message: format!(
-            "thermal image has {c} channels that differ{} (a colour-mapped rendering?); rtf reads thermal from one grey channel",
-            if png.indexed { " (palette image)" } else { "" }
-        ),
+        partner_w,
+        partner_h,
     })
 }
 

@@ -6,7 +6,7 @@
 //! ```yaml
 //! classes:                      # id = label value = network output; ids 0..N-1
 //!   - {id: 0, name: background, color: [0, 0, 0]}
-//!   - {id: 1, name: pedestrian, color: [220, 20, 60]}
+//!   - {id: 1, name: pedestrian, color: "#DC143C"}   # or [220, 20, 60]
 //! ignore_id: 255                # optional
 //! label_encoding: ids           # or colors (RGB labels mapped through the palette)
 //! thermal:
@@ -25,6 +25,8 @@ use std::path::{Component, Path, PathBuf};
 use rtf_core::{ClassInfo, ClassSet};
 use serde::{Deserialize, Serialize};
 
+use crate::images::Format;
+pub use crate::pattern::FilePattern;
 use crate::thermal::{TemperatureMap, ThermalNormalisation};
 use crate::DataError;
 
@@ -78,46 +80,6 @@ pub enum NightRule {
     },
 }
 
-/// Where one kind of file of a split is: `dir/prefix NAME suffix`.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct FilePattern {
-    pub dir: PathBuf,
-    pub prefix: String,
-    pub suffix: String,
-}
-
-impl FilePattern {
-    /// `dir/NAME.png`.
-    pub fn folder(dir: PathBuf) -> Self {
-        Self {
-            dir,
-            prefix: String::new(),
-            suffix: ".png".into(),
-        }
-    }
-
-    pub fn path(&self, name: &str) -> PathBuf {
-        self.dir
-            .join(format!("{}{name}{}", self.prefix, self.suffix))
-    }
-
-    /// The frame names of the files in `dir` that match, sorted.
-    pub fn names(&self) -> Result<Vec<String>, DataError> {
-        let entries = std::fs::read_dir(&self.dir).map_err(|e| DataError::io(&self.dir, e))?;
-        let mut names: Vec<String> = entries
-            .flatten()
-            .filter(|e| e.path().is_file())
-            .filter_map(|e| e.file_name().to_str().map(str::to_string))
-            .filter_map(|f| {
-                let stem = f.strip_prefix(&self.prefix)?.strip_suffix(&self.suffix)?;
-                (!stem.is_empty()).then(|| stem.to_string())
-            })
-            .collect();
-        names.sort();
-        Ok(names)
-    }
-}
-
 /// One split: its files and, optionally, the list file that names its frames.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SplitSpec {
@@ -161,7 +123,7 @@ struct RawDescription {
     name: Option<String>,
     classes: Vec<RawClass>,
     ignore_id: Option<u8>,
-    ignore_color: Option<[u8; 3]>,
+    ignore_color: Option<Colour>,
     #[serde(default)]
     label_encoding: LabelEncoding,
     #[serde(default)]
@@ -176,7 +138,53 @@ struct RawDescription {
 struct RawClass {
     id: u8,
     name: String,
-    color: [u8; 3],
+    color: Colour,
+}
+
+/// A colour as datasets write them: `[r, g, b]` or `"#RRGGBB"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Colour([u8; 3]);
+
+impl<'de> Deserialize<'de> for Colour {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        d.deserialize_any(ColourVisitor)
+    }
+}
+
+struct ColourVisitor;
+
+impl<'de> serde::de::Visitor<'de> for ColourVisitor {
+    type Value = Colour;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a colour as [r, g, b] (0-255 each) or \"#RRGGBB\"")
+    }
+
+    fn visit_str<E: serde::de::Error>(self, text: &str) -> Result<Colour, E> {
+        let hex = text.strip_prefix('#').filter(|h| h.len() == 6);
+        let parse = |h: &str| -> Option<[u8; 3]> {
+            let byte = |i: usize| u8::from_str_radix(h.get(i..i + 2)?, 16).ok();
+            Some([byte(0)?, byte(2)?, byte(4)?])
+        };
+        hex.and_then(parse).map(Colour).ok_or_else(|| {
+            E::custom(format!(
+                "colour '{text}' is not \"#RRGGBB\" (six hex digits) or [r, g, b]"
+            ))
+        })
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Colour, A::Error> {
+        let mut rgb = [0u8; 3];
+        for (i, slot) in rgb.iter_mut().enumerate() {
+            *slot = seq
+                .next_element()?
+                .ok_or_else(|| serde::de::Error::invalid_length(i, &self))?;
+        }
+        if seq.next_element::<serde::de::IgnoredAny>()?.is_some() {
+            return Err(serde::de::Error::invalid_length(4, &self));
+        }
+        Ok(Colour(rgb))
+    }
 }
 
 #[derive(Deserialize, Default)]
@@ -241,7 +249,7 @@ pub fn parse_description(text: &str, file: &Path) -> Result<DatasetDescription, 
         layout: LayoutKind::Plain,
         class_set,
         labels: raw.label_encoding,
-        ignore_color: raw.ignore_color,
+        ignore_color: raw.ignore_color.map(|c| c.0),
         thermal,
         splits,
         night,
@@ -366,7 +374,7 @@ fn class_set(raw: &RawDescription, name: String, at: &Located) -> Result<ClassSe
         .map(|c| ClassInfo {
             id: c.id,
             name: c.name.clone(),
-            color: c.color,
+            color: c.color.0,
         })
         .collect();
     classes.sort_by_key(|c| c.id);
@@ -394,11 +402,11 @@ fn check_label_encoding(raw: &RawDescription, at: &Located) -> Result<(), DataEr
         return Ok(());
     }
     let mut seen: HashMap<[u8; 3], &str> = HashMap::new();
-    let ignore = raw.ignore_color.map(|c| (c, "the ignore colour"));
+    let ignore = raw.ignore_color.map(|c| (c.0, "the ignore colour"));
     for (color, name) in raw
         .classes
         .iter()
-        .map(|c| (c.color, c.name.as_str()))
+        .map(|c| (c.color.0, c.name.as_str()))
         .chain(ignore)
     {
         if let Some(other) = seen.insert(color, name) {
@@ -485,14 +493,23 @@ fn inside(root: &Path, written: &str, want_dir: bool, at: &Located) -> Result<Pa
 
 /// A folder (`train/rgb` → `train/rgb/NAME.png`) or a pattern with `{name}` in its file name
 /// (`train/ir/{name}_ir.png`).
-fn file_pattern(root: &Path, written: &str, at: &Located) -> Result<FilePattern, DataError> {
-    if !written.contains("{name}") {
-        return Ok(FilePattern::folder(inside(root, written, true, at)?));
+/// A split's pattern as written: a folder (`train/rgb`: its `{name}.<ext>` files of the role's
+/// formats) or a folder and a file-name template with `{field}`s (`color/{seq}_eo-{n}.jpg`).
+fn file_pattern(
+    root: &Path,
+    written: &str,
+    formats: &[Format],
+    at: &Located,
+) -> Result<FilePattern, DataError> {
+    if !written.contains('{') && !written.contains('}') {
+        return Ok(FilePattern::folder(
+            inside(root, written, true, at)?,
+            formats,
+        ));
     }
     let (dir, file) = written.rsplit_once('/').unwrap_or(("", written));
-    let parts: Vec<&str> = file.split("{name}").collect();
-    if parts.len() != 2 || dir.contains("{name}") {
-        let message = format!("'{written}': {{name}} must appear once, in the file name");
+    if dir.contains('{') || dir.contains('}') {
+        let message = format!("'{written}': {{fields}} go in the file name, not in its folders");
         return Err(at.error(at.line_with(written), message));
     }
     let dir = if dir.is_empty() {
@@ -500,10 +517,58 @@ fn file_pattern(root: &Path, written: &str, at: &Located) -> Result<FilePattern,
     } else {
         inside(root, dir, true, at)?
     };
-    Ok(FilePattern {
-        dir,
-        prefix: parts[0].to_string(),
-        suffix: parts[1].to_string(),
+    FilePattern::parse(dir, file).map_err(|message| at.error(at.line_with(written), message))
+}
+
+/// A partner's pattern has exactly the RGB pattern's fields (it is filled from them).
+fn same_fields(
+    rgb: &FilePattern,
+    partner: &FilePattern,
+    role: &str,
+    written: &str,
+    at: &Located,
+) -> Result<(), DataError> {
+    let (mut a, mut b) = (rgb.fields(), partner.fields());
+    a.sort_unstable();
+    b.sort_unstable();
+    if a == b {
+        return Ok(());
+    }
+    let message = format!(
+        "'{written}': the {role} pattern has fields {{{}}} but the RGB pattern has {{{}}}: a partner is found by filling the RGB file's fields, so both need the same",
+        b.join("}, {"),
+        a.join("}, {")
+    );
+    Err(at.error(at.line_with(written), message))
+}
+
+fn described_split(
+    name: &str,
+    split: &RawSplit,
+    root: &Path,
+    at: &Located,
+) -> Result<SplitSpec, DataError> {
+    let rgb = file_pattern(root, &split.rgb, Format::RGB, at)?;
+    let thermal = file_pattern(root, &split.thermal, Format::THERMAL, at)?;
+    same_fields(&rgb, &thermal, "thermal", &split.thermal, at)?;
+    let labels = match split.labels.as_deref() {
+        Some(l) => {
+            let labels = file_pattern(root, l, Format::LABEL, at)?;
+            same_fields(&rgb, &labels, "labels", l, at)?;
+            Some(labels)
+        }
+        None => None,
+    };
+    Ok(SplitSpec {
+        name: name.to_string(),
+        rgb,
+        thermal,
+        labels,
+        list: split
+            .list
+            .as_deref()
+            .map(|l| inside(root, l, false, at))
+            .transpose()?,
     })
 }
 
@@ -516,23 +581,7 @@ fn described_splits(
         return Err(at.error(at.key_line("splits"), "splits: no split given"));
     }
     raw.iter()
-        .map(|(name, split)| {
-            Ok(SplitSpec {
-                name: name.clone(),
-                rgb: file_pattern(root, &split.rgb, at)?,
-                thermal: file_pattern(root, &split.thermal, at)?,
-                labels: split
-                    .labels
-                    .as_deref()
-                    .map(|l| file_pattern(root, l, at))
-                    .transpose()?,
-                list: split
-                    .list
-                    .as_deref()
-                    .map(|l| inside(root, l, false, at))
-                    .transpose()?,
-            })
-        })
+        .map(|(name, split)| described_split(name, split, root, at))
         .collect()
 }
 
@@ -552,9 +601,11 @@ fn plain_splits(root: &Path, at: &Located) -> Result<Vec<SplitSpec>, DataError> 
         let labels = dir.join("labels");
         splits.push(SplitSpec {
             name: name.into(),
-            rgb: FilePattern::folder(dir.join("rgb")),
-            thermal: FilePattern::folder(dir.join("thermal")),
-            labels: labels.is_dir().then(|| FilePattern::folder(labels)),
+            rgb: FilePattern::folder(dir.join("rgb"), Format::RGB),
+            thermal: FilePattern::folder(dir.join("thermal"), Format::THERMAL),
+            labels: labels
+                .is_dir()
+                .then(|| FilePattern::folder(labels, Format::LABEL)),
             list: None,
         });
     }
@@ -652,8 +703,64 @@ thermal:
         assert_eq!(d.split_names(), vec!["train", "val"]);
         assert_eq!(d.night, NightRule::None);
         let train = d.split("train").unwrap();
-        assert_eq!(train.rgb.path("a"), dir.path().join("train/rgb/a.png"));
+        assert_eq!(
+            train.rgb.path(&vec![("name".into(), "a".into())]),
+            dir.path().join("train/rgb/a.png")
+        );
         assert!(train.labels.is_some());
+    }
+
+    #[test]
+    fn colours_are_rgb_lists_or_hex_and_a_bad_hex_names_its_line() {
+        let dir = plain_root(EXAMPLE);
+        let hex = EXAMPLE.replace("[220, 20, 60]", "\"#DC143c\"");
+        let d = parse_in(dir.path(), &hex).unwrap();
+        assert_eq!(d.class_set.color(1), [220, 20, 60]);
+        for bad in [
+            "\"#DC143\"",
+            "\"DC143C\"",
+            "\"#GG0000\"",
+            "[1, 2]",
+            "[1, 2, 3, 4]",
+            "[1, 2, 300]",
+        ] {
+            let text = refused(&EXAMPLE.replace("[220, 20, 60]", bad), 3);
+            assert!(
+                text.contains("colour") || text.contains("invalid"),
+                "{bad}: {text}"
+            );
+        }
+    }
+
+    #[test]
+    fn named_field_patterns_need_the_same_fields_in_every_partner() {
+        let dir = plain_root(EXAMPLE);
+        let split = |rgb: &str, thermal: &str| {
+            format!("{EXAMPLE}splits:\n  train: {{rgb: \"{rgb}\", thermal: \"{thermal}\"}}\n")
+        };
+        let ok = split(
+            "train/rgb/{seq}_eo-{n}.jpg",
+            "train/thermal/{seq}_thermal-{n}.tiff",
+        );
+        let d = parse_in(dir.path(), &ok).unwrap();
+        assert_eq!(d.split("train").unwrap().thermal.fields(), ["seq", "n"]);
+        for (yaml, says) in [
+            (
+                split("train/rgb/{seq}_eo-{n}.jpg", "train/thermal/{seq}.tiff"),
+                "has fields {seq} but the RGB pattern has {n}, {seq}",
+            ),
+            (
+                split("train/{seq}/x-{n}.jpg", "train/thermal/{seq}-{n}.tiff"),
+                "go in the file name",
+            ),
+            (
+                split("train/rgb/{seq}_{seq}.jpg", "train/thermal/{seq}.tiff"),
+                "used twice",
+            ),
+        ] {
+            let text = refused(&yaml, 8);
+            assert!(text.contains(says), "{text}");
+        }
     }
 
     #[test]
@@ -736,7 +843,10 @@ thermal:
         );
         let d = parse_in(dir.path(), &yaml).unwrap();
         let train = d.split("train").unwrap();
-        assert_eq!(train.rgb.path("x"), dir.path().join("train/rgb/x.png"));
+        assert_eq!(
+            train.rgb.path(&vec![("name".into(), "x".into())]),
+            dir.path().join("train/rgb/x.png")
+        );
         assert_eq!(train.labels, None);
         assert_eq!(train.list, Some(dir.path().join("lists/train.txt")));
         assert!(matches!(&d.night, NightRule::List { names, .. } if names.contains("b")));

@@ -14,14 +14,18 @@ pub mod frame;
 pub mod freiburg;
 pub mod fuzzing;
 pub mod hash;
+pub mod images;
 pub mod inspect;
 pub mod layouts;
 pub mod loader;
 pub mod mf;
 pub mod npy;
+pub mod pattern;
 pub mod pngio;
+pub mod split_list;
 pub mod synth;
 pub mod thermal;
+pub mod tiffio;
 pub mod trained_on;
 
 pub use augment::{resize_frame, AugmentConfig};

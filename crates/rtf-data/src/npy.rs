@@ -1,11 +1,23 @@
-//! `.npy` label maps (Freiburg test set): integer (or integral float) 2-D arrays in C order.
+//! `.npy` 2-D arrays in C order: label maps (Freiburg test set: integer or integral float) and
+//! thermal planes (raw counts, or temperatures as floats).
 
 use crate::DataError;
 use std::path::Path;
 
-/// Decodes a 2-D `.npy` of class ids into (width, height, ids). Accepts u1/i1/u2/i2/u4/i4/u8/i8
-/// and f4/f8 holding whole numbers; a leading or trailing singleton axis is allowed.
-pub fn decode_label_npy(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<u16>), DataError> {
+/// A 2-D `.npy` array read as f64 values, with the dtype it was stored in.
+pub struct Array2d {
+    pub width: usize,
+    pub height: usize,
+    /// NumPy's kind letter: `u`, `i` or `f`.
+    pub kind: u8,
+    /// Bytes per element.
+    pub size: usize,
+    pub values: Vec<f64>,
+}
+
+/// Decodes a 2-D `.npy` (C order; u1/i1/u2/i2/u4/i4/u8/i8, f4/f8; a leading or trailing
+/// singleton axis is allowed). `what` names the array in errors ("label", "thermal").
+pub fn decode_2d(bytes: &[u8], path: &Path, what: &str) -> Result<Array2d, DataError> {
     let bad = |message: String| DataError::Format {
         path: path.to_path_buf(),
         message,
@@ -24,27 +36,17 @@ pub fn decode_label_npy(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<
     }
     let [h, w] = shape[..] else {
         return Err(bad(format!(
-            "expected a 2-D label array, shape is {:?}",
+            "expected a 2-D {what} array, shape is {:?}",
             header.shape
         )));
     };
     let n = h
         .checked_mul(w)
         .filter(|&n| n > 0 && n <= 1 << 28)
-        .ok_or_else(|| bad(format!("bad label shape {h}x{w}")))?;
-    let (size, big_endian) = match descr.as_bytes() {
-        [e, _, s @ ..] => {
-            let size: usize = std::str::from_utf8(s)
-                .ok()
-                .and_then(|s| s.parse().ok())
-                .unwrap_or(0);
-            (size, *e == b'>')
-        }
-        _ => (0, false),
-    };
-    let kind = descr.as_bytes().get(1).copied().unwrap_or(0);
+        .ok_or_else(|| bad(format!("bad {what} shape {h}x{w}")))?;
+    let (kind, size, big_endian) = dtype(descr);
     if size == 0 || !matches!((kind, size), (b'u' | b'i', 1 | 2 | 4 | 8) | (b'f', 4 | 8)) {
-        return Err(bad(format!("unsupported label dtype '{descr}'")));
+        return Err(bad(format!("unsupported {what} dtype '{descr}'")));
     }
     if body.len() != n * size {
         return Err(bad(format!(
@@ -53,34 +55,72 @@ pub fn decode_label_npy(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<
             body.len()
         )));
     }
-    let mut ids = Vec::with_capacity(n);
-    for (i, c) in body.chunks_exact(size).enumerate() {
-        let mut b = [0u8; 8];
-        if big_endian {
-            b[..size].copy_from_slice(c);
-            b[..size].reverse();
-        } else {
-            b[..size].copy_from_slice(c);
+    let values = body
+        .chunks_exact(size)
+        .map(|c| element(c, kind, big_endian))
+        .collect();
+    Ok(Array2d {
+        width: w,
+        height: h,
+        kind,
+        size,
+        values,
+    })
+}
+
+/// (kind letter, bytes per element, big-endian) of a NumPy `descr` such as `<f4`.
+fn dtype(descr: &str) -> (u8, usize, bool) {
+    match descr.as_bytes() {
+        [e, kind, s @ ..] => {
+            let size: usize = std::str::from_utf8(s)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(0);
+            (*kind, size, *e == b'>')
         }
-        let v: f64 = match (kind, size) {
-            (b'u', _) => u64::from_le_bytes(b) as f64,
-            (b'i', _) => {
-                let shift = 64 - 8 * size as u32;
-                ((i64::from_le_bytes(b) << shift) >> shift) as f64
-            }
-            (b'f', 4) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-            _ => f64::from_le_bytes(b),
-        };
+        _ => (0, 0, false),
+    }
+}
+
+/// One element's value.
+fn element(c: &[u8], kind: u8, big_endian: bool) -> f64 {
+    let size = c.len();
+    let mut b = [0u8; 8];
+    b[..size].copy_from_slice(c);
+    if big_endian {
+        b[..size].reverse();
+    }
+    match (kind, size) {
+        (b'u', _) => u64::from_le_bytes(b) as f64,
+        (b'i', _) => {
+            let shift = 64 - 8 * size as u32;
+            ((i64::from_le_bytes(b) << shift) >> shift) as f64
+        }
+        (b'f', 4) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+        _ => f64::from_le_bytes(b),
+    }
+}
+
+/// Decodes a 2-D `.npy` of class ids into (width, height, ids): any dtype of [`decode_2d`]
+/// holding whole numbers 0..=65535.
+pub fn decode_label_npy(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<u16>), DataError> {
+    let array = decode_2d(bytes, path, "label")?;
+    let w = array.width;
+    let mut ids = Vec::with_capacity(array.values.len());
+    for (i, &v) in array.values.iter().enumerate() {
         if !(0.0..=65535.0).contains(&v) || v.fract() != 0.0 {
-            return Err(bad(format!(
-                "label value {v} at (x {}, y {}) is not a class id",
-                i % w,
-                i / w
-            )));
+            return Err(DataError::Format {
+                path: path.to_path_buf(),
+                message: format!(
+                    "label value {v} at (x {}, y {}) is not a class id",
+                    i % w,
+                    i / w
+                ),
+            });
         }
         ids.push(v as u16);
     }
-    Ok((w, h, ids))
+    Ok((w, array.height, ids))
 }
 
 /// Encodes a 2-D uint8 array (used by the synthetic Freiburg writer).

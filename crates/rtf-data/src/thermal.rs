@@ -15,6 +15,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use crate::images::ThermalSamples;
 use crate::DataError;
 
 /// A linear map from raw counts to a temperature: `t = scale * counts + offset`.
@@ -82,7 +83,7 @@ impl ThermalNormalisation {
                 })
             }
             Self::Range { lo, hi, map } => {
-                let to_unit = |v: u16| match map {
+                let to_unit = |&v: &u16| match map {
                     Some(m) => m.scale * v as f64 + m.offset,
                     None => v as f64,
                 };
@@ -91,25 +92,70 @@ impl ThermalNormalisation {
             Self::MinMax => {
                 let lo = samples.iter().copied().min().unwrap_or(0) as f64;
                 let hi = samples.iter().copied().max().unwrap_or(0) as f64;
-                linear_clip(samples, &lo, &hi, |v| v as f64)
+                linear_clip(samples, &lo, &hi, |&v| v as f64)
             }
             Self::Percentile { lo, hi } => {
                 let (a, b) = percentiles(samples, *lo, *hi);
-                linear_clip(samples, &a, &b, |v| v as f64)
+                linear_clip(samples, &a, &b, |&v| v as f64)
+            }
+        })
+    }
+}
+
+impl ThermalNormalisation {
+    /// Normalises one thermal image as read ([`ThermalSamples`]): counts by [`Self::apply`];
+    /// temperatures (float TIFF or `.npy`) by a range in degrees, min–max or percentiles. A
+    /// float thermal under the 8-bit rule, or a range with a counts → degrees map (the file
+    /// holds degrees already), is an error naming the file.
+    pub fn apply_samples(
+        &self,
+        samples: &ThermalSamples,
+        path: &Path,
+    ) -> Result<Vec<f32>, DataError> {
+        let values = match samples {
+            ThermalSamples::Counts { bits, values } => return self.apply(values, *bits, path),
+            ThermalSamples::Degrees(values) => values,
+        };
+        let bad = |message: &str| DataError::Format {
+            path: path.to_path_buf(),
+            message: message.to_string(),
+        };
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            return Err(bad(&format!(
+                "thermal value {} at sample {i} is not a number",
+                values[i]
+            )));
+        }
+        let degrees = |v: &f32| f64::from(*v);
+        Ok(match self {
+            Self::Byte => return Err(bad("float thermal (temperatures) needs a rule: give `thermal: {range: [lo, hi]}` in its degrees, or `percentile: [1, 99]` / `min_max: true`, in dataset.yaml")),
+            Self::Range { map: Some(_), .. } => return Err(bad("float thermal holds temperatures already: `to_temperature` maps counts, drop it and give the range in the file's degrees")),
+            Self::Range { lo, hi, map: None } => linear_clip(values, lo, hi, degrees),
+            Self::MinMax => {
+                let lo = values.iter().copied().fold(f32::INFINITY, f32::min) as f64;
+                let hi = values.iter().copied().fold(f32::NEG_INFINITY, f32::max) as f64;
+                linear_clip(values, &lo, &hi, degrees)
+            }
+            Self::Percentile { lo, hi } => {
+                let mut sorted = values.clone();
+                sorted.sort_by(f32::total_cmp);
+                let rank = |p: f64| ((p / 100.0) * (sorted.len().max(1) - 1) as f64).round() as usize;
+                let at = |p: f64| sorted.get(rank(p)).map_or(0.0, |&v| v as f64);
+                linear_clip(values, &at(*lo), &at(*hi), degrees)
             }
         })
     }
 }
 
 /// `(f(v) - lo) / (hi - lo)` clipped to [0, 1]; a flat range (hi <= lo) gives 0 everywhere.
-fn linear_clip(samples: &[u16], lo: &f64, hi: &f64, f: impl Fn(u16) -> f64) -> Vec<f32> {
+fn linear_clip<T>(samples: &[T], lo: &f64, hi: &f64, f: impl Fn(&T) -> f64) -> Vec<f32> {
     let span = hi - lo;
     if span <= 0.0 {
         return vec![0.0; samples.len()];
     }
     samples
         .iter()
-        .map(|&v| ((f(v) - lo) / span).clamp(0.0, 1.0) as f32)
+        .map(|v| ((f(v) - lo) / span).clamp(0.0, 1.0) as f32)
         .collect()
 }
 
@@ -204,5 +250,45 @@ mod tests {
         assert_eq!(out[0], 0.0);
         assert_eq!(*out.last().unwrap(), 1.0);
         assert!(out[50] > 0.45 && out[50] < 0.55, "{}", out[50]);
+    }
+
+    #[test]
+    fn temperatures_take_a_range_in_degrees_and_refuse_the_byte_rule_and_a_counts_map() {
+        let temps = ThermalSamples::Degrees(vec![10.0, 25.0, 40.0, 55.0]);
+        let rule = ThermalNormalisation::Range {
+            lo: 10.0,
+            hi: 40.0,
+            map: None,
+        };
+        assert_eq!(
+            rule.apply_samples(&temps, p()).unwrap(),
+            vec![0.0, 0.5, 1.0, 1.0]
+        );
+        let out = ThermalNormalisation::MinMax
+            .apply_samples(&temps, p())
+            .unwrap();
+        assert_eq!(out, vec![0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0]);
+        let err = ThermalNormalisation::Byte
+            .apply_samples(&temps, p())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("t.png") && err.contains("needs a rule"),
+            "{err}"
+        );
+        let mapped = ThermalNormalisation::Range {
+            lo: 10.0,
+            hi: 40.0,
+            map: Some(TemperatureMap {
+                scale: 0.01,
+                offset: -273.15,
+                unit: TemperatureUnit::Celsius,
+            }),
+        };
+        let err = mapped.apply_samples(&temps, p()).unwrap_err().to_string();
+        assert!(err.contains("to_temperature"), "{err}");
+        let nan = ThermalSamples::Degrees(vec![1.0, f32::NAN]);
+        let err = rule.apply_samples(&nan, p()).unwrap_err().to_string();
+        assert!(err.contains("sample 1"), "{err}");
     }
 }

@@ -44,6 +44,44 @@ fn png_8_bit_rgba_grey_and_16_bit_never_panic() {
 }
 
 #[test]
+fn jpeg_rgb_and_thermal_tiff_and_npy_never_panic() {
+    use rtf_data::images::{decode_rgb, decode_thermal};
+    use rtf_data::tiffio::{encode_grey, GreyPlane, TiffCompression};
+    let (w, h) = (24u32, 16u32);
+    let mut jpeg = Vec::new();
+    let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90);
+    let rgb = pattern(3 * (w * h) as usize);
+    image::ImageEncoder::write_image(encoder, &rgb, w, h, image::ExtendedColorType::Rgb8).unwrap();
+    let outcome = check_reader("JPEG RGB", &jpeg, 6, CASES, "x.jpg", |b| {
+        decode_rgb(b, Path::new("x.jpg"))
+    });
+    exercised("JPEG RGB", outcome);
+    let counts: Vec<u16> = (0..w * h).map(|i| 21800 + 13 * i as u16).collect();
+    for (seed, compression) in [
+        (7, TiffCompression::None),
+        (8, TiffCompression::Lzw),
+        (9, TiffCompression::Deflate),
+        (10, TiffCompression::PackBits),
+    ] {
+        let tiff = encode_grey(w, h, GreyPlane::U16(&counts), compression).unwrap();
+        let what = format!("16-bit TIFF {compression:?}");
+        let outcome = check_reader(&what, &tiff, seed, CASES, "x.tiff", |b| {
+            decode_thermal(b, Path::new("x.tiff"))
+        });
+        assert!(
+            outcome.refused > 0,
+            "{what}: no mutation refused: {outcome:?}"
+        );
+    }
+    let temps: Vec<f32> = (0..w * h).map(|i| 20.0 + i as f32 * 0.01).collect();
+    let tiff = encode_grey(w, h, GreyPlane::F32(&temps), TiffCompression::None).unwrap();
+    let outcome = check_reader("float TIFF", &tiff, 11, CASES, "x.tif", |b| {
+        decode_thermal(b, Path::new("x.tif"))
+    });
+    assert!(outcome.refused > 0, "float TIFF: {outcome:?}");
+}
+
+#[test]
 fn npy_labels_and_float_arrays_never_panic() {
     let labels = rtf_data::npy::encode_u8(20, 10, &pattern(200));
     let outcome = check_reader("label .npy", &labels, 4, CASES, "x.npy", |b| {

@@ -2,7 +2,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use rtf_core::ClassSet;
-use rtf_data::pngio::{read_png, PngImage, Samples};
+use rtf_data::images::{self, ThermalSamples};
 use rtf_data::thermal::ThermalNormalisation;
 use rtf_data::{Frame, TrainedOn};
 use rtf_train::config::available_device;
@@ -32,17 +32,19 @@ pub struct Args {
     /// others mf). Refused when the weights record another class set.
     #[arg(long)]
     pub classes: Option<String>,
-    /// RGB image of a pair given as separate files (with --thermal).
+    /// RGB image (PNG or JPEG) of a pair given as separate files (with --thermal).
     #[arg(long, requires = "thermal")]
     pub rgb: Option<PathBuf>,
-    /// Thermal image (8- or 16-bit grey PNG) of a pair given as separate files (with --rgb).
+    /// Thermal image of a pair given as separate files (with --rgb): PNG (8/16-bit), TIFF
+    /// (8/16-bit, 32-bit float) or .npy, as the datasets' readers take them.
     #[arg(long, requires = "rgb")]
     pub thermal: Option<PathBuf>,
-    /// 16-bit thermal: raw counts LO:HI mapped to [0, 1] (clipped). Default: the thermal rule
-    /// the weights record (a dataset.yaml's `thermal:`), else HeatNet models use the Freiburg
-    /// reference 21800:25000 and others each frame's own min:max.
+    /// 16-bit or float thermal: raw counts (or the float file's degrees) LO:HI mapped to
+    /// [0, 1] (clipped). Default: the thermal rule the weights record (a dataset.yaml's
+    /// `thermal:`), else HeatNet models use the Freiburg reference 21800:25000 and others each
+    /// 16-bit frame's own min:max (a float thermal then needs this option).
     #[arg(long, value_parser = parse_range)]
-    pub thermal_range: Option<(u16, u16)>,
+    pub thermal_range: Option<(f64, f64)>,
     #[arg(long, default_value = "cpu")]
     pub device: String,
     /// Run the fast inference path (BatchNorm folded, channels-last) in fp32 or bf16; default:
@@ -94,13 +96,13 @@ fn described_class_set(path: &Path) -> Result<ClassSet> {
     Ok(description.class_set)
 }
 
-fn parse_range(text: &str) -> Result<(u16, u16), String> {
+fn parse_range(text: &str) -> Result<(f64, f64), String> {
     let parsed = text
         .split_once(':')
         .and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)));
     match parsed {
-        Some((lo, hi)) if lo < hi => Ok((lo, hi)),
-        _ => Err(format!("`{text}` is not LO:HI with 0 <= LO < HI <= 65535")),
+        Some((lo, hi)) if f64::is_finite(lo) && f64::is_finite(hi) && lo < hi => Ok((lo, hi)),
+        _ => Err(format!("`{text}` is not LO:HI with LO < HI")),
     }
 }
 
@@ -114,90 +116,56 @@ fn stem(path: &Path) -> String {
 /// with (except byte / 255, which leaves 16-bit files to the default), else the default.
 #[derive(Clone, Copy)]
 enum ThermalRule<'a> {
-    Range(Option<(u16, u16)>),
+    Range(Option<(f64, f64)>),
     Trained(&'a ThermalNormalisation),
 }
 
-/// Reads an RGB PNG and a grey thermal PNG (8- or 16-bit) of the same size into a frame.
+impl ThermalRule<'_> {
+    /// The normalisation of one thermal image: 8-bit counts / 255; 16-bit counts clipped to the
+    /// range (or the frame's min:max); temperatures clipped to the range (none: refused by the
+    /// byte rule, naming the file).
+    fn for_samples(self, samples: &ThermalSamples) -> ThermalNormalisation {
+        let eight_bit = matches!(samples, ThermalSamples::Counts { bits: 8, .. });
+        match self {
+            Self::Trained(rule) => rule.clone(),
+            Self::Range(_) if eight_bit => ThermalNormalisation::Byte,
+            Self::Range(Some((lo, hi))) => ThermalNormalisation::Range { lo, hi, map: None },
+            Self::Range(None) => match samples {
+                ThermalSamples::Counts { .. } => ThermalNormalisation::MinMax,
+                ThermalSamples::Degrees(_) => ThermalNormalisation::Byte,
+            },
+        }
+    }
+}
+
+/// Reads a pair given as separate files into a frame, by the readers the datasets use
+/// (rtf_data::images: RGB PNG or JPEG; thermal PNG, TIFF or .npy, grey stored as RGB read as
+/// grey), so every file `rtf train` and `rtf eval` read, predict reads.
 fn read_pair(rgb_path: &Path, thermal_path: &Path, rule: ThermalRule) -> Result<Frame> {
-    let rgb_png = read_png(rgb_path)?;
-    let rgb = match (&rgb_png.samples, rgb_png.channels, rgb_png.indexed) {
-        (Samples::U8(v), 3, false) => v.clone(),
-        (Samples::U8(v), 4, false) => v.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
-        _ => bail!(
-            "{}: {}-bit with {} channel(s), expected 8-bit RGB",
-            rgb_path.display(),
-            rgb_png.bit_depth(),
-            rgb_png.channels
-        ),
-    };
-    let thermal_png = read_png(thermal_path)?;
-    if (thermal_png.width, thermal_png.height) != (rgb_png.width, rgb_png.height) {
+    let rgb = images::read_rgb(rgb_path)?;
+    let thermal = images::read_thermal(thermal_path)?;
+    if (thermal.width, thermal.height) != (rgb.width, rgb.height) {
         bail!(
             "{} is {}x{} but {} is {}x{}: the pair must be registered at the same size",
             thermal_path.display(),
-            thermal_png.width,
-            thermal_png.height,
+            thermal.width,
+            thermal.height,
             rgb_path.display(),
-            rgb_png.width,
-            rgb_png.height
+            rgb.width,
+            rgb.height
         );
     }
-    let thermal = match rule {
-        ThermalRule::Range(range) => thermal_unit(&thermal_png, thermal_path, range)?,
-        ThermalRule::Trained(rule) => trained_thermal(&thermal_png, thermal_path, rule)?,
-    };
-    let name = stem(rgb_path);
+    let values = rule
+        .for_samples(&thermal.samples)
+        .apply_samples(&thermal.samples, thermal_path)?;
     Ok(Frame {
         daytime: None,
-        name,
-        width: rgb_png.width,
-        height: rgb_png.height,
-        rgb,
-        thermal,
+        name: stem(rgb_path),
+        width: rgb.width,
+        height: rgb.height,
+        rgb: rgb.rgb,
+        thermal: values,
         label: None,
-    })
-}
-
-/// Thermal samples in [0, 1] by the rule the weights were trained with (as the dataset
-/// loader applies it).
-fn trained_thermal(png: &PngImage, path: &Path, rule: &ThermalNormalisation) -> Result<Vec<f32>> {
-    check_grey(png, path)?;
-    let (samples, bits): (Vec<u16>, u8) = match &png.samples {
-        Samples::U8(v) => (v.iter().map(|&x| x as u16).collect(), 8),
-        Samples::U16(v) => (v.clone(), 16),
-    };
-    Ok(rule.apply(&samples, bits, path)?)
-}
-
-fn check_grey(png: &PngImage, path: &Path) -> Result<()> {
-    if png.channels != 1 || png.indexed {
-        bail!(
-            "{}: {} channel(s), expected a single grey thermal channel",
-            path.display(),
-            png.channels
-        );
-    }
-    Ok(())
-}
-
-/// Thermal samples in [0, 1]: 8-bit / 255; 16-bit clipped to `range` (or the frame's min:max).
-fn thermal_unit(png: &PngImage, path: &Path, range: Option<(u16, u16)>) -> Result<Vec<f32>> {
-    check_grey(png, path)?;
-    Ok(match &png.samples {
-        Samples::U8(v) => v.iter().map(|&x| x as f32 / 255.0).collect(),
-        Samples::U16(v) => {
-            let (lo, hi) = range.unwrap_or_else(|| {
-                (
-                    v.iter().copied().min().unwrap_or(0),
-                    v.iter().copied().max().unwrap_or(1),
-                )
-            });
-            let span = (hi.saturating_sub(lo)).max(1) as f32;
-            v.iter()
-                .map(|&x| (x.clamp(lo, hi) - lo) as f32 / span)
-                .collect()
-        }
     })
 }
 
@@ -653,7 +621,10 @@ fn thermal_rule<'a>(args: &Args, trained: Option<&'a TrainedOn>) -> ThermalRule<
             ThermalRule::Trained(rule)
         }
         (range, _) => ThermalRule::Range(
-            range.or(args.model.starts_with("heatnet").then_some((21800, 25000))),
+            range.or(args
+                .model
+                .starts_with("heatnet")
+                .then_some((21800.0, 25000.0))),
         ),
     }
 }
@@ -671,22 +642,32 @@ mod tests {
 
     #[test]
     fn thermal_ranges() {
-        assert_eq!(parse_range("21800:25000"), Ok((21800, 25000)));
+        assert_eq!(parse_range("21800:25000"), Ok((21800.0, 25000.0)));
+        assert_eq!(parse_range("-5:40.5"), Ok((-5.0, 40.5)));
         assert!(parse_range("5:5").is_err());
-        let png = PngImage {
-            width: 3,
-            height: 1,
-            channels: 1,
-            indexed: false,
-            samples: Samples::U16(vec![100, 200, 300]),
+        let counts = ThermalSamples::Counts {
+            bits: 16,
+            values: vec![100, 200, 300],
         };
+        let unit = |rule: ThermalRule| {
+            rule.for_samples(&counts)
+                .apply_samples(&counts, Path::new("t.png"))
+                .unwrap()
+        };
+        assert_eq!(unit(ThermalRule::Range(None)), vec![0.0, 0.5, 1.0]);
         assert_eq!(
-            thermal_unit(&png, Path::new("t.png"), None).unwrap(),
-            vec![0.0, 0.5, 1.0]
-        );
-        assert_eq!(
-            thermal_unit(&png, Path::new("t.png"), Some((200, 250))).unwrap(),
+            unit(ThermalRule::Range(Some((200.0, 250.0)))),
             vec![0.0, 0.0, 1.0]
+        );
+        let degrees = ThermalSamples::Degrees(vec![20.0, 30.0]);
+        let err = ThermalRule::Range(None)
+            .for_samples(&degrees)
+            .apply_samples(&degrees, Path::new("t.tiff"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("t.tiff") && err.contains("needs a rule"),
+            "{err}"
         );
     }
 }

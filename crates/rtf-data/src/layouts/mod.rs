@@ -20,6 +20,7 @@ use crate::description::{
     read_description, DatasetDescription, FilePattern, LabelEncoding, LayoutKind, NightRule,
     SplitSpec, DESCRIPTION_FILE,
 };
+use crate::images::Format;
 use crate::thermal::ThermalNormalisation;
 use crate::DataError;
 
@@ -85,9 +86,11 @@ impl Folders {
         let labels = dir.join(self.labels);
         SplitSpec {
             name: name.to_string(),
-            rgb: FilePattern::folder(dir.join(self.rgb)),
-            thermal: FilePattern::folder(dir.join(self.thermal)),
-            labels: labels.is_dir().then(|| FilePattern::folder(labels)),
+            rgb: FilePattern::folder(dir.join(self.rgb), Format::RGB),
+            thermal: FilePattern::folder(dir.join(self.thermal), Format::THERMAL),
+            labels: labels
+                .is_dir()
+                .then(|| FilePattern::folder(labels, Format::LABEL)),
             list: None,
         }
     }
