@@ -1,6 +1,6 @@
 //! Thermal TIFFs as radiometric cameras export them (FLIR Boson/Tau tools, most RGB-T
 //! releases): one grey channel of 8- or 16-bit counts or 32-bit float temperatures,
-//! uncompressed, LZW, deflate or PackBits, in strips or tiles. Grey stored as RGB(A) with equal
+//! uncompressed, LZW, deflate or PackBits. Grey stored as RGB(A) with equal
 //! channels is read as grey. Anything else — 12-bit packed samples, signed or 64-bit samples,
 //! separate colour planes, JPEG-in-TIFF — is refused naming the file and what it is.
 
