@@ -4,6 +4,7 @@ mod allocator;
 mod bf16_probe;
 mod bf16_warning;
 mod cmd;
+mod output_guard;
 
 use clap::{Parser, Subcommand};
 

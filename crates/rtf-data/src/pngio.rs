@@ -230,12 +230,54 @@ pub fn encode_png_u16(
     encode(width, height, channels, png::BitDepth::Sixteen, &bytes)
 }
 
+/// The `Software` text of the PNGs rtf writes as outputs (predictions): how a later run tells
+/// its own files from a dataset's before replacing one.
+pub const RTF_SOFTWARE: &str = "rtf";
+
+/// [`encode_png_u8`] with a `Software: rtf <version>` text chunk ([`written_by_rtf`]).
+pub fn encode_png_u8_tagged(
+    width: usize,
+    height: usize,
+    channels: usize,
+    data: &[u8],
+) -> Result<Vec<u8>, String> {
+    let software = format!("{RTF_SOFTWARE} {}", env!("CARGO_PKG_VERSION"));
+    encode_with(width, height, channels, png::BitDepth::Eight, data, Some(&software))
+}
+
+/// Whether the PNG at `path` carries rtf's `Software` text (header and text chunks only).
+pub fn written_by_rtf(path: &Path) -> bool {
+    let Ok(file) = std::fs::File::open(path) else {
+        return false;
+    };
+    let decoder = png::Decoder::new(std::io::BufReader::new(file));
+    let Ok(reader) = decoder.read_info() else {
+        return false;
+    };
+    let info = reader.info();
+    let ours = |key: &str, text: &str| key == "Software" && text.split(' ').next() == Some(RTF_SOFTWARE);
+    info.uncompressed_latin1_text
+        .iter()
+        .any(|t| ours(&t.keyword, &t.text))
+}
+
 fn encode(
     width: usize,
     height: usize,
     channels: usize,
     depth: png::BitDepth,
     data: &[u8],
+) -> Result<Vec<u8>, String> {
+    encode_with(width, height, channels, depth, data, None)
+}
+
+fn encode_with(
+    width: usize,
+    height: usize,
+    channels: usize,
+    depth: png::BitDepth,
+    data: &[u8],
+    software: Option<&str>,
 ) -> Result<Vec<u8>, String> {
     let color = match channels {
         1 => png::ColorType::Grayscale,
@@ -249,6 +291,10 @@ fn encode(
     enc.set_color(color);
     enc.set_depth(depth);
     enc.set_compression(png::Compression::Fast);
+    if let Some(software) = software {
+        enc.add_text_chunk("Software".into(), software.into())
+            .map_err(|e| e.to_string())?;
+    }
     let mut writer = enc.write_header().map_err(|e| e.to_string())?;
     writer.write_image_data(data).map_err(|e| e.to_string())?;
     writer.finish().map_err(|e| e.to_string())?;
@@ -292,6 +338,17 @@ pub fn write_png_u16(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tagged_pngs_are_told_from_others() {
+        let dir = tempfile::tempdir().unwrap();
+        let (ours, theirs) = (dir.path().join("a.png"), dir.path().join("b.png"));
+        std::fs::write(&ours, encode_png_u8_tagged(2, 1, 1, &[1, 2]).unwrap()).unwrap();
+        std::fs::write(&theirs, encode_png_u8(2, 1, 1, &[1, 2]).unwrap()).unwrap();
+        assert!(written_by_rtf(&ours) && !written_by_rtf(&theirs));
+        assert_eq!(decode_png(&std::fs::read(&ours).unwrap(), &ours).unwrap().samples, Samples::U8(vec![1, 2]));
+        assert!(!written_by_rtf(&dir.path().join("missing.png")));
+    }
 
     #[test]
     fn round_trips_8_and_16_bit() {

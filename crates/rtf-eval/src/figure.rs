@@ -305,14 +305,18 @@ pub fn rows_for(
         .collect()
 }
 
-/// Writes the grid as PNG, atomically.
-pub fn save_png(
-    image: &RgbImage,
-    path: &Path,
-) -> Result<(), rtf_core::AtomicWriteError<image::ImageError>> {
-    rtf_core::write_atomic(path, |tmp| {
-        image.save_with_format(tmp, image::ImageFormat::Png)
-    })
+/// Writes the grid as PNG, atomically, tagged as rtf's output (a later run replaces it
+/// without --overwrite).
+pub fn save_png(image: &RgbImage, path: &Path) -> Result<(), rtf_data::DataError> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let bytes = rtf_data::pngio::encode_png_u8_tagged(w, h, 3, image.as_raw()).map_err(|message| {
+        rtf_data::DataError::Write {
+            path: path.to_path_buf(),
+            message,
+        }
+    })?;
+    rtf_core::write_bytes_atomic(path, &bytes)?;
+    Ok(())
 }
 
 #[cfg(test)]

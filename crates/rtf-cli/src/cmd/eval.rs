@@ -10,6 +10,7 @@ use rtf_train::config::available_device;
 use serde::Serialize;
 
 use super::{load_network, parse_size};
+use crate::output_guard::OutputGuard;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -35,6 +36,10 @@ pub struct Args {
     /// column titles and a class legend.
     #[arg(long)]
     pub figure: Option<PathBuf>,
+    /// Replace an existing --json or --figure file that rtf did not write, or a file of the
+    /// dataset evaluated (without it such a path stops the run before anything is computed).
+    #[arg(long)]
+    pub overwrite: bool,
     /// Frames in the --figure grid (half day, half night where the split has both).
     #[arg(long, default_value_t = 4)]
     pub figure_frames: usize,
@@ -187,6 +192,14 @@ pub(crate) fn open_split(
 }
 
 pub fn run(args: Args) -> Result<()> {
+    let guard = OutputGuard::new(args.overwrite)
+        .reading([args.weights.as_path()])
+        .dataset(&args.data);
+    for (path, what) in [(&args.json, "eval --json"), (&args.figure, "eval --figure")] {
+        if let Some(path) = path {
+            guard.check(path, what)?;
+        }
+    }
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let (split, format) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();

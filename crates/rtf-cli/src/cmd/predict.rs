@@ -11,6 +11,7 @@ use tch::Kind;
 use rtf_models::Network;
 
 use super::load_network;
+use crate::output_guard::OutputGuard;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -59,6 +60,11 @@ pub struct Args {
     /// names and shapes must still match.
     #[arg(long)]
     pub foreign_weights: bool,
+    /// Replace existing files that rtf did not write (or files of the dataset given with
+    /// --classes). Without it such a file stops the run before anything is written; rtf's own
+    /// outputs (a previous prediction) are replaced either way, inputs never.
+    #[arg(long)]
+    pub overwrite: bool,
     /// Skip a frame whose outputs all exist already (a stopped run re-run: outputs are only
     /// ever complete under their final names).
     #[arg(long)]
@@ -256,14 +262,9 @@ fn plan_outputs(
     sources: &[PathBuf],
     inputs: &[&Path],
     logits: bool,
+    guard: &OutputGuard,
 ) -> Result<Vec<Planned>> {
     check_inputs(out, inputs)?;
-    // Inputs by canonical path; an output folder that does not exist yet holds none of them.
-    let canonical_inputs: std::collections::HashMap<PathBuf, &Path> = inputs
-        .iter()
-        .filter_map(|p| p.canonicalize().ok().map(|c| (c, *p)))
-        .collect();
-    let canonical_out = out.canonicalize().ok();
     let mut writer: std::collections::HashMap<PathBuf, &Path> = Default::default();
     let mut planned = Vec::with_capacity(sources.len());
     for source in sources {
@@ -290,17 +291,7 @@ fn plan_outputs(
                     path.display()
                 );
             }
-            let overwritten = canonical_out
-                .as_ref()
-                .and_then(|dir| canonical_inputs.get(&dir.join(name)));
-            if let Some(input) = overwritten {
-                bail!(
-                    "{} would overwrite the input {}: choose another --out (nothing was \
-                     written)",
-                    path.display(),
-                    input.display()
-                );
-            }
+            guard.check(&path, "predict")?;
         }
         let [ids, color, npy] = names.map(|n| out.join(n));
         planned.push(Planned {
@@ -385,7 +376,16 @@ pub fn run(args: Args) -> Result<()> {
     inputs.extend(args.rgb.as_deref());
     inputs.extend(args.thermal.as_deref());
     inputs.push(&args.weights);
-    let planned = plan_outputs(&args.out, &sources, &inputs, args.logits)?;
+    let mut guard = OutputGuard::new(args.overwrite).reading(inputs.iter().copied());
+    if let Some(root) = args
+        .classes
+        .as_deref()
+        .map(Path::new)
+        .filter(|p| p.is_dir())
+    {
+        guard = guard.dataset(root);
+    }
+    let planned = plan_outputs(&args.out, &sources, &inputs, args.logits, &guard)?;
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let trained = super::trained_on(&args.weights)?;
     let classes = class_set(&args, trained.as_ref())?;
@@ -495,10 +495,8 @@ fn predict_frame(
     let ids = Vec::<u8>::try_from(logits.argmax(0, false).to_kind(Kind::Uint8).flatten(0, -1))?;
     let (w, h) = (frame.width as u32, frame.height as u32);
     let colors = classes.colorize(&ids);
-    let grey = image::GrayImage::from_raw(w, h, ids).context("class ids of the frame's size")?;
-    save_png(&plan.ids, image::DynamicImage::ImageLuma8(grey))?;
-    let rgb = image::RgbImage::from_raw(w, h, colors).context("colours of the frame's size")?;
-    save_png(&plan.color, image::DynamicImage::ImageRgb8(rgb))?;
+    save_png(&plan.ids, w, h, 1, &ids)?;
+    save_png(&plan.color, w, h, 3, &colors)?;
     if let Some(npy) = &plan.logits {
         let shape: Vec<usize> = logits.size().iter().map(|&d| d as usize).collect();
         let values = Vec::<f32>::try_from(logits.flatten(0, -1))?;
@@ -629,11 +627,14 @@ fn thermal_rule<'a>(args: &Args, trained: Option<&'a TrainedOn>) -> ThermalRule<
     }
 }
 
-fn save_png(path: &Path, image: image::DynamicImage) -> Result<()> {
-    rtf_core::write_atomic(path, |tmp| {
-        image.save_with_format(tmp, image::ImageFormat::Png)
-    })
-    .with_context(|| format!("writing {}", path.display()))
+/// Writes an 8-bit PNG tagged as rtf's output (what a later run may replace without
+/// --overwrite: crate::output_guard).
+fn save_png(path: &Path, width: u32, height: u32, channels: usize, samples: &[u8]) -> Result<()> {
+    let bytes =
+        rtf_data::pngio::encode_png_u8_tagged(width as usize, height as usize, channels, samples)
+            .map_err(anyhow::Error::msg)?;
+    rtf_core::write_bytes_atomic(path, &bytes)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]

@@ -202,6 +202,9 @@ pub fn run(args: Args) -> Result<()> {
         }
         None => {
             let out = args.out.clone().context("--out is required")?;
+            if let Some(data) = &args.data {
+                crate::output_guard::check_run_folder(&out, data)?;
+            }
             let cfg = new_run(&args)?;
             (cfg, out, false)
         }

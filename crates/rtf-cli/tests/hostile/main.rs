@@ -28,6 +28,7 @@ mod launcher;
 
 mod calib;
 mod ddp;
+mod distributed;
 mod export;
 mod inputs;
 mod modality;
@@ -78,7 +79,7 @@ fn fixture(t: &std::path::Path) -> Fixture {
 fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
     let tmp = tempfile::tempdir().unwrap();
     let f = fixture(tmp.path());
-    let surfaces: [(&str, fn(&Fixture) -> Vec<Case>); 13] = [
+    let surfaces: [(&str, fn(&Fixture) -> Vec<Case>); 14] = [
         ("inputs", inputs::predict_images),
         ("inputs", inputs::predict_outputs),
         ("inputs", inputs::weights),
@@ -91,6 +92,7 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         ("modality", modality::cases),
         ("ddp", ddp::cases),
         ("owndata", owndata::cases),
+        ("distributed", distributed::cases),
         ("calib", calib::cases),
     ];
     // RTF_HOSTILE_ONLY=recipes,report runs those modules alone (while working on them);
