@@ -1,4 +1,4 @@
-//! rtf-models: the networks of MFNet, RTFNet and HeatNet on tch, with the reference
+//! rtf-models: the networks of MFNet, RTFNet, HeatNet and CMX on tch, with the reference
 //! implementations' parameter names, and their weights in and out as safetensors.
 //!
 //! Every network takes `[B, 4, H, W]` = R, G, B, T already scaled by its
@@ -10,6 +10,7 @@ pub mod aten;
 pub mod backbone;
 pub mod baselines;
 pub mod bn_defaults;
+pub mod cmx;
 pub mod error;
 pub mod fast;
 pub mod heatnet;
@@ -84,6 +85,7 @@ pub enum ModelConfig {
     Rtfnet(rtfnet::Config),
     Heatnet(heatnet::Config),
     Baseline(baselines::Config),
+    Cmx(cmx::Config),
 }
 
 impl ModelConfig {
@@ -103,6 +105,10 @@ impl ModelConfig {
                 let (arch, c) = parse_baseline(name).unwrap();
                 Self::Baseline(baselines::Config::new(arch, c, num_classes))
             }
+            _ if cmx::Size::from_name(name).is_some() => Self::Cmx(cmx::Config::new(
+                cmx::Size::from_name(name).unwrap(),
+                num_classes,
+            )),
             _ if parse_rtfnet(name).is_some() => {
                 let (depth, variant) = parse_rtfnet(name).unwrap();
                 Self::Rtfnet(rtfnet::Config::new(depth, num_classes, variant))
@@ -124,6 +130,7 @@ impl ModelConfig {
             Self::Rtfnet(c) => c.name(),
             Self::Heatnet(c) => c.name(),
             Self::Baseline(c) => c.name(),
+            Self::Cmx(c) => c.name(),
         }
     }
 
@@ -133,6 +140,7 @@ impl ModelConfig {
             Self::Rtfnet(c) => c.num_classes,
             Self::Heatnet(c) => c.num_classes,
             Self::Baseline(c) => c.num_classes,
+            Self::Cmx(c) => c.num_classes,
         }
     }
 
@@ -144,6 +152,7 @@ impl ModelConfig {
             Self::Rtfnet(c) => c.num_classes = num_classes,
             Self::Heatnet(c) => c.num_classes = num_classes,
             Self::Baseline(c) => c.num_classes = num_classes,
+            Self::Cmx(c) => c.num_classes = num_classes,
         }
         cfg
     }
@@ -154,6 +163,7 @@ impl ModelConfig {
             Self::Rtfnet(c) => c.input,
             Self::Heatnet(c) => c.input,
             Self::Baseline(c) => c.input,
+            Self::Cmx(c) => c.input(),
         }
     }
 }
@@ -165,6 +175,7 @@ pub fn build(p: &nn::Path, cfg: &ModelConfig) -> Result<Box<dyn Network>, ModelE
         ModelConfig::Rtfnet(c) => Box::new(rtfnet::RtfNet::new(p.clone(), c)?),
         ModelConfig::Heatnet(c) => Box::new(heatnet::HeatNet::new(p.clone(), c)?),
         ModelConfig::Baseline(c) => Box::new(baselines::Baseline::new(p.clone(), c)?),
+        ModelConfig::Cmx(c) => Box::new(cmx::Cmx::new(p.clone(), c)?),
     })
 }
 
@@ -241,6 +252,7 @@ pub fn model_names() -> Vec<String> {
             names.push(baselines::Config::new(arch, c, 9).name());
         }
     }
+    names.extend(cmx::Size::ALL.map(|size| cmx::Config::new(size, 9).name()));
     names
 }
 
@@ -313,11 +325,14 @@ mod tests {
         let cfg: ModelConfig =
             serde_json::from_str(r#"{"network": "mfnet", "num_classes": 4}"#).unwrap();
         assert_eq!(cfg, ModelConfig::from_name("mfnet", 4).unwrap());
+        let cfg: ModelConfig =
+            serde_json::from_str(r#"{"network": "cmx", "size": "b2", "num_classes": 4}"#).unwrap();
+        assert_eq!(cfg, ModelConfig::from_name("cmx-mit-b2", 4).unwrap());
     }
 
     #[test]
     fn counting_without_init_matches_a_real_build() {
-        for name in ["mfnet", "rtfnet18-nub", "heatnet"] {
+        for name in ["mfnet", "rtfnet18-nub", "heatnet", "cmx-mit-b0"] {
             let cfg = ModelConfig::from_name(name, default_num_classes(name)).unwrap();
             let vs = VarStore::new(Device::Cpu);
             build(&vs.root(), &cfg).unwrap();
@@ -339,6 +354,9 @@ mod tests {
         assert_eq!(params("rtfnet152"), 254_510_053);
         assert_eq!(params("heatnet"), 54_361_040);
         assert_eq!(params("heatnet-critic"), 2_774_977);
+        // The official CMX network (cmx.rs tests).
+        assert_eq!(params("cmx-mit-b2"), 66_565_521);
+        assert_eq!(params("cmx-mit-b5"), 181_058_961);
         let mf = infos.iter().find(|i| i.name == "mfnet").unwrap();
         assert!((mf.megabytes - 736_275.0 * 4.0 / 1048576.0).abs() < 1e-9);
         // Counting does not leave zero-initialised builds behind.

@@ -1,0 +1,1049 @@
+//! CMX (Zhang et al., "CMX: Cross-Modal Fusion for RGB-X Semantic Segmentation with
+//! Transformers", IEEE T-ITS 2023) with SegFormer MiT-B0…B5 dual encoders and the MLP decoder,
+//! as the official code builds it for MF (github.com/huaaaliu/RGBX_Semantic_Segmentation:
+//! `models/builder.py`, `models/encoders/dual_segformer.py`, `models/net_utils.py`,
+//! `models/decoders/MLPDecoder.py`), under its state_dict names.
+//!
+//! Two MiT encoders, RGB (`backbone.patch_embedN`, `backbone.blockN.i`, `backbone.normN`) and
+//! thermal (the same under `backbone.extra_`), of four stages: an overlapping patch embedding
+//! (strided convolution, LayerNorm), transformer blocks (efficient self-attention, whose keys
+//! and values come from the map reduced by a stride-`sr` convolution and LayerNorm; Mix-FFN
+//! with a depth-wise 3×3 convolution and GELU), LayerNorm. After every stage the Feature
+//! Rectify Module (`backbone.FRMs.i`) adds to each stream the other one weighted by channel and
+//! spatial weights, and the rectified maps go on to the next stage; the Feature Fusion Module
+//! (`backbone.FFMs.i`: cross-attention paths over the tokens, then a channel embedding with
+//! BatchNorm) merges them into the stage's output. The MLP decoder (`decode_head`, width 512)
+//! projects the four outputs, upsamples them to 1/4, fuses them (1×1 conv, BatchNorm, ReLU) and
+//! classifies; the logits are upsampled bilinearly (align_corners false) to the input size.
+//!
+//! Input: rtf's `[B, 4, H, W]` (R, G, B, T in [0, 1]:
+//! [`UnitRange`](rtf_core::InputConvention::UnitRange)). The network's first step is the
+//! official pipeline's preprocessing, so the data pipeline stays in unit range: the colour
+//! planes in B, G, R order (the official loader reads images with `cv2.imread(path, 4)`, which
+//! keeps OpenCV's BGR order; [`ColorOrder::Rgb`] feeds R, G, B instead), normalised with the
+//! ImageNet mean (0.485, 0.456, 0.406) and std (0.229, 0.224, 0.225) per channel; the thermal
+//! plane replicated to 3 channels and normalised the same way.
+//!
+//! Where this differs from the official code:
+//! - `cmx-mit-b1` is SegFormer's B1 (embed dims 64, 128, 320, 512; depths 2, 2, 2, 2): the
+//!   official builder's `mit_b1` branch builds B0's encoder with B1's channel list for the
+//!   decoder, a network that cannot run. `cmx-mit-b3` is the official `mit_b3` encoder, which
+//!   the official builder never builds (an unknown backbone name falls through to B2).
+//! - BatchNorm eps is PyTorch's 1e-5 everywhere, as the official evaluation builds the network;
+//!   the official training sets the decoder's to 1e-3 (`config.bn_eps`).
+//!
+//! Training mode has the official stochastic depth ([`drop_path_rates`]) and Dropout2d(0.1)
+//! before the classifier. Fresh weights follow the official init: encoder and fusion modules'
+//! linear layers N(0, 0.02) (timm's `trunc_normal_`, whose ±2 bounds lie 100σ out), their
+//! convolutions N(0, √(2 / fan_out)) with fan_out = k²·c_out / groups, biases 0; the decoder's
+//! convolutions Kaiming-normal (fan-in) and its linear layers PyTorch's default.
+
+use serde::{Deserialize, Serialize};
+use tch::nn::{self, Module, ModuleT};
+use tch::{Kind, Tensor};
+
+use crate::error::ModelError;
+use crate::layers::{bn2d, new_var, Act, BatchNorm, ConvBnAct, ConvSpec, WeightInit};
+use crate::Network;
+
+/// Attention heads per stage (self-attention and the fusion's cross-attention).
+const HEADS: [i64; 4] = [1, 2, 5, 8];
+/// Spatial reduction of the keys and values per stage.
+const SR_RATIOS: [i64; 4] = [8, 4, 2, 1];
+const MLP_RATIO: i64 = 4;
+/// LayerNorm eps of the transformer blocks and the stage norms.
+const BLOCK_LN_EPS: f64 = 1e-6;
+/// LayerNorm eps of the patch embeddings, the attention's reduction and the cross paths.
+const LN_EPS: f64 = 1e-5;
+/// Stochastic-depth rate of the last block.
+const DROP_PATH_RATE: f64 = 0.1;
+/// Weight of the other stream in the Feature Rectify Module (λ_C = λ_S).
+const RECTIFY_LAMBDA: f64 = 0.5;
+/// Decoder width (`config.decoder_embed_dim`) and its dropout before the classifier.
+pub const DECODER_DIM: i64 = 512;
+const DECODER_DROPOUT: f64 = 0.1;
+const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
+
+/// SegFormer's Mix Transformer sizes.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Size {
+    B0,
+    B1,
+    B2,
+    B3,
+    B4,
+    B5,
+}
+
+/// Embed dims and blocks per stage of one MiT encoder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Layout {
+    pub dims: [i64; 4],
+    pub depths: [i64; 4],
+}
+
+impl Size {
+    pub const ALL: [Size; 6] = [Size::B0, Size::B1, Size::B2, Size::B3, Size::B4, Size::B5];
+
+    /// `b0` … `b5`.
+    pub fn suffix(self) -> &'static str {
+        match self {
+            Size::B0 => "b0",
+            Size::B1 => "b1",
+            Size::B2 => "b2",
+            Size::B3 => "b3",
+            Size::B4 => "b4",
+            Size::B5 => "b5",
+        }
+    }
+
+    pub fn layout(self) -> Layout {
+        let wide = [64, 128, 320, 512];
+        let (dims, depths) = match self {
+            Size::B0 => ([32, 64, 160, 256], [2, 2, 2, 2]),
+            Size::B1 => (wide, [2, 2, 2, 2]),
+            Size::B2 => (wide, [3, 4, 6, 3]),
+            Size::B3 => (wide, [3, 4, 18, 3]),
+            Size::B4 => (wide, [3, 8, 27, 3]),
+            Size::B5 => (wide, [3, 6, 40, 3]),
+        };
+        Layout { dims, depths }
+    }
+
+    /// `cmx-mit-b2` -> B2.
+    pub fn from_name(name: &str) -> Option<Size> {
+        let suffix = name.strip_prefix("cmx-mit-")?;
+        Size::ALL.into_iter().find(|s| s.suffix() == suffix)
+    }
+}
+
+/// Order of the colour planes the encoder sees.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ColorOrder {
+    /// B, G, R: what the official code trains and evaluates on (OpenCV's order), so what its
+    /// checkpoints expect.
+    #[default]
+    Bgr,
+    /// R, G, B (SegFormer's ImageNet pretraining order).
+    Rgb,
+}
+
+/// CMX's options; `{"network": "cmx", "size": "b2", "num_classes": 9}` in a model config.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// The MiT size of both encoders.
+    pub size: Size,
+    /// Width of the classifier (`decode_head.linear_pred`).
+    pub num_classes: i64,
+    /// Default B, G, R: the official checkpoints' order.
+    #[serde(default)]
+    pub color_order: ColorOrder,
+}
+
+impl Config {
+    pub fn new(size: Size, num_classes: i64) -> Self {
+        Self {
+            size,
+            num_classes,
+            color_order: ColorOrder::Bgr,
+        }
+    }
+
+    /// `cmx-mit-b0` … `cmx-mit-b5`.
+    pub fn name(&self) -> String {
+        format!("cmx-mit-{}", self.size.suffix())
+    }
+
+    /// Always unit range: the ImageNet normalisation is the network's own first step.
+    pub fn input(&self) -> rtf_core::InputConvention {
+        rtf_core::InputConvention::UnitRange
+    }
+
+    pub fn validate(&self) -> Result<(), ModelError> {
+        if self.num_classes < 1 {
+            return Err(ModelError::InvalidConfig {
+                network: self.name(),
+                reason: format!("num_classes must be ≥ 1, got {}", self.num_classes),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The official stochastic-depth rates of one stream's blocks in `stage` (0-based):
+/// `linspace(0, 0.1, Σ depths)` over the blocks in order, except that stage 2 gives all its RGB
+/// blocks the stage's first rate and all its thermal blocks the second (`dpr[cur]` and
+/// `dpr[cur + 1]` in the official code). Empty for a stage past the fourth.
+pub fn drop_path_rates(depths: [i64; 4], stage: usize, thermal: bool) -> Vec<f64> {
+    let Some(&blocks) = depths.get(stage) else {
+        return Vec::new();
+    };
+    let total: i64 = depths.iter().sum();
+    let rate = |i: i64| DROP_PATH_RATE * i as f64 / (total - 1).max(1) as f64;
+    let first: i64 = depths[..stage].iter().sum();
+    (0..blocks)
+        .map(|j| match (stage, thermal) {
+            (1, false) => rate(first),
+            (1, true) => rate(first + 1),
+            _ => rate(first + j),
+        })
+        .collect()
+}
+
+/// [B, C, H, W] -> [B, H·W, C]
+fn tokens(xs: &Tensor) -> Tensor {
+    xs.flatten(2, 3).transpose(1, 2)
+}
+
+/// [B, H·W, C] -> [B, C, H, W]
+fn feature_map(xs: &Tensor, h: i64, w: i64) -> Tensor {
+    let size = xs.size();
+    xs.transpose(1, 2).reshape([size[0], size[2], h, w])
+}
+
+fn bilinear(xs: &Tensor, h: i64, w: i64) -> Tensor {
+    xs.upsample_bilinear2d([h, w], false, None, None)
+}
+
+/// Stochastic depth on a residual branch [B, N, C]: in training each sample's branch is dropped
+/// with probability `rate`, the kept ones scaled by 1 / (1 − rate) (timm's `DropPath`).
+fn drop_path(xs: Tensor, rate: f64, train: bool) -> Tensor {
+    if !train || rate <= 0.0 {
+        return xs;
+    }
+    let keep = 1.0 - rate;
+    let mut mask = Tensor::empty([xs.size()[0], 1, 1], (xs.kind(), xs.device()));
+    let _ = mask.bernoulli_float_(keep);
+    xs * (mask / keep)
+}
+
+/// `nn.Linear` over the last dimension: [.., c_in] -> [.., c_out].
+#[derive(Debug)]
+struct Linear {
+    weight: Tensor,
+    bias: Option<Tensor>,
+}
+
+/// How a fresh linear layer is drawn.
+#[derive(Clone, Copy)]
+enum LinearInit {
+    /// Encoder and fusion modules: N(0, 0.02), bias 0.
+    Normal002,
+    /// PyTorch's default (the decoder): weight and bias U(±1/√c_in).
+    TorchDefault,
+}
+
+fn linear(p: nn::Path, c_in: i64, c_out: i64, bias: bool, init: LinearInit) -> Linear {
+    let bound = 1.0 / (c_in as f64).sqrt();
+    let uniform = nn::Init::Uniform {
+        lo: -bound,
+        up: bound,
+    };
+    let (weight_init, bias_init) = match init {
+        LinearInit::Normal002 => (
+            nn::Init::Randn {
+                mean: 0.0,
+                stdev: 0.02,
+            },
+            nn::Init::Const(0.0),
+        ),
+        LinearInit::TorchDefault => (uniform, uniform),
+    };
+    Linear {
+        weight: new_var(&p, "weight", &[c_out, c_in], weight_init),
+        bias: bias.then(|| new_var(&p, "bias", &[c_out], bias_init)),
+    }
+}
+
+impl Module for Linear {
+    fn forward(&self, xs: &Tensor) -> Tensor {
+        xs.linear(&self.weight, self.bias.as_ref())
+    }
+}
+
+/// `nn.LayerNorm` over the last dimension (weight 1, bias 0 when fresh).
+#[derive(Debug)]
+struct LayerNorm {
+    weight: Tensor,
+    bias: Tensor,
+    eps: f64,
+}
+
+fn layer_norm(p: nn::Path, dim: i64, eps: f64) -> LayerNorm {
+    LayerNorm {
+        weight: new_var(&p, "weight", &[dim], nn::Init::Const(1.0)),
+        bias: new_var(&p, "bias", &[dim], nn::Init::Const(0.0)),
+        eps,
+    }
+}
+
+impl Module for LayerNorm {
+    fn forward(&self, xs: &Tensor) -> Tensor {
+        let dim = self.weight.size()[0];
+        xs.layer_norm([dim], Some(&self.weight), Some(&self.bias), self.eps, true)
+    }
+}
+
+/// A convolution with bias (+ BatchNorm under `bn`) drawn as the official encoder and fusion
+/// modules draw it: N(0, √(2 / fan_out)), fan_out = k²·c_out / groups, bias 0.
+fn encoder_conv(
+    p: nn::Path,
+    bn: Option<nn::Path>,
+    c_in: i64,
+    c_out: i64,
+    spec: ConvSpec,
+    act: Act,
+) -> ConvBnAct {
+    let fan_out = (spec.kernel * spec.kernel * c_out / spec.groups) as f64;
+    let spec = spec.init(WeightInit::Normal((2.0 / fan_out).sqrt()));
+    let unit = ConvBnAct::new(p.clone(), bn, c_in, c_out, spec, act);
+    if let Some(mut bias) = p.get("bias") {
+        tch::no_grad(|| {
+            let _ = bias.zero_();
+        });
+    }
+    unit
+}
+
+/// 3×3 depth-wise convolution with bias.
+fn depthwise3x3(c: i64) -> ConvSpec {
+    ConvSpec {
+        groups: c,
+        ..ConvSpec::new(3).bias(true)
+    }
+}
+
+/// Overlapping patch embedding (`patch_embedN`): strided k×k convolution, LayerNorm on tokens.
+#[derive(Debug)]
+struct PatchEmbed {
+    proj: ConvBnAct,
+    norm: LayerNorm,
+}
+
+fn patch_embed(p: nn::Path, c_in: i64, dim: i64, kernel: i64, stride: i64) -> PatchEmbed {
+    let spec = ConvSpec::new(kernel).stride(stride).bias(true);
+    PatchEmbed {
+        proj: encoder_conv(&p / "proj", None, c_in, dim, spec, Act::Identity),
+        norm: layer_norm(&p / "norm", dim, LN_EPS),
+    }
+}
+
+impl PatchEmbed {
+    /// [B, c_in, H, W] -> ([B, h·w, dim], h, w) with h, w = H, W / stride
+    fn forward(&self, xs: &Tensor, train: bool) -> (Tensor, i64, i64) {
+        let ys = xs.apply_t(&self.proj, train);
+        let (h, w) = (ys.size()[2], ys.size()[3]);
+        (tokens(&ys).apply(&self.norm), h, w)
+    }
+}
+
+/// Efficient self-attention (`attn`): queries from every token, keys and values from the map
+/// reduced by a stride-`sr` convolution and LayerNorm (`sr`, `norm`; none at sr = 1).
+#[derive(Debug)]
+struct Attention {
+    heads: i64,
+    q: Linear,
+    kv: Linear,
+    proj: Linear,
+    reduce: Option<(ConvBnAct, LayerNorm)>,
+}
+
+fn attention(p: nn::Path, dim: i64, heads: i64, sr: i64) -> Attention {
+    let lin = |name: &str, c_out| linear(&p / name, dim, c_out, true, LinearInit::Normal002);
+    let reduce = (sr > 1).then(|| {
+        let spec = ConvSpec::new(sr).stride(sr).padding(0).bias(true);
+        (
+            encoder_conv(&p / "sr", None, dim, dim, spec, Act::Identity),
+            layer_norm(&p / "norm", dim, LN_EPS),
+        )
+    });
+    Attention {
+        heads,
+        q: lin("q", dim),
+        kv: lin("kv", 2 * dim),
+        proj: lin("proj", dim),
+        reduce,
+    }
+}
+
+impl Attention {
+    /// [B, N, C] (N = h·w) -> [B, N, C]
+    fn forward(&self, xs: &Tensor, h: i64, w: i64, train: bool) -> Tensor {
+        let size = xs.size();
+        let (b, n, c) = (size[0], size[1], size[2]);
+        let d = c / self.heads;
+        // -> [B, heads, N, d]
+        let q = xs
+            .apply(&self.q)
+            .reshape([b, n, self.heads, d])
+            .transpose(1, 2);
+        // Keys and values from [B, M, C], M = N / sr².
+        let source = match &self.reduce {
+            Some((sr, norm)) => tokens(&feature_map(xs, h, w).apply_t(sr, train)).apply(norm),
+            None => xs.shallow_clone(),
+        };
+        // -> [2, B, heads, M, d]
+        let kv = source
+            .apply(&self.kv)
+            .reshape([b, -1, 2, self.heads, d])
+            .permute([2, 0, 3, 1, 4]);
+        let scores = q.matmul(&kv.get(0).transpose(-2, -1)) * (d as f64).powf(-0.5);
+        // [B, heads, N, M] · [B, heads, M, d] -> [B, N, C]
+        scores
+            .softmax(-1, None::<Kind>)
+            .matmul(&kv.get(1))
+            .transpose(1, 2)
+            .reshape([b, n, c])
+            .apply(&self.proj)
+    }
+}
+
+/// Mix-FFN (`mlp`): fc1 (C -> 4C), depth-wise 3×3 (`dwconv.dwconv`), GELU, fc2 (4C -> C).
+#[derive(Debug)]
+struct MixFfn {
+    fc1: Linear,
+    dwconv: ConvBnAct,
+    fc2: Linear,
+}
+
+fn mix_ffn(p: nn::Path, dim: i64) -> MixFfn {
+    let hidden = dim * MLP_RATIO;
+    let dw = &p / "dwconv" / "dwconv";
+    MixFfn {
+        fc1: linear(&p / "fc1", dim, hidden, true, LinearInit::Normal002),
+        dwconv: encoder_conv(
+            dw,
+            None,
+            hidden,
+            hidden,
+            depthwise3x3(hidden),
+            Act::Identity,
+        ),
+        fc2: linear(&p / "fc2", hidden, dim, true, LinearInit::Normal002),
+    }
+}
+
+impl MixFfn {
+    /// [B, N, C] -> [B, N, C]
+    fn forward(&self, xs: &Tensor, h: i64, w: i64, train: bool) -> Tensor {
+        let hidden = feature_map(&xs.apply(&self.fc1), h, w).apply_t(&self.dwconv, train);
+        tokens(&hidden).gelu("none").apply(&self.fc2)
+    }
+}
+
+/// Pre-norm transformer block (`blockN.i`): x + attn(norm1(x)), then + mlp(norm2(x)).
+#[derive(Debug)]
+struct Block {
+    norm1: LayerNorm,
+    attn: Attention,
+    norm2: LayerNorm,
+    mlp: MixFfn,
+    drop_path: f64,
+}
+
+fn block(p: nn::Path, stage: usize, dim: i64, drop_path: f64) -> Block {
+    Block {
+        norm1: layer_norm(&p / "norm1", dim, BLOCK_LN_EPS),
+        attn: attention(&p / "attn", dim, HEADS[stage], SR_RATIOS[stage]),
+        norm2: layer_norm(&p / "norm2", dim, BLOCK_LN_EPS),
+        mlp: mix_ffn(&p / "mlp", dim),
+        drop_path,
+    }
+}
+
+impl Block {
+    /// [B, N, C] -> [B, N, C]
+    fn forward(&self, xs: &Tensor, h: i64, w: i64, train: bool) -> Tensor {
+        let attn = self.attn.forward(&xs.apply(&self.norm1), h, w, train);
+        let xs = xs + drop_path(attn, self.drop_path, train);
+        let mlp = self.mlp.forward(&xs.apply(&self.norm2), h, w, train);
+        xs + drop_path(mlp, self.drop_path, train)
+    }
+}
+
+/// One stage of one stream: `{prefix}patch_embedN`, `{prefix}blockN.*`, `{prefix}normN`.
+#[derive(Debug)]
+struct Stage {
+    embed: PatchEmbed,
+    blocks: Vec<Block>,
+    norm: LayerNorm,
+}
+
+/// Stage `stage` (0-based) of the RGB (`prefix` "") or thermal (`prefix` "extra_") stream.
+fn stage(p: &nn::Path, layout: &Layout, stage: usize, thermal: bool) -> Stage {
+    let prefix = if thermal { "extra_" } else { "" };
+    let n = stage + 1;
+    let dim = layout.dims[stage];
+    let (c_in, kernel, stride) = match stage {
+        0 => (3, 7, 4),
+        _ => (layout.dims[stage - 1], 3, 2),
+    };
+    let blocks = drop_path_rates(layout.depths, stage, thermal)
+        .into_iter()
+        .enumerate()
+        .map(|(i, rate)| block(p / format!("{prefix}block{n}") / i, stage, dim, rate))
+        .collect();
+    Stage {
+        embed: patch_embed(
+            p / format!("{prefix}patch_embed{n}"),
+            c_in,
+            dim,
+            kernel,
+            stride,
+        ),
+        blocks,
+        norm: layer_norm(p / format!("{prefix}norm{n}"), dim, BLOCK_LN_EPS),
+    }
+}
+
+impl Stage {
+    /// [B, c_in, H, W] -> [B, dim, H / stride, W / stride]
+    fn forward(&self, xs: &Tensor, train: bool) -> Tensor {
+        let (ys, h, w) = self.embed.forward(xs, train);
+        let ys = self
+            .blocks
+            .iter()
+            .fold(ys, |ys, block| block.forward(&ys, h, w, train));
+        feature_map(&ys.apply(&self.norm), h, w)
+    }
+}
+
+/// Feature Rectify Module (`FRMs.i`): channel weights from the average- and max-pooled
+/// concatenation (`channel_weights.mlp.{0,2}`: 4C -> 4C -> 2C, sigmoid) and spatial weights
+/// from the concatenated maps (`spatial_weights.mlp.{0,2}`: 1×1 2C -> C -> 2, sigmoid).
+#[derive(Debug)]
+struct Rectify {
+    channel1: Linear,
+    channel2: Linear,
+    spatial1: ConvBnAct,
+    spatial2: ConvBnAct,
+}
+
+fn rectify(p: nn::Path, dim: i64) -> Rectify {
+    let channel = &p / "channel_weights" / "mlp";
+    let spatial = &p / "spatial_weights" / "mlp";
+    let one = ConvSpec::new(1).bias(true);
+    Rectify {
+        channel1: linear(&channel / 0, 4 * dim, 4 * dim, true, LinearInit::Normal002),
+        channel2: linear(&channel / 2, 4 * dim, 2 * dim, true, LinearInit::Normal002),
+        spatial1: encoder_conv(&spatial / 0, None, 2 * dim, dim, one, Act::Relu),
+        spatial2: encoder_conv(&spatial / 2, None, dim, 2, one, Act::Identity),
+    }
+}
+
+impl Rectify {
+    /// 2 × [B, C, H, W] -> 2 × [B, C, H, W]: x1 + λ·(w_c1 + w_s1)·x2, x2 + λ·(w_c0 + w_s0)·x1
+    fn forward(&self, x1: &Tensor, x2: &Tensor, train: bool) -> (Tensor, Tensor) {
+        let (b, c) = (x1.size()[0], x1.size()[1]);
+        let x = Tensor::cat(&[x1, x2], 1);
+        // [B, 2C] average ‖ [B, 2C] max -> [B, 4C] -> [B, 2C] -> [B, 2, C, 1, 1]
+        let pooled = Tensor::cat(
+            &[
+                x.mean_dim(&[2i64, 3][..], false, None::<Kind>),
+                x.amax([2, 3], false),
+            ],
+            1,
+        );
+        let channel = pooled
+            .apply(&self.channel1)
+            .relu()
+            .apply(&self.channel2)
+            .sigmoid()
+            .reshape([b, 2, c, 1, 1]);
+        // [B, 2C, H, W] -> [B, C, H, W] -> [B, 2, H, W]
+        let spatial = x
+            .apply_t(&self.spatial1, train)
+            .apply_t(&self.spatial2, train)
+            .sigmoid();
+        let gain = |i: i64| {
+            (
+                channel.select(1, i) * RECTIFY_LAMBDA,
+                spatial.narrow(1, i, 1) * RECTIFY_LAMBDA,
+            )
+        };
+        let ((c0, s0), (c1, s1)) = (gain(0), gain(1));
+        let out1 = x1 + c1 * x2 + s1 * x2;
+        let out2 = x2 + c0 * x1 + s0 * x1;
+        (out1, out2)
+    }
+}
+
+/// The channel embedding of the fusion (`channel_emb`): BN(1×1 residual (no bias) +
+/// BN(1×1 ∘ ReLU ∘ dw3×3 ∘ 1×1)). [B, 2C, H, W] -> [B, C, H, W]
+#[derive(Debug)]
+struct ChannelEmbed {
+    residual: ConvBnAct,
+    reduce: ConvBnAct,
+    depthwise: ConvBnAct,
+    expand: ConvBnAct,
+    norm: BatchNorm,
+}
+
+fn channel_embed(p: nn::Path, c_in: i64, c: i64) -> ChannelEmbed {
+    let e = &p / "channel_embed";
+    let one = ConvSpec::new(1).bias(true);
+    ChannelEmbed {
+        residual: encoder_conv(
+            &p / "residual",
+            None,
+            c_in,
+            c,
+            ConvSpec::new(1),
+            Act::Identity,
+        ),
+        reduce: encoder_conv(&e / 0, None, c_in, c, one, Act::Identity),
+        depthwise: encoder_conv(&e / 1, None, c, c, depthwise3x3(c), Act::Relu),
+        expand: encoder_conv(&e / 3, Some(&e / 4), c, c, one, Act::Identity),
+        norm: bn2d(&p / "norm", c),
+    }
+}
+
+impl ModuleT for ChannelEmbed {
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let embedded = xs
+            .apply_t(&self.reduce, train)
+            .apply_t(&self.depthwise, train)
+            .apply_t(&self.expand, train);
+        (xs.apply_t(&self.residual, train) + embedded).apply_t(&self.norm, train)
+    }
+}
+
+/// Feature Fusion Module (`FFMs.i`): the cross path (`cross.*`) over both streams' tokens, then
+/// the channel embedding of their concatenation.
+#[derive(Debug)]
+struct Fusion {
+    heads: i64,
+    /// `cross.channel_proj{1,2}`: C -> 2C (residual half ‖ attention half), ReLU.
+    channel_proj: [Linear; 2],
+    /// `cross.cross_attn.kv{1,2}`: C -> 2C, no bias.
+    kv: [Linear; 2],
+    /// `cross.end_proj{1,2}`: 2C -> C.
+    end_proj: [Linear; 2],
+    /// `cross.norm{1,2}`.
+    norm: [LayerNorm; 2],
+    embed: ChannelEmbed,
+}
+
+fn fusion(p: nn::Path, dim: i64, heads: i64) -> Fusion {
+    let cross = &p / "cross";
+    let lin = |p: nn::Path, c_in, c_out, bias| linear(p, c_in, c_out, bias, LinearInit::Normal002);
+    Fusion {
+        heads,
+        channel_proj: [1, 2].map(|i| lin(&cross / format!("channel_proj{i}"), dim, 2 * dim, true)),
+        kv: [1, 2].map(|i| {
+            lin(
+                &cross / "cross_attn" / format!("kv{i}"),
+                dim,
+                2 * dim,
+                false,
+            )
+        }),
+        end_proj: [1, 2].map(|i| lin(&cross / format!("end_proj{i}"), 2 * dim, dim, true)),
+        norm: [1, 2].map(|i| layer_norm(&cross / format!("norm{i}"), dim, LN_EPS)),
+        embed: channel_embed(&p / "channel_emb", 2 * dim, dim),
+    }
+}
+
+impl Fusion {
+    /// 2 × [B, C, H, W] -> [B, C, H, W]
+    fn forward(&self, x1: &Tensor, x2: &Tensor, train: bool) -> Tensor {
+        let (h, w) = (x1.size()[2], x1.size()[3]);
+        let xs = [tokens(x1), tokens(x2)];
+        // [B, N, C] -> 2 × [B, N, C] (kept half y, attended half u)
+        let halves: Vec<Vec<Tensor>> = (0..2)
+            .map(|i| xs[i].apply(&self.channel_proj[i]).relu().chunk(2, -1))
+            .collect();
+        let attended = self.cross_attention(&halves[0][1], &halves[1][1]);
+        let out: Vec<Tensor> = (0..2)
+            .map(|i| {
+                let ys = Tensor::cat(&[&halves[i][0], &attended[i]], -1).apply(&self.end_proj[i]);
+                (&xs[i] + ys).apply(&self.norm[i])
+            })
+            .collect();
+        // [B, N, 2C] -> [B, 2C, H, W] -> [B, C, H, W]
+        feature_map(&Tensor::cat(&out, -1), h, w).apply_t(&self.embed, train)
+    }
+
+    /// Each stream's queries (its tokens, split into heads) read the other stream's global
+    /// context softmax(Kᵀ·V / √d) [B, heads, d, d] (softmax over the key dimension).
+    /// 2 × [B, N, C] -> 2 × [B, N, C]
+    fn cross_attention(&self, u1: &Tensor, u2: &Tensor) -> [Tensor; 2] {
+        let size = u1.size();
+        let (b, n, c) = (size[0], size[1], size[2]);
+        let d = c / self.heads;
+        let context = |i: usize, u: &Tensor| {
+            // [B, N, 2C] -> [2, B, heads, N, d]
+            let kv = u
+                .apply(&self.kv[i])
+                .reshape([b, n, 2, self.heads, d])
+                .permute([2, 0, 3, 1, 4]);
+            let ctx = kv.get(0).transpose(-2, -1).matmul(&kv.get(1)) * (d as f64).powf(-0.5);
+            ctx.softmax(-2, None::<Kind>)
+        };
+        let read = |u: &Tensor, ctx: &Tensor| {
+            let q = u.reshape([b, n, self.heads, d]).transpose(1, 2);
+            q.matmul(ctx).transpose(1, 2).reshape([b, n, c])
+        };
+        let (ctx1, ctx2) = (context(0, u1), context(1, u2));
+        [read(u1, &ctx2), read(u2, &ctx1)]
+    }
+}
+
+/// The dual encoder (`backbone`).
+#[derive(Debug)]
+struct Encoder {
+    rgb: Vec<Stage>,
+    thermal: Vec<Stage>,
+    rectify: Vec<Rectify>,
+    fusion: Vec<Fusion>,
+}
+
+fn encoder(p: nn::Path, layout: &Layout) -> Encoder {
+    Encoder {
+        rgb: (0..4).map(|i| stage(&p, layout, i, false)).collect(),
+        thermal: (0..4).map(|i| stage(&p, layout, i, true)).collect(),
+        rectify: (0..4)
+            .map(|i| rectify(&p / "FRMs" / i, layout.dims[i]))
+            .collect(),
+        fusion: (0..4)
+            .map(|i| fusion(&p / "FFMs" / i, layout.dims[i], HEADS[i]))
+            .collect(),
+    }
+}
+
+impl Encoder {
+    /// 2 × [B, 3, H, W] -> fused [B, dims[i], H / 2^(i+2), W / 2^(i+2)] for i = 0..4
+    fn forward(&self, rgb: &Tensor, thermal: &Tensor, train: bool) -> Vec<Tensor> {
+        let (mut r, mut t) = (rgb.shallow_clone(), thermal.shallow_clone());
+        let mut fused = Vec::with_capacity(4);
+        for i in 0..4 {
+            let (r_i, t_i) = (
+                self.rgb[i].forward(&r, train),
+                self.thermal[i].forward(&t, train),
+            );
+            (r, t) = self.rectify[i].forward(&r_i, &t_i, train);
+            fused.push(self.fusion[i].forward(&r, &t, train));
+        }
+        fused
+    }
+}
+
+/// The MLP decoder (`decode_head`): per stage a linear projection to [`DECODER_DIM`]
+/// (`linear_cN.proj`), bilinear to 1/4, concatenated (c4, c3, c2, c1), `linear_fuse` (1×1
+/// conv, BatchNorm, ReLU), Dropout2d, `linear_pred` (1×1 conv).
+#[derive(Debug)]
+struct Decoder {
+    proj: Vec<Linear>,
+    fuse: ConvBnAct,
+    pred: ConvBnAct,
+}
+
+fn decoder(p: nn::Path, layout: &Layout, num_classes: i64) -> Decoder {
+    let spec = ConvSpec::new(1)
+        .bias(true)
+        .init(WeightInit::KaimingNormalFanIn);
+    let fuse = &p / "linear_fuse";
+    Decoder {
+        proj: (0..4)
+            .map(|i| {
+                let sp = &p / format!("linear_c{}", i + 1) / "proj";
+                linear(
+                    sp,
+                    layout.dims[i],
+                    DECODER_DIM,
+                    true,
+                    LinearInit::TorchDefault,
+                )
+            })
+            .collect(),
+        fuse: ConvBnAct::new(
+            &fuse / 0,
+            Some(&fuse / 1),
+            4 * DECODER_DIM,
+            DECODER_DIM,
+            spec,
+            Act::Relu,
+        ),
+        pred: ConvBnAct::new(
+            &p / "linear_pred",
+            None,
+            DECODER_DIM,
+            num_classes,
+            spec,
+            Act::Identity,
+        ),
+    }
+}
+
+impl Decoder {
+    /// 4 stage outputs -> [B, classes, H/4, W/4]
+    fn forward(&self, features: &[Tensor], train: bool) -> Tensor {
+        let (h, w) = (features[0].size()[2], features[0].size()[3]);
+        let maps: Vec<Tensor> = (0..4)
+            .rev()
+            .map(|i| {
+                let f = &features[i];
+                let m = feature_map(&tokens(f).apply(&self.proj[i]), f.size()[2], f.size()[3]);
+                if i > 0 {
+                    bilinear(&m, h, w)
+                } else {
+                    m
+                }
+            })
+            .collect();
+        // [B, 4·512, H/4, W/4] -> [B, 512, H/4, W/4] -> [B, classes, H/4, W/4]
+        Tensor::cat(&maps, 1)
+            .apply_t(&self.fuse, train)
+            .feature_dropout(DECODER_DROPOUT, train)
+            .apply_t(&self.pred, train)
+    }
+}
+
+#[derive(Debug)]
+pub struct Cmx {
+    config: Config,
+    encoder: Encoder,
+    decoder: Decoder,
+}
+
+impl Cmx {
+    pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
+        cfg.validate()?;
+        let layout = cfg.size.layout();
+        Ok(Self {
+            config: cfg.clone(),
+            encoder: encoder(&p / "backbone", &layout),
+            decoder: decoder(&p / "decode_head", &layout, cfg.num_classes),
+        })
+    }
+
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// The official preprocessing (see the module doc): [B, 4, H, W] (R, G, B, T in [0, 1]) ->
+    /// the encoders' inputs, colour [B, 3, H, W] and thermal [B, 3, H, W].
+    fn normalise(&self, xs: &Tensor) -> (Tensor, Tensor) {
+        let per_channel = |v: &[f32; 3]| {
+            Tensor::from_slice(v)
+                .to_device(xs.device())
+                .to_kind(xs.kind())
+                .view([1, 3, 1, 1])
+        };
+        let (mean, std) = (per_channel(&IMAGENET_MEAN), per_channel(&IMAGENET_STD));
+        let rgb = xs.narrow(1, 0, 3);
+        let colour = match self.config.color_order {
+            ColorOrder::Bgr => rgb.flip([1]),
+            ColorOrder::Rgb => rgb,
+        };
+        // [B, 1, H, W] broadcast against [1, 3, 1, 1]: the replicated thermal plane.
+        let thermal = xs.narrow(1, 3, 1);
+        ((colour - &mean) / &std, (thermal - &mean) / &std)
+    }
+}
+
+impl ModuleT for Cmx {
+    /// [B, 4, H, W] (R, G, B, T in [0, 1]) -> logits [B, classes, H, W]
+    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        let (h, w) = (xs.size()[2], xs.size()[3]);
+        let (colour, thermal) = self.normalise(xs);
+        let features = self.encoder.forward(&colour, &thermal, train);
+        bilinear(&self.decoder.forward(&features, train), h, w)
+    }
+}
+
+impl Network for Cmx {
+    fn input_convention(&self) -> rtf_core::InputConvention {
+        self.config.input()
+    }
+    fn num_classes(&self) -> i64 {
+        self.config.num_classes
+    }
+    fn size_multiple(&self) -> i64 {
+        32
+    }
+    fn name(&self) -> String {
+        self.config.name()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layers::with_zero_init;
+    use crate::test_util::forward_shape;
+    use crate::weights;
+    use tch::Device;
+
+    /// Trainable parameters of the official network for 9 classes, from
+    /// `scripts/cmx_reference.py --count` (its module tree has the official names and shapes;
+    /// B0, B2, B4, B5 also counted on the official `EncoderDecoder`, which cannot build B1 and
+    /// B3, see the module doc).
+    fn official_count(size: Size) -> i64 {
+        match size {
+            Size::B0 => 12_114_641,
+            Size::B1 => 44_475_793,
+            Size::B2 => 66_565_521,
+            Size::B3 => 106_317_201,
+            Size::B4 => 139_858_321,
+            Size::B5 => 181_058_961,
+        }
+    }
+
+    #[test]
+    fn parameter_counts_match_the_official_network() {
+        for size in Size::ALL {
+            let count = with_zero_init(|| {
+                let vs = nn::VarStore::new(Device::Cpu);
+                Cmx::new(vs.root(), &Config::new(size, 9)).unwrap();
+                weights::count_trainable(&vs)
+            });
+            assert_eq!(count, official_count(size), "{size:?}");
+        }
+    }
+
+    #[test]
+    fn tensor_names_are_the_official_ones() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        Cmx::new(vs.root(), &Config::new(Size::B0, 9)).unwrap();
+        let vars = vs.variables();
+        let shape = |name: &str| {
+            vars.get(name)
+                .unwrap_or_else(|| panic!("{name} missing"))
+                .size()
+        };
+        for (name, expected) in [
+            ("backbone.patch_embed1.proj.weight", vec![32, 3, 7, 7]),
+            ("backbone.extra_patch_embed2.norm.bias", vec![64]),
+            ("backbone.block1.1.attn.sr.weight", vec![32, 32, 8, 8]),
+            ("backbone.extra_block3.0.attn.kv.weight", vec![320, 160]),
+            (
+                "backbone.block4.1.mlp.dwconv.dwconv.weight",
+                vec![1024, 1, 3, 3],
+            ),
+            ("backbone.extra_norm4.weight", vec![256]),
+            (
+                "backbone.FRMs.0.channel_weights.mlp.2.weight",
+                vec![64, 128],
+            ),
+            ("backbone.FRMs.3.spatial_weights.mlp.2.bias", vec![2]),
+            ("backbone.FFMs.1.cross.cross_attn.kv2.weight", vec![128, 64]),
+            (
+                "backbone.FFMs.2.channel_emb.channel_embed.1.weight",
+                vec![160, 1, 3, 3],
+            ),
+            (
+                "backbone.FFMs.3.channel_emb.channel_embed.4.running_var",
+                vec![256],
+            ),
+            ("backbone.FFMs.3.channel_emb.norm.running_mean", vec![256]),
+            ("decode_head.linear_c4.proj.weight", vec![512, 256]),
+            ("decode_head.linear_fuse.0.weight", vec![512, 2048, 1, 1]),
+            ("decode_head.linear_fuse.1.running_var", vec![512]),
+            ("decode_head.linear_pred.weight", vec![9, 512, 1, 1]),
+        ] {
+            assert_eq!(shape(name), expected, "{name}");
+        }
+        for absent in [
+            "backbone.block4.0.attn.sr.weight",
+            "backbone.FFMs.0.cross.cross_attn.kv1.bias",
+            "backbone.FFMs.0.channel_emb.residual.bias",
+        ] {
+            assert!(!vars.contains_key(absent), "{absent}");
+        }
+    }
+
+    #[test]
+    fn b0_keeps_the_input_size_for_any_class_count() {
+        tch::manual_seed(0);
+        for (classes, shape) in [(9, [1, 4, 64, 64]), (5, [2, 4, 64, 96])] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let net = Cmx::new(vs.root(), &Config::new(Size::B0, classes)).unwrap();
+            assert_eq!(
+                forward_shape(&net, shape),
+                vec![shape[0], classes, shape[2], shape[3]]
+            );
+        }
+    }
+
+    #[test]
+    fn training_mode_reaches_every_parameter() {
+        tch::manual_seed(1);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = Cmx::new(vs.root(), &Config::new(Size::B0, 3)).unwrap();
+        let x = Tensor::rand([2, 4, 64, 64], (Kind::Float, Device::Cpu));
+        let logits = net.forward_t(&x, true);
+        assert_eq!(logits.size(), vec![2, 3, 64, 64]);
+        logits.square().mean(Kind::Float).backward();
+        for (name, var) in vs.variables() {
+            if var.requires_grad() {
+                assert!(var.grad().defined(), "{name} has no gradient");
+            }
+        }
+    }
+
+    #[test]
+    fn preprocessing_is_the_official_one() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let mut cfg = Config::new(Size::B0, 9);
+        let x = Tensor::from_slice(&[0.2f32, 0.4, 0.6, 0.8]).view([1, 4, 1, 1]);
+        let value = |t: &Tensor, c: i64| t.double_value(&[0, c, 0, 0]);
+        let near = |a: f64, b: f64| (a - b).abs() < 1e-5;
+        let (colour, thermal) = Cmx::new(vs.root(), &cfg).unwrap().normalise(&x);
+        // B, G, R planes, each normalised with the ImageNet statistics of its position.
+        assert!(near(value(&colour, 0), (0.6 - 0.485) / 0.229));
+        assert!(near(value(&colour, 2), (0.2 - 0.406) / 0.225));
+        for c in 0..3 {
+            let expected =
+                (0.8 - IMAGENET_MEAN[c as usize] as f64) / IMAGENET_STD[c as usize] as f64;
+            assert!(near(value(&thermal, c), expected), "thermal plane {c}");
+        }
+        cfg.color_order = ColorOrder::Rgb;
+        let vs = nn::VarStore::new(Device::Cpu);
+        let (colour, _) = Cmx::new(vs.root(), &cfg).unwrap().normalise(&x);
+        assert!(near(value(&colour, 0), (0.2 - 0.485) / 0.229));
+    }
+
+    #[test]
+    fn drop_path_rates_follow_the_official_schedule() {
+        // B2: 16 blocks, rates k·0.1/15.
+        let depths = Size::B2.layout().depths;
+        let rate = |k: i64| 0.1 * k as f64 / 15.0;
+        let close = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12)
+        };
+        assert!(close(
+            &drop_path_rates(depths, 0, true),
+            &[0.0, rate(1), rate(2)]
+        ));
+        assert!(close(&drop_path_rates(depths, 1, false), &[rate(3); 4]));
+        assert!(close(&drop_path_rates(depths, 1, true), &[rate(4); 4]));
+        let stage3: Vec<f64> = (7..13).map(rate).collect();
+        assert!(close(&drop_path_rates(depths, 2, false), &stage3));
+        assert!(close(
+            &drop_path_rates(depths, 3, false),
+            &[rate(13), rate(14), rate(15)]
+        ));
+    }
+
+    #[test]
+    fn names_and_configs_round_trip() {
+        for size in Size::ALL {
+            let cfg = Config::new(size, 9);
+            assert_eq!(Size::from_name(&cfg.name()), Some(size));
+        }
+        assert_eq!(Size::from_name("cmx-mit-b6"), None);
+        let cfg: Config = serde_json::from_str(r#"{"size": "b2", "num_classes": 4}"#).unwrap();
+        assert_eq!(cfg, Config::new(Size::B2, 4));
+        let err = Cmx::new(
+            nn::VarStore::new(Device::Cpu).root(),
+            &Config::new(Size::B0, 0),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("cmx-mit-b0"), "{err}");
+    }
+}
