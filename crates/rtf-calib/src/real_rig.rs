@@ -126,14 +126,15 @@ impl RealRigConfig {
 /// pixels at 640×480 (median (−0.1, +2.3) px). So the thermal image is ~3 % magnified at the
 /// centre and hardly at the border: a radial difference between MF's thermal and RGB imaging
 /// that a single scale cannot undo (the previous, scale-only registration found s = 1.000–1.025
-/// as a compromise). Measured with the `probe_registration` development test of `optimize.rs`
-/// (`RTF_CALIB_PROBE_REG=1 REG_K2=1 cargo test --release -p rtf-calib --lib
-/// probe_registration -- --nocapture`: per scene, a coordinate search at full 640×480
-/// resolution maximising the correlation of the centred edge features over the image less an
-/// 8 px border, steps refined to 0.0001 in s, k, k₂, 0.003° and 0.03 px). A rig built on the
-/// raw pairs puts this difference into its "truth" (the calibrator then finds f 2–4 % above it
-/// and k1 more negative: the real image geometry); [`write_real_rig`] re-registers each pair
-/// first, with this model and then the per-band parallax correction of [`MSRS_PARALLAX`].
+/// as a compromise). Measured with the `probe_registration` probe of
+/// `examples/calib_probes.rs`, once a development test of `optimize.rs` (`REG_K2=1 cargo run
+/// --release -p rtf-calib --example calib_probes -- probe_registration`: per scene, a
+/// coordinate search at full 640×480 resolution maximising the correlation of the centred
+/// edge features over the image less an 8 px border, steps refined to 0.0001 in s, k, k₂,
+/// 0.003° and 0.03 px). A rig built on the raw pairs puts this difference into its "truth"
+/// (the calibrator then finds f 2–4 % above it and k1 more negative: the real image
+/// geometry); [`write_real_rig`] re-registers each pair first, with this model and then the
+/// per-band parallax correction of [`MSRS_PARALLAX`].
 /// The registration uses the same edge features as the calibrator, so a cross-modal bias
 /// common to both would not show.
 /// (scene, s, k, k₂, α degrees, shift u, shift v at 640×480).
@@ -199,18 +200,18 @@ const PARALLAX_BAND_ROWS: f64 = 60.0;
 /// the same pattern in scene after scene. Over the 48 scenes that pattern averaged ±1–1.5 px
 /// (8×6 blocks; `probe_residual_field` with `FIELD_GLOBAL_ONLY=1`), enough to pull a
 /// calibration from 20 such frames about a pixel off the rigs' truth at 640×480 (f +1.4 %,
-/// k1 more negative). Measured with the `probe_parallax_bands` development test of
-/// `optimize.rs` (`RTF_CALIB_PROBE_BANDS=1 cargo test --release -p rtf-calib --lib
-/// probe_parallax_bands -- --nocapture`): normalised correlation of the edge features over
-/// the band less a 16 px border, ±8 px, parabolic sub-pixel peak; the top and bottom bands
-/// are measured 8 px inside the image. A band whose peak is weak (< 0.15: sky, dark night
-/// areas, often the lower half of a night scene) follows the scenes' common profile (per
-/// band, the median over the 48 scenes of the measured shift less the scene's mean over
-/// bands 2–4: −2.48, −1.79, −0.58, 0.13, 0.40, −1.18, −4.26, −6.73 px), offset like the
-/// scene's measured neighbours; the few bands measured in the lower half of night scenes
-/// follow the same profile as the day scenes'. Between band centres the shift is
-/// interpolated linearly. Like the global model, it is measured with the calibrator's own
-/// edge features, so a cross-modal bias common to both would not show.
+/// k1 more negative). Measured with the `probe_parallax_bands` probe of
+/// `examples/calib_probes.rs`, once a development test of `optimize.rs` (`cargo run --release
+/// -p rtf-calib --example calib_probes -- probe_parallax_bands`): normalised correlation of the
+/// edge features over the band less a 16 px border, ±8 px, parabolic sub-pixel peak; the top
+/// and bottom bands are measured 8 px inside the image. A band whose peak is weak (< 0.15: sky,
+/// dark night areas, often the lower half of a night scene) follows the scenes' common profile
+/// (per band, the median over the 48 scenes of the measured shift less the scene's mean over
+/// bands 2–4: −2.48, −1.79, −0.58, 0.13, 0.40, −1.18, −4.26, −6.73 px), offset like the scene's
+/// measured neighbours; the few bands measured in the lower half of night scenes follow the
+/// same profile as the day scenes'. Between band centres the shift is interpolated linearly.
+/// Like the global model, it is measured with the calibrator's own edge features, so a
+/// cross-modal bias common to both would not show.
 /// (scene, shift of bands 0..8).
 // Measured shifts in pixels; 3.14 among them is no approximation of π.
 #[allow(clippy::approx_constant)]

@@ -369,7 +369,7 @@ def main():
     ap.add_argument("calib", nargs="?")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--frames", type=int, default=20)
-    ap.add_argument("--data", default=os.path.join(os.path.dirname(__file__), "../../../../shared/data"))
+    ap.add_argument("--data", default=os.path.join(os.path.dirname(__file__), "../../../shared/data"))
     ap.add_argument("--prior-offset-m", type=float, default=0.02)
     ap.add_argument("--lens", choices=["division", "radial"], default="division")
     ap.add_argument("--source", choices=["ir", "rgb"], default="ir")

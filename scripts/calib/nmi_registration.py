@@ -156,7 +156,7 @@ def grid(stride):
 def referee(pairs, stride):
     """Mean NMI of each existing registration, and in how many scenes rtf's beats the 2 %."""
     gap = registration_gap
-    reg, par = gap.tables(os.path.join(os.path.dirname(__file__), "../src/real_rig.rs"))
+    reg, par = gap.tables(os.path.join(os.path.dirname(__file__), "../../crates/rtf-calib/src/real_rig.rs"))
     ys, xs = grid(stride)
     gen, rtf, med = [], [], []
     median = [1.030, -0.031, 0.0, 0.0, -0.1, 2.3]  # real_rig.rs: the medians over the 48
@@ -233,7 +233,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("out")
     ap.add_argument("--data", default=os.path.join(os.path.dirname(__file__),
-                                                   "../../../../shared/data"))
+                                                   "../../../shared/data"))
     ap.add_argument("--stride", type=int, default=4, help="pixel stride of the model's samples")
     a = ap.parse_args()
     names = open(os.path.join(a.data, "msrs-samples/frames.txt")).read().split()

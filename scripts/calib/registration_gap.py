@@ -104,7 +104,7 @@ def main():
     ap.add_argument("rig", help="a rig directory (its truth.json's scenes and f), or 'all' "
                                 "for the 48 scenes in MSRS pixels")
     ap.add_argument("--real-rig", default=os.path.join(os.path.dirname(__file__),
-                                                       "../src/real_rig.rs"))
+                                                       "../../crates/rtf-calib/src/real_rig.rs"))
     ap.add_argument("--nmi", help="nmi_registration.py's output, for --compare with nmi")
     ap.add_argument("--compare", default="rtf,generator",
                     help="two of rtf, generator, nmi: the field second − first")
