@@ -179,7 +179,14 @@ const KERNEL_DEPENDENT: [&[&str]; 4] = [
         "rtf-calib",
         "--lib",
     ],
-    &["-p", "rtf-models", "--test", "torch_parity", "--test", "cmx_parity"],
+    &[
+        "-p",
+        "rtf-models",
+        "--test",
+        "torch_parity",
+        "--test",
+        "cmx_parity",
+    ],
     &[
         "-p",
         "rtf-train",

@@ -2,7 +2,8 @@
 //! no file renamed or converted: RGB as JPEG, thermal as LZW-compressed 16-bit TIFF of raw
 //! counts, file names that differ per modality (`color/{seq}_eo-{n}.jpg`,
 //! `thermal16/{seq}_thermal-{n}.tiff`, `annotations/{seq}_mask-{n}.png`), the dataset's own
-//! split files (paths, two per line, commas or tabs), class colours in hex. The fixture is the
+//! split files (paths, two per line, commas or tabs), label ids from 1 with 0 ignored, class
+//! colours in hex. The fixture is the
 //! worked example of docs/src/bring-your-data.md, generated here in that exact form.
 
 use std::path::{Path, PathBuf};
@@ -15,10 +16,10 @@ const H: u32 = 48;
 
 pub const DATASET_YAML: &str = "name: roads
 classes:
-  - {id: 0, name: background, color: \"#000000\"}
-  - {id: 1, name: person, color: \"#DC143C\"}
-  - {id: 2, name: car, color: \"#00008E\"}
-ignore_id: 255
+  - {id: 1, name: background, color: \"#000000\"}
+  - {id: 2, name: person, color: \"#DC143C\"}
+  - {id: 3, name: car, color: \"#00008E\"}
+ignore_id: 0
 thermal:
   range: [21800, 25000]
 splits:
@@ -57,7 +58,10 @@ fn write_frame(root: &Path, seq: &str, n: u32) {
     let counts: Vec<u16> = (0..w * h).map(|i| 21800 + (i % 3200) as u16).collect();
     let tiff = encode_grey(W, H, GreyPlane::U16(&counts), TiffCompression::Lzw).unwrap();
     std::fs::write(file("thermal16", format!("{seq}_thermal-{n}.tiff")), tiff).unwrap();
-    let ids: Vec<u8> = (0..w * h).map(|i| (i / w * 3 / h) as u8).collect();
+    // Ids 1-3 in horizontal bands, the first row 0 (unlabelled: ignored).
+    let ids: Vec<u8> = (0..w * h)
+        .map(|i| if i < w { 0 } else { (i / w * 3 / h) as u8 + 1 })
+        .collect();
     let label = file("annotations", format!("{seq}_mask-{n}.png"));
     rtf_data::pngio::write_png_u8(&label, w, h, 1, &ids).unwrap();
 }
@@ -162,6 +166,11 @@ fn a_dataset_as_distributed_checks_trains_evaluates_and_predicts_unconverted() {
         "--thermal",
         s(&data.join("thermal16/day_a_thermal-3.tiff")),
     ]);
+    let ids = image::open(pred.join("day_a_eo-3.png")).unwrap().to_luma8();
+    assert!(
+        ids.pixels().all(|p| (1..=3).contains(&p.0[0])),
+        "the dataset's ids, 1-3"
+    );
     let colour = image::open(pred.join("day_a_eo-3_color.png"))
         .unwrap()
         .to_rgb8();

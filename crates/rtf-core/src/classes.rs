@@ -11,13 +11,42 @@ pub struct ClassInfo {
     pub color: [u8; 3],
 }
 
-/// An ordered set of classes (id = index), plus an optional label id that means "ignore".
+/// An ordered set of classes (id = index = network output), plus an optional label id that
+/// means "ignore".
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ClassSet {
     pub name: String,
     pub classes: Vec<ClassInfo>,
     /// Label id excluded from training and metrics (Freiburg: 13); None for MF.
     pub ignore_id: Option<u8>,
+    /// The values a dataset's label files use, when they are not the output indices (ids from
+    /// 1, ids with gaps, several values ignored); `None`: label value = output index.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label_values: Option<LabelValues>,
+}
+
+/// How a dataset's label values map to the network's outputs (and back, for predictions
+/// written with the dataset's ids).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LabelValues {
+    /// The label value of each output, in output order.
+    pub classes: Vec<u8>,
+    /// Label values excluded from training and metrics (read as the set's `ignore_id`).
+    pub ignored: Vec<u8>,
+}
+
+impl LabelValues {
+    /// Output index (or the ignore id) of each label value 0..=255; `None`: not in the set.
+    pub fn lookup(&self, ignore_id: Option<u8>) -> [Option<u8>; 256] {
+        let mut table = [None; 256];
+        for (output, &value) in self.classes.iter().enumerate() {
+            table[value as usize] = Some(output as u8);
+        }
+        for &value in &self.ignored {
+            table[value as usize] = ignore_id;
+        }
+        table
+    }
 }
 
 const MF: [(&str, [u8; 3]); 9] = [
@@ -63,6 +92,19 @@ impl ClassSet {
             name: name.to_string(),
             classes,
             ignore_id,
+            label_values: None,
+        }
+    }
+
+    /// The label value a dataset file uses for output `index` (the index itself unless the
+    /// set maps values; the ignore id maps to the first ignored value).
+    pub fn label_value(&self, index: u8) -> u8 {
+        let Some(values) = &self.label_values else {
+            return index;
+        };
+        match values.classes.get(index as usize) {
+            Some(&value) => value,
+            None => values.ignored.first().copied().unwrap_or(index),
         }
     }
 
@@ -104,6 +146,32 @@ impl ClassSet {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn label_values_map_both_ways_and_old_records_read_without_them() {
+        let mut set = ClassSet::mf();
+        assert_eq!(set.label_value(3), 3);
+        set.label_values = Some(LabelValues {
+            classes: (1..=9).collect(),
+            ignored: vec![0, 200],
+        });
+        set.ignore_id = Some(255);
+        let table = set.label_values.as_ref().unwrap().lookup(set.ignore_id);
+        assert_eq!(
+            (table[1], table[9], table[0], table[200], table[10]),
+            (Some(0), Some(8), Some(255), Some(255), None)
+        );
+        assert_eq!(
+            (set.label_value(0), set.label_value(8), set.label_value(255)),
+            (1, 9, 0)
+        );
+        let old = r#"{"name": "mf", "classes": [], "ignore_id": null}"#;
+        let read: ClassSet = serde_json::from_str(old).unwrap();
+        assert_eq!(read.label_values, None);
+        assert!(!serde_json::to_string(&ClassSet::mf())
+            .unwrap()
+            .contains("label_values"));
+    }
 
     #[test]
     fn mf_set_matches_the_paper() {

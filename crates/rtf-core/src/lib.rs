@@ -6,7 +6,7 @@ pub mod fsutil;
 pub mod input;
 pub mod npy;
 
-pub use classes::{ClassInfo, ClassSet};
+pub use classes::{ClassInfo, ClassSet, LabelValues};
 pub use fsutil::{write_atomic, write_bytes_atomic, AtomicWriteError};
 pub use input::InputConvention;
 

@@ -310,8 +310,13 @@ impl DescribedSplit {
         match self.description.labels {
             LabelEncoding::Ids => {
                 crate::pngio::check_channels(&png, path, 1, "label of class ids")?;
-                check_label_ids(samples, png.width, classes, path)?;
-                Ok(samples.clone())
+                match &classes.label_values {
+                    Some(values) => map_label_values(samples, png.width, classes, values, path),
+                    None => {
+                        check_label_ids(samples, png.width, classes, path)?;
+                        Ok(samples.clone())
+                    }
+                }
             }
             LabelEncoding::Colors => colour_label(&png, samples, &self.palette, classes, path),
         }
@@ -335,6 +340,44 @@ fn same_size(
         partner_w,
         partner_h,
     })
+}
+
+/// A label of the dataset's own values mapped to output indices (ignored values to the ignore
+/// id); a value that is neither a class nor ignored is an error naming the file, the value and
+/// the pixel.
+fn map_label_values(
+    samples: &[u8],
+    width: usize,
+    classes: &ClassSet,
+    values: &rtf_core::LabelValues,
+    path: &Path,
+) -> Result<Vec<u8>, DataError> {
+    let table = values.lookup(classes.ignore_id);
+    let mut out = Vec::with_capacity(samples.len());
+    for (i, &v) in samples.iter().enumerate() {
+        let Some(mapped) = table[v as usize] else {
+            let list = |v: &[u8]| v.iter().map(u8::to_string).collect::<Vec<_>>().join(", ");
+            return Err(DataError::LabelOutOfRange {
+                path: path.to_path_buf(),
+                id: v as u16,
+                x: i % width.max(1),
+                y: i / width.max(1),
+                class_set: classes.name.clone(),
+                classes: classes.len(),
+                ignore: format!(
+                    " with label values {}; ignored: {}",
+                    list(&values.classes),
+                    if values.ignored.is_empty() {
+                        "none".into()
+                    } else {
+                        list(&values.ignored)
+                    }
+                ),
+            });
+        };
+        out.push(mapped);
+    }
+    Ok(out)
 }
 
 fn colour_label(

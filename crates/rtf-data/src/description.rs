@@ -122,7 +122,7 @@ impl DatasetDescription {
 struct RawDescription {
     name: Option<String>,
     classes: Vec<RawClass>,
-    ignore_id: Option<u8>,
+    ignore_id: Option<OneOrMany>,
     ignore_color: Option<Colour>,
     #[serde(default)]
     label_encoding: LabelEncoding,
@@ -139,6 +139,23 @@ struct RawClass {
     id: u8,
     name: String,
     color: Colour,
+}
+
+/// `ignore_id: 255` or `ignore_id: [0, 255]`.
+#[derive(Deserialize, Clone)]
+#[serde(untagged)]
+enum OneOrMany {
+    One(u8),
+    Many(Vec<u8>),
+}
+
+impl OneOrMany {
+    fn values(&self) -> Vec<u8> {
+        match self {
+            Self::One(v) => vec![*v],
+            Self::Many(v) => v.clone(),
+        }
+    }
 }
 
 /// A colour as datasets write them: `[r, g, b]` or `"#RRGGBB"`.
@@ -328,8 +345,10 @@ impl Located<'_> {
     }
 }
 
-/// The class list: ids 0..N-1 each once (the network has N outputs), names unique, the ignore
-/// id not a class id.
+/// The class list: distinct ids 0–255 and unique names; the ignore values distinct and not
+/// class ids. Ids exactly 0..N-1 are the network's outputs themselves (output k = id k);
+/// any other ids make the outputs follow the list's order, with the label values recorded
+/// ([`rtf_core::LabelValues`]), as are several ignore values (read as ignore id 255).
 fn class_set(raw: &RawDescription, name: String, at: &Located) -> Result<ClassSet, DataError> {
     let lines = at.class_lines();
     let line = |k: usize| lines.get(k).copied().or_else(|| at.key_line("classes"));
@@ -355,41 +374,66 @@ fn class_set(raw: &RawDescription, name: String, at: &Located) -> Result<ClassSe
             );
             return Err(at.error(line(k), message));
         }
-        if class.id as usize >= raw.classes.len() {
-            let message = format!(
-                "class id {} is out of 0..{}: ids must be 0..N-1 for N classes (the network's N outputs)",
-                class.id,
-                raw.classes.len() - 1
-            );
-            return Err(at.error(line(k), message));
-        }
     }
-    if let Some(ignore) = raw.ignore_id.filter(|id| by_id.contains_key(id)) {
-        let message = format!("ignore_id {ignore} is also a class id");
-        return Err(at.error(at.key_line("ignore_id"), message));
+    let ignored = ignore_values(raw, &by_id, at)?;
+    let n = raw.classes.len();
+    let identity = (0..n).all(|i| by_id.contains_key(&(i as u8))) && n <= 256 && ignored.len() <= 1;
+    let mut classes: Vec<&RawClass> = raw.classes.iter().collect();
+    if identity {
+        classes.sort_by_key(|c| c.id);
     }
-    let mut classes: Vec<ClassInfo> = raw
-        .classes
-        .iter()
-        .map(|c| ClassInfo {
-            id: c.id,
-            name: c.name.clone(),
-            color: c.color.0,
-        })
-        .collect();
-    classes.sort_by_key(|c| c.id);
+    let label_values = (!identity).then(|| rtf_core::LabelValues {
+        classes: classes.iter().map(|c| c.id).collect(),
+        ignored: ignored.clone(),
+    });
+    let ignore_id = match identity {
+        true => ignored.first().copied(),
+        false => (!ignored.is_empty()).then_some(u8::MAX),
+    };
     Ok(ClassSet {
         name,
-        classes,
-        ignore_id: raw.ignore_id,
+        classes: classes
+            .iter()
+            .enumerate()
+            .map(|(k, c)| ClassInfo {
+                id: k as u8,
+                name: c.name.clone(),
+                color: c.color.0,
+            })
+            .collect(),
+        ignore_id,
+        label_values,
     })
+}
+
+/// The ignore values: distinct, none a class id.
+fn ignore_values(
+    raw: &RawDescription,
+    by_id: &HashMap<u8, usize>,
+    at: &Located,
+) -> Result<Vec<u8>, DataError> {
+    let values = raw
+        .ignore_id
+        .as_ref()
+        .map(OneOrMany::values)
+        .unwrap_or_default();
+    let line = at.key_line("ignore_id");
+    for (k, value) in values.iter().enumerate() {
+        if by_id.contains_key(value) {
+            return Err(at.error(line, format!("ignore_id {value} is also a class id")));
+        }
+        if values[..k].contains(value) {
+            return Err(at.error(line, format!("ignore_id {value} is given twice")));
+        }
+    }
+    Ok(values)
 }
 
 /// Colour-coded labels need distinct colours; an ignore colour needs an ignore id and colour
 /// labels.
 fn check_label_encoding(raw: &RawDescription, at: &Located) -> Result<(), DataError> {
     let line = at.key_line("ignore_color");
-    if raw.ignore_color.is_some() && raw.ignore_id.is_none() {
+    if raw.ignore_color.is_some() && raw.ignore_id.as_ref().is_none_or(|i| i.values().is_empty()) {
         return Err(at.error(
             line,
             "ignore_color without ignore_id: which id do ignored pixels get?",
@@ -780,8 +824,40 @@ thermal:
         assert!(text.contains("class id 0 is given twice"), "{text}");
         let text = refused(&EXAMPLE.replace("name: pedestrian", "name: background"), 3);
         assert!(text.contains("'background' is given twice"), "{text}");
-        let text = refused(&EXAMPLE.replace("{id: 1,", "{id: 2,"), 3);
-        assert!(text.contains("ids must be 0..N-1"), "{text}");
+        let ignored_twice = EXAMPLE.replace("ignore_id: 255", "ignore_id: [255, 255]");
+        assert!(refused(&ignored_twice, 4).contains("ignore_id 255 is given twice"));
+        let ignored_class = EXAMPLE.replace("ignore_id: 255", "ignore_id: [1, 255]");
+        assert!(refused(&ignored_class, 4).contains("ignore_id 1 is also a class id"));
+    }
+
+    #[test]
+    fn ids_as_the_dataset_has_them_map_to_outputs_in_the_list_order() {
+        let dir = plain_root(EXAMPLE);
+        // 0..N-1 listed out of order: the ids are the outputs, as before.
+        let swapped = EXAMPLE
+            .replace("{id: 0, name: background", "{id: 9, name: background")
+            .replace("{id: 1, name: pedestrian", "{id: 0, name: pedestrian")
+            .replace("{id: 9, name: background", "{id: 1, name: background");
+        let d = parse_in(dir.path(), &swapped).unwrap();
+        assert_eq!(d.class_set.names(), ["pedestrian", "background"]);
+        assert_eq!(d.class_set.label_values, None);
+        // Ids from 1 with 0 ignored (and 255): outputs follow the list, values recorded.
+        let from_one = EXAMPLE
+            .replace("{id: 1, name: pedestrian", "{id: 7, name: pedestrian")
+            .replace("{id: 0, name: background", "{id: 1, name: background")
+            .replace("ignore_id: 255", "ignore_id: [0, 255]");
+        let d = parse_in(dir.path(), &from_one).unwrap();
+        assert_eq!(d.class_set.names(), ["background", "pedestrian"]);
+        let values = d.class_set.label_values.as_ref().unwrap();
+        assert_eq!(
+            (values.classes.as_slice(), values.ignored.as_slice()),
+            (&[1u8, 7][..], &[0u8, 255][..])
+        );
+        assert_eq!(d.class_set.ignore_id, Some(255));
+        assert_eq!(
+            (d.class_set.label_value(0), d.class_set.label_value(1)),
+            (1, 7)
+        );
     }
 
     #[test]

@@ -242,7 +242,14 @@ pub fn encode_png_u8_tagged(
     data: &[u8],
 ) -> Result<Vec<u8>, String> {
     let software = format!("{RTF_SOFTWARE} {}", env!("CARGO_PKG_VERSION"));
-    encode_with(width, height, channels, png::BitDepth::Eight, data, Some(&software))
+    encode_with(
+        width,
+        height,
+        channels,
+        png::BitDepth::Eight,
+        data,
+        Some(&software),
+    )
 }
 
 /// Whether the PNG at `path` carries rtf's `Software` text (header and text chunks only).
@@ -255,7 +262,8 @@ pub fn written_by_rtf(path: &Path) -> bool {
         return false;
     };
     let info = reader.info();
-    let ours = |key: &str, text: &str| key == "Software" && text.split(' ').next() == Some(RTF_SOFTWARE);
+    let ours =
+        |key: &str, text: &str| key == "Software" && text.split(' ').next() == Some(RTF_SOFTWARE);
     info.uncompressed_latin1_text
         .iter()
         .any(|t| ours(&t.keyword, &t.text))
@@ -346,7 +354,12 @@ mod tests {
         std::fs::write(&ours, encode_png_u8_tagged(2, 1, 1, &[1, 2]).unwrap()).unwrap();
         std::fs::write(&theirs, encode_png_u8(2, 1, 1, &[1, 2]).unwrap()).unwrap();
         assert!(written_by_rtf(&ours) && !written_by_rtf(&theirs));
-        assert_eq!(decode_png(&std::fs::read(&ours).unwrap(), &ours).unwrap().samples, Samples::U8(vec![1, 2]));
+        assert_eq!(
+            decode_png(&std::fs::read(&ours).unwrap(), &ours)
+                .unwrap()
+                .samples,
+            Samples::U8(vec![1, 2])
+        );
         assert!(!written_by_rtf(&dir.path().join("missing.png")));
     }
 

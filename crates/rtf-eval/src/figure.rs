@@ -309,12 +309,13 @@ pub fn rows_for(
 /// without --overwrite).
 pub fn save_png(image: &RgbImage, path: &Path) -> Result<(), rtf_data::DataError> {
     let (w, h) = (image.width() as usize, image.height() as usize);
-    let bytes = rtf_data::pngio::encode_png_u8_tagged(w, h, 3, image.as_raw()).map_err(|message| {
-        rtf_data::DataError::Write {
-            path: path.to_path_buf(),
-            message,
-        }
-    })?;
+    let bytes =
+        rtf_data::pngio::encode_png_u8_tagged(w, h, 3, image.as_raw()).map_err(|message| {
+            rtf_data::DataError::Write {
+                path: path.to_path_buf(),
+                message,
+            }
+        })?;
     rtf_core::write_bytes_atomic(path, &bytes)?;
     Ok(())
 }

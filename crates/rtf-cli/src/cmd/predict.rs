@@ -495,7 +495,9 @@ fn predict_frame(
     let ids = Vec::<u8>::try_from(logits.argmax(0, false).to_kind(Kind::Uint8).flatten(0, -1))?;
     let (w, h) = (frame.width as u32, frame.height as u32);
     let colors = classes.colorize(&ids);
-    save_png(&plan.ids, w, h, 1, &ids)?;
+    // Ids as the dataset has them (its label values), colours by the network's outputs.
+    let values: Vec<u8> = ids.iter().map(|&i| classes.label_value(i)).collect();
+    save_png(&plan.ids, w, h, 1, &values)?;
     save_png(&plan.color, w, h, 3, &colors)?;
     if let Some(npy) = &plan.logits {
         let shape: Vec<usize> = logits.size().iter().map(|&d| d as usize).collect();

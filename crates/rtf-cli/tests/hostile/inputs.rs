@@ -128,7 +128,10 @@ pub fn predict_images(f: &Fixture) -> Vec<Case> {
     image::GrayImage::new(16, 16)
         .save(p("small_ir.png"))
         .unwrap();
-    image::RgbImage::new(32, 32).save(p("rgb_ir.png")).unwrap();
+    // Colour (channels differ): a colour-mapped rendering; grey stored as RGB is read.
+    image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([x as u8, y as u8, 7]))
+        .save(p("rgb_ir.png"))
+        .unwrap();
     cases.push(case(
         "predict: thermal of another size",
         &[
@@ -145,7 +148,7 @@ pub fn predict_images(f: &Fixture) -> Vec<Case> {
         &["small_ir.png", "cam_rgb.png"],
     ));
     cases.push(case(
-        "predict: 3-channel thermal",
+        "predict: colour-mapped 3-channel thermal",
         &[
             "predict",
             "--weights",
@@ -157,7 +160,7 @@ pub fn predict_images(f: &Fixture) -> Vec<Case> {
             "--thermal",
             s(&p("rgb_ir.png")),
         ],
-        &["rgb_ir.png"],
+        &["rgb_ir.png", "differ"],
     ));
     cases
 }

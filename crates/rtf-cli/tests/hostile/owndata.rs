@@ -104,9 +104,9 @@ fn description_cases(f: &Fixture) -> Vec<Case> {
             &["dataset.yaml", "pedestrian"],
         ),
         check(
-            "class ids not 0..N-1",
+            "a label value that is neither a class id nor ignored",
             &described(f, "od_gap", &gap),
-            &["dataset.yaml", "line 4"],
+            &["labels", "label id 2", "label values 0, 1, 3"],
         ),
         check(
             "ignore id is a class id",

@@ -114,6 +114,7 @@ pub(crate) fn class_table(
             })
             .collect(),
         ignore_id,
+        label_values: None,
     }
 }
 
