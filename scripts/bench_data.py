@@ -9,6 +9,10 @@ A root with a dataset.yaml (the plain layout, e.g. `rtf synth --format plain`) i
 yaml's `thermal: range: [lo, hi]` (clipped), the same crop resizing thermal bicubically as a
 float image; the default split is `train`.
 
+A root in the form public releases ship (`scripts/distributed_fixture.py`: a `color/` folder of
+JPEGs `SEQ_eo-N.jpg`, `thermal16/SEQ_thermal-N.tiff` 16-bit LZW TIFFs, `annotations/SEQ_mask-N.png`)
+is read the same way from those files (PIL decodes JPEG and TIFF).
+
 Usage: .venv/bin/python scripts/bench_data.py --data DIR [--split test] [--frames 96] [--json]
 """
 import argparse
@@ -54,10 +58,25 @@ def thermal_range(root):
 
 def load_plain(root, split, name, rng, lo, hi):
     """One plain-layout frame: RGB, 16-bit thermal through the range, labels; flip and crop."""
-    rgb = Image.open(os.path.join(root, split, "rgb", name + ".png")).convert("RGB")
-    th = Image.open(os.path.join(root, split, "thermal", name + ".png"))
+    files = [os.path.join(root, split, d, name + ".png") for d in ("rgb", "thermal", "labels")]
+    return load_files(files, rng, lo, hi)
+
+
+def load_distributed(root, name, rng, lo, hi):
+    """One frame of a release-form root: JPEG RGB, 16-bit LZW TIFF thermal, PNG labels."""
+    seq, n = name.rsplit("/", 1)
+    files = [os.path.join(root, "color", f"{seq}_eo-{n}.jpg"),
+             os.path.join(root, "thermal16", f"{seq}_thermal-{n}.tiff"),
+             os.path.join(root, "annotations", f"{seq}_mask-{n}.png")]
+    return load_files(files, rng, lo, hi)
+
+
+def load_files(files, rng, lo, hi):
+    """RGB, thermal (through the range) and label files; flip and crop."""
+    rgb = Image.open(files[0]).convert("RGB")
+    th = Image.open(files[1])
     th.load()
-    lab = Image.open(os.path.join(root, split, "labels", name + ".png"))
+    lab = Image.open(files[2])
     lab.load()
     t = (np.asarray(th, dtype=np.float32) - lo) / (hi - lo)
     th = Image.fromarray(np.clip(t, 0.0, 1.0), mode="F")
@@ -88,7 +107,12 @@ def main():
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     split = args.split
-    if os.path.exists(os.path.join(args.data, "dataset.yaml")):
+    if os.path.isdir(os.path.join(args.data, "color")):
+        lo, hi = thermal_range(args.data)
+        names = sorted(f[:-4].replace("_eo-", "/") for f in os.listdir(os.path.join(args.data, "color"))
+                       if f.endswith(".jpg"))
+        load = lambda root, name, rng: load_distributed(root, name, rng, lo, hi)  # noqa: E731
+    elif os.path.exists(os.path.join(args.data, "dataset.yaml")):
         split = split or "train"
         lo, hi = thermal_range(args.data)
         folder = os.path.join(args.data, split, "rgb")
