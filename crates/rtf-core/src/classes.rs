@@ -96,6 +96,24 @@ impl ClassSet {
         }
     }
 
+    /// What a label file's values mean beyond the class ids, for messages: ", ignore id 255",
+    /// or for mapped values ", label values 1, 2, 3; ignored 0"; empty when neither applies.
+    pub fn values_note(&self) -> String {
+        let list = |v: &[u8]| v.iter().map(u8::to_string).collect::<Vec<_>>().join(", ");
+        match (&self.label_values, self.ignore_id) {
+            (Some(values), _) if values.ignored.is_empty() => {
+                format!(", label values {}", list(&values.classes))
+            }
+            (Some(values), _) => format!(
+                ", label values {}; ignored {}",
+                list(&values.classes),
+                list(&values.ignored)
+            ),
+            (None, Some(id)) => format!(", ignore id {id}"),
+            (None, None) => String::new(),
+        }
+    }
+
     /// The label value a dataset file uses for output `index` (the index itself unless the
     /// set maps values; the ignore id maps to the first ignored value).
     pub fn label_value(&self, index: u8) -> u8 {

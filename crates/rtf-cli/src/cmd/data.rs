@@ -104,10 +104,7 @@ fn recognised(dir: &std::path::Path, report: &inspect::CheckReport) -> String {
     };
     let mut line = format!("{}: recognised the {} layout", dir.display(), format.name());
     if let Some(classes) = &report.class_set {
-        let ignore = classes
-            .ignore_id
-            .map(|i| format!(", ignore id {i}"))
-            .unwrap_or_default();
+        let ignore = classes.values_note();
         line += &format!(
             "; {} classes ({}{ignore}): {}",
             classes.len(),
