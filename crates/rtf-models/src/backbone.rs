@@ -60,7 +60,7 @@ pub fn encoder_slots(cfg: &ModelConfig) -> Result<(Vec<EncoderSlot>, ThermalInit
         other => Err(ModelError::InvalidConfig {
             network: other.name(),
             reason: "has no torchvision ResNet encoder for --backbone-weights \
-                     (HeatNet's reference trains from scratch)"
+                     (HeatNet's reference trains from scratch; CMX takes SegFormer MiT weights)"
                 .into(),
         }),
     }
@@ -88,14 +88,35 @@ fn xavier_(weight: &mut Tensor) {
     let _ = weight.uniform_(-bound, bound);
 }
 
-/// Loads torchvision ResNet weights from `path` into every encoder of `cfg` built in `vs`.
-/// Strict like [`crate::weights::load_safetensors`]: every encoder parameter must be in the
-/// file with its shape and every file tensor (but `fc.*`) must be used; errors list them all.
+/// Loads ImageNet encoder weights from `path` into every encoder of `cfg` built in `vs`:
+/// torchvision ResNet weights for the ResNet encoders, SegFormer MiT weights for CMX
+/// ([`crate::mit_pretrained`]). Returns what loaded, for the run's log.
 pub fn load_backbone_weights(
     vs: &mut VarStore,
     cfg: &ModelConfig,
     path: &Path,
-) -> Result<(), ModelError> {
+) -> Result<String, ModelError> {
+    if matches!(cfg, ModelConfig::Cmx(_)) {
+        return crate::mit_pretrained::load_mit_weights(vs, path);
+    }
+    let slots = load_resnet_weights(vs, cfg, path)?;
+    let prefixes: Vec<&str> = slots.iter().map(|s| s.prefix.as_str()).collect();
+    Ok(format!(
+        "backbone weights: {}: torchvision ResNet into {}",
+        path.display(),
+        prefixes.join(", ")
+    ))
+}
+
+/// Loads torchvision ResNet weights from `path` into every ResNet encoder of `cfg` built in
+/// `vs`; returns the encoders. Strict like [`crate::weights::load_safetensors`]: every
+/// encoder parameter must be in the file with its shape and every file tensor (but `fc.*`)
+/// must be used; errors list them all.
+fn load_resnet_weights(
+    vs: &mut VarStore,
+    cfg: &ModelConfig,
+    path: &Path,
+) -> Result<Vec<EncoderSlot>, ModelError> {
     let (slots, thermal_init) = encoder_slots(cfg)?;
     let file: BTreeMap<String, Tensor> = read_safetensors(path)?
         .into_iter()
@@ -171,7 +192,7 @@ pub fn load_backbone_weights(
             }
         }
     });
-    Ok(())
+    Ok(slots)
 }
 
 #[cfg(test)]

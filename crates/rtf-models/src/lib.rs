@@ -18,6 +18,7 @@ pub mod inputs;
 pub mod kernels;
 pub mod layers;
 pub mod mfnet;
+pub mod mit_pretrained;
 pub mod onednn;
 pub mod resnet;
 pub mod rtfnet;

@@ -607,7 +607,11 @@ fn start(
     }
     let student = &mut procedure.trained_mut()[0].vs;
     if let Some(path) = &cfg.network.backbone_weights {
-        rtf_models::backbone::load_backbone_weights(student, &cfg.network.model, path)?;
+        let loaded =
+            rtf_models::backbone::load_backbone_weights(student, &cfg.network.model, path)?;
+        if folder.is_root {
+            eprintln!("{loaded}");
+        }
     }
     if let Some(report) = crate::init::load_init(student, cfg)? {
         if folder.is_root {
