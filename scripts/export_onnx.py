@@ -23,6 +23,11 @@ import torch
 def main() -> int:
     module_path, out_path = sys.argv[1], sys.argv[2]
     c, h, w = (int(v) for v in sys.argv[3:6])
+    # The graph executor's optimisations (constant pooling among them) compare constant
+    # tensors with aten.equal on the first run, which torch.export's capture cannot evaluate
+    # ("get value out of a tracing tensor"): CMX's many same-shaped weights hit it. Capture the
+    # plain interpreter's calls instead.
+    torch._C._set_graph_executor_optimize(False)
     extra = {"rtf.json": ""}
     module = torch.jit.load(module_path, map_location="cpu", _extra_files=extra)
     module.eval()

@@ -107,6 +107,7 @@ fn every_family_exports_torchscript_that_python_runs_with_the_same_logits() {
         ("rtfnet18", 9),
         ("heatnet", 13),
         ("erfnet-4c", 9),
+        ("cmx-mit-b0", 9),
     ] {
         let weights = random_weights(tmp.path(), model, classes);
         let out = tmp.path().join(format!("{model}.pt"));
@@ -262,36 +263,35 @@ fn bad_input_is_refused_with_nothing_written() {
     );
 }
 
-/// ONNX through the .venv's PyTorch exporter, checked by onnxruntime inside `rtf export` and
-/// here against the Rust logits. Slow (≈ 1.5 min on two cores): RTF_TEST_ONNX=1.
-#[test]
-fn onnx_export_runs_in_onnxruntime_with_the_same_logits() {
-    if std::env::var_os("RTF_TEST_ONNX").is_none() {
-        eprintln!("skipped: set RTF_TEST_ONNX=1 to run the ONNX export check");
-        return;
-    }
-    let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("mfnet.onnx");
+/// `model` exported to ONNX at `size` (H, W), run by onnxruntime in the .venv on a random
+/// input: (max |delta| against rtf's eager logits, the model's metadata_props).
+fn onnx_against_eager(
+    dir: &Path,
+    model: &str,
+    classes: i64,
+    weights: &Path,
+    size: (i64, i64),
+) -> serde_json::Value {
+    let out = dir.join(format!("{model}.onnx"));
     let stdout = ok(&[
         "export",
         "--model",
-        "mfnet",
+        model,
+        "--classes",
+        &classes.to_string(),
         "--weights",
-        s(&real_weights()),
+        s(weights),
         "--out",
         s(&out),
         "--format",
         "onnx",
         "--size",
-        "96x128",
+        &format!("{}x{}", size.0, size.1),
     ]);
     assert!(stdout.contains("onnxruntime vs TorchScript"), "{stdout}");
-    let input = Tensor::rand([1, 4, 96, 128], (Kind::Float, Device::Cpu));
-    let expected = eager("mfnet", 9, &real_weights(), &input);
-    let (i, e) = (
-        tmp.path().join("input.npy"),
-        tmp.path().join("expected.npy"),
-    );
+    let input = Tensor::rand([1, 4, size.0, size.1], (Kind::Float, Device::Cpu));
+    let expected = eager(model, classes, weights, &input);
+    let (i, e) = (dir.join("input.npy"), dir.join("expected.npy"));
     write_npy(&i, &input);
     write_npy(&e, &expected);
     let script = r#"
@@ -310,9 +310,25 @@ print(json.dumps({"delta": float(np.abs(y - np.load(sys.argv[3])).max()), "meta"
         .output()
         .unwrap();
     assert!(res.status.success(), "{}", text(&res));
-    let v: serde_json::Value = serde_json::from_slice(&res.stdout).unwrap();
+    serde_json::from_slice(&res.stdout).unwrap()
+}
+
+/// ONNX through the .venv's PyTorch exporter, checked by onnxruntime inside `rtf export` and
+/// here against the Rust logits: the published MFNet, and CMX (MiT-B0, random weights).
+/// Slow (≈ 2 min on two cores): RTF_TEST_ONNX=1.
+#[test]
+fn onnx_export_runs_in_onnxruntime_with_the_same_logits() {
+    if std::env::var_os("RTF_TEST_ONNX").is_none() {
+        eprintln!("skipped: set RTF_TEST_ONNX=1 to run the ONNX export check");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let v = onnx_against_eager(tmp.path(), "mfnet", 9, &real_weights(), (96, 128));
     assert!(v["delta"].as_f64().unwrap() <= 1e-4, "{v}");
     let input_meta: serde_json::Value =
         serde_json::from_str(v["meta"]["input"].as_str().unwrap()).unwrap();
     assert_eq!(input_meta["convention"]["kind"], "unit_range");
+    let weights = random_weights(tmp.path(), "cmx-mit-b0", 9);
+    let v = onnx_against_eager(tmp.path(), "cmx-mit-b0", 9, &weights, (64, 96));
+    assert!(v["delta"].as_f64().unwrap() <= 1e-4, "cmx-mit-b0: {v}");
 }

@@ -808,6 +808,11 @@ pub struct Cmx {
     config: Config,
     encoder: Encoder,
     decoder: Decoder,
+    /// ImageNet's mean and std as [1, 3, 1, 1], made once: a tensor filled from host memory
+    /// inside `forward` would reach a JIT trace as an uninitialised `aten::empty` (the copy
+    /// into it is not an op), so exports would read garbage.
+    mean: Tensor,
+    std: Tensor,
 }
 
 impl Cmx {
@@ -818,6 +823,8 @@ impl Cmx {
             config: cfg.clone(),
             encoder: encoder(&p / "backbone", &layout),
             decoder: decoder(&p / "decode_head", &layout, cfg.num_classes),
+            mean: Tensor::from_slice(&IMAGENET_MEAN).view([1, 3, 1, 1]),
+            std: Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]),
         })
     }
 
@@ -828,13 +835,8 @@ impl Cmx {
     /// The official preprocessing (see the module doc): [B, 4, H, W] (R, G, B, T in [0, 1]) ->
     /// the encoders' inputs, colour [B, 3, H, W] and thermal [B, 3, H, W].
     fn normalise(&self, xs: &Tensor) -> (Tensor, Tensor) {
-        let per_channel = |v: &[f32; 3]| {
-            Tensor::from_slice(v)
-                .to_device(xs.device())
-                .to_kind(xs.kind())
-                .view([1, 3, 1, 1])
-        };
-        let (mean, std) = (per_channel(&IMAGENET_MEAN), per_channel(&IMAGENET_STD));
+        let on_input = |t: &Tensor| t.to_device(xs.device()).to_kind(xs.kind());
+        let (mean, std) = (on_input(&self.mean), on_input(&self.std));
         let rgb = xs.narrow(1, 0, 3);
         let colour = match self.config.color_order {
             ColorOrder::Bgr => rgb.flip([1]),
