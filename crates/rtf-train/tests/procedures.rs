@@ -547,3 +547,95 @@ fn a_label_cache_trains_like_the_teacher_run_every_step() {
     let err = soft_cache.validate().unwrap_err().to_string();
     assert!(err.contains("procedure.targets.cache"), "{err}");
 }
+
+/// CMX (issue 39): a cmx-mit-b0 student trains by every procedure — supervised on labelled
+/// days, teacher–student, adversarial (the critic on its outputs) and RGB-T → RGB distillation
+/// (an RGB-T teacher, an RGB-only student) — and every run's loss is finite.
+#[test]
+fn a_cmx_student_trains_by_every_procedure() {
+    let _rng = TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, data) = setup();
+    let days: Vec<String> = std::fs::read_to_string(data.join("train.txt"))
+        .unwrap()
+        .lines()
+        .filter(|n| n.ends_with('D'))
+        .map(str::to_string)
+        .collect();
+    std::fs::write(data.join("days.txt"), days.join("\n")).unwrap();
+    let cmx = |procedure: Procedure, inputs: Modality, split: &str| {
+        base(&data, 1).with(|c| {
+            c.network.model = ModelConfig::from_name("cmx-mit-b0", 9).unwrap();
+            c.network.inputs = inputs;
+            c.learning.procedure = procedure;
+            c.schedule.max_steps_per_epoch = Some(2);
+            if let DatasetConfig::Mf {
+                train_split,
+                val_split,
+                ..
+            } = &mut c.data.dataset
+            {
+                *train_split = split.into();
+                *val_split = None;
+            }
+        })
+    };
+    let rgbt_teacher = {
+        tch::manual_seed(4);
+        let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+        let model = ModelConfig::from_name("mfnet", 9).unwrap();
+        rtf_models::build(&vs.root(), &model).unwrap();
+        let path = tmp.path().join("rgbt_teacher.safetensors");
+        rtf_models::weights::save_safetensors(&vs, &model, Modality::RgbT, &path).unwrap();
+        TeacherRef::Weights {
+            path,
+            model,
+            inputs: Modality::RgbT,
+        }
+    };
+    let targets = TargetOptions::default();
+    let runs = [
+        (
+            "supervised",
+            cmx(Procedure::Supervised, Modality::RgbT, "days"),
+        ),
+        (
+            "teacher-student",
+            cmx(
+                Procedure::TeacherStudent {
+                    day_teacher: common::teacher(tmp.path(), 1),
+                    night_teacher: Some(common::teacher(tmp.path(), 2)),
+                    targets: targets.clone(),
+                },
+                Modality::RgbT,
+                "train",
+            ),
+        ),
+        ("adversarial", {
+            let mut c = adversarial(&data, 1, common::teacher(tmp.path(), 1));
+            c.network.model = ModelConfig::from_name("cmx-mit-b0", 9).unwrap();
+            c.schedule.max_steps_per_epoch = Some(2);
+            if let DatasetConfig::Mf { val_split, .. } = &mut c.data.dataset {
+                *val_split = None;
+            }
+            c
+        }),
+        (
+            "distillation",
+            cmx(
+                Procedure::TeacherStudent {
+                    day_teacher: rgbt_teacher.clone(),
+                    night_teacher: Some(rgbt_teacher),
+                    targets,
+                },
+                Modality::Rgb,
+                "train",
+            ),
+        ),
+    ];
+    for (name, cfg) in runs {
+        let run = rtf_train::train(&cfg, &tmp.path().join(name), false, &mut |_| {})
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let loss = run.records[0].train_loss;
+        assert!(loss.is_finite() && loss > 0.0, "{name}: loss {loss}");
+    }
+}
