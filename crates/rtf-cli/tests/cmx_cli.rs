@@ -14,15 +14,7 @@ fn segformer_b0(file: &Path) {
     let vs = nn::VarStore::new(Device::Cpu);
     let cfg = rtf_models::ModelConfig::from_name("cmx-mit-b0", 9).unwrap();
     rtf_models::build(&vs.root(), &cfg).unwrap();
-    let mut named: Vec<(String, Tensor)> = rtf_models::weights::state_dict(&vs)
-        .into_iter()
-        .filter_map(|(n, t)| Some((n.strip_prefix("backbone.")?.to_string(), t)))
-        .filter(|(n, _)| {
-            ["patch_embed", "block", "norm"]
-                .iter()
-                .any(|p| n.starts_with(p))
-        })
-        .collect();
+    let mut named = rtf_models::mit_pretrained::segformer_state_dict(&vs);
     named.push((
         "head.weight".into(),
         Tensor::zeros([1000, 256], (Kind::Float, Device::Cpu)),

@@ -21,6 +21,7 @@ pub mod loader;
 pub mod mf;
 pub mod npy;
 pub mod pattern;
+pub mod planes;
 pub mod pngio;
 pub mod split_list;
 pub mod synth;

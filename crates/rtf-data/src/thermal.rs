@@ -15,7 +15,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::images::ThermalSamples;
+use crate::planes::ThermalSamples;
 use crate::DataError;
 
 /// A linear map from raw counts to a temperature: `t = scale * counts + offset`.

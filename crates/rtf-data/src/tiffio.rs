@@ -11,7 +11,7 @@ use tiff::decoder::{Decoder, DecodingResult};
 use tiff::tags::{PlanarConfiguration, SampleFormat, Tag};
 use tiff::ColorType;
 
-use crate::images::{colour_thermal, grey_plane, ThermalImage, ThermalSamples};
+use crate::planes::{colour_thermal, grey_plane, ThermalImage, ThermalSamples};
 use crate::DataError;
 
 /// Decodes a thermal TIFF (module docs); `path` names the file in errors.
@@ -148,6 +148,34 @@ pub fn encode_grey(
     Ok(out.into_inner())
 }
 
+/// A one-strip little-endian grey TIFF of `bits`-bit samples written byte by byte (no
+/// compression): layouts the encoder does not write (12-bit packed), for tests and fixtures.
+pub fn raw_grey_tiff(width: u16, height: u16, bits: u16, data: &[u8]) -> Vec<u8> {
+    let tags: [(u16, u16, u32); 9] = [
+        (256, 3, width.into()),
+        (257, 3, height.into()),
+        (258, 3, bits.into()),
+        (259, 3, 1),
+        (262, 3, 1),
+        (273, 4, 8 + 2 + 9 * 12 + 4),
+        (277, 3, 1),
+        (278, 3, height.into()),
+        (279, 4, data.len() as u32),
+    ];
+    let mut out = b"II*\0".to_vec();
+    out.extend(8u32.to_le_bytes());
+    out.extend((tags.len() as u16).to_le_bytes());
+    for (tag, kind, value) in tags {
+        out.extend(tag.to_le_bytes());
+        out.extend(kind.to_le_bytes());
+        out.extend(1u32.to_le_bytes());
+        out.extend(value.to_le_bytes());
+    }
+    out.extend(0u32.to_le_bytes());
+    out.extend(data);
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -220,34 +248,6 @@ mod tests {
             let err = decode_thermal(&good[..cut], p()).unwrap_err().to_string();
             assert!(err.contains("ir.tiff"), "cut {cut}: {err}");
         }
-    }
-
-    /// A one-strip little-endian grey TIFF written byte by byte, for layouts the encoder
-    /// does not write.
-    fn raw_grey_tiff(width: u16, height: u16, bits: u16, data: &[u8]) -> Vec<u8> {
-        let tags: [(u16, u16, u32); 9] = [
-            (256, 3, width.into()),
-            (257, 3, height.into()),
-            (258, 3, bits.into()),
-            (259, 3, 1),
-            (262, 3, 1),
-            (273, 4, 8 + 2 + 9 * 12 + 4),
-            (277, 3, 1),
-            (278, 3, height.into()),
-            (279, 4, data.len() as u32),
-        ];
-        let mut out = b"II*\0".to_vec();
-        out.extend(8u32.to_le_bytes());
-        out.extend((tags.len() as u16).to_le_bytes());
-        for (tag, kind, value) in tags {
-            out.extend(tag.to_le_bytes());
-            out.extend(kind.to_le_bytes());
-            out.extend(1u32.to_le_bytes());
-            out.extend(value.to_le_bytes());
-        }
-        out.extend(0u32.to_le_bytes());
-        out.extend(data);
-        out
     }
 
     #[test]

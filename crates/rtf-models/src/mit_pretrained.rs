@@ -99,6 +99,17 @@ pub fn load_mit_weights(vs: &mut VarStore, path: &Path) -> Result<String, ModelE
     ))
 }
 
+/// A CMX network's RGB encoder under SegFormer's names (`patch_embedN.*`, `blockN.i.*`,
+/// `normN.*`): what [`load_mit_weights`] reads, e.g. to hand a fine-tuned encoder to a
+/// SegFormer user or to write test fixtures.
+pub fn segformer_state_dict(vs: &VarStore) -> Vec<(String, Tensor)> {
+    crate::weights::state_dict(vs)
+        .into_iter()
+        .filter(|(n, _)| is_encoder_var(n) && !n.starts_with("backbone.extra_"))
+        .map(|(n, t)| (n["backbone.".len()..].to_string(), t))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -115,11 +126,7 @@ mod tests {
             &ModelConfig::from_name("cmx-mit-b0", 9).unwrap(),
         )
         .unwrap();
-        let mut named: Vec<(String, Tensor)> = weights::state_dict(&vs)
-            .into_iter()
-            .filter(|(n, _)| is_encoder_var(n) && !n.contains("extra_"))
-            .map(|(n, t)| (n["backbone.".len()..].to_string(), t))
-            .collect();
+        let mut named = segformer_state_dict(&vs);
         named.push((
             "head.weight".into(),
             Tensor::zeros([1000, 256], (Kind::Float, Device::Cpu)),

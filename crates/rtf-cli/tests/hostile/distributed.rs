@@ -98,31 +98,9 @@ fn file_cases(f: &Fixture) -> Vec<Case> {
     ]
 }
 
-/// A one-strip 2 × 2 grey TIFF of 12-bit samples, written byte by byte.
+/// A 2 × 2 grey TIFF of 12-bit packed samples.
 fn twelve_bit_tiff() -> Vec<u8> {
-    let tags: [(u16, u16, u32); 9] = [
-        (256, 3, 2),
-        (257, 3, 2),
-        (258, 3, 12),
-        (259, 3, 1),
-        (262, 3, 1),
-        (273, 4, 8 + 2 + 9 * 12 + 4),
-        (277, 3, 1),
-        (278, 3, 2),
-        (279, 4, 6),
-    ];
-    let mut out = b"II*\0".to_vec();
-    out.extend(8u32.to_le_bytes());
-    out.extend((tags.len() as u16).to_le_bytes());
-    for (tag, kind, value) in tags {
-        out.extend(tag.to_le_bytes());
-        out.extend(kind.to_le_bytes());
-        out.extend(1u32.to_le_bytes());
-        out.extend(value.to_le_bytes());
-    }
-    out.extend(0u32.to_le_bytes());
-    out.extend([0x12, 0x34, 0x56, 0x78, 0x9a, 0xbc]);
-    out
+    rtf_data::tiffio::raw_grey_tiff(2, 2, 12, &[0x12, 0x34, 0x56, 0x78, 0x9a, 0xbc])
 }
 
 /// dataset.yaml patterns and the list file gone wrong.
