@@ -23,12 +23,18 @@ use tch::{Device, Kind, Tensor};
 
 use crate::metrics::{ConfusionMatrix, Scores};
 
+pub mod inference;
+use inference::InferenceOptions;
+
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
     #[error(transparent)]
     Data(#[from] DataError),
     #[error("{0}")]
     Shape(String),
+    /// Inference options that cannot run (an empty crop, a scale of 0, ...).
+    #[error("inference options: {0}")]
+    Inference(String),
     #[error(transparent)]
     Torch(#[from] tch::TchError),
     #[error(
@@ -66,6 +72,10 @@ pub struct EvalOptions {
     /// Resize frames to (width, height) before the network (labels nearest); None = as stored.
     pub resize: Option<(usize, usize)>,
     pub workers: usize,
+    /// Whole image or sliding windows, scales, flip ([`inference`]); default: the whole
+    /// image once.
+    #[serde(default)]
+    pub inference: InferenceOptions,
 }
 
 impl Default for EvalOptions {
@@ -74,6 +84,7 @@ impl Default for EvalOptions {
             batch_size: 4,
             resize: None,
             workers: 2,
+            inference: InferenceOptions::default(),
         }
     }
 }
@@ -148,7 +159,7 @@ pub fn evaluate_with_drop(
     device: Device,
 ) -> Result<EvalReport, EvalError> {
     let loader = split_loader(source, options, network.input_convention());
-    evaluate_loader(network, &loader, drop, device)
+    evaluate_loader_with(network, &loader, drop, &options.inference, device)
 }
 
 /// The loader that [`evaluate_loader`] reads a split through (in order, every frame, no
@@ -179,15 +190,26 @@ pub fn split_loader(
 }
 
 /// [`evaluate_with_drop`] over the frames of `loader` (built by [`split_loader`] for this
-/// network's input convention).
+/// network's input convention), the whole image once per frame.
 pub fn evaluate_loader(
     network: &dyn Network,
     loader: &Loader,
     drop: Option<ModalityDrop>,
     device: Device,
 ) -> Result<EvalReport, EvalError> {
+    evaluate_loader_with(network, loader, drop, &InferenceOptions::default(), device)
+}
+
+/// [`evaluate_loader`] with the inference mode, scales and flip of `inference`.
+pub fn evaluate_loader_with(
+    network: &dyn Network,
+    loader: &Loader,
+    drop: Option<ModalityDrop>,
+    inference: &InferenceOptions,
+    device: Device,
+) -> Result<EvalReport, EvalError> {
+    inference.validate()?;
     let source = loader.source();
-    let options = loader.config();
     let convention = network.input_convention();
     // Values (already in the network's input scale) of the dropped channels.
     let fill: Option<(usize, Vec<f64>)> = match drop {
@@ -210,14 +232,7 @@ pub fn evaluate_loader(
     let mut day = ConfusionMatrix::new(n, classes.ignore_id);
     let mut night = ConfusionMatrix::new(n, classes.ignore_id);
     let mut unknown = ConfusionMatrix::new(n, classes.ignore_id);
-    if let Some(&(w, h)) = options.resize.as_ref() {
-        check_memory(network, options.batch_size.min(source.len()), h, w, device)?;
-    } else if !source.is_empty() {
-        // Frames of a split share one size (the loader refuses others): the first tells it.
-        let first = source.load(0)?;
-        let batch = options.batch_size.min(source.len());
-        check_memory(network, batch, first.height, first.width, device)?;
-    }
+    check_split_memory(network, loader, inference, device)?;
     let mut frames = 0;
     let _guard = tch::no_grad_guard();
     for batch in loader.epoch(0) {
@@ -228,7 +243,7 @@ pub fn evaluate_loader(
                 let _ = input.narrow(1, (first + c) as i64, 1).fill_(v);
             }
         }
-        let prediction = predict_ids(network, &input)?;
+        let prediction = inference::predict(network, &input, inference)?;
         let target = batch.target.to_device(device);
         for (i, daytime) in batch.daytimes.iter().enumerate() {
             let matrix = match daytime {
@@ -252,6 +267,28 @@ pub fn evaluate_loader(
         night: scores_if_any(&night),
         confusion: all,
     })
+}
+
+/// [`check_memory`] for the largest forward pass of an evaluation of `loader`'s frames.
+fn check_split_memory(
+    network: &dyn Network,
+    loader: &Loader,
+    inference: &InferenceOptions,
+    device: Device,
+) -> Result<(), EvalError> {
+    let (source, options) = (loader.source(), loader.config());
+    let batch = options.batch_size.min(source.len());
+    let (h, w) = match options.resize {
+        Some((w, h)) => (h, w),
+        None if source.is_empty() => return Ok(()),
+        None => {
+            // Frames of a split share one size (the loader refuses others): the first tells it.
+            let first = source.load(0)?;
+            (first.height, first.width)
+        }
+    };
+    let (h, w) = inference.largest_pass(h, w);
+    check_memory(network, batch, h, w, device)
 }
 
 /// Class ids [B, H, W] for an input [B, C, H, W]: H and W are padded up to the network's size
@@ -638,6 +675,7 @@ mod drop_tests {
             batch_size: 2,
             resize: None,
             workers: 1,
+            ..Default::default()
         };
         let run =
             |drop| evaluate_with_drop(&net, source.clone(), &options, drop, Device::Cpu).unwrap();
@@ -672,6 +710,7 @@ mod drop_tests {
             batch_size: 1,
             resize: None,
             workers: 2,
+            ..Default::default()
         };
         let fresh = evaluate(&net, source.clone(), &options, Device::Cpu).unwrap();
         let loader = split_loader(source, &options, net.input_convention());

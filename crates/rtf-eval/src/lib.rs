@@ -6,10 +6,14 @@ pub mod figure;
 pub mod metrics;
 pub mod speed;
 
+/// Whole image, sliding windows, scales and flip (a part of [`evaluate`]).
+pub use evaluate::inference;
+
 pub use evaluate::{
     evaluate, evaluate_with_drop, DropFill, EvalError, EvalOptions, EvalReport, Modality,
     ModalityDrop,
 };
+pub use inference::{Inference, InferenceOptions};
 pub use metrics::{ClassScore, ConfusionMatrix, Scores};
 
 /// libtorch's generator is process-wide: a test that seeds it and expects the same draws

@@ -882,6 +882,7 @@ impl<'a> Run<'a> {
                 batch_size: cfg.schedule.batch_size,
                 resize: cfg.data.resize,
                 workers: cfg.data.workers,
+                ..Default::default()
             };
             rtf_eval::evaluate::split_loader(val, &options, input)
         });

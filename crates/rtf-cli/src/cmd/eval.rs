@@ -69,6 +69,81 @@ pub struct Args {
     /// names and shapes must still match.
     #[arg(long)]
     pub foreign_weights: bool,
+    /// Run the network by sliding windows (--crop, --stride-rate) as the official CMX
+    /// evaluator does, instead of on the whole image.
+    #[arg(long)]
+    pub sliding: bool,
+    /// Window of --sliding, HxW (height first, as the official `eval_crop_size`).
+    #[arg(long, value_parser = parse_crop, default_value = "480x640", requires = "sliding")]
+    pub crop: (usize, usize),
+    /// Window stride of --sliding as a fraction of the crop (`2/3` or `0.5`):
+    /// stride = ceil(crop · rate).
+    #[arg(long, value_parser = parse_rate, default_value = "2/3", requires = "sliding")]
+    pub stride_rate: f64,
+    /// Resize factors the input is scored at, summed (e.g. `0.75,1,1.25`); default 1.
+    #[arg(long, value_parser = parse_scale, value_delimiter = ',', default_value = "1")]
+    pub scales: Vec<f64>,
+    /// Also score the horizontally flipped input (its logits flipped back and added).
+    #[arg(long)]
+    pub flip: bool,
+}
+
+/// `HxW` (height first) → (height, width).
+fn parse_crop(text: &str) -> Result<(usize, usize), String> {
+    // parse_size's (first, second) numbers are here (height, width).
+    super::parse_size(text)
+        .map_err(|_| format!("`{text}` is not HxW with positive integers (e.g. 480x640)"))
+}
+
+/// `2/3` or a decimal, in (0, 1].
+fn parse_rate(text: &str) -> Result<f64, String> {
+    let value = match text.split_once('/') {
+        Some((n, d)) => n
+            .trim()
+            .parse::<f64>()
+            .ok()
+            .zip(d.trim().parse::<f64>().ok())
+            .map(|(n, d)| n / d),
+        None => text.trim().parse::<f64>().ok(),
+    };
+    value
+        .filter(|r| *r > 0.0 && *r <= 1.0)
+        .ok_or_else(|| format!("`{text}` is not a stride rate in (0, 1] (e.g. 2/3)"))
+}
+
+/// A positive resize factor.
+fn parse_scale(text: &str) -> Result<f64, String> {
+    text.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|s| s.is_finite() && *s > 0.0)
+        .ok_or_else(|| format!("`{text}` is not a positive scale (e.g. 0.75)"))
+}
+
+impl Args {
+    fn eval_options(&self) -> EvalOptions {
+        EvalOptions {
+            batch_size: self.batch_size,
+            resize: self.resize,
+            workers: 2,
+            inference: self.inference(),
+        }
+    }
+
+    /// The inference mode, scales and flip the flags ask for.
+    fn inference(&self) -> rtf_eval::InferenceOptions {
+        rtf_eval::InferenceOptions {
+            mode: match self.sliding {
+                true => rtf_eval::Inference::Sliding {
+                    crop: self.crop,
+                    stride_rate: self.stride_rate,
+                },
+                false => rtf_eval::Inference::Whole,
+            },
+            scales: self.scales.clone(),
+            flip: self.flip,
+        }
+    }
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -108,6 +183,9 @@ struct Report<'a> {
     weights: &'a PathBuf,
     data: &'a PathBuf,
     split: &'a str,
+    /// How the network was run: mode (whole / sliding, with crop and stride rate), scales,
+    /// flip.
+    inference: &'a rtf_eval::InferenceOptions,
     frames: usize,
     #[serde(flatten)]
     all: &'a Scores,
@@ -191,7 +269,8 @@ pub(crate) fn open_split(
     }
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// Refuses, before any work, a --json or --figure path that must not be written.
+fn check_outputs(args: &Args) -> Result<()> {
     let guard = OutputGuard::new(args.overwrite)
         .reading([args.weights.as_path()])
         .dataset(&args.data);
@@ -200,6 +279,11 @@ pub fn run(args: Args) -> Result<()> {
             guard.check(path, what)?;
         }
     }
+    Ok(())
+}
+
+pub fn run(args: Args) -> Result<()> {
+    check_outputs(&args)?;
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
     let (split, format) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();
@@ -216,11 +300,7 @@ pub fn run(args: Args) -> Result<()> {
     )?;
     let network = loaded.net;
     rtf_eval::evaluate::install_quiet_panic_hook();
-    let options = EvalOptions {
-        batch_size: args.batch_size,
-        resize: args.resize,
-        workers: 2,
-    };
+    let options = args.eval_options();
     // Hashed before the evaluation reads the frames, so the record is of what was read.
     let data_fingerprint = args
         .json
@@ -251,6 +331,7 @@ pub fn run(args: Args) -> Result<()> {
             weights: &args.weights,
             data: &args.data,
             split: &args.split,
+            inference: &options.inference,
             frames: report.frames,
             all: &report.all,
             day: report.day.as_ref(),
@@ -290,6 +371,7 @@ fn print_scores(
         report.frames,
         inputs
     );
+    println!("inference: {}", args.inference().describe());
     println!("{}", report.all.table());
     let heatnet = (format == DatasetFormat::Freiburg).then(|| HeatnetScores::of(report));
     let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.1}", 100.0 * v));
@@ -413,7 +495,18 @@ fn write_figure(
 
 #[cfg(test)]
 mod tests {
-    use super::single_modality_note;
+    use super::{parse_crop, parse_rate, parse_scale, single_modality_note};
+
+    #[test]
+    fn inference_flags_parse() {
+        assert_eq!(parse_crop("480x640"), Ok((480, 640)));
+        assert!(parse_crop("480").is_err());
+        assert_eq!(parse_rate("2/3"), Ok(2.0 / 3.0));
+        assert_eq!(parse_rate("0.5"), Ok(0.5));
+        assert!(parse_rate("3/2").is_err() && parse_rate("0").is_err());
+        assert_eq!(parse_scale("0.75"), Ok(0.75));
+        assert!(parse_scale("-1").is_err() && parse_scale("x").is_err());
+    }
     use rtf_models::Modality::{Rgb, RgbT, Thermal};
 
     #[test]

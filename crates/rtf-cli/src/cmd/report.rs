@@ -863,12 +863,13 @@ fn eval_section(eval: &EvalFile, html: &mut String) -> Result<()> {
     let s = |k: &str| j.get(k).and_then(Value::as_str).unwrap_or("?").to_string();
     writeln!(
         html,
-        "<section class=\"eval\"><h2>Evaluation {}</h2><p>{} on <code>{}</code> split <code>{}</code>, {} frames</p>",
+        "<section class=\"eval\"><h2>Evaluation {}</h2><p>{} on <code>{}</code> split <code>{}</code>, {} frames; inference: {}</p>",
         esc(&eval.path.file_name().unwrap_or_default().to_string_lossy()),
         esc(&s("model")),
         esc(&s("data")),
         esc(&s("split")),
-        j.get("frames").and_then(Value::as_u64).unwrap_or(0)
+        j.get("frames").and_then(Value::as_u64).unwrap_or(0),
+        esc(&inference_of(j))
     )?;
     writeln!(html, "<table class=\"scores\"><tr><th></th><th>mIoU</th><th>mAcc</th><th>mIoU day</th><th>mIoU night</th></tr>")?;
     writeln!(html, "{}", scores_row("all modalities", j))?;
@@ -898,6 +899,16 @@ fn eval_section(eval: &EvalFile, html: &mut String) -> Result<()> {
     }
     writeln!(html, "</div></section>")?;
     Ok(())
+}
+
+/// How an eval file's network was run (`inference`: mode, scales, flip); files written before
+/// the modes existed ran the whole image at scale 1.
+fn inference_of(j: &Value) -> String {
+    match j.get("inference") {
+        None => "whole image, scale 1 (not recorded)".into(),
+        Some(v) => serde_json::from_value::<rtf_eval::InferenceOptions>(v.clone())
+            .map_or_else(|_| format!("unreadable record {v}"), |o| o.describe()),
+    }
 }
 
 /// Per-class IoU rows of an eval file (day and night where it has them, else all frames)
