@@ -1305,6 +1305,20 @@ mod tests {
     use super::*;
 
     #[test]
+    fn eval_files_name_their_inference_mode() {
+        let old = serde_json::json!({"schema": "rtf-eval/1"});
+        assert_eq!(inference_of(&old), "whole image, scale 1 (not recorded)");
+        let sliding = serde_json::json!({"inference": {"mode": "sliding", "crop": [480, 640],
+            "stride_rate": 0.5, "scales": [0.75, 1.0], "flip": true}});
+        assert_eq!(
+            inference_of(&sliding),
+            "sliding 480x640 (HxW), stride rate 0.500, scales 0.75,1, flip"
+        );
+        let odd = serde_json::json!({"inference": {"mode": "spiral"}});
+        assert!(inference_of(&odd).starts_with("unreadable record"));
+    }
+
+    #[test]
     fn old_and_new_log_records_give_series() {
         let log: Vec<Epoch> = [
             serde_json::json!({"epoch": 1, "lr": 0.01, "train_loss": 2.0, "val_miou": 0.1}),
