@@ -256,6 +256,21 @@ impl FrameSource for BddSplit {
     }
 }
 
+/// The list files (`*.txt`) of a BDD root, by stem, sorted (one split each).
+pub fn lists(root: &Path) -> Vec<String> {
+    let mut out: Vec<String> = std::fs::read_dir(root)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "txt"))
+                .filter_map(|p| p.file_stem().map(|n| n.to_string_lossy().into_owned()))
+                .collect()
+        })
+        .unwrap_or_default();
+    out.sort();
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

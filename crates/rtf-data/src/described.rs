@@ -40,6 +40,22 @@ impl DescribedDataset {
         &self.description.class_set
     }
 
+    /// The training split and the validation frames: a named split, or `holdout:N`
+    /// ([`parse_holdout`]): every N-th training frame, taken out of training.
+    pub fn training_splits(
+        &self,
+        train: &str,
+        val: Option<&str>,
+    ) -> Result<(DescribedSplit, Option<DescribedSplit>), DataError> {
+        let train = self.split(train)?;
+        if let Some(every) = val.and_then(parse_holdout) {
+            let (kept, held) = train.hold_out(every);
+            return Ok((kept, Some(held)));
+        }
+        let val = val.map(|name| self.split(name)).transpose()?;
+        Ok((train, val))
+    }
+
     /// The frames of split `name`, paired and checked (module docs).
     pub fn split(&self, name: &str) -> Result<DescribedSplit, DataError> {
         let spec = self

@@ -17,7 +17,8 @@ use sha2::{Digest, Sha256};
 
 pub use crate::hash::{hash_bytes, hash_file};
 
-use crate::inspect::{detect_format, DatasetFormat};
+use crate::dataset::{Dataset, DatasetFormat, Layout};
+use crate::description::DatasetDescription;
 use crate::{
     DataError, DescribedDataset, FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit,
     MfDataset,
@@ -111,11 +112,9 @@ fn freiburg_frames(root: &Path) -> Result<Vec<(String, Vec<FrameFiles>)>, DataEr
 
 /// The frames of a described layout; with a dataset.yaml, each frame also reads it (it decides
 /// how the frame's files become a frame).
-fn described_frames(root: &Path) -> Result<Vec<(String, Vec<FrameFiles>)>, DataError> {
-    let description = crate::layouts::describe(root).ok_or_else(|| DataError::Layout {
-        root: root.to_path_buf(),
-        message: crate::inspect::NOT_A_DATASET.into(),
-    })??;
+fn described_frames(
+    description: &DatasetDescription,
+) -> Result<Vec<(String, Vec<FrameFiles>)>, DataError> {
     let yaml = Some(description.origin.clone()).filter(|p| p.is_file());
     let dataset = DescribedDataset::new(description.clone());
     description
@@ -139,17 +138,19 @@ fn described_frames(root: &Path) -> Result<Vec<(String, Vec<FrameFiles>)>, DataE
         .collect()
 }
 
-/// Fingerprints the dataset under `root` (MF or Freiburg Thermal layout; module docs).
-/// Reads every file once, in parallel; a missing or unreadable file is an error naming it.
+/// Fingerprints the dataset under `root` (module docs), opened once ([`crate::dataset`]).
 pub fn fingerprint(root: &Path) -> Result<Fingerprint, DataError> {
-    let format = detect_format(root).ok_or_else(|| DataError::Layout {
-        root: root.to_path_buf(),
-        message: crate::inspect::NOT_A_DATASET.into(),
-    })?;
-    let splits: Vec<(String, Vec<FrameFiles>)> = match format {
-        DatasetFormat::Mf => mf_frames(root)?,
-        DatasetFormat::Freiburg => freiburg_frames(root)?,
-        DatasetFormat::Bdd => {
+    fingerprint_opened(&crate::dataset::open(root)?)
+}
+
+/// Fingerprints an opened dataset (MF, Freiburg Thermal or described layout; module docs).
+/// Reads every file once, in parallel; a missing or unreadable file is an error naming it.
+pub fn fingerprint_opened(dataset: &Dataset) -> Result<Fingerprint, DataError> {
+    let root = dataset.root();
+    let splits: Vec<(String, Vec<FrameFiles>)> = match dataset.layout() {
+        Layout::Mf => mf_frames(root)?,
+        Layout::Freiburg => freiburg_frames(root)?,
+        Layout::Bdd => {
             return Err(DataError::Layout {
                 root: root.to_path_buf(),
                 message:
@@ -157,8 +158,17 @@ pub fn fingerprint(root: &Path) -> Result<Fingerprint, DataError> {
                         .into(),
             })
         }
-        _ => described_frames(root)?,
+        Layout::Described(description) => described_frames(description)?,
     };
+    digest(root, dataset.format(), &splits)
+}
+
+/// Hashes every distinct file of `splits` once (in parallel), then each split and the dataset.
+fn digest(
+    root: &Path,
+    format: DatasetFormat,
+    splits: &[(String, Vec<FrameFiles>)],
+) -> Result<Fingerprint, DataError> {
     let distinct: Vec<&PathBuf> = {
         let mut seen = HashSet::new();
         splits
@@ -177,7 +187,7 @@ pub fn fingerprint(root: &Path) -> Result<Fingerprint, DataError> {
         })
         .collect::<Result<_, DataError>>()?;
     let mut out = Vec::with_capacity(splits.len());
-    for (name, frames) in &splits {
+    for (name, frames) in splits {
         let mut h = Sha256::new();
         for frame in frames {
             h.update(frame.name.as_bytes());

@@ -394,6 +394,76 @@ impl FreiburgSplit {
     }
 }
 
+/// How a Freiburg root is read by name: training (its training tree and validation part)
+/// and evaluation (`test` or `train`).
+impl FreiburgSplit {
+    /// The training tree (its labelled frames when `labels`) and, when `validate`, the
+    /// labelled frames of the validation part; each with its own preprocessing.
+    pub fn training_parts(
+        root: &Path,
+        (train, val): (&FreiburgPreprocess, &FreiburgPreprocess),
+        validate: bool,
+        labels: bool,
+    ) -> Result<(Self, Option<Self>), DataError> {
+        let tree = Self::open(root, train.clone())?.part(FreiburgPart::TrainTree);
+        let tree = match labels {
+            true => tree.filter(|_, _, labelled| labelled),
+            false => tree,
+        };
+        if tree.is_empty() {
+            return Err(DataError::Layout {
+                root: root.to_path_buf(),
+                message: match labels {
+                    true => "no labelled frames in a Freiburg training tree (<run>/<seq>/fl_rgb + fl_rgb_labels)",
+                    false => "no frames in a Freiburg training tree (<run>/<seq>/fl_rgb)",
+                }
+                .into(),
+            });
+        }
+        let val = match validate {
+            true => Some(
+                Self::open(root, val.clone())?
+                    .part(FreiburgPart::Validation)
+                    .filter(|_, _, labelled| labelled),
+            ),
+            false => None,
+        };
+        Ok((tree, val.filter(|v| !v.is_empty())))
+    }
+
+    /// The frames of the part named `name` (`test`: the test layout, `train`: the training
+    /// tree), only its labelled ones when `labels` (then at least one).
+    pub fn named_part(
+        root: &Path,
+        name: &str,
+        preprocess: FreiburgPreprocess,
+        labels: bool,
+    ) -> Result<Self, DataError> {
+        let layout = |message: String| DataError::Layout {
+            root: root.to_path_buf(),
+            message,
+        };
+        let part = match name {
+            "test" => FreiburgPart::TestLayout,
+            "train" => FreiburgPart::TrainTree,
+            other => {
+                return Err(layout(format!(
+                    "a Freiburg Thermal root has the splits `test` and `train`, not `{other}`"
+                )))
+            }
+        };
+        let frames = Self::open(root, preprocess)?.part(part);
+        if !labels {
+            return Ok(frames);
+        }
+        let frames = frames.filter(|_, _, labelled| labelled);
+        match frames.is_empty() {
+            true => Err(layout(format!("no labelled frames in its `{name}` part"))),
+            false => Ok(frames),
+        }
+    }
+}
+
 /// A Freiburg frame as stored.
 #[derive(Debug, Clone)]
 pub struct RawFreiburgFrame {

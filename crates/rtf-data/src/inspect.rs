@@ -4,7 +4,7 @@
 //! every problem with its file name.
 
 use crate::described::DescribedDataset;
-use crate::description::{DatasetDescription, LayoutKind};
+use crate::description::DatasetDescription;
 use crate::freiburg::{FreiburgPreprocess, FreiburgSplit};
 use crate::mf::parse_split;
 use crate::{DataError, FrameSource, MfDataset};
@@ -14,110 +14,8 @@ use serde::Serialize;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum DatasetFormat {
-    Mf,
-    Freiburg,
-    /// BDD100K night as HeatNet reads it: `<list>.txt`, `images/<split>/`, `labels/<split>/`.
-    Bdd,
-    /// `ROOT/dataset.yaml` and the folders it names ([`crate::description`]).
-    Plain,
-    /// MSRS: `{train,test}/{vi,ir,Label}` ([`crate::layouts::msrs`]).
-    Msrs,
-    /// PST900: `{train,test}/{rgb,thermal,labels}` ([`crate::layouts::pst900`]).
-    Pst900,
-    /// FMB: `{train,test}/{Visible,Infrared,Label}` ([`crate::layouts::fmb`]).
-    Fmb,
-}
-
-impl DatasetFormat {
-    /// Whether frames of this layout are read through a [`DatasetDescription`].
-    pub fn is_described(self) -> bool {
-        matches!(self, Self::Plain | Self::Msrs | Self::Pst900 | Self::Fmb)
-    }
-
-    /// The layout's name as `rtf data check` prints it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Mf => "MF",
-            Self::Freiburg => "Freiburg Thermal",
-            Self::Bdd => "BDD100K night",
-            Self::Plain => LayoutKind::Plain.name(),
-            Self::Msrs => LayoutKind::Msrs.name(),
-            Self::Pst900 => LayoutKind::Pst900.name(),
-            Self::Fmb => LayoutKind::Fmb.name(),
-        }
-    }
-}
-
-impl From<LayoutKind> for DatasetFormat {
-    fn from(kind: LayoutKind) -> Self {
-        match kind {
-            LayoutKind::Plain => Self::Plain,
-            LayoutKind::Msrs => Self::Msrs,
-            LayoutKind::Pst900 => Self::Pst900,
-            LayoutKind::Fmb => Self::Fmb,
-        }
-    }
-}
-
-/// What a root that is no dataset is told.
-pub const NOT_A_DATASET: &str = "not a dataset root: expected dataset.yaml (plain layout), images/ + labels/ (MF), fl_rgb/ or ImagesRGB/ folders (Freiburg Thermal), or {train,test}/ with vi+ir (MSRS), rgb+thermal (PST900) or Visible+Infrared (FMB)";
-
-/// Recognises a dataset root by its layout. A dataset.yaml wins over every built-in layout.
-pub fn detect_format(root: &Path) -> Option<DatasetFormat> {
-    if root.join(crate::description::DESCRIPTION_FILE).is_file() {
-        return Some(DatasetFormat::Plain);
-    }
-    if root.join("images").is_dir() && root.join("labels").is_dir() {
-        // BDD keeps its images in per-split folders; MF keeps PNGs directly in images/.
-        return Some(if bdd_splits(root).is_empty() {
-            DatasetFormat::Mf
-        } else {
-            DatasetFormat::Bdd
-        });
-    }
-    let mut found = Vec::new();
-    for name in ["fl_rgb", "ImagesRGB"] {
-        let _ = find_dir(root, name, 6, &mut found);
-    }
-    if !found.is_empty() {
-        return Some(DatasetFormat::Freiburg);
-    }
-    crate::layouts::recognise(root).map(DatasetFormat::from)
-}
-
-/// Sub-folders of `images/` that have a matching `labels/` folder (BDD splits).
-fn bdd_splits(root: &Path) -> Vec<String> {
-    let mut out: Vec<String> = std::fs::read_dir(root.join("images"))
-        .map(|rd| {
-            rd.flatten()
-                .map(|e| e.path())
-                .filter(|p| p.is_dir())
-                .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
-                .filter(|n| root.join("labels").join(n).is_dir())
-                .collect()
-        })
-        .unwrap_or_default();
-    out.sort();
-    out
-}
-
-/// List files (`*.txt`) in a root, by stem.
-fn list_files(root: &Path) -> Vec<String> {
-    let mut out: Vec<String> = std::fs::read_dir(root)
-        .map(|rd| {
-            rd.flatten()
-                .map(|e| e.path())
-                .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "txt"))
-                .filter_map(|p| p.file_stem().map(|n| n.to_string_lossy().into_owned()))
-                .collect()
-        })
-        .unwrap_or_default();
-    out.sort();
-    out
-}
+use crate::dataset::{bdd_splits, Dataset, Layout};
+pub use crate::dataset::{recognise as detect_format, DatasetFormat, NOT_A_DATASET};
 
 /// The BDD split folder holding a list's first frame (HeatNet uses `val`).
 fn bdd_split_of(root: &Path, list: &str) -> Option<String> {
@@ -135,7 +33,7 @@ fn bdd_split_of(root: &Path, list: &str) -> Option<String> {
 
 fn check_bdd(root: &Path) -> (usize, Vec<Problem>) {
     let mut problems = Vec::new();
-    let lists = list_files(root);
+    let lists = crate::bdd::lists(root);
     if lists.is_empty() {
         problems.push(problem(
             root,
@@ -179,21 +77,6 @@ fn check_bdd(root: &Path) -> (usize, Vec<Problem>) {
         problems.extend(decoded);
     }
     (frames, problems)
-}
-
-fn find_dir(root: &Path, name: &str, depth: usize, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
-    for e in std::fs::read_dir(root)? {
-        let p = e?.path();
-        if p.is_dir() {
-            if p.file_name().is_some_and(|n| n == name) {
-                out.push(p);
-                return Ok(());
-            } else if depth > 0 {
-                find_dir(&p, name, depth - 1, out)?;
-            }
-        }
-    }
-    Ok(())
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -265,36 +148,38 @@ impl CheckReport {
 /// Validates a dataset completely; every problem is listed (sorted by path).
 pub fn check(root: &Path) -> CheckReport {
     let format = detect_format(root);
-    let mut description = None;
-    let (frames, mut problems) = match format {
-        Some(DatasetFormat::Mf) => check_mf(root),
-        Some(DatasetFormat::Freiburg) => check_freiburg(root),
-        Some(DatasetFormat::Bdd) => check_bdd(root),
-        Some(_) => match crate::layouts::describe(root) {
-            Some(Ok(d)) => {
-                let checked = check_described(&d);
-                description = Some(d);
-                checked
-            }
-            Some(Err(e)) => (0, vec![from_error(root, e)]),
-            None => (0, vec![problem(root, NOT_A_DATASET)]),
-        },
-        None => (0, vec![problem(root, NOT_A_DATASET)]),
-    };
-    problems.sort_by(|a, b| a.path.cmp(&b.path).then(a.message.cmp(&b.message)));
-    let class_set = match (format, &description) {
-        (_, Some(d)) => Some(d.class_set.clone()),
-        (Some(DatasetFormat::Mf), _) => Some(ClassSet::mf()),
-        (Some(DatasetFormat::Freiburg | DatasetFormat::Bdd), _) => Some(ClassSet::freiburg()),
-        _ => None,
+    let fault = match format.map(|f| Dataset::open_as(root, f)) {
+        Some(Ok(dataset)) => return check_opened(&dataset),
+        Some(Err(e)) => from_error(root, e),
+        None => problem(root, NOT_A_DATASET),
     };
     CheckReport {
         root: root.to_path_buf(),
         format,
+        frames: 0,
+        problems: vec![fault],
+        class_set: None,
+        thermal: None,
+    }
+}
+
+/// Validates an opened dataset completely; every problem is listed (sorted by path).
+pub fn check_opened(dataset: &Dataset) -> CheckReport {
+    let root = dataset.root();
+    let (frames, mut problems) = match dataset.layout() {
+        Layout::Mf => check_mf(root),
+        Layout::Freiburg => check_freiburg(root),
+        Layout::Bdd => check_bdd(root),
+        Layout::Described(d) => check_described(d),
+    };
+    problems.sort_by(|a, b| a.path.cmp(&b.path).then(a.message.cmp(&b.message)));
+    CheckReport {
+        root: root.to_path_buf(),
+        format: Some(dataset.format()),
         frames,
         problems,
-        class_set,
-        thermal: description.map(|d| d.thermal.describe()),
+        class_set: Some(dataset.class_set()),
+        thermal: dataset.description().map(|d| d.thermal.describe()),
     }
 }
 
@@ -774,22 +659,17 @@ pub struct Stats {
 
 /// Frames per split and day/night, and per-class pixel shares over all distinct labelled frames.
 pub fn stats(root: &Path) -> Result<Stats, DataError> {
-    let format = detect_format(root).ok_or_else(|| DataError::Layout {
-        root: root.to_path_buf(),
-        message: NOT_A_DATASET.into(),
-    })?;
-    let counted = match format {
-        DatasetFormat::Mf => mf_counts(root)?,
-        DatasetFormat::Freiburg => freiburg_counts(root)?,
-        DatasetFormat::Bdd => bdd_counts(root)?,
-        _ => {
-            let description =
-                crate::layouts::describe(root).ok_or_else(|| DataError::Layout {
-                    root: root.to_path_buf(),
-                    message: NOT_A_DATASET.into(),
-                })??;
-            described_counts(&description)?
-        }
+    stats_opened(&crate::dataset::open(root)?)
+}
+
+/// [`stats`] of an opened dataset.
+pub fn stats_opened(dataset: &Dataset) -> Result<Stats, DataError> {
+    let root = dataset.root();
+    let counted = match dataset.layout() {
+        Layout::Mf => mf_counts(root)?,
+        Layout::Freiburg => freiburg_counts(root)?,
+        Layout::Bdd => bdd_counts(root)?,
+        Layout::Described(description) => described_counts(description)?,
     };
     let Counted {
         splits,
@@ -818,7 +698,7 @@ pub fn stats(root: &Path) -> Result<Stats, DataError> {
         .collect();
     Ok(Stats {
         root: root.to_path_buf(),
-        format,
+        format: dataset.format(),
         splits,
         labelled_frames: labelled,
         classes,
@@ -933,7 +813,7 @@ fn bdd_counts(root: &Path) -> Result<Counted, DataError> {
     let mut counts = vec![0u64; 256];
     let mut seen: BTreeMap<String, ()> = BTreeMap::new();
     let (mut labelled, mut splits) = (0, Vec::new());
-    for list in list_files(root) {
+    for list in crate::bdd::lists(root) {
         let split_name = bdd_split_of(root, &list).ok_or_else(|| DataError::Layout {
             root: root.to_path_buf(),
             message: format!("{list}.txt: its first frame is in no images/<split>/ folder"),

@@ -1,11 +1,14 @@
 //! rtf-data: datasets, synthetic generator, augmentation, input pipeline.
 //!
+//! - [`open`] recognises a dataset root once into a [`Dataset`] (layout, class set, thermal
+//!   rule, splits) that every command and training phase takes ([`dataset`]).
 //! - [`MfDataset`] reads the MF layout (spec §1); every split implements [`FrameSource`].
 //! - [`Loader`] turns a frame source into shuffled, augmented `tch` batches.
 //! - [`synth`] writes synthetic datasets in the real layouts.
 
 pub mod augment;
 pub mod bdd;
+pub mod dataset;
 pub mod described;
 pub mod description;
 pub mod error;
@@ -30,6 +33,7 @@ pub mod tiffio;
 pub mod trained_on;
 
 pub use augment::{resize_frame, AugmentConfig};
+pub use dataset::{open, Dataset, DatasetFormat};
 pub use described::{DescribedDataset, DescribedSplit};
 pub use description::DatasetDescription;
 pub use error::DataError;

@@ -120,6 +120,18 @@ impl MfDataset {
         })
     }
 
+    /// The training split (images only unless `labels`) and the validation split, if named.
+    pub fn training_splits(
+        &self,
+        train: &str,
+        val: Option<&str>,
+        labels: bool,
+    ) -> Result<(MfSplit, Option<MfSplit>), DataError> {
+        let train = self.split_with(train, labels)?;
+        let val = val.map(|name| self.split(name)).transpose()?;
+        Ok((train, val))
+    }
+
     /// Decodes one frame's image alone (its label file is not opened).
     pub fn load_image_frame(&self, name: &str) -> Result<Frame, DataError> {
         let mut frame = read_mf_image(&self.image_path(name))?;

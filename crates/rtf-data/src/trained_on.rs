@@ -45,6 +45,23 @@ impl TrainedOn {
         }
     }
 
+    /// What weights trained on MF record: its 9 classes, thermal as byte / 255.
+    pub fn mf() -> Self {
+        Self {
+            classes: ClassSet::mf(),
+            thermal: Some(ThermalNormalisation::Byte),
+        }
+    }
+
+    /// What weights trained on Freiburg Thermal (or BDD, read with its classes) record: its 13
+    /// classes; the thermal rule is the preprocessing's clip.
+    pub fn freiburg() -> Self {
+        Self {
+            classes: ClassSet::freiburg(),
+            thermal: None,
+        }
+    }
+
     /// The metadata entry for a weights file.
     pub fn metadata_entry(&self) -> (String, String) {
         let json = serde_json::to_string(self).expect("a class set serialises");

@@ -19,10 +19,7 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 use rtf_core::Daytime;
 use rtf_data::frame::Subset;
-use rtf_data::{
-    FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit, Loader, LoaderConfig, MfDataset,
-    TrainedOn,
-};
+use rtf_data::{FrameSource, Loader, LoaderConfig, TrainedOn};
 use rtf_eval::{EvalOptions, EvalReport};
 use rtf_models::Network;
 use serde::{Deserialize, Serialize};
@@ -127,134 +124,36 @@ struct Sources {
     night: Option<Source>,
     val: Option<Source>,
     ignore_id: Option<u8>,
-    freiburg: bool,
+    /// The dataset, opened once.
+    dataset: rtf_data::Dataset,
     /// The class set and thermal rule the weights record (rtf_data::trained_on).
     trained_on: TrainedOn,
 }
 
-/// A dataset's training frames, validation frames, whether it is Freiburg, and what the
-/// weights trained on it record.
-type Opened = (Source, Option<Source>, bool, TrainedOn);
+/// A dataset's training frames, validation frames, the opened dataset (its layout says
+/// whether validation scores HeatNet's convention; its fingerprint goes in config.json), and
+/// what the weights trained on it record.
+type Opened = (Source, Option<Source>, rtf_data::Dataset, TrainedOn);
 
-/// A dataset's training frames (labelled ones when `labels`) and the rest of [`Opened`].
+/// A dataset's training frames (labelled ones when `labels`) and the rest of [`Opened`]: the
+/// root opened once by rtf-data as the kind the run recorded. A root whose classes differ from
+/// those recorded when the run started is refused.
 fn open_dataset(dataset: &DatasetConfig, labels: bool) -> Result<Opened, TrainError> {
-    match dataset {
-        DatasetConfig::Mf {
-            root,
-            train_split,
-            val_split,
-        } => mf_sources(root, train_split, val_split.as_deref(), labels),
-        DatasetConfig::Freiburg {
-            root,
-            train_preprocess,
-            val_preprocess,
-            validate,
-        } => freiburg_sources(root, (train_preprocess, val_preprocess), *validate, labels),
-        DatasetConfig::Described {
-            root,
-            train_split,
-            val_split,
-            trained_on,
-        } => described_sources(root, train_split, val_split.as_deref(), trained_on.as_ref()),
-    }
-}
-
-/// An MF root's training split (images only unless `labels`) and validation split.
-fn mf_sources(
-    root: &Path,
-    train_split: &str,
-    val_split: Option<&str>,
-    labels: bool,
-) -> Result<Opened, TrainError> {
-    let mf = MfDataset::open(root)?;
-    let train: Source = match labels {
-        true => Arc::new(mf.split(train_split)?),
-        false => Arc::new(mf.split_images_only(train_split)?),
-    };
-    let val = match val_split {
-        Some(name) => Some(Arc::new(mf.split(name)?) as Source),
-        None => None,
-    };
-    let trained_on = TrainedOn {
-        classes: rtf_core::ClassSet::mf(),
-        thermal: Some(rtf_data::thermal::ThermalNormalisation::Byte),
-    };
-    Ok((train, val, false, trained_on))
-}
-
-/// A Freiburg root's training tree (its labelled frames when `labels`) and, when `validate`,
-/// the labelled frames of its validation part; each with its own preprocessing.
-fn freiburg_sources(
-    root: &Path,
-    (train_preprocess, val_preprocess): (&FreiburgPreprocess, &FreiburgPreprocess),
-    validate: bool,
-    labels: bool,
-) -> Result<Opened, TrainError> {
-    let tree = FreiburgSplit::open(root, train_preprocess.clone())?.part(FreiburgPart::TrainTree);
-    let train = match labels {
-        true => tree.filter(|_, _, labelled| labelled),
-        false => tree,
-    };
-    if train.is_empty() {
-        return Err(run_error(
-            root,
-            match labels {
-                true => "no labelled frames in a Freiburg training tree (<run>/<seq>/fl_rgb + fl_rgb_labels)",
-                false => "no frames in a Freiburg training tree (<run>/<seq>/fl_rgb)",
-            },
-        ));
-    }
-    let val = match validate {
-        true => Some(
-            FreiburgSplit::open(root, val_preprocess.clone())?
-                .part(FreiburgPart::Validation)
-                .filter(|_, _, labelled| labelled),
-        ),
-        false => None,
-    }
-    .filter(|v| !v.is_empty())
-    .map(|v| Arc::new(v) as Source);
-    let trained_on = TrainedOn {
-        classes: rtf_core::ClassSet::freiburg(),
-        thermal: None,
-    };
-    Ok((Arc::new(train), val, true, trained_on))
-}
-
-/// The training split and the validation split (if named) of a described root (not Freiburg).
-/// A root whose classes differ from those `recorded` when the run started is refused.
-fn described_sources(
-    root: &Path,
-    train_split: &str,
-    val_split: Option<&str>,
-    recorded: Option<&TrainedOn>,
-) -> Result<Opened, TrainError> {
-    let description = rtf_data::layouts::describe(root)
-        .ok_or_else(|| run_error(root, rtf_data::inspect::NOT_A_DATASET))??;
-    let trained_on = TrainedOn::of(&description);
-    if let Some(recorded) = recorded {
-        let origin = &description.origin;
+    let choice = dataset.choice();
+    let opened = rtf_data::Dataset::open_recorded(dataset.root(), choice.kind)?;
+    let trained_on = opened.trained_on();
+    if let Some(recorded) = dataset.recorded() {
         let hint = "the dataset's classes changed since the run started (its config.json \
                     records them): restore them, or start a new run";
         recorded.check_data(
             Path::new(rundir::CONFIG_FILE),
-            origin,
+            opened.origin(),
             &trained_on.classes,
             hint,
         )?;
     }
-    let dataset = rtf_data::DescribedDataset::new(description);
-    let train = dataset.split(train_split)?;
-    let holdout = val_split.and_then(rtf_data::described::parse_holdout);
-    if let Some(every) = holdout {
-        let (kept, held) = train.hold_out(every);
-        return Ok((Arc::new(kept), Some(Arc::new(held)), false, trained_on));
-    }
-    let val = match val_split {
-        Some(name) => Some(Arc::new(dataset.split(name)?) as Source),
-        None => None,
-    };
-    Ok((Arc::new(train), val, false, trained_on))
+    let frames = opened.training(&choice, labels)?;
+    Ok((frames.train, frames.val, opened, trained_on))
 }
 
 /// An error writing RUN/steps.jsonl, naming the file.
@@ -264,7 +163,7 @@ fn step_log_error(run_dir: &Path, e: std::io::Error) -> TrainError {
 
 fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
     let labels = cfg.learning.procedure.reads_labels();
-    let (train, val, freiburg, trained_on) = open_dataset(&cfg.data.dataset, labels)?;
+    let (train, val, dataset, trained_on) = open_dataset(&cfg.data.dataset, labels)?;
     let ignore_id = train.class_set().ignore_id;
     if labels {
         return Ok(Sources {
@@ -272,7 +171,7 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
             night: None,
             val,
             ignore_id,
-            freiburg,
+            dataset,
             trained_on,
         });
     }
@@ -301,7 +200,7 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
         main: day,
         night,
         val,
-        freiburg,
+        dataset,
         trained_on,
     })
 }
@@ -328,11 +227,12 @@ fn loader(
     )
 }
 
-/// The default selection metric of a dataset: HeatNet's day/night mIoU on Freiburg, mIoU on MF.
-pub fn default_select_metric(dataset: &DatasetConfig) -> SelectMetric {
-    match dataset {
-        DatasetConfig::Freiburg { .. } => SelectMetric::HeatnetMiou,
-        DatasetConfig::Mf { .. } | DatasetConfig::Described { .. } => SelectMetric::Miou,
+/// The default selection metric of a dataset: HeatNet's day/night mIoU where validation
+/// scores HeatNet's convention (Freiburg Thermal), mIoU elsewhere.
+pub fn default_select_metric(dataset: &rtf_data::Dataset) -> SelectMetric {
+    match dataset.scores_heatnet() {
+        true => SelectMetric::HeatnetMiou,
+        false => SelectMetric::Miou,
     }
 }
 
@@ -542,12 +442,8 @@ fn record_config(
     }
     procedure::check_teachers(cfg)?;
     let mut cfg_written = cfg.clone();
-    let root = match &cfg.data.dataset {
-        DatasetConfig::Mf { root, .. }
-        | DatasetConfig::Freiburg { root, .. }
-        | DatasetConfig::Described { root, .. } => root,
-    };
-    let fingerprint = rtf_data::fingerprint(root)?;
+    let root = sources.dataset.root();
+    let fingerprint = rtf_data::fingerprint::fingerprint_opened(&sources.dataset)?;
     if let Some(before) = cfg
         .data
         .fingerprint
@@ -903,12 +799,12 @@ impl<'a> Run<'a> {
             state,
             val,
             step_log,
-            freiburg: sources.freiburg,
+            freiburg: sources.dataset.scores_heatnet(),
             trained_on: sources.trained_on.clone(),
             select: cfg
                 .schedule
                 .select_by
-                .unwrap_or_else(|| default_select_metric(&cfg.data.dataset)),
+                .unwrap_or_else(|| default_select_metric(&sources.dataset)),
             steps_per_epoch,
             tb,
             first_epoch,

@@ -4,7 +4,7 @@
 //! `scripts/bench_data.py` does with PIL + NumPy.
 
 use anyhow::{bail, Context, Result};
-use rtf_data::{AugmentConfig, FrameSource, Loader, LoaderConfig, MfDataset};
+use rtf_data::{AugmentConfig, FrameSource, Loader, LoaderConfig};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -31,31 +31,18 @@ pub struct Args {
     pub json: bool,
 }
 
-/// The split to time and its name.
+/// The split to time and its name (the first split unless named), the root opened once.
 fn open(args: &Args) -> Result<(Arc<dyn FrameSource>, String)> {
-    if super::segmentation_format(&args.data, "a benchmark")?.is_described() {
-        let description = super::described(&args.data)?;
-        let name = match &args.split {
-            Some(s) => s.clone(),
-            None => description
-                .split_names()
-                .first()
-                .context("no splits")?
-                .to_string(),
-        };
-        let split = rtf_data::DescribedDataset::new(description).split(&name)?;
-        return Ok((Arc::new(split), name));
-    }
-    let ds = MfDataset::open(&args.data)?;
+    let dataset = super::open_dataset(&args.data, "a benchmark")?;
     let name = match &args.split {
         Some(s) => s.clone(),
-        None => ds
-            .split_names()
+        None => dataset
+            .split_names()?
             .first()
             .cloned()
-            .context("no split files")?,
+            .context("no splits")?,
     };
-    Ok((Arc::new(ds.split(&name)?), name))
+    Ok((dataset.split(&name, true)?, name))
 }
 
 pub fn run(args: Args) -> Result<()> {

@@ -3,7 +3,7 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use rtf_data::inspect::DatasetFormat;
-use rtf_data::{FrameSource, FreiburgPart, FreiburgPreprocess, FreiburgSplit, MfDataset};
+use rtf_data::FrameSource;
 use rtf_eval::metrics::HEATNET_MIOU_CLASSES;
 use rtf_eval::{EvalOptions, Scores};
 use rtf_train::config::available_device;
@@ -226,47 +226,14 @@ impl HeatnetScores {
     }
 }
 
-/// The frames of `split` under `root`, by the root's layout.
+/// The labelled frames of `split` under `root`, the root opened once (its layout decides how;
+/// Freiburg Thermal: `test` or `train`, with the reference test preprocessing).
 pub(crate) fn open_split(
     root: &Path,
     split: &str,
-) -> Result<(Arc<dyn FrameSource>, DatasetFormat)> {
-    match super::segmentation_format(root, "an evaluation")? {
-        DatasetFormat::Mf => Ok((
-            Arc::new(MfDataset::open(root)?.split(split)?),
-            DatasetFormat::Mf,
-        )),
-        DatasetFormat::Freiburg => {
-            let part = match split {
-                "test" => FreiburgPart::TestLayout,
-                "train" => FreiburgPart::TrainTree,
-                other => anyhow::bail!(
-                    "{}: a Freiburg Thermal root has the splits `test` and `train`, not `{other}`",
-                    root.display()
-                ),
-            };
-            let frames = FreiburgSplit::open(root, FreiburgPreprocess::reference_test())?
-                .part(part)
-                .filter(|_, _, labelled| labelled);
-            anyhow::ensure!(
-                !frames.is_empty(),
-                "{}: no labelled frames in its `{split}` part",
-                root.display()
-            );
-            Ok((Arc::new(frames), DatasetFormat::Freiburg))
-        }
-        format => {
-            let description = super::described(root)?;
-            let split = rtf_data::DescribedDataset::new(description).split(split)?;
-            anyhow::ensure!(
-                split.labelled(),
-                "{}: the `{}` split has no labels to evaluate against",
-                root.display(),
-                split.name()
-            );
-            Ok((Arc::new(split), format))
-        }
-    }
+) -> Result<(Arc<dyn FrameSource>, rtf_data::Dataset)> {
+    let dataset = super::open_dataset(root, "an evaluation")?;
+    Ok((dataset.split(split, true)?, dataset))
 }
 
 /// Refuses, before any work, a --json or --figure path that must not be written.
@@ -285,7 +252,7 @@ fn check_outputs(args: &Args) -> Result<()> {
 pub fn run(args: Args) -> Result<()> {
     check_outputs(&args)?;
     let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
-    let (split, format) = open_split(&args.data, &args.split)?;
+    let (split, dataset) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();
     // Weights that record their classes score only data with the same ones (by name).
     super::check_classes(&args.weights, &args.data, &classes)?;
@@ -305,10 +272,10 @@ pub fn run(args: Args) -> Result<()> {
     let data_fingerprint = args
         .json
         .as_ref()
-        .map(|_| rtf_data::fingerprint(&args.data))
+        .map(|_| rtf_data::fingerprint::fingerprint_opened(&dataset))
         .transpose()?;
     let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
-    let heatnet = print_scores(&args, format, &report, loaded.inputs);
+    let heatnet = print_scores(&args, dataset.format(), &report, loaded.inputs);
     let dropped = scores_without_modalities(
         &args,
         network.as_ref(),

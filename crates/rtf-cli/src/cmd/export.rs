@@ -182,18 +182,15 @@ fn class_set_of_run(weights: &Path, classes: i64) -> Option<(rtf_core::ClassSet,
 /// through rtf-train's own config reader (sectioned or older flat config.json); None when the
 /// folder holds no readable run.
 fn run_class_set(dir: &Path) -> Option<rtf_core::ClassSet> {
-    use rtf_train::config::{DatasetConfig, RunConfig};
+    use rtf_train::config::RunConfig;
     let dataset = match rtf_train::trainer::read_config(dir).ok()? {
         RunConfig::Single(cfg) => cfg.data.dataset,
         RunConfig::Pipeline(p) => p.stages.last()?.config.data.dataset.clone(),
     };
-    match dataset {
-        DatasetConfig::Mf { .. } => Some(rtf_core::ClassSet::mf()),
-        DatasetConfig::Freiburg { .. } => Some(rtf_core::ClassSet::freiburg()),
-        DatasetConfig::Described { root, .. } => rtf_data::layouts::describe(&root)?
-            .ok()
-            .map(|d| d.class_set),
-    }
+    let kind = dataset.choice().kind;
+    rtf_data::Dataset::open_recorded(dataset.root(), kind)
+        .ok()
+        .map(|d| d.class_set())
 }
 
 /// Adds `<archive>/extra/rtf.json` to a TorchScript archive written by libtorch.

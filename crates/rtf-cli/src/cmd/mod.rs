@@ -28,24 +28,27 @@ pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
     }
 }
 
-/// The layout of a dataset root that `rtf train` / `rtf eval` read (MF, Freiburg Thermal, or a
-/// described layout: dataset.yaml, MSRS, PST900, FMB);
+/// A dataset root that `rtf train` / `rtf eval` read, opened once (rtf_data::dataset): MF,
+/// Freiburg Thermal, or a described layout (dataset.yaml, MSRS, PST900, FMB), the last
+/// announced on stderr (rtf says which layout, classes and thermal rule it inferred);
 /// anything else is an error naming the root. `purpose` words the error ("a training").
-pub fn segmentation_format(
-    root: &std::path::Path,
-    purpose: &str,
-) -> anyhow::Result<rtf_data::inspect::DatasetFormat> {
-    use rtf_data::inspect::DatasetFormat;
-    match rtf_data::inspect::detect_format(root) {
-        Some(format @ (DatasetFormat::Mf | DatasetFormat::Freiburg)) => Ok(format),
-        Some(format) if format.is_described() => Ok(format),
+pub fn open_dataset(root: &std::path::Path, purpose: &str) -> anyhow::Result<rtf_data::Dataset> {
+    use rtf_data::DatasetFormat;
+    let format = match rtf_data::dataset::recognise(root) {
+        Some(format @ (DatasetFormat::Mf | DatasetFormat::Freiburg)) => format,
+        Some(format) if format.is_described() => format,
         other => anyhow::bail!(
             "{}: not {purpose} dataset rtf can read ({}; expected dataset.yaml, or the MF, \
              Freiburg Thermal, MSRS, PST900 or FMB layout, see `rtf data check`)",
             root.display(),
             other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))
         ),
+    };
+    let dataset = rtf_data::Dataset::open_as(root, format)?;
+    if let Some(line) = dataset.announcement() {
+        eprintln!("data: {line}");
     }
+    Ok(dataset)
 }
 
 /// A network loaded for inference, behind the input mask it was trained with.
@@ -136,23 +139,6 @@ pub fn check_classes(
         t.check_data(weights, data, classes, rtf_data::trained_on::WEIGHTS_HINT)?;
     }
     Ok(trained)
-}
-
-/// A described root's description (dataset.yaml read and checked, or a built-in layout),
-/// announced on stderr: rtf says which layout, classes and thermal rule it inferred.
-pub fn described(root: &std::path::Path) -> anyhow::Result<rtf_data::DatasetDescription> {
-    let description = rtf_data::layouts::describe(root).ok_or_else(|| {
-        anyhow::anyhow!("{}: {}", root.display(), rtf_data::inspect::NOT_A_DATASET)
-    })??;
-    eprintln!(
-        "data: {}: {} layout; {} classes ({}); thermal {}",
-        root.display(),
-        description.layout.name(),
-        description.class_set.len(),
-        description.class_set.names().join(", "),
-        description.thermal.describe()
-    );
-    Ok(description)
 }
 
 #[cfg(test)]

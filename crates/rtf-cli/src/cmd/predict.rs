@@ -82,16 +82,18 @@ pub struct Args {
 /// The class set of a dataset root in a described layout (dataset.yaml, MSRS, PST900, FMB) or
 /// of a dataset.yaml file.
 fn described_class_set(path: &Path) -> Result<ClassSet> {
-    let description = if path.is_file() {
-        rtf_data::description::read_description(path)?
-    } else if let Some(description) = rtf_data::layouts::describe(path) {
-        description?
-    } else {
-        bail!(
+    let described = rtf_data::dataset::recognise(path).filter(|f| f.is_described());
+    let description = match described {
+        _ if path.is_file() => rtf_data::description::read_description(path)?,
+        Some(format) => rtf_data::Dataset::open_as(path, format)?
+            .description()
+            .cloned()
+            .context("a described layout has a description")?,
+        None => bail!(
             "--classes {}: not mf, freiburg, a dataset.yaml or a dataset root with one \
              (or an MSRS, PST900 or FMB root)",
             path.display()
-        );
+        ),
     };
     eprintln!(
         "classes: {} ({}): {}",

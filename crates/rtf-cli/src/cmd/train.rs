@@ -433,38 +433,48 @@ fn print_epoch(stage: &str) -> impl FnMut(&rtf_train::EpochRecord) + '_ {
 fn dataset_of(data: &Path, args: &Args) -> Result<(DatasetConfig, ClassSet)> {
     let root = std::fs::canonicalize(data)
         .with_context(|| format!("{}: cannot open the dataset root", data.display()))?;
+    let dataset = super::open_dataset(&root, "a training")?;
+    let Some(description) = dataset.description() else {
+        return built_in_dataset(root, &dataset, args, data);
+    };
+    described_dataset(root, description, args)
+}
+
+/// An MF or Freiburg Thermal root: the layout fixes the class set and the splits (Freiburg:
+/// none to name).
+fn built_in_dataset(
+    root: PathBuf,
+    dataset: &rtf_data::Dataset,
+    args: &Args,
+    data: &Path,
+) -> Result<(DatasetConfig, ClassSet)> {
     let val = args.val_split.clone().unwrap_or_else(|| "val".into());
     let validate = val != "none";
-    Ok(match super::segmentation_format(&root, "a training")? {
-        DatasetFormat::Mf => (
-            DatasetConfig::Mf {
-                root,
-                train_split: args.train_split.clone().unwrap_or_else(|| "train".into()),
-                val_split: validate.then_some(val),
-            },
-            ClassSet::mf(),
-        ),
-        DatasetFormat::Freiburg => {
-            anyhow::ensure!(
-                args.train_split.is_none() && ["val", "none"].contains(&val.as_str()),
-                "{}: a Freiburg Thermal root has no named splits (training tree, val and test \
-                 layouts); drop --train-split, and use --val-split only as \"none\"",
-                data.display()
-            );
-            (
-                DatasetConfig::freiburg(root, validate),
-                ClassSet::freiburg(),
-            )
-        }
-        _ => described_dataset(root, args)?,
-    })
+    if dataset.format() == DatasetFormat::Mf {
+        let config = DatasetConfig::Mf {
+            root,
+            train_split: args.train_split.clone().unwrap_or_else(|| "train".into()),
+            val_split: validate.then_some(val),
+        };
+        return Ok((config, dataset.class_set()));
+    }
+    anyhow::ensure!(
+        args.train_split.is_none() && ["val", "none"].contains(&val.as_str()),
+        "{}: a Freiburg Thermal root has no named splits (training tree, val and test \
+         layouts); drop --train-split, and use --val-split only as \"none\"",
+        data.display()
+    );
+    Ok((DatasetConfig::freiburg(root, validate), dataset.class_set()))
 }
 
 /// A described root (dataset.yaml, MSRS, PST900, FMB): its class set sizes the network. The
 /// public sets ship only train and test, so without a `val` split validation is skipped (said
 /// on stderr); validating on test happens only when named, and is announced.
-fn described_dataset(root: PathBuf, args: &Args) -> Result<(DatasetConfig, ClassSet)> {
-    let description = super::described(&root)?;
+fn described_dataset(
+    root: PathBuf,
+    description: &rtf_data::DatasetDescription,
+    args: &Args,
+) -> Result<(DatasetConfig, ClassSet)> {
     let has = |name: &str| description.split(name).is_some();
     let train_split = args.train_split.clone().unwrap_or_else(|| "train".into());
     let val_split = match args.val_split.as_deref() {
@@ -508,7 +518,7 @@ fn described_dataset(root: PathBuf, args: &Args) -> Result<(DatasetConfig, Class
         root,
         train_split,
         val_split,
-        trained_on: Some(rtf_data::TrainedOn::of(&description)),
+        trained_on: Some(rtf_data::TrainedOn::of(description)),
     };
     Ok((dataset, classes))
 }

@@ -1,5 +1,5 @@
 //! The RGB-T layouts rtf recognises by their roots, besides MF, Freiburg Thermal and BDD
-//! ([`crate::inspect::detect_format`]). Each maps a folder to frames and a class set as a
+//! ([`crate::dataset::recognise`]). Each maps a folder to frames and a class set as a
 //! [`DatasetDescription`]; each file says where its layout comes from.
 //!
 //! - plain: `ROOT/dataset.yaml` ([`crate::description`]) — checked first, so a description
@@ -42,12 +42,17 @@ pub fn recognise(root: &Path) -> Option<LayoutKind> {
 /// The description of `root` in its layout: dataset.yaml read and checked, or the built-in
 /// one. `None` when the root is none of this module's layouts.
 pub fn describe(root: &Path) -> Option<Result<DatasetDescription, DataError>> {
-    Some(match recognise(root)? {
+    Some(describe_as(root, recognise(root)?))
+}
+
+/// The description of `root` read as the layout `kind` (already recognised).
+pub fn describe_as(root: &Path, kind: LayoutKind) -> Result<DatasetDescription, DataError> {
+    match kind {
         LayoutKind::Plain => read_description(&root.join(DESCRIPTION_FILE)),
         LayoutKind::Msrs => Ok(msrs::describe(root)),
         LayoutKind::Pst900 => Ok(pst900::describe(root)),
         LayoutKind::Fmb => Ok(fmb::describe(root)),
-    })
+    }
 }
 
 /// The folders of a built-in layout: split `s` has `s/<rgb>`, `s/<thermal>` and, when present,

@@ -1,7 +1,8 @@
 //! The full, serialisable description of a training run (written to `RUN/config.json`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
+use rtf_data::dataset::{RecordedKind, TrainingChoice};
 use rtf_data::{AugmentConfig, FreiburgPreprocess};
 use rtf_models::ModelConfig;
 use serde::{Deserialize, Serialize};
@@ -452,6 +453,67 @@ impl DatasetConfig {
             train_preprocess: FreiburgPreprocess::reference_train(),
             val_preprocess: FreiburgPreprocess::reference_test(),
             validate,
+        }
+    }
+
+    /// The dataset root the run reads.
+    pub fn root(&self) -> &Path {
+        match self {
+            DatasetConfig::Mf { root, .. }
+            | DatasetConfig::Freiburg { root, .. }
+            | DatasetConfig::Described { root, .. } => root,
+        }
+    }
+
+    /// The frames the run reads, for rtf-data to open ([`rtf_data::dataset::TrainingChoice`]):
+    /// the recorded kind of root, the splits and Freiburg's preprocessing, field by field.
+    pub fn choice(&self) -> TrainingChoice {
+        let reference = || {
+            (
+                FreiburgPreprocess::reference_train(),
+                FreiburgPreprocess::reference_test(),
+            )
+        };
+        match self {
+            DatasetConfig::Mf {
+                train_split,
+                val_split,
+                ..
+            } => TrainingChoice {
+                kind: RecordedKind::Mf,
+                train_split: train_split.clone(),
+                val_split: val_split.clone(),
+                preprocess: reference(),
+            },
+            DatasetConfig::Freiburg {
+                train_preprocess,
+                val_preprocess,
+                validate,
+                ..
+            } => TrainingChoice {
+                kind: RecordedKind::Freiburg,
+                train_split: "train".into(),
+                val_split: validate.then(|| "val".into()),
+                preprocess: (train_preprocess.clone(), val_preprocess.clone()),
+            },
+            DatasetConfig::Described {
+                train_split,
+                val_split,
+                ..
+            } => TrainingChoice {
+                kind: RecordedKind::Described,
+                train_split: train_split.clone(),
+                val_split: val_split.clone(),
+                preprocess: reference(),
+            },
+        }
+    }
+
+    /// The class set and thermal rule recorded when the run started (described roots).
+    pub fn recorded(&self) -> Option<&rtf_data::TrainedOn> {
+        match self {
+            DatasetConfig::Described { trained_on, .. } => trained_on.as_ref(),
+            _ => None,
         }
     }
 }
