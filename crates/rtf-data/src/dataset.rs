@@ -143,7 +143,7 @@ pub enum Layout {
     Mf,
     Freiburg,
     Bdd,
-    Described(DatasetDescription),
+    Described(Box<DatasetDescription>),
 }
 
 /// The kind of root a training run records (the `format` of rtf-train's `DatasetConfig`):
@@ -200,7 +200,9 @@ impl Dataset {
     /// Opens `root` as the layout `format` ([`recognise`]'s answer).
     pub fn open_as(root: &Path, format: DatasetFormat) -> Result<Self, DataError> {
         let layout = match (format, format.described_kind()) {
-            (_, Some(kind)) => Layout::Described(crate::layouts::describe_as(root, kind)?),
+            (_, Some(kind)) => {
+                Layout::Described(Box::new(crate::layouts::describe_as(root, kind)?))
+            }
             (DatasetFormat::Mf, _) => Layout::Mf,
             (DatasetFormat::Freiburg, _) => Layout::Freiburg,
             _ => Layout::Bdd,
@@ -221,7 +223,7 @@ impl Dataset {
                     crate::layouts::describe(root).ok_or_else(|| not_a_dataset(root))??;
                 Ok(Self {
                     root: root.to_path_buf(),
-                    layout: Layout::Described(description),
+                    layout: Layout::Described(Box::new(description)),
                 })
             }
         }
@@ -368,7 +370,7 @@ impl Dataset {
                 Err(self.error("rtf does not train on BDD (it holds no training split)"))?
             }
             Layout::Described(d) => {
-                frames(DescribedDataset::new(d.clone()).training_splits(train, val)?)
+                frames(DescribedDataset::new((**d).clone()).training_splits(train, val)?)
             }
         })
     }
