@@ -111,7 +111,7 @@ fn files_of(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
 }
 
 #[test]
-fn a_dataset_as_distributed_checks_trains_evaluates_and_predicts_unconverted() {
+fn a_dataset_as_distributed_checks_trains_evaluates_predicts_and_reports_unconverted() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("roads");
     roads(&data);
@@ -178,6 +178,13 @@ fn a_dataset_as_distributed_checks_trains_evaluates_and_predicts_unconverted() {
     assert!(
         colour.pixels().all(|p| palette.contains(&p.0)),
         "the hex palette"
+    );
+    let html = tmp.path().join("report.html");
+    ok(&["report", s(&run), "--eval", s(&json), "--out", s(&html)]);
+    let page = std::fs::read_to_string(&html).unwrap();
+    assert!(
+        page.contains("person") && page.contains("car"),
+        "the report names the classes"
     );
     assert_eq!(files_of(&data), before, "nothing written into the dataset");
 }
