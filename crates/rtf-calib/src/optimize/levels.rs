@@ -336,24 +336,13 @@ pub(super) fn depth_samples(frames: &[&Frame]) -> Vec<(f64, f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frames::load_frames;
     use crate::optimize::initial_params;
-    use crate::synth_rig::{write_rig, DepthSource, RigSynthConfig};
 
     #[test]
     fn subsampled_level_keeps_the_cost_of_its_pixels() {
         tch::set_num_threads(1);
         let dir = tempfile::tempdir().unwrap();
-        let cfg = RigSynthConfig {
-            width: 64,
-            height: 48,
-            frames: 2,
-            depth: DepthSource::Given,
-            seed: 5,
-            ..Default::default()
-        };
-        let synth = write_rig(dir.path(), &cfg).unwrap();
-        let frames = load_frames(&synth.rig, &mut |_| {}).unwrap();
+        let (synth, frames) = crate::optimize::small_test_rig(dir.path());
         let used: Vec<&Frame> = frames.iter().collect();
         let scaling = Scaling::new(&synth.rig.rgb, initial_params(&synth.rig), &used);
         let theta = [0.7; NUM_PARAMS];

@@ -430,24 +430,14 @@ impl Problem<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frames::{load_frames, Frame};
+    use crate::frames::Frame;
     use crate::optimize::initial_params;
-    use crate::synth_rig::{write_rig, DepthSource, RigSynthConfig};
 
     #[test]
     fn structure_tensor_normal_equations_match_the_full_jacobian() {
         tch::set_num_threads(1);
         let dir = tempfile::tempdir().unwrap();
-        let cfg = RigSynthConfig {
-            width: 64,
-            height: 48,
-            frames: 2,
-            depth: DepthSource::Given,
-            seed: 5,
-            ..Default::default()
-        };
-        let synth = write_rig(dir.path(), &cfg).unwrap();
-        let frames = load_frames(&synth.rig, &mut |_| {}).unwrap();
+        let (synth, frames) = crate::optimize::small_test_rig(dir.path());
         let used: Vec<&Frame> = frames.iter().collect();
         let scaling = Scaling::new(&synth.rig.rgb, initial_params(&synth.rig), &used);
         let dirs = directions(&(0..NUM_PARAMS).collect::<Vec<_>>(), &scaling, false);
