@@ -173,14 +173,7 @@ fn load_resnet_weights(
         .filter(|k| !used.contains(*k))
         .cloned()
         .collect();
-    if !missing.is_empty() || !unexpected.is_empty() || !mismatched.is_empty() {
-        return Err(ModelError::Mismatch {
-            path: path.to_path_buf(),
-            missing,
-            unexpected,
-            mismatched,
-        });
-    }
+    crate::error::check_names(path, missing, unexpected, mismatched)?;
     tch::no_grad(|| {
         for (mut var, src) in plan {
             match src {

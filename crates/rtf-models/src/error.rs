@@ -97,3 +97,22 @@ fn describe_mismatch(
     }
     out
 }
+
+/// `Ok` when a strict load found nothing missing, unexpected or misshaped; otherwise the
+/// [`ModelError::Mismatch`] naming `path` and every such tensor.
+pub(crate) fn check_names(
+    path: &std::path::Path,
+    missing: Vec<String>,
+    unexpected: Vec<String>,
+    mismatched: Vec<ShapeMismatch>,
+) -> Result<(), ModelError> {
+    if missing.is_empty() && unexpected.is_empty() && mismatched.is_empty() {
+        return Ok(());
+    }
+    Err(ModelError::Mismatch {
+        path: path.to_path_buf(),
+        missing,
+        unexpected,
+        mismatched,
+    })
+}

@@ -74,14 +74,7 @@ pub fn load_mit_weights(vs: &mut VarStore, path: &Path) -> Result<String, ModelE
         .cloned()
         .collect();
     unexpected.dedup();
-    if !missing.is_empty() || !unexpected.is_empty() || !mismatched.is_empty() {
-        return Err(ModelError::Mismatch {
-            path: path.to_path_buf(),
-            missing,
-            unexpected,
-            mismatched,
-        });
-    }
+    crate::error::check_names(path, missing, unexpected, mismatched)?;
     tch::no_grad(|| {
         for (mut var, src) in plan.iter().map(|(v, s)| (v.shallow_clone(), s)) {
             var.copy_(&src.to_kind(var.kind()).to_device(var.device()));

@@ -478,14 +478,7 @@ pub fn load_named_except(
             })
         })
         .collect();
-    if !missing.is_empty() || !unexpected.is_empty() || !mismatched.is_empty() {
-        return Err(ModelError::Mismatch {
-            path: source.to_path_buf(),
-            missing,
-            unexpected,
-            mismatched,
-        });
-    }
+    crate::error::check_names(source, missing, unexpected, mismatched)?;
     for (name, t) in &file {
         check_weight(name, t, source)?;
     }
