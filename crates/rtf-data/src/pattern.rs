@@ -168,7 +168,7 @@ impl FilePattern {
                 readings.len(),
                 readings
                     .iter()
-                    .map(|r| frame_name(r))
+                    .map(frame_name)
                     .collect::<Vec<_>>()
                     .join(" or ")
             )),
