@@ -342,7 +342,7 @@ mod tests {
     fn subsampled_level_keeps_the_cost_of_its_pixels() {
         tch::set_num_threads(1);
         let dir = tempfile::tempdir().unwrap();
-        let (synth, frames) = crate::optimize::small_test_rig(dir.path());
+        let (synth, frames) = crate::optimize::tests::small_test_rig(dir.path());
         let used: Vec<&Frame> = frames.iter().collect();
         let scaling = Scaling::new(&synth.rig.rgb, initial_params(&synth.rig), &used);
         let theta = [0.7; NUM_PARAMS];

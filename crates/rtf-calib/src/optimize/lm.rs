@@ -437,7 +437,7 @@ mod tests {
     fn structure_tensor_normal_equations_match_the_full_jacobian() {
         tch::set_num_threads(1);
         let dir = tempfile::tempdir().unwrap();
-        let (synth, frames) = crate::optimize::small_test_rig(dir.path());
+        let (synth, frames) = crate::optimize::tests::small_test_rig(dir.path());
         let used: Vec<&Frame> = frames.iter().collect();
         let scaling = Scaling::new(&synth.rig.rgb, initial_params(&synth.rig), &used);
         let dirs = directions(&(0..NUM_PARAMS).collect::<Vec<_>>(), &scaling, false);

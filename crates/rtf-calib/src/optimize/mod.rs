@@ -93,22 +93,25 @@ pub fn mean_map_error(
     sum / n.max(1) as f64
 }
 
-/// The optimiser's unit-test fixture: a 64×48 two-frame synthetic rig with given depth
-/// (seed 5), written to `dir`, and its frames loaded.
+/// Fixtures of the optimiser's unit tests.
 #[cfg(test)]
-pub(crate) fn small_test_rig(
-    dir: &std::path::Path,
-) -> (crate::synth_rig::SynthRig, Vec<crate::frames::Frame>) {
-    use crate::synth_rig::{write_rig, DepthSource, RigSynthConfig};
-    let cfg = RigSynthConfig {
-        width: 64,
-        height: 48,
-        frames: 2,
-        depth: DepthSource::Given,
-        seed: 5,
-        ..Default::default()
-    };
-    let synth = write_rig(dir, &cfg).unwrap();
-    let frames = crate::frames::load_frames(&synth.rig, &mut |_| {}).unwrap();
-    (synth, frames)
+pub(crate) mod tests {
+    /// The optimiser's unit-test fixture: a 64×48 two-frame synthetic rig with given depth
+    /// (seed 5), written to `dir`, and its frames loaded.
+    pub(crate) fn small_test_rig(
+        dir: &std::path::Path,
+    ) -> (crate::synth_rig::SynthRig, Vec<crate::frames::Frame>) {
+        use crate::synth_rig::{write_rig, DepthSource, RigSynthConfig};
+        let cfg = RigSynthConfig {
+            width: 64,
+            height: 48,
+            frames: 2,
+            depth: DepthSource::Given,
+            seed: 5,
+            ..Default::default()
+        };
+        let synth = write_rig(dir, &cfg).unwrap();
+        let frames = crate::frames::load_frames(&synth.rig, &mut |_| {}).unwrap();
+        (synth, frames)
+    }
 }
