@@ -18,8 +18,8 @@
 //! (`cargo xtask setup`); without it they are skipped, and said so.
 //!
 //! One module per surface: `inputs` (predict, eval, data, memory: issue 15), `recipes`,
-//! `report`, `export`, `modality` (`--drop`, `--precision`), `ddp`, `owndata` (dataset.yaml)
-//! and `calib` (rig.yaml's prior).
+//! `report`, `export`, `modality` (`--drop`, `--precision`), `ddp`, `owndata` (dataset.yaml),
+//! `calib` (rig.yaml's prior) and `cmx` (CMX weights that do not fit).
 
 #[path = "../common/mod.rs"]
 mod common;
@@ -27,6 +27,7 @@ mod common;
 mod launcher;
 
 mod calib;
+mod cmx;
 mod ddp;
 mod distributed;
 mod export;
@@ -79,10 +80,11 @@ fn fixture(t: &std::path::Path) -> Fixture {
 fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
     let tmp = tempfile::tempdir().unwrap();
     let f = fixture(tmp.path());
-    let surfaces: [(&str, fn(&Fixture) -> Vec<Case>); 14] = [
+    let surfaces: [(&str, fn(&Fixture) -> Vec<Case>); 15] = [
         ("inputs", inputs::predict_images),
         ("inputs", inputs::predict_outputs),
         ("inputs", inputs::weights),
+        ("cmx", cmx::cases),
         ("inputs", inputs::datasets),
         ("inputs", inputs::memory),
         ("recipes", recipes::cases),
