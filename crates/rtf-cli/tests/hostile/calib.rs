@@ -1,5 +1,5 @@
 //! Calibration (issue 28): rig.yaml's `prior:` block, malformed one way per case, and a
-//! prior far from what the images say (a named warning, exit 0).
+//! prior far from what the images say (a named warning, whatever the verdict).
 
 use std::path::{Path, PathBuf};
 
@@ -117,15 +117,19 @@ pub fn cases(f: &Fixture) -> Vec<Case> {
     // critical_value): with two frames (1 degree of freedom) the cut-off is 13.7 standard
     // errors and no disagreement is significant, so this case has six (cut-off 2.65).
     //
-    // Why not a tighter prior (issue 44): with σ 1 cm the prior sets the translation and the
-    // frames cannot all be aligned at it, so how many agree (and so `ok`, `uncertain` or
-    // `failed`) turned on MKL's vendor-dependent kernels: `failed` (17 % agree) on Intel
-    // AVX-512, `uncertain` with MKL_ENABLE_INSTRUCTIONS=AVX2, `ok` on AMD. That case's
-    // invariant, the named warning whatever the verdict, is rtf-calib's unit test
-    // `a_prior_far_from_what_the_images_say_is_a_named_warning`. This one is decisive: on
-    // rigs of seeds 1–4, under Intel's AVX-512 and AVX2 kernels, every run ended exit 0 with
-    // 83–100 % of frames agreeing (the failure line is 50 %) and the prior 7–11.5 σ off
-    // (the warning's line is 3 σ).
+    // Decisive on this rig (issue 44): with σ 1 cm the prior set the translation and the
+    // frames could not all be aligned at it, so the verdict (`ok`, `uncertain` or `failed`)
+    // turned on MKL's vendor-dependent kernels: `failed` (17 % agree) on Intel AVX-512,
+    // `uncertain` with MKL_ENABLE_INSTRUCTIONS=AVX2, `ok` on AMD. At σ 5 cm, rig seed 1 ends
+    // exit 0 (`uncertain`, the warning 4.9/0.3/11.5 σ, the line is 2.65) identically under
+    // Intel AVX-512, all-AVX2 caps, MKL alone at AVX2 and MKL_CBWR=COMPATIBLE.
+    //
+    // And invariant: whether images overrule a prior is the rig's own matter, not a fixed
+    // fact (rig seed 5 at σ 5 cm ends `failed`, 0 % of frames agreeing, exit 1, under every
+    // one of those kernels; without the prior it is `uncertain` with all agreeing). Both are
+    // honest outcomes, so exit 0 and the calibration's own failure (exit 1) are both right
+    // here, as long as the warning is printed and written into calib.yaml: what must never
+    // happen is the prior far from the images going unnamed, or a refusal of the prior.
     let far = with_prior(
         &rig(f, "rig6", "6"),
         "prior_far",
@@ -133,21 +137,24 @@ pub fn cases(f: &Fixture) -> Vec<Case> {
     );
     let far_out = f.t.join("calib_far.yaml");
     let written = far_out.clone();
-    cases.push(recovers(
-        "calibrate: prior far from the images (warning, exit 0)",
-        &[
-            "calibrate",
-            "--rig",
-            s(&far),
-            "--out",
-            s(&far_out),
-            "--iterations",
-            "10",
-        ],
-        &["prior_far_from_images"],
-        Box::new(move || {
-            std::fs::read_to_string(&written).is_ok_and(|t| t.contains("prior_far_from_images"))
-        }),
-    ));
+    cases.push(
+        recovers(
+            "calibrate: prior far from the images (warning; exit 0, or 1 if it fails)",
+            &[
+                "calibrate",
+                "--rig",
+                s(&far),
+                "--out",
+                s(&far_out),
+                "--iterations",
+                "10",
+            ],
+            &["prior_far_from_images"],
+            Box::new(move || {
+                std::fs::read_to_string(&written).is_ok_and(|t| t.contains("prior_far_from_images"))
+            }),
+        )
+        .or_exit(1),
+    );
     cases
 }

@@ -37,6 +37,9 @@ pub struct Case {
     /// outcome (0: a recovery or a warning; 130: an interrupted run), with `must_name` in the
     /// output and `intact` holding.
     pub expect: Option<i32>,
+    /// A second exit code that is as right an outcome as `expect` (with the same
+    /// `must_name` and `intact`): where what the command decides may honestly go either way.
+    pub or_exit: Option<i32>,
 }
 
 /// A refusal: exit 1 or 2 with every string of `must_name` in the output.
@@ -50,6 +53,7 @@ pub fn case(name: &str, args: &[&str], must_name: &[&str]) -> Case {
         before: None,
         runner: None,
         expect: None,
+        or_exit: None,
     }
 }
 
@@ -72,6 +76,12 @@ impl Case {
         self
     }
 
+    /// `code` is as right an outcome as the expected one (see [`Case::or_exit`]).
+    pub fn or_exit(mut self, code: i32) -> Case {
+        self.or_exit = Some(code);
+        self
+    }
+
     pub fn intact(mut self, f: impl Fn() -> bool + 'static) -> Case {
         self.intact = Some(Box::new(f));
         self
@@ -88,10 +98,14 @@ impl Case {
     }
 
     pub fn judge(&self, out: &Output) -> Verdict {
-        let verdict = classify(out, &self.must_name, self.expect);
-        let intact = || self.intact.as_ref().is_none_or(|check| check());
         let code = out.status.code();
-        match (verdict, self.expect) {
+        let expect = match self.or_exit {
+            Some(other) if code == Some(other) => Some(other),
+            _ => self.expect,
+        };
+        let verdict = classify(out, &self.must_name, expect);
+        let intact = || self.intact.as_ref().is_none_or(|check| check());
+        match (verdict, expect) {
             (Verdict::Panic, _) => Verdict::Panic,
             // A refusal that did damage.
             (_, None) if !intact() => Verdict::Silent,
