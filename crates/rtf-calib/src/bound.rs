@@ -839,40 +839,19 @@ fn prior_roles(
     half: &BTreeMap<String, f64>,
 ) -> (BTreeMap<String, PriorRole>, Vec<String>) {
     let (mut roles, mut warnings) = (BTreeMap::new(), Vec::new());
-    let Some(prior) = &rig.prior else {
-        return (roles, warnings);
-    };
     let q0 = quantities(&scaling.physical(theta));
-    let find = |name: &str| q0.iter().position(|q| q.0 == name);
-    let mut items: Vec<(&str, String, f64, f64)> = Vec::new();
-    let axes = ["x", "y", "z"];
-    if let (Some(t), Some(sd)) = (&prior.translation_m, prior.translation_sigma_m) {
-        for k in 0..3 {
-            items.push(("translation_m", format!("centre_{}_m", axes[k]), t[k], sd));
-        }
-    }
-    if let (Some(r), Some(sd)) = (&prior.rotation_deg, prior.rotation_sigma_deg) {
-        for k in 0..3 {
-            items.push((
-                "rotation_deg",
-                format!("rotation_{}_deg", axes[k]),
-                r[k],
-                sd,
-            ));
-        }
-    }
-    if let Some(sd) = prior.principal_point_sigma_px {
-        let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
-        let c = prior
-            .principal_point_px
-            .clone()
-            .unwrap_or(vec![w / 2.0, h / 2.0]);
-        items.push(("principal_point_px", "cx".into(), c[0], sd));
-        items.push(("principal_point_px", "cy".into(), c[1], sd));
-    }
     let step = 1e-4;
-    for (field, name, mu, sd) in items {
-        let Some(j) = find(&name) else { continue };
+    for PriorItem {
+        field,
+        name,
+        mu,
+        sd,
+    } in prior_items(rig)
+    {
+        let Some(j) = q0.iter().position(|q| q.0 == name) else {
+            continue;
+        };
+        // The quantity's gradient along the Hessians' directions, by forward differences.
         let grad: Vec<f64> = dirs
             .iter()
             .map(|d| {
@@ -895,22 +874,72 @@ fn prior_roles(
                 off.abs()
             ));
         }
-        roles.insert(
-            name.clone(),
-            PriorRole {
-                prior_sigma: sd,
-                posterior_half_width: half.get(&name).copied().unwrap_or(f64::NAN),
-                prior_share: share,
-                set_by: if share >= PRIOR_SET_SHARE {
-                    "prior"
-                } else {
-                    "images"
-                }
-                .into(),
-            },
-        );
+        let set_by = if share >= PRIOR_SET_SHARE {
+            "prior"
+        } else {
+            "images"
+        };
+        let role = PriorRole {
+            prior_sigma: sd,
+            posterior_half_width: half.get(&name).copied().unwrap_or(f64::NAN),
+            prior_share: share,
+            set_by: set_by.into(),
+        };
+        roles.insert(name, role);
     }
     (roles, warnings)
+}
+
+/// One priored quantity: the rig.yaml field it comes from, the quantity's name in the
+/// bound's intervals, the prior's value and σ.
+struct PriorItem {
+    field: &'static str,
+    name: String,
+    mu: f64,
+    sd: f64,
+}
+
+/// The quantities rig.yaml's `prior:` block sets, each with its value and σ (none without
+/// a prior block).
+fn prior_items(rig: &Rig) -> Vec<PriorItem> {
+    let mut items = Vec::new();
+    let Some(prior) = &rig.prior else {
+        return items;
+    };
+    let axes = ["x", "y", "z"];
+    let mut push = |field, name: String, mu, sd| {
+        items.push(PriorItem {
+            field,
+            name,
+            mu,
+            sd,
+        })
+    };
+    if let (Some(t), Some(sd)) = (&prior.translation_m, prior.translation_sigma_m) {
+        for k in 0..3 {
+            push("translation_m", format!("centre_{}_m", axes[k]), t[k], sd);
+        }
+    }
+    if let (Some(r), Some(sd)) = (&prior.rotation_deg, prior.rotation_sigma_deg) {
+        for k in 0..3 {
+            push(
+                "rotation_deg",
+                format!("rotation_{}_deg", axes[k]),
+                r[k],
+                sd,
+            );
+        }
+    }
+    if let Some(sd) = prior.principal_point_sigma_px {
+        let (w, h) = (rig.thermal.width as f64, rig.thermal.height as f64);
+        let c = prior
+            .principal_point_px
+            .clone()
+            .unwrap_or(vec![w / 2.0, h / 2.0]);
+        push("principal_point_px", "cx".into(), c[0], sd);
+        push("principal_point_px", "cy".into(), c[1], sd);
+    }
+    items
 }
 
 #[cfg(test)]

@@ -472,6 +472,36 @@ impl Perturbations {
     }
 }
 
+/// The directions the solution is perturbed along (±DELTA_PX of map shift each): the
+/// principal point's x and y, the focal length (both axes when pixels are square) and the
+/// rotation about the optical axis.
+fn probe_directions(scaling: &Scaling, square: bool) -> [[f64; NUM_PARAMS]; 4] {
+    let focal = optimize::directions(&[0, 1], scaling, square)[0];
+    let axis = |i: usize| {
+        let mut d = [0.0; NUM_PARAMS];
+        d[i] = 1.0;
+        d
+    };
+    [axis(2), axis(3), focal, axis(13)]
+}
+
+impl Scores {
+    /// The alignment scores at the solution, around it (`probe`) and at the start.
+    fn from_probe(probe: &Perturbations, start: &[f64]) -> Scores {
+        let at_solution = mean(&probe.at_solution);
+        let perturbed = probe.means();
+        let perturbed_mean = mean(&perturbed);
+        Scores {
+            at_solution,
+            at_start: mean(start),
+            perturbed_mean,
+            perturbed_best: perturbed.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            sharpness: (at_solution - perturbed_mean) / at_solution.abs().max(1e-9),
+            delta_px: DELTA_PX,
+        }
+    }
+}
+
 /// Assesses `solution` (found from `initial`) on the frames `used` of `frames`.
 pub fn assess(
     rig: &Rig,
@@ -491,21 +521,15 @@ pub fn assess(
         std::array::from_fn(|i| (ps[i] - scaling.p0[i]) / scaling.scale[i]);
     let (factor, level) = assessment_level(rig, &chosen);
     let square = rig.thermal.square_pixels.unwrap_or(true);
-    let focal = optimize::directions(&[0, 1], &scaling, square)[0];
-    let axis = |i: usize| {
-        let mut d = [0.0; NUM_PARAMS];
-        d[i] = 1.0;
-        d
-    };
-    let dirs = [axis(2), axis(3), focal, axis(13)];
-    let probe = Perturbations::measure(&level, &scaling, &theta, &dirs);
-    let s0 = &probe.at_solution;
+    let probe = Perturbations::measure(
+        &level,
+        &scaling,
+        &theta,
+        &probe_directions(&scaling, square),
+    );
     let start = frame_scores(&level, &scaling, &[0.0; NUM_PARAMS]);
-    let perturbed = probe.means();
-    let at_solution = mean(s0);
-    let perturbed_mean = mean(&perturbed);
-    let perturbed_best = perturbed.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let sharpness = (at_solution - perturbed_mean) / at_solution.abs().max(1e-9);
+    let score = Scores::from_probe(&probe, &start);
+    let (at_solution, sharpness) = (score.at_solution, score.sharpness);
     let agreeing = probe.agreeing();
     let (sigma, conditioning) = formal_sigma(&level, &scaling, &theta, chosen.len(), square);
     let moved_px = optimize::mean_map_error(rig, frames, solution, initial);
@@ -526,14 +550,7 @@ pub fn assess(
     Ok(Assessment {
         verdict,
         reason,
-        score: Scores {
-            at_solution,
-            at_start: mean(&start),
-            perturbed_mean,
-            perturbed_best,
-            sharpness,
-            delta_px: DELTA_PX,
-        },
+        score,
         frames_agreeing: agreeing,
         moved_px,
         split_px,

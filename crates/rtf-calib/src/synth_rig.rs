@@ -598,51 +598,14 @@ fn save_eval_rig(out: &Path, rig: &Rig, rig_path: &Path, depth: DepthSource) -> 
 /// Writes `rig.yaml`, frames under `f/`, and `ground_truth.yaml` into `out`.
 pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-    let scale = cfg.width as f64 / 640.0;
-    let rgb = RgbCamera {
-        width: cfg.width,
-        height: cfg.height,
-        fx: 500.0 * scale,
-        fy: 500.0 * scale,
-        cx: (cfg.width as f64 - 1.0) / 2.0,
-        cy: (cfg.height as f64 - 1.0) / 2.0,
-    };
+    let rgb = rgb_camera(cfg);
     let spec = thermal_spec(cfg.width);
     let truth = draw_truth(&mut rng, &spec);
     let dir = out.join("f");
     std::fs::create_dir_all(&dir).map_err(|e| crate::CalibError::io(&dir, e))?;
-    let mut frames = Vec::new();
-    for i in 0..cfg.frames {
-        let mut frame_rng =
-            ChaCha8Rng::seed_from_u64(cfg.seed.wrapping_mul(1_000_003).wrapping_add(i as u64 + 1));
-        let scene = Scene::random(&mut frame_rng);
-        let (image, depth) = render_rgb(&scene, &rgb, [0.0; 3], true);
-        let name = |suffix: &str| format!("f/{i:03}_{suffix}.png");
-        write_rgb8(&out.join(name("rgb")), rgb.width, rgb.height, image)?;
-        let wants_depth = cfg.depth != DepthSource::Stereo;
-        let wants_right = cfg.depth != DepthSource::Given;
-        // The rendered depth is always written (stereo-only rigs list it in rig_depth.yaml
-        // for evaluation only).
-        write_gray16(&out.join(name("depth")), rgb.width, rgb.height, depth)?;
-        if wants_right {
-            let (right, _) = render_rgb(&scene, &rgb, [cfg.baseline_m, 0.0, 0.0], false);
-            write_rgb8(&out.join(name("right")), rgb.width, rgb.height, right)?;
-        }
-        let heat = render_thermal(&scene, &spec, &truth);
-        let values = sensor_effects(&heat, &spec, &mut frame_rng);
-        write_thermal(
-            &out.join(name("thermal")),
-            &spec,
-            &values,
-            cfg.thermal_16bit,
-        )?;
-        frames.push(FrameSpec {
-            rgb: name("rgb").into(),
-            thermal: name("thermal").into(),
-            depth: wants_depth.then(|| name("depth").into()),
-            rgb_right: wants_right.then(|| name("right").into()),
-        });
-    }
+    let frames = (0..cfg.frames)
+        .map(|i| write_frame(out, cfg, i, &rgb, &spec, &truth))
+        .collect::<Result<Vec<_>>>()?;
     let rig = Rig {
         rgb,
         thermal: spec,
@@ -666,6 +629,55 @@ pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
         ground_truth_path,
         rig,
         truth,
+    })
+}
+
+/// The synthetic rig's RGB camera: f = 500 px at 640 wide, scaled to `cfg.width`, centred.
+fn rgb_camera(cfg: &RigSynthConfig) -> RgbCamera {
+    let scale = cfg.width as f64 / 640.0;
+    RgbCamera {
+        width: cfg.width,
+        height: cfg.height,
+        fx: 500.0 * scale,
+        fy: 500.0 * scale,
+        cx: (cfg.width as f64 - 1.0) / 2.0,
+        cy: (cfg.height as f64 - 1.0) / 2.0,
+    }
+}
+
+/// Renders frame `i` (its own random scene, seeded from the rig's seed and `i`) and writes
+/// its RGB, depth, right view (unless depth is given) and thermal image under `out/f/`.
+fn write_frame(
+    out: &Path,
+    cfg: &RigSynthConfig,
+    i: usize,
+    rgb: &RgbCamera,
+    spec: &ThermalSpec,
+    truth: &Calibration,
+) -> Result<FrameSpec> {
+    let mut frame_rng =
+        ChaCha8Rng::seed_from_u64(cfg.seed.wrapping_mul(1_000_003).wrapping_add(i as u64 + 1));
+    let scene = Scene::random(&mut frame_rng);
+    let (image, depth) = render_rgb(&scene, rgb, [0.0; 3], true);
+    let name = |suffix: &str| format!("f/{i:03}_{suffix}.png");
+    write_rgb8(&out.join(name("rgb")), rgb.width, rgb.height, image)?;
+    let wants_depth = cfg.depth != DepthSource::Stereo;
+    let wants_right = cfg.depth != DepthSource::Given;
+    // The rendered depth is always written (stereo-only rigs list it in rig_depth.yaml
+    // for evaluation only).
+    write_gray16(&out.join(name("depth")), rgb.width, rgb.height, depth)?;
+    if wants_right {
+        let (right, _) = render_rgb(&scene, rgb, [cfg.baseline_m, 0.0, 0.0], false);
+        write_rgb8(&out.join(name("right")), rgb.width, rgb.height, right)?;
+    }
+    let heat = render_thermal(&scene, spec, truth);
+    let values = sensor_effects(&heat, spec, &mut frame_rng);
+    write_thermal(&out.join(name("thermal")), spec, &values, cfg.thermal_16bit)?;
+    Ok(FrameSpec {
+        rgb: name("rgb").into(),
+        thermal: name("thermal").into(),
+        depth: wants_depth.then(|| name("depth").into()),
+        rgb_right: wants_right.then(|| name("right").into()),
     })
 }
 
