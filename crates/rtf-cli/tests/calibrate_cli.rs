@@ -91,6 +91,7 @@ fn calibrates_a_small_synthetic_rig_with_overlays() {
             .unwrap()
     };
     let (fin, initial) = (number("pixel-map error"), number("(initial"));
+    eprintln!("{line} (lines: 0.5 px and a fifth of the initial)");
     assert!(fin < 0.5 && fin < initial / 5.0, "{line}");
     assert!(Path::new(&rig_dir).join("ground_truth.yaml").exists());
 }
