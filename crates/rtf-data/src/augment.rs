@@ -30,6 +30,45 @@ pub struct AugmentConfig {
     pub brightness: Option<f32>,
     /// Gaussian noise of this standard deviation (in [0, 1] units) added to all channels.
     pub noise_std: Option<f32>,
+    /// CMX's random scale from a set, then a random crop padded where the scaled frame is
+    /// smaller ([`ScaleCrop`]); the batch is the crop's size. An alternative to `crop` and
+    /// `window`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale_crop: Option<ScaleCrop>,
+}
+
+/// CMX's training geometry (huaaaliu/RGBX_Semantic_Segmentation, `dataloader/dataloader.py`
+/// `TrainPre` with `random_scale`, `utils/transforms.py` `generate_random_crop_pos` and
+/// `random_crop_pad_to_shape`): the frame scaled by a factor drawn uniformly from `scales`
+/// (image bilinear without antialiasing, OpenCV's `INTER_LINEAR`; label nearest), then a crop of
+/// `size` at a random position, padded around (centred) where the scaled frame is smaller:
+/// image planes with `fill`, label with the ignore id. The geometry is in
+/// [`crate::scale_crop`].
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ScaleCrop {
+    /// The scale factors, one drawn per frame (official `train_scale_array`: 0.5, 0.75, 1,
+    /// 1.25, 1.5, 1.75).
+    pub scales: Vec<f32>,
+    /// (width, height) of the crop; None = the frame's size before scaling (the resize if
+    /// one is set, else the frame's own; the official 640×480 is MF's frame size).
+    #[serde(default)]
+    pub size: Option<(usize, usize)>,
+    /// Value of padded image pixels per plane R, G, B, T in [0, 1]: the official pads the
+    /// normalised image with 0, which is the network's normalisation mean here (see
+    /// `rtf_models::ModelConfig::normalised_zero`).
+    pub fill: [f32; 4],
+}
+
+impl ScaleCrop {
+    /// CMX's scale set with the crop at the frame's size, padding with `fill`.
+    pub fn cmx(fill: [f32; 4]) -> Self {
+        Self {
+            scales: vec![0.5, 0.75, 1.0, 1.25, 1.5, 1.75],
+            size: None,
+            fill,
+        }
+    }
 }
 
 /// A planar image: `channels` planes of `height * width` values.
@@ -126,19 +165,22 @@ pub enum Filter {
     Bilinear,
     /// Keys cubic a = -0.5, widened when shrinking (like PIL's BICUBIC).
     Bicubic,
+    /// Triangle filter never widened: plain bilinear interpolation between the two nearest
+    /// pixel centres, no antialiasing when shrinking (OpenCV's `INTER_LINEAR`).
+    Linear,
 }
 
 impl Filter {
     fn support(self) -> f32 {
         match self {
-            Self::Bilinear => 1.0,
+            Self::Bilinear | Self::Linear => 1.0,
             Self::Bicubic => 2.0,
         }
     }
     fn weight(self, x: f32) -> f32 {
         let x = x.abs();
         match self {
-            Self::Bilinear => (1.0 - x).max(0.0),
+            Self::Bilinear | Self::Linear => (1.0 - x).max(0.0),
             Self::Bicubic => {
                 const A: f32 = -0.5;
                 if x < 1.0 {
@@ -162,7 +204,10 @@ struct Taps {
 
 fn taps(src: usize, lo: f32, hi: f32, out: usize, filter: Filter) -> Taps {
     let scale = (hi - lo) / out as f32;
-    let fscale = scale.max(1.0);
+    let fscale = match filter {
+        Filter::Linear => 1.0,
+        _ => scale.max(1.0),
+    };
     let support = filter.support() * fscale;
     let len = (2.0 * support).ceil() as usize + 1;
     let mut start = Vec::with_capacity(out);

@@ -26,13 +26,14 @@ pub mod npy;
 pub mod pattern;
 pub mod planes;
 pub mod pngio;
+pub mod scale_crop;
 pub mod split_list;
 pub mod synth;
 pub mod thermal;
 pub mod tiffio;
 pub mod trained_on;
 
-pub use augment::{resize_frame, AugmentConfig};
+pub use augment::{resize_frame, AugmentConfig, ScaleCrop};
 pub use dataset::{open, Dataset, DatasetFormat};
 pub use described::{DescribedDataset, DescribedSplit};
 pub use description::DatasetDescription;

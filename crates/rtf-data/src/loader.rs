@@ -28,6 +28,24 @@ pub struct LoaderConfig {
     pub resize: Option<(usize, usize)>,
 }
 
+impl LoaderConfig {
+    /// (width, height) of what a `frame` (width, height) becomes: the scale-crop's crop, else
+    /// the resize, else the augmentation window, else the frame's own size.
+    pub fn output_size(&self, frame: (usize, usize)) -> (usize, usize) {
+        let base = self.resize.unwrap_or(frame);
+        match &self.augment.scale_crop {
+            Some(sc) => sc.crop_size(base),
+            None => self.resize.or(self.augment.window).unwrap_or(frame),
+        }
+    }
+
+    /// Whether every frame becomes the same size, whatever its own.
+    fn fixed_size(&self) -> bool {
+        let crop = self.augment.scale_crop.as_ref().and_then(|s| s.size);
+        self.resize.is_some() || self.augment.window.is_some() || crop.is_some()
+    }
+}
+
 impl Default for LoaderConfig {
     fn default() -> Self {
         Self {
@@ -271,21 +289,17 @@ impl EpochJob {
         }
     }
 
-    /// The batch's (width, height): the resize, else the augmentation window, else the
-    /// frames' own size, which must then be the same for all.
+    /// The batch's (width, height): [`LoaderConfig::output_size`] of the first frame; without
+    /// a fixed size the frames' own, which must then be the same for all.
     fn output_size(&self, frames: &[Frame]) -> Result<(usize, usize), DataError> {
         let first = frames
             .first()
             .ok_or_else(|| DataError::Config("empty batch".into()))?;
-        let (w, h) = self
-            .cfg
-            .resize
-            .or(self.cfg.augment.window)
-            .unwrap_or((first.width, first.height));
+        let (w, h) = self.cfg.output_size((first.width, first.height));
         if w == 0 || h == 0 {
             return Err(DataError::Config(format!("resize to {w}x{h}")));
         }
-        if self.cfg.resize.is_none() && self.cfg.augment.window.is_none() {
+        if !self.cfg.fixed_size() {
             if let Some(odd) = frames.iter().find(|f| (f.width, f.height) != (w, h)) {
                 return Err(DataError::Frame {
                     name: odd.name.clone(),
@@ -390,10 +404,7 @@ pub fn prepare_frame(
     ignore: Option<u8>,
     rng: &mut impl Rng,
 ) -> Result<Prepared, DataError> {
-    let (w, h) = cfg
-        .resize
-        .or(cfg.augment.window)
-        .unwrap_or((frame.width, frame.height));
+    let (w, h) = cfg.output_size((frame.width, frame.height));
     let mut image = Planar {
         channels: 4,
         width: w,
@@ -415,13 +426,17 @@ pub fn prepare_frame(
         name,
         daytime,
         image,
-        label: label.into_iter().map(|v| v as u8).collect(),
+        // Scale-crop padding without an ignore id (NO_LABEL) comes back as 255.
+        label: label
+            .into_iter()
+            .map(|v| u8::try_from(v).unwrap_or(SCALE_CROP_PAD))
+            .collect(),
     })
 }
 
-/// Turns one decoded frame into the network's input at `size` (width, height): crop,
-/// rotation, resize, flip, photometry, then the input convention, written into `dst`
-/// ([4, H, W]) and `dst_label` ([H, W]).
+/// Turns one decoded frame into the network's input at `size` (width, height): crop or scale
+/// and crop, rotation, resize, flip, photometry, then the input convention, written into
+/// `dst` ([4, H, W]) and `dst_label` ([H, W]).
 #[allow(clippy::too_many_arguments)]
 pub fn prepare_into(
     mut frame: Frame,
@@ -434,20 +449,7 @@ pub fn prepare_into(
     dst_label: &mut [i64],
 ) -> Result<(String, Option<Daytime>), DataError> {
     frame.validate()?;
-    let (w, h) = (frame.width, frame.height);
-    let n = w * h;
-    let label = match frame.label.take() {
-        Some(l) => l,
-        None => match ignore {
-            Some(id) => vec![id; n],
-            None => {
-                return Err(DataError::Frame {
-                    name: frame.name,
-                    message: "frame has no label and the class set has no ignore id".into(),
-                })
-            }
-        },
-    };
+    let label = take_label(&mut frame, ignore)?;
     if out_w == 0
         || out_h == 0
         || dst.len() != 4 * out_w * out_h
@@ -460,18 +462,13 @@ pub fn prepare_into(
     let image = unit_planes(&frame);
     let aug = &cfg.augment;
     // Random draws happen in a fixed order whether or not an augmentation changes anything.
-    let window = draw_window(aug, w, h, rng, &frame.name)?;
+    let geometry = draw_geometry(cfg, (frame.width, frame.height), rng, &frame.name)?;
     let angle = aug
         .rotation_deg
         .map(|d| rng.random_range(-d.abs()..=d.abs()));
     let flip = aug.hflip && rng.random::<bool>();
-    let filter = if aug.crop.is_some() {
-        Filter::Bicubic
-    } else {
-        Filter::Bilinear
-    };
-    let mut label = augment::resample_nearest(&label, w, h, window, out_w, out_h);
-    augment::resample_into(&image, window, out_w, out_h, filter, dst);
+    let pad_label = ignore.unwrap_or(SCALE_CROP_PAD);
+    let mut label = geometry.apply(&image, &label, (aug, pad_label), (out_w, out_h), dst);
     if let Some(deg) = angle {
         let resized = Planar {
             channels: 4,
@@ -492,10 +489,103 @@ pub fn prepare_into(
     if input != InputConvention::UnitRange {
         dst.iter_mut().for_each(|v| *v = input.apply(*v));
     }
+    // Padding of a class set without an ignore id: the loss's "no label".
+    let padded = |id: u8| ignore.is_none() && aug.scale_crop.is_some() && id == SCALE_CROP_PAD;
     for (d, &id) in dst_label.iter_mut().zip(&label) {
-        *d = id as i64;
+        *d = if padded(id) { NO_LABEL } else { id as i64 };
     }
     Ok((frame.name, frame.daytime))
+}
+
+/// The target of pixels without a label where the class set has no ignore id (scale-crop
+/// padding): PyTorch's default `ignore_index`, which rtf's cross-entropy skips then.
+pub const NO_LABEL: i64 = -100;
+
+/// The label byte of scale-crop padding inside the pipeline when the class set has no ignore
+/// id (the official code's 255), written out as [`NO_LABEL`].
+const SCALE_CROP_PAD: u8 = 255;
+
+/// The frame's label, or one of the ignore id where the frame has none.
+fn take_label(frame: &mut Frame, ignore: Option<u8>) -> Result<Vec<u8>, DataError> {
+    match (frame.label.take(), ignore) {
+        (Some(l), _) => Ok(l),
+        (None, Some(id)) => Ok(vec![id; frame.width * frame.height]),
+        (None, None) => Err(DataError::Frame {
+            name: frame.name.clone(),
+            message: "frame has no label and the class set has no ignore id".into(),
+        }),
+    }
+}
+
+/// Where the output's pixels come from: a window of the frame resampled to the output size,
+/// or CMX's scale and crop with padding.
+enum Geometry {
+    Window(Window),
+    ScaleCrop(crate::scale_crop::Placement),
+}
+
+/// Draws the geometry of a `frame` (width, height): scale and crop when configured, else
+/// [`draw_window`]'s window.
+fn draw_geometry(
+    cfg: &LoaderConfig,
+    frame: (usize, usize),
+    rng: &mut impl Rng,
+    name: &str,
+) -> Result<Geometry, DataError> {
+    let aug = &cfg.augment;
+    let Some(sc) = &aug.scale_crop else {
+        return draw_window(aug, frame.0, frame.1, rng, name).map(Geometry::Window);
+    };
+    if aug.crop.is_some() || aug.window.is_some() {
+        return Err(DataError::Config(
+            "augment.scale_crop, augment.crop and augment.window are alternatives; set one".into(),
+        ));
+    }
+    let base = cfg.resize.unwrap_or(frame);
+    sc.draw(frame, base, rng)
+        .map(Geometry::ScaleCrop)
+        .map_err(DataError::Config)
+}
+
+impl Geometry {
+    /// The image into `dst` at `out` (width, height); returns the label there. RTFNet's crop
+    /// resamples bicubic, anything else bilinear; scale-crop padding gets the configured fill
+    /// and `pad_label`.
+    fn apply(
+        &self,
+        image: &Planar,
+        label: &[u8],
+        (aug, pad_label): (&AugmentConfig, u8),
+        (out_w, out_h): (usize, usize),
+        dst: &mut [f32],
+    ) -> Vec<u8> {
+        let (w, h) = (image.width, image.height);
+        match self {
+            Geometry::Window(window) => {
+                let filter = match aug.crop.is_some() {
+                    true => Filter::Bicubic,
+                    false => Filter::Bilinear,
+                };
+                augment::resample_into(image, *window, out_w, out_h, filter, dst);
+                augment::resample_nearest(label, w, h, *window, out_w, out_h)
+            }
+            Geometry::ScaleCrop(place) => {
+                let fill = aug.scale_crop.as_ref().map_or([0.0; 4], |s| s.fill);
+                let mut ids = vec![pad_label; out_w * out_h];
+                let out = (out_w, out_h);
+                crate::scale_crop::crop_into(
+                    image,
+                    label,
+                    place,
+                    (&fill, pad_label),
+                    out,
+                    dst,
+                    &mut ids,
+                );
+                ids
+            }
+        }
+    }
 }
 
 /// The frame as four planes in [0, 1]: R, G, B (bytes / 255), thermal; in a scratch buffer
@@ -748,6 +838,7 @@ mod tests {
             ir_scale: Some((0.1, 1.0)),
             brightness: Some(0.2),
             noise_std: Some(0.02),
+            scale_crop: None,
         };
         c.resize = Some((12, 8));
         let a = Loader::new(source(7, 16, 12), c.clone(), InputConvention::UnitRange);
@@ -815,6 +906,66 @@ mod tests {
                 .unwrap()
                 .is_err()
         );
+    }
+
+    /// CMX's scale and crop in a batch: the crop's size at any scale, the fill in the padding
+    /// of a halved frame, its label the loss's "no label" for MF (no ignore id) and the ignore
+    /// id for a set that has one; refused beside RTFNet's crop.
+    #[test]
+    fn scale_crop_pads_with_the_fill_and_no_label() {
+        let scale = |scales: Vec<f32>, size| LoaderConfig {
+            batch_size: 2,
+            resize: Some((16, 12)),
+            augment: AugmentConfig {
+                scale_crop: Some(augment::ScaleCrop {
+                    scales,
+                    size,
+                    fill: [0.25, 0.5, 0.75, 1.0],
+                }),
+                ..Default::default()
+            },
+            ..cfg(0)
+        };
+        let first = |c: LoaderConfig, classes: ClassSet| {
+            let frames = (0..2).map(|k| source(2, 8, 6).load(k).unwrap()).collect();
+            let source = Arc::new(MemorySource {
+                frames,
+                class_set: classes,
+            });
+            Loader::new(source, c, InputConvention::UnitRange)
+                .epoch(0)
+                .next()
+                .unwrap()
+        };
+        let batch = first(scale(vec![0.5], None), ClassSet::mf()).unwrap();
+        assert_eq!(
+            batch.input.size(),
+            [2, 4, 12, 16],
+            "the crop is the resize's size"
+        );
+        // Halved: 8×6 content at (4, 3) of 16×12.
+        let corner = |c: i64| f64::try_from(batch.input.get(0).get(c).get(0).get(0)).unwrap();
+        assert_eq!(
+            [corner(0), corner(1), corner(2), corner(3)],
+            [0.25, 0.5, 0.75, 1.0]
+        );
+        let labels = Vec::<i64>::try_from(batch.target.get(0).flatten(0, -1)).unwrap();
+        assert_eq!(
+            labels.iter().filter(|&&v| v == NO_LABEL).count(),
+            16 * 12 - 8 * 6
+        );
+        assert!(labels[3 * 16 + 4..3 * 16 + 12]
+            .iter()
+            .all(|&v| (0..9).contains(&v)));
+        let freiburg = first(scale(vec![0.5], None), ClassSet::freiburg()).unwrap();
+        let labels = Vec::<i64>::try_from(freiburg.target.get(0).flatten(0, -1)).unwrap();
+        assert_eq!(labels.iter().filter(|&&v| v == 13).count(), 16 * 12 - 8 * 6);
+        let enlarged = first(scale(vec![1.75], Some((10, 8))), ClassSet::mf()).unwrap();
+        assert_eq!(enlarged.input.size(), [2, 4, 8, 10]);
+        let mut both = scale(vec![1.0], None);
+        both.augment.crop = Some(0.1);
+        let err = first(both, ClassSet::mf()).unwrap_err().to_string();
+        assert!(err.contains("alternatives"), "{err}");
     }
 
     #[test]
