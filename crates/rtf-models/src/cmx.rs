@@ -142,6 +142,19 @@ pub struct Config {
     /// Default B, G, R: the official checkpoints' order.
     #[serde(default)]
     pub color_order: ColorOrder,
+    /// eps of the decoder's BatchNorm (`decode_head.linear_fuse.1`): PyTorch's 1e-5 by default
+    /// (the official evaluation), 1e-3 as the official training sets it. Written only when
+    /// not the default.
+    #[serde(default = "default_bn_eps", skip_serializing_if = "is_default_bn_eps")]
+    pub decoder_bn_eps: f64,
+}
+
+fn default_bn_eps() -> f64 {
+    crate::layers::BN_EPS
+}
+
+fn is_default_bn_eps(eps: &f64) -> bool {
+    *eps == crate::layers::BN_EPS
 }
 
 impl Config {
@@ -150,7 +163,26 @@ impl Config {
             size,
             num_classes,
             color_order: ColorOrder::Bgr,
+            decoder_bn_eps: default_bn_eps(),
         }
+    }
+
+    /// The unit-range input (R, G, B, T) that [`Cmx`]'s normalisation maps to 0: the ImageNet
+    /// mean of each colour plane's channel (in the encoder's colour order), and for the thermal
+    /// plane, which is replicated to three channels normalised with three means, the value
+    /// closest to 0 in all three (the mean weighted by 1/std², ≈ 0.449; it normalises to about
+    /// −0.16, −0.03, +0.19).
+    pub fn normalised_zero(&self) -> [f32; 4] {
+        let [m0, m1, m2] = IMAGENET_MEAN;
+        // Encoder channel c is normalised with mean c: in B, G, R order the R plane is channel 2.
+        let colour = match self.color_order {
+            ColorOrder::Bgr => [m2, m1, m0],
+            ColorOrder::Rgb => [m0, m1, m2],
+        };
+        let weights = IMAGENET_STD.map(|s| 1.0 / (s * s));
+        let thermal = (0..3).map(|c| IMAGENET_MEAN[c] * weights[c]).sum::<f32>()
+            / weights.iter().sum::<f32>();
+        [colour[0], colour[1], colour[2], thermal]
     }
 
     /// `cmx-mit-b0` … `cmx-mit-b5`.
@@ -168,6 +200,12 @@ impl Config {
             return Err(ModelError::InvalidConfig {
                 network: self.name(),
                 reason: format!("num_classes must be ≥ 1, got {}", self.num_classes),
+            });
+        }
+        if !(self.decoder_bn_eps.is_finite() && self.decoder_bn_eps > 0.0) {
+            return Err(ModelError::InvalidConfig {
+                network: self.name(),
+                reason: format!("decoder_bn_eps must be > 0, got {}", self.decoder_bn_eps),
             });
         }
         Ok(())
@@ -742,10 +780,11 @@ struct Decoder {
     pred: ConvBnAct,
 }
 
-fn decoder(p: nn::Path, layout: &Layout, num_classes: i64) -> Decoder {
+fn decoder(p: nn::Path, layout: &Layout, cfg: &Config) -> Decoder {
     let spec = ConvSpec::new(1)
         .bias(true)
         .init(WeightInit::KaimingNormalFanIn);
+    let num_classes = cfg.num_classes;
     let fuse = &p / "linear_fuse";
     Decoder {
         proj: (0..4)
@@ -765,7 +804,7 @@ fn decoder(p: nn::Path, layout: &Layout, num_classes: i64) -> Decoder {
             Some(&fuse / 1),
             4 * DECODER_DIM,
             DECODER_DIM,
-            spec,
+            spec.bn_eps(cfg.decoder_bn_eps),
             Act::Relu,
         ),
         pred: ConvBnAct::new(
@@ -822,7 +861,7 @@ impl Cmx {
         Ok(Self {
             config: cfg.clone(),
             encoder: encoder(&p / "backbone", &layout),
-            decoder: decoder(&p / "decode_head", &layout, cfg.num_classes),
+            decoder: decoder(&p / "decode_head", &layout, cfg),
             mean: Tensor::from_slice(&IMAGENET_MEAN).view([1, 3, 1, 1]),
             std: Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]),
         })
@@ -1030,6 +1069,81 @@ mod tests {
             &drop_path_rates(depths, 3, false),
             &[rate(13), rate(14), rate(15)]
         ));
+    }
+
+    /// The training eps reaches the decoder's BatchNorm only (the fusion modules' keep
+    /// PyTorch's), changes the training-mode output, is written to the config only when set,
+    /// and a bad one is refused.
+    #[test]
+    fn the_decoder_batchnorm_takes_the_training_eps() {
+        let plain = Config::new(Size::B0, 9);
+        let trained = Config {
+            decoder_bn_eps: 1e-3,
+            ..plain.clone()
+        };
+        let build = |cfg: &Config| {
+            let vs = nn::VarStore::new(tch::Device::Cpu);
+            tch::manual_seed(3);
+            let net = Cmx::new(vs.root(), cfg).unwrap();
+            (vs, net)
+        };
+        let ((_a, a), (_b, b)) = (build(&plain), build(&trained));
+        assert_eq!(b.decoder.fuse.bn().map(|bn| bn.eps()), Some(1e-3));
+        assert_eq!(a.decoder.fuse.bn().map(|bn| bn.eps()), Some(1e-5));
+        assert_eq!(b.encoder.fusion[0].embed.norm.eps(), 1e-5);
+        let x = Tensor::rand([2, 4, 64, 64], (Kind::Float, tch::Device::Cpu));
+        tch::manual_seed(4);
+        let ya = a.forward_t(&x, true);
+        tch::manual_seed(4);
+        let yb = b.forward_t(&x, true);
+        assert!(
+            !ya.allclose(&yb, 1e-7, 1e-7, false),
+            "eps changes the output"
+        );
+        assert!(ya.allclose(&yb, 1e-2, 1e-2, false), "but a little");
+        let json = serde_json::to_value(&trained).unwrap();
+        assert_eq!(json["decoder_bn_eps"], 1e-3);
+        assert!(serde_json::to_value(&plain)
+            .unwrap()
+            .get("decoder_bn_eps")
+            .is_none());
+        let bad = Config {
+            decoder_bn_eps: 0.0,
+            ..plain
+        };
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("decoder_bn_eps"));
+    }
+
+    /// The unit-range values the network normalises to 0: the colour planes in the encoder's
+    /// order, the thermal plane nearest to 0 in its three normalised channels.
+    #[test]
+    fn normalised_zero_is_what_the_preprocessing_maps_to_zero() {
+        for order in [ColorOrder::Bgr, ColorOrder::Rgb] {
+            let cfg = Config {
+                color_order: order,
+                ..Config::new(Size::B0, 9)
+            };
+            let net = Cmx::new(nn::VarStore::new(tch::Device::Cpu).root(), &cfg).unwrap();
+            let zero = cfg.normalised_zero();
+            let x = Tensor::from_slice(&zero).view([1, 4, 1, 1]);
+            let (colour, thermal) = net.normalise(&x);
+            assert!(colour.abs().max().double_value(&[]) < 1e-6, "{order:?}");
+            let t = Vec::<f32>::try_from(thermal.flatten(0, -1)).unwrap();
+            assert!(t.iter().all(|v| v.abs() < 0.2), "{t:?}");
+            // No other value brings the three thermal channels nearer to 0.
+            let norm = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>();
+            for delta in [-0.01f32, 0.01] {
+                let mut moved = zero;
+                moved[3] += delta;
+                let (_, th) = net.normalise(&Tensor::from_slice(&moved).view([1, 4, 1, 1]));
+                let moved_t = Vec::<f32>::try_from(th.flatten(0, -1)).unwrap();
+                assert!(norm(&moved_t) > norm(&t), "{delta}");
+            }
+        }
     }
 
     #[test]

@@ -22,14 +22,19 @@ pub fn bn2d(p: nn::Path, c: i64) -> BatchNorm {
 
 /// BatchNorm2d with a given weight initialisation and bias 0.
 pub fn bn2d_init(p: nn::Path, c: i64, weight: nn::Init) -> BatchNorm {
+    bn2d_with(p, c, weight, BN_EPS)
+}
+
+/// BatchNorm2d with a given weight initialisation, bias 0 and eps (momentum [`BN_MOMENTUM`]).
+pub fn bn2d_with(p: nn::Path, c: i64, weight: nn::Init, eps: f64) -> BatchNorm {
     let cfg = nn::BatchNormConfig {
-        eps: BN_EPS,
+        eps,
         momentum: BN_MOMENTUM,
         ws_init: effective_init(weight),
         bs_init: nn::Init::Const(0.0),
         ..Default::default()
     };
-    BatchNorm(nn::batch_norm2d(p, c, cfg))
+    BatchNorm::new(nn::batch_norm2d(p, c, cfg), eps)
 }
 
 /// The bf16 convolution of `xs` with `weight` (+ `bias`), computed by fp32 kernels over
@@ -223,6 +228,8 @@ pub struct ConvSpec {
     pub init: WeightInit,
     /// Initialisation of the following BatchNorm's weight (PyTorch: 1).
     pub bn_weight_init: nn::Init,
+    /// The following BatchNorm's eps (PyTorch: [`BN_EPS`]).
+    pub bn_eps: f64,
     /// The unit is always fed a nearest ×2 upsampled map (through
     /// [`ConvBnAct::forward_upsampled`]), so folding also prepares the transposed-convolution
     /// form of that pair.
@@ -242,8 +249,12 @@ impl ConvSpec {
             transposed: false,
             init: WeightInit::TorchDefault,
             bn_weight_init: nn::Init::Const(1.0),
+            bn_eps: BN_EPS,
             nearest_upsampled_input: false,
         }
+    }
+    pub fn bn_eps(self, bn_eps: f64) -> Self {
+        Self { bn_eps, ..self }
     }
     pub fn bn_weight_init(self, bn_weight_init: nn::Init) -> Self {
         Self {
@@ -544,7 +555,7 @@ impl ConvBnAct {
                 },
             )
         });
-        let bn = bn.map(|p| bn2d_init(p, c_out, spec.bn_weight_init));
+        let bn = bn.map(|p| bn2d_with(p, c_out, spec.bn_weight_init, spec.bn_eps));
         Self {
             weight,
             bias,
@@ -654,6 +665,11 @@ impl ConvBnAct {
             },
             _ => self.batch_norm(self.conv(xs, &self.weight, self.bias.as_ref()), train),
         }
+    }
+
+    /// The unit's BatchNorm, if it has one.
+    pub fn bn(&self) -> Option<&BatchNorm> {
+        self.bn.as_ref()
     }
 
     /// This unit's BatchNorm of a convolution's output, if it has one (unfolded path).
@@ -804,7 +820,7 @@ impl Fuse for ConvBnAct {
                     .bs
                     .as_ref()
                     .map_or_else(|| var.zeros_like(), |b| b.to_kind(Kind::Float));
-                let scale = &gamma / (var + BN_EPS).sqrt();
+                let scale = &gamma / (var + bn.eps()).sqrt();
                 // Output channels are dim 0 of a convolution weight, dim 1 of a transposed one.
                 let per_channel = if self.spec.transposed {
                     scale.view([1, -1, 1, 1])

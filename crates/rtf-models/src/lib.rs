@@ -158,6 +158,28 @@ impl ModelConfig {
         cfg
     }
 
+    /// The unit-range input (R, G, B, T in [0, 1]) that the network's input normalisation maps
+    /// to 0: what "0 after normalisation" is in rtf's unit-range data pipeline (CMX's official
+    /// training pads normalised images with 0). The mean of a mean/std convention; CMX's own
+    /// normalisation ([`cmx::Config::normalised_zero`]); 0 for unit-range networks.
+    pub fn normalised_zero(&self) -> [f32; 4] {
+        match (self, self.input_convention()) {
+            (Self::Cmx(c), _) => c.normalised_zero(),
+            (_, rtf_core::InputConvention::MeanStd { mean, .. }) => [mean; 4],
+            (_, rtf_core::InputConvention::UnitRange) => [0.0; 4],
+        }
+    }
+
+    /// The network with its decoder's BatchNorm at `eps` where it has one that the official
+    /// training sets apart (CMX: `config.bn_eps` on `decode_head`); the others unchanged.
+    pub fn with_decoder_bn_eps(&self, eps: f64) -> Self {
+        let mut cfg = self.clone();
+        if let Self::Cmx(c) = &mut cfg {
+            c.decoder_bn_eps = eps;
+        }
+        cfg
+    }
+
     pub fn input_convention(&self) -> rtf_core::InputConvention {
         match self {
             Self::Mfnet(c) => c.input,
@@ -365,6 +387,23 @@ mod tests {
         build(&vs.root(), &ModelConfig::from_name("mfnet", 9).unwrap()).unwrap();
         let w = &vs.variables()["decode1.conv.weight"];
         assert!(w.abs().sum(tch::Kind::Float).double_value(&[]) > 0.0);
+    }
+
+    /// "0 after normalisation" per network family, and the decoder eps only where a network
+    /// has that BatchNorm.
+    #[test]
+    fn normalised_zero_and_decoder_eps_follow_the_network() {
+        let named = |n: &str| ModelConfig::from_name(n, 9).unwrap();
+        assert_eq!(named("mfnet").normalised_zero(), [0.0; 4]);
+        assert_eq!(named("heatnet").normalised_zero(), [0.5; 4]);
+        let cmx = named("cmx-mit-b0").normalised_zero();
+        assert_eq!(&cmx[..3], &[0.406, 0.456, 0.485]);
+        assert!((cmx[3] - 0.4486).abs() < 1e-3, "{cmx:?}");
+        assert_eq!(named("mfnet").with_decoder_bn_eps(1e-3), named("mfnet"));
+        let ModelConfig::Cmx(c) = named("cmx-mit-b0").with_decoder_bn_eps(1e-3) else {
+            panic!("a CMX config")
+        };
+        assert_eq!(c.decoder_bn_eps, 1e-3);
     }
 
     #[test]

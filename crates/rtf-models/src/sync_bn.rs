@@ -16,7 +16,7 @@ use std::sync::Arc;
 use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
-use crate::bn_defaults::{BN_EPS, BN_MOMENTUM};
+use crate::bn_defaults::BN_MOMENTUM;
 
 /// A differentiable sum over every process of a data-parallel job.
 pub trait StatsAllReduce: Send + Sync {
@@ -56,23 +56,40 @@ impl Drop for SyncBatchNorm {
 }
 
 /// BatchNorm (tch's, with its variables under the reference names, momentum
-/// [`BN_MOMENTUM`]) that synchronises its training-mode statistics under [`SyncBatchNorm`].
-/// Made by [`crate::layers::bn2d`].
+/// [`BN_MOMENTUM`], eps [`crate::bn_defaults::BN_EPS`] unless a network sets its own) that
+/// synchronises its training-mode statistics under [`SyncBatchNorm`]. Made by
+/// [`crate::layers::bn2d`].
 #[derive(Debug)]
-pub struct BatchNorm(pub(crate) nn::BatchNorm);
+pub struct BatchNorm {
+    inner: nn::BatchNorm,
+    /// tch keeps its layer's eps private; folding and synchronising need it.
+    eps: f64,
+}
+
+impl BatchNorm {
+    /// `inner`, made with `eps`.
+    pub(crate) fn new(inner: nn::BatchNorm, eps: f64) -> Self {
+        Self { inner, eps }
+    }
+
+    /// The eps added to the variance.
+    pub fn eps(&self) -> f64 {
+        self.eps
+    }
+}
 
 impl std::ops::Deref for BatchNorm {
     type Target = nn::BatchNorm;
     fn deref(&self) -> &nn::BatchNorm {
-        &self.0
+        &self.inner
     }
 }
 
 impl ModuleT for BatchNorm {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
         match SyncBatchNorm::current() {
-            Some(reduce) if train => synchronised(&self.0, xs, &*reduce),
-            _ => self.0.forward_t(xs, train),
+            Some(reduce) if train => synchronised(self, xs, &*reduce),
+            _ => self.inner.forward_t(xs, train),
         }
     }
 }
@@ -84,7 +101,7 @@ impl ModuleT for BatchNorm {
 // `x = x * y` on tensors, not `x *= y`: the compound forms are in-place ops, which autograd
 // cannot differentiate through.
 #[allow(clippy::assign_op_pattern)]
-fn synchronised(bn: &nn::BatchNorm, xs: &Tensor, reduce: &dyn StatsAllReduce) -> Tensor {
+fn synchronised(bn: &BatchNorm, xs: &Tensor, reduce: &dyn StatsAllReduce) -> Tensor {
     let c = bn.running_mean.size()[0];
     // Per-channel shape for broadcasting: [1, C, 1, ...].
     let mut shape = vec![1i64; xs.dim()];
@@ -117,7 +134,7 @@ fn synchronised(bn: &nn::BatchNorm, xs: &Tensor, reduce: &dyn StatsAllReduce) ->
         running_mean.copy_(&(&running_mean * (1.0 - momentum) + mean.detach() * momentum));
         running_var.copy_(&(&running_var * (1.0 - momentum) + unbiased.detach() * momentum));
     });
-    let mut ys = centred * (var + BN_EPS).rsqrt().view(shape.as_slice());
+    let mut ys = centred * (var + bn.eps).rsqrt().view(shape.as_slice());
     if let Some(w) = &bn.ws {
         ys = ys * w.view(shape.as_slice());
     }
