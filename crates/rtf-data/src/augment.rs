@@ -40,9 +40,9 @@ pub struct AugmentConfig {
 /// CMX's training geometry (huaaaliu/RGBX_Semantic_Segmentation, `dataloader/dataloader.py`
 /// `TrainPre` with `random_scale`, `utils/transforms.py` `generate_random_crop_pos` and
 /// `random_crop_pad_to_shape`): the frame scaled by a factor drawn uniformly from `scales`
-/// (image bilinear without antialiasing, OpenCV's `INTER_LINEAR`; label nearest), then a crop of
-/// `size` at a random position, padded around (centred) where the scaled frame is smaller:
-/// image planes with `fill`, label with the ignore id. The geometry is in
+/// (image bilinear without antialiasing, OpenCV's `INTER_LINEAR`; label `INTER_NEAREST`), then
+/// a crop of `size` at a random position, padded around (centred) where the scaled frame is
+/// smaller: image planes with `fill`, label with the ignore id. The geometry is in
 /// [`crate::scale_crop`].
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]

@@ -11,10 +11,10 @@
 //! - what the crop holds of the scaled frame is padded to the crop size with `pad // 2` before
 //!   and the rest after, in both directions.
 //!
-//! Scaling and cropping are one resampling here: the crop's window in frame pixels, resampled
-//! to its size in the scaled frame (image: bilinear without antialiasing, OpenCV's
-//! `INTER_LINEAR`; label: nearest at pixel centres, where OpenCV's `INTER_NEAREST` takes the
-//! pixel at the scaled corner, a difference of at most one source pixel).
+//! Scaling and cropping are one resampling here, from the frame straight to the crop: the image
+//! bilinear without antialiasing at pixel centres (OpenCV's `INTER_LINEAR`), in floating point
+//! where OpenCV resizes the 8-bit image; the label by OpenCV's `INTER_NEAREST` rule, scaled pixel
+//! x taking frame pixel ⌊x · w / W⌋ (w the frame's width, W the scaled one; rows alike).
 
 use rand::Rng;
 
@@ -27,6 +27,10 @@ pub struct Placement {
     pub scale: f32,
     /// The content's window in frame pixels.
     pub window: Window,
+    /// (width, height) of the scaled frame.
+    pub scaled: (usize, usize),
+    /// (column, row) of the crop's corner in the scaled frame.
+    pub origin: (usize, usize),
     /// (width, height) of the content in the crop (the crop size unless the scaled frame ends
     /// inside it).
     pub content: (usize, usize),
@@ -85,6 +89,8 @@ impl ScaleCrop {
                 x1: (x + kw) as f32 * fx,
                 y1: (y + kh) as f32 * fy,
             },
+            scaled: (sw, sh),
+            origin: (x, y),
             content: (kw, kh),
             offset: (left, top),
         })
@@ -105,8 +111,7 @@ pub fn crop_into(
 ) {
     let ((kw, kh), (left, top), (ow, oh)) = (place.content, place.offset, out);
     let content = resample(image, place.window, kw, kh, Filter::Linear);
-    let ids =
-        crate::augment::resample_nearest(label, image.width, image.height, place.window, kw, kh);
+    let ids = nearest(label, (image.width, image.height), place);
     for c in 0..image.channels {
         let plane = &mut dst[c * ow * oh..(c + 1) * ow * oh];
         plane.fill(fill[c.min(3)]);
@@ -119,6 +124,19 @@ pub fn crop_into(
     for r in 0..kh {
         dst_label[(top + r) * ow + left..][..kw].copy_from_slice(&ids[r * kw..][..kw]);
     }
+}
+
+/// The crop's content of `label` (frame size `frame`) by OpenCV's `INTER_NEAREST`: scaled pixel
+/// (x, y) takes frame pixel (⌊x · w / W⌋, ⌊y · h / H⌋), in exact integer arithmetic.
+fn nearest(label: &[u8], (fw, fh): (usize, usize), place: &Placement) -> Vec<u8> {
+    let ((kw, kh), (ox, oy), (sw, sh)) = (place.content, place.origin, place.scaled);
+    let cols: Vec<usize> = (ox..ox + kw).map(|x| (x * fw / sw).min(fw - 1)).collect();
+    let mut out = Vec::with_capacity(kw * kh);
+    for y in oy..oy + kh {
+        let row = &label[(y * fh / sh).min(fh - 1) * fw..][..fw];
+        out.extend(cols.iter().map(|&x| row[x]));
+    }
+    out
 }
 
 #[cfg(test)]
@@ -232,8 +250,9 @@ mod tests {
         assert_eq!(&dst[16 + 2..16 + 6], &[20.5, 22.5, 24.5, 26.5]);
         assert!(dst[..8].iter().chain(&dst[24..]).all(|&v| v == 0.25));
         assert_eq!([dst[8], dst[9], dst[14], dst[15]], [0.25; 4]);
-        // Labels: nearest at pixel centres (odd rows and columns of the frame).
-        assert_eq!(&ids[8 + 2..8 + 6], &[9, 11, 13, 15]);
+        // Labels: OpenCV's nearest, scaled pixel x from frame pixel 2x (even rows and columns).
+        assert_eq!(&ids[8 + 2..8 + 6], &[0, 2, 4, 6]);
+        assert_eq!(&ids[16 + 2..16 + 6], &[16, 18, 20, 22]);
         assert_eq!(ids.iter().filter(|&&v| v == 255).count(), 32 - 8);
     }
 
@@ -266,9 +285,10 @@ mod tests {
                 &mut dst,
                 &mut ids,
             );
-            let (x0, y0) = (p.window.x0 * 2.0, p.window.y0 * 2.0);
+            let (x0, y0) = p.origin;
+            assert_eq!((x0 as f32 / 2.0, y0 as f32 / 2.0), (p.window.x0, p.window.y0));
             for (r, c) in [(0usize, 0usize), (2, 5), (p.content.1 - 1, p.content.0 - 1)] {
-                let (sx, sy) = ((x0 as usize + c) / 2, (y0 as usize + r) / 2);
+                let (sx, sy) = ((x0 + c) / 2, (y0 + r) / 2);
                 assert_eq!(ids[r * 8 + c], label[sy * 8 + sx], "{p:?} at ({r}, {c})");
             }
             let padded = ids.iter().filter(|&&v| v == 255).count();
