@@ -88,7 +88,8 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
     let b = opts.batch as i64;
     let input = Tensor::rand([b, 4, h, w], (Kind::Float, opts.device));
     let target = Tensor::randint(9, [b, h, w], (Kind::Int64, opts.device));
-    let lr = cfg.learning.optimizer.lr_at(0);
+    // The base rate: a schedule's first step may be 0 (a warm-up), and time does not care.
+    let lr = cfg.learning.optimizer.lr;
     let (mut fwd, mut bwd, mut opt) = (vec![], vec![], vec![]);
     for i in 0..opts.warmup + opts.steps {
         let [forward, backward, optimizer] = timed_step(

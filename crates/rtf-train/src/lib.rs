@@ -19,6 +19,7 @@ pub mod procedure;
 pub mod recipe;
 pub mod resume;
 pub mod run;
+pub mod schedule;
 pub mod step_log;
 pub mod tensorboard;
 pub mod trainer;

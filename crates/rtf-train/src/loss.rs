@@ -39,15 +39,16 @@ impl LossConfig {
                 class_weights: class_weights
                     .as_ref()
                     .map(|w| Tensor::from_slice(w).to_kind(Kind::Float)),
-                // -100 is PyTorch's default: no label takes it.
-                ignore_index: ignore_id.map_or(-100, i64::from),
+                // PyTorch's default -100: no label takes it, but the loader's padding of a set
+                // without an ignore id does (rtf_data::loader::NO_LABEL).
+                ignore_index: ignore_id.map_or(rtf_data::loader::NO_LABEL, i64::from),
             }),
         }
     }
 }
 
 /// The label value pseudo-label targets use for "no target here" (PyTorch's default ignore).
-pub const PSEUDO_IGNORE: i64 = -100;
+pub const PSEUDO_IGNORE: i64 = rtf_data::loader::NO_LABEL;
 
 /// A frozen teacher's output turned into the student's target (HeatNet eq. 1).
 pub struct PseudoTargets {

@@ -1,6 +1,7 @@
 //! The optimisers of the papers with PyTorch's update rules and state that can be saved: SGD
-//! with momentum (MFNet, RTFNet) and RMSprop (HeatNet). tch's `nn::Optimizer` cannot export
-//! its buffers, which an exact `--resume` needs.
+//! with momentum (MFNet, RTFNet), RMSprop (HeatNet) and AdamW (CMX). tch's `nn::Optimizer`
+//! cannot export its buffers, which an exact `--resume` needs. Weight decay applies to the
+//! tensors of the configured [`DecayScope`] (CMX: convolution and linear weights only).
 //!
 //! Under fp16 mixed precision the optimiser also owns the dynamic loss scale (PyTorch's
 //! `torch.amp.GradScaler`; Micikevicius et al., "Mixed Precision Training", ICLR 2018, §3.2):
@@ -14,7 +15,7 @@ use std::collections::BTreeMap;
 
 use tch::{nn::VarStore, Tensor};
 
-use crate::config::{OptimizerConfig, OptimizerKind};
+use crate::config::{DecayScope, OptimizerConfig, OptimizerKind};
 
 /// State key of the loss scale (a one-element fp32 tensor).
 pub const SCALE_KEY: &str = "amp/loss_scale";
@@ -25,9 +26,10 @@ pub const INITIAL_SCALE: f64 = 65536.0;
 /// Clean steps in a row before the scale doubles (GradScaler's `growth_interval`).
 pub const SCALE_GROWTH_INTERVAL: f64 = 2000.0;
 
-/// An optimiser and its per-parameter state, keyed `momentum/<parameter>` and
-/// `square_avg/<parameter>` (the names checkpoints store them under), plus the loss scale when
-/// it scales the loss.
+/// An optimiser and its per-parameter state, keyed `momentum/<parameter>`,
+/// `square_avg/<parameter>`, and for AdamW `exp_avg/<parameter>`, `exp_avg_sq/<parameter>` and
+/// `step/<parameter>` (PyTorch's names; checkpoints store them so), plus the loss scale when it
+/// scales the loss.
 #[derive(Debug)]
 pub struct Optimizer {
     config: OptimizerConfig,
@@ -105,11 +107,12 @@ impl Optimizer {
         finite
     }
 
-    /// One update of every trainable variable of `vs` that has a gradient, PyTorch's rules:
-    /// g += wd·p; then
-    /// - SGD: b = μ·b + g (b = g on the first step), p −= lr·b;
-    /// - RMSprop: v = α·v + (1 − α)·g² (v starts at 0), d = g / (√v + ε);
-    ///   with momentum b = μ·b + d (b starts at 0), p −= lr·b; else p −= lr·d.
+    /// One update of every trainable variable of `vs` that has a gradient, PyTorch's rules,
+    /// with `wd` = the weight decay where the [`DecayScope`] applies, else 0:
+    /// - SGD: g += wd·p; b = μ·b + g (b = g on the first step), p −= lr·b;
+    /// - RMSprop: g += wd·p; v = α·v + (1 − α)·g² (v starts at 0), d = g / (√v + ε);
+    ///   with momentum b = μ·b + d (b starts at 0), p −= lr·b; else p −= lr·d;
+    /// - AdamW ([`adamw_step`](Self::adamw_step)): p −= lr·wd·p, then Adam's update.
     ///
     /// When scaling the loss, the gradients are first divided by the scale, and the update is
     /// skipped if one of them is not finite.
@@ -117,22 +120,52 @@ impl Optimizer {
         if self.scaling && !self.unscale(vs) {
             return;
         }
+        let scope = self.config.decay_scope;
         tch::no_grad(|| {
             for (name, param) in trainable(vs) {
                 let grad = param.grad();
                 if !grad.defined() {
                     continue;
                 }
-                match self.config.kind == OptimizerKind::Sgd && fusable(&param, &grad) {
-                    true => self.fused_sgd_step(&name, &param, &grad, lr),
-                    false => self.step_written_out(&name, param, grad, lr),
+                let wd = decay_of(scope, &param, self.config.weight_decay);
+                match self.config.kind {
+                    OptimizerKind::Sgd if fusable(&param, &grad) => {
+                        self.fused_sgd_step(&name, &param, &grad, lr, wd)
+                    }
+                    OptimizerKind::Adamw => self.adamw_step(&name, &param, &grad, lr, wd),
+                    _ => self.step_written_out(&name, param, grad, lr, wd),
                 }
             }
         });
     }
 
+    /// PyTorch's AdamW (`torch.optim.AdamW`, single-tensor path, no amsgrad), state per
+    /// parameter: t += 1; p ·= 1 − lr·wd; m = lerp(m, g, 1 − β1); v = β2·v + (1 − β2)·g²;
+    /// p −= (lr / (1 − β1ᵗ)) · m / (√v / √(1 − β2ᵗ) + ε).
+    fn adamw_step(&mut self, name: &str, param: &Tensor, grad: &Tensor, lr: f64, wd: f64) {
+        let (b1, b2) = self.config.betas;
+        let eps = self.config.eps;
+        let step_key = format!("step/{name}");
+        let t = self.scalar(&step_key).unwrap_or(0.0) + 1.0;
+        self.set_scalar(&step_key, t);
+        let mut param = param.shallow_clone();
+        if wd != 0.0 {
+            let _ = param.g_mul_scalar_(1.0 - lr * wd);
+        }
+        let mut m = self.buffer(format!("exp_avg/{name}"), grad);
+        let mut v = self.buffer(format!("exp_avg_sq/{name}"), grad);
+        let _ = m.lerp_(grad, 1.0 - b1);
+        // PyTorch's `addcmul_(g, g, value)` and `addcdiv_(m, d, value)` multiply the value in
+        // first: the same products here.
+        let _ = v.g_mul_scalar_(b2).addcmul_(&(grad * (1.0 - b2)), grad);
+        let (bias1, bias2) = (1.0 - b1.powf(t), 1.0 - b2.powf(t));
+        let mut denom = v.sqrt() / bias2.sqrt();
+        let _ = denom.g_add_scalar_(eps);
+        let _ = param.addcdiv_(&(&m * (-lr / bias1)), &denom);
+    }
+
     /// SGD's update in ATen's fused kernel: one pass, no temporaries.
-    fn fused_sgd_step(&mut self, name: &str, param: &Tensor, grad: &Tensor, lr: f64) {
+    fn fused_sgd_step(&mut self, name: &str, param: &Tensor, grad: &Tensor, lr: f64, wd: f64) {
         let cfg = &self.config;
         let key = format!("momentum/{name}");
         let (buffer, first_step) = match self.state.get(&key) {
@@ -152,27 +185,16 @@ impl Optimizer {
                 (buffer, true)
             }
         };
-        rtf_models::aten::fused_sgd_(
-            param,
-            grad,
-            &buffer,
-            cfg.weight_decay,
-            cfg.momentum,
-            lr,
-            first_step,
-        );
+        rtf_models::aten::fused_sgd_(param, grad, &buffer, wd, cfg.momentum, lr, first_step);
     }
 
     /// The update rules written out (RMSprop; SGD where the fused kernel does not apply).
-    fn step_written_out(&mut self, name: &str, mut param: Tensor, grad: Tensor, lr: f64) {
+    fn step_written_out(&mut self, name: &str, mut param: Tensor, grad: Tensor, lr: f64, wd: f64) {
         let cfg = self.config.clone();
-        let grad = if cfg.weight_decay != 0.0 {
-            grad + &param * cfg.weight_decay
-        } else {
-            grad
-        };
+        let grad = if wd != 0.0 { grad + &param * wd } else { grad };
         let direction = match cfg.kind {
-            OptimizerKind::Sgd => grad,
+            // AdamW has its own step (adamw_step) and never comes here.
+            OptimizerKind::Sgd | OptimizerKind::Adamw => grad,
             OptimizerKind::Rmsprop => {
                 let square_avg = self.buffer(format!("square_avg/{name}"), &grad);
                 let _ = square_avg
@@ -226,6 +248,14 @@ impl Optimizer {
     /// Restores state saved from [`state`](Self::state).
     pub fn set_state(&mut self, state: BTreeMap<String, Tensor>) {
         self.state = state;
+    }
+}
+
+/// The weight decay of `param`: `weight_decay` where `scope` applies to it, else 0.
+fn decay_of(scope: DecayScope, param: &Tensor, weight_decay: f64) -> f64 {
+    match scope.decays(param) {
+        true => weight_decay,
+        false => 0.0,
     }
 }
 
@@ -373,6 +403,59 @@ mod tests {
             assert_close(&got, &expected);
             assert_eq!(state, if momentum > 0.0 { 2 } else { 1 });
         }
+    }
+
+    /// Three AdamW steps (`torch.optim.AdamW`'s rule written out in f64) on a weight matrix
+    /// and a bias under CMX's scope: the matrix decays, the bias does not; then three more
+    /// after the state went through a checkpoint's f32 copy, as a resume hands it back.
+    #[test]
+    fn adamw_matches_pytorch_update_rule_with_decay_on_weights_only() {
+        let cfg = OptimizerConfig {
+            weight_decay: 0.5,
+            ..OptimizerConfig::cmx_code()
+        };
+        let ((b1, b2), eps, lr) = (cfg.betas, cfg.eps, 0.1);
+        let vs = VarStore::new(Device::Cpu);
+        let start = [1.0f64, -2.0, 0.5];
+        let fc = vs.root() / "fc";
+        let w = fc.var_copy("weight", &Tensor::from_slice(&[1.0f32, -2.0]).view([2, 1]));
+        let b = fc.var_copy("bias", &Tensor::from_slice(&[0.5f32]));
+        let mut optimizer = Optimizer::new(&cfg);
+        let (mut p, mut m, mut v) = (start, [0.0f64; 3], [0.0f64; 3]);
+        for t in 1..=6 {
+            if t == 4 {
+                let saved: BTreeMap<String, Tensor> = optimizer
+                    .state()
+                    .iter()
+                    .map(|(k, v)| (k.clone(), v.to_kind(Kind::Float).copy()))
+                    .collect();
+                optimizer = Optimizer::new(&cfg);
+                optimizer.set_state(saved);
+            }
+            optimizer.zero_grad(&vs);
+            // grad = 2·p for every element.
+            ((&w * &w).sum(Kind::Float) + (&b * &b).sum(Kind::Float)).backward();
+            optimizer.step(&vs, lr);
+            for i in 0..3 {
+                let g = 2.0 * p[i];
+                if i < 2 {
+                    p[i] *= 1.0 - lr * cfg.weight_decay;
+                }
+                m[i] = b1 * m[i] + (1.0 - b1) * g;
+                v[i] = b2 * v[i] + (1.0 - b2) * g * g;
+                let (c1, c2) = (1.0 - b1.powi(t), 1.0 - b2.powi(t));
+                p[i] -= lr / c1 * m[i] / ((v[i] / c2).sqrt() + eps);
+            }
+            let got: Vec<f32> =
+                Vec::try_from(Tensor::cat(&[w.view([-1]), b.shallow_clone()], 0)).unwrap();
+            assert_close(&got, &p);
+        }
+        assert_eq!(
+            optimizer.state().len(),
+            6,
+            "exp_avg, exp_avg_sq, step per parameter"
+        );
+        assert_eq!(optimizer.scalar("step/fc.bias"), Some(6.0));
     }
 
     /// The dynamic loss scale: a clean step unscales the gradients (the update equals the

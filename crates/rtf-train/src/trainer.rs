@@ -25,7 +25,7 @@ use rtf_models::Network;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{self, Part, PartialEpoch, TrainState};
-use crate::config::{DatasetConfig, SelectMetric, TrainConfig};
+use crate::config::{DatasetConfig, SelectMetric, StepAt, TrainConfig};
 use crate::ddp::Ddp;
 pub use crate::error::TrainError;
 use crate::procedure::{self, Procedure, StepBatches};
@@ -63,7 +63,7 @@ pub struct ValRecord {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EpochRecord {
     pub epoch: usize,
-    /// The student's learning rate.
+    /// The student's learning rate (at the epoch's first step).
     pub lr: f64,
     /// Mean of the student's objective over the epoch's steps.
     pub train_loss: f64,
@@ -945,7 +945,7 @@ impl<'a> Run<'a> {
             main: on_device(batch),
             night: night_batch.map(on_device),
         };
-        let mut report = self.procedure.step(&batches, epoch)?;
+        let mut report = self.procedure.step(&batches, self.at(epoch, step))?;
         let mut interrupted = stop.load(Ordering::Relaxed);
         if self.ddp.is_some() {
             interrupted = self.sync_step(epoch, step, count, &mut report, progress, interrupted)?;
@@ -1070,6 +1070,16 @@ impl<'a> Run<'a> {
         Ok(Some(val_record(&report, self.freiburg, self.select)))
     }
 
+    /// Step `step` of `epoch` in this run (what per-step schedules read).
+    fn at(&self, epoch: usize, step: usize) -> StepAt {
+        StepAt {
+            epoch,
+            step,
+            steps_per_epoch: self.steps_per_epoch,
+            epochs: self.cfg.schedule.epochs,
+        }
+    }
+
     fn epoch_record(
         &self,
         epoch: usize,
@@ -1085,7 +1095,7 @@ impl<'a> Run<'a> {
             .partition(|(k, _)| !k.starts_with("critic_acc"));
         EpochRecord {
             epoch,
-            lr: self.cfg.learning.optimizer.lr_at(epoch),
+            lr: self.cfg.learning.optimizer.lr_at(self.at(epoch, 0)),
             train_loss: progress.loss_sum / steps,
             images: progress.images,
             seconds,
@@ -1098,7 +1108,7 @@ impl<'a> Run<'a> {
                 .procedure
                 .trained()
                 .iter()
-                .map(|t| (t.role.to_string(), t.schedule.lr_at(epoch)))
+                .map(|t| (t.role.to_string(), t.schedule.lr_at(self.at(epoch, 0))))
                 .collect(),
             metrics,
             val,

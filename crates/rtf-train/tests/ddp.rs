@@ -11,6 +11,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use rtf_dist::{Backend, DistEnv, ProcessGroup};
+use rtf_train::config::StepAt;
 use rtf_train::ddp::Ddp;
 use rtf_train::procedure::Trained;
 use rtf_train::{DatasetConfig, OptimizerConfig, RunConfig, TrainConfig};
@@ -110,14 +111,14 @@ fn a_step_on_two_ranks_equals_the_single_process_step_on_the_whole_batch() {
             -100,
             0.0,
         );
-    trained.minimise(&loss, 0);
+    trained.minimise(&loss, StepAt::start_of(0));
     ddp.check().unwrap();
     // One process, the whole batch.
     let (mut single, net1) = build();
     let loss1 =
         net1.forward(&x)
             .cross_entropy_loss::<Tensor>(&y, None, tch::Reduction::Mean, -100, 0.0);
-    single.minimise(&loss1, 0);
+    single.minimise(&loss1, StepAt::start_of(0));
     let mut max = 0f64;
     let (a, b) = (trained.vs.variables(), single.vs.variables());
     assert!(!a.is_empty());
@@ -177,7 +178,7 @@ fn synchronised_batch_norm_makes_two_ranks_step_like_one_process() {
     };
     // One process, the whole batch.
     let (mut single, net1) = build();
-    single.minimise(&ce(net1.forward_t(&x, true), &y), 0);
+    single.minimise(&ce(net1.forward_t(&x, true), &y), StepAt::start_of(0));
     // Two ranks, each a half, with and without synchronised statistics.
     let share = 4 / world;
     let (xr, yr) = (x.narrow(0, r * share, share), y.narrow(0, r * share, share));
@@ -185,7 +186,7 @@ fn synchronised_batch_norm_makes_two_ranks_step_like_one_process() {
         let (mut trained, net) = build();
         trained.ddp = Some(ddp.clone());
         let _sync = sync.then(|| rtf_models::SyncBatchNorm::install(ddp.clone()));
-        trained.minimise(&ce(net.forward_t(&xr, true), &yr), 0);
+        trained.minimise(&ce(net.forward_t(&xr, true), &yr), StepAt::start_of(0));
         ddp.check().unwrap();
         let (a, b) = (trained.vs.variables(), single.vs.variables());
         let mut max = 0f64;

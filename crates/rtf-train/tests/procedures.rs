@@ -11,7 +11,7 @@ use std::sync::Mutex;
 
 use rtf_models::ModelConfig;
 use rtf_train::config::{
-    CriticOptions, PipelineConfig, StageConfig, TargetOptions, TeacherRef, WeightsRef,
+    CriticOptions, PipelineConfig, StageConfig, StepAt, TargetOptions, TeacherRef, WeightsRef,
 };
 use rtf_train::{DatasetConfig, Modality, OptimizerConfig, Procedure, RunConfig, TrainConfig};
 
@@ -244,7 +244,7 @@ fn each_adversarial_step_updates_only_its_own_network() {
     drop(adv);
     let before_student = student_of(procedure.as_ref(), 0);
     let before_critic = student_of(procedure.as_ref(), 1);
-    procedure.step(&batches, 0).unwrap();
+    procedure.step(&batches, StepAt::start_of(0)).unwrap();
     let after_student = student_of(procedure.as_ref(), 0);
     let after_critic = student_of(procedure.as_ref(), 1);
     assert!(
@@ -278,7 +278,9 @@ fn each_adversarial_step_updates_only_its_own_network() {
         .into_iter()
         .map(|(n, t)| (n, t.copy()))
         .collect::<Vec<_>>();
-    let (_, _, night_logits, day_logits) = halves.segmentation_step(&batches, 0).unwrap();
+    let (_, _, night_logits, day_logits) = halves
+        .segmentation_step(&batches, StepAt::start_of(0))
+        .unwrap();
     let critic1 = halves.critic.vs.variables();
     assert!(
         critic0.iter().all(|(n, t)| t.equal(&critic1[n])),
@@ -295,7 +297,7 @@ fn each_adversarial_step_updates_only_its_own_network() {
     assert!(student0
         .iter()
         .any(|(n, t)| !t.equal(&student1.iter().find(|(m, _)| m == n).unwrap().1)));
-    halves.critic_step(&day_logits, &night_logits, 0);
+    halves.critic_step(&day_logits, &night_logits, StepAt::start_of(0));
     let student2 = halves.student.trained.vs.variables();
     assert!(
         student1.iter().all(|(n, t)| t.equal(&student2[n])),

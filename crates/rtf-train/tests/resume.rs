@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::Mutex;
 
-use rtf_train::config::{PipelineConfig, StageConfig, WeightsRef};
+use rtf_train::config::{LrSchedule, PipelineConfig, StageConfig, WeightsRef};
 use rtf_train::resume;
 use rtf_train::{DatasetConfig, OptimizerConfig, RunConfig, TrainConfig};
 
@@ -88,21 +88,43 @@ fn run_stopped_inside_an_epoch_resumes_exactly() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     common::write_split_dataset(&data, 6, 12345, 4);
-    // HeatNet's optimiser with momentum: its state must survive a mid-epoch stop too.
-    let cfg = config(&data, 2).with(|c| {
-        c.learning.optimizer = OptimizerConfig {
-            momentum: 0.5,
-            ..OptimizerConfig::heatnet_paper()
-        };
-    });
-    let straight = tmp.path().join("straight");
-    let expected = rtf_train::train(&cfg, &straight, false, &mut |_| {}).unwrap();
+    // HeatNet's optimiser with momentum, and CMX's AdamW (moments and step counts per tensor,
+    // a per-step warm-up-then-poly rate, decay on weights only): their state must survive a
+    // mid-epoch stop too.
+    let optimizers = [
+        (
+            "rmsprop",
+            OptimizerConfig {
+                momentum: 0.5,
+                ..OptimizerConfig::heatnet_paper()
+            },
+        ),
+        (
+            "adamw",
+            OptimizerConfig {
+                schedule: LrSchedule::WarmupPoly {
+                    power: 0.9,
+                    warmup_epochs: 1,
+                },
+                ..OptimizerConfig::cmx_code()
+            },
+        ),
+    ];
+    for (label, optimizer) in optimizers {
+        let cfg = config(&data, 2).with(|c| c.learning.optimizer = optimizer);
+        stopped_inside_an_epoch_resumes(&cfg, &tmp.path().join(label));
+    }
+}
+
+fn stopped_inside_an_epoch_resumes(cfg: &TrainConfig, dir: &Path) {
+    let straight = dir.join("straight");
+    let expected = rtf_train::train(cfg, &straight, false, &mut |_| {}).unwrap();
 
     // A stop requested before the first step ends the run after it: batch 1 of epoch 1's 2.
-    let stopped = tmp.path().join("stopped");
+    let stopped = dir.join("stopped");
     let stop = AtomicBool::new(true);
     let outcome =
-        rtf_train::trainer::train_until(&cfg, &stopped, false, &mut |_| {}, &stop).unwrap();
+        rtf_train::trainer::train_until(cfg, &stopped, false, &mut |_| {}, &stop).unwrap();
     assert!(outcome.final_weights.is_none() && outcome.records.is_empty());
     assert_eq!(outcome.state.partial.as_ref().map(|p| p.batches), Some(1));
     assert!(!stopped.join("final.safetensors").exists());
@@ -126,11 +148,11 @@ fn run_stopped_inside_an_epoch_resumes_exactly() {
             a.epoch
         );
     }
-    assert_eq!(
+    let (a, b) = (
         common::weights(&straight.join("final.safetensors")),
         common::weights(&stopped.join("final.safetensors")),
-        "stopped and resumed inside an epoch = uninterrupted"
     );
+    assert_eq!(a, b, "stopped and resumed inside an epoch = uninterrupted");
 }
 
 #[test]

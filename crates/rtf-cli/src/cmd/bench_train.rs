@@ -26,8 +26,8 @@ pub struct Args {
     /// cpu, cuda or cuda:N.
     #[arg(long, default_value = "cpu")]
     pub device: String,
-    /// sgd (MFNet paper) or rmsprop (HeatNet paper).
-    #[arg(long, default_value = "sgd", value_parser = parse_optimizer)]
+    /// sgd (MFNet paper), rmsprop (HeatNet paper) or adamw (CMX's training).
+    #[arg(long, default_value = "sgd", value_parser = OptimizerKind::parse)]
     pub optimizer: OptimizerKind,
     /// Untimed steps first.
     #[arg(long, default_value_t = 2)]
@@ -43,25 +43,12 @@ pub struct Args {
     pub json: bool,
 }
 
-fn parse_optimizer(text: &str) -> Result<OptimizerKind, String> {
-    match text {
-        "sgd" => Ok(OptimizerKind::Sgd),
-        "rmsprop" => Ok(OptimizerKind::Rmsprop),
-        other => Err(format!(
-            "unknown optimizer `{other}` (expected sgd or rmsprop)"
-        )),
-    }
-}
-
 pub fn run(args: Args) -> Result<()> {
     if let Some(threads) = args.threads {
         anyhow::ensure!(threads >= 1, "--threads must be ≥ 1");
         tch::set_num_threads(threads);
     }
-    let optimizer = match args.optimizer {
-        OptimizerKind::Sgd => OptimizerConfig::mfnet_paper(),
-        OptimizerKind::Rmsprop => OptimizerConfig::heatnet_paper(),
-    };
+    let optimizer = OptimizerConfig::paper_default(args.optimizer);
     let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
     if let Some(warning) = crate::bf16_warning::training(args.precision, device) {
         eprintln!("warning: {warning}");

@@ -527,10 +527,56 @@ pub enum OptimizerKind {
     Sgd,
     /// RMSprop (HeatNet).
     Rmsprop,
+    /// AdamW (CMX): Adam with weight decay decoupled from the gradient.
+    Adamw,
 }
 
-/// Optimiser and learning-rate schedule: the rate is multiplied by `lr_decay` every
-/// `decay_every` epochs (MFNet: ×0.94 every epoch; HeatNet: ×0.5 every 30).
+impl OptimizerKind {
+    /// `sgd`, `rmsprop` or `adamw` (command-line flags).
+    pub fn parse(text: &str) -> Result<Self, String> {
+        match text {
+            "sgd" => Ok(OptimizerKind::Sgd),
+            "rmsprop" => Ok(OptimizerKind::Rmsprop),
+            "adamw" => Ok(OptimizerKind::Adamw),
+            other => Err(format!(
+                "unknown optimizer `{other}` (expected sgd, rmsprop or adamw)"
+            )),
+        }
+    }
+}
+
+/// Which trainable tensors weight decay applies to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DecayScope {
+    /// Every trainable tensor (PyTorch's optimisers given `model.parameters()`).
+    #[default]
+    All,
+    /// Convolution and linear weights only, none on normalisation layers' weights nor on any
+    /// bias (CMX: `utils/init_func.py` `group_weight`, whose no-decay group holds the biases
+    /// and every BatchNorm/LayerNorm/GroupNorm parameter). Decided by shape: a tensor decays
+    /// when it has two or more dimensions. Convolution and linear weights are the only such
+    /// trainable tensors of rtf's networks; norm weights and biases are 1-D.
+    ConvAndLinearWeights,
+}
+
+impl DecayScope {
+    pub fn is_all(&self) -> bool {
+        *self == DecayScope::All
+    }
+
+    /// Whether weight decay applies to `param`.
+    pub fn decays(self, param: &tch::Tensor) -> bool {
+        match self {
+            DecayScope::All => true,
+            DecayScope::ConvAndLinearWeights => param.dim() >= 2,
+        }
+    }
+}
+
+/// Optimiser and learning-rate schedule. With the default [`LrSchedule::StepDecay`] the rate is
+/// multiplied by `lr_decay` every `decay_every` epochs (MFNet: ×0.94 every epoch; HeatNet: ×0.5
+/// every 30). SGD reads `momentum`; RMSprop `momentum`, `alpha`, `eps`; AdamW `betas`, `eps`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OptimizerConfig {
@@ -545,10 +591,21 @@ pub struct OptimizerConfig {
     /// RMSprop's smoothing constant (PyTorch: 0.99).
     #[serde(default = "rmsprop_alpha")]
     pub alpha: f64,
-    /// RMSprop's denominator term (PyTorch: 1e-8).
+    /// RMSprop's and AdamW's denominator term (PyTorch: 1e-8 both).
     #[serde(default = "rmsprop_eps")]
     pub eps: f64,
+    /// AdamW's (β1, β2) (PyTorch's and CMX's: 0.9, 0.999). Written only when not those.
+    #[serde(default = "adam_betas", skip_serializing_if = "is_adam_betas")]
+    pub betas: (f64, f64),
+    /// Which tensors `weight_decay` applies to. Written only when not all.
+    #[serde(default, skip_serializing_if = "DecayScope::is_all")]
+    pub decay_scope: DecayScope,
+    /// The learning-rate schedule. Written only when not the per-epoch step decay.
+    #[serde(default, skip_serializing_if = "LrSchedule::is_step_decay")]
+    pub schedule: LrSchedule,
 }
+
+pub use crate::schedule::{LrSchedule, StepAt};
 
 fn one() -> usize {
     1
@@ -558,6 +615,12 @@ fn rmsprop_alpha() -> f64 {
 }
 fn rmsprop_eps() -> f64 {
     1e-8
+}
+fn adam_betas() -> (f64, f64) {
+    (0.9, 0.999)
+}
+fn is_adam_betas(betas: &(f64, f64)) -> bool {
+    *betas == adam_betas()
 }
 
 impl OptimizerConfig {
@@ -572,6 +635,9 @@ impl OptimizerConfig {
             decay_every: 1,
             alpha: rmsprop_alpha(),
             eps: rmsprop_eps(),
+            betas: adam_betas(),
+            decay_scope: DecayScope::All,
+            schedule: LrSchedule::StepDecay,
         }
     }
 
@@ -589,9 +655,53 @@ impl OptimizerConfig {
         }
     }
 
-    /// Learning rate of a (0-based) epoch.
-    pub fn lr_at(&self, epoch: usize) -> f64 {
-        self.lr * self.lr_decay.powi((epoch / self.decay_every.max(1)) as i32)
+    /// CMX's official training (huaaaliu/RGBX_Semantic_Segmentation: `config.py`, `train.py`,
+    /// `utils/init_func.py` `group_weight`): AdamW, lr 6e-5, betas (0.9, 0.999), eps 1e-8,
+    /// weight decay 0.01 on convolution and linear weights only, linear warm-up over 10 epochs
+    /// then poly decay with power 0.9 per step. `momentum`, `lr_decay` and `decay_every` are
+    /// not read (0, 1, 1).
+    pub fn cmx_code() -> Self {
+        Self {
+            kind: OptimizerKind::Adamw,
+            lr: 6e-5,
+            momentum: 0.0,
+            weight_decay: 0.01,
+            lr_decay: 1.0,
+            decay_every: 1,
+            decay_scope: DecayScope::ConvAndLinearWeights,
+            schedule: LrSchedule::cmx_code(),
+            ..Self::mfnet_paper()
+        }
+    }
+
+    /// The paper's optimiser and schedule of a kind: SGD → MFNet's, RMSprop → HeatNet's, AdamW
+    /// → CMX's.
+    pub fn paper_default(kind: OptimizerKind) -> Self {
+        match kind {
+            OptimizerKind::Sgd => Self::mfnet_paper(),
+            OptimizerKind::Rmsprop => Self::heatnet_paper(),
+            OptimizerKind::Adamw => Self::cmx_code(),
+        }
+    }
+
+    /// Learning rate of the step `at` ([`LrSchedule`]).
+    pub fn lr_at(&self, at: StepAt) -> f64 {
+        match self.schedule {
+            LrSchedule::StepDecay => {
+                let decays = at.epoch / self.decay_every.max(1);
+                self.lr * self.lr_decay.powi(decays as i32)
+            }
+            LrSchedule::WarmupPoly {
+                power,
+                warmup_epochs,
+            } => crate::schedule::warmup_poly(
+                self.lr,
+                power,
+                warmup_epochs * at.steps_per_epoch,
+                at.total(),
+                at.global(),
+            ),
+        }
     }
 }
 
@@ -808,7 +918,30 @@ impl OptimizerConfig {
         if !(self.eps.is_finite() && self.eps > 0.0) {
             return bad("eps", format!("must be > 0, got {}", self.eps));
         }
-        Ok(())
+        self.validate_adamw_and_schedule(prefix)
+    }
+
+    /// The AdamW betas and the warm-up-poly power.
+    fn validate_adamw_and_schedule(&self, prefix: &str) -> Result<(), ConfigError> {
+        let (b1, b2) = self.betas;
+        if ![b1, b2]
+            .iter()
+            .all(|b| b.is_finite() && (0.0..1.0).contains(b))
+        {
+            return Err(ConfigError {
+                field: format!("{prefix}.betas"),
+                message: format!("must both be in [0, 1), got ({b1}, {b2})"),
+            });
+        }
+        match self.schedule {
+            LrSchedule::WarmupPoly { power, .. } if !(power.is_finite() && power > 0.0) => {
+                Err(ConfigError {
+                    field: format!("{prefix}.schedule.power"),
+                    message: format!("must be > 0, got {power}"),
+                })
+            }
+            _ => Ok(()),
+        }
     }
 }
 
@@ -1142,12 +1275,106 @@ mod tests {
     #[test]
     fn schedule_decays_per_epoch() {
         let sgd = OptimizerConfig::mfnet_paper();
-        assert_eq!(sgd.lr_at(0), 0.01);
-        assert!((sgd.lr_at(2) - 0.01 * 0.94 * 0.94).abs() < 1e-15);
+        let epoch = |e, step| StepAt {
+            epoch: e,
+            step,
+            steps_per_epoch: 7,
+            epochs: 100,
+        };
+        assert_eq!(sgd.lr_at(epoch(0, 0)), 0.01);
+        assert!((sgd.lr_at(epoch(2, 5)) - 0.01 * 0.94 * 0.94).abs() < 1e-15);
         let heatnet = OptimizerConfig::heatnet_paper();
-        assert_eq!(heatnet.lr_at(29), 1e-4);
-        assert_eq!(heatnet.lr_at(30), 0.5e-4);
-        assert_eq!(heatnet.lr_at(99), 0.125e-4);
+        assert_eq!(heatnet.lr_at(StepAt::start_of(29)), 1e-4);
+        assert_eq!(heatnet.lr_at(epoch(30, 6)), 0.5e-4);
+        assert_eq!(heatnet.lr_at(StepAt::start_of(99)), 0.125e-4);
+    }
+
+    /// CMX's per-step schedule over the run's steps: 0 at the first step, half the rate half-way
+    /// through the warm-up, the poly decay after it.
+    #[test]
+    fn cmx_schedule_warms_up_then_decays_per_step() {
+        let cmx = OptimizerConfig::cmx_code();
+        let at = |epoch, step| StepAt {
+            epoch,
+            step,
+            steps_per_epoch: 4,
+            epochs: 20,
+        };
+        assert_eq!(cmx.lr_at(at(0, 0)), 0.0);
+        assert!((cmx.lr_at(at(5, 0)) - 3e-5).abs() < 1e-18);
+        let poly = 6e-5 * (1.0 - 41.0 / 80.0f64).powf(0.9);
+        assert!((cmx.lr_at(at(10, 1)) - poly).abs() < 1e-18);
+        assert!(cmx.lr_at(at(19, 3)) > 0.0);
+    }
+
+    /// CMX's optimiser section is written with its kind, scope and schedule and reads back; the
+    /// older sections (no such keys) read as before; bad betas and powers are refused by name.
+    #[test]
+    fn adamw_sections_round_trip_and_validate() {
+        let cmx = OptimizerConfig::cmx_code();
+        let json = serde_json::to_value(&cmx).unwrap();
+        assert_eq!(json["kind"], "adamw");
+        assert_eq!(json["decay_scope"], "conv_and_linear_weights");
+        assert_eq!(json["schedule"]["kind"], "warmup_poly");
+        assert!(
+            json.get("betas").is_none(),
+            "PyTorch's betas are not written"
+        );
+        assert_eq!(
+            serde_json::from_value::<OptimizerConfig>(json).unwrap(),
+            cmx
+        );
+        let sgd = serde_json::to_value(OptimizerConfig::mfnet_paper()).unwrap();
+        assert!(sgd.get("schedule").is_none() && sgd.get("decay_scope").is_none());
+        cmx.validate("o").unwrap();
+        let bad_betas = OptimizerConfig {
+            betas: (0.9, 1.0),
+            ..cmx.clone()
+        };
+        assert_eq!(bad_betas.validate("o").unwrap_err().field, "o.betas");
+        let bad_power = OptimizerConfig {
+            schedule: LrSchedule::WarmupPoly {
+                power: 0.0,
+                warmup_epochs: 1,
+            },
+            ..cmx
+        };
+        assert_eq!(
+            bad_power.validate("o").unwrap_err().field,
+            "o.schedule.power"
+        );
+    }
+
+    /// Decay on convolution and linear weights (≥ 2-D), none on norms' weights and biases.
+    #[test]
+    fn the_decay_scope_is_decided_by_shape() {
+        let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+        let root = vs.root();
+        let _conv = tch::nn::conv2d(&root / "conv", 3, 4, 3, Default::default());
+        let _linear = tch::nn::linear(&root / "fc", 4, 2, Default::default());
+        let _bn = tch::nn::batch_norm2d(&root / "bn", 4, Default::default());
+        let _ln = tch::nn::layer_norm(&root / "ln", vec![4], Default::default());
+        let decayed: Vec<String> = crate::optim::trainable(&vs)
+            .into_iter()
+            .filter(|(_, t)| DecayScope::ConvAndLinearWeights.decays(t))
+            .map(|(n, _)| n)
+            .collect();
+        assert_eq!(decayed, ["conv.weight", "fc.weight"]);
+        assert_eq!(crate::optim::trainable(&vs).len(), 8);
+    }
+
+    #[test]
+    fn optimizer_kinds_parse_to_their_papers_optimisers() {
+        for (text, expected) in [
+            ("sgd", OptimizerConfig::mfnet_paper()),
+            ("rmsprop", OptimizerConfig::heatnet_paper()),
+            ("adamw", OptimizerConfig::cmx_code()),
+        ] {
+            let kind = OptimizerKind::parse(text).unwrap();
+            assert_eq!(OptimizerConfig::paper_default(kind), expected);
+        }
+        let err = OptimizerKind::parse("adam").unwrap_err();
+        assert!(err.contains("adamw"), "{err}");
     }
 
     #[test]

@@ -20,7 +20,7 @@ use tch::{nn::ModuleT, Device, Kind, Tensor};
 
 use super::teacher_student::distillation_loss;
 use super::{Labeller, Procedure, StepBatches, StepReport, Student, Trained, CRITIC};
-use crate::config::{CriticInput, CriticOptions, TargetOptions};
+use crate::config::{CriticInput, CriticOptions, StepAt, TargetOptions};
 use crate::error::TrainError;
 use crate::loss::least_squares;
 
@@ -120,7 +120,7 @@ impl Adversarial {
     pub fn segmentation_step(
         &mut self,
         batches: &StepBatches,
-        epoch: usize,
+        at: StepAt,
     ) -> Result<(f64, BTreeMap<String, f64>, Tensor, Tensor), TrainError> {
         let night = batches.night.as_ref().ok_or_else(|| {
             TrainError::Config("the adversarial procedure needs night frames".into())
@@ -165,7 +165,7 @@ impl Adversarial {
                 adversarial_weights.as_ref(),
                 &mut terms,
             );
-        self.student.trained.minimise(&loss, epoch);
+        self.student.trained.minimise(&loss, at);
         self.critic.vs.unfreeze();
         let total = f64::try_from(&loss).unwrap_or(f64::NAN);
         Ok((total, terms, night_logits, day_logits))
@@ -209,24 +209,24 @@ impl Adversarial {
         &mut self,
         day_logits: &Tensor,
         night_logits: &Tensor,
-        epoch: usize,
+        at: StepAt,
     ) -> (f64, f64, f64) {
         let (day, night) = (day_logits.detach(), night_logits.detach());
         let mut last = (f64::NAN, f64::NAN, f64::NAN);
         for _ in 0..self.options.steps {
-            last = self.critic_update(&day, &night, epoch);
+            last = self.critic_update(&day, &night, at);
         }
         last
     }
 
     /// One critic update on detached outputs: (loss, day accuracy, night accuracy).
-    fn critic_update(&mut self, day: &Tensor, night: &Tensor, epoch: usize) -> (f64, f64, f64) {
+    fn critic_update(&mut self, day: &Tensor, night: &Tensor, at: StepAt) -> (f64, f64, f64) {
         let (day_target, night_target) = self.day_night();
         let day_scores = self.critic_scores(day);
         let night_scores = self.critic_scores(night);
         let loss = least_squares(&day_scores, day_target, None)
             + least_squares(&night_scores, night_target, None);
-        self.critic.minimise(&loss, epoch);
+        self.critic.minimise(&loss, at);
         let middle = (day_target + night_target) / 2.0;
         // The share of pixels the critic puts on the right side of the middle.
         let right_side = |scores: &Tensor, target: f64| {
@@ -250,7 +250,7 @@ impl Adversarial {
     fn critic_phase(
         &mut self,
         batches: &StepBatches,
-        epoch: usize,
+        at: StepAt,
     ) -> Result<StepReport, TrainError> {
         let night = batches.night.as_ref().ok_or_else(|| {
             TrainError::Config("the adversarial procedure needs night frames".into())
@@ -259,7 +259,7 @@ impl Adversarial {
             let day = self.student.logits(&batches.main.input);
             (day, self.student.logits(&night.input))
         });
-        let (loss, acc_day, acc_night) = self.critic_update(&day_logits, &night_logits, epoch);
+        let (loss, acc_day, acc_night) = self.critic_update(&day_logits, &night_logits, at);
         Ok(StepReport {
             total: loss,
             terms: BTreeMap::from([("critic".to_string(), loss)]),
@@ -275,14 +275,9 @@ impl Adversarial {
     }
 
     /// The paper's step: a segmentation step, then the critic's on the same outputs.
-    fn paper_step(
-        &mut self,
-        batches: &StepBatches,
-        epoch: usize,
-    ) -> Result<StepReport, TrainError> {
-        let (total, mut terms, night_logits, day_logits) =
-            self.segmentation_step(batches, epoch)?;
-        let (critic_loss, acc_day, acc_night) = self.critic_step(&day_logits, &night_logits, epoch);
+    fn paper_step(&mut self, batches: &StepBatches, at: StepAt) -> Result<StepReport, TrainError> {
+        let (total, mut terms, night_logits, day_logits) = self.segmentation_step(batches, at)?;
+        let (critic_loss, acc_day, acc_night) = self.critic_step(&day_logits, &night_logits, at);
         terms.insert("critic".to_string(), critic_loss);
         Ok(StepReport {
             total,
@@ -313,12 +308,12 @@ impl Procedure for Adversarial {
         (Some(&self.day_teacher), self.night_teacher.as_ref())
     }
 
-    fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError> {
+    fn step(&mut self, batches: &StepBatches, at: StepAt) -> Result<StepReport, TrainError> {
         let report = match (self.options.alternate, self.critic_turn()) {
-            (false, _) => self.paper_step(batches, epoch),
-            (true, true) => self.critic_phase(batches, epoch),
+            (false, _) => self.paper_step(batches, at),
+            (true, true) => self.critic_phase(batches, at),
             (true, false) => {
-                let (total, terms, _, _) = self.segmentation_step(batches, epoch)?;
+                let (total, terms, _, _) = self.segmentation_step(batches, at)?;
                 Ok(StepReport {
                     total,
                     terms,

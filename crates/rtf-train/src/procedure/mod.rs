@@ -19,7 +19,7 @@ pub use supervised::Supervised;
 pub use teacher_student::TeacherStudent;
 
 use crate::config::{
-    Modality, OptimizerConfig, Precision, Procedure as ProcedureConfig, TrainConfig,
+    Modality, OptimizerConfig, Precision, Procedure as ProcedureConfig, StepAt, TrainConfig,
 };
 use crate::error::TrainError;
 use crate::loss::PseudoTargets;
@@ -111,10 +111,10 @@ impl Trained {
     }
 
     /// Gradients of `loss` into this network's variables (averaged over the ranks of a
-    /// data-parallel run), then one update at `epoch`'s rate (under fp16 the loss is scaled,
+    /// data-parallel run), then one update at the rate of step `at` (under fp16 the loss is scaled,
     /// and a step whose gradients overflowed is skipped; the scaled gradients are averaged and
     /// unscaled in the step).
-    pub fn minimise(&mut self, loss: &Tensor, epoch: usize) {
+    pub fn minimise(&mut self, loss: &Tensor, at: StepAt) {
         self.optimizer.zero_grad(&self.vs);
         self.optimizer.scale_loss(loss).backward();
         // A failed all-reduce (a dead rank) skips the update; the trainer then stops.
@@ -125,7 +125,7 @@ impl Trained {
         {
             return;
         }
-        self.optimizer.step(&self.vs, self.schedule.lr_at(epoch));
+        self.optimizer.step(&self.vs, self.schedule.lr_at(at));
     }
 }
 
@@ -330,8 +330,8 @@ pub trait Procedure {
     fn trained_mut(&mut self) -> Vec<&mut Trained>;
     /// The network validation scores and whose weights `best`/`final` hold.
     fn student(&self) -> &Student;
-    /// One optimisation step (inputs already on the device).
-    fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError>;
+    /// One optimisation step (inputs already on the device) at `at` in the run.
+    fn step(&mut self, batches: &StepBatches, at: StepAt) -> Result<StepReport, TrainError>;
     /// The day and night labellers, for a label cache.
     fn labellers(&self) -> (Option<&Labeller>, Option<&Labeller>) {
         (None, None)

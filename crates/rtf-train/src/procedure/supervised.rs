@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 
 use super::{Procedure, StepBatches, StepReport, Student, Trained};
+use crate::config::StepAt;
 use crate::error::TrainError;
 use crate::loss::Loss;
 
@@ -23,11 +24,11 @@ impl Procedure for Supervised {
         &self.student
     }
 
-    fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError> {
+    fn step(&mut self, batches: &StepBatches, at: StepAt) -> Result<StepReport, TrainError> {
         let batch = &batches.main;
         let logits = self.student.logits(&batch.input);
         let loss = self.loss.compute(&logits, &batch.target);
-        self.student.trained.minimise(&loss, epoch);
+        self.student.trained.minimise(&loss, at);
         let value = f64::try_from(&loss).unwrap_or(f64::NAN);
         Ok(StepReport {
             total: value,

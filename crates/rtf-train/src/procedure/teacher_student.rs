@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use tch::Tensor;
 
 use super::{Labeller, Procedure, StepBatches, StepReport, Student, Trained};
-use crate::config::TargetOptions;
+use crate::config::{StepAt, TargetOptions};
 use crate::error::TrainError;
 use crate::loss::{soft_cross_entropy, weighted_cross_entropy, PseudoTargets, PSEUDO_IGNORE};
 
@@ -56,7 +56,7 @@ impl Procedure for TeacherStudent {
     // `x = x * y` on tensors, not `x *= y`: the compound forms are in-place ops, which autograd
     // cannot differentiate through.
     #[allow(clippy::assign_op_pattern)]
-    fn step(&mut self, batches: &StepBatches, epoch: usize) -> Result<StepReport, TrainError> {
+    fn step(&mut self, batches: &StepBatches, at: StepAt) -> Result<StepReport, TrainError> {
         let threshold = self.targets.threshold;
         // Day: the day teacher's labels (eq. 1).
         let day = &batches.main;
@@ -89,7 +89,7 @@ impl Procedure for TeacherStudent {
             );
             loss = loss + ce_night;
         }
-        self.student.trained.minimise(&loss, epoch);
+        self.student.trained.minimise(&loss, at);
         Ok(StepReport {
             total: f64::try_from(&loss).unwrap_or(f64::NAN),
             terms,
