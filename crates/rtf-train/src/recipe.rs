@@ -9,11 +9,40 @@
 //! two-stage. HeatNet's schedule (§V-A): RMSprop 1e-4 halved every 30 epochs, batch 8, 100
 //! epochs (every stage); augmentation (spec §5): flip, rotation ±20°, IR scaling ×U(0.1, 1)
 //! (modality drop-out off: its probability is not published).
+//!
+//! CMX's recipe (`cmx-mf`) is its official training code's, read from
+//! github.com/huaaaliu/RGBX_Semantic_Segmentation (commit e251d86):
+//! - `config.py`: `optimizer = 'AdamW'`, `lr = 6e-5`, `weight_decay = 0.01`, `lr_power = 0.9`,
+//!   `warm_up_epoch = 10`, `batch_size = 8`, `nepochs = 500`, `train_scale_array = [0.5, 0.75,
+//!   1, 1.25, 1.5, 1.75]`, `image_height × image_width = 480 × 640` (the crop), `bn_eps = 1e-3`,
+//!   `bn_momentum = 0.1`, `background = 255` (the ignored label);
+//! - `train.py`: `torch.optim.AdamW(params, lr, betas=(0.9, 0.999), weight_decay)` over the two
+//!   groups of `group_weight`; `WarmUpPolyLR(lr, lr_power, nepochs × niters_per_epoch,
+//!   niters_per_epoch × warm_up_epoch)` evaluated per iteration; cross-entropy with
+//!   `ignore_index = 255`;
+//! - `utils/init_func.py`: `group_weight` (decay on Linear and Conv weights; none on their
+//!   biases nor on any BatchNorm/GroupNorm/LayerNorm parameter), `init_weight` (sets eps and
+//!   momentum of the decoder's BatchNorm: `models/builder.py` calls it on `decode_head` only);
+//! - `utils/lr_policy.py`: `WarmUpPolyLR`;
+//! - `dataloader/dataloader.py` `TrainPre`: random mirror, random scale from the set, normalise,
+//!   random crop padded with 0 (image) and 255 (label); `utils/transforms.py`: the crop position
+//!   and padding.
+//!
+//! Where rtf's `cmx-mf` differs: an epoch is one pass over the training split (the official
+//! epoch is `len // batch + 1` iterations over the split plus a few random repeats); the rate is
+//! set before each step from its own index (the official loop sets it after each step, see
+//! [`crate::schedule::LrSchedule::WarmupPoly`]); the mirror comes after the crop (the same
+//! distribution); padding is the network's normalised zero in unit range
+//! ([`rtf_models::ModelConfig::normalised_zero`]: exact for the colour planes, the nearest value
+//! for the replicated thermal plane); frames are resampled in floating point (OpenCV resizes the
+//! 8-bit images); the decoder's eps 1e-3 stays in the trained network's config, so evaluation
+//! uses it too (the official evaluation rebuilds the network with PyTorch's 1e-5). The ImageNet
+//! MiT weights the official run starts from are `--backbone-weights`.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use rtf_data::AugmentConfig;
+use rtf_data::{AugmentConfig, ScaleCrop};
 use rtf_models::ModelConfig;
 use serde::Serialize;
 
@@ -67,7 +96,14 @@ pub enum Schedule {
     RtfnetCode,
     /// HeatNet paper: RMSprop 1e-4 halved every 30 epochs, 100 epochs, batch 8.
     HeatnetPaper,
+    /// CMX code (module doc): AdamW 6e-5, weight decay 0.01 on convolution and linear weights,
+    /// 10 epochs of linear warm-up then poly 0.9 per step, batch 8, 500 epochs, flip + random
+    /// scale + crop padded with the network's normalised zero, decoder BatchNorm eps 1e-3.
+    CmxCode,
 }
+
+/// The official CMX training's BatchNorm eps of the decoder (`config.bn_eps`).
+pub const CMX_DECODER_BN_EPS: f64 = 1e-3;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct Recipe {
@@ -159,6 +195,16 @@ pub const RECIPES: &[Recipe] = &[
         description: "RTFNet's published training: SGD lr 0.01 ×0.95 per epoch, momentum 0.9, weight decay 5e-4, batch 2, 100 epochs, flip + random 10 % edge crop",
         source: "RTFNet code (spec §4)",
         schedule: Schedule::RtfnetCode,
+        stages: &[StageSpec { name: "train", procedure: Supervised, role: Role::Network, inputs: RgbT, init_from: None }],
+        teacher_stage: None,
+        night_teacher_stage: None,
+    },
+    Recipe {
+        name: "cmx-mf",
+        procedure: "supervised",
+        description: "CMX's published training (--model cmx-mit-b0 … b5; the ImageNet MiT start: --backbone-weights): AdamW lr 6e-5, weight decay 0.01 on convolution and linear weights only, 10 epochs of linear warm-up then poly 0.9 per step, batch 8, 500 epochs, flip + random scale {0.5 … 1.75} + crop padded (label ignored), decoder BatchNorm eps 1e-3",
+        source: "CMX code (huaaaliu/RGBX_Semantic_Segmentation config.py, train.py)",
+        schedule: Schedule::CmxCode,
         stages: &[StageSpec { name: "train", procedure: Supervised, role: Role::Network, inputs: RgbT, init_from: None }],
         teacher_stage: None,
         night_teacher_stage: None,
@@ -334,9 +380,22 @@ impl Schedule {
                     ..Default::default()
                 };
             }
+            Schedule::CmxCode => {
+                cfg.learning.optimizer = OptimizerConfig::cmx_code();
+                cfg.schedule.batch_size = 8;
+                cfg.schedule.epochs = 500;
+                let model = &cfg.network.model;
+                cfg.data.augment = AugmentConfig {
+                    hflip: true,
+                    scale_crop: Some(ScaleCrop::cmx(model.normalised_zero())),
+                    ..Default::default()
+                };
+                cfg.network.model = model.with_decoder_bn_eps(CMX_DECODER_BN_EPS);
+            }
         }
-        // The reference preprocessing leaves 700×320; HeatNet trains on a 640×320 window.
-        if freiburg && cfg.data.resize.is_none() {
+        // The reference preprocessing leaves 700×320; HeatNet trains on a 640×320 window
+        // (CMX's scale and crop take the frame as it is).
+        if freiburg && cfg.data.resize.is_none() && cfg.data.augment.scale_crop.is_none() {
             cfg.data.augment.window = Some((640, 320));
         }
     }
@@ -494,6 +553,54 @@ mod tests {
             let cfg = instantiate(r, &given).unwrap_or_else(|e| panic!("{}: {e}", r.name));
             cfg.validate().unwrap_or_else(|e| panic!("{}: {e}", r.name));
         }
+    }
+
+    /// `cmx-mf` on an MF root: CMX's optimiser, schedule, batch, epochs, augmentation with the
+    /// network's normalised zero as padding, and the decoder's training eps; BatchNorm momentum
+    /// is PyTorch's 0.1 as in the official config.
+    #[test]
+    fn cmx_mf_sets_the_official_training() {
+        let given = RecipeInputs {
+            dataset: DatasetConfig::Mf {
+                root: "data/mf".into(),
+                train_split: "train".into(),
+                val_split: Some("val".into()),
+            },
+            num_classes: 9,
+            model: Some("cmx-mit-b2".into()),
+            teacher: None,
+            night_teacher: None,
+        };
+        let RunConfig::Single(cfg) = instantiate(recipe("cmx-mf").unwrap(), &given).unwrap() else {
+            panic!("one stage")
+        };
+        cfg.validate().unwrap();
+        assert_eq!(cfg.learning.optimizer, OptimizerConfig::cmx_code());
+        assert_eq!((cfg.schedule.batch_size, cfg.schedule.epochs), (8, 500));
+        let sc = cfg.data.augment.scale_crop.as_ref().unwrap();
+        assert_eq!(sc.scales, [0.5, 0.75, 1.0, 1.25, 1.5, 1.75]);
+        assert_eq!(sc.size, None, "MF's 640×480 frame is the official crop");
+        assert_eq!(sc.fill, cfg.network.model.normalised_zero());
+        assert!(cfg.data.augment.hflip && cfg.data.augment.window.is_none());
+        let rtf_models::ModelConfig::Cmx(c) = &cfg.network.model else {
+            panic!("a CMX network")
+        };
+        assert_eq!(
+            (c.size, c.decoder_bn_eps),
+            (rtf_models::cmx::Size::B2, 1e-3)
+        );
+        assert_eq!(rtf_models::layers::BN_MOMENTUM, 0.1);
+        // Any other network trains by the same recipe, padded with its own zero.
+        let mfnet = RecipeInputs {
+            model: Some("mfnet".into()),
+            ..given
+        };
+        let cfg = instantiate(recipe("cmx-mf").unwrap(), &mfnet).unwrap();
+        let (_, stage) = cfg.stages()[0];
+        assert_eq!(
+            stage.data.augment.scale_crop.as_ref().unwrap().fill,
+            [0.0; 4]
+        );
     }
 
     #[test]
