@@ -19,8 +19,15 @@ the logits. The frame goes through the official pipeline's preprocessing first: 
 colour image in B, G, R order (cv2.imread with flag 4), both modalities are scaled to [0, 1] and
 normalised with the ImageNet mean/std per channel, the thermal image replicated to 3 channels.
 
-Differences from the official code, none of them visible in eval mode: no dropout or stochastic
-depth modules (identities in eval), and mit_b1 is SegFormer's B1 (the official builder's mit_b1
+Training mode (scripts/reference_train_cmx.py) has the official stochastic depth (per-block
+rates `linspace(0, 0.1, Σ depths)`, stage 2's RGB blocks all at the stage's first rate and its
+thermal blocks at the second, as the official `dual_segformer.py` indexes `dpr`) and Dropout2d
+(0.1) before the classifier; eval mode has neither. The drop-path mask is drawn as
+`torch.empty(B, 1, 1).bernoulli_(keep)` (timm floors `keep + rand`: the same distribution), the
+draw rtf makes, so that both sides seeded alike drop the same samples. `decoder_bn_eps` sets the
+decoder's BatchNorm eps (the official training's `config.bn_eps = 1e-3`).
+
+Differences from the official code: mit_b1 is SegFormer's B1 (the official builder's mit_b1
 branch builds B0's encoder with B1's channel list, which cannot run).
 """
 import argparse
@@ -51,6 +58,8 @@ MLP_RATIO = 4
 DECODER_DIM = 512
 IMAGENET_MEAN = [0.485, 0.456, 0.406]
 IMAGENET_STD = [0.229, 0.224, 0.225]
+DROP_PATH_RATE = 0.1
+DECODER_DROPOUT = 0.1
 
 
 def tokens(x):
@@ -123,19 +132,40 @@ class MixFfn(nn.Module):
         return self.fc2(F.gelu(self.dwconv(self.fc1(x), h, w)))
 
 
+def drop_path(x, rate, training):
+    """Stochastic depth on a residual branch [B, N, C]: each sample's branch dropped with
+    probability `rate` in training, the kept ones scaled by 1 / (1 - rate)."""
+    if not training or rate <= 0.0:
+        return x
+    keep = 1.0 - rate
+    mask = torch.empty(x.shape[0], 1, 1, dtype=x.dtype).bernoulli_(keep)
+    return x * (mask / keep)
+
+
+def drop_path_rates(depths, stage, thermal):
+    """The official per-block rates of one stream's stage (0-based)."""
+    total = sum(depths)
+    rate = lambda i: DROP_PATH_RATE * i / max(total - 1, 1)  # noqa: E731
+    first = sum(depths[:stage])
+    if stage == 1:
+        return [rate(first + (1 if thermal else 0))] * depths[stage]
+    return [rate(first + j) for j in range(depths[stage])]
+
+
 class Block(nn.Module):
     """Pre-norm transformer block, LayerNorm eps 1e-6."""
 
-    def __init__(self, dim, heads, sr):
+    def __init__(self, dim, heads, sr, drop_path_rate=0.0):
         super().__init__()
         self.norm1 = nn.LayerNorm(dim, eps=1e-6)
         self.attn = EfficientAttention(dim, heads, sr)
         self.norm2 = nn.LayerNorm(dim, eps=1e-6)
         self.mlp = MixFfn(dim, dim * MLP_RATIO)
+        self.drop_path_rate = drop_path_rate
 
     def forward(self, x, h, w):
-        x = x + self.attn(self.norm1(x), h, w)
-        return x + self.mlp(self.norm2(x), h, w)
+        x = x + drop_path(self.attn(self.norm1(x), h, w), self.drop_path_rate, self.training)
+        return x + drop_path(self.mlp(self.norm2(x), h, w), self.drop_path_rate, self.training)
 
 
 class ChannelWeights(nn.Module):
@@ -257,7 +287,8 @@ class DualMiT(nn.Module):
             kernel, stride = (7, 4) if i == 0 else (3, 2)
             for prefix in ("", "extra_"):
                 setattr(self, f"{prefix}patch_embed{i + 1}", PatchEmbed(c_in, dims[i], kernel, stride))
-                blocks = nn.ModuleList(Block(dims[i], HEADS[i], SR_RATIOS[i]) for _ in range(depths[i]))
+                rates = drop_path_rates(depths, i, prefix == "extra_")
+                blocks = nn.ModuleList(Block(dims[i], HEADS[i], SR_RATIOS[i], r) for r in rates)
                 setattr(self, f"{prefix}block{i + 1}", blocks)
                 setattr(self, f"{prefix}norm{i + 1}", nn.LayerNorm(dims[i], eps=1e-6))
         self.FRMs = nn.ModuleList(Rectify(d) for d in dims)
@@ -285,11 +316,12 @@ class Mlp(nn.Module):
 
 
 class MlpDecoder(nn.Module):
-    def __init__(self, dims, num_classes):
+    def __init__(self, dims, num_classes, bn_eps=1e-5):
         super().__init__()
         for i, c in enumerate(dims):
             setattr(self, f"linear_c{i + 1}", Mlp(c, DECODER_DIM))
-        self.linear_fuse = nn.Sequential(nn.Conv2d(4 * DECODER_DIM, DECODER_DIM, 1), nn.BatchNorm2d(DECODER_DIM), nn.ReLU())
+        self.linear_fuse = nn.Sequential(nn.Conv2d(4 * DECODER_DIM, DECODER_DIM, 1),
+                                         nn.BatchNorm2d(DECODER_DIM, eps=bn_eps), nn.ReLU())
         self.linear_pred = nn.Conv2d(DECODER_DIM, num_classes, 1)
 
     def forward(self, feats):
@@ -301,15 +333,16 @@ class MlpDecoder(nn.Module):
             if i > 0:
                 m = F.interpolate(m, size=size, mode="bilinear", align_corners=False)
             maps.append(m)
-        return self.linear_pred(self.linear_fuse(torch.cat(maps, 1)))
+        fused = F.dropout2d(self.linear_fuse(torch.cat(maps, 1)), DECODER_DROPOUT, self.training)
+        return self.linear_pred(fused)
 
 
 class Cmx(nn.Module):
-    def __init__(self, size, num_classes=9):
+    def __init__(self, size, num_classes=9, decoder_bn_eps=1e-5):
         super().__init__()
         dims, depths = SIZES[size]
         self.backbone = DualMiT(dims, depths)
-        self.decode_head = MlpDecoder(dims, num_classes)
+        self.decode_head = MlpDecoder(dims, num_classes, decoder_bn_eps)
 
     def forward(self, rgb, other):
         logits = self.decode_head(self.backbone(rgb, other))

@@ -28,9 +28,17 @@ on real frames (issue 27 §3).
    segmentation network (with and without BatchNorm statistics) and of the critic, and the
    per-step losses (critic steps: the critic's loss).
 
+6. With --cmx SIZES: CMX's official recipe per MiT size (`rtf train --recipe cmx-mf --model
+   cmx-mit-SIZE` against scripts/reference_train_cmx.py), from the same officially initialised
+   weights, no shuffle, no augmentation, fp32: AdamW with weight decay on convolution and linear
+   weights only, --warmup-epochs of linear warm-up then poly 0.9 per step, training-mode
+   stochastic depth and dropout drawn from the same per-step seeds, the decoder's BatchNorm at
+   eps 1e-3: the update differences (with and without BatchNorm statistics), the per-step
+   losses and learning rates, and whether both sides decay the same tensors.
+
     .venv/bin/python scripts/parity_train.py --rtf target/release/rtf --work /tmp/parity \\
         --models mfnet,rtfnet18 --frames 48 --size 160x128 --epochs 2 --batch-size 4 \\
-        --adversarial mfnet
+        --adversarial mfnet --cmx b0
 """
 import argparse
 import json
@@ -188,6 +196,43 @@ def adversarial(args, data, model):
             "ref_critic": ref["critic"]}
 
 
+def cmx(args, data, size):
+    """CMX's official recipe, rtf (`--recipe cmx-mf`) against scripts/reference_train_cmx.py."""
+    work = os.path.join(args.work, "cmx-" + size)
+    os.makedirs(work, exist_ok=True)
+    ref_script = os.path.join(HERE, "reference_train_cmx.py")
+    init = os.path.join(work, "init.safetensors")
+    run([sys.executable, ref_script, "init", "--size", size, "--out", init])
+    schedule = ["--epochs", str(args.epochs), "--batch-size", str(args.batch_size),
+                "--warmup-epochs", str(args.warmup_epochs)]
+    rtf_run = os.path.join(work, "rtf")
+    final = run([args.rtf, "train", "--recipe", "cmx-mf", "--model", "cmx-mit-" + size, "--data", data,
+                 "--out", rtf_run, "--init", init, "--no-shuffle", "--no-augment", "--precision", "fp32",
+                 "--val-split", "none", "--tb-images-every", "0", "--workers", "1", "--seed", "0", *schedule],
+                args.threads).strip()
+    ref = {k: os.path.join(work, f) for k, f in
+           [("net", "ref.safetensors"), ("losses", "ref_losses.json"), ("groups", "ref_groups.json")]}
+    run([sys.executable, ref_script, "train", "--data", data, "--size", size, "--init", init, "--out", ref["net"],
+         "--losses", ref["losses"], "--groups", ref["groups"], "--seed", "0", "--threads", str(args.threads),
+         *schedule], args.threads)
+    with open(os.path.join(rtf_run, "steps.jsonl")) as f:
+        rtf_steps = [json.loads(line)["loss"] for line in f]
+    with open(ref["losses"]) as f:
+        ref_records = json.load(f)
+    ref_steps = [r["loss"] for r in ref_records]
+    if len(rtf_steps) != len(ref_steps):
+        sys.exit(f"parity_train: cmx-{size}: rtf took {len(rtf_steps)} steps, the reference {len(ref_steps)}")
+    read = reference_train.read_safetensors
+    weights = (read(init), read(final), read(ref["net"]))
+    return {"model": "cmx-mit-" + size, "recipe": "cmx-mf", "steps": len(ref_steps),
+            "update_rel_diff": relative_update_difference(*weights),
+            "update_rel_diff_parameters": relative_update_difference(*weights, parameters_only=True),
+            "max_loss_rel_diff": max(abs(a - b) / abs(b) for a, b in zip(rtf_steps, ref_steps)),
+            "rtf_losses": rtf_steps, "ref_losses": ref_steps, "ref_lrs": [r["lr"] for r in ref_records],
+            "init": init, "rtf_final": final, "ref_final": ref["net"], "ref_groups": ref["groups"],
+            "rtf_config": os.path.join(rtf_run, "config.json")}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rtf", required=True, help="the rtf binary")
@@ -202,13 +247,16 @@ def main():
     ap.add_argument("--adversarial", default="",
                     help="segmentation networks for one HeatNet adversarial stage each (e.g. mfnet), "
                          "on --frames/2 day and --frames/2 night scenes")
+    ap.add_argument("--cmx", default="", help="MiT sizes (e.g. b0) for one run of CMX's official recipe each")
+    ap.add_argument("--warmup-epochs", type=int, default=1, help="CMX's warm-up (the recipe's: 10)")
     ap.add_argument("--rtf-critic", choices=["code", "paper"], default="code",
                     help="rtf's critic procedure: the published code's (--critic-code, the parity run) or the "
                          "paper's (rtf's default; a control: it should not agree)")
     args = ap.parse_args()
     data = os.path.join(args.work, "data")
-    names = build_dataset(args, data) if args.models else []
+    names = build_dataset(args, data) if args.models or args.cmx else []
     results = [one_network(args, data, m) for m in args.models.split(",") if m]
+    results += [cmx(args, data, size) for size in args.cmx.split(",") if size]
     if args.adversarial:
         balanced = os.path.join(args.work, "data-day-night")
         names = build_dataset(args, balanced, balanced=True)
