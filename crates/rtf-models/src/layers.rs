@@ -128,6 +128,8 @@ pub enum Act {
     Identity,
     Relu,
     LeakyRelu(f64),
+    /// The exact (erf) GELU, PyTorch's `gelu(approximate="none")`.
+    Gelu,
 }
 
 impl Act {
@@ -137,6 +139,7 @@ impl Act {
             Act::Identity => PostOp::None,
             Act::Relu => PostOp::Relu,
             Act::LeakyRelu(slope) => PostOp::LeakyRelu(slope),
+            Act::Gelu => PostOp::Gelu,
         }
     }
 
@@ -146,6 +149,7 @@ impl Act {
             Act::Identity => xs,
             Act::Relu => xs.relu(),
             Act::LeakyRelu(slope) => leaky_relu(&xs, slope),
+            Act::Gelu => xs.gelu("none"),
         }
     }
 
@@ -160,6 +164,8 @@ impl Act {
                 xs
             }
             Act::LeakyRelu(slope) => aten_leaky_relu(&xs, slope, true),
+            // GELU's backward reads its input: not in place.
+            Act::Gelu => xs.gelu("none"),
         }
     }
 
@@ -172,6 +178,10 @@ impl Act {
                 xs
             }
             Act::LeakyRelu(slope) => leaky_relu_inference(xs, slope),
+            Act::Gelu => {
+                let _ = xs.gelu_("none");
+                xs
+            }
         }
     }
 }
@@ -804,36 +814,58 @@ impl nn::ModuleT for ConvBnAct {
 
 impl Fuse for ConvBnAct {
     fn fuse(&mut self, kind: Kind) {
+        self.fuse_with_affine(kind, None);
+    }
+}
+
+/// An eval-mode BatchNorm as the per-channel affine it applies, `x·scale + shift` (float32).
+pub fn batch_norm_affine(bn: &BatchNorm) -> (Tensor, Tensor) {
+    let _guard = tch::no_grad_guard();
+    let var = bn.running_var.to_kind(Kind::Float);
+    let mean = bn.running_mean.to_kind(Kind::Float);
+    let gamma = bn
+        .ws
+        .as_ref()
+        .map_or_else(|| var.ones_like(), |w| w.to_kind(Kind::Float));
+    let beta = bn
+        .bs
+        .as_ref()
+        .map_or_else(|| var.zeros_like(), |b| b.to_kind(Kind::Float));
+    let scale = &gamma / (var + bn.eps()).sqrt();
+    let shift = beta - mean * &scale;
+    (scale, shift)
+}
+
+impl ConvBnAct {
+    /// [`Fuse::fuse`], with `affine` = (scale, shift) per output channel applied after this
+    /// unit's own BatchNorm and before its activation folded in as well (a BatchNorm that
+    /// follows the unit outside it, e.g. after a residual sum: see
+    /// [`batch_norm_affine`]).
+    pub fn fuse_with_affine(&mut self, kind: Kind, affine: Option<(&Tensor, &Tensor)>) {
         let _guard = tch::no_grad_guard();
         let weight = self.weight.to_kind(Kind::Float);
         let bias = self.bias.as_ref().map(|b| b.to_kind(Kind::Float));
-        let (weight, bias) = match &self.bn {
-            None => (weight, bias),
-            Some(bn) => {
-                let var = bn.running_var.to_kind(Kind::Float);
-                let mean = bn.running_mean.to_kind(Kind::Float);
-                let gamma = bn
-                    .ws
-                    .as_ref()
-                    .map_or_else(|| var.ones_like(), |w| w.to_kind(Kind::Float));
-                let beta = bn
-                    .bs
-                    .as_ref()
-                    .map_or_else(|| var.zeros_like(), |b| b.to_kind(Kind::Float));
-                let scale = &gamma / (var + bn.eps()).sqrt();
-                // Output channels are dim 0 of a convolution weight, dim 1 of a transposed one.
-                let per_channel = if self.spec.transposed {
-                    scale.view([1, -1, 1, 1])
-                } else {
-                    scale.view([-1, 1, 1, 1])
-                };
-                let folded_bias = match &bias {
-                    Some(b) => (b - &mean) * &scale + beta,
-                    None => -mean * &scale + beta,
-                };
-                (weight * per_channel, Some(folded_bias))
-            }
-        };
+        let mut folds: Vec<(Tensor, Tensor)> = self.bn.iter().map(batch_norm_affine).collect();
+        folds.extend(affine.map(|(s, t)| (s.to_kind(Kind::Float), t.to_kind(Kind::Float))));
+        let (mut weight, mut bias) = (weight, bias);
+        for (scale, shift) in folds {
+            // Output channels are dim 0 of a convolution weight, dim 1 of a transposed one.
+            let per_channel = if self.spec.transposed {
+                scale.view([1, -1, 1, 1])
+            } else {
+                scale.view([-1, 1, 1, 1])
+            };
+            bias = Some(match &bias {
+                Some(b) => b * &scale + shift,
+                None => shift,
+            });
+            weight = weight * per_channel;
+        }
+        self.store_fused(weight, bias, kind);
+    }
+
+    /// Lays the folded float32 `weight` and `bias` out for inference in `kind`.
+    fn store_fused(&mut self, weight: Tensor, bias: Option<Tensor>, kind: Kind) {
         let channels_last = FUSE_CHANNELS_LAST.with(|c| c.get());
         let lay_out = |w: Tensor| {
             let w = w.to_kind(kind);

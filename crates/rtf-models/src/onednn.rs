@@ -123,6 +123,8 @@ pub enum PostOp {
     None,
     Relu,
     LeakyRelu(f64),
+    /// The exact (erf) GELU.
+    Gelu,
 }
 
 impl PostOp {
@@ -131,6 +133,15 @@ impl PostOp {
             PostOp::None => c"none",
             PostOp::Relu => c"relu",
             PostOp::LeakyRelu(_) => c"leaky_relu",
+            PostOp::Gelu => c"gelu",
+        }
+    }
+    /// The post-op's algorithm argument: libtorch reads one for GELU only ("none": erf, as
+    /// opposed to "tanh").
+    fn algorithm(self) -> Option<&'static CStr> {
+        match self {
+            PostOp::Gelu => Some(c"none"),
+            _ => None,
         }
     }
     fn scalar(self) -> Option<f64> {
@@ -263,6 +274,7 @@ pub fn conv_with_post_op(
     }
     let args = Args::new(geometry, post_op);
     let (scalars, scalars_len) = args.scalars();
+    let algorithm: Option<*const c_char> = post_op.algorithm().map(CStr::as_ptr);
     let mut bias_slot: Handle = ptr::null_mut();
     let bias = optional(bias, &mut bias_slot);
     let mut out: Handle = ptr::null_mut();
@@ -286,7 +298,7 @@ pub fn conv_with_post_op(
             a.attr(),
             scalars.as_ptr(),
             scalars_len,
-            ptr::null(),
+            algorithm.as_ref().map_or(ptr::null(), |a| a as *const *const c_char),
             &mut out,
         )
     };
@@ -307,7 +319,7 @@ pub fn conv_add_with_post_op(
     let unary_attr: *const c_char = match post_op {
         PostOp::None => ptr::null(),
         PostOp::Relu => c"relu".as_ptr(),
-        PostOp::LeakyRelu(_) => return None,
+        PostOp::LeakyRelu(_) | PostOp::Gelu => return None,
     };
     if xs.device() != Device::Cpu || geometry.transposed {
         return None;
@@ -393,6 +405,7 @@ mod tests {
                     PostOp::LeakyRelu(0.2),
                     Box::new(|t: Tensor| t.maximum(&(&t * 0.2))),
                 ),
+                (PostOp::Gelu, Box::new(|t: Tensor| t.gelu("none"))),
             ] {
                 let plain = act(x.conv2d(&w, Some(&b), [1], [2], [2], 1));
                 let fused =
@@ -415,7 +428,7 @@ mod tests {
                     post_op,
                 );
                 match (post_op, fused) {
-                    (PostOp::LeakyRelu(_), fused) => assert!(fused.is_none()),
+                    (PostOp::LeakyRelu(_) | PostOp::Gelu, fused) => assert!(fused.is_none()),
                     (_, Some(fused)) => {
                         assert!(plain.allclose(&fused, 1e-4, 1e-4, false), "{post_op:?}")
                     }
