@@ -1,8 +1,10 @@
 //! Shared vocabulary of rtf: class sets and palettes, day/night, input conventions, and the
-//! atomic-write helper every crate uses for outputs. No libtorch here.
+//! atomic-write helper every crate uses for outputs, the host description benchmarks report.
+//! No libtorch here.
 
 pub mod classes;
 pub mod fsutil;
+pub mod host;
 pub mod input;
 pub mod npy;
 

@@ -1,5 +1,6 @@
 //! Inference speed of a network (`rtf bench model`): random weights and input of the given
-//! size, warm-up passes, then timed passes; median and minimum milliseconds per frame.
+//! size, warm-up passes, then timed passes; median, 95th percentile and minimum milliseconds
+//! per frame, the process's peak resident memory, and the CPU they were measured on.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -7,8 +8,9 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use tch::{nn, Device, Kind, Tensor};
 
+use rtf_core::host::{peak_rss_mb, CpuInfo};
 use rtf_models::fast::{argmax_agreement, InferenceNet, Layout, Precision};
-use rtf_models::{ModelConfig, ModelError};
+use rtf_models::{ModelConfig, ModelError, Network};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SpeedError {
@@ -94,6 +96,21 @@ pub struct BenchReport {
     /// Fast path only: fraction of pixels whose arg-max class equals the plain fp32 path's on
     /// the benchmark input (random weights, BatchNorm statistics as initialised).
     pub agreement_with_plain: Option<f64>,
+    /// 95th percentile (nearest rank) of the timed passes, milliseconds per frame.
+    #[serde(default)]
+    pub p95_ms: f64,
+    /// Every timed pass in order, milliseconds per frame.
+    #[serde(default)]
+    pub samples_ms: Vec<f64>,
+    /// Peak resident memory of the process by the end of the timed passes (Linux `VmHWM`),
+    /// MiB: libtorch, the network's weights (and the fast path's folded copies), the input and
+    /// the passes' activations. The arg-max agreement is computed after it is read (on a
+    /// second, plain copy of the network). None where unknown.
+    #[serde(default)]
+    pub peak_rss_mb: Option<f64>,
+    /// The CPU the passes ran on (identity and kernel-deciding flags).
+    #[serde(default)]
+    pub cpu: CpuInfo,
 }
 
 /// Median and minimum of a non-empty sample.
@@ -109,10 +126,73 @@ pub fn median_min(samples: &[f64]) -> (f64, f64) {
     (median, sorted[0])
 }
 
-/// Builds the named network and times its forward on a random `[batch, 4, H, W]` input.
-/// Weights (unless loaded) and input come from libtorch's generator seeded with 0, so runs
-/// time the same computation and report the same agreement.
-pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
+/// The 95th percentile of a non-empty sample (nearest rank: the ⌈0.95·n⌉-th smallest).
+pub fn p95(samples: &[f64]) -> f64 {
+    let mut sorted = samples.to_vec();
+    sorted.sort_by(|a, b| a.total_cmp(b));
+    let rank = (0.95 * sorted.len() as f64).ceil() as usize;
+    sorted[rank.clamp(1, sorted.len()) - 1]
+}
+
+/// The forward a benchmark times.
+enum Timed {
+    Fast(InferenceNet),
+    Plain(Box<dyn Network>),
+}
+
+impl Timed {
+    fn run(&self, input: &Tensor) -> Result<Tensor, ModelError> {
+        match self {
+            Timed::Fast(fast) => fast.forward_unchecked(input),
+            Timed::Plain(net) => Ok(tch::no_grad(|| net.forward_t(input, false))),
+        }
+    }
+}
+
+/// The network `cfg` with weights drawn from libtorch's generator seeded with 0 (or loaded
+/// from `opts.weights`): the same weights every time it is called.
+fn seeded_network(
+    opts: &BenchOptions,
+    cfg: &ModelConfig,
+) -> Result<(nn::VarStore, Box<dyn Network>), SpeedError> {
+    tch::manual_seed(0);
+    let mut vs = nn::VarStore::new(opts.device);
+    let net = rtf_models::build(&vs.root(), cfg)?;
+    if let Some(path) = &opts.weights {
+        // Checked against the file's model metadata: timing mfnet-f with mfnet's file is refused.
+        rtf_models::weights::load_checked(&mut vs, cfg, path, false)?;
+    }
+    Ok((vs, net))
+}
+
+/// Milliseconds per frame of `opts.iterations` timed passes after `opts.warmup` untimed ones.
+fn time_passes(
+    opts: &BenchOptions,
+    timed: &Timed,
+    input: &Tensor,
+) -> Result<Vec<f64>, ModelError> {
+    // CUDA kernels run asynchronously: wait for them before reading the clock.
+    let synchronize = || {
+        if let Device::Cuda(index) = opts.device {
+            tch::Cuda::synchronize(index as i64);
+        }
+    };
+    for _ in 0..opts.warmup {
+        let _ = timed.run(input)?;
+    }
+    synchronize();
+    let mut per_frame_ms = Vec::with_capacity(opts.iterations);
+    for _ in 0..opts.iterations {
+        let start = Instant::now();
+        let out = timed.run(input)?;
+        synchronize();
+        drop(out);
+        per_frame_ms.push(start.elapsed().as_secs_f64() * 1e3 / opts.batch as f64);
+    }
+    Ok(per_frame_ms)
+}
+
+fn check_options(opts: &BenchOptions) -> Result<(), SpeedError> {
     if opts.batch < 1 || opts.iterations < 1 {
         return Err(SpeedError::Options(
             "batch and iterations must be ≥ 1".into(),
@@ -123,48 +203,42 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
             "the plain path runs in fp32 only".into(),
         ));
     }
+    Ok(())
+}
+
+/// Builds the named network and times its forward on a random `[batch, 4, H, W]` input.
+/// Weights (unless loaded) and input come from libtorch's generator seeded with 0, so runs
+/// time the same computation and report the same agreement. The fast path's agreement with
+/// the plain one is checked after the timing and the peak-memory reading, on a second copy of
+/// the network built the same way, so neither the plain pass nor that copy counts in either.
+pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
+    check_options(opts)?;
     let classes = opts
         .num_classes
         .unwrap_or_else(|| rtf_models::default_num_classes(&opts.model));
     let cfg = ModelConfig::from_name(&opts.model, classes)?;
-    tch::manual_seed(0);
-    let mut vs = nn::VarStore::new(opts.device);
-    let net = rtf_models::build(&vs.root(), &cfg)?;
-    if let Some(path) = &opts.weights {
-        // Checked against the file's model metadata: timing mfnet-f with mfnet's file is refused.
-        rtf_models::weights::load_checked(&mut vs, &cfg, path, false)?;
-    }
+    let (_vs, net) = seeded_network(opts, &cfg)?;
     let shape = [opts.batch, 4, opts.height, opts.width];
     net.check_input(&shape)?;
     let input = Tensor::rand(shape, (Kind::Float, opts.device));
-    let mut agreement_with_plain = None;
-    let run: Box<dyn Fn() -> Result<Tensor, ModelError>> = match opts.path {
-        ForwardPath::Fast => {
-            let plain = tch::no_grad(|| net.forward_t(&input, false));
-            let fast = InferenceNet::with_layout(net, opts.precision, opts.layout)?;
-            agreement_with_plain = Some(argmax_agreement(&plain, &fast.forward_unchecked(&input)?));
-            Box::new(move || fast.forward_unchecked(&input))
-        }
-        ForwardPath::Plain => Box::new(move || Ok(tch::no_grad(|| net.forward_t(&input, false)))),
+    let timed = match opts.path {
+        ForwardPath::Fast => Timed::Fast(InferenceNet::with_layout(
+            net,
+            opts.precision,
+            opts.layout,
+        )?),
+        ForwardPath::Plain => Timed::Plain(net),
     };
-    // CUDA kernels run asynchronously: wait for them before reading the clock.
-    let synchronize = || {
-        if let Device::Cuda(index) = opts.device {
-            tch::Cuda::synchronize(index as i64);
+    let per_frame_ms = time_passes(opts, &timed, &input)?;
+    let peak_rss_mb = peak_rss_mb();
+    let agreement_with_plain = match &timed {
+        Timed::Fast(_) => {
+            let (_plain_vs, plain_net) = seeded_network(opts, &cfg)?;
+            let plain = Timed::Plain(plain_net).run(&input)?;
+            Some(argmax_agreement(&plain, &timed.run(&input)?))
         }
+        Timed::Plain(_) => None,
     };
-    for _ in 0..opts.warmup {
-        let _ = run()?;
-    }
-    synchronize();
-    let mut per_frame_ms = Vec::with_capacity(opts.iterations);
-    for _ in 0..opts.iterations {
-        let start = Instant::now();
-        let out = run()?;
-        synchronize();
-        drop(out);
-        per_frame_ms.push(start.elapsed().as_secs_f64() * 1e3 / opts.batch as f64);
-    }
     let (median_ms, min_ms) = median_min(&per_frame_ms);
     Ok(BenchReport {
         model: cfg.name(),
@@ -185,6 +259,10 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         },
         threads: tch::get_num_threads(),
         agreement_with_plain,
+        p95_ms: p95(&per_frame_ms),
+        samples_ms: per_frame_ms,
+        peak_rss_mb,
+        cpu: CpuInfo::read(),
     })
 }
 
@@ -196,6 +274,14 @@ mod tests {
     fn median_and_min() {
         assert_eq!(median_min(&[3.0, 1.0, 2.0]), (2.0, 1.0));
         assert_eq!(median_min(&[4.0, 1.0, 2.0, 3.0]), (2.5, 1.0));
+    }
+
+    #[test]
+    fn p95_is_the_nearest_rank() {
+        let twenty: Vec<f64> = (1..=20).rev().map(f64::from).collect();
+        assert_eq!(p95(&twenty), 19.0);
+        assert_eq!(p95(&[5.0, 1.0, 3.0]), 5.0);
+        assert_eq!(p95(&[2.0]), 2.0);
     }
 
     #[test]
@@ -216,9 +302,12 @@ mod tests {
         assert!(report.min_ms > 0.0 && report.min_ms <= report.median_ms);
         assert!((report.fps - 1e3 / report.median_ms).abs() < 1e-9);
         let json = serde_json::to_value(&report).unwrap();
-        for key in ["model", "batch", "precision", "median_ms", "min_ms", "fps"] {
+        for key in ["model", "batch", "precision", "median_ms", "min_ms", "fps", "p95_ms", "cpu"] {
             assert!(json.get(key).is_some(), "{key}");
         }
+        assert_eq!(report.samples_ms.len(), 3);
+        assert!(report.min_ms <= report.p95_ms && report.median_ms <= report.p95_ms);
+        assert!(report.peak_rss_mb.is_some_and(|m| m > 1.0));
         assert_eq!(json["precision"], "fp32");
         assert!(report.agreement_with_plain.unwrap() >= 0.999);
         // Seeded weights and input: a bf16 run reports the same agreement (here ≈ 99.6 %, so a

@@ -52,6 +52,8 @@ pub struct TrainBenchReport {
     /// Peak resident memory of the process (Linux `VmHWM`), MiB; None where unknown.
     pub peak_rss_mb: Option<f64>,
     pub steps: usize,
+    /// The CPU the steps ran on (identity and kernel-deciding flags).
+    pub cpu: rtf_core::host::CpuInfo,
 }
 
 fn median(values: &mut [f64]) -> f64 {
@@ -63,13 +65,7 @@ fn median(values: &mut [f64]) -> f64 {
     }
 }
 
-/// Peak resident set size of this process in MiB (`VmHWM` of /proc/self/status).
-pub fn peak_rss_mb() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib / 1024.0)
-}
+pub use rtf_core::host::peak_rss_mb;
 
 /// Waits for the device's queued work (a no-op on the CPU), so step times are real.
 fn sync(device: Device) {
@@ -127,6 +123,7 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         optimizer_s: median(&mut opt),
         peak_rss_mb: peak_rss_mb(),
         steps: opts.steps,
+        cpu: rtf_core::host::CpuInfo::read(),
     })
 }
 

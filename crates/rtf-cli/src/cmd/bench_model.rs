@@ -1,5 +1,6 @@
 //! `rtf bench model --model NAME [--batch B] [--precision fp32|bf16] [--json]`: inference speed
-//! at 480×640 (warm-up, then median and minimum ms per frame, FPS).
+//! at 480×640 (warm-up, then median, 95th-percentile and minimum ms per frame, FPS), the
+//! process's peak resident memory, and the CPU (identity and kernel-deciding flags).
 
 use anyhow::Result;
 use rtf_eval::speed::{bench_model, BenchOptions, ForwardPath};
@@ -45,7 +46,8 @@ pub struct Args {
     /// cpu, cuda or cuda:N.
     #[arg(long, default_value = "cpu")]
     pub device: String,
-    /// Print {model, batch, precision, median_ms, min_ms, fps, ...} as JSON.
+    /// Print {model, batch, precision, median_ms, p95_ms, min_ms, fps, samples_ms, peak_rss_mb,
+    /// cpu, ...} as JSON.
     #[arg(long)]
     pub json: bool,
 }
@@ -100,7 +102,7 @@ pub fn run(args: Args) -> Result<()> {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!(
-            "{} ({} classes) batch {} {} on {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, min {:.2} ms/frame, {:.2} FPS",
+            "{} ({} classes) batch {} {} on {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, p95 {:.2}, min {:.2}, {:.2} FPS; peak RSS {}",
             report.model,
             report.num_classes,
             report.batch,
@@ -112,9 +114,14 @@ pub fn run(args: Args) -> Result<()> {
             report.height,
             report.threads,
             report.median_ms,
+            report.p95_ms,
             report.min_ms,
-            report.fps
+            report.fps,
+            report
+                .peak_rss_mb
+                .map_or("unknown".to_string(), |m| format!("{m:.0} MiB"))
         );
+        println!("CPU: {}", report.cpu.label());
         if let Some(agreement) = report.agreement_with_plain {
             println!(
                 "arg-max agreement with the plain fp32 path: {:.4} % of pixels",
@@ -128,7 +135,7 @@ pub fn run(args: Args) -> Result<()> {
 /// `rtf bench …` subcommands.
 #[derive(clap::Subcommand)]
 pub enum Bench {
-    /// Inference speed of a network at 480×640: median/min ms per frame and FPS.
+    /// Inference speed of a network at 480×640: median/p95/min ms per frame, FPS, peak memory.
     Model(Args),
     /// Input-pipeline throughput: decode + flip + crop + tensor of MF frames, frames/s.
     Data(super::bench_data::Args),

@@ -38,7 +38,7 @@ pub struct Args {
     /// libtorch threads (default: libtorch's choice, one per core).
     #[arg(long)]
     pub threads: Option<i32>,
-    /// Print {model, batch, size, precision, images_per_s, peak_rss_mb, ...} as JSON.
+    /// Print {model, batch, size, precision, images_per_s, peak_rss_mb, cpu, ...} as JSON.
     #[arg(long)]
     pub json: bool,
 }
@@ -84,6 +84,7 @@ pub fn run(args: Args) -> Result<()> {
                 .peak_rss_mb
                 .map_or("unknown".to_string(), |m| format!("{m:.0} MiB"))
         );
+        println!("CPU: {}", report.cpu.label());
     }
     Ok(())
 }
