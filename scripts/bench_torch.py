@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Peer comparison for `rtf bench model`: runs the same network in PyTorch eager (the project's
-.venv torch, same thread count) as NCHW fp32, channels_last fp32 and bf16 autocast, then runs
-`rtf bench model --json` for fp32 and bf16 and prints the speed ratios.
+.venv torch, same thread count) as NCHW fp32, channels_last fp32 and bf16 autocast (channels_last
+and NCHW), then runs `rtf bench model --json` for fp32 and bf16 and prints the median, 95th
+percentile and minimum ms per frame, each process's peak resident memory, and the speed ratios.
 
 Every configuration, PyTorch's and rtf's alike, runs in a fresh process of its own (as a user
 runs one of them), round after round, so load from other processes hits them all alike and no
@@ -14,7 +15,10 @@ Usage (from the repo root):
 
 The PyTorch networks below follow the published MFNet, RTFNet and HeatNet (PSPNet) code
 (spec §3, §4, §5); their parameter counts are printed and checked against the rtf model of the
-same name.
+same name. CMX (`cmx-mit-b0` … `b5`) is scripts/cmx_reference.py's network, which mirrors the
+official code's module structure and computation (github.com/huaaaliu/RGBX_Semantic_Segmentation),
+behind the official preprocessing (B, G, R order, ImageNet normalisation, thermal replicated to 3
+channels) as its first step, as rtf's CMX runs it.
 """
 import argparse
 import json
@@ -27,6 +31,9 @@ import time
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import cmx_reference  # noqa: E402
 
 
 # ---------------------------------------------------------------- MFNet (reference layout)
@@ -264,14 +271,29 @@ class HeatNet(nn.Module):
         return self.final(p)
 
 
+class CmxPeer(nn.Module):
+    """CMX as scripts/cmx_reference.py builds it (the official module tree), fed rtf's
+    [B, 4, H, W] (R, G, B, T in [0, 1]) through the official preprocessing."""
+
+    def __init__(self, size):
+        super().__init__()
+        self.net = cmx_reference.Cmx(size)
+
+    def forward(self, x):
+        return self.net(*cmx_reference.official_inputs(x))
+
+
 def build(name):
+    if name.startswith("cmx-mit-") and name[len("cmx-mit-"):] in cmx_reference.SIZES:
+        return CmxPeer(name[len("cmx-mit-"):])
     if name == "mfnet":
         return MFNet()
     if name.startswith("rtfnet") and name[6:].isdigit():
         return RTFNet(int(name[6:]))
     if name == "heatnet":
         return HeatNet()
-    sys.exit(f"bench_torch.py: no PyTorch definition for {name!r} (mfnet, rtfnet18..152, heatnet)")
+    sys.exit(f"bench_torch.py: no PyTorch definition for {name!r} (mfnet, rtfnet18..152, heatnet, "
+             "cmx-mit-b0..b5)")
 
 
 def time_torch(net, x, warmup, iterations, channels_last=False, bf16=False):
@@ -297,7 +319,13 @@ def rtf_bench(args, precision, iterations, layout="nhwc"):
 
 
 TORCH_CONFIGS = {"torch eager fp32 NCHW": (False, False), "torch channels_last fp32": (True, False),
-                 "torch bf16 autocast": (True, True)}
+                 "torch bf16 autocast": (True, True), "torch bf16 autocast NCHW": (False, True)}
+
+
+def peak_rss_mb():
+    """This process's peak resident memory (Linux VmHWM, as `rtf bench` reads it), MiB."""
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def retain_freed_memory():
@@ -310,10 +338,12 @@ def retain_freed_memory():
 
 
 def torch_times(args, label):
-    """Times of one PyTorch configuration: in a fresh worker process, or here with --shared-process."""
+    """{"times": ms per frame, "peak_rss_mb": the process's peak} of one PyTorch configuration: in
+    a fresh worker process, or here with --shared-process (no peak: the process is shared)."""
     if args.shared_process:
         channels_last, bf16 = TORCH_CONFIGS[label]
-        return time_torch(args.net, args.x, args.warmup, args.iterations, channels_last, bf16)
+        times = time_torch(args.net, args.x, args.warmup, args.iterations, channels_last, bf16)
+        return {"times": times, "peak_rss_mb": None}
     cmd = [sys.executable, os.path.abspath(__file__), "--worker", label, "--model", args.model, "--batch",
            str(args.batch), "--threads", str(args.threads), "--warmup", str(args.warmup), "--iterations",
            str(args.iterations)] + (["--torch-retain-memory"] if args.torch_retain_memory else [])
@@ -328,6 +358,56 @@ def setup(args):
     torch.manual_seed(0)
     args.net = build(args.model).eval()
     args.x = torch.rand(args.batch, 4, 480, 640)
+
+
+def p95(values):
+    """95th percentile, nearest rank (as `rtf bench model`)."""
+    ordered = sorted(values)
+    return ordered[max(1, -(-95 * len(ordered) // 100)) - 1]
+
+
+def measure(args, precisions):
+    """{label: {"times": [...], "peaks": [...]}} over the interleaved rounds."""
+    samples = {}
+
+    def record(label, times, peak):
+        entry = samples.setdefault(label, {"times": [], "peaks": []})
+        entry["times"].extend(times)
+        if peak is not None:
+            entry["peaks"].append(peak)
+
+    for _ in range(args.rounds):
+        for label, (_, bf16) in TORCH_CONFIGS.items():
+            if ("bf16" if bf16 else "fp32") in precisions and label not in args.skip:
+                result = torch_times(args, label)
+                record(label, result["times"], result["peak_rss_mb"])
+        for precision in precisions:
+            for layout in ["nhwc"] + (["nchw"] if args.nchw else []):
+                report = rtf_bench(args, precision, args.iterations, layout)
+                label = f"rtf fast {precision}" + (" nchw" if layout == "nchw" else "")
+                record(label, report["samples_ms"], report.get("peak_rss_mb"))
+    return samples
+
+
+def summarise(rows, precisions):
+    """Prints the rows and rtf's ratios to PyTorch's fastest configuration."""
+    print(f"{'':26} {'median ms':>9} {'p95 ms':>8} {'min ms':>8} {'peak RSS MiB':>12}")
+    for label, r in rows.items():
+        peak = f"{r['peak_rss_mb']:12.0f}" if r["peak_rss_mb"] is not None else f"{'—':>12}"
+        print(f"{label:26} {r['median_ms']:9.1f} {r['p95_ms']:8.1f} {r['min_ms']:8.1f} {peak}")
+    torch_rows = {k: v for k, v in rows.items() if k.startswith("torch")}
+    if not torch_rows:
+        return
+    fastest = min(torch_rows, key=lambda k: torch_rows[k]["median_ms"])
+    for precision in precisions:
+        ours = rows.get(f"rtf fast {precision}")
+        same = {k: v for k, v in torch_rows.items() if (precision == "bf16") == ("bf16" in k)}
+        if ours is None or not same:
+            continue
+        best = min(same, key=lambda k: same[k]["median_ms"])
+        print(f"rtf {precision}: {same[best]['median_ms'] / ours['median_ms']:.2f}x the median of PyTorch's fastest "
+              f"{precision} ({best}), {torch_rows[fastest]['median_ms'] / ours['median_ms']:.2f}x its fastest of all "
+              f"({fastest})")
 
 
 def main():
@@ -351,13 +431,17 @@ def main():
     ap.add_argument("--precisions", default="fp32,bf16",
                     help="comma-separated: fp32 (PyTorch NCHW and channels_last, rtf fp32), bf16 (PyTorch "
                          "autocast, rtf bf16)")
-    ap.add_argument("--json-out", help="also write the rows (median and min ms per frame) here, as JSON")
+    ap.add_argument("--skip", default="", help="comma-separated PyTorch configurations to leave out")
+    ap.add_argument("--json-out", help="also write the rows (median, p95 and min ms per frame, peak RSS) here, "
+                    "as JSON")
     ap.add_argument("--worker", choices=sorted(TORCH_CONFIGS), help=argparse.SUPPRESS)
     args = ap.parse_args()
+    args.skip = {x.strip() for x in args.skip.split(",") if x.strip()}
     if args.worker:
         setup(args)
         channels_last, bf16 = TORCH_CONFIGS[args.worker]
-        print(json.dumps(time_torch(args.net, args.x, args.warmup, args.iterations, channels_last, bf16)))
+        times = time_torch(args.net, args.x, args.warmup, args.iterations, channels_last, bf16)
+        print(json.dumps({"times": times, "peak_rss_mb": peak_rss_mb()}))
         return
     setup(args)
     params = sum(p.numel() for p in args.net.parameters())
@@ -365,34 +449,17 @@ def main():
           f"{args.threads} threads, 480x640, {args.rounds} interleaved rounds of {args.iterations} timed passes "
           f"after {args.warmup} warm-up, "
           + ("PyTorch configurations sharing one process" if args.shared_process else "a fresh process per configuration")
-          + (", PyTorch with rtf's allocator policy" if args.torch_retain_memory else ""))
-    samples = {}
+          + (", PyTorch with rtf's allocator policy" if args.torch_retain_memory else ""), flush=True)
     precisions = [p for p in ("fp32", "bf16") if p in args.precisions.split(",")]
-    for _ in range(args.rounds):
-        for label, (_, bf16) in TORCH_CONFIGS.items():
-            if ("bf16" if bf16 else "fp32") in precisions:
-                samples.setdefault(label, []).extend(torch_times(args, label))
-        for precision in precisions:
-            report = rtf_bench(args, precision, args.iterations)
-            # rtf reports only median and min per call; keep both as samples of that round.
-            samples.setdefault(f"rtf fast {precision}", []).extend([report["median_ms"], report["min_ms"]])
-            if args.nchw:
-                report = rtf_bench(args, precision, args.iterations, "nchw")
-                samples.setdefault(f"rtf fast {precision} nchw", []).extend([report["median_ms"], report["min_ms"]])
-    rows = {k: (statistics.median(v), min(v)) for k, v in samples.items()}
+    rows = {k: {"median_ms": statistics.median(v["times"]), "p95_ms": p95(v["times"]), "min_ms": min(v["times"]),
+                "peak_rss_mb": max(v["peaks"]) if v["peaks"] else None, "samples_ms": v["times"]}
+            for k, v in measure(args, precisions).items()}
     if args.json_out:
         with open(args.json_out, "w") as f:
             json.dump({"model": args.model, "batch": args.batch, "threads": args.threads, "torch": torch.__version__,
                        "rounds": args.rounds, "iterations": args.iterations, "warmup": args.warmup,
-                       "rows": {k: {"median_ms": m, "min_ms": n} for k, (m, n) in rows.items()}}, f, indent=1)
-    if "fp32" not in precisions:
-        return
-    base, base_min = rows["torch eager fp32 NCHW"]
-    cl, cl_min = rows["torch channels_last fp32"]
-    print(f"{'':26} {'median ms':>9} {'min ms':>8} {'vs eager (median/min)':>22} {'vs ch-last (median/min)':>24}")
-    for label, (median, minimum) in rows.items():
-        print(f"{label:26} {median:9.1f} {minimum:8.1f} {base / median:14.2f}x /{base_min / minimum:5.2f}x "
-              f"{cl / median:15.2f}x /{cl_min / minimum:5.2f}x")
+                       "rows": rows}, f, indent=1)
+    summarise(rows, precisions)
 
 
 if __name__ == "__main__":

@@ -29,6 +29,11 @@ decoder's BatchNorm eps (the official training's `config.bn_eps = 1e-3`).
 
 Differences from the official code: mit_b1 is SegFormer's B1 (the official builder's mit_b1
 branch builds B0's encoder with B1's channel list, which cannot run).
+
+The module tree mirrors the official code's (same modules, same computation order, same
+state_dict names), so scripts/bench_torch.py and scripts/bench_torch_train.py time it as the
+official network's PyTorch peer; the official code's extra `.contiguous()` copies in the
+cross-attention are left out (they change no value).
 """
 import argparse
 import os
