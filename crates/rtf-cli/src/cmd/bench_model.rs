@@ -101,35 +101,40 @@ pub fn run(args: Args) -> Result<()> {
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
-        println!(
-            "{} ({} classes) batch {} {} on {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, p95 {:.2}, min {:.2}, {:.2} FPS; peak RSS {}",
-            report.model,
-            report.num_classes,
-            report.batch,
-            report.precision,
-            report.device,
-            report.path,
-            report.layout,
-            report.width,
-            report.height,
-            report.threads,
-            report.median_ms,
-            report.p95_ms,
-            report.min_ms,
-            report.fps,
-            report
-                .peak_rss_mb
-                .map_or("unknown".to_string(), |m| format!("{m:.0} MiB"))
-        );
-        println!("CPU: {}", report.cpu.label());
-        if let Some(agreement) = report.agreement_with_plain {
-            println!(
-                "arg-max agreement with the plain fp32 path: {:.4} % of pixels",
-                100.0 * agreement
-            );
-        }
+        print_report(&report);
     }
     Ok(())
+}
+
+/// The report as text: the timings, the peak memory, the CPU, the agreement.
+fn print_report(report: &rtf_eval::speed::BenchReport) {
+    println!(
+        "{} ({} classes) batch {} {} on {} ({:?} path, {:?}, {}x{}, {} threads): median {:.2} ms/frame, p95 {:.2}, min {:.2}, {:.2} FPS; peak RSS {}",
+        report.model,
+        report.num_classes,
+        report.batch,
+        report.precision,
+        report.device,
+        report.path,
+        report.layout,
+        report.width,
+        report.height,
+        report.threads,
+        report.median_ms,
+        report.p95_ms,
+        report.min_ms,
+        report.fps,
+        report
+            .peak_rss_mb
+            .map_or("unknown".to_string(), |m| format!("{m:.0} MiB"))
+    );
+    println!("CPU: {}", report.cpu.label());
+    if let Some(agreement) = report.agreement_with_plain {
+        println!(
+            "arg-max agreement with the plain fp32 path: {:.4} % of pixels",
+            100.0 * agreement
+        );
+    }
 }
 
 /// `rtf bench …` subcommands.
