@@ -46,7 +46,7 @@ pub struct ValRecord {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EpochRecord {
     pub epoch: usize,
-    /// The student's learning rate.
+    /// The student's learning rate (at the epoch's first step).
     #[serde(deserialize_with = "number")]
     pub lr: f64,
     /// Mean of the student's objective over the epoch's steps.

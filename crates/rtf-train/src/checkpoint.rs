@@ -37,7 +37,7 @@ pub struct TrainState {
     /// on resume `log.jsonl` gets it back if a kill came between them). Checkpoints written
     /// before issue 30 carry every epoch's record; both read.
     #[serde(default)]
-    pub records: Vec<serde_json::Value>,
+    pub records: Vec<rtf_run::EpochRecord>,
 }
 
 /// The part of an epoch done before a mid-epoch checkpoint, with the sums its log record needs.
@@ -291,7 +291,7 @@ mod tests {
                 wait_seconds: 0.1,
                 term_sums: BTreeMap::from([("ce".to_string(), 1.5)]),
             }),
-            records: vec![serde_json::json!({"epoch": 0})],
+            records: vec![crate::run::tests::record(0)],
         };
         let critic = VarStore::new(Device::Cpu);
         let _ = nn::linear(critic.root() / "fc", 3, 2, Default::default());

@@ -21,6 +21,8 @@ pub enum TrainError {
     Eval(#[from] EvalError),
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Folder(#[from] rtf_run::RunError),
     #[error("{path}: {message}")]
     Run { path: PathBuf, message: String },
     #[error("{0}")]

@@ -10,6 +10,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod ddp;
 pub mod error;
+pub mod folder;
 pub mod init;
 pub mod label_cache;
 pub mod loss;
@@ -29,6 +30,7 @@ pub use config::{
     RunConfig, TrainConfig,
 };
 pub use error::TrainError;
+pub use folder::TrainedRun;
 pub use loss::Loss;
 pub use optim::Optimizer;
 pub use trainer::{train, EpochRecord, TrainOutcome};

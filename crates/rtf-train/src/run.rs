@@ -1,39 +1,25 @@
-//! The run folder: its files, its lock, its log. A run folder holds `config.json` (written
-//! before the first step), `log.jsonl` (one record per epoch), `checkpoint.safetensors` (every
-//! trained network, optimisers and progress; the last epoch's log record too, so a log line
-//! lost to a kill is written back on resume), `best.safetensors` and `final.safetensors` (the student's
-//! weights under reference names), and `run.lock` while a process trains in it.
+//! The run folder as the trainer writes it: its lock, its config and log. A run folder holds
+//! `config.json` (written before the first step), `log.jsonl` (one record per epoch),
+//! `checkpoint.safetensors` (every trained network, optimisers and progress; the last epoch's
+//! log record too, so a log line lost to a kill is written back on resume), `best.safetensors`
+//! and `final.safetensors` (the student's weights under reference names), and `run.lock` while
+//! a process trains in it. Its files are named, and read back, by rtf-run ([`crate::folder`]).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use crate::error::TrainError;
 
-pub const CONFIG_FILE: &str = "config.json";
-pub const LOG_FILE: &str = "log.jsonl";
-pub const CHECKPOINT_FILE: &str = "checkpoint.safetensors";
-pub const BEST_FILE: &str = "best.safetensors";
-pub const FINAL_FILE: &str = "final.safetensors";
-pub const LOCK_FILE: &str = "run.lock";
+pub use rtf_run::files::{
+    holds_run, BEST_FILE, CHECKPOINT_FILE, CONFIG_FILE, FINAL_FILE, LOCK_FILE, LOG_FILE,
+};
+use rtf_run::EpochRecord;
 
 pub(crate) fn run_error(path: &Path, message: impl Into<String>) -> TrainError {
     TrainError::Run {
         path: path.to_path_buf(),
         message: message.into(),
     }
-}
-
-/// Files whose presence means a folder holds a run (a fresh start there would mix two runs).
-pub fn holds_run(dir: &Path) -> bool {
-    [
-        CONFIG_FILE,
-        LOG_FILE,
-        CHECKPOINT_FILE,
-        BEST_FILE,
-        FINAL_FILE,
-    ]
-    .iter()
-    .any(|f| dir.join(f).exists())
 }
 
 /// Exclusive ownership of a run folder for a process's lifetime: `run.lock` holds the owner's
@@ -158,12 +144,7 @@ pub(crate) fn read_log(run_dir: &Path) -> Result<String, TrainError> {
 }
 
 /// The epoch a log line records (None: not JSON, or no epoch).
-pub(crate) fn line_epoch(line: &str) -> Option<usize> {
-    serde_json::from_str::<serde_json::Value>(line)
-        .ok()
-        .and_then(|r| r["epoch"].as_u64())
-        .map(|e| e as usize)
-}
+pub(crate) use rtf_run::log::line_epoch;
 
 /// Restores `log.jsonl` on resume to the epochs a checkpoint has done. The checkpoint carries
 /// only its last finished epoch's record (the log is appended after the checkpoint's rename,
@@ -175,13 +156,10 @@ pub(crate) fn line_epoch(line: &str) -> Option<usize> {
 pub fn restore_log(
     run_dir: &Path,
     epochs_done: usize,
-    carried: &[serde_json::Value],
+    carried: &[EpochRecord],
 ) -> Result<Vec<usize>, TrainError> {
     let path = run_dir.join(LOG_FILE);
-    let first_carried = carried
-        .first()
-        .and_then(|r| r["epoch"].as_u64())
-        .map_or(epochs_done, |e| e as usize);
+    let first_carried = carried.first().map_or(epochs_done, |r| r.epoch);
     let old = read_log(run_dir)?;
     let mut text = String::new();
     let mut kept = Vec::new();
@@ -203,8 +181,27 @@ pub fn restore_log(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// A log record of `epoch` (training loss 0.1 + epoch).
+    pub(crate) fn record(epoch: usize) -> EpochRecord {
+        EpochRecord {
+            epoch,
+            lr: 0.01,
+            train_loss: 0.1 + epoch as f64,
+            images: 2,
+            seconds: 1.0,
+            images_per_s: 2.0,
+            data_wait_fraction: 0.0,
+            val_miou: None,
+            val_macc: None,
+            losses: Default::default(),
+            lrs: Default::default(),
+            metrics: Default::default(),
+            val: None,
+        }
+    }
 
     #[test]
     fn a_second_lock_is_refused_and_a_stale_one_taken_over() {
@@ -243,25 +240,17 @@ mod tests {
         assert!(!dead.exists());
         assert!(mine.exists() && other.exists());
     }
-    fn log_epochs(dir: &Path) -> Vec<u64> {
-        std::fs::read_to_string(dir.join(LOG_FILE))
-            .unwrap()
-            .lines()
-            .map(|l| {
-                serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"]
-                    .as_u64()
-                    .unwrap()
-            })
-            .collect()
+    fn log_epochs(dir: &Path) -> Vec<usize> {
+        let log = rtf_run::log::read(&dir.join(LOG_FILE)).unwrap();
+        log.iter().map(|r| r.epoch).collect()
     }
 
     #[test]
     fn the_log_is_restored_to_the_checkpoint_from_its_lines_and_the_carried_record() {
         let dir = tempfile::tempdir().unwrap();
-        let record = |e: u64| serde_json::json!({"epoch": e, "train_loss": 0.1 + e as f64});
         let log =
             |lines: &[String]| std::fs::write(dir.path().join(LOG_FILE), lines.join("\n")).unwrap();
-        let line = |e: u64| serde_json::to_string(&record(e)).unwrap();
+        let line = |e: usize| serde_json::to_string(&record(e)).unwrap();
         // A kill between the checkpoint (3 epochs done) and the log's append of epoch 2.
         log(&[line(0), line(1)]);
         let lacking = restore_log(dir.path(), 3, &[record(2)]).unwrap();

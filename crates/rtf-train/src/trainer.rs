@@ -22,7 +22,6 @@ use rtf_data::frame::Subset;
 use rtf_data::{FrameSource, Loader, LoaderConfig, TrainedOn};
 use rtf_eval::{EvalOptions, EvalReport};
 use rtf_models::Network;
-use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{self, Part, PartialEpoch, TrainState};
 use crate::config::{DatasetConfig, SelectMetric, StepAt, TrainConfig};
@@ -32,60 +31,8 @@ use crate::procedure::{self, Procedure, StepBatches};
 use crate::run::{self as rundir, run_error};
 pub use crate::run::{BEST_FILE, CHECKPOINT_FILE, CONFIG_FILE, FINAL_FILE, LOG_FILE};
 
-/// Validation scores of one epoch (percent-free fractions like every score of rtf-eval).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-pub struct ValRecord {
-    pub miou: f64,
-    pub macc: f64,
-    #[serde(default)]
-    pub miou_day: Option<f64>,
-    #[serde(default)]
-    pub miou_night: Option<f64>,
-    /// HeatNet's convention (Freiburg only): day, night and their mean.
-    #[serde(default)]
-    pub miou_heatnet_day: Option<f64>,
-    #[serde(default)]
-    pub miou_heatnet_night: Option<f64>,
-    #[serde(default)]
-    pub miou_heatnet: Option<f64>,
-    #[serde(default)]
-    pub per_class_iou: BTreeMap<String, Option<f64>>,
-    #[serde(default)]
-    pub per_class_iou_day: BTreeMap<String, Option<f64>>,
-    #[serde(default)]
-    pub per_class_iou_night: BTreeMap<String, Option<f64>>,
-    /// The score that picks `best.safetensors`, and its value.
-    pub selected_by: String,
-    pub selected: f64,
-}
-
-/// What one epoch did (a line of `log.jsonl`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct EpochRecord {
-    pub epoch: usize,
-    /// The student's learning rate (at the epoch's first step).
-    pub lr: f64,
-    /// Mean of the student's objective over the epoch's steps.
-    pub train_loss: f64,
-    pub images: usize,
-    pub seconds: f64,
-    pub images_per_s: f64,
-    /// Share of the epoch's time spent waiting for the data pipeline.
-    pub data_wait_fraction: f64,
-    pub val_miou: Option<f64>,
-    pub val_macc: Option<f64>,
-    /// Every loss term by name, mean over the epoch's steps.
-    #[serde(default)]
-    pub losses: BTreeMap<String, f64>,
-    /// Learning rate of every trained network, by role.
-    #[serde(default)]
-    pub lrs: BTreeMap<String, f64>,
-    /// Training metrics (the critic's day / night accuracy), mean over the epoch's steps.
-    #[serde(default)]
-    pub metrics: BTreeMap<String, f64>,
-    #[serde(default)]
-    pub val: Option<ValRecord>,
-}
+/// The records of `log.jsonl` (rtf-run: a run folder's files are read back there).
+pub use rtf_run::{EpochRecord, ValRecord};
 
 #[derive(Debug, Clone)]
 pub struct TrainOutcome {
@@ -103,16 +50,7 @@ pub struct TrainOutcome {
 }
 
 /// Reads the configuration of an existing run (for `--resume`), checked.
-pub fn read_config(run_dir: &Path) -> Result<crate::config::RunConfig, TrainError> {
-    let path = run_dir.join(CONFIG_FILE);
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| run_error(&path, format!("cannot read: {e}")))?;
-    let cfg = crate::config::RunConfig::parse(&text, false)
-        .map_err(|e| run_error(&path, format!("not a training config: {e}")))?;
-    cfg.validate()
-        .map_err(|e| run_error(&path, format!("invalid value: {e}")))?;
-    Ok(cfg)
-}
+pub use crate::folder::read_config;
 
 type Source = Arc<dyn FrameSource>;
 
@@ -834,7 +772,7 @@ impl<'a> Run<'a> {
         let record = self.epoch_record(epoch, progress, seconds, val);
         self.keep_best(epoch, &record)?;
         // The checkpoint carries this epoch's record only: the log holds the others.
-        self.state.records = vec![serde_json::to_value(&record).expect("record serialises")];
+        self.state.records = vec![record.clone()];
         let data_parallel = self.ddp.is_some();
         let stopping = match (data_parallel, self.folder.is_root) {
             (_, false) => {
