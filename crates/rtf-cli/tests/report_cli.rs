@@ -50,25 +50,38 @@ fn svg_images(html: &str) -> Vec<String> {
 }
 
 /// A run folder with `epochs` new-schema log lines and the given configuration.
-fn synthetic_run(dir: &Path, epochs: u64, config: serde_json::Value) {
+fn synthetic_run(dir: &Path, epochs: u64, config: &rtf_train::TrainConfig) {
     std::fs::create_dir_all(dir).unwrap();
-    std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+    let config = serde_json::to_string_pretty(config).unwrap();
+    std::fs::write(dir.join("config.json"), config).unwrap();
     let lines: Vec<String> = (0..epochs).map(new_schema_line).collect();
     std::fs::write(dir.join("log.jsonl"), lines.join("\n") + "\n").unwrap();
 }
 
+/// An MFNet run's configuration (on a dataset that is not there) with `network` instead.
+fn config_of(network: &str) -> rtf_train::TrainConfig {
+    let mut cfg = rtf_train::TrainConfig::mfnet_paper("/nowhere/data".into());
+    cfg.network.model = rtf_models::ModelConfig::from_name(network, 9).unwrap();
+    cfg
+}
+
+/// A log line as the adversarial procedure's trainer writes it (loss terms, two networks'
+/// learning rates, the critic's metrics, nested validation scores).
 fn new_schema_line(epoch: u64) -> String {
+    let miou = 0.2 + 0.05 * epoch as f64;
     serde_json::json!({
         "epoch": epoch, "lr": 0.01, "train_loss": 1.0 / (epoch + 1) as f64, "images": 8,
         "seconds": 1.0, "images_per_s": 8.0, "data_wait_fraction": 0.1,
+        "val_miou": miou, "val_macc": 0.3,
         "losses": {"ce": 0.8 / (epoch + 1) as f64, "critic": 0.2},
         "lrs": {"segmenter": 0.01, "critic": 0.001},
         "metrics": {"critic_acc_day": 0.6, "critic_acc_night": 0.55},
-        "val": {"miou": 0.2 + 0.05 * epoch as f64, "macc": 0.3, "miou_day": 0.25,
+        "val": {"miou": miou, "macc": 0.3, "miou_day": 0.25,
                 "miou_night": 0.15,
                 "per_class_iou": {"unlabeled": 0.9, "car": 0.3, "person": null},
                 "per_class_iou_day": {"unlabeled": 0.9, "car": 0.35, "person": null},
-                "per_class_iou_night": {"unlabeled": 0.88, "car": 0.25, "person": 0.1}}
+                "per_class_iou_night": {"unlabeled": 0.88, "car": 0.25, "person": 0.1},
+                "selected_by": "miou", "selected": miou}
     })
     .to_string()
 }
@@ -95,11 +108,13 @@ fn report_of_runs_and_evaluations_is_one_self_contained_page() {
     // A multi-stage run: the stages' folders hold their own config and log.
     let staged = tmp.path().join("staged");
     std::fs::create_dir_all(&staged).unwrap();
-    std::fs::write(
-        staged.join("config.json"),
-        r#"{"stages": ["supervised", {"name": "adapt"}], "seed": 1}"#,
-    )
-    .unwrap();
+    let stage = |name: &str| {
+        let config = json_file(&run.join("config.json"));
+        serde_json::json!({"name": name, "config": config})
+    };
+    let pipeline = serde_json::json!({"recipe": null,
+        "stages": [stage("supervised"), stage("adapt")]});
+    std::fs::write(staged.join("config.json"), pipeline.to_string()).unwrap();
     for stage in ["supervised", "adapt"] {
         copy(&run, &staged.join(stage), "config.json");
         copy(&run2, &staged.join(stage), "log.jsonl");
@@ -234,21 +249,18 @@ fn bad_input_names_the_file_and_writes_nothing() {
     );
 
     let run = tmp.path().join("run");
-    std::fs::create_dir_all(&run).unwrap();
-    std::fs::write(run.join("config.json"), "{}").unwrap();
-    std::fs::write(
-        run.join("log.jsonl"),
-        "{\"epoch\": 0, \"train_loss\": 1.0}\nnot json\n",
-    )
-    .unwrap();
+    synthetic_run(&run, 1, &config_of("mfnet"));
+    let line = new_schema_line(0);
+    std::fs::write(run.join("log.jsonl"), format!("{line}\nnot json\n")).unwrap();
     let err = fails(&["report", s(&run), "--out", s(&out)]);
     assert!(err.contains("log.jsonl:2"), "{err}");
+    // A renamed field is an error naming the line and the field, not an empty chart.
+    let renamed = line.replace("\"train_loss\"", "\"loss\"");
+    std::fs::write(run.join("log.jsonl"), format!("{renamed}\n")).unwrap();
+    let err = fails(&["report", s(&run), "--out", s(&out)]);
+    assert!(err.contains("log.jsonl:1") && err.contains("train_loss"), "{err}");
 
-    std::fs::write(
-        run.join("log.jsonl"),
-        "{\"epoch\": 0, \"train_loss\": 1.0}\n",
-    )
-    .unwrap();
+    std::fs::write(run.join("log.jsonl"), format!("{line}\n")).unwrap();
     let other = tmp.path().join("other.json");
     std::fs::write(&other, r#"{"schema": "something-else/3", "miou": 0.5}"#).unwrap();
     let err = fails(&["report", s(&run), "--eval", s(&other), "--out", s(&out)]);
@@ -268,11 +280,7 @@ fn bad_input_names_the_file_and_writes_nothing() {
 fn a_run_report_leads_with_the_answer_and_stays_legible_at_500_epochs() {
     let tmp = tempfile::tempdir().unwrap();
     let run = tmp.path().join("long");
-    synthetic_run(
-        &run,
-        500,
-        serde_json::json!({"model": {"network": "mfnet"}, "epochs": 500}),
-    );
+    synthetic_run(&run, 500, &config_of("mfnet"));
     let out = tmp.path().join("report.html");
     ok(&["report", s(&run), "--out", s(&out), "--frames", "0"]);
     let html = std::fs::read_to_string(&out).unwrap();
@@ -308,7 +316,7 @@ fn a_run_report_leads_with_the_answer_and_stays_legible_at_500_epochs() {
     ];
     assert!(order.windows(2).all(|w| w[0] < w[1]), "{order:?}");
     assert!(!html.contains("<details open"), "configuration collapsed");
-    assert!(html.contains("<th>model.network</th>"));
+    assert!(html.contains("<th>network.model.network</th>"));
 
     // Tick thinning: at most 8 numeric labels on the epoch axis, 6 on the score axis.
     let svgs = svg_images(&html);
@@ -328,9 +336,8 @@ fn a_run_report_leads_with_the_answer_and_stays_legible_at_500_epochs() {
 fn several_runs_compare_metrics_curves_and_configuration_differences() {
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("run-a"), tmp.path().join("run-b"));
-    let shared = |network: &str, lr: f64| serde_json::json!({"model": {"network": network}, "lr": lr, "batch": 4, "seed": 7});
-    synthetic_run(&a, 3, shared("mfnet", 0.01));
-    synthetic_run(&b, 5, shared("rtfnet", 0.01));
+    synthetic_run(&a, 3, &config_of("mfnet"));
+    synthetic_run(&b, 5, &config_of("rtfnet50"));
     let out = tmp.path().join("compare.html");
     ok(&["report", s(&a), s(&b), "--out", s(&out), "--frames", "0"]);
     let html = std::fs::read_to_string(&out).unwrap();
@@ -351,8 +358,12 @@ fn several_runs_compare_metrics_curves_and_configuration_differences() {
     // Only the settings that differ: the network, not lr / batch / seed.
     let diff = &html[html.find("<table class=\"config-diff\">").unwrap()..];
     let diff = &diff[..diff.find("</table>").unwrap()];
-    assert!(diff.contains("<th>model.network</th>") && diff.contains("rtfnet"));
-    for same in ["<th>lr</th>", "<th>batch</th>", "<th>seed</th>"] {
+    assert!(diff.contains("<th>network.model.network</th>") && diff.contains("rtfnet"));
+    for same in [
+        "<th>learning.optimizer.lr</th>",
+        "<th>schedule.batch_size</th>",
+        "<th>schedule.seed</th>",
+    ] {
         assert!(!diff.contains(same), "{same} is the same in both runs");
     }
     assert!(
@@ -380,7 +391,7 @@ fn chromium_renders_the_report() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let run = tmp.path().join("run");
-    synthetic_run(&run, 50, serde_json::json!({"model": {"network": "mfnet"}}));
+    synthetic_run(&run, 50, &config_of("mfnet"));
     let (page, shot) = (tmp.path().join("report.html"), tmp.path().join("shot.png"));
     ok(&["report", s(&run), "--out", s(&page), "--frames", "0"]);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/report_screenshot.sh");

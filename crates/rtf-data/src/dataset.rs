@@ -189,6 +189,27 @@ pub fn open(root: &Path) -> Result<Dataset, DataError> {
     Dataset::open_as(root, format)
 }
 
+/// Opens `root` for `purpose` ("a training", "an evaluation"): MF, Freiburg Thermal or a
+/// described layout (dataset.yaml, MSRS, PST900, FMB); anything else (BDD's night frames are
+/// read only beside a Freiburg root) is an error naming the root and the layouts rtf reads.
+pub fn open_for(root: &Path, purpose: &str) -> Result<Dataset, DataError> {
+    let format = match recognise(root) {
+        Some(format @ (DatasetFormat::Mf | DatasetFormat::Freiburg)) => format,
+        Some(format) if format.is_described() => format,
+        other => {
+            let found = other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"));
+            return Err(DataError::Layout {
+                root: root.to_path_buf(),
+                message: format!(
+                    "not {purpose} dataset rtf can read ({found}; expected dataset.yaml, or the \
+                     MF, Freiburg Thermal, MSRS, PST900 or FMB layout, see `rtf data check`)"
+                ),
+            });
+        }
+    };
+    Dataset::open_as(root, format)
+}
+
 fn not_a_dataset(root: &Path) -> DataError {
     DataError::Layout {
         root: root.to_path_buf(),

@@ -6,6 +6,9 @@ pub mod figure;
 pub mod metrics;
 pub mod speed;
 
+/// Schema tag of the scores `rtf eval --json` writes (`rtf report` checks it).
+pub const EVAL_SCHEMA: &str = "rtf-eval/1";
+
 /// Whole image, sliding windows, scales and flip (a part of [`evaluate`]).
 pub use evaluate::inference;
 

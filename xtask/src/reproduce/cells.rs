@@ -7,6 +7,7 @@ use super::budget::{Budget, RECIPE_CPU_MODEL};
 use super::io::write_json;
 use super::tables::{Cell, Data, Table, Train};
 use anyhow::{bail, Context as _, Result};
+use rtf_run::Weights;
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -43,12 +44,9 @@ pub fn state(dir: &Path, bench: bool) -> State {
             .is_some_and(|cell| cell.join(BENCH_FILE).exists());
     if evaluated && timed {
         State::Done
-    } else if dir.join("final.safetensors").exists() {
+    } else if Weights::of(dir).last.is_some() {
         State::Evaluate
-    } else if ["checkpoint.safetensors", "config.json", "log.jsonl"]
-        .iter()
-        .any(|f| dir.join(f).exists())
-    {
+    } else if rtf_run::holds_run(dir) {
         // The files by which `rtf train` says a folder "already holds a run" (a pipeline
         // keeps its checkpoints in its stage folders and only config.json at the top).
         State::Resume
@@ -276,12 +274,9 @@ fn train(ctx: &Context, dir: &Path, spec: &Value, resume: bool) -> Result<Outcom
 /// checkpoint picked on validation where a validation split was used (MF), else the final
 /// weights.
 fn evaluate(ctx: &Context, dir: &Path, spec: &Value, network: &str) -> Result<()> {
-    let best = dir.join("best.safetensors");
-    let weights = if best.exists() {
-        best
-    } else {
-        dir.join("final.safetensors")
-    };
+    let weights = Weights::of(dir)
+        .selected()
+        .map_or_else(|| dir.join(rtf_run::FINAL_FILE), Path::to_path_buf);
     let mut args: Vec<String> = [
         "eval",
         "--model",
@@ -519,7 +514,7 @@ case "$1" in
     [ -f "$here/oom" ] && kill -9 $$
     if [ -f "$here/interrupt" ]; then echo x > "$out/checkpoint.safetensors"; exit 130; fi
     echo x > "$out/checkpoint.safetensors"; echo x > "$out/final.safetensors"
-    echo '{"images_per_s": 10.0}' > "$out/log.jsonl" ;;
+    echo '{"epoch":0,"lr":0.01,"train_loss":1.0,"images":8,"seconds":0.8,"images_per_s":10.0,"data_wait_fraction":0.0,"val_miou":null,"val_macc":null}' > "$out/log.jsonl" ;;
   eval)
     echo '{"miou": 0.5, "macc": 0.6, "miou_mfnet": 0.4, "per_class": [], "day": null, "night": null}' > "$(arg --json "$@")" ;;
   bench)

@@ -624,15 +624,12 @@ pub fn estimate(ctx: &Context, table: &Table) -> Option<Value> {
         };
         // A reused cell's training log is in the folder it was copied from.
         let dir = ctx.cell_dir(table, cell, 0);
-        let log = read_json(&dir.join(cells::CELL_FILE))
+        let trained = read_json(&dir.join(cells::CELL_FILE))
             .and_then(|c| c["reused_from"].as_str().map(std::path::PathBuf::from))
-            .unwrap_or(dir)
-            .join("log.jsonl");
-        if let Some(rate) = std::fs::read_to_string(&log).ok().and_then(|t| {
-            let last = t.lines().rfind(|l| !l.trim().is_empty())?.to_string();
-            serde_json::from_str::<Value>(&last).ok()?["images_per_s"].as_f64()
-        }) {
-            rates.push((name, rate));
+            .unwrap_or(dir);
+        let last = rtf_run::RunFolder::open(&trained).and_then(|run| run.last_epoch());
+        if let Ok(Some(epoch)) = last {
+            rates.push((name, epoch.images_per_s));
         }
     }
     // Only the quick budget's rates mean something (smoke's are start-up costs).

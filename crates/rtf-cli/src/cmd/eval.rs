@@ -170,7 +170,7 @@ struct DroppedScores {
 }
 
 /// Schema tag of the `--json` file (`rtf report` checks it).
-pub const EVAL_SCHEMA: &str = "rtf-eval/1";
+pub use rtf_eval::EVAL_SCHEMA;
 
 /// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside
 /// it; for Freiburg Thermal also HeatNet's convention.

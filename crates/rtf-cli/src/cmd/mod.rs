@@ -33,18 +33,7 @@ pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
 /// announced on stderr (rtf says which layout, classes and thermal rule it inferred);
 /// anything else is an error naming the root. `purpose` words the error ("a training").
 pub fn open_dataset(root: &std::path::Path, purpose: &str) -> anyhow::Result<rtf_data::Dataset> {
-    use rtf_data::DatasetFormat;
-    let format = match rtf_data::dataset::recognise(root) {
-        Some(format @ (DatasetFormat::Mf | DatasetFormat::Freiburg)) => format,
-        Some(format) if format.is_described() => format,
-        other => anyhow::bail!(
-            "{}: not {purpose} dataset rtf can read ({}; expected dataset.yaml, or the MF, \
-             Freiburg Thermal, MSRS, PST900 or FMB layout, see `rtf data check`)",
-            root.display(),
-            other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"))
-        ),
-    };
-    let dataset = rtf_data::Dataset::open_as(root, format)?;
+    let dataset = rtf_data::dataset::open_for(root, purpose)?;
     if let Some(line) = dataset.announcement() {
         eprintln!("data: {line}");
     }

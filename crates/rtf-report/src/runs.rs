@@ -1,0 +1,121 @@
+//! The runs a report shows, read through the one run-folder reader (rtf-run's `RunFolder`,
+//! rtf-train's typed configuration): a run folder, or each stage of a multi-stage run
+//! (`RUN/<stage>/`), with its epochs, its configuration and the settings it records.
+
+use std::path::{Path, PathBuf};
+
+use rtf_models::ModelConfig;
+use rtf_run::{EpochRecord, RunFolder, Weights, LOG_FILE};
+use rtf_train::config::{RunConfig, TrainConfig};
+
+use crate::error::ReportError;
+
+/// A run folder or one stage of it.
+pub(crate) struct Run {
+    pub label: String,
+    pub folder: RunFolder,
+    /// Its training configuration; None without a `config.json`, or one this build does not
+    /// read (a note says why; its recorded settings are still shown).
+    pub config: Option<TrainConfig>,
+    /// The settings its `config.json` records, as (`a.b.c`, value) rows.
+    pub settings: Vec<(String, String)>,
+    pub log: Vec<EpochRecord>,
+}
+
+impl Run {
+    pub fn dir(&self) -> &Path {
+        self.folder.dir()
+    }
+
+    pub fn weights(&self) -> Weights {
+        self.folder.weights()
+    }
+
+    /// The network's family as the configuration names it (`mfnet`, `rtfnet`, …); `?` when
+    /// the configuration cannot be read.
+    pub fn network(&self) -> &'static str {
+        self.config
+            .as_ref()
+            .map_or("?", |c| network_family(&c.network.model))
+    }
+}
+
+fn network_family(model: &ModelConfig) -> &'static str {
+    match model {
+        ModelConfig::Mfnet(_) => "mfnet",
+        ModelConfig::Rtfnet(_) => "rtfnet",
+        ModelConfig::Heatnet(_) => "heatnet",
+        ModelConfig::Baseline(_) => "baseline",
+        ModelConfig::Cmx(_) => "cmx",
+    }
+}
+
+/// The training configuration of `folder`, or None with a note saying why.
+fn training(folder: &RunFolder, notes: &mut Vec<String>) -> Option<TrainConfig> {
+    if !folder.has_config() {
+        return None;
+    }
+    match rtf_train::folder::run_config(folder) {
+        Ok(RunConfig::Single(cfg)) => Some(*cfg),
+        Ok(RunConfig::Pipeline(_)) => None,
+        Err(e) => {
+            notes.push(format!(
+                "report: {e}; its settings are shown as recorded"
+            ));
+            None
+        }
+    }
+}
+
+fn part(label: String, folder: RunFolder, log: Vec<EpochRecord>, notes: &mut Vec<String>) -> Run {
+    Run {
+        label,
+        config: training(&folder, notes),
+        settings: folder.settings(),
+        log,
+        folder,
+    }
+}
+
+/// The run at `dir` and, for a multi-stage run, each stage its `config.json` lists.
+pub(crate) fn load_runs(dir: &Path, notes: &mut Vec<String>) -> Result<Vec<Run>, ReportError> {
+    let folder = RunFolder::open(dir)?;
+    let label = dir.file_name().map_or_else(
+        || dir.display().to_string(),
+        |n| n.to_string_lossy().to_string(),
+    );
+    let mut runs = Vec::new();
+    if folder.has_log() || folder.stage_names().is_empty() {
+        // A folder without log.jsonl is no run (yet): the error names the log.
+        let log = folder.epochs()?;
+        if !folder.has_config() {
+            return Err(ReportError::input(
+                folder.config_path(),
+                "missing (written by `rtf train`)",
+            ));
+        }
+        runs.push(part(label.clone(), folder.clone(), log, notes));
+    }
+    for stage in folder.stage_names() {
+        let log = dir.join(stage).join(LOG_FILE);
+        if !log.exists() {
+            return Err(ReportError::input(
+                log,
+                format!(
+                    "stage `{stage}` listed in {} has no log",
+                    folder.config_path().display()
+                ),
+            ));
+        }
+        let stage_folder = folder.stage(stage)?;
+        let log = stage_folder.epochs()?;
+        runs.push(part(format!("{label} / {stage}"), stage_folder, log, notes));
+    }
+    Ok(runs)
+}
+
+/// The files of `runs` the report reads.
+pub(crate) fn inputs(runs: &[Run]) -> impl Iterator<Item = PathBuf> + '_ {
+    runs.iter()
+        .flat_map(|r| [r.folder.config_path(), r.folder.log_path()])
+}
