@@ -40,15 +40,8 @@ fn synth_train_resume_eval_predict() {
     );
 
     ok(&["train", "--resume", s(&run), "--epochs", "2"]);
-    let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
-    let epochs: Vec<u64> = log
-        .lines()
-        .map(|l| {
-            serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"]
-                .as_u64()
-                .unwrap()
-        })
-        .collect();
+    let log = rtf_run::log::read(&run.join("log.jsonl")).unwrap();
+    let epochs: Vec<usize> = log.iter().map(|r| r.epoch).collect();
     assert_eq!(epochs, vec![0, 1], "resume continued at the next epoch");
     // Resumed again with nothing left: said, exit 0, the weights' path as a finished run prints.
     let out = rtf(&["train", "--resume", s(&run)]);
@@ -207,11 +200,10 @@ fn freiburg_root_trains_validates_on_its_test_layout_and_evaluates_heatnet_style
         config["data"]["augment"]["window"],
         serde_json::json!([640, 320])
     );
-    let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
-    let record: serde_json::Value = serde_json::from_str(log.lines().next().unwrap()).unwrap();
+    let record = &rtf_run::log::read(&run.join("log.jsonl")).unwrap()[0];
     assert!(
-        record["val_miou"].is_number(),
-        "validated on the test layout: {record}"
+        record.val_miou.is_some(),
+        "validated on the test layout: {record:?}"
     );
 
     let weights = run.join("final.safetensors");

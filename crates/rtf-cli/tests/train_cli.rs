@@ -90,20 +90,18 @@ fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole()
         .as_str()
         .unwrap();
     assert!(std::path::Path::new(root).is_absolute(), "{root}");
-    let log = std::fs::read_to_string(run.join("v5/log.jsonl")).unwrap();
-    let record: serde_json::Value = serde_json::from_str(log.lines().next().unwrap()).unwrap();
+    let record = &rtf_run::log::read(&run.join("v5/log.jsonl")).unwrap()[0];
     for term in ["ce_day", "adv", "critic"] {
-        assert!(record["losses"][term].is_number(), "{term}: {record}");
+        assert!(record.losses[term].is_finite(), "{term}: {record:?}");
     }
     assert!(
-        record["metrics"]["critic_acc_night"].is_number(),
-        "{record}"
+        record.metrics["critic_acc_night"].is_finite(),
+        "{record:?}"
     );
     // TensorBoard events beside the log, and the data's fingerprint in each stage's config.
     tensorboard_matches_log(&run.join("v5"));
     let stage = json_file(&run.join("v5/config.json"));
     assert!(stage["data"]["fingerprint"]["hash"].is_string(), "{stage}");
-    assert!(record["val"]["miou_heatnet"].is_number() || record["val"]["miou_heatnet"].is_null());
     // The same folder again without --resume: refused. With it: nothing left to do.
     let err = fails(&args);
     assert!(err.contains("--resume"), "{err}");

@@ -244,9 +244,8 @@ fn two_rank_mfnet_run_is_identical_on_both_ranks_and_resumes_exactly() {
         }
         let read = |name: &str| std::fs::read_to_string(dir.join(name)).expect(name);
         assert_eq!(read("straight.rank0"), read("straight.rank1"));
-        let config: serde_json::Value =
-            serde_json::from_str(&read("straight/config.json")).unwrap();
-        assert_eq!(config["compute"]["world_size"], 2);
+        let run = rtf_train::TrainedRun::open(&dir.join("straight")).unwrap();
+        assert_eq!(run.last_training().compute.world_size, Some(2));
         assert_eq!(read("straight/log.jsonl").lines().count(), 2);
         // Rank 1 is asked to stop before its first step: both ranks stop after it.
         launch(test, dir, "stop");
@@ -357,9 +356,8 @@ fn two_rank_pipeline_trains_every_stage_data_parallel_and_resumes_exactly() {
         assert_eq!(read("straight.rank0"), "trained [\"teacher\", \"student\"]");
         assert_eq!(read("straight.rank1"), read("straight.rank0"));
         for stage in ["teacher", "student"] {
-            let config: serde_json::Value =
-                serde_json::from_str(&read(&format!("straight/{stage}/config.json"))).unwrap();
-            assert_eq!(config["compute"]["world_size"], 2, "{stage}");
+            let run = rtf_train::TrainedRun::open(&dir.join("straight").join(stage)).unwrap();
+            assert_eq!(run.last_training().compute.world_size, Some(2), "{stage}");
         }
         assert!(dir.join("straight/final.safetensors").is_file());
         launch(test, dir, "stop");

@@ -251,15 +251,8 @@ fn a_log_line_lost_to_a_kill_comes_back_on_resume() {
     // A kill between the checkpoint's rename and the log's append: the line is missing.
     std::fs::write(run.join("log.jsonl"), "").unwrap();
     rtf_train::train(&config(&data, 2), &run, true, &mut |_| {}).unwrap();
-    let log = std::fs::read_to_string(run.join("log.jsonl")).unwrap();
-    let epochs: Vec<u64> = log
-        .lines()
-        .map(|l| {
-            serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"]
-                .as_u64()
-                .unwrap()
-        })
-        .collect();
+    let log = rtf_run::log::read(&run.join("log.jsonl")).unwrap();
+    let epochs: Vec<usize> = log.iter().map(|r| r.epoch).collect();
     assert_eq!(epochs, [0, 1]);
 }
 

@@ -154,13 +154,22 @@ fn metadata(
     })
 }
 
-/// The class set of weights without a record, and where it comes from: the dataset of the run folder
-/// the weights sit in (its config.json; a dataset.yaml's own names), else MF's or Freiburg's
-/// names when the class count is theirs (said as an assumption), else none.
+/// The class set of weights without a record, and where it comes from: the dataset of the run
+/// folder the weights sit in (the classes its config.json records, else its dataset's: a
+/// dataset.yaml's own names), else MF's or Freiburg's names when the class count is theirs
+/// (said as an assumption), else none.
 fn class_set_of_run(weights: &Path, classes: i64) -> Option<(rtf_core::ClassSet, String)> {
     let dir = weights.parent()?;
-    if let Some(set) = run_class_set(dir).filter(|set| set.len() as i64 == classes) {
-        let config_path = dir.join(rtf_train::trainer::CONFIG_FILE);
+    // `--weights final.safetensors` inside the run folder: the folder is the current one.
+    let folder = match dir.as_os_str().is_empty() {
+        true => Path::new("."),
+        false => dir,
+    };
+    let run_classes = rtf_train::TrainedRun::open(folder)
+        .ok()
+        .and_then(|run| run.class_set());
+    if let Some(set) = run_classes.filter(|set| set.len() as i64 == classes) {
+        let config_path = dir.join(rtf_run::CONFIG_FILE);
         return Some((
             set,
             format!("the run's dataset ({})", config_path.display()),
@@ -176,21 +185,6 @@ fn class_set_of_run(weights: &Path, classes: i64) -> Option<(rtf_core::ClassSet,
             );
             (set, from)
         })
-}
-
-/// The class set of the dataset a run folder trained on (its last stage's, for a recipe), read
-/// through rtf-train's own config reader (sectioned or older flat config.json); None when the
-/// folder holds no readable run.
-fn run_class_set(dir: &Path) -> Option<rtf_core::ClassSet> {
-    use rtf_train::config::RunConfig;
-    let dataset = match rtf_train::trainer::read_config(dir).ok()? {
-        RunConfig::Single(cfg) => cfg.data.dataset,
-        RunConfig::Pipeline(p) => p.stages.last()?.config.data.dataset.clone(),
-    };
-    let kind = dataset.choice().kind;
-    rtf_data::Dataset::open_recorded(dataset.root(), kind)
-        .ok()
-        .map(|d| d.class_set())
 }
 
 /// Adds `<archive>/extra/rtf.json` to a TorchScript archive written by libtorch.

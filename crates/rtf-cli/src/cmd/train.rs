@@ -199,7 +199,7 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let (mut cfg, run_dir, resume) = match &args.resume {
         Some(run_dir) => {
-            let mut cfg = rtf_train::trainer::read_config(run_dir)?;
+            let mut cfg = rtf_train::folder::read_config(run_dir)?;
             if let Some(epochs) = args.epochs {
                 rtf_train::resume::extend(&mut cfg, run_dir, epochs)?;
             }
@@ -539,18 +539,19 @@ fn teacher_ref(
     flag: &str,
 ) -> Result<TeacherRef> {
     if path.is_dir() {
-        let run = rtf_train::trainer::read_config(path)
+        let run = rtf_train::TrainedRun::open(path)
             .with_context(|| format!("{flag} {}: not a run folder", path.display()))?;
-        let last = run.stages().last().expect("a run has a stage").1.clone();
-        let weights = rtf_train::pipeline::stage_weights(path);
-        anyhow::ensure!(
-            weights.is_file(),
-            "{}: the run has no best.safetensors or final.safetensors yet ({flag})",
-            path.display()
-        );
+        let last = run.last_training();
+        let weights = run.folder().weights();
+        let weights = weights.selected().with_context(|| {
+            format!(
+                "{}: the run has no best.safetensors or final.safetensors yet ({flag})",
+                path.display()
+            )
+        })?;
         return Ok(TeacherRef::Weights {
-            path: std::fs::canonicalize(&weights)?,
-            model: last.network.model,
+            path: std::fs::canonicalize(weights)?,
+            model: last.network.model.clone(),
             inputs: inputs.unwrap_or(last.network.inputs),
         });
     }

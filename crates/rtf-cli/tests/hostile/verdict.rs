@@ -243,11 +243,10 @@ pub fn resume_one_more(run: &Path, log: &Path) -> Output {
 /// The epochs of a log.jsonl are 0, 1, … n-1 (the log counts from 0) without gaps or
 /// repeats: Some(n).
 pub fn epochs_in_order(log: &Path) -> Option<usize> {
-    let text = std::fs::read_to_string(log).ok()?;
+    let records = rtf_run::log::read(log).ok()?;
     let mut n = 0;
-    for line in text.lines() {
-        let record: serde_json::Value = serde_json::from_str(line).ok()?;
-        if record["epoch"].as_u64()? != n as u64 {
+    for record in records {
+        if record.epoch != n {
             return None;
         }
         n += 1;
