@@ -404,7 +404,9 @@ fn a_five_class_pst900_root_trains_without_val_and_evaluates_by_class_name() {
         "{printed}"
     );
     let first_epoch = |run: &std::path::Path| {
-        rtf_run::log::read(&run.join("log.jsonl")).unwrap().remove(0)
+        rtf_run::log::read(&run.join("log.jsonl"))
+            .unwrap()
+            .remove(0)
     };
     assert!(
         first_epoch(&run).val_miou.is_none(),

@@ -258,7 +258,10 @@ fn bad_input_names_the_file_and_writes_nothing() {
     let renamed = line.replace("\"train_loss\"", "\"loss\"");
     std::fs::write(run.join("log.jsonl"), format!("{renamed}\n")).unwrap();
     let err = fails(&["report", s(&run), "--out", s(&out)]);
-    assert!(err.contains("log.jsonl:1") && err.contains("train_loss"), "{err}");
+    assert!(
+        err.contains("log.jsonl:1") && err.contains("train_loss"),
+        "{err}"
+    );
 
     std::fs::write(run.join("log.jsonl"), format!("{line}\n")).unwrap();
     let other = tmp.path().join("other.json");

@@ -94,10 +94,7 @@ fn a_heatnet_recipe_trains_its_teacher_then_the_student_and_resumes_as_a_whole()
     for term in ["ce_day", "adv", "critic"] {
         assert!(record.losses[term].is_finite(), "{term}: {record:?}");
     }
-    assert!(
-        record.metrics["critic_acc_night"].is_finite(),
-        "{record:?}"
-    );
+    assert!(record.metrics["critic_acc_night"].is_finite(), "{record:?}");
     // TensorBoard events beside the log, and the data's fingerprint in each stage's config.
     tensorboard_matches_log(&run.join("v5"));
     let stage = json_file(&run.join("v5/config.json"));

@@ -33,7 +33,8 @@ fn plot_err<E: std::fmt::Debug>(e: E) -> ReportError {
 /// `ab_glyph` for the calibration plots): register the system's DejaVu Sans as "sans-serif",
 /// once.
 fn register_font() -> Result<()> {
-    static REGISTERED: std::sync::OnceLock<std::result::Result<(), String>> = std::sync::OnceLock::new();
+    static REGISTERED: std::sync::OnceLock<std::result::Result<(), String>> =
+        std::sync::OnceLock::new();
     REGISTERED
         .get_or_init(|| {
             let font = [
@@ -70,7 +71,12 @@ fn colour(i: usize) -> RGBColor {
 }
 
 /// A line chart of `series` against epoch.
-pub(crate) fn line_chart(title: &str, y_desc: &str, series: &Series, log_y: bool) -> Result<String> {
+pub(crate) fn line_chart(
+    title: &str,
+    y_desc: &str,
+    series: &Series,
+    log_y: bool,
+) -> Result<String> {
     register_font()?;
     let mut svg = String::new();
     {
@@ -340,7 +346,6 @@ pub(crate) fn heat_map(title: &str, names: &[String], counts: &[Vec<u64>]) -> Re
     }
     Ok(svg)
 }
-
 
 #[cfg(test)]
 mod tests {

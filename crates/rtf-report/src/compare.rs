@@ -124,7 +124,6 @@ fn config_differences(runs: &[Run], html: &mut String) -> Result<()> {
     Ok(())
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

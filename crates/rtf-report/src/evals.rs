@@ -39,7 +39,9 @@ pub(crate) fn load_eval(path: &Path) -> Result<EvalFile> {
         let schema = schema.map_or("missing".to_string(), |s| format!("`{s}`"));
         return Err(ReportError::input(
             path,
-            format!("not an `rtf eval --json` score file (schema {schema}, expected `{EVAL_SCHEMA}`)"),
+            format!(
+                "not an `rtf eval --json` score file (schema {schema}, expected `{EVAL_SCHEMA}`)"
+            ),
         ));
     }
     Ok(EvalFile {

@@ -147,8 +147,5 @@ fn run_network(run: &Run, weights: &Path, device: tch::Device) -> Result<RunNetw
     let mut vs = tch::nn::VarStore::new(device);
     let net = rtf_models::build(&vs.root(), &cfg.network.model)?;
     rtf_models::weights::load_safetensors(&mut vs, weights)?;
-    Ok((
-        rtf_models::masked(net, cfg.network.inputs),
-        cfg.data.resize,
-    ))
+    Ok((rtf_models::masked(net, cfg.network.inputs), cfg.data.resize))
 }

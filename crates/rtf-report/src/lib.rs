@@ -77,10 +77,11 @@ img.grid{max-width:100%;border:1px solid #eee}
 .headline .value{display:block;font-size:30px;font-weight:bold}.headline .label{color:#555}
 table.config-diff td{text-align:left;font-family:monospace}details.config{margin:8px 0}";
 
-/// `--out` naming a file the report reads (a run's config.json or log.jsonl, an --eval file;
-
 /// The runs (each stage of a multi-stage run its own) and eval files of `options`, read.
-fn inputs(options: &ReportOptions, notes: &mut Vec<String>) -> Result<(Vec<Run>, Vec<EvalFile>), ReportError> {
+fn inputs(
+    options: &ReportOptions,
+    notes: &mut Vec<String>,
+) -> Result<(Vec<Run>, Vec<EvalFile>), ReportError> {
     let mut runs = Vec::new();
     for dir in &options.runs {
         runs.extend(runs::load_runs(dir, notes)?);
@@ -116,7 +117,11 @@ pub fn write(options: &ReportOptions, out: &Path) -> Result<Vec<String>, ReportE
     Ok(notes)
 }
 
-fn refuse_overwriting_inputs(out: &Path, runs: &[Run], evals: &[PathBuf]) -> Result<(), ReportError> {
+fn refuse_overwriting_inputs(
+    out: &Path,
+    runs: &[Run],
+    evals: &[PathBuf],
+) -> Result<(), ReportError> {
     let Ok(out_path) = out.canonicalize() else {
         return Ok(());
     };
@@ -178,7 +183,8 @@ fn grid_section(
         Ok(Some(png)) => writeln!(
             html,
             "<section><h2>Predictions</h2>{}</section>",
-            html::img("image/png", &png, "prediction grid").replace("<img ", "<img class=\"grid\" ")
+            html::img("image/png", &png, "prediction grid")
+                .replace("<img ", "<img class=\"grid\" ")
         )?,
         Ok(None) => {}
         Err(why) => {

@@ -59,9 +59,7 @@ fn training(folder: &RunFolder, notes: &mut Vec<String>) -> Option<TrainConfig> 
         Ok(RunConfig::Single(cfg)) => Some(*cfg),
         Ok(RunConfig::Pipeline(_)) => None,
         Err(e) => {
-            notes.push(format!(
-                "report: {e}; its settings are shown as recorded"
-            ));
+            notes.push(format!("report: {e}; its settings are shown as recorded"));
             None
         }
     }

@@ -7,7 +7,9 @@ use crate::charts::{class_bars, line_chart};
 use crate::error::ReportError;
 use crate::html::{epoch_text, esc, pct, svg_img};
 use crate::runs::Run;
-use crate::series::{best_point, last, last_class_iou, last_point, loss_series, lr_series, val_series};
+use crate::series::{
+    best_point, last, last_class_iou, last_point, loss_series, lr_series, val_series,
+};
 
 type Result<T> = std::result::Result<T, ReportError>;
 

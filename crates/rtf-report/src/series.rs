@@ -155,7 +155,10 @@ mod tests {
         let loss = loss_series(&log);
         assert_eq!(last(&loss, "total"), Some(1.0));
         assert_eq!(last(&loss, "ce"), Some(0.9));
-        assert!(loss.iter().all(|(n, _)| n != "adv"), "null terms are left out");
+        assert!(
+            loss.iter().all(|(n, _)| n != "adv"),
+            "null terms are left out"
+        );
         let lr = lr_series(&log);
         assert_eq!(
             lr.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>(),

@@ -62,7 +62,9 @@ fn config_of(network: &str) -> String {
 }
 
 fn section<'a>(html: &'a str, start: &str) -> &'a str {
-    let from = html.find(start).unwrap_or_else(|| panic!("{start} in the page"));
+    let from = html
+        .find(start)
+        .unwrap_or_else(|| panic!("{start} in the page"));
     let rest = &html[from..];
     &rest[..rest.find("</table>").unwrap_or(rest.len())]
 }
@@ -77,7 +79,12 @@ fn a_run_of_today_leads_with_the_answer_and_records_its_settings() {
     assert!(html.starts_with("<!DOCTYPE html>") && html.trim_end().ends_with("</html>"));
     assert!(html.contains("<h2>Run today</h2>"));
     let headline = section(html, "class=\"headline\"");
-    for figure in ["40.0", "final mIoU (epoch 4)", "best mIoU (epoch 4)", "mIoU night"] {
+    for figure in [
+        "40.0",
+        "final mIoU (epoch 4)",
+        "best mIoU (epoch 4)",
+        "mIoU night",
+    ] {
         assert!(headline.contains(figure), "{figure} in {headline}");
     }
     // The settings config.json records, collapsed, under their section names.
@@ -107,7 +114,11 @@ fn folders_of_the_early_builds_and_multi_stage_recipes_report() {
     write_run(&recipe.join("v3"), FLAT_STAGE, &[todays_line(0)]);
     let report = build(&options(&[&flat, &recipe])).unwrap();
     let html = &report.html;
-    for heading in ["<h2>Run flat</h2>", "<h2>Run recipe / teacher-rgb</h2>", "<h2>Run recipe / v3</h2>"] {
+    for heading in [
+        "<h2>Run flat</h2>",
+        "<h2>Run recipe / teacher-rgb</h2>",
+        "<h2>Run recipe / v3</h2>",
+    ] {
         assert!(html.contains(heading), "{heading}");
     }
     // A header row, then one row per run or stage, each naming its network.
@@ -125,7 +136,11 @@ fn several_runs_compare_and_an_eval_file_shows_its_scores() {
     let tmp = tempfile::tempdir().unwrap();
     let lines: Vec<String> = (0..3).map(todays_line).collect();
     let a = write_run(&tmp.path().join("run-a"), &config_of("mfnet"), &lines);
-    let b = write_run(&tmp.path().join("run-b"), &config_of("rtfnet50"), &lines[..2]);
+    let b = write_run(
+        &tmp.path().join("run-b"),
+        &config_of("rtfnet50"),
+        &lines[..2],
+    );
     let scores = tmp.path().join("scores.json");
     let eval = serde_json::json!({"schema": "rtf-eval/1", "model": "mfnet", "data": "d",
         "split": "test", "frames": 2, "miou": 0.5, "macc": 0.6,
@@ -136,7 +151,12 @@ fn several_runs_compare_and_an_eval_file_shows_its_scores() {
     opts.evals.push(scores);
     let html = build(&opts).unwrap().html;
     let table = section(&html, "<table class=\"compare\">");
-    for cell in ["<th>run-a</th>", "<td>mfnet</td>", "<td>rtfnet</td>", "<td>30.0</td>"] {
+    for cell in [
+        "<th>run-a</th>",
+        "<td>mfnet</td>",
+        "<td>rtfnet</td>",
+        "<td>30.0</td>",
+    ] {
         assert!(table.contains(cell), "{cell} in {table}");
     }
     let diff = section(&html, "<table class=\"config-diff\">");
@@ -148,9 +168,17 @@ fn several_runs_compare_and_an_eval_file_shows_its_scores() {
 #[test]
 fn bad_input_names_the_file_and_nothing_read_is_overwritten() {
     let tmp = tempfile::tempdir().unwrap();
-    let run = write_run(&tmp.path().join("run"), &config_of("mfnet"), &[todays_line(0)]);
+    let run = write_run(
+        &tmp.path().join("run"),
+        &config_of("mfnet"),
+        &[todays_line(0)],
+    );
     let err = |o: &ReportOptions| build(o).unwrap_err().to_string();
-    std::fs::write(run.join("log.jsonl"), todays_line(0).replace("\"epoch\"", "\"epoch_index\"")).unwrap();
+    std::fs::write(
+        run.join("log.jsonl"),
+        todays_line(0).replace("\"epoch\"", "\"epoch_index\""),
+    )
+    .unwrap();
     let e = err(&options(&[&run]));
     assert!(e.contains("log.jsonl:1") && e.contains("`epoch`"), "{e}");
     std::fs::write(run.join("log.jsonl"), todays_line(0) + "\n").unwrap();
@@ -164,19 +192,30 @@ fn bad_input_names_the_file_and_nothing_read_is_overwritten() {
     std::fs::write(&other, r#"{"schema": "something-else/3"}"#).unwrap();
     with_eval.evals.push(other);
     let e = err(&with_eval);
-    assert!(e.contains("other.json") && e.contains("something-else/3"), "{e}");
+    assert!(
+        e.contains("other.json") && e.contains("something-else/3"),
+        "{e}"
+    );
 
     let log = run.join("log.jsonl");
     let before = std::fs::read(&log).unwrap();
     let refused = write(&options(&[&run]), &run.join("../run/log.jsonl"));
-    assert!(matches!(refused, Err(ReportError::Overwrite { .. })), "{refused:?}");
+    assert!(
+        matches!(refused, Err(ReportError::Overwrite { .. })),
+        "{refused:?}"
+    );
     assert_eq!(std::fs::read(&log).unwrap(), before);
     let out = tmp.path().join("report.html");
     let mut grid = options(&[&run]);
     grid.frames = 2;
     let notes = write(&grid, &out).unwrap();
-    assert_eq!(notes, ["report: no prediction grid: no run folder holds final.safetensors or best.safetensors"]);
-    assert!(std::fs::read_to_string(&out).unwrap().contains("No prediction grid"));
+    assert_eq!(
+        notes,
+        ["report: no prediction grid: no run folder holds final.safetensors or best.safetensors"]
+    );
+    assert!(std::fs::read_to_string(&out)
+        .unwrap()
+        .contains("No prediction grid"));
 }
 
 /// A config.json this build does not read (a later version's field): the run still reports,
@@ -186,9 +225,18 @@ fn a_configuration_of_another_version_is_shown_as_recorded() {
     let tmp = tempfile::tempdir().unwrap();
     let mut config: serde_json::Value = serde_json::from_str(&config_of("mfnet")).unwrap();
     config["a_field_from_the_future"] = serde_json::json!({"x": 1});
-    let run = write_run(&tmp.path().join("future"), &config.to_string(), &[todays_line(0)]);
+    let run = write_run(
+        &tmp.path().join("future"),
+        &config.to_string(),
+        &[todays_line(0)],
+    );
     let report = build(&options(&[&run])).unwrap();
-    assert!(report.html.contains("<th>a_field_from_the_future.x</th><td>1</td>"));
+    assert!(report
+        .html
+        .contains("<th>a_field_from_the_future.x</th><td>1</td>"));
     assert_eq!(report.notes.len(), 1);
-    assert!(report.notes[0].contains("config.json") && report.notes[0].contains("a_field_from_the_future"));
+    assert!(
+        report.notes[0].contains("config.json")
+            && report.notes[0].contains("a_field_from_the_future")
+    );
 }

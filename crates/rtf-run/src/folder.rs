@@ -230,7 +230,10 @@ mod tests {
         let teacher = run.stage("teacher").unwrap();
         assert_eq!(teacher.epochs().unwrap().len(), 2);
         assert!(!teacher.has_config() && teacher.stage_names().is_empty());
-        assert_eq!(teacher.weights().selected(), Some(&*dir.join("teacher/best.safetensors")));
+        assert_eq!(
+            teacher.weights().selected(),
+            Some(&*dir.join("teacher/best.safetensors"))
+        );
         let student = run.stage("student").unwrap();
         assert_eq!(student.last_epoch().unwrap().map(|r| r.epoch), Some(0));
         assert_eq!(student.weights(), Weights::default());
@@ -241,8 +244,13 @@ mod tests {
     fn missing_and_unreadable_files_are_errors_naming_them() {
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path();
-        let err = RunFolder::open(&dir.join("nowhere")).unwrap_err().to_string();
-        assert!(err.contains("nowhere") && err.contains("no such directory"), "{err}");
+        let err = RunFolder::open(&dir.join("nowhere"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("nowhere") && err.contains("no such directory"),
+            "{err}"
+        );
         let empty = RunFolder::open(dir).unwrap();
         let err = empty.epochs().unwrap_err().to_string();
         assert!(err.contains("log.jsonl is missing"), "{err}");
@@ -287,6 +295,9 @@ mod tests {
         .unwrap();
         let renamed = RunFolder::open(tmp.path()).unwrap();
         let err = renamed.config::<Config>().unwrap_err().to_string();
-        assert!(err.contains("config.json") && err.contains("`epoch`"), "{err}");
+        assert!(
+            err.contains("config.json") && err.contains("`epoch`"),
+            "{err}"
+        );
     }
 }

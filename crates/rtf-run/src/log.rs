@@ -64,7 +64,10 @@ mod tests {
         assert!(err.to_string().starts_with("run/log.jsonl:2: "), "{err}");
         let renamed = line(0).replace("\"epoch\"", "\"epoch_index\"");
         let err = parse(&renamed, path).unwrap_err().to_string();
-        assert!(err.contains("log.jsonl:1") && err.contains("`epoch`"), "{err}");
+        assert!(
+            err.contains("log.jsonl:1") && err.contains("`epoch`"),
+            "{err}"
+        );
     }
 
     #[test]

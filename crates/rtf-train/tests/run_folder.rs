@@ -61,10 +61,21 @@ fn epochs(folder: &RunFolder) -> Vec<(usize, f64, f64, Option<f64>)> {
 fn a_flat_run_of_the_first_builds_reads_as_today_s() {
     let tmp = tempfile::tempdir().unwrap();
     let (old, new) = (tmp.path().join("old"), tmp.path().join("new"));
-    write_run(&old, FLAT_SINGLE, &(0..3).map(first_schema_line).collect::<Vec<_>>());
-    write_run(&new, &in_sections(FLAT_SINGLE), &(0..3).map(todays_line).collect::<Vec<_>>());
+    write_run(
+        &old,
+        FLAT_SINGLE,
+        &(0..3).map(first_schema_line).collect::<Vec<_>>(),
+    );
+    write_run(
+        &new,
+        &in_sections(FLAT_SINGLE),
+        &(0..3).map(todays_line).collect::<Vec<_>>(),
+    );
     std::fs::write(new.join("final.safetensors"), b"w").unwrap();
-    let (a, b) = (TrainedRun::open(&old).unwrap(), TrainedRun::open(&new).unwrap());
+    let (a, b) = (
+        TrainedRun::open(&old).unwrap(),
+        TrainedRun::open(&new).unwrap(),
+    );
     assert_eq!(a.config(), b.config());
     assert!(matches!(a.config(), RunConfig::Single(_)));
     assert_eq!(a.last_training().schedule.batch_size, 6);
@@ -76,12 +87,19 @@ fn a_flat_run_of_the_first_builds_reads_as_today_s() {
     assert!(a.folder().epochs().unwrap()[2].val.is_none());
     // The settings are each file's own, in its own layout.
     let keys = |run: &TrainedRun| -> Vec<String> {
-        run.folder().settings().into_iter().map(|(k, _)| k).collect()
+        run.folder()
+            .settings()
+            .into_iter()
+            .map(|(k, _)| k)
+            .collect()
     };
     assert!(keys(&a).contains(&"batch_size".to_string()));
     assert!(keys(&b).contains(&"schedule.batch_size".to_string()));
     assert_eq!(a.folder().weights().selected(), None);
-    assert_eq!(b.folder().weights().selected(), Some(&*new.join("final.safetensors")));
+    assert_eq!(
+        b.folder().weights().selected(),
+        Some(&*new.join("final.safetensors"))
+    );
 }
 
 /// A multi-stage recipe folder: the stages its config lists, each an ordinary run folder
@@ -92,7 +110,11 @@ fn a_multi_stage_recipe_folder_reads_the_same_in_both_layouts() {
     let mut read = Vec::new();
     for (name, top, stage) in [
         ("flat", FLAT_RECIPE.to_string(), FLAT_STAGE.to_string()),
-        ("sections", in_sections(FLAT_RECIPE), in_sections(FLAT_STAGE)),
+        (
+            "sections",
+            in_sections(FLAT_RECIPE),
+            in_sections(FLAT_STAGE),
+        ),
     ] {
         let dir = tmp.path().join(name);
         std::fs::create_dir_all(&dir).unwrap();
