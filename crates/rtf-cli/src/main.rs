@@ -19,6 +19,8 @@ struct Cli {
     command: Command,
 }
 
+// One command is parsed per process: the size of the largest one's flags costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 enum Command {
     /// Write a synthetic dataset (MF or Freiburg layout) or calibration rig.

@@ -452,7 +452,9 @@ print(json.dumps({"shape": list(y.shape), "meta": meta}))
 fn bad_frames_stop_training_before_a_run_folder_is_written() {
     use rtf_data::pngio::write_png_u8;
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [(&str, &dyn Fn(&Path), &str); 3] = [
+    // (what, how the dataset is broken, what the error says)
+    type Case<'a> = (&'a str, &'a dyn Fn(&Path), &'a str);
+    let cases: [Case; 3] = [
         (
             "label id",
             &|d| write_png_u8(&d.join("train/labels/f2.png"), W, H, 1, &[3; W * H]).unwrap(),

@@ -11,14 +11,16 @@ use rtf_models::ModelError;
 use crate::checkpoint::CheckpointError;
 use crate::config::ConfigError;
 
+/// The data and evaluation errors are boxed: they are the largest, and every `Result` of
+/// training carries this type.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
     #[error(transparent)]
-    Data(#[from] DataError),
+    Data(Box<DataError>),
     #[error(transparent)]
     Model(#[from] ModelError),
     #[error(transparent)]
-    Eval(#[from] EvalError),
+    Eval(Box<EvalError>),
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     #[error(transparent)]
@@ -37,4 +39,16 @@ pub enum TrainError {
         step: u64,
         what: String,
     },
+}
+
+impl From<DataError> for TrainError {
+    fn from(e: DataError) -> Self {
+        TrainError::Data(Box::new(e))
+    }
+}
+
+impl From<EvalError> for TrainError {
+    fn from(e: EvalError) -> Self {
+        TrainError::Eval(Box::new(e))
+    }
 }

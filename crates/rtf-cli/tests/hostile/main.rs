@@ -80,7 +80,8 @@ fn fixture(t: &std::path::Path) -> Fixture {
 fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
     let tmp = tempfile::tempdir().unwrap();
     let f = fixture(tmp.path());
-    let surfaces: [(&str, fn(&Fixture) -> Vec<Case>); 15] = [
+    type Surface = (&'static str, fn(&Fixture) -> Vec<Case>);
+    let surfaces: [Surface; 15] = [
         ("inputs", inputs::predict_images),
         ("inputs", inputs::predict_outputs),
         ("inputs", inputs::weights),

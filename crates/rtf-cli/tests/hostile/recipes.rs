@@ -242,7 +242,9 @@ pub fn stage_folders(f: &Fixture) -> Vec<Case> {
         .map(String::as_str)
         .collect::<Vec<_>>());
     let from_other = other.join("v2");
-    let variants: Vec<(&str, &str, Box<dyn Fn(&Path)>, Vec<&str>)> = vec![
+    // (case, stage, how the folder is changed, what the error says)
+    type Variant<'a> = (&'a str, &'a str, Box<dyn Fn(&Path)>, Vec<&'a str>);
+    let variants: Vec<Variant> = vec![
         (
             "stage folder of the teacher deleted",
             "rs_noteacher",
