@@ -2,7 +2,8 @@
 //! `quick` gives small but meaningful numbers on a 2-core CPU, `paper` follows the papers'
 //! recipes (MFNet Sec. IV: SGD lr 0.01 ×0.94/epoch, 80 epochs, batch 6, flips, 480×640; RTFNet
 //! Sec. IV-B: SGD lr 0.01, momentum 0.9, weight decay 5e-4, exponential decay, flips, "until
-//! convergence"; HeatNet Sec. IV: the `rtf recipes` procedures) and is meant for a GPU.
+//! convergence"; HeatNet Sec. IV: the `rtf recipes` procedures; CMX, Zhang et al., IEEE T-ITS
+//! 2023, official code: the `cmx-mf` recipe) and is meant for a GPU.
 
 use super::tables::{Data, RecipeFamily};
 use anyhow::{bail, Result};
@@ -10,6 +11,22 @@ use serde_json::json;
 
 /// The network every role of a HeatNet recipe uses on the CPU budgets (stated in the results).
 pub const RECIPE_CPU_MODEL: &str = "mfnet";
+
+/// The `rtf train --recipe` the paper budget gives CMX's cells: the official MF training (AdamW
+/// lr 6e-5, weight decay 0.01, poly 0.9 after 10 warm-up epochs, batch 8, 500 epochs, 480×640
+/// crops with random scale and mirror). It is named, not spelled out as flags: rtf's flags
+/// have no AdamW, poly schedule, warm-up or random scale; `--model` picks MiT-B2 or B4 as for
+/// any supervised recipe. An rtf without it reports the cells as not measured.
+pub const CMX_RECIPE: &str = "cmx-mf";
+
+/// CPU stand-ins: (paper network, smoke's network, quick's network). MiT-B2 and B4 train at
+/// well under 1 image/s at 96×64 on the shared 2-core CPU; B0 at 4.3 and B1 at 1.8 images/s
+/// (batch 4, RMSprop, load 6–13, docs/src/quick-budget.md "CMX"). Smoke trains the lightest
+/// for both rows (the second cell re-uses the first's run).
+const CPU_STAND_INS: &[(&str, &str, &str)] = &[
+    ("cmx-mit-b2", "cmx-mit-b0", "cmx-mit-b0"),
+    ("cmx-mit-b4", "cmx-mit-b0", "cmx-mit-b1"),
+];
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Budget {
@@ -50,8 +67,24 @@ impl Budget {
         }
     }
 
+    /// The network this budget trains for a table's `network`: itself, or on the CPU budgets
+    /// its stand-in ([`CPU_STAND_INS`]).
+    pub fn network(self, network: &str) -> &str {
+        let stand_in = CPU_STAND_INS.iter().find(|(paper, _, _)| *paper == network);
+        match (self, stand_in) {
+            (Budget::Smoke, Some((_, smoke, _))) => smoke,
+            (Budget::Quick, Some((_, _, quick))) => quick,
+            _ => network,
+        }
+    }
+
+    /// The recipe (`rtf train --recipe`) this budget's `Train::Model` cells of `family` need.
+    pub fn model_recipe(self, family: RecipeFamily) -> Option<&'static str> {
+        (self == Budget::Paper && family == RecipeFamily::Cmx).then_some(CMX_RECIPE)
+    }
+
     /// `rtf train` flags (after --model/--data/--out/--seed) for a `Train::Model` cell of
-    /// `network`.
+    /// `network` (the network trained, a stand-in on the CPU budgets).
     pub fn train_args(self, family: RecipeFamily, network: &str, real_data: bool) -> Vec<String> {
         let e = quick_epochs(network);
         let flags = match (self, family) {
@@ -60,7 +93,9 @@ impl Budget {
             // a table (from scratch, the papers' SGD at lr 0.01 leaves most networks at the
             // all-unlabelled answer on a CPU budget: docs/src/quick-budget.md), for as many
             // epochs as the network needs to leave that answer (`quick_epochs`).
-            (Budget::Quick, RecipeFamily::Mfnet | RecipeFamily::Rtfnet) => {
+            // CMX's stand-ins too (its paper's AdamW at 6e-5 is no flag of rtf's here), for
+            // the epochs that fit the CPU (`QUICK_EPOCHS`).
+            (Budget::Quick, RecipeFamily::Mfnet | RecipeFamily::Rtfnet | RecipeFamily::Cmx) => {
                 format!("--epochs {e} --batch-size 4 {QUICK_OPTIMIZER}")
             }
             (Budget::Quick, RecipeFamily::Heatnet) => {
@@ -75,6 +110,7 @@ impl Budget {
             (Budget::Paper, RecipeFamily::Heatnet) => {
                 "--epochs 100 --batch-size 8 --optimizer rmsprop".into()
             }
+            (Budget::Paper, RecipeFamily::Cmx) => format!("--recipe {CMX_RECIPE}"),
         };
         let mut v: Vec<String> = flags.split_whitespace().map(String::from).collect();
         // Real MF frames are 480×640; the quick budget shrinks them like its synthetic data.
@@ -160,7 +196,13 @@ impl Budget {
             "synthetic_size": if real_data { serde_json::Value::Null } else { json!(size) },
             "rtf_train_flags": networks
                 .iter()
-                .map(|n| (n.to_string(), json!(self.train_args(family, n, real_data).join(" "))))
+                .map(|n| (n.to_string(), json!(self.train_args(family, self.network(n), real_data).join(" "))))
+                .collect::<serde_json::Map<_, _>>(),
+            // The network each cell trains where the budget puts a stand-in in its place.
+            "stand_ins": networks
+                .iter()
+                .filter(|n| self.network(n) != **n)
+                .map(|n| (n.to_string(), json!(self.network(n))))
                 .collect::<serde_json::Map<_, _>>(),
             "rtf_recipe_flags": self.recipe_args().join(" "),
             "rtf_eval_flags": self.eval_args(real_data).join(" "),
@@ -168,6 +210,8 @@ impl Budget {
                 (Budget::Paper, RecipeFamily::Mfnet) => "MFNet paper: SGD lr 0.01 ×0.94 per epoch, 80 epochs, batch 6, horizontal flips, 480×640",
                 (Budget::Paper, RecipeFamily::Rtfnet) => "RTFNet paper: SGD lr 0.01, momentum 0.9, weight decay 5e-4, exponential decay, flips; the paper trains \"until convergence\" and adapts the batch to an 11 GB GPU: 100 epochs, ×0.95 and batch 2 are rtf's choice; the paper's encoders start from ImageNet (pass --backbone-weights)",
                 (Budget::Paper, RecipeFamily::Heatnet) => "HeatNet paper: RMSprop lr 1e-4 halved every 30 epochs, 100 epochs, batch 8 (the recipes' defaults)",
+                (Budget::Paper, RecipeFamily::Cmx) => "CMX official MF training, `rtf train --recipe cmx-mf`: AdamW lr 6e-5, weight decay 0.01, poly 0.9 after 10 warm-up epochs, batch 8, 500 epochs, 480×640 crops with random scale and mirror; the paper's encoders start from SegFormer's ImageNet MiT weights (`rtf train --backbone-weights mit_bX.safetensors`, not passed by reproduce)",
+                (Budget::Quick, RecipeFamily::Cmx) => QUICK_CMX_NOTE,
                 (Budget::Quick, _) => "quick: small frames (96×64, 640 training frames), RMSprop lr 1e-3 for every network instead of the papers' SGD, each network trained for the epochs it needs to leave the all-unlabelled answer on this data (scripts/quick_budget_curves.sh, docs/src/quick-budget.md); for trends on a CPU, not the papers' numbers",
                 (Budget::Smoke, _) => "smoke: checks the pipeline only; the numbers mean nothing",
             },
@@ -197,7 +241,17 @@ const QUICK_EPOCHS: &[(&str, u32)] = &[
     ("pspnet-3c", 20), // above from 9: 24.8 % at 20
     ("duchdc-3c", 40),
     ("duchdc-4c", 40),
+    // CMX's CPU stand-ins (see `CPU_STAND_INS`): what fits about 40 minutes for 2 seeds.
+    ("cmx-mit-b0", 4),
+    ("cmx-mit-b1", 4),
 ];
+
+/// What the quick budget trains for CMX (written into its results).
+const QUICK_CMX_NOTE: &str = "quick, CMX: the stand-ins cmx-mit-b0 (for MiT-B2) and \
+     cmx-mit-b1 (for MiT-B4), from scratch (no ImageNet MiT weights), 96×64 frames (640 \
+     training frames), batch 4, RMSprop lr 1e-3 as the MF tables instead of the paper's AdamW \
+     6e-5 with poly decay, for the few epochs a 2-core CPU affords (docs/src/quick-budget.md, \
+     \"CMX\"); for whether the pipeline learns, not the paper's numbers";
 
 /// Quick-budget epochs of every network [`QUICK_EPOCHS`] does not list.
 const QUICK_EPOCHS_DEFAULT: u32 = 15;
@@ -271,5 +325,58 @@ mod tests {
             .as_str()
             .unwrap()
             .contains("--epochs 40"));
+    }
+
+    /// CMX: the paper budget names the `cmx-mf` recipe and trains MiT-B2 and B4; the CPU
+    /// budgets train stand-ins under the MF tables' quick optimiser.
+    #[test]
+    fn cmx_trains_stand_ins_on_the_cpu_and_its_recipe_on_the_paper_budget() {
+        let (b2, b4) = ("cmx-mit-b2", "cmx-mit-b4");
+        assert_eq!(Budget::Paper.network(b2), b2);
+        assert_eq!(Budget::Paper.network(b4), b4);
+        assert_eq!(Budget::Smoke.network(b2), "cmx-mit-b0");
+        assert_eq!(Budget::Smoke.network(b4), "cmx-mit-b0");
+        assert_eq!(Budget::Quick.network(b2), "cmx-mit-b0");
+        assert_eq!(Budget::Quick.network(b4), "cmx-mit-b1");
+        for b in [Budget::Smoke, Budget::Quick, Budget::Paper] {
+            assert_eq!(
+                b.network("mfnet"),
+                "mfnet",
+                "other networks train themselves"
+            );
+        }
+        assert_eq!(
+            Budget::Paper.model_recipe(RecipeFamily::Cmx),
+            Some("cmx-mf")
+        );
+        assert_eq!(Budget::Quick.model_recipe(RecipeFamily::Cmx), None);
+        assert_eq!(Budget::Paper.model_recipe(RecipeFamily::Rtfnet), None);
+        assert_eq!(
+            Budget::Paper.train_args(RecipeFamily::Cmx, b4, false),
+            ["--recipe", "cmx-mf"]
+        );
+        let quick = Budget::Quick.train_args(RecipeFamily::Cmx, "cmx-mit-b1", true);
+        let quick = quick.join(" ");
+        assert!(quick.contains("--optimizer rmsprop --lr 1e-3"), "{quick}");
+        assert!(
+            quick.ends_with("--resize 96x64"),
+            "real frames shrink: {quick}"
+        );
+        assert_eq!(
+            epochs_flag(&Budget::Quick.train_args(RecipeFamily::Cmx, "cmx-mit-b0", false)),
+            quick_epochs("cmx-mit-b0").to_string()
+        );
+        let d = Budget::Quick.describe(RecipeFamily::Cmx, &[b2, b4], false);
+        assert_eq!(d["stand_ins"][b2], "cmx-mit-b0");
+        assert_eq!(d["stand_ins"][b4], "cmx-mit-b1");
+        assert!(d["rtf_train_flags"][b4]
+            .as_str()
+            .unwrap()
+            .contains("rmsprop"));
+        assert!(d["notes"].as_str().unwrap().contains("stand-ins"));
+        let p = Budget::Paper.describe(RecipeFamily::Cmx, &[b2, b4], false);
+        assert_eq!(p["stand_ins"], json!({}));
+        assert_eq!(p["rtf_train_flags"][b2], "--recipe cmx-mf");
+        assert!(p["notes"].as_str().unwrap().contains("AdamW lr 6e-5"));
     }
 }

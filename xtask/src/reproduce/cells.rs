@@ -86,7 +86,8 @@ impl Context {
     /// The network `rtf eval` builds for a cell.
     pub fn network(&self, cell: &Cell) -> Result<String> {
         match &cell.train {
-            Train::Model(m) => Ok(m.to_string()),
+            // The table's network, or the budget's stand-in for it (CMX on a CPU budget).
+            Train::Model(m) => Ok(self.budget.network(m).to_string()),
             // CPU budgets put one light network in every role of a recipe.
             Train::Recipe(_) if self.budget != Budget::Paper => Ok(RECIPE_CPU_MODEL.to_string()),
             Train::Recipe(r) => self
@@ -105,6 +106,7 @@ impl Context {
         let (eval_root, _) = self.root_of(cell.eval_on)?;
         let mut train: Vec<String> = match &cell.train {
             Train::Model(m) => {
+                let m = self.budget.network(m);
                 let mut v = vec!["--model".to_string(), m.to_string()];
                 v.extend(self.budget.train_args(table.recipe, m, *train_real));
                 if cell.data == Data::Freiburg {
@@ -249,15 +251,11 @@ fn reuse(ctx: &Context, cell: &Cell, dir: &Path, spec: &Value, other: PathBuf) -
 /// `rtf train` into the cell's folder (`--resume` it when `resume`): `Outcome::Interrupted`
 /// when the user stopped it, `Outcome::Ran` when it finished.
 fn train(ctx: &Context, dir: &Path, spec: &Value, resume: bool) -> Result<Outcome> {
-    let mut args: Vec<String> = vec!["train".into()];
-    if resume {
-        args.extend(["--resume".into(), dir.display().to_string()]);
+    let args = if resume {
+        vec!["train".into(), "--resume".into(), dir.display().to_string()]
     } else {
-        let train_root = spec["train_data"].as_str().context("train_data")?;
-        args.extend(["--data".into(), train_root.into()]);
-        args.extend(["--out".into(), dir.display().to_string()]);
-        args.extend(strings(&spec["rtf_train"]));
-    }
+        train_command(dir, spec)?
+    };
     match rtf(ctx, dir, &args)? {
         Ended::Exit(0) => Ok(Outcome::Ran),
         Ended::Exit(130) | Ended::Signal(SIGINT) => Ok(Outcome::Interrupted),
@@ -277,6 +275,36 @@ fn evaluate(ctx: &Context, dir: &Path, spec: &Value, network: &str) -> Result<()
     let weights = Weights::of(dir)
         .selected()
         .map_or_else(|| dir.join(rtf_run::FINAL_FILE), Path::to_path_buf);
+    let args = eval_command(ctx, dir, spec, network, &weights)?;
+    let ended = rtf(ctx, dir, &args)?;
+    if ended != Ended::Exit(0) {
+        bail!(
+            "`rtf {}` failed ({ended}); its output: {}{}",
+            args.join(" "),
+            dir.join(LOG_FILE).display(),
+            log_tail(dir)
+        );
+    }
+    Ok(())
+}
+
+/// The `rtf` arguments of a fresh training of the cell in `dir`.
+pub fn train_command(dir: &Path, spec: &Value) -> Result<Vec<String>> {
+    let train_root = spec["train_data"].as_str().context("train_data")?;
+    let mut args: Vec<String> = vec!["train".into(), "--data".into(), train_root.into()];
+    args.extend(["--out".into(), dir.display().to_string()]);
+    args.extend(strings(&spec["rtf_train"]));
+    Ok(args)
+}
+
+/// The `rtf` arguments of the cell's evaluation of `weights` on the test split.
+pub fn eval_command(
+    ctx: &Context,
+    dir: &Path,
+    spec: &Value,
+    network: &str,
+    weights: &Path,
+) -> Result<Vec<String>> {
     let mut args: Vec<String> = [
         "eval",
         "--model",
@@ -295,16 +323,7 @@ fn evaluate(ctx: &Context, dir: &Path, spec: &Value, network: &str) -> Result<()
     .map(String::from)
     .to_vec();
     args.extend(strings(&spec["rtf_eval"]));
-    let ended = rtf(ctx, dir, &args)?;
-    if ended != Ended::Exit(0) {
-        bail!(
-            "`rtf {}` failed ({ended}); its output: {}{}",
-            args.join(" "),
-            dir.join(LOG_FILE).display(),
-            log_tail(dir)
-        );
-    }
-    Ok(())
+    Ok(args)
 }
 
 /// Removes every `.safetensors` file under `dir` (stage folders included).

@@ -30,6 +30,10 @@ use tables::{Data, Table, Train};
 /// `target/release/rtf` exists.
 #[cfg(test)]
 pub const KNOWN_NETWORKS: &[&str] = &[
+    "cmx-mit-b0",
+    "cmx-mit-b1",
+    "cmx-mit-b2",
+    "cmx-mit-b4",
     "duchdc-3c",
     "duchdc-4c",
     "enet-3c",
@@ -119,6 +123,8 @@ options:
                               are reported as not selected
   --no-build                  use target/release/rtf as it is instead of building it with
                               cargo (a machine without the Rust toolchain, e.g. a lent GPU)
+  --dry-run                   print every cell run's `rtf train` and `rtf eval` command (the
+                              synthetic data named by the folder a run makes) and run nothing
   --backbone-weights FILE     ImageNet ResNet weights for RTFNet encoders (paper budget)
   speed tables: --precision fp32|bf16, --warmup N, --iterations N
 
@@ -152,6 +158,8 @@ struct Options {
     no_build: bool,
     /// `--cells`: only these cells of the selected tables (None: every cell).
     cells: Option<Vec<String>>,
+    /// `--dry-run`: print each cell run's commands, run nothing.
+    dry_run: bool,
     backbone_weights: Option<PathBuf>,
     precision: String,
     warmup: Option<usize>,
@@ -182,6 +190,7 @@ fn parse(args: &[String]) -> Result<Options> {
         jobs: 1,
         no_build: false,
         cells: None,
+        dry_run: false,
         backbone_weights: None,
         precision: "fp32".into(),
         warmup: None,
@@ -220,6 +229,7 @@ fn parse(args: &[String]) -> Result<Options> {
                 }
             }
             "--no-build" => o.no_build = true,
+            "--dry-run" => o.dry_run = true,
             "--cells" => o.cells = Some(value()?.split(',').map(String::from).collect()),
             "--backbone-weights" => o.backbone_weights = Some(PathBuf::from(value()?)),
             "--precision" => o.precision = value()?.clone(),
@@ -378,6 +388,10 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
         .filter(|t| o.ids.contains(&t.id))
         .collect();
     check_inputs(&o, &selected)?;
+    if o.dry_run {
+        print!("{}", dry_run(root, &o, &selected)?);
+        return Ok(());
+    }
 
     let rtf = if o.no_build {
         prebuilt_rtf(root, &selected)?
@@ -386,7 +400,7 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
     };
     let recipes = available_recipes(root);
     check_recipes(&o, &selected, &recipes)?;
-    let (jobs, mut missing) = plan(&selected, &recipes, o.seeds, o.cells.as_deref());
+    let (jobs, mut missing) = plan(&selected, &recipes, o.budget, o.seeds, o.cells.as_deref());
     let data = datasets(root, &rtf, &out, &o, &jobs)?;
     let ctx = Context {
         root: root.to_path_buf(),
@@ -455,22 +469,102 @@ fn prebuilt_rtf(root: &Path, selected: &[Table]) -> Result<PathBuf> {
     Ok(rtf)
 }
 
-/// A single table whose HeatNet recipes this rtf lacks stops here; under `all` their cells are
+/// The `rtf train --recipe` a cell needs on `budget`: its own (`Train::Recipe`), or the one the
+/// budget gives its table's `Train::Model` cells (CMX's `cmx-mf` on the paper budget).
+fn needed_recipe(budget: Budget, t: &Table, c: &tables::Cell) -> Option<&'static str> {
+    match c.train {
+        Train::Recipe(r) => Some(r),
+        Train::Model(_) => budget.model_recipe(t.recipe),
+    }
+}
+
+/// A single table whose recipes this rtf lacks stops here; under `all` their cells are
 /// reported as not measured instead (see [`plan`]).
 fn check_recipes(o: &Options, selected: &[Table], recipes: &BTreeMap<String, Value>) -> Result<()> {
-    let lacking: Vec<&str> = tables::recipes(selected)
-        .into_iter()
+    let mut lacking: Vec<&str> = selected
+        .iter()
+        .flat_map(|t| t.cells.iter().map(move |c| (t, c)))
+        .filter_map(|(t, c)| needed_recipe(o.budget, t, c))
         .filter(|r| !recipes.contains_key(*r))
         .collect();
+    lacking.sort();
+    lacking.dedup();
     if !lacking.is_empty() && !o.all {
         bail!(
-            "{} needs the HeatNet recipes {} of `rtf train --recipe`, which this rtf does not \
-             list (`rtf recipes --json`); they land with the HeatNet-training issue",
+            "{} needs the recipes {} of `rtf train --recipe` (budget {}), which this rtf does \
+             not list (`rtf recipes --json`); the HeatNet ones land with the HeatNet-training \
+             issue, `{}` with CMX's training (issue 39)",
             o.ids.join(", "),
-            lacking.join(", ")
+            lacking.join(", "),
+            o.budget.name(),
+            budget::CMX_RECIPE
         );
     }
     Ok(())
+}
+
+/// `--dry-run`: the commands of every selected cell run, seed by seed, without building,
+/// synthesising or training; a cell that cannot run says why, and one whose recipe this rtf
+/// (`target/release/rtf`, if built) does not list still shows its commands, marked.
+fn dry_run(root: &Path, o: &Options, selected: &[Table]) -> Result<String> {
+    let out = root.join(&o.out);
+    let mut data = BTreeMap::new();
+    for d in selected.iter().flat_map(|t| t.datasets()) {
+        let entry = match o.roots.get(&d) {
+            Some(r) => (r.clone(), true),
+            None => (synth_dir(&out, o.budget, d)?.1, false),
+        };
+        data.insert(d, entry);
+    }
+    let ctx = Context {
+        root: root.to_path_buf(),
+        rtf: root.join("target/release/rtf"),
+        out,
+        budget: o.budget,
+        device: o.device.clone(),
+        backbone_weights: o.backbone_weights.clone(),
+        data,
+        recipes: available_recipes(root),
+    };
+    let mut text = String::new();
+    for t in selected {
+        for c in &t.cells {
+            let _ = writeln!(text, "# {}/{}", t.id, c.id);
+            if let Some(why) = c.blocked {
+                let _ = writeln!(text, "#   not run: {why}");
+                continue;
+            }
+            if let Some(r) = needed_recipe(o.budget, t, c).filter(|r| !ctx.recipes.contains_key(*r))
+            {
+                let _ = writeln!(
+                    text,
+                    "#   needs the recipe `{r}`, which this rtf does not list"
+                );
+            }
+            for seed in 0..o.seeds {
+                text += &dry_run_cell(&ctx, t, c, seed)?;
+            }
+        }
+    }
+    Ok(text)
+}
+
+/// One cell run's `rtf train` and `rtf eval` lines (the weights the protocol evaluates: the
+/// checkpoint picked on validation, the final ones where a Freiburg cell has no validation).
+fn dry_run_cell(ctx: &Context, t: &Table, c: &tables::Cell, seed: usize) -> Result<String> {
+    let dir = ctx.cell_dir(t, c, seed);
+    let spec = ctx.spec(t, c, seed)?;
+    let weights = dir.join(match c.data {
+        Data::Freiburg => "final.safetensors",
+        _ => "best.safetensors",
+    });
+    let train = cells::train_command(&dir, &spec)?;
+    // A recipe this rtf does not list gives no network name to evaluate.
+    let network = ctx
+        .network(c)
+        .unwrap_or_else(|_| "<the recipe's network>".into());
+    let eval = cells::eval_command(ctx, &dir, &spec, &network, &weights)?;
+    Ok(format!("rtf {}\nrtf {}\n", train.join(" "), eval.join(" ")))
 }
 
 /// The reason recorded for a cell that `--cells` leaves out.
@@ -480,6 +574,7 @@ const NOT_SELECTED: &str = "not selected (--cells)";
 fn plan<'a>(
     selected: &'a [Table],
     recipes: &BTreeMap<String, Value>,
+    budget: Budget,
     seeds: usize,
     only: Option<&[String]>,
 ) -> (Vec<Job<'a>>, Vec<MissingCell>) {
@@ -488,13 +583,16 @@ fn plan<'a>(
     for t in selected {
         for c in &t.cells {
             let chosen = only.is_none_or(|cells| cells.contains(&c.id));
-            let reason = c.blocked.map(String::from).or_else(|| match c.train {
-                _ if !chosen => Some(NOT_SELECTED.to_string()),
-                Train::Recipe(r) if !recipes.contains_key(r) => Some(format!(
-                    "needs the recipe `{r}` (`rtf recipes` does not list it yet)"
-                )),
-                _ => None,
-            });
+            let reason =
+                c.blocked
+                    .map(String::from)
+                    .or_else(|| match needed_recipe(budget, t, c) {
+                        _ if !chosen => Some(NOT_SELECTED.to_string()),
+                        Some(r) if !recipes.contains_key(r) => Some(format!(
+                            "needs the recipe `{r}` (`rtf recipes` does not list it yet)"
+                        )),
+                        _ => None,
+                    });
             match reason {
                 Some(reason) => missing.push((
                     t.id.to_string(),
@@ -853,9 +951,8 @@ fn available_recipes(root: &Path) -> BTreeMap<String, Value> {
         .collect()
 }
 
-/// `rtf synth` into `<out>/data/<format>-<budget>-<count>-<size>/` (written beside and renamed,
-/// so an interrupted synthesis is redone).
-fn synthesise(root: &Path, rtf: &Path, out: &Path, budget: Budget, data: Data) -> Result<PathBuf> {
+/// The `rtf synth --format` and folder of a budget's synthetic `data` under `out`.
+fn synth_dir(out: &Path, budget: Budget, data: Data) -> Result<(&'static str, PathBuf)> {
     let format = match data {
         Data::Mf => "mf",
         Data::Freiburg => "freiburg",
@@ -866,6 +963,14 @@ fn synthesise(root: &Path, rtf: &Path, out: &Path, budget: Budget, data: Data) -
     let dir = out
         .join("data")
         .join(format!("{format}-{}-{count}-{size}", budget.name()));
+    Ok((format, dir))
+}
+
+/// `rtf synth` into `<out>/data/<format>-<budget>-<count>-<size>/` (written beside and renamed,
+/// so an interrupted synthesis is redone).
+fn synthesise(root: &Path, rtf: &Path, out: &Path, budget: Budget, data: Data) -> Result<PathBuf> {
+    let (format, dir) = synth_dir(out, budget, data)?;
+    let (count, size) = budget.synth(data);
     if !dir.exists() {
         let tmp = dir.with_extension("partial");
         if tmp.exists() {
@@ -1061,6 +1166,13 @@ mod tests {
         for r in tables::recipes(&all) {
             assert!(HEATNET_RECIPES.contains(&r), "{r} is not a HeatNet recipe");
         }
+        // The CPU budgets' stand-ins (CMX) are networks rtf builds too.
+        for n in tables::networks(&all) {
+            for b in [Budget::Smoke, Budget::Quick] {
+                let trained = b.network(n);
+                assert!(KNOWN_NETWORKS.contains(&trained), "{n}: stand-in {trained}");
+            }
+        }
         // The compiled-in list matches the binary's where it is built (release build of the
         // same tree; CI builds it before the tests run).
         let rtf = crate::project_root().join("target/release/rtf");
@@ -1118,7 +1230,7 @@ mod tests {
             .into_iter()
             .filter(|t| t.id == "mfnet-tab2")
             .collect();
-        let (jobs, _) = plan(&selected, &BTreeMap::new(), 2, None);
+        let (jobs, _) = plan(&selected, &BTreeMap::new(), Budget::Smoke, 2, None);
         let mut missing = Vec::new();
         let p = run_jobs(&ctx, &jobs, 3, &mut missing);
         assert!(missing.is_empty() && !p.interrupted);
@@ -1136,7 +1248,13 @@ mod tests {
         let again = run_jobs(&ctx, &jobs, 3, &mut missing);
         assert_eq!(again.ran, 0);
         // --cells plans only the cells it names; the others are reported, an unknown one refused.
-        let (only, left_out) = plan(&selected, &BTreeMap::new(), 2, Some(&["enet-3c".into()]));
+        let (only, left_out) = plan(
+            &selected,
+            &BTreeMap::new(),
+            Budget::Smoke,
+            2,
+            Some(&["enet-3c".into()]),
+        );
         assert_eq!(only.len(), 2);
         assert!(only.iter().all(|(_, c, _)| c.id == "enet-3c"));
         assert!(left_out.iter().any(|(_, m)| m.reason.contains("--cells")));
@@ -1261,5 +1379,73 @@ mod tests {
             assert!(ids.contains(&id), "{id}");
         }
         assert!(usage().contains("all"));
+    }
+
+    /// CMX's paper budget needs the `cmx-mf` recipe: without it its cells are not measured
+    /// (under `all`) or the table stops (alone); the dry run still shows the commands, marked.
+    /// The CPU budgets need no recipe.
+    #[test]
+    fn cmx_paper_cells_need_the_recipe_and_the_dry_run_shows_their_commands() {
+        let selected: Vec<Table> = tables::all(false)
+            .into_iter()
+            .filter(|t| t.id == "cmx-mf")
+            .collect();
+        let none = BTreeMap::new();
+        let (jobs, missing) = plan(&selected, &none, Budget::Paper, 1, None);
+        assert!(jobs.is_empty());
+        assert_eq!(missing.len(), 2);
+        assert!(missing.iter().all(|(_, m)| m.reason.contains("`cmx-mf`")));
+        let listed = BTreeMap::from([("cmx-mf".to_string(), Value::Null)]);
+        assert_eq!(plan(&selected, &listed, Budget::Paper, 2, None).0.len(), 4);
+        assert_eq!(plan(&selected, &none, Budget::Quick, 2, None).0.len(), 4);
+        let o = parse(&args(&["cmx-mf", "--budget", "paper", "--dry-run"])).unwrap();
+        assert!(o.dry_run);
+        let err = check_recipes(&o, &selected, &none).unwrap_err().to_string();
+        assert!(
+            err.contains("cmx-mf") && err.contains("budget paper"),
+            "{err}"
+        );
+        check_recipes(&o, &selected, &listed).unwrap();
+
+        let tmp = tempfile::tempdir().unwrap();
+        let text = dry_run(tmp.path(), &o, &selected).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 2 * 4, "{text}");
+        assert!(lines[1].contains("needs the recipe `cmx-mf`"), "{text}");
+        assert!(
+            lines[2].starts_with("rtf train --data ")
+                && lines[2].contains("mf-paper-1569-640x480")
+                && lines[2].contains(
+                    "cmx-mf/cmx-mit-b2/seed0 --model cmx-mit-b2 --recipe cmx-mf --seed 0"
+                ),
+            "{text}"
+        );
+        assert!(
+            lines[3].starts_with("rtf eval --model cmx-mit-b2 --weights ")
+                && lines[3].contains("cmx-mit-b2/seed0/best.safetensors")
+                && lines[3].contains("--split test"),
+            "{text}"
+        );
+        assert!(
+            lines[6].contains("--model cmx-mit-b4 --recipe cmx-mf"),
+            "{text}"
+        );
+        assert!(
+            !tmp.path().join("results").exists(),
+            "a dry run writes nothing"
+        );
+        // The quick budget: the stand-ins, no recipe.
+        let q = parse(&args(&["cmx-mf", "--dry-run", "--seeds", "2"])).unwrap();
+        let text = dry_run(tmp.path(), &q, &selected).unwrap();
+        assert_eq!(text.matches("rtf train ").count(), 4, "{text}");
+        assert_eq!(
+            text.matches("--model cmx-mit-b1 --epochs").count(),
+            2,
+            "{text}"
+        );
+        assert!(
+            !text.contains("--recipe") && !text.contains("needs the recipe"),
+            "{text}"
+        );
     }
 }

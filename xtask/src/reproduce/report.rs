@@ -615,6 +615,8 @@ pub fn estimate(ctx: &Context, table: &Table) -> Option<Value> {
     let epochs = match table.recipe {
         RecipeFamily::Mfnet => 80.0,
         RecipeFamily::Rtfnet => 100.0,
+        // CMX's official MF schedule (the `cmx-mf` recipe).
+        RecipeFamily::Cmx => 500.0,
         RecipeFamily::Heatnet => return None,
     };
     let mut rates = Vec::new();
@@ -640,11 +642,18 @@ pub fn estimate(ctx: &Context, table: &Table) -> Option<Value> {
     Some(
         json!({"cpu_hours": round(e.cpu_hours), "gpu_hours": round(e.gpu_hours.1),
                 "gpu_hours_range": [round(e.gpu_hours.0), round(e.gpu_hours.1)],
-                "text": estimate_text(&e, q_size, epochs)}),
+                "text": estimate_text(&e, q_size, epochs, table.recipe == RecipeFamily::Cmx)}),
     )
 }
 
-fn estimate_text(e: &super::paper_time::Estimate, q_size: &str, epochs: f64) -> String {
+/// What the estimate is and how it was made; `stand_ins`: the quick cells trained lighter
+/// networks than the paper's (CMX), said with the CPU figure.
+fn estimate_text(
+    e: &super::paper_time::Estimate,
+    q_size: &str,
+    epochs: f64,
+    stand_ins: bool,
+) -> String {
     let (fast, slow) = e.gpu_hours;
     let gpu = match (slow - fast).abs() < 0.05 {
         true => format!("{slow:.1} h"),
@@ -658,10 +667,19 @@ fn estimate_text(e: &super::paper_time::Estimate, q_size: &str, epochs: f64) -> 
          (108–22 images/s), never a rate scaled from a CPU one. CPU: each cell's last-epoch \
          training rate of this run (images/s at {q_size}) scaled by pixel count, an upper \
          bound (small frames and short epochs weigh fixed per-step costs more; rates on this \
-         shared 2-core machine are disturbed by other jobs).",
-        e.cells, e.cpu_hours
+         shared 2-core machine are disturbed by other jobs).{}",
+        e.cells,
+        e.cpu_hours,
+        if stand_ins { CMX_ESTIMATE_NOTE } else { "" }
     )
 }
+
+/// The CMX table's caveats on its estimate.
+const CMX_ESTIMATE_NOTE: &str = " CMX: no CMX training rate has been measured on a GPU, so \
+     MiT-B2 and MiT-B4 get the range of the networks measured (MFNet to RTFNet-152), which \
+     is not a measured bound for a transformer; the CPU \
+     figure uses the rates of the stand-ins trained here (cmx-mit-b0 for B2, cmx-mit-b1 for \
+     B4), so B2 and B4 would take longer on this CPU than it says.";
 
 /// Writes `<out>/<table>.{json,md,csv}`.
 pub fn write(out: &Path, v: &Value) -> Result<()> {
@@ -873,5 +891,45 @@ mod tests {
             "{csv}"
         );
         assert_eq!(csv.lines().count(), 1 + 3 * 2);
+    }
+
+    /// The CMX table's paper-budget estimate: 500 epochs × 784 frames per cell, the measured
+    /// GPU range (no CMX rate), the stand-ins' CPU rates, each said in the text.
+    #[test]
+    fn cmx_estimate_takes_its_papers_epochs_and_says_what_it_rests_on() {
+        use crate::reproduce::budget::Budget;
+        let tmp = tempfile::tempdir().unwrap();
+        let mut ctx = crate::reproduce::cells::tests::fake_context(tmp.path());
+        let tables = crate::reproduce::tables::all(false);
+        let t = tables.iter().find(|t| t.id == "cmx-mf").unwrap();
+        for c in &t.cells {
+            crate::reproduce::cells::run(&ctx, t, c, 0).unwrap();
+        }
+        assert!(
+            estimate(&ctx, t).is_none(),
+            "smoke rates are start-up costs"
+        );
+        ctx.budget = Budget::Quick;
+        let e = estimate(&ctx, t).unwrap();
+        // The fake rtf trains at 10 images/s; GPU: 392 000 images per cell at 108–22 images/s.
+        let per = |rate: f64| 500.0 * 784.0 / rate / 3600.0;
+        let range = e["gpu_hours_range"].as_array().unwrap();
+        assert!(
+            (range[0].as_f64().unwrap() - 2.0 * per(108.0)).abs() < 1e-3,
+            "{e}"
+        );
+        assert!(
+            (range[1].as_f64().unwrap() - 2.0 * per(22.0)).abs() < 1e-3,
+            "{e}"
+        );
+        let text = e["text"].as_str().unwrap();
+        assert!(
+            text.contains("2 cells") && text.contains("500 epochs"),
+            "{text}"
+        );
+        assert!(
+            text.contains("no CMX training rate") && text.contains("cmx-mit-b1 for"),
+            "{text}"
+        );
     }
 }

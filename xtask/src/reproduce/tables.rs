@@ -2,7 +2,8 @@
 //! table, which columns it prints, how each measured column is read from `rtf eval --json`, and
 //! the paper's numbers, transcribed once from `shared/papers/*.txt` (MFNet: Ha et al., IROS
 //! 2017, Tab. II–III; RTFNet: Sun et al., RA-L 2019, Tab. III–VI and Fig. 3; HeatNet: Vertens
-//! et al., IROS 2020, Tab. I–II). Metric conventions: spec §2.
+//! et al., IROS 2020, Tab. I–II), and CMX's two official MF rows (Zhang et al., IEEE T-ITS
+//! 2023; quoted by issue 39, no CMX text in `shared/papers/`). Metric conventions: spec §2.
 
 /// The dataset a cell trains or is evaluated on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -127,6 +128,8 @@ pub enum RecipeFamily {
     Mfnet,
     Rtfnet,
     Heatnet,
+    /// CMX's official MF recipe (`rtf train --recipe cmx-mf`); CPU budgets train stand-ins.
+    Cmx,
 }
 
 impl Table {
@@ -158,6 +161,7 @@ pub const ACCURACY_IDS: &[&str] = &[
     "rtfnet-tab6",
     "heatnet-tab1",
     "heatnet-tab2",
+    "cmx-mf",
 ];
 
 /// Every network name a table row uses (checked against `rtf models --json` by a test that
@@ -176,6 +180,8 @@ pub fn networks(tables: &[Table]) -> Vec<&'static str> {
     v
 }
 
+/// Every recipe a `Train::Recipe` cell names (checked against [`crate::reproduce::HEATNET_RECIPES`]).
+#[cfg(test)]
 pub fn recipes(tables: &[Table]) -> Vec<&'static str> {
     let mut v: Vec<&'static str> = tables
         .iter()
@@ -1188,6 +1194,51 @@ fn heatnet_tab2() -> Table {
     }
 }
 
+/// CMX's official MF rows (Zhang et al., CMX, IEEE T-ITS 2023, the RGB-thermal comparison on
+/// the MFNet dataset): (row label, cell = network, mIoU in percent as printed). The two numbers
+/// are the ones issue 39 quotes; `shared/papers/` holds no CMX text to transcribe from.
+const CMX_MF: [(&str, &str, f64); 2] = [
+    ("CMX (MiT-B2)", "cmx-mit-b2", 58.2),
+    ("CMX (MiT-B4)", "cmx-mit-b4", 59.7),
+];
+
+const CMX_CONVENTION: &str = "RTFNet convention (eq. 1–2), which CMX reports on MF: mIoU and \
+     mAcc over all 9 classes including unlabeled, a class without true positives counted as 0 \
+     (spec §2); whole 480×640 frames, one scale (the official evaluator's 480×640 crop runs such \
+     a frame once). The paper reports mIoU only. The paper budget trains MiT-B2 and MiT-B4 \
+     with the `cmx-mf` recipe; the CPU budgets train lighter stand-ins under the same cell \
+     names (smoke: cmx-mit-b0 for both rows; quick: cmx-mit-b0 for MiT-B2, cmx-mit-b1 for \
+     MiT-B4; each cell's `--model` is in the results JSON).";
+
+fn cmx_mf() -> Table {
+    let rows = CMX_MF
+        .iter()
+        .map(|(label, net, miou)| Row {
+            label: label.to_string(),
+            paper: vec![Some(*miou), None],
+            measure: measures(
+                net,
+                vec![Metric::MIoU(Subset::All), Metric::MAcc(Subset::All)],
+            ),
+        })
+        .collect();
+    Table {
+        id: "cmx-mf",
+        title: "CMX on MF: the official MiT-B2 and MiT-B4 rows, mIoU and mAcc",
+        source: "Zhang et al., CMX, IEEE T-ITS 2023, RGB-thermal results on MFNet (the two \
+                 official rows as issue 39 quotes them; no shared/papers/ text)",
+        recipe: RecipeFamily::Cmx,
+        convention: CMX_CONVENTION,
+        columns: vec!["mIoU".into(), "mAcc".into()],
+        rows,
+        cells: CMX_MF
+            .iter()
+            .map(|(_, n, _)| cell(n, Train::Model(n), Data::Mf))
+            .collect(),
+        figure: false,
+    }
+}
+
 /// Every accuracy table; `with_bdd` adds HeatNet Tab. I's BDD night rows.
 pub fn all(with_bdd: bool) -> Vec<Table> {
     vec![
@@ -1200,6 +1251,7 @@ pub fn all(with_bdd: bool) -> Vec<Table> {
         rtfnet_tab6(),
         heatnet_tab1(with_bdd),
         heatnet_tab2(),
+        cmx_mf(),
     ]
 }
 
@@ -1254,6 +1306,40 @@ mod tests {
         }
     }
 
+    /// CMX's MF table: the two official rows, measured as RTFNet's tables measure mIoU and
+    /// mAcc, each row its own network (the budget may train a stand-in under the cell's name).
+    #[test]
+    fn cmx_mf_holds_the_official_rows_and_their_networks() {
+        let t = cmx_mf();
+        assert_eq!((t.id, t.recipe), ("cmx-mf", RecipeFamily::Cmx));
+        assert_eq!(t.columns, ["mIoU", "mAcc"]);
+        let cells: Vec<(&str, &Train)> =
+            t.cells.iter().map(|c| (c.id.as_str(), &c.train)).collect();
+        assert_eq!(
+            cells,
+            [
+                ("cmx-mit-b2", &Train::Model("cmx-mit-b2")),
+                ("cmx-mit-b4", &Train::Model("cmx-mit-b4"))
+            ]
+        );
+        assert!(t
+            .cells
+            .iter()
+            .all(|c| c.data == Data::Mf && c.eval_on == Data::Mf));
+        assert!(t.cells.iter().all(|c| c.blocked.is_none() && !c.bench));
+        for (row, net) in t.rows.iter().zip(["cmx-mit-b2", "cmx-mit-b4"]) {
+            assert_eq!(row.paper[1], None, "the paper prints no mAcc");
+            let m: Vec<&Measure> = row.measure.iter().flatten().collect();
+            assert_eq!(m.len(), 2);
+            assert!(m.iter().all(|m| m.cell == net));
+            assert_eq!(m[0].metric, Metric::MIoU(Subset::All));
+            assert_eq!(m[1].metric, Metric::MAcc(Subset::All));
+        }
+        // The paper's column is labelled as the paper's: the source names CMX and its venue.
+        assert!(t.source.contains("CMX") && t.source.contains("T-ITS 2023"));
+        assert!(t.convention.contains("stand-ins"));
+    }
+
     #[test]
     fn paper_numbers_are_transcribed_as_printed() {
         let t = all(false);
@@ -1291,6 +1377,10 @@ mod tests {
         ));
         assert_eq!(get("heatnet-tab1", "MF→MF: MFNet", "Road"), None);
         assert!(close(get("heatnet-tab2", "V5", "Night mIoU"), 56.3));
+        // CMX: the official MF rows, mIoU only (no mAcc printed).
+        assert!(close(get("cmx-mf", "CMX (MiT-B2)", "mIoU"), 58.2));
+        assert!(close(get("cmx-mf", "CMX (MiT-B4)", "mIoU"), 59.7));
+        assert_eq!(get("cmx-mf", "CMX (MiT-B4)", "mAcc"), None);
         // MFNet Tab. II: Class avg. is the mean of the nine per-class accuracies as printed.
         for (label, _, _, v) in MFNET_TAB2.iter().filter(|r| !r.3[0].is_nan()) {
             let mean = v[..9].iter().sum::<f64>() / 9.0;
