@@ -1093,8 +1093,9 @@ const DOCS_HEAD: &str = "# Reproducing the papers' tables
      edit xtask/src/reproduce/mod.rs (DOCS_HEAD) or re-run the tables instead. -->
 
 `cargo xtask reproduce <table>` runs the experiments behind one table of the MFNet, RTFNet or
-HeatNet paper with the release `rtf` binary and writes it with the paper's numbers beside the
-measured ones; `cargo xtask reproduce --list` names the tables, `all` runs every one.
+HeatNet paper (or CMX's two official MF rows, `cmx-mf`) with the release `rtf` binary and
+writes it with the paper's numbers beside the measured ones; `cargo xtask reproduce --list`
+names the tables, `all` runs every one, `--dry-run` prints every cell run's commands.
 
 ```sh
 cargo xtask reproduce mfnet-tab3 --budget quick            # synthetic data, this CPU
@@ -1119,8 +1120,10 @@ learn reads `untested` ([Sizing the quick budget](quick-budget.md)). The HeatNet
 MFNet in every role at 192×96 with RMSprop 1e-3, 15 epochs a stage. `paper` follows the papers'
 recipes (MFNet: SGD lr 0.01 ×0.94, 80 epochs, batch 6, flips, 480×640; RTFNet: SGD lr 0.01,
 momentum 0.9, weight decay 5e-4, exponential decay ×0.95, flips, 100 epochs, batch 2 — the
-paper trains \"until convergence\"; HeatNet: the `rtf recipes` procedures) and is meant for a
-GPU. The budget and each cell's exact `rtf train` / `rtf eval` flags are written into the
+paper trains \"until convergence\"; HeatNet: the `rtf recipes` procedures; CMX: `rtf train
+--recipe cmx-mf` with MiT-B2 and MiT-B4) and is meant for a GPU. CMX's cells train lighter
+stand-ins on the CPU budgets (smoke: `cmx-mit-b0` for both rows; quick: `cmx-mit-b0` for
+MiT-B2, `cmx-mit-b1` for MiT-B4), named above each of its tables. The budget and each cell's exact `rtf train` / `rtf eval` flags are written into the
 results. `--jobs N` trains N cells at once (a GPU or many cores); `--cells a,b` runs only those
 cells of the table; `--no-build` uses the `rtf` already in `target/release` (a machine without
 the Rust toolchain).

@@ -332,7 +332,9 @@ pub fn markdown(v: &Value) -> String {
         v["device"].as_str().unwrap_or(""),
         v["protocol"]["convention"].as_str().unwrap_or("")
     );
+    s += &markdown_stand_ins(v);
     s += &markdown_rows(v, &columns);
+    s += &markdown_learned(v);
     s += &markdown_claims(v);
     if let Some(f) = v.get("figure").and_then(Value::as_str) {
         let _ = writeln!(
@@ -408,6 +410,51 @@ fn markdown_rows(v: &Value, columns: &[&str]) -> String {
         }
     }
     s
+}
+
+/// The networks a budget trains in the place of the table's (CMX's CPU stand-ins); empty
+/// when every cell trains its own.
+fn markdown_stand_ins(v: &Value) -> String {
+    let Some(map) = v["budget"]["stand_ins"]
+        .as_object()
+        .filter(|m| !m.is_empty())
+    else {
+        return String::new();
+    };
+    let pairs: Vec<String> = map
+        .iter()
+        .map(|(cell, net)| format!("`{cell}` → `{}`", net.as_str().unwrap_or("")))
+        .collect();
+    format!(
+        "Trained in the table's networks' place on this budget (cell → network): {}. The \
+         measured columns are these networks' numbers.\n\n",
+        pairs.join(", ")
+    )
+}
+
+/// Which rows' networks left the all-unlabelled answer (`learned`, mean test mIoU at least
+/// twice that answer's); empty when no column says.
+fn markdown_learned(v: &Value) -> String {
+    let mut judged = false;
+    let mut below = Vec::new();
+    for row in v["rows"].as_array().into_iter().flatten() {
+        let flags: Vec<bool> = row["measured"]
+            .as_object()
+            .into_iter()
+            .flat_map(|m| m.values())
+            .filter_map(|c| c["learned"].as_bool())
+            .collect();
+        judged |= !flags.is_empty();
+        if flags.contains(&false) {
+            below.push(row["label"].as_str().unwrap_or("").to_string());
+        }
+    }
+    let bar = "mean test mIoU at least twice the all-unlabelled answer's";
+    match (judged, below.is_empty()) {
+        (false, _) => String::new(),
+        (true, true) => format!("\nEvery row's network learned ({bar}).\n"),
+        (true, false) => format!("\nNot learned ({bar}): {}.\n", below.join(", ")),
+    }
 }
 
 /// The paper's claims with their verdicts on the measured means (empty when the table has none).
@@ -931,5 +978,24 @@ mod tests {
             text.contains("no CMX training rate") && text.contains("cmx-mit-b1 for"),
             "{text}"
         );
+    }
+
+    /// Stand-ins and the learning verdict are said above and below the table.
+    #[test]
+    fn markdown_names_stand_ins_and_which_rows_learned() {
+        let mut v = results();
+        assert!(
+            !markdown(&v).contains("learned"),
+            "no verdict without `learned`"
+        );
+        v["budget"]["stand_ins"] = json!({"cmx-mit-b2": "cmx-mit-b0"});
+        v["rows"][0]["measured"]["mean IoU"]["learned"] = json!(true);
+        let md = markdown(&v);
+        assert!(md.contains("`cmx-mit-b2` → `cmx-mit-b0`"), "{md}");
+        assert!(md.contains("Every row's network learned"), "{md}");
+        v["rows"][1]["measured"]["mean IoU"]["learned"] = json!(false);
+        let md = markdown(&v);
+        assert!(md.contains("Not learned (mean test mIoU"), "{md}");
+        assert!(md.contains("): MFNet_RGB (B)."), "{md}");
     }
 }
