@@ -63,6 +63,8 @@ pub struct Context {
     pub budget: Budget,
     pub device: String,
     pub backbone_weights: Option<PathBuf>,
+    /// `--mit-weights`: a folder of SegFormer's ImageNet MiT weights, `mit_bX.safetensors`.
+    pub mit_weights: Option<PathBuf>,
     /// Dataset roots (given or synthesised) and whether they are real.
     pub data: BTreeMap<Data, (PathBuf, bool)>,
     /// `rtf recipes --json` entries by name (empty when rtf has no recipes yet).
@@ -117,6 +119,9 @@ impl Context {
                 if let (Some(w), true) = (&self.backbone_weights, m.contains("rtfnet")) {
                     v.extend(["--backbone-weights".into(), w.display().to_string()]);
                 }
+                if let Some(w) = self.mit_weights.as_deref().and_then(|d| mit_file(d, m)) {
+                    v.extend(["--backbone-weights".into(), w.display().to_string()]);
+                }
                 v
             }
             Train::Recipe(r) => {
@@ -154,6 +159,13 @@ impl Context {
             "rtf_eval": eval,
         }))
     }
+}
+
+/// The ImageNet MiT weights in `dir` for a CMX `network` (`cmx-mit-bX` → `mit_bX.safetensors`,
+/// the name SegFormer publishes them under); None for other networks.
+pub fn mit_file(dir: &Path, network: &str) -> Option<PathBuf> {
+    let size = network.strip_prefix("cmx-mit-")?;
+    Some(dir.join(format!("mit_{size}.safetensors")))
 }
 
 /// Fails when `dir` holds a cell made with another recipe (another budget or dataset).
@@ -557,6 +569,7 @@ esac
             budget: Budget::Smoke,
             device: "cpu".into(),
             backbone_weights: None,
+            mit_weights: None,
             data: BTreeMap::from([(Data::Mf, (data, false))]),
             recipes: BTreeMap::new(),
         }

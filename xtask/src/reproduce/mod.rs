@@ -126,6 +126,8 @@ options:
   --dry-run                   print every cell run's `rtf train` and `rtf eval` command (the
                               synthetic data named by the folder a run makes) and run nothing
   --backbone-weights FILE     ImageNet ResNet weights for RTFNet encoders (paper budget)
+  --mit-weights DIR           SegFormer's ImageNet MiT weights for the CMX cells, one file a
+                              size: DIR/mit_bX.safetensors for cmx-mit-bX (paper budget: B2, B4)
   speed tables: --precision fp32|bf16, --warmup N, --iterations N
 
 tables:
@@ -161,6 +163,8 @@ struct Options {
     /// `--dry-run`: print each cell run's commands, run nothing.
     dry_run: bool,
     backbone_weights: Option<PathBuf>,
+    /// `--mit-weights DIR`: SegFormer's ImageNet MiT weights for the CMX cells.
+    mit_weights: Option<PathBuf>,
     precision: String,
     warmup: Option<usize>,
     iterations: Option<usize>,
@@ -192,6 +196,7 @@ fn parse(args: &[String]) -> Result<Options> {
         cells: None,
         dry_run: false,
         backbone_weights: None,
+        mit_weights: None,
         precision: "fp32".into(),
         warmup: None,
         iterations: None,
@@ -232,6 +237,7 @@ fn parse(args: &[String]) -> Result<Options> {
             "--dry-run" => o.dry_run = true,
             "--cells" => o.cells = Some(value()?.split(',').map(String::from).collect()),
             "--backbone-weights" => o.backbone_weights = Some(PathBuf::from(value()?)),
+            "--mit-weights" => o.mit_weights = Some(PathBuf::from(value()?)),
             "--precision" => o.precision = value()?.clone(),
             "--warmup" => o.warmup = Some(number(value()?, "--warmup")?),
             "--iterations" => o.iterations = Some(number(value()?, "--iterations")?),
@@ -367,6 +373,28 @@ fn check_inputs(o: &Options, selected: &[Table]) -> Result<()> {
             bail!("--backbone-weights {}: no such file", w.display());
         }
     }
+    check_mit_weights(o, selected)
+}
+
+/// `--mit-weights DIR` holds the MiT weights of every CMX network the budget trains.
+fn check_mit_weights(o: &Options, selected: &[Table]) -> Result<()> {
+    let Some(dir) = &o.mit_weights else {
+        return Ok(());
+    };
+    if !dir.is_dir() {
+        bail!("--mit-weights {}: no such folder", dir.display());
+    }
+    for n in tables::networks(selected) {
+        let trained = o.budget.network(n);
+        if let Some(f) = cells::mit_file(dir, trained).filter(|f| !f.is_file()) {
+            bail!(
+                "--mit-weights {}: no {} for {trained} (SegFormer's ImageNet MiT weights, \
+                 converted by `cargo xtask convert-pth`)",
+                dir.display(),
+                f.display()
+            );
+        }
+    }
     Ok(())
 }
 
@@ -409,6 +437,7 @@ pub fn reproduce(root: &Path, args: &[String]) -> Result<()> {
         budget: o.budget,
         device: o.device.clone(),
         backbone_weights: o.backbone_weights.clone(),
+        mit_weights: o.mit_weights.clone(),
         data,
         recipes,
     };
@@ -523,6 +552,7 @@ fn dry_run(root: &Path, o: &Options, selected: &[Table]) -> Result<String> {
         budget: o.budget,
         device: o.device.clone(),
         backbone_weights: o.backbone_weights.clone(),
+        mit_weights: o.mit_weights.clone(),
         data,
         recipes: available_recipes(root),
     };
@@ -1437,6 +1467,25 @@ mod tests {
             !tmp.path().join("results").exists(),
             "a dry run writes nothing"
         );
+        // --mit-weights: each CMX cell starts from its own size's ImageNet MiT weights.
+        let mit = tmp.path().join("mit");
+        std::fs::create_dir_all(&mit).unwrap();
+        std::fs::write(mit.join("mit_b2.safetensors"), "x").unwrap();
+        let mut o = o;
+        o.mit_weights = Some(mit.clone());
+        let err = check_inputs(&o, &selected).unwrap_err().to_string();
+        assert!(
+            err.contains("mit_b4.safetensors") && err.contains("cmx-mit-b4"),
+            "{err}"
+        );
+        std::fs::write(mit.join("mit_b4.safetensors"), "x").unwrap();
+        check_inputs(&o, &selected).unwrap();
+        let text = dry_run(tmp.path(), &o, &selected).unwrap();
+        let b4 = format!(
+            "--backbone-weights {}",
+            mit.join("mit_b4.safetensors").display()
+        );
+        assert!(text.contains(&b4), "{text}");
         // The quick budget: the stand-ins, no recipe.
         let q = parse(&args(&["cmx-mf", "--dry-run", "--seeds", "2"])).unwrap();
         let text = dry_run(tmp.path(), &q, &selected).unwrap();
