@@ -1478,7 +1478,7 @@ mod tests {
         tch::manual_seed(6);
         let vs = nn::VarStore::new(Device::Cpu);
         let layout = Size::B0.layout();
-        let dec = decoder(vs.root(), &layout, 9);
+        let dec = decoder(vs.root(), &layout, &Config::new(Size::B0, 9));
         let features: Vec<Tensor> = (0..4)
             .map(|i| {
                 let (h, w) = (16 >> i, 24 >> i);
