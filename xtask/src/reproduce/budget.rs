@@ -19,10 +19,10 @@ pub const RECIPE_CPU_MODEL: &str = "mfnet";
 /// any supervised recipe. An rtf without it reports the cells as not measured.
 pub const CMX_RECIPE: &str = "cmx-mf";
 
-/// CPU stand-ins: (paper network, smoke's network, quick's network). MiT-B2 and B4 train at
-/// well under 1 image/s at 96×64 on the shared 2-core CPU; B0 at 4.3 and B1 at 1.8 images/s
-/// (batch 4, RMSprop, load 6–13, docs/src/quick-budget.md "CMX"). Smoke trains the lightest
-/// for both rows (the second cell re-uses the first's run).
+/// CPU stand-ins: (paper network, smoke's network, quick's network). On the shared 2-core CPU
+/// B0 trains at 4.3 and B1 at 1.8 images/s at 96×64 (batch 4, RMSprop, load 6–13;
+/// docs/src/quick-budget.md, "CMX"); B2 and B4, 1.5× and 3.1× B1's parameters, were not
+/// timed. Smoke trains the lightest for both rows (the second cell re-uses the first's run).
 const CPU_STAND_INS: &[(&str, &str, &str)] = &[
     ("cmx-mit-b2", "cmx-mit-b0", "cmx-mit-b0"),
     ("cmx-mit-b4", "cmx-mit-b0", "cmx-mit-b1"),

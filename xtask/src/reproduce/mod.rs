@@ -1131,6 +1131,8 @@ names the tables, `all` runs every one, `--dry-run` prints every cell run's comm
 cargo xtask reproduce mfnet-tab3 --budget quick            # synthetic data, this CPU
 cargo xtask reproduce rtfnet-tab3 --mf /data/MF --budget paper --device cuda --seeds 3
 cargo xtask reproduce heatnet-tab1 --freiburg /data/FR --mf /data/MF --bdd /data/BDD
+cargo xtask reproduce cmx-mf --mf /data/MF --budget paper --device cuda --mit-weights /data/mit
+cargo xtask reproduce cmx-mf --budget paper --dry-run     # the commands only
 cargo xtask reproduce all --budget smoke --out target/reproduce-smoke   # CI
 cargo xtask reproduce docs --out results                   # regenerate this page
 ```
@@ -1153,10 +1155,11 @@ momentum 0.9, weight decay 5e-4, exponential decay ×0.95, flips, 100 epochs, ba
 paper trains \"until convergence\"; HeatNet: the `rtf recipes` procedures; CMX: `rtf train
 --recipe cmx-mf` with MiT-B2 and MiT-B4) and is meant for a GPU. CMX's cells train lighter
 stand-ins on the CPU budgets (smoke: `cmx-mit-b0` for both rows; quick: `cmx-mit-b0` for
-MiT-B2, `cmx-mit-b1` for MiT-B4), named above each of its tables. The budget and each cell's exact `rtf train` / `rtf eval` flags are written into the
-results. `--jobs N` trains N cells at once (a GPU or many cores); `--cells a,b` runs only those
-cells of the table; `--no-build` uses the `rtf` already in `target/release` (a machine without
-the Rust toolchain).
+MiT-B2, `cmx-mit-b1` for MiT-B4), named above each of its tables. The budget and each
+cell's exact `rtf train` / `rtf eval` flags are written into the results. `--jobs N` trains
+N cells at once (a GPU or many cores); `--cells a,b` runs only those cells of the table;
+`--no-build` uses the `rtf` already in `target/release` (a machine without the Rust
+toolchain).
 
 **Protocol** (written into every result): train on the training split, pick the checkpoint
 on validation (`best.safetensors`, never on test), report the test split; MF day/night from
