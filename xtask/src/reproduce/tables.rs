@@ -1204,8 +1204,8 @@ const CMX_MF: [(&str, &str, f64); 2] = [
 
 const CMX_CONVENTION: &str = "RTFNet convention (eq. 1–2), which CMX reports on MF: mIoU and \
      mAcc over all 9 classes including unlabeled, a class without true positives counted as 0 \
-     (spec §2); whole 480×640 frames, one scale (the official evaluator's 480×640 crop runs such \
-     a frame once). The paper reports mIoU only. The paper budget trains MiT-B2 and MiT-B4 \
+     (spec §2); whole frames at one scale (on MF's 480×640 frames the official evaluator's \
+     480×640 crop runs each frame once). The paper reports mIoU only. The paper budget trains MiT-B2 and MiT-B4 \
      with the `cmx-mf` recipe; the CPU budgets train lighter stand-ins under the same cell \
      names (smoke: cmx-mit-b0 for both rows; quick: cmx-mit-b0 for MiT-B2, cmx-mit-b1 for \
      MiT-B4; each cell's `--model` is in the results JSON).";
