@@ -298,7 +298,9 @@ pub fn conv_with_post_op(
             a.attr(),
             scalars.as_ptr(),
             scalars_len,
-            algorithm.as_ref().map_or(ptr::null(), |a| a as *const *const c_char),
+            algorithm
+                .as_ref()
+                .map_or(ptr::null(), |a| a as *const *const c_char),
             &mut out,
         )
     };
