@@ -208,6 +208,11 @@ const KERNEL_DEPENDENT: [&[&str]; 4] = [
         "train_parity",
         "--test",
         "hostile",
+        // CMX's step parity (about a minute) runs in the main pass only: its 1 % line is far
+        // above what the kernels change, and the suite keeps to its 30-minute budget.
+        "--",
+        "--skip",
+        "cmx_trains_by_the_official_recipe",
     ],
 ];
 
