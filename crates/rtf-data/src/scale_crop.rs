@@ -286,7 +286,10 @@ mod tests {
                 &mut ids,
             );
             let (x0, y0) = p.origin;
-            assert_eq!((x0 as f32 / 2.0, y0 as f32 / 2.0), (p.window.x0, p.window.y0));
+            assert_eq!(
+                (x0 as f32 / 2.0, y0 as f32 / 2.0),
+                (p.window.x0, p.window.y0)
+            );
             for (r, c) in [(0usize, 0usize), (2, 5), (p.content.1 - 1, p.content.0 - 1)] {
                 let (sx, sy) = ((x0 + c) / 2, (y0 + r) / 2);
                 assert_eq!(ids[r * 8 + c], label[sy * 8 + sx], "{p:?} at ({r}, {c})");

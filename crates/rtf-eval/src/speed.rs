@@ -166,11 +166,7 @@ fn seeded_network(
 }
 
 /// Milliseconds per frame of `opts.iterations` timed passes after `opts.warmup` untimed ones.
-fn time_passes(
-    opts: &BenchOptions,
-    timed: &Timed,
-    input: &Tensor,
-) -> Result<Vec<f64>, ModelError> {
+fn time_passes(opts: &BenchOptions, timed: &Timed, input: &Tensor) -> Result<Vec<f64>, ModelError> {
     // CUDA kernels run asynchronously: wait for them before reading the clock.
     let synchronize = || {
         if let Device::Cuda(index) = opts.device {
@@ -222,11 +218,9 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     net.check_input(&shape)?;
     let input = Tensor::rand(shape, (Kind::Float, opts.device));
     let timed = match opts.path {
-        ForwardPath::Fast => Timed::Fast(InferenceNet::with_layout(
-            net,
-            opts.precision,
-            opts.layout,
-        )?),
+        ForwardPath::Fast => {
+            Timed::Fast(InferenceNet::with_layout(net, opts.precision, opts.layout)?)
+        }
         ForwardPath::Plain => Timed::Plain(net),
     };
     let per_frame_ms = time_passes(opts, &timed, &input)?;
@@ -302,7 +296,16 @@ mod tests {
         assert!(report.min_ms > 0.0 && report.min_ms <= report.median_ms);
         assert!((report.fps - 1e3 / report.median_ms).abs() < 1e-9);
         let json = serde_json::to_value(&report).unwrap();
-        for key in ["model", "batch", "precision", "median_ms", "min_ms", "fps", "p95_ms", "cpu"] {
+        for key in [
+            "model",
+            "batch",
+            "precision",
+            "median_ms",
+            "min_ms",
+            "fps",
+            "p95_ms",
+            "cpu",
+        ] {
             assert!(json.get(key).is_some(), "{key}");
         }
         assert_eq!(report.samples_ms.len(), 3);
