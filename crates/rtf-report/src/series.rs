@@ -91,10 +91,14 @@ pub(crate) fn val_series(log: &[EpochRecord]) -> Series {
     })
 }
 
-/// (class, day IoU, night IoU) of the last validation: its day and night per-class IoU, the
-/// day column by the day map's classes.
+/// (class, day IoU, night IoU) of the last validation; the IoU over all its frames (no night
+/// column) when it had no day frame (a dataset without day and night).
 pub(crate) fn last_class_iou(log: &[EpochRecord]) -> Option<Vec<ClassRow>> {
     let val = log.iter().rev().find_map(|e| e.val.as_ref())?;
+    if val.per_class_iou_day.is_empty() {
+        let all = val.per_class_iou.iter();
+        return Some(all.map(|(k, v)| (k.clone(), *v, None)).collect());
+    }
     let night = &val.per_class_iou_night;
     Some(
         val.per_class_iou_day
@@ -173,5 +177,23 @@ mod tests {
         assert_eq!(classes[0], ("car".to_string(), Some(0.5), Some(0.25)));
         assert_eq!(classes[1], ("person".to_string(), None, None));
         assert_eq!(last_class_iou(&log[..1]), None, "no nested scores");
+    }
+
+    /// A validation without day frames (PST900, MSRS, …: no day/night split) shows the IoU of
+    /// all its frames, not an empty chart.
+    #[test]
+    fn without_day_frames_the_bars_are_of_all_frames() {
+        let mut log = log();
+        let val = log[1].val.as_mut().unwrap();
+        val.per_class_iou_day.clear();
+        val.per_class_iou_night.clear();
+        let classes = last_class_iou(&log).unwrap();
+        assert_eq!(
+            classes,
+            [
+                ("car".to_string(), Some(0.4), None),
+                ("person".to_string(), None, None)
+            ]
+        );
     }
 }
