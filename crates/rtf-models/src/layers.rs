@@ -1026,6 +1026,26 @@ mod tests {
         });
     }
 
+    /// A per-channel affine after the unit (a BatchNorm outside it) folds in with the unit's
+    /// own BatchNorm, before the activation: GELU included (a oneDNN post-op when fused).
+    #[test]
+    fn folding_a_following_affine_equals_applying_it() {
+        for act in [Act::Identity, Act::Gelu] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let spec = ConvSpec::new(3).bias(true);
+            let mut unit = ConvBnAct::new(vs.root() / "c", Some(vs.root() / "bn"), 4, 5, spec, act);
+            randomise_bn(&vs);
+            let x = Tensor::randn([2, 4, 10, 12], (Kind::Float, Device::Cpu));
+            let scale = Tensor::rand([5], (Kind::Float, Device::Cpu)) + 0.5;
+            let shift = Tensor::randn([5], (Kind::Float, Device::Cpu));
+            let bn = tch::no_grad(|| unit.conv_bn(&x, false));
+            let expected = act.apply(bn * scale.view([1, -1, 1, 1]) + shift.view([1, -1, 1, 1]));
+            unit.fuse_with_affine(Kind::Float, Some((&scale, &shift)));
+            let fused = tch::no_grad(|| unit.forward_t(&to_channels_last(&x), false));
+            assert!(expected.allclose(&fused, 1e-4, 1e-5, false), "{act:?}");
+        }
+    }
+
     #[test]
     fn folding_matches_conv_bn_for_plain_and_transposed() {
         for (spec, act) in [
