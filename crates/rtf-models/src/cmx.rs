@@ -1085,7 +1085,7 @@ fn folded_sum(features: &[Tensor], proj: &[Tensor], bias: &Tensor, train: bool) 
         let m = tokens(f).linear(&proj[i], None::<Tensor>);
         let up = bilinear(&feature_map(&m, f.size()[2], f.size()[3]), h, w);
         if train {
-            sum = sum + up;
+            sum = &sum + up;
         } else {
             let _ = sum.g_add_(&up);
         }

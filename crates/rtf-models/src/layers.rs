@@ -859,7 +859,8 @@ impl ConvBnAct {
                 Some(b) => b * &scale + shift,
                 None => shift,
             });
-            weight = weight * per_channel;
+            // Out of place: `weight` may be the variable itself (`to_kind` of a float one).
+            weight = &weight * per_channel;
         }
         self.store_fused(weight, bias, kind);
     }
