@@ -24,6 +24,7 @@ fn recipes_list_as_json_with_what_each_sets() {
         "heatnet-v1",
         "heatnet-v6",
         "heatnet-distill",
+        "cmx-mf",
     ] {
         assert!(names.contains(&name), "{name} in {names:?}");
     }
@@ -164,6 +165,8 @@ fn bad_recipes_configs_and_values_fail_before_anything_is_written() {
         ("--lr-decay", "0", "lr_decay"),
         ("--weight-decay", "-0.1", "weight_decay"),
         ("--max-steps", "0", "max_steps"),
+        ("--warmup-epochs", "2", "--warmup-epochs"),
+        ("--optimizer", "adam", "adamw"),
     ] {
         let arg = format!("{flag}={value}");
         let err = fails(&["train", "--data", s(&data), "--out", s(&run), &arg]);

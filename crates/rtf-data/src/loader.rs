@@ -542,9 +542,7 @@ fn draw_geometry(
         ));
     }
     let base = cfg.resize.unwrap_or(frame);
-    sc.draw(frame, base, rng)
-        .map(Geometry::ScaleCrop)
-        .map_err(DataError::Config)
+    sc.draw(frame, base, rng).map(Geometry::ScaleCrop)
 }
 
 impl Geometry {

@@ -19,6 +19,7 @@
 use rand::Rng;
 
 use crate::augment::{resample, Filter, Planar, ScaleCrop, Window};
+use crate::DataError;
 
 /// One frame's draw: where the crop's content comes from and where it goes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -57,25 +58,28 @@ impl ScaleCrop {
     }
 
     /// Draws the scale, then the crop's row and column, for a `frame` (width, height) seen at
-    /// `base` size before scaling (a resize, or the frame's own size). Errors name what is
-    /// wrong: an empty scale set, a factor that is not positive, a scaled frame with no pixel.
+    /// `base` size before scaling (a resize, or the frame's own size). Configuration errors
+    /// name what is wrong: an empty scale set, a factor that is not positive, a scaled frame
+    /// with no pixel.
     pub fn draw(
         &self,
         frame: (usize, usize),
         base: (usize, usize),
         rng: &mut impl Rng,
-    ) -> Result<Placement, String> {
+    ) -> Result<Placement, DataError> {
         if self.scales.is_empty() {
-            return Err("augment.scale_crop.scales is empty".into());
+            return Err(DataError::Config(
+                "augment.scale_crop.scales is empty".into(),
+            ));
         }
         let scale = self.scales[rng.random_range(0..self.scales.len())];
         let scaled = |n: usize| (n as f64 * scale as f64) as usize;
         let (sw, sh) = (scaled(base.0), scaled(base.1));
         if !(scale.is_finite() && scale > 0.0) || sw == 0 || sh == 0 {
-            return Err(format!(
+            return Err(DataError::Config(format!(
                 "augment.scale_crop: scale {scale} leaves no pixel of a {}x{} frame",
                 base.0, base.1
-            ));
+            )));
         }
         let (cw, ch) = self.crop_size(base);
         let (y, kh, top) = axis(sh, ch, rng);
@@ -210,7 +214,7 @@ mod tests {
         assert_eq!((dst, ids), (image.data, label));
         for scales in [vec![], vec![0.0], vec![0.01]] {
             let bad = ScaleCrop { scales, ..cmx() };
-            let err = bad.draw((8, 6), (8, 6), &mut rng).unwrap_err();
+            let err = bad.draw((8, 6), (8, 6), &mut rng).unwrap_err().to_string();
             assert!(err.contains("scale"), "{err}");
         }
     }

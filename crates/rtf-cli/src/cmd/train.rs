@@ -724,15 +724,11 @@ fn apply_init(cfg: &mut RunConfig, path: &Path, args: &Args) -> Result<()> {
     Ok(())
 }
 
-/// Flags the user gave override the recipe's or config's values, in every stage.
-fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Result<()> {
-    if let (Some(model), false) = (&args.model, recipe_networks) {
-        cfg.network.model = ModelConfig::from_name(model, cfg.network.model.num_classes())?;
-    }
+/// `--optimizer` (the paper's optimiser of that kind), then the single values over it.
+fn apply_optimizer_flags(o: &mut OptimizerConfig, args: &Args) -> Result<()> {
     if let Some(kind) = args.optimizer {
-        cfg.learning.optimizer = OptimizerConfig::paper_default(kind);
+        *o = OptimizerConfig::paper_default(kind);
     }
-    let o = &mut cfg.learning.optimizer;
     o.lr = args.lr.unwrap_or(o.lr);
     o.lr_decay = args.lr_decay.unwrap_or(o.lr_decay);
     o.decay_every = args.decay_every.unwrap_or(o.decay_every);
@@ -744,6 +740,15 @@ fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Res
         };
         *warmup_epochs = epochs;
     }
+    Ok(())
+}
+
+/// Flags the user gave override the recipe's or config's values, in every stage.
+fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Result<()> {
+    if let (Some(model), false) = (&args.model, recipe_networks) {
+        cfg.network.model = ModelConfig::from_name(model, cfg.network.model.num_classes())?;
+    }
+    apply_optimizer_flags(&mut cfg.learning.optimizer, args)?;
     if let Some(v) = args.epochs {
         cfg.schedule.epochs = v;
     }
