@@ -29,7 +29,7 @@
 //!   and padding.
 //!
 //! Where rtf's `cmx-mf` differs: an epoch is one pass over the training split (the official
-//! epoch is `len // batch + 1` iterations over the split plus a few random repeats); the rate is
+//! epoch is `len // batch + 1` batches, every frame once plus random repeats); the rate is
 //! set before each step from its own index (the official loop sets it after each step, see
 //! [`crate::schedule::LrSchedule::WarmupPoly`]); the mirror comes after the crop (the same
 //! distribution); padding is the network's normalised zero in unit range
