@@ -17,6 +17,20 @@ pub struct RgbCamera {
 }
 
 impl RgbCamera {
+    /// The generated rigs' RGB camera (synthetic and real-imagery): a focal length of 500 px
+    /// at 640 px width, scaled with the width, and the principal point at the centre.
+    pub fn of_generated_rig(width: usize, height: usize) -> Self {
+        let scale = width as f64 / 640.0;
+        Self {
+            width,
+            height,
+            fx: 500.0 * scale,
+            fy: 500.0 * scale,
+            cx: (width as f64 - 1.0) / 2.0,
+            cy: (height as f64 - 1.0) / 2.0,
+        }
+    }
+
     /// X = D·K⁻¹·[u, v, 1]ᵀ.
     pub fn back_project(&self, u: f64, v: f64, depth: f64) -> Vec3 {
         [

@@ -718,15 +718,7 @@ fn sensor_effects(values: &[f32], spec: &ThermalSpec, noise_seed: u64) -> Vec<u8
 /// `ground_truth.yaml` into `out`, from real MSRS scenes.
 pub fn write_real_rig(out: &Path, cfg: &RealRigConfig) -> Result<RealRig> {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x005e_ed12);
-    let scale = cfg.width as f64 / 640.0;
-    let rgb = RgbCamera {
-        width: cfg.width,
-        height: cfg.height,
-        fx: 500.0 * scale,
-        fy: 500.0 * scale,
-        cx: (cfg.width as f64 - 1.0) / 2.0,
-        cy: (cfg.height as f64 - 1.0) / 2.0,
-    };
+    let rgb = RgbCamera::of_generated_rig(cfg.width, cfg.height);
     let (truth, spec) = draw_truth(&mut rng, &rgb, &cfg.range, cfg.focal_ratio);
     let scenes = pick_scenes(cfg, &mut rng)?;
     let dir = out.join("f");

@@ -598,7 +598,7 @@ fn save_eval_rig(out: &Path, rig: &Rig, rig_path: &Path, depth: DepthSource) -> 
 /// Writes `rig.yaml`, frames under `f/`, and `ground_truth.yaml` into `out`.
 pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-    let rgb = rgb_camera(cfg);
+    let rgb = RgbCamera::of_generated_rig(cfg.width, cfg.height);
     let spec = thermal_spec(cfg.width);
     let truth = draw_truth(&mut rng, &spec);
     let dir = out.join("f");
@@ -630,19 +630,6 @@ pub fn write_rig(out: &Path, cfg: &RigSynthConfig) -> Result<SynthRig> {
         rig,
         truth,
     })
-}
-
-/// The synthetic rig's RGB camera: f = 500 px at 640 wide, scaled to `cfg.width`, centred.
-fn rgb_camera(cfg: &RigSynthConfig) -> RgbCamera {
-    let scale = cfg.width as f64 / 640.0;
-    RgbCamera {
-        width: cfg.width,
-        height: cfg.height,
-        fx: 500.0 * scale,
-        fy: 500.0 * scale,
-        cx: (cfg.width as f64 - 1.0) / 2.0,
-        cy: (cfg.height as f64 - 1.0) / 2.0,
-    }
 }
 
 /// Renders frame `i` (its own random scene, seeded from the rig's seed and `i`) and writes

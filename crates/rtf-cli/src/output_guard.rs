@@ -18,18 +18,7 @@ pub struct OutputGuard {
     overwrite: bool,
 }
 
-/// `path` made absolute through its deepest existing ancestor (symbolic links resolved), so
-/// that two spellings of one file compare equal whether or not it exists yet.
-pub fn resolved(path: &Path) -> PathBuf {
-    if let Ok(canonical) = path.canonicalize() {
-        return canonical;
-    }
-    match (path.parent(), path.file_name()) {
-        (Some(parent), Some(name)) if !parent.as_os_str().is_empty() => resolved(parent).join(name),
-        (_, Some(name)) => std::env::current_dir().unwrap_or_default().join(name),
-        _ => path.to_path_buf(),
-    }
-}
+pub use rtf_core::resolved;
 
 impl OutputGuard {
     pub fn new(overwrite: bool) -> Self {

@@ -149,6 +149,8 @@ fn refuses_to_overwrite_the_rig_or_its_inputs_before_any_work() {
     for (flag, target, what) in [
         ("--out", d("rig/rig.yaml"), "rig description"),
         ("--out", d("rig/f/../rig.yaml"), "rig description"),
+        // Through a folder the write would create first.
+        ("--out", d("rig/new-dir/../rig.yaml"), "rig description"),
         ("--out", d("rig/f/000_thermal.png"), "frames[0].thermal"),
         ("--overlay", d("rig/f/001_depth.png"), "frames[1].depth"),
     ] {

@@ -79,6 +79,51 @@ pub fn write_bytes_atomic(
     write_atomic(path, |tmp| std::fs::write(tmp, bytes))
 }
 
+/// `path` made absolute through its deepest existing ancestor (symbolic links resolved), so
+/// that two spellings of one file compare equal whether or not it exists yet. The part below
+/// that ancestor does not exist, so it holds no links and its `..` and `.` are taken
+/// lexically: `run/new-dir/../log.jsonl` is `run/log.jsonl`, which it becomes once the writer
+/// creates `new-dir`.
+pub fn resolved(path: &Path) -> PathBuf {
+    let mut missing = Vec::new();
+    let mut existing = path;
+    let base = loop {
+        if let Ok(canonical) = existing.canonicalize() {
+            break canonical;
+        }
+        match (existing.parent(), existing.file_name()) {
+            (Some(parent), Some(name)) => {
+                missing.push(name.to_os_string());
+                existing = parent;
+            }
+            // `..` or `.` as the last component: keep it for the lexical walk below.
+            (Some(parent), None) => {
+                missing.extend(
+                    existing
+                        .components()
+                        .last()
+                        .map(|c| c.as_os_str().to_os_string()),
+                );
+                existing = parent;
+            }
+            _ => break std::env::current_dir().unwrap_or_default(),
+        }
+        if existing.as_os_str().is_empty() {
+            break std::env::current_dir().unwrap_or_default();
+        }
+    };
+    missing.iter().rev().fold(base, |mut at, part| {
+        match part.to_str() {
+            Some("..") => {
+                at.pop();
+            }
+            Some(".") => {}
+            _ => at.push(part),
+        }
+        at
+    })
+}
+
 fn extension(path: &Path) -> String {
     path.extension()
         .map(|e| e.to_string_lossy().into_owned())
@@ -88,6 +133,30 @@ fn extension(path: &Path) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn resolved_paths_compare_equal_through_missing_folders_dots_and_links() {
+        let dir = tempfile::tempdir().unwrap();
+        let log = dir.path().join("run/log.jsonl");
+        std::fs::create_dir_all(log.parent().unwrap()).unwrap();
+        std::fs::write(&log, b"{}").unwrap();
+        let real = resolved(&log);
+        // Through a folder that does not exist yet: the writer creates it, then `..` leaves it.
+        let through_missing = dir.path().join("run/new-dir/../log.jsonl");
+        assert_eq!(resolved(&through_missing), real);
+        let through_two = dir.path().join("run/a/b/../../././log.jsonl");
+        assert_eq!(resolved(&through_two), real);
+        // A file not written yet, under an existing folder, and one that leaves the missing part.
+        let fresh = dir.path().join("run/missing/../new.html");
+        assert_eq!(resolved(&fresh), real.parent().unwrap().join("new.html"));
+        assert_ne!(resolved(&dir.path().join("run/missing/log.jsonl")), real);
+        #[cfg(unix)]
+        {
+            let link = dir.path().join("link");
+            std::os::unix::fs::symlink(dir.path().join("run"), &link).unwrap();
+            assert_eq!(resolved(&link.join("x/../log.jsonl")), real);
+        }
+    }
 
     #[test]
     fn writes_and_renames() {

@@ -9,7 +9,7 @@ pub mod input;
 pub mod npy;
 
 pub use classes::{ClassInfo, ClassSet, LabelValues};
-pub use fsutil::{write_atomic, write_bytes_atomic, AtomicWriteError};
+pub use fsutil::{resolved, write_atomic, write_bytes_atomic, AtomicWriteError};
 pub use input::InputConvention;
 
 use serde::{Deserialize, Serialize};

@@ -122,11 +122,10 @@ fn refuse_overwriting_inputs(
     runs: &[Run],
     evals: &[PathBuf],
 ) -> Result<(), ReportError> {
-    let Ok(out_path) = out.canonicalize() else {
-        return Ok(());
-    };
+    // Resolved through the folders --out would create (`run/new/../log.jsonl` is the log).
+    let out_path = rtf_core::resolved(out);
     for input in runs::inputs(runs).chain(evals.iter().cloned()) {
-        if input.canonicalize().is_ok_and(|p| p == out_path) {
+        if rtf_core::resolved(&input) == out_path {
             return Err(ReportError::Overwrite {
                 out: out.to_path_buf(),
                 input,

@@ -205,6 +205,14 @@ fn bad_input_names_the_file_and_nothing_read_is_overwritten() {
         "{refused:?}"
     );
     assert_eq!(std::fs::read(&log).unwrap(), before);
+    // Through a folder the atomic write would create: still the log.
+    let through_missing = run.join("new-dir/../log.jsonl");
+    let refused = write(&options(&[&run]), &through_missing);
+    assert!(
+        matches!(refused, Err(ReportError::Overwrite { .. })),
+        "{refused:?}"
+    );
+    assert_eq!(std::fs::read(&log).unwrap(), before);
     let out = tmp.path().join("report.html");
     let mut grid = options(&[&run]);
     grid.frames = 2;

@@ -68,22 +68,6 @@ pub struct Args {
     pub format: FormatArg,
 }
 
-/// The path as it will be resolved on disk (parent canonicalised, so `a/../rig.yaml` and a
-/// symlinked folder compare equal to the rig's own paths).
-fn resolved(path: &Path) -> PathBuf {
-    if let Ok(p) = path.canonicalize() {
-        return p;
-    }
-    let parent = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    match (parent.canonicalize(), path.file_name()) {
-        (Ok(dir), Some(name)) => dir.join(name),
-        _ => path.to_path_buf(),
-    }
-}
-
 /// Refuses outputs that would overwrite the rig description or any input it lists.
 fn refuse_overwriting_inputs(rig_path: &Path, rig: &Rig, outputs: &[(&str, &Path)]) -> Result<()> {
     let mut inputs = vec![("the rig description".to_string(), rig_path.to_path_buf())];
@@ -99,8 +83,8 @@ fn refuse_overwriting_inputs(rig_path: &Path, rig: &Rig, outputs: &[(&str, &Path
         add("rgb_right", &f.rgb_right);
     }
     for (flag, out) in outputs {
-        let target = resolved(out);
-        if let Some((what, _)) = inputs.iter().find(|(_, p)| resolved(p) == target) {
+        let target = rtf_core::resolved(out);
+        if let Some((what, _)) = inputs.iter().find(|(_, p)| rtf_core::resolved(p) == target) {
             bail!(
                 "{flag} {}: is {what} ({}); refusing to overwrite an input, choose another path",
                 out.display(),
