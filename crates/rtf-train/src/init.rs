@@ -8,7 +8,7 @@ use std::path::Path;
 
 use tch::nn::VarStore;
 
-use crate::config::{TrainConfig, WeightsRef};
+use crate::config::{NetworkConfig, TrainConfig, WeightsRef};
 use crate::TrainError;
 
 /// Which tensors of the network came from the `init_from` file and which kept their fresh
@@ -36,12 +36,15 @@ impl std::fmt::Display for InitReport {
     }
 }
 
-/// Loads the run's `init_from` file into `vs` (built from `cfg.network.model`): strictly, or with the
-/// class-dependent tensors left fresh under `init_reset_head` (then the file may come from a
-/// network of another class count; any other difference is still an error naming the
+/// Loads the network's `init_from` file into `vs` (built from `network.model`): strictly, or
+/// with the class-dependent tensors left fresh under `init_reset_head` (then the file may come
+/// from a network of another class count; any other difference is still an error naming the
 /// tensors). None without a file to load.
-pub fn load_init(vs: &mut VarStore, cfg: &TrainConfig) -> Result<Option<InitReport>, TrainError> {
-    let path = match &cfg.network.init_from {
+pub fn load_init(
+    vs: &mut VarStore,
+    network: &NetworkConfig,
+) -> Result<Option<InitReport>, TrainError> {
+    let path = match &network.init_from {
         None => return Ok(None),
         Some(WeightsRef::File(path)) => path,
         Some(WeightsRef::Stage(name)) => {
@@ -50,8 +53,8 @@ pub fn load_init(vs: &mut VarStore, cfg: &TrainConfig) -> Result<Option<InitRepo
             )))
         }
     };
-    let fresh = if cfg.network.init_reset_head {
-        rtf_models::weights::class_dependent_names(&cfg.network.model)?
+    let fresh = if network.init_reset_head {
+        rtf_models::weights::class_dependent_names(&network.model)?
     } else {
         BTreeSet::new()
     };
@@ -87,7 +90,7 @@ pub fn check_init_weights(cfg: &TrainConfig) -> Result<Option<InitReport>, Train
     let mut vs = VarStore::new(tch::Device::Cpu);
     let _net =
         rtf_models::layers::with_zero_init(|| rtf_models::build(&vs.root(), &cfg.network.model))?;
-    load_init(&mut vs, cfg)
+    load_init(&mut vs, &cfg.network)
 }
 
 #[cfg(test)]

@@ -140,7 +140,8 @@ fn open_run_folder(
         ));
     }
     for stage in &cfg.stages {
-        crate::procedure::check_teachers(&stage.config)?;
+        let learning = &stage.config.learning;
+        crate::procedure::check_teachers(&learning.procedure, &stage.config.network.model)?;
     }
     if resume {
         check_stage_folders(cfg, run_dir)?;

@@ -3,13 +3,36 @@
 //! step does is the procedure's ([`crate::procedure`]). The run folder is described in
 //! [`crate::run`].
 //!
-//! A run's life, in [`train_distributed`]'s phases: open the run folder (`RunFolder::open`:
-//! every check that can refuse the run, the lock), restore or start (`Run::restore_or_start`:
-//! config recorded, networks restored from the checkpoint or initialised, data-parallel
-//! start, label caches, streams), an epoch (`Run::epoch`: `train_steps` → `step`, then
-//! `validate`, `keep_best`), save (`Run::save`: checkpoint, log line, TensorBoard) and finish
-//! (`Run::finish`: `final.safetensors`). A per-epoch hook goes in `Run::epoch`.
-
+//! A run's life, in [`train_distributed`]'s phases, each with the part of the configuration
+//! it needs (read once, where the phase starts, so that what a phase depends on is visible in
+//! its signature):
+//!
+//! 1. **Open the run folder** (`RunFolder::open`): every check that can refuse the run before
+//!    it writes, then the lock. Takes `FolderChecks`: the recorded number of processes
+//!    (`compute.world_size`), `schedule.epochs` (a resume must not end before where it
+//!    stands), and `learning.procedure`'s teachers with the student's `network.model`.
+//! 2. **Restore or start** (`Run::restore_or_start`): takes the whole configuration, because
+//!    it records it (`config.json`, with the data's fingerprint and the number of processes),
+//!    and hands each step its section: the frames from `data.dataset` split by
+//!    `learning.procedure` (`open_sources`), the procedure's networks from `network` and
+//!    `learning` (`procedure::build`), a new student's starting weights from `network`
+//!    (`start`) or everything from the checkpoint (`restore`), data-parallel with
+//!    `network.sync_batch_norm`, label caches with `learning.procedure`'s threshold
+//!    (`cache_labels`), and the streams from `data` and `schedule` (`Streams::open`,
+//!    `val_loader`). What the later phases read is kept in `Run`'s fields: `schedule`,
+//!    `network`, `learning.optimizer` and `data.resize`.
+//! 3. **An epoch** (`Run::epoch`: `train_steps` → `step`, then `validate`, `keep_best`):
+//!    `schedule` (epochs, seed, `checkpoint_every`, `max_steps_per_epoch`), and the
+//!    optimiser's learning rate for the epoch's record.
+//! 4. **Validate** (`Run::validate`): the validation loader and selection metric built in
+//!    phase 2 (`schedule.select_by`, or the dataset's default).
+//! 5. **Save** (`Run::save`, rank 0: checkpoint, log line, TensorBoard):
+//!    `schedule.tb_images_every`, and for the prediction grid `network.model` and
+//!    `data.resize`.
+//! 6. **Finish** (`Run::finish`: `final.safetensors`): `network.model` and `network.inputs`
+//!    for the weights' metadata.
+//!
+//! A per-epoch hook goes in `Run::epoch`.
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -21,10 +44,13 @@ use rtf_core::Daytime;
 use rtf_data::frame::Subset;
 use rtf_data::{FrameSource, Loader, LoaderConfig, TrainedOn};
 use rtf_eval::{EvalOptions, EvalReport};
-use rtf_models::Network;
+use rtf_models::{ModelConfig, Network};
 
 use crate::checkpoint::{self, Part, PartialEpoch, TrainState};
-use crate::config::{DatasetConfig, SelectMetric, StepAt, TrainConfig};
+use crate::config::{
+    DataConfig, DatasetConfig, NetworkConfig, OptimizerConfig, Procedure as ProcedureConfig,
+    ScheduleConfig, SelectMetric, StepAt, TrainConfig,
+};
 use crate::ddp::Ddp;
 pub use crate::error::TrainError;
 use crate::procedure::{self, Procedure, StepBatches};
@@ -99,9 +125,13 @@ fn step_log_error(run_dir: &Path, e: std::io::Error) -> TrainError {
     run_error(&run_dir.join(crate::step_log::STEP_LOG_FILE), e.to_string())
 }
 
-fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
-    let labels = cfg.learning.procedure.reads_labels();
-    let (train, val, dataset, trained_on) = open_dataset(&cfg.data.dataset, labels)?;
+/// The run's frame streams: `dataset` opened, split by what `procedure` reads.
+fn open_sources(
+    dataset: &DatasetConfig,
+    procedure: &ProcedureConfig,
+) -> Result<Sources, TrainError> {
+    let labels = procedure.reads_labels();
+    let (train, val, dataset, trained_on) = open_dataset(dataset, labels)?;
     let ignore_id = train.class_set().ignore_id;
     if labels {
         return Ok(Sources {
@@ -119,13 +149,13 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
             "the training frames hold no day frame (MF: names ending in D; Freiburg: paths without `night`)".into(),
         ));
     }
-    let night = match cfg.learning.procedure.uses_night() {
+    let night = match procedure.uses_night() {
         true => {
             let night: Source = Arc::new(Subset::of_daytime(train, Daytime::Night, false));
             if night.is_empty() {
                 return Err(TrainError::Config(format!(
                     "the {} procedure needs night frames; the training frames hold none",
-                    cfg.learning.procedure.name()
+                    procedure.name()
                 )));
             }
             Some(night)
@@ -144,7 +174,8 @@ fn open_sources(cfg: &TrainConfig) -> Result<Sources, TrainError> {
 }
 
 fn loader(
-    cfg: &TrainConfig,
+    data: &DataConfig,
+    batch_size: usize,
     source: Source,
     seed: u64,
     input: rtf_core::InputConvention,
@@ -152,14 +183,14 @@ fn loader(
     Loader::new(
         source,
         LoaderConfig {
-            batch_size: cfg.schedule.batch_size,
-            shuffle: cfg.data.shuffle,
+            batch_size,
+            shuffle: data.shuffle,
             drop_last: false,
             seed,
-            workers: cfg.data.workers,
+            workers: data.workers,
             prefetch: 2,
-            augment: cfg.data.augment.clone(),
-            resize: cfg.data.resize,
+            augment: data.augment.clone(),
+            resize: data.resize,
         },
         input,
     )
@@ -267,7 +298,7 @@ pub fn train_distributed(
 ) -> Result<TrainOutcome, TrainError> {
     cfg.validate()?;
     let device = cfg.device().map_err(TrainError::Config)?;
-    let folder = RunFolder::open(cfg, run_dir, resume, ddp.as_deref())?;
+    let folder = RunFolder::open(FolderChecks::of(cfg), run_dir, resume, ddp.as_deref())?;
     let (mut run, streams) = Run::restore_or_start(cfg, folder, ddp, device)?;
     for epoch in run.state.epochs_done..cfg.schedule.epochs {
         if let EpochEnd::Stopped = run.epoch(&streams, epoch, on_epoch, stop)? {
@@ -275,6 +306,27 @@ pub fn train_distributed(
         }
     }
     run.finish()
+}
+
+/// What opening the run folder checks the configuration for (phase 1): the number of
+/// processes the run was trained by, its epochs (a resume must not end before where it
+/// stands), and the teachers given as files against the student.
+struct FolderChecks<'a> {
+    world_size: Option<usize>,
+    epochs: usize,
+    procedure: &'a ProcedureConfig,
+    student: &'a ModelConfig,
+}
+
+impl<'a> FolderChecks<'a> {
+    fn of(cfg: &'a TrainConfig) -> Self {
+        Self {
+            world_size: cfg.compute.world_size,
+            epochs: cfg.schedule.epochs,
+            procedure: &cfg.learning.procedure,
+            student: &cfg.network.model,
+        }
+    }
 }
 
 /// The run folder, held for the run's life: rank 0 owns its lock; `resume` says whether the
@@ -292,7 +344,7 @@ struct RunFolder<'a> {
 impl<'a> RunFolder<'a> {
     /// Phase 1, open the run folder: every check that can refuse the run before it writes.
     fn open(
-        cfg: &TrainConfig,
+        checks: FolderChecks,
         dir: &'a Path,
         resume: bool,
         ddp: Option<&Ddp>,
@@ -300,12 +352,12 @@ impl<'a> RunFolder<'a> {
         let checkpoint = dir.join(CHECKPOINT_FILE);
         let is_root = ddp.is_none_or(|d| d.is_root());
         let world = ddp.map(|d| d.world_size());
-        if cfg.compute.world_size.unwrap_or(1) != world.unwrap_or(1) && resume {
+        if checks.world_size.unwrap_or(1) != world.unwrap_or(1) && resume {
             return Err(TrainError::Config(format!(
                 "{}: the run was trained by {} process(es), this is {}; resume it with as many \
                  (torchrun --nproc-per-node ...) so that it continues exactly",
                 dir.display(),
-                cfg.compute.world_size.unwrap_or(1),
+                checks.world_size.unwrap_or(1),
                 world.unwrap_or(1)
             )));
         }
@@ -315,7 +367,7 @@ impl<'a> RunFolder<'a> {
                 "already holds a run; use --resume to continue it or choose another output folder",
             ));
         }
-        procedure::check_teachers(cfg)?;
+        procedure::check_teachers(checks.procedure, checks.student)?;
         let lock = match is_root {
             true => {
                 std::fs::create_dir_all(dir)
@@ -329,7 +381,7 @@ impl<'a> RunFolder<'a> {
         // A resume of a run killed before its first checkpoint starts it over.
         let resume = resume && checkpoint.exists();
         if resume {
-            check_resume_epochs(cfg, dir, &checkpoint)?;
+            check_resume_epochs(checks.epochs, dir, &checkpoint)?;
         }
         Ok(Self {
             dir,
@@ -343,12 +395,12 @@ impl<'a> RunFolder<'a> {
 }
 
 /// Refuses `--epochs` that would end a resumed run before where it stands.
-fn check_resume_epochs(cfg: &TrainConfig, dir: &Path, checkpoint: &Path) -> Result<(), TrainError> {
+fn check_resume_epochs(epochs: usize, dir: &Path, checkpoint: &Path) -> Result<(), TrainError> {
     let saved = checkpoint::read_state(checkpoint)?;
     // A checkpoint inside an epoch holds weights past the epochs done: ending the run
     // there would call mid-epoch weights final.
     let stands_at = saved.epochs_done + saved.partial.is_some() as usize;
-    if cfg.schedule.epochs < stands_at {
+    if epochs < stands_at {
         return Err(TrainError::Config(format!(
             "{}: the run has done {} epochs{}; --epochs {} would end it before where it stands",
             dir.display(),
@@ -357,7 +409,7 @@ fn check_resume_epochs(cfg: &TrainConfig, dir: &Path, checkpoint: &Path) -> Resu
                 true => format!(" and part of epoch {stands_at}"),
                 false => String::new(),
             },
-            cfg.schedule.epochs
+            epochs
         )));
     }
     Ok(())
@@ -378,7 +430,7 @@ fn record_config(
             cfg.network.model.num_classes()
         )));
     }
-    procedure::check_teachers(cfg)?;
+    procedure::check_teachers(&cfg.learning.procedure, &cfg.network.model)?;
     let mut cfg_written = cfg.clone();
     let root = sources.dataset.root();
     let fingerprint = rtf_data::fingerprint::fingerprint_opened(&sources.dataset)?;
@@ -432,7 +484,7 @@ fn restore(folder: &RunFolder, procedure: &mut dyn Procedure) -> Result<TrainSta
 
 /// A new run's student from its backbone or starting weights, and no log.
 fn start(
-    cfg: &TrainConfig,
+    network: &NetworkConfig,
     folder: &RunFolder,
     procedure: &mut dyn Procedure,
 ) -> Result<TrainState, TrainError> {
@@ -440,14 +492,13 @@ fn start(
         let _ = std::fs::remove_file(folder.dir.join(LOG_FILE));
     }
     let student = &mut procedure.trained_mut()[0].vs;
-    if let Some(path) = &cfg.network.backbone_weights {
-        let loaded =
-            rtf_models::backbone::load_backbone_weights(student, &cfg.network.model, path)?;
+    if let Some(path) = &network.backbone_weights {
+        let loaded = rtf_models::backbone::load_backbone_weights(student, &network.model, path)?;
         if folder.is_root {
             eprintln!("{loaded}");
         }
     }
-    if let Some(report) = crate::init::load_init(student, cfg)? {
+    if let Some(report) = crate::init::load_init(student, network)? {
         if folder.is_root {
             eprintln!("{report}");
         }
@@ -465,17 +516,17 @@ fn start(
 /// Ranks other than 0 never write the run folder: they label into a scratch folder of their
 /// own, removed when the run returns.
 fn cache_labels(
-    cfg: &TrainConfig,
+    procedure_cfg: &ProcedureConfig,
     folder: &RunFolder,
     procedure: &dyn Procedure,
     sources: &mut Sources,
     device: tch::Device,
 ) -> Result<Option<crate::ddp::ScratchDir>, TrainError> {
     let input = procedure.student().net.input_convention();
-    let threshold = match &cfg.learning.procedure {
-        crate::config::Procedure::TeacherStudent { targets, .. }
-        | crate::config::Procedure::Adversarial { targets, .. } => targets.threshold,
-        crate::config::Procedure::Supervised => None,
+    let threshold = match procedure_cfg {
+        ProcedureConfig::TeacherStudent { targets, .. }
+        | ProcedureConfig::Adversarial { targets, .. } => targets.threshold,
+        ProcedureConfig::Supervised => None,
     };
     let (day_labeller, night_labeller) = procedure.labellers();
     let mut scratch: Option<crate::ddp::ScratchDir> = None;
@@ -508,6 +559,35 @@ fn cache_labels(
     Ok(scratch)
 }
 
+/// Rank 0's TensorBoard writer (RUN/tb); the other ranks write none.
+fn tensorboard_writer(
+    folder: &RunFolder,
+) -> Result<Option<crate::tensorboard::TbWriter>, TrainError> {
+    if !folder.is_root {
+        return Ok(None);
+    }
+    crate::tensorboard::TbWriter::create(folder.dir)
+        .map(Some)
+        .map_err(|e| run_error(&folder.dir.join("tb"), format!("TensorBoard: {e}")))
+}
+
+/// The run's one validation loader: the validation frames as evaluation reads them, at the
+/// training batch size, size and workers.
+fn val_loader(
+    data: &DataConfig,
+    batch_size: usize,
+    val: Source,
+    input: rtf_core::InputConvention,
+) -> Loader {
+    let options = EvalOptions {
+        batch_size,
+        resize: data.resize,
+        workers: data.workers,
+        ..Default::default()
+    };
+    rtf_eval::evaluate::split_loader(val, &options, input)
+}
+
 /// The batches a run trains on: the main stream and the night stream (its own order, cycling
 /// when it is the shorter one); a data-parallel rank loads only its shard of each.
 struct Streams {
@@ -519,17 +599,19 @@ struct Streams {
 
 impl Streams {
     fn open(
-        cfg: &TrainConfig,
+        data: &DataConfig,
+        schedule: &ScheduleConfig,
         sources: &Sources,
         input: rtf_core::InputConvention,
         ddp: Option<&Ddp>,
     ) -> Result<Self, TrainError> {
-        let main = loader(cfg, sources.main.clone(), cfg.schedule.seed, input);
-        let night_seed = rtf_data::loader::mix(cfg.schedule.seed, 0x6e69676874, 0);
+        let batch = schedule.batch_size;
+        let main = loader(data, batch, sources.main.clone(), schedule.seed, input);
+        let night_seed = rtf_data::loader::mix(schedule.seed, 0x6e69676874, 0);
         let night = sources
             .night
             .clone()
-            .map(|s| loader(cfg, s, night_seed, input));
+            .map(|s| loader(data, batch, s, night_seed, input));
         let Some(d) = ddp else {
             return Ok(Self {
                 main,
@@ -632,7 +714,14 @@ enum EpochEnd {
 /// One run's life after its folder is open: the trained networks and their progress, what
 /// validation reads, and what rank 0 writes besides the checkpoint.
 struct Run<'a> {
-    cfg: &'a TrainConfig,
+    /// Epochs, seed, checkpoint and TensorBoard cadence.
+    schedule: &'a ScheduleConfig,
+    /// The student's network and inputs (the weights' metadata, the prediction grid's title).
+    network: &'a NetworkConfig,
+    /// The learning rate each epoch's record logs.
+    optimizer: &'a OptimizerConfig,
+    /// The frame size the prediction grid is drawn at.
+    resize: Option<(usize, usize)>,
     ddp: Option<Arc<Ddp>>,
     device: tch::Device,
     procedure: Box<dyn Procedure>,
@@ -665,7 +754,7 @@ struct Run<'a> {
 /// this thread's training-mode forwards (every step runs here) use the whole data-parallel
 /// batch's statistics until the run returns.
 fn start_data_parallel(
-    cfg: &TrainConfig,
+    sync_batch_norm: bool,
     ddp: Option<&Arc<Ddp>>,
     procedure: &mut dyn Procedure,
 ) -> Result<Option<rtf_models::SyncBatchNorm>, TrainError> {
@@ -676,10 +765,36 @@ fn start_data_parallel(
         d.broadcast_all(&t.vs)?;
         t.ddp = Some(d.clone());
     }
-    Ok(cfg
-        .network
-        .sync_batch_norm
-        .then(|| rtf_models::SyncBatchNorm::install(d.clone())))
+    Ok(sync_batch_norm.then(|| rtf_models::SyncBatchNorm::install(d.clone())))
+}
+
+/// The procedure, its progress, and the synchronised-BatchNorm guard ([`networks`]).
+type Networks = (
+    Box<dyn Procedure>,
+    TrainState,
+    Option<rtf_models::SyncBatchNorm>,
+);
+
+/// The procedure's networks and progress: built from `network` and `learning` (libtorch
+/// seeded with the run's seed first), restored from the checkpoint or started, and
+/// data-parallel started (with `network.sync_batch_norm`, the guard that keeps it).
+fn networks(
+    cfg: &TrainConfig,
+    folder: &RunFolder,
+    ignore_id: Option<u8>,
+    ddp: Option<&Arc<Ddp>>,
+    device: tch::Device,
+) -> Result<Networks, TrainError> {
+    tch::manual_seed(cfg.schedule.seed as i64);
+    let mut procedure = procedure::build(cfg, ignore_id, device)?;
+    let state = match folder.resume {
+        true => restore(folder, procedure.as_mut())?,
+        false => start(&cfg.network, folder, procedure.as_mut())?,
+    };
+    procedure.resume_at(state.steps_done);
+    let sync_batch_norm =
+        start_data_parallel(cfg.network.sync_batch_norm, ddp, procedure.as_mut())?;
+    Ok((procedure, state, sync_batch_norm))
 }
 
 impl<'a> Run<'a> {
@@ -691,46 +806,37 @@ impl<'a> Run<'a> {
         ddp: Option<Arc<Ddp>>,
         device: tch::Device,
     ) -> Result<(Self, Streams), TrainError> {
-        let mut sources = open_sources(cfg)?;
+        let mut sources = open_sources(&cfg.data.dataset, &cfg.learning.procedure)?;
         record_config(cfg, &folder, &sources)?;
-        tch::manual_seed(cfg.schedule.seed as i64);
-        let mut procedure = procedure::build(cfg, sources.ignore_id, device)?;
-        let state = match folder.resume {
-            true => restore(&folder, procedure.as_mut())?,
-            false => start(cfg, &folder, procedure.as_mut())?,
-        };
-        procedure.resume_at(state.steps_done);
-        let sync_batch_norm = start_data_parallel(cfg, ddp.as_ref(), procedure.as_mut())?;
-        let scratch = cache_labels(cfg, &folder, procedure.as_ref(), &mut sources, device)?;
-        let tb = match folder.is_root {
-            true => Some(
-                crate::tensorboard::TbWriter::create(folder.dir)
-                    .map_err(|e| run_error(&folder.dir.join("tb"), format!("TensorBoard: {e}")))?,
-            ),
-            false => None,
-        };
+        let (procedure, state, sync_batch_norm) =
+            networks(cfg, &folder, sources.ignore_id, ddp.as_ref(), device)?;
+        let scratch = cache_labels(
+            &cfg.learning.procedure,
+            &folder,
+            procedure.as_ref(),
+            &mut sources,
+            device,
+        )?;
+        let tb = tensorboard_writer(&folder)?;
         let input = procedure.student().net.input_convention();
-        let streams = Streams::open(cfg, &sources, input, ddp.as_deref())?;
-        let val = sources.val.clone().map(|val| {
-            let options = EvalOptions {
-                batch_size: cfg.schedule.batch_size,
-                resize: cfg.data.resize,
-                workers: cfg.data.workers,
-                ..Default::default()
-            };
-            rtf_eval::evaluate::split_loader(val, &options, input)
-        });
+        let streams = Streams::open(&cfg.data, &cfg.schedule, &sources, input, ddp.as_deref())?;
+        let val = sources
+            .val
+            .clone()
+            .map(|val| val_loader(&cfg.data, cfg.schedule.batch_size, val, input));
         let step_log = crate::step_log::StepLog::open(folder.dir, folder.is_root, state.steps_done)
             .map_err(|e| step_log_error(folder.dir, e))?;
+        let batches = streams.main.num_batches();
         let steps_per_epoch = cfg
             .schedule
             .max_steps_per_epoch
-            .map_or(streams.main.num_batches(), |m| {
-                m.min(streams.main.num_batches())
-            });
+            .map_or(batches, |m| m.min(batches));
         let first_epoch = state.epochs_done;
         let run = Self {
-            cfg,
+            schedule: &cfg.schedule,
+            network: &cfg.network,
+            optimizer: &cfg.learning.optimizer,
+            resize: cfg.data.resize,
             ddp,
             device,
             procedure,
@@ -790,7 +896,7 @@ impl<'a> Run<'a> {
             }
         };
         // Stopped on an epoch's last step: its checkpoint is the epoch-end one.
-        match stopping && self.state.epochs_done < self.cfg.schedule.epochs {
+        match stopping && self.state.epochs_done < self.schedule.epochs {
             true => Ok(EpochEnd::Stopped),
             false => Ok(EpochEnd::Done),
         }
@@ -806,7 +912,7 @@ impl<'a> Run<'a> {
     ) -> Result<Option<EpochProgress>, TrainError> {
         let steps_per_epoch = self.steps_per_epoch;
         let bar = match self.folder.is_root {
-            true => progress_bar(steps_per_epoch, epoch, self.cfg.schedule.epochs),
+            true => progress_bar(steps_per_epoch, epoch, self.schedule.epochs),
             false => ProgressBar::hidden(),
         };
         let mut progress =
@@ -823,11 +929,9 @@ impl<'a> Run<'a> {
         let mut night_batches = streams.night_from(epoch * steps_per_epoch + first);
         for (step, batch) in (first..).zip(batches) {
             // Reseeded per step so a resumed run draws the same random numbers (dropout, ...).
-            tch::manual_seed(rtf_data::loader::mix(
-                self.cfg.schedule.seed,
-                epoch as u64,
-                step as u64,
-            ) as i64);
+            tch::manual_seed(
+                rtf_data::loader::mix(self.schedule.seed, epoch as u64, step as u64) as i64,
+            );
             let batch = batch?;
             let night_batch = match night_batches.as_mut() {
                 Some(it) => Some(
@@ -843,7 +947,7 @@ impl<'a> Run<'a> {
                 progress.images as f64 / progress.elapsed().as_secs_f64().max(1e-9)
             ));
             bar.inc(1);
-            let scheduled = self.cfg.schedule.checkpoint_every.is_some_and(|every| {
+            let scheduled = self.schedule.checkpoint_every.is_some_and(|every| {
                 every > 0 && self.state.steps_done.is_multiple_of(every as u64)
             });
             // On an epoch's last step the epoch-end checkpoint does the work.
@@ -1014,7 +1118,7 @@ impl<'a> Run<'a> {
             epoch,
             step,
             steps_per_epoch: self.steps_per_epoch,
-            epochs: self.cfg.schedule.epochs,
+            epochs: self.schedule.epochs,
         }
     }
 
@@ -1033,7 +1137,7 @@ impl<'a> Run<'a> {
             .partition(|(k, _)| !k.starts_with("critic_acc"));
         EpochRecord {
             epoch,
-            lr: self.cfg.learning.optimizer.lr_at(self.at(epoch, 0)),
+            lr: self.optimizer.lr_at(self.at(epoch, 0)),
             train_loss: progress.loss_sum / steps,
             images: progress.images,
             seconds,
@@ -1079,12 +1183,13 @@ impl<'a> Run<'a> {
     fn save(&mut self, epoch: usize, record: &EpochRecord) -> Result<(), TrainError> {
         self.save_checkpoint(epoch)?;
         rundir::append_log(self.folder.dir, record)?;
-        let grid = match (&self.val, self.cfg.schedule.tb_images_every) {
+        let grid = match (&self.val, self.schedule.tb_images_every) {
             (Some(val), Some(every)) if every > 0 && (epoch + 1).is_multiple_of(every) => {
                 Some(prediction_grid_png(
                     self.procedure.student(),
                     val.source().as_ref(),
-                    self.cfg,
+                    self.network,
+                    self.resize,
                     self.device,
                 )?)
             }
@@ -1121,7 +1226,7 @@ impl<'a> Run<'a> {
     /// The student's weights with the network, its inputs and its classes in the metadata.
     fn save_student(&self, path: &Path) -> Result<(), TrainError> {
         use rtf_models::weights::{model_metadata, save_named_with_metadata, state_dict};
-        let mut metadata = model_metadata(&self.cfg.network.model, self.cfg.network.inputs);
+        let mut metadata = model_metadata(&self.network.model, self.network.inputs);
         metadata.extend([self.trained_on.metadata_entry()]);
         let vs = &self.procedure.student().trained.vs;
         save_named_with_metadata(&state_dict(vs), Some(metadata), path)?;
@@ -1184,12 +1289,13 @@ impl<'a> Run<'a> {
 fn prediction_grid_png(
     student: &procedure::Student,
     val: &dyn FrameSource,
-    cfg: &TrainConfig,
+    network: &NetworkConfig,
+    resize: Option<(usize, usize)>,
     device: tch::Device,
 ) -> Result<Vec<u8>, TrainError> {
-    let rows = rtf_eval::figure::rows_for(&student.net, val, 4, cfg.data.resize, device)?;
+    let rows = rtf_eval::figure::rows_for(&student.net, val, 4, resize, device)?;
     let column = rtf_eval::figure::PredictionColumn {
-        title: cfg.network.model.name(),
+        title: network.model.name(),
         ids: rows.iter().map(|r| r.prediction.clone()).collect(),
     };
     let grid = rtf_eval::figure::annotated_grid(&rows, &[column], val.class_set());

@@ -221,17 +221,20 @@ impl Frozen {
     }
 }
 
-/// Checks, before anything is written, that the teachers of `cfg` given as files can teach its
-/// student (stage teachers are checked by their stage).
-pub fn check_teachers(cfg: &TrainConfig) -> Result<(), TrainError> {
-    for teacher in cfg.learning.procedure.teachers() {
+/// Checks, before anything is written, that the teachers of `procedure` given as files can
+/// teach its `student` (stage teachers are checked by their stage).
+pub fn check_teachers(
+    procedure: &ProcedureConfig,
+    student: &ModelConfig,
+) -> Result<(), TrainError> {
+    for teacher in procedure.teachers() {
         if let crate::config::TeacherRef::Weights {
             path,
             model,
             inputs,
         } = teacher
         {
-            check_teacher(model, path, *inputs, &cfg.network.model)?;
+            check_teacher(model, path, *inputs, student)?;
         }
     }
     Ok(())
