@@ -32,6 +32,43 @@ impl std::fmt::Debug for Ddp {
     }
 }
 
+/// Joins a launcher's job (torchrun, Slurm, a PyTorchJob: `env`) for `cfg`: each rank on the
+/// GPU of its `LOCAL_RANK`, every stage of a pipeline on the same kind of device (one process
+/// group serves them all); gloo on CPU, NCCL on CUDA. Rank 0 says so on stderr.
+pub fn join(
+    env: &rtf_dist::DistEnv,
+    cfg: &mut crate::config::RunConfig,
+    timeout: std::time::Duration,
+) -> Result<Arc<Ddp>, TrainError> {
+    let mut devices = Vec::new();
+    for stage in cfg.stages_mut() {
+        if stage.compute.device.starts_with("cuda") {
+            stage.compute.device = format!("cuda:{}", env.local_rank);
+        }
+        devices.push(
+            crate::config::available_device(&stage.compute.device).map_err(TrainError::Config)?,
+        );
+    }
+    let device = devices[0];
+    if devices.iter().any(|d| d.is_cuda() != device.is_cuda()) {
+        return Err(TrainError::Config(
+            "a data-parallel multi-stage run needs every stage on the same kind of device".into(),
+        ));
+    }
+    let backend = rtf_dist::Backend::for_device(device);
+    let group = ProcessGroup::new(env, backend, device, timeout)?;
+    if env.rank == 0 {
+        eprintln!(
+            "data-parallel: {} processes ({}, store {}:{})",
+            env.world_size,
+            backend.name(),
+            env.master_addr,
+            env.master_port
+        );
+    }
+    Ok(Ddp::new(group))
+}
+
 impl Ddp {
     pub fn new(group: ProcessGroup) -> Arc<Self> {
         Arc::new(Self {

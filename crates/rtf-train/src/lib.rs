@@ -21,6 +21,7 @@ pub mod recipe;
 pub mod resume;
 pub mod run;
 pub mod schedule;
+pub mod setup;
 pub mod step_log;
 pub mod tensorboard;
 pub mod trainer;

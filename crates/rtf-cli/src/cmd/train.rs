@@ -2,15 +2,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{bail, Context, Result};
-use rtf_core::ClassSet;
-use rtf_data::inspect::DatasetFormat;
-use rtf_models::ModelConfig;
-use rtf_train::config::{
-    available_device, CriticInput, CriticOptions, LrSchedule, Precision, Procedure, SelectMetric,
-    TeacherRef, TrainConfig, WeightsRef,
-};
-use rtf_train::recipe::{self, RecipeInputs};
-use rtf_train::{DatasetConfig, Modality, OptimizerConfig, OptimizerKind, RunConfig};
+use rtf_train::config::{available_device, CriticInput, Precision, SelectMetric, TrainConfig};
+use rtf_train::setup::{NewRun, Overrides, TeacherArg};
+use rtf_train::{Modality, OptimizerKind, RunConfig};
 
 use super::parse_size;
 
@@ -211,7 +205,7 @@ pub fn run(args: Args) -> Result<()> {
             if let Some(data) = &args.data {
                 crate::output_guard::check_run_folder(&out, data)?;
             }
-            let cfg = new_run(&args)?;
+            let cfg = rtf_train::setup::new_run(&new_run_request(&args))?;
             (cfg, out, false)
         }
     };
@@ -354,45 +348,14 @@ fn ignore_broken_pipes() {
 }
 
 /// Under a launcher (torchrun, Slurm, a PyTorchJob: `WORLD_SIZE` set), joins the job's c10d
-/// group: gloo on CPU, NCCL on CUDA, each rank on the GPU of its `LOCAL_RANK`.
-fn join_job(
-    cfg: &mut RunConfig,
-    timeout_s: u64,
-) -> Result<Option<std::sync::Arc<rtf_train::ddp::Ddp>>> {
+/// group (rtf_train::ddp::join), this rank's broken pipes ignored first.
+fn join_job(cfg: &mut RunConfig, timeout_s: u64) -> Result<Group> {
     let Some(env) = rtf_dist::DistEnv::from_env()? else {
         return Ok(None);
     };
     ignore_broken_pipes();
-    // Each rank on the GPU of its LOCAL_RANK; every stage of a pipeline on the same kind of
-    // device (one process group serves them all).
-    let mut devices = Vec::new();
-    for stage in cfg.stages_mut() {
-        if stage.compute.device.starts_with("cuda") {
-            stage.compute.device = format!("cuda:{}", env.local_rank);
-        }
-        devices.push(available_device(&stage.compute.device).map_err(anyhow::Error::msg)?);
-    }
-    let device = devices[0];
-    if devices.iter().any(|d| d.is_cuda() != device.is_cuda()) {
-        bail!("a data-parallel multi-stage run needs every stage on the same kind of device");
-    }
-    let backend = rtf_dist::Backend::for_device(device);
-    let group = rtf_dist::ProcessGroup::new(
-        &env,
-        backend,
-        device,
-        std::time::Duration::from_secs(timeout_s.max(1)),
-    )?;
-    if env.rank == 0 {
-        eprintln!(
-            "data-parallel: {} processes ({}, store {}:{})",
-            env.world_size,
-            backend.name(),
-            env.master_addr,
-            env.master_port
-        );
-    }
-    Ok(Some(rtf_train::ddp::Ddp::new(group)))
+    let timeout = std::time::Duration::from_secs(timeout_s.max(1));
+    Ok(Some(rtf_train::ddp::join(&env, cfg, timeout)?))
 }
 
 fn print_epoch(stage: &str) -> impl FnMut(&rtf_train::EpochRecord) + '_ {
@@ -434,394 +397,67 @@ fn print_epoch(stage: &str) -> impl FnMut(&rtf_train::EpochRecord) + '_ {
     }
 }
 
-/// The dataset a `--data` root holds, its class set, resolved to an absolute path (a resume
-/// from another directory finds it).
-fn dataset_of(data: &Path, args: &Args) -> Result<(DatasetConfig, ClassSet)> {
-    let root = std::fs::canonicalize(data)
-        .with_context(|| format!("{}: cannot open the dataset root", data.display()))?;
-    let dataset = super::open_dataset(&root, "a training")?;
-    let Some(description) = dataset.description() else {
-        return built_in_dataset(root, &dataset, args, data);
+/// The flags of a new run, typed for rtf_train::setup (which makes its configuration).
+fn new_run_request(args: &Args) -> NewRun {
+    let teacher = |path: &Option<PathBuf>, model: &Option<String>, inputs| TeacherArg {
+        path: path.clone(),
+        model: model.clone(),
+        inputs,
     };
-    described_dataset(root, description, args)
-}
-
-/// An MF or Freiburg Thermal root: the layout fixes the class set and the splits (Freiburg:
-/// none to name).
-fn built_in_dataset(
-    root: PathBuf,
-    dataset: &rtf_data::Dataset,
-    args: &Args,
-    data: &Path,
-) -> Result<(DatasetConfig, ClassSet)> {
-    let val = args.val_split.clone().unwrap_or_else(|| "val".into());
-    let validate = val != "none";
-    if dataset.format() == DatasetFormat::Mf {
-        let config = DatasetConfig::Mf {
-            root,
-            train_split: args.train_split.clone().unwrap_or_else(|| "train".into()),
-            val_split: validate.then_some(val),
-        };
-        return Ok((config, dataset.class_set()));
-    }
-    anyhow::ensure!(
-        args.train_split.is_none() && ["val", "none"].contains(&val.as_str()),
-        "{}: a Freiburg Thermal root has no named splits (training tree, val and test \
-         layouts); drop --train-split, and use --val-split only as \"none\"",
-        data.display()
-    );
-    Ok((DatasetConfig::freiburg(root, validate), dataset.class_set()))
-}
-
-/// A described root (dataset.yaml, MSRS, PST900, FMB): its class set sizes the network. The
-/// public sets ship only train and test, so without a `val` split validation is skipped (said
-/// on stderr); validating on test happens only when named, and is announced.
-fn described_dataset(
-    root: PathBuf,
-    description: &rtf_data::DatasetDescription,
-    args: &Args,
-) -> Result<(DatasetConfig, ClassSet)> {
-    let has = |name: &str| description.split(name).is_some();
-    let train_split = args.train_split.clone().unwrap_or_else(|| "train".into());
-    let val_split = match args.val_split.as_deref() {
-        Some("none") => None,
-        Some(name) => Some(name.to_string()),
-        None if has("val") => Some("val".to_string()),
-        None => {
-            eprintln!("data: no `val` split: validation skipped (name one with --val-split)");
-            None
-        }
-    };
-    if val_split.as_deref() == Some("test") {
-        eprintln!("data: validating on the `test` split, as --val-split asks: best-epoch selection then sees test data");
-    }
-    let holdout = val_split
-        .as_deref()
-        .and_then(rtf_data::described::parse_holdout);
-    if let Some(every) = holdout {
-        eprintln!(
-            "data: validating on 1 in {every} frames of `{train_split}`, held out of training"
-        );
-    }
-    let named = val_split.iter().filter(|_| holdout.is_none());
-    let read: Vec<&String> = std::iter::once(&train_split).chain(named).collect();
-    for name in &read {
-        anyhow::ensure!(
-            has(name),
-            "{}: no split `{name}` (available: {})",
-            root.display(),
-            description.split_names().join(", ")
-        );
-    }
-    // Every frame the run reads decoded now: bad data stops it before a run folder exists.
-    let dataset = rtf_data::DescribedDataset::new(description.clone());
-    for name in read {
-        let frames = rtf_data::described::check_frames(&dataset.split(name)?)?;
-        eprintln!("data: `{name}`: {frames} frames decoded, no problem");
-    }
-    let classes = description.class_set.clone();
-    let dataset = DatasetConfig::Described {
-        root,
-        train_split,
-        val_split,
-        trained_on: Some(rtf_data::TrainedOn::of(description)),
-    };
-    Ok((dataset, classes))
-}
-
-/// A teacher given on the command line: a run folder (its network, channels and selected
-/// weights), or a weights file with its network named.
-fn teacher_ref(
-    path: &Path,
-    model: &Option<String>,
-    inputs: Option<Modality>,
-    num_classes: i64,
-    flag: &str,
-) -> Result<TeacherRef> {
-    if path.is_dir() {
-        let run = rtf_train::TrainedRun::open(path)
-            .with_context(|| format!("{flag} {}: not a run folder", path.display()))?;
-        let last = run.last_training();
-        let weights = run.folder().weights();
-        let weights = weights.selected().with_context(|| {
-            format!(
-                "{}: the run has no best.safetensors or final.safetensors yet ({flag})",
-                path.display()
-            )
-        })?;
-        return Ok(TeacherRef::Weights {
-            path: std::fs::canonicalize(weights)?,
-            model: last.network.model.clone(),
-            inputs: inputs.unwrap_or(last.network.inputs),
-        });
-    }
-    anyhow::ensure!(
-        path.is_file(),
-        "{}: {flag} is neither a run folder nor a weights file",
-        path.display()
-    );
-    let name = model.as_ref().with_context(|| {
-        format!(
-            "{flag} {} is a weights file: name its network with {flag}-model",
-            path.display()
-        )
-    })?;
-    Ok(TeacherRef::Weights {
-        path: std::fs::canonicalize(path)?,
-        model: ModelConfig::from_name(name, num_classes)?,
-        inputs: inputs.unwrap_or_default(),
-    })
-}
-
-fn new_run(args: &Args) -> Result<RunConfig> {
-    let mut cfg = match (&args.recipe, &args.config) {
-        (_, Some(path)) => config_file_run(path)?,
-        (Some(name), None) => recipe_run(name, args)?,
-        (None, None) => plain_run(args)?,
-    };
-    if args.config.is_some() {
-        if let Some(data) = &args.data {
-            let (dataset, _) = dataset_of(data, args)?;
-            cfg.stages_mut()
-                .into_iter()
-                .for_each(|c| c.data.dataset = dataset.clone());
-        }
-        anyhow::ensure!(
-            args.teacher.is_none() && args.night_teacher.is_none(),
-            "--teacher and --night-teacher go with --recipe (a --config names its teachers)"
-        );
-    }
-    let recipe_networks = args.recipe.is_some() || args.config.is_some();
-    for stage in cfg.stages_mut() {
-        apply_flags(stage, args, recipe_networks)?;
-        apply_parity_controls(stage, args);
-    }
-    if let Some(path) = &args.init {
-        apply_init(&mut cfg, path, args)?;
-    }
-    cfg.validate()?;
-    Ok(cfg)
-}
-
-/// A `--config` file (YAML or JSON, the schema of config.json).
-fn config_file_run(path: &Path) -> Result<RunConfig> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read", path.display()))?;
-    let yaml = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml"));
-    RunConfig::parse(&text, yaml).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
-}
-
-/// A recipe's stages on the `--data` root, with the teachers given on the command line.
-fn recipe_run(name: &str, args: &Args) -> Result<RunConfig> {
-    let recipe = recipe::recipe(name)?;
-    let data = args.data.as_ref().context("--data is required")?;
-    let (dataset, classes) = dataset_of(data, args)?;
-    let n = classes.len() as i64;
-    let teacher = |p: &Option<PathBuf>, m: &Option<String>, i, flag| {
-        p.as_ref()
-            .map(|p| teacher_ref(p, m, i, n, flag))
-            .transpose()
-    };
-    Ok(recipe::instantiate(
-        recipe,
-        &RecipeInputs {
-            dataset,
-            num_classes: n,
-            model: args.model.clone(),
-            teacher: teacher(
-                &args.teacher,
-                &args.teacher_model,
-                args.teacher_inputs,
-                "--teacher",
-            )?,
-            night_teacher: teacher(
-                &args.night_teacher,
-                &args.night_teacher_model,
-                args.night_teacher_inputs,
-                "--night-teacher",
-            )?,
-        },
-    )?)
-}
-
-/// One supervised (or, with `--teacher`, teacher-student) training on the `--data` root.
-fn plain_run(args: &Args) -> Result<RunConfig> {
-    let data = args.data.as_ref().context("--data is required")?;
-    let (dataset, classes) = dataset_of(data, args)?;
-    let mut single = TrainConfig::mfnet_paper(PathBuf::new());
-    let model = args.model.as_deref().unwrap_or("mfnet");
-    single.network.model = ModelConfig::from_name(model, classes.len() as i64)?;
-    // The reference preprocessing leaves 700×320; HeatNet trains on a 640×320 window.
-    if matches!(dataset, DatasetConfig::Freiburg { .. }) && args.resize.is_none() {
-        single.data.augment.window = Some((640, 320));
-    }
-    single.data.dataset = dataset;
-    if let Some(teacher) = &args.teacher {
-        let n = single.network.model.num_classes();
-        single.learning.procedure = Procedure::TeacherStudent {
-            day_teacher: teacher_ref(
-                teacher,
-                &args.teacher_model,
-                args.teacher_inputs,
-                n,
-                "--teacher",
-            )?,
-            night_teacher: args
-                .night_teacher
-                .as_ref()
-                .map(|p| {
-                    teacher_ref(
-                        p,
-                        &args.night_teacher_model,
-                        args.night_teacher_inputs,
-                        n,
-                        "--night-teacher",
-                    )
-                })
-                .transpose()?,
-            targets: Default::default(),
-        };
-    }
-    Ok(RunConfig::Single(Box::new(single)))
-}
-
-/// `--no-augment` and `--no-shuffle` (issue 27's controls for parity runs).
-fn apply_parity_controls(cfg: &mut TrainConfig, args: &Args) {
-    if args.no_augment {
-        cfg.data.augment = Default::default();
-    }
-    if args.no_shuffle {
-        cfg.data.shuffle = false;
+    NewRun {
+        recipe: args.recipe.clone(),
+        config: args.config.clone(),
+        data: args.data.clone(),
+        train_split: args.train_split.clone(),
+        val_split: args.val_split.clone(),
+        teacher: teacher(&args.teacher, &args.teacher_model, args.teacher_inputs),
+        night_teacher: teacher(
+            &args.night_teacher,
+            &args.night_teacher_model,
+            args.night_teacher_inputs,
+        ),
+        init: args.init.clone(),
+        reset_head: args.reset_head,
+        overrides: overrides(args),
     }
 }
 
-/// `--init WEIGHTS`: the single stage starts from this file, checked now so that weights that
-/// do not fit leave no run folder behind.
-fn apply_init(cfg: &mut RunConfig, path: &Path, args: &Args) -> Result<()> {
-    // A single run, or a recipe left with one stage (its teachers given as weights).
-    let mut stages = cfg.stages_mut();
-    let [single] = stages.as_mut_slice() else {
-        bail!("--init goes with a single-stage run (a pipeline's stages start from their own weights)");
-    };
-    let single = &mut **single;
-    let path = std::fs::canonicalize(path)
-        .with_context(|| format!("{}: cannot open the --init weights", path.display()))?;
-    single.network.init_from = Some(WeightsRef::File(path));
-    single.network.init_reset_head = args.reset_head;
-    rtf_train::init::check_init_weights(single).map_err(|e| match e {
-        rtf_train::TrainError::Model(m @ rtf_models::ModelError::Mismatch { .. })
-            if !args.reset_head =>
-        {
-            anyhow::Error::new(m).context(
-                "--init: these weights do not fit the network (--reset-head starts the \
-                 classifier head fresh when only the class count differs)",
-            )
-        }
-        other => other.into(),
-    })?;
-    Ok(())
-}
-
-/// `--optimizer` (the paper's optimiser of that kind), then the single values over it.
-fn apply_optimizer_flags(o: &mut OptimizerConfig, args: &Args) -> Result<()> {
-    if let Some(kind) = args.optimizer {
-        *o = OptimizerConfig::paper_default(kind);
-    }
-    o.lr = args.lr.unwrap_or(o.lr);
-    o.lr_decay = args.lr_decay.unwrap_or(o.lr_decay);
-    o.decay_every = args.decay_every.unwrap_or(o.decay_every);
-    o.momentum = args.momentum.unwrap_or(o.momentum);
-    o.weight_decay = args.weight_decay.unwrap_or(o.weight_decay);
-    if let Some(epochs) = args.warmup_epochs {
-        let LrSchedule::WarmupPoly { warmup_epochs, .. } = &mut o.schedule else {
-            bail!("--warmup-epochs goes with a warm-up-then-poly schedule (--optimizer adamw, --recipe cmx-mf)");
-        };
-        *warmup_epochs = epochs;
-    }
-    Ok(())
-}
-
-/// Flags the user gave override the recipe's or config's values, in every stage.
-fn apply_flags(cfg: &mut TrainConfig, args: &Args, recipe_networks: bool) -> Result<()> {
-    if let (Some(model), false) = (&args.model, recipe_networks) {
-        cfg.network.model = ModelConfig::from_name(model, cfg.network.model.num_classes())?;
-    }
-    apply_optimizer_flags(&mut cfg.learning.optimizer, args)?;
-    if let Some(v) = args.epochs {
-        cfg.schedule.epochs = v;
-    }
-    if let Some(v) = args.batch_size {
-        cfg.schedule.batch_size = v;
-    }
-    if let Some(v) = args.seed {
-        cfg.schedule.seed = v;
-    }
-    if args.no_flip {
-        cfg.data.augment.hflip = false;
-    }
-    if args.resize.is_some() {
-        cfg.data.resize = args.resize;
-        cfg.data.augment.window = None;
-    }
-    if args.max_steps.is_some() {
-        cfg.schedule.max_steps_per_epoch = args.max_steps;
-    }
-    if args.checkpoint_every.is_some() {
-        cfg.schedule.checkpoint_every = args.checkpoint_every;
-    }
-    if let Some(v) = args.workers {
-        cfg.data.workers = v;
-    }
-    if let Some(v) = &args.device {
-        cfg.compute.device = v.clone();
-    }
-    if let Some(v) = args.precision {
-        cfg.learning.precision = v;
-    }
-    if args.sync_bn {
-        cfg.network.sync_batch_norm = true;
-    }
-    if args.backbone_weights.is_some() {
-        cfg.network.backbone_weights = args.backbone_weights.clone();
-    }
-    if let (Some(v), false) = (args.inputs, recipe_networks) {
-        cfg.network.inputs = v;
-    }
-    if args.select_by.is_some() {
-        cfg.schedule.select_by = args.select_by;
-    }
-    cfg.schedule.tb_images_every = Some(args.tb_images_every);
-    match &mut cfg.learning.procedure {
-        Procedure::Supervised => {}
-        Procedure::TeacherStudent { targets, .. } => {
-            targets.threshold = args.threshold.or(targets.threshold);
-            targets.soft |= args.soft;
-        }
-        Procedure::Adversarial {
-            targets, critic, ..
-        } => {
-            targets.threshold = args.threshold.or(targets.threshold);
-            targets.soft |= args.soft;
-            apply_critic_flags(critic, args);
-        }
-    }
-    Ok(())
-}
-
-/// The critic's flags (--lambda, --critic-*, --multidir) over a recipe's or config's values.
-fn apply_critic_flags(critic: &mut CriticOptions, args: &Args) {
-    critic.lambda = args.lambda.unwrap_or(critic.lambda);
-    critic.input = args.critic_input.unwrap_or(critic.input);
-    critic.multidir |= args.multidir;
-    critic.steps = args.critic_steps.unwrap_or(critic.steps);
-    critic.init = args.critic_init.clone().or(critic.init.take());
-    if args.critic_code {
-        critic.input = CriticInput::Logits;
-        critic.flip_targets = true;
-        critic.day_term = true;
-        critic.alternate = true;
+/// The values given over a recipe's or config's.
+fn overrides(args: &Args) -> Overrides {
+    Overrides {
+        model: args.model.clone(),
+        inputs: args.inputs,
+        threshold: args.threshold,
+        soft: args.soft,
+        lambda: args.lambda,
+        critic_input: args.critic_input,
+        multidir: args.multidir,
+        critic_steps: args.critic_steps,
+        critic_init: args.critic_init.clone(),
+        critic_code: args.critic_code,
+        select_by: args.select_by,
+        epochs: args.epochs,
+        batch_size: args.batch_size,
+        optimizer: args.optimizer,
+        lr: args.lr,
+        lr_decay: args.lr_decay,
+        decay_every: args.decay_every,
+        warmup_epochs: args.warmup_epochs,
+        momentum: args.momentum,
+        weight_decay: args.weight_decay,
+        no_flip: args.no_flip,
+        no_augment: args.no_augment,
+        no_shuffle: args.no_shuffle,
+        seed: args.seed,
+        resize: args.resize,
+        max_steps: args.max_steps,
+        checkpoint_every: args.checkpoint_every,
+        workers: args.workers,
+        device: args.device.clone(),
+        precision: args.precision,
+        sync_bn: args.sync_bn,
+        tb_images_every: args.tb_images_every,
+        backbone_weights: args.backbone_weights.clone(),
     }
 }
 
