@@ -18,9 +18,27 @@ pub fn read(path: &Path) -> Result<Vec<EpochRecord>, RunError> {
 
 /// The records of a log's `text` (`path` names it in errors).
 pub fn parse(text: &str, path: &Path) -> Result<Vec<EpochRecord>, RunError> {
+    parse_where(text, path, |_| true)
+}
+
+/// The records of a log's `text` from epoch `first` on: the lines of earlier epochs (which
+/// may be an older build's schema) and lines without an epoch are skipped unread.
+pub fn parse_from(text: &str, path: &Path, first: usize) -> Result<Vec<EpochRecord>, RunError> {
+    parse_where(text, path, |line| {
+        line_epoch(line).is_some_and(|e| e >= first)
+    })
+}
+
+/// The records of the non-blank lines of `text` that `keep` keeps, each read whole: a kept
+/// line that is not an epoch record is an error naming the file and the line.
+fn parse_where(
+    text: &str,
+    path: &Path,
+    keep: impl Fn(&str) -> bool,
+) -> Result<Vec<EpochRecord>, RunError> {
     let mut records = Vec::new();
     for (i, line) in text.lines().enumerate() {
-        if line.trim().is_empty() {
+        if line.trim().is_empty() || !keep(line) {
             continue;
         }
         let record = serde_json::from_str(line).map_err(|e| RunError::Log {
@@ -68,6 +86,25 @@ mod tests {
             err.contains("log.jsonl:1") && err.contains("`epoch`"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn records_from_an_epoch_skip_the_earlier_lines_unread() {
+        let path = Path::new("run/log.jsonl");
+        let text = format!(
+            "{{\"epoch\":0,\"old\":true}}\n{}\nnot json\n{}\n",
+            line(1),
+            line(2)
+        );
+        let epochs: Vec<usize> = parse_from(&text, path, 1)
+            .unwrap()
+            .iter()
+            .map(|r| r.epoch)
+            .collect();
+        assert_eq!(epochs, [1, 2]);
+        let bad = format!("{}\n{{\"epoch\":3}}\n", line(2));
+        let err = parse_from(&bad, path, 2).unwrap_err().to_string();
+        assert!(err.starts_with("run/log.jsonl:2: "), "{err}");
     }
 
     #[test]

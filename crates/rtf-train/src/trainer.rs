@@ -1251,17 +1251,9 @@ impl<'a> Run<'a> {
             return Ok(Vec::new());
         }
         let path = self.folder.dir.join(LOG_FILE);
-        let mut records = Vec::new();
         // Lines of earlier epochs may be an older build's schema: only this call's are read.
-        for (n, line) in rundir::read_log(self.folder.dir)?.lines().enumerate() {
-            if rundir::line_epoch(line).is_some_and(|e| e >= self.first_epoch) {
-                records.push(
-                    serde_json::from_str(line)
-                        .map_err(|e| run_error(&path, format!("line {}: {e}", n + 1)))?,
-                );
-            }
-        }
-        Ok(records)
+        let text = rundir::read_log(self.folder.dir)?;
+        Ok(rtf_run::log::parse_from(&text, &path, self.first_epoch)?)
     }
 
     /// Phase 6, finish: every rank holds the same weights (data-parallel), and rank 0 writes
