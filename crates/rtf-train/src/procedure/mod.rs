@@ -40,6 +40,8 @@ pub struct Trained {
     pub precision: Precision,
     /// In a data-parallel run, the group whose ranks average this network's gradients.
     pub ddp: Option<std::sync::Arc<crate::ddp::Ddp>>,
+    /// Whether fp32 training runs channels-last ([`fp32_channels_last`](Self::fp32_channels_last)).
+    fp32_channels_last: bool,
 }
 
 impl Trained {
@@ -52,7 +54,20 @@ impl Trained {
             schedule: schedule.clone(),
             precision: Precision::Fp32,
             ddp: None,
+            fp32_channels_last: false,
         }
+    }
+
+    /// Lays this network out channels-last in fp32 too, where `on`, the network is on the CPU
+    /// and the CPU has AVX-512 ([`fp32_channels_last_here`]). oneDNN's fp32 training kernels
+    /// take channels-last operands without reorders, and libtorch's BatchNorm and pointwise
+    /// kernels keep that layout: on a Xeon family 6 model 167 (AVX-512), 640×480, batch 4,
+    /// 2 threads, MFNet 2.16 → 2.71 images/s, RTFNet-50 0.127 → 0.148 (docs/src/benchmarks.md,
+    /// issue 41). For convolutional networks ([`Student::build`]).
+    pub fn fp32_channels_last(mut self, on: bool) -> Self {
+        self.fp32_channels_last =
+            on && self.vs.device() == Device::Cpu && fp32_channels_last_here();
+        self
     }
 
     /// The same network trained in `precision`: its forward passes ([`autocast`](Self::autocast))
@@ -73,12 +88,16 @@ impl Trained {
 
     /// Whether this network's convolutions run channels-last: under mixed precision with
     /// libtorch's own reduced-precision kernels, which on the CPU take oneDNN's fast path only
-    /// for channels-last operands (PyTorch users: `model.to(memory_format=channels_last)`).
-    /// Not in fp32, nor with emulated bf16 convolutions (fp32 kernels: NCHW measured faster).
+    /// for channels-last operands (PyTorch users: `model.to(memory_format=channels_last)`);
+    /// in fp32 where [`fp32_channels_last`](Self::fp32_channels_last) set it. Not with emulated
+    /// bf16 convolutions (NCHW measured faster for them).
     pub fn channels_last(&self) -> bool {
         let emulated = self.precision == Precision::Bf16
             && rtf_amp::emulates_bf16_convolutions_on(self.vs.device());
-        self.precision != Precision::Fp32 && !emulated
+        match self.precision {
+            Precision::Fp32 => self.fp32_channels_last,
+            _ => !emulated,
+        }
     }
 
     /// Where [`channels_last`](Self::channels_last), lays the 4-D weights (convolution
@@ -129,6 +148,23 @@ impl Trained {
     }
 }
 
+/// Whether this CPU trains faster channels-last in fp32: where it has AVX-512 (`avx512f`), on
+/// which PyTorch's own fp32 channels_last training was as fast or faster (Zen 4: MFNet 1.12
+/// against 0.88 images/s; model 167: 1.80 against 1.25); on the AVX2-only EPYC it was slower
+/// for MFNet, RTFNet-50 and PSPNet-50 (docs/src/benchmarks.md, round 3), so NCHW stays there.
+/// `RTF_TRAIN_LAYOUT=nchw` or `nhwc` decides instead (to compare the layouts). Read once.
+pub fn fp32_channels_last_here() -> bool {
+    static HERE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *HERE.get_or_init(|| match std::env::var("RTF_TRAIN_LAYOUT").as_deref() {
+        Ok("nchw") => false,
+        Ok("nhwc") => true,
+        _ => rtf_core::host::CpuInfo::read()
+            .flags
+            .iter()
+            .any(|f| f == "avx512f"),
+    })
+}
+
 /// The segmentation network a procedure trains, with the channels it sees.
 pub struct Student {
     pub trained: Trained,
@@ -138,8 +174,12 @@ pub struct Student {
 impl Student {
     /// Built under `seed` as the supervised loop always did (same initial weights).
     pub fn build(cfg: &TrainConfig, device: Device) -> Result<Self, TrainError> {
-        let trained =
-            Trained::new(STUDENT, device, &cfg.learning.optimizer).mixed(cfg.learning.precision)?;
+        // Convolutional networks train channels-last in fp32 too; CMX (attention) was not
+        // measured so and keeps NCHW.
+        let convolutional = !matches!(cfg.network.model, ModelConfig::Cmx(_));
+        let trained = Trained::new(STUDENT, device, &cfg.learning.optimizer)
+            .fp32_channels_last(convolutional)
+            .mixed(cfg.learning.precision)?;
         let inner = rtf_models::build(&trained.vs.root(), &cfg.network.model)?;
         trained.channels_last_weights();
         Ok(Self {
@@ -156,17 +196,17 @@ impl Student {
     /// Under mixed precision the forward pass runs in its autocast region and the logits come
     /// back as fp32, so every loss is computed in fp32.
     pub fn logits(&self, input: &Tensor) -> Tensor {
+        // Channels-last activations from the first layer on where the kernels want them
+        // (`Trained::channels_last`).
+        let input = match self.trained.channels_last() {
+            true => rtf_models::layers::to_channels_last(input),
+            false => input.shallow_clone(),
+        };
         match self.trained.precision {
-            Precision::Fp32 => forward_padded(&self.net, input, true),
-            _ => self.trained.autocast(|| {
-                // Channels-last activations from the first layer on where the kernels want them
-                // (`Trained::channels_last`).
-                let input = match self.trained.channels_last() {
-                    true => rtf_models::layers::to_channels_last(input),
-                    false => input.shallow_clone(),
-                };
-                forward_padded(&self.net, &input, true).to_kind(Kind::Float)
-            }),
+            Precision::Fp32 => forward_padded(&self.net, &input, true),
+            _ => self
+                .trained
+                .autocast(|| forward_padded(&self.net, &input, true).to_kind(Kind::Float)),
         }
     }
 }
