@@ -32,15 +32,19 @@ const MI_OPTION_PURGE_DELAY: mi_option_t = 15;
 /// Milliseconds freed memory stays mapped before mimalloc returns it (module docs).
 pub const PURGE_DELAY_MS: i64 = 5000;
 
-/// The delay for bf16 training on a CPU (`rtf train`, `rtf bench train`). A ResNet-50 network's
-/// bf16 pass is 6–13 s on 2 cores, and with 5 s the memory a pass freed was returned and
-/// faulted back in by the next (PSPNet-50: 20–45 % of the samples at each step's start in the
-/// kernel's page zeroing). 640×480, batch 4, 2 threads, avx512_bf16 EPYC, one step each
-/// (docs/src/benchmarks.md, round 5): RTFNet-50 0.22 images/s at 7260 MiB with 5 s, 0.24 at
-/// 7453 with 20 s, 0.26 at 7851 (above PyTorch's 7830) with purging off; PSPNet-50 0.15 at
-/// 6431, 0.21 at 6504, 0.20 at 7278. fp32 keeps 5 s (longer delays raised both networks' fp32
-/// peaks above PyTorch's, round 3).
-pub const BF16_TRAINING_PURGE_DELAY_MS: i64 = 20_000;
+/// The delay for training on a CPU (`rtf train`, `rtf bench train`) in bf16, and in fp32 where
+/// it runs channels-last (`rtf_train::procedure::fp32_channels_last_here`: AVX-512 CPUs). A
+/// ResNet-50 network's pass is 6–13 s (bf16) or 10–20 s (fp32) on 2 cores, and with 5 s the
+/// memory a backward pass freed was returned and faulted back in by the next forward (page
+/// zeroing: PSPNet-50 bf16 20–45 % of the samples at each step's start; RTFNet-50 fp32 16 %
+/// of a steady step). 640×480, batch 4, 2 threads (docs/src/benchmarks.md): bf16 on an
+/// avx512_bf16 EPYC (round 5), RTFNet-50 0.22 images/s at 7260 MiB with 5 s, 0.24 at 7453 with
+/// 20 s, 0.26 at 7851 (above PyTorch's 7830) with purging off; PSPNet-50 0.15 at 6431, 0.21 at
+/// 6504, 0.20 at 7278. fp32 channels-last on a Xeon model 167 (issue 41): RTFNet-50 0.150 →
+/// 0.163 at 10554 → 11227 MiB (PyTorch's best 11288), PSPNet-50 0.110 → 0.124 at 11191 →
+/// 12017 (PyTorch's best 12026). fp32 NCHW (AVX2 CPUs) keeps 5 s: longer delays raised
+/// RTFNet-50's and PSPNet-50's peaks above PyTorch's there (round 3).
+pub const TRAINING_PURGE_DELAY_MS: i64 = 20_000;
 
 /// Sets mimalloc's purge delay to [`PURGE_DELAY_MS`] unless the user set
 /// `MIMALLOC_PURGE_DELAY` (mimalloc's own variable; `-1` never returns memory, `0` at once).
@@ -61,10 +65,14 @@ pub fn set_purge_delay_ms(ms: i64) -> i64 {
     unsafe { mi_option_get(MI_OPTION_PURGE_DELAY) as i64 }
 }
 
-/// Training in `precision` on `device`: the bf16-on-CPU delay where it applies.
+/// Training in `precision` on `device`: [`TRAINING_PURGE_DELAY_MS`] where it applies (a CPU,
+/// bf16 or channels-last fp32).
 pub fn set_purge_delay_for_training(precision: rtf_train::config::Precision, device: tch::Device) {
-    if precision == rtf_train::config::Precision::Bf16 && device == tch::Device::Cpu {
-        set_purge_delay_ms(BF16_TRAINING_PURGE_DELAY_MS);
+    let fp32_channels_last = precision == rtf_train::config::Precision::Fp32
+        && rtf_train::procedure::fp32_channels_last_here();
+    let bf16 = precision == rtf_train::config::Precision::Bf16;
+    if device == tch::Device::Cpu && (bf16 || fp32_channels_last) {
+        set_purge_delay_ms(TRAINING_PURGE_DELAY_MS);
     }
 }
 
@@ -84,12 +92,17 @@ mod tests {
                 "option {MI_OPTION_PURGE_DELAY} is not purge_delay"
             );
             assert_eq!(set_purge_delay(), PURGE_DELAY_MS);
+            // SAFETY (both reads): as in set_purge_delay.
+            let current = || unsafe { mi_option_get(MI_OPTION_PURGE_DELAY) as i64 };
             set_purge_delay_for_training(rtf_train::config::Precision::Fp32, tch::Device::Cpu);
-            assert_eq!(set_purge_delay(), PURGE_DELAY_MS, "fp32 keeps the default");
+            let fp32 = match rtf_train::procedure::fp32_channels_last_here() {
+                true => TRAINING_PURGE_DELAY_MS,
+                false => PURGE_DELAY_MS,
+            };
+            assert_eq!(current(), fp32, "fp32: the longer delay only channels-last");
+            assert_eq!(set_purge_delay(), PURGE_DELAY_MS);
             set_purge_delay_for_training(rtf_train::config::Precision::Bf16, tch::Device::Cpu);
-            // SAFETY: as in set_purge_delay.
-            let bf16 = unsafe { mi_option_get(MI_OPTION_PURGE_DELAY) as i64 };
-            assert_eq!(bf16, BF16_TRAINING_PURGE_DELAY_MS);
+            assert_eq!(current(), TRAINING_PURGE_DELAY_MS);
             assert_eq!(set_purge_delay(), PURGE_DELAY_MS);
         }
     }
