@@ -89,6 +89,19 @@ def build_dataset(args, root, balanced=False):
     return names
 
 
+def rtf_fp32_channels_last():
+    """Whether rtf trains fp32 channels-last here (rtf_train::procedure::fp32_channels_last_here:
+    RTF_TRAIN_LAYOUT=nchw/nhwc, else where the CPU has avx512f): the reference then runs
+    channels_last too, so both sides take the same kernels and round alike (a randomly initialised
+    RTFNet-18 amplifies any difference in rounding, see docs/src/training.md)."""
+    layout = os.environ.get("RTF_TRAIN_LAYOUT")
+    if layout in ("nchw", "nhwc"):
+        return layout == "nhwc"
+    with open("/proc/cpuinfo") as f:
+        flags = next((line.split(":", 1)[1].split() for line in f if line.startswith("flags")), [])
+    return "avx512f" in flags
+
+
 def run(cmd, threads=None):
     env = dict(os.environ)
     if threads is not None:
@@ -133,7 +146,8 @@ def one_network(args, data, model):
     ref_weights, ref_losses = os.path.join(work, "ref.safetensors"), os.path.join(work, "ref_losses.json")
     run([sys.executable, os.path.join(HERE, "reference_train.py"), "train", "--data", data, "--model", model,
          "--init", init, "--out", ref_weights, "--losses", ref_losses, "--no-shuffle", "--no-augment",
-         "--threads", str(args.threads), *schedule], args.threads)
+         "--threads", str(args.threads), *schedule] + (["--channels-last"] if rtf_fp32_channels_last() else []),
+        args.threads)
     with open(os.path.join(rtf_run, "steps.jsonl")) as f:
         rtf_steps = [json.loads(line)["loss"] for line in f]
     with open(ref_losses) as f:

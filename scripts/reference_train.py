@@ -126,6 +126,8 @@ def train(args):
     net = bench_torch.build(args.model)
     load_into(net, args.init)
     net.train()
+    if args.channels_last:
+        net = net.to(memory_format=torch.channels_last)
     with open(os.path.join(args.data, args.split + ".txt")) as f:
         names = [line.strip() for line in f if line.strip()]
     optimizer = torch.optim.SGD(net.parameters(), lr=args.lr, momentum=args.momentum,
@@ -139,6 +141,8 @@ def train(args):
             if args.max_steps is not None and i >= args.max_steps:
                 break
             optimizer.zero_grad()
+            if args.channels_last:
+                x = x.contiguous(memory_format=torch.channels_last)
             loss = F.cross_entropy(net(x), y)
             loss.backward()
             optimizer.step()
@@ -178,6 +182,9 @@ def main():
     t.add_argument("--lr-decay", type=float, default=0.95)
     t.add_argument("--momentum", type=float, default=0.9)
     t.add_argument("--weight-decay", type=float, default=5e-4)
+    t.add_argument("--channels-last", action="store_true",
+                   help="network and inputs channels_last (as rtf trains fp32 on AVX-512 CPUs), so both sides "
+                        "run the same kernels")
     t.add_argument("--no-shuffle", action="store_true")
     t.add_argument("--no-augment", action="store_true")
     t.add_argument("--seed", type=int, default=0)
