@@ -15,7 +15,11 @@ on real frames (issue 27 §3).
    a different thread count changes the order of floating-point sums, and a randomly
    initialised RTFNet-18 on small frames amplifies that rounding over a few steps (the
    reference against itself, 1 thread vs 2: 6.5 % after 4 steps at 96×64), which would
-   hide what the comparison is for.
+   hide what the comparison is for. Likewise the layout: rtf trains fp32 channels-last on
+   AVX-512 CPUs, and the reference then runs channels_last too (--layout auto); --layout nchw
+   (the test's) runs both sides NCHW, where rtf's RTFNet-18 rounds bit for bit as the
+   reference's; channels-last kernels round otherwise, and its 4-step updates then drift
+   2.3 % apart even against a channels_last reference (1 thread, 96×64).
 4. Prints one JSON object per network: the relative difference of the weight updates
    ‖Δrtf − Δref‖ / ‖Δref‖ over every parameter and BatchNorm statistic, and the largest
    relative difference of the per-step losses.
@@ -258,6 +262,9 @@ def main():
     ap.add_argument("--epochs", type=int, default=2)
     ap.add_argument("--batch-size", type=int, default=4)
     ap.add_argument("--threads", type=int, default=torch.get_num_threads())
+    ap.add_argument("--layout", choices=["auto", "nchw", "nhwc"], default="auto",
+                    help="fp32 training layout of both sides: auto = rtf's on this CPU (channels-last "
+                         "with AVX-512), the reference matched")
     ap.add_argument("--adversarial", default="",
                     help="segmentation networks for one HeatNet adversarial stage each (e.g. mfnet), "
                          "on --frames/2 day and --frames/2 night scenes")
@@ -267,6 +274,9 @@ def main():
                     help="rtf's critic procedure: the published code's (--critic-code, the parity run) or the "
                          "paper's (rtf's default; a control: it should not agree)")
     args = ap.parse_args()
+    if args.layout != "auto":
+        # rtf reads it (rtf_train::procedure::fp32_channels_last_here); so does the reference's flag.
+        os.environ["RTF_TRAIN_LAYOUT"] = args.layout
     data = os.path.join(args.work, "data")
     names = build_dataset(args, data) if args.models or args.cmx else []
     results = [one_network(args, data, m) for m in args.models.split(",") if m]

@@ -4,6 +4,10 @@
 //! same weight updates, ‖Δrtf − Δref‖ / ‖Δref‖ < 1 %, and per-step losses within 0.5 %, for
 //! MFNet (from the published weights) and RTFNet-18 (from PyTorch's initialisation).
 //!
+//! Both sides run NCHW (`--layout nchw`): rtf trains fp32 channels-last on AVX-512 CPUs, whose
+//! kernels round otherwise and let a random RTFNet-18's 4 steps drift 2.3 % apart; one step of
+//! each layout is compared in rtf-train (`fp32_channels_last_step_equals_the_nchw_step`).
+//!
 //! Small version: 4 MSRS scenes (../shared/data/msrs-samples) at 96×64 labelled by the published
 //! MFNet, 2 epochs of 2 batches of 2. scripts/parity_train.sh runs the full one (48 scenes);
 //! docs/src/training.md gives its numbers. The set-up and both runs are scripts/parity_train.py;
@@ -109,7 +113,7 @@ fn parity_run(work: &Path, args: &[&str]) -> Option<Value> {
         .arg(shared_data())
         .args(args)
         .args(["--size", "96x64", "--epochs", "2", "--batch-size", "2"])
-        .args(["--threads", "1"])
+        .args(["--threads", "1", "--layout", "nchw"])
         .output()
         .expect("the .venv python runs");
     let stdout = String::from_utf8_lossy(&out.stdout);

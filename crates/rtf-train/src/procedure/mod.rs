@@ -64,9 +64,14 @@ impl Trained {
     /// kernels keep that layout: on a Xeon family 6 model 167 (AVX-512), 640×480, batch 4,
     /// 2 threads, MFNet 2.16 → 2.71 images/s, RTFNet-50 0.127 → 0.148 (docs/src/benchmarks.md,
     /// issue 41). For convolutional networks ([`Student::build`]).
-    pub fn fp32_channels_last(mut self, on: bool) -> Self {
-        self.fp32_channels_last =
-            on && self.vs.device() == Device::Cpu && fp32_channels_last_here();
+    pub fn fp32_channels_last(self, on: bool) -> Self {
+        let here = self.vs.device() == Device::Cpu && fp32_channels_last_here();
+        self.laid_out_fp32(on && here)
+    }
+
+    /// fp32 channels-last (`true`) or NCHW, whatever the CPU.
+    fn laid_out_fp32(mut self, channels_last: bool) -> Self {
+        self.fp32_channels_last = channels_last;
         self
     }
 
@@ -480,6 +485,55 @@ fn labeller(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One fp32 SGD step of a randomly initialised RTFNet-18, channels-last and NCHW, from the
+    /// same weights on the same batch: every variable's update the same up to rounding (the
+    /// training parity run's larger drift over 4 steps is that rounding amplified by a chaotic
+    /// start, docs/src/training.md, not another computation).
+    #[test]
+    fn fp32_channels_last_step_equals_the_nchw_step() {
+        let mut cfg = TrainConfig::mfnet_paper("unused".into());
+        cfg.network.model = ModelConfig::from_name("rtfnet18", 9).unwrap();
+        let build = |channels_last: bool| {
+            let trained = Trained::new(STUDENT, Device::Cpu, &cfg.learning.optimizer)
+                .laid_out_fp32(channels_last);
+            let inner = rtf_models::build(&trained.vs.root(), &cfg.network.model).unwrap();
+            trained.channels_last_weights();
+            let inputs = cfg.network.inputs;
+            Student {
+                trained,
+                net: Masked { inner, inputs },
+            }
+        };
+        let (mut nchw, mut nhwc) = (build(false), build(true));
+        nhwc.trained.vs.copy(&nchw.trained.vs).unwrap();
+        assert!(nhwc.trained.channels_last() && !nchw.trained.channels_last());
+        let before: BTreeMap<String, Tensor> = (nchw.trained.vs.variables().into_iter())
+            .map(|(k, v)| (k, v.copy()))
+            .collect();
+        let x = Tensor::rand([2, 4, 64, 96], (Kind::Float, Device::Cpu));
+        let y = Tensor::randint(9, [2, 64, 96], (Kind::Int64, Device::Cpu));
+        let loss_fn = cfg.learning.loss.build(None);
+        for student in [&mut nchw, &mut nhwc] {
+            let loss = loss_fn.compute(&student.logits(&x), &y);
+            let trained = &mut student.trained;
+            trained.optimizer.zero_grad(&trained.vs);
+            loss.backward();
+            trained.optimizer.step(&trained.vs, 0.01);
+        }
+        let (a, b) = (nchw.trained.vs.variables(), nhwc.trained.vs.variables());
+        let (mut diff, mut norm) = (0.0, 0.0);
+        for (name, w0) in &before {
+            let (da, db) = (&a[name] - w0, &b[name] - w0);
+            diff += f64::try_from((&da - &db).square().sum(Kind::Double)).unwrap();
+            norm += f64::try_from(da.square().sum(Kind::Double)).unwrap();
+        }
+        let relative = (diff / norm).sqrt();
+        assert!(
+            norm > 0.0 && relative < 1e-3,
+            "update difference {relative:.2e}"
+        );
+    }
 
     fn student(precision: Precision) -> Student {
         let mut cfg = TrainConfig::mfnet_paper("unused".into());
