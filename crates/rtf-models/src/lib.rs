@@ -12,6 +12,7 @@ pub mod baselines;
 pub mod bn_defaults;
 pub mod cmx;
 pub mod error;
+pub mod export;
 pub mod fast;
 pub mod heatnet;
 pub mod inputs;
