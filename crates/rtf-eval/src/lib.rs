@@ -5,6 +5,7 @@ pub mod evaluate;
 pub mod figure;
 pub mod metrics;
 pub mod predict;
+pub mod scores_file;
 pub mod speed;
 
 /// Schema tag of the scores `rtf eval --json` writes (`rtf report` checks it).

@@ -4,10 +4,9 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use rtf_data::inspect::DatasetFormat;
 use rtf_data::FrameSource;
-use rtf_eval::metrics::HEATNET_MIOU_CLASSES;
+use rtf_eval::scores_file::{single_modality_note, DroppedScores, HeatnetScores, ScoresFile};
 use rtf_eval::{EvalOptions, Scores};
 use rtf_train::config::available_device;
-use serde::Serialize;
 
 use super::{load_network, parse_size};
 use crate::output_guard::OutputGuard;
@@ -158,74 +157,8 @@ pub enum FillArg {
     Mean,
 }
 
-/// Scores with one modality missing (`--drop`).
-#[derive(Serialize)]
-struct DroppedScores {
-    #[serde(flatten)]
-    drop: rtf_eval::ModalityDrop,
-    #[serde(flatten)]
-    all: Scores,
-    day: Option<Scores>,
-    night: Option<Scores>,
-}
-
 /// Schema tag of the `--json` file (`rtf report` checks it).
 pub use rtf_eval::EVAL_SCHEMA;
-
-/// `--json` contents: RTFNet convention at the top level (spec §2), MFNet paper's mIoU beside
-/// it; for Freiburg Thermal also HeatNet's convention.
-#[derive(Serialize)]
-struct Report<'a> {
-    schema: &'static str,
-    model: &'a str,
-    /// The channels the network saw (its weights' record or --inputs).
-    inputs: rtf_models::Modality,
-    weights: &'a PathBuf,
-    data: &'a PathBuf,
-    split: &'a str,
-    /// How the network was run: mode (whole / sliding, with crop and stride rate), scales,
-    /// flip.
-    inference: &'a rtf_eval::InferenceOptions,
-    frames: usize,
-    #[serde(flatten)]
-    all: &'a Scores,
-    day: Option<&'a Scores>,
-    night: Option<&'a Scores>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    heatnet: Option<HeatnetScores>,
-    /// Content hash of the data evaluated (`rtf data fingerprint`).
-    data_fingerprint: &'a rtf_data::Fingerprint,
-    /// Class names, then the split's pixel counts, rows = truth, columns = prediction.
-    class_names: Vec<&'a str>,
-    confusion: Vec<Vec<u64>>,
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    dropped: Vec<DroppedScores>,
-}
-
-/// HeatNet's convention (spec §2): mIoU over classes 0–11 with undefined classes skipped;
-/// "day/night" is the mean of the day and the night mIoU.
-#[derive(Serialize)]
-struct HeatnetScores {
-    miou: Option<f64>,
-    day_miou: Option<f64>,
-    night_miou: Option<f64>,
-    day_night_miou: Option<f64>,
-}
-
-impl HeatnetScores {
-    fn of(report: &rtf_eval::EvalReport) -> Self {
-        let miou = |s: &Scores| s.miou_heatnet(HEATNET_MIOU_CLASSES);
-        let day_miou = report.day.as_ref().and_then(miou);
-        let night_miou = report.night.as_ref().and_then(miou);
-        Self {
-            miou: miou(&report.all),
-            day_miou,
-            night_miou,
-            day_night_miou: day_miou.zip(night_miou).map(|(d, n)| (d + n) / 2.0),
-        }
-    }
-}
-
 /// The labelled frames of `split` under `root`, the root opened once (its layout decides how;
 /// Freiburg Thermal: `test` or `train`, with the reference test preprocessing).
 pub(crate) fn open_split(
@@ -285,13 +218,10 @@ pub fn run(args: Args) -> Result<()> {
         device,
     )?;
     if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
-        let n = report.confusion.num_classes();
-        let json = serde_json::to_string_pretty(&Report {
+        let file = ScoresFile {
             schema: EVAL_SCHEMA,
             class_names: classes.names(),
-            confusion: (0..n)
-                .map(|t| (0..n).map(|p| report.confusion.get(t, p)).collect())
-                .collect(),
+            confusion: confusion_rows(&report.confusion),
             dropped,
             model: &args.model,
             inputs: loaded.inputs,
@@ -305,7 +235,8 @@ pub fn run(args: Args) -> Result<()> {
             night: report.night.as_ref(),
             heatnet,
             data_fingerprint,
-        })?;
+        };
+        let json = serde_json::to_string_pretty(&file)?;
         rtf_core::write_bytes_atomic(path, json.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
     }
@@ -320,6 +251,14 @@ pub fn run(args: Args) -> Result<()> {
         )?;
     }
     Ok(())
+}
+
+/// The confusion matrix as rows: truth, then prediction.
+fn confusion_rows(confusion: &rtf_eval::ConfusionMatrix) -> Vec<Vec<u64>> {
+    let n = confusion.num_classes();
+    (0..n)
+        .map(|t| (0..n).map(|p| confusion.get(t, p)).collect())
+        .collect()
 }
 
 /// Prints the scores: RTFNet's convention table, then HeatNet's (Freiburg Thermal) or the MFNet
@@ -419,27 +358,6 @@ fn scores_without_modalities(
     Ok(dropped)
 }
 
-/// What `--drop` means for a network that sees one modality (None: it sees both).
-fn single_modality_note(
-    dropped: rtf_models::Modality,
-    sees: rtf_models::Modality,
-) -> Option<String> {
-    use rtf_models::Modality::RgbT;
-    match sees {
-        RgbT => None,
-        only if only == dropped => Some(format!(
-            "the network sees only {} (its weights' inputs): without it, it sees nothing",
-            only.name()
-        )),
-        only => Some(format!(
-            "the network sees only {} (its weights' inputs), never {}: the scores equal the \
-             plain ones",
-            only.name(),
-            dropped.name()
-        )),
-    }
-}
-
 /// `--figure`: a grid of `--figure-frames` frames (RGB, thermal, truth, prediction).
 fn write_figure(
     args: &Args,
@@ -462,7 +380,7 @@ fn write_figure(
 
 #[cfg(test)]
 mod tests {
-    use super::{parse_crop, parse_rate, parse_scale, single_modality_note};
+    use super::{parse_crop, parse_rate, parse_scale};
 
     #[test]
     fn inference_flags_parse() {
@@ -473,18 +391,5 @@ mod tests {
         assert!(parse_rate("3/2").is_err() && parse_rate("0").is_err());
         assert_eq!(parse_scale("0.75"), Ok(0.75));
         assert!(parse_scale("-1").is_err() && parse_scale("x").is_err());
-    }
-    use rtf_models::Modality::{Rgb, RgbT, Thermal};
-
-    #[test]
-    fn drop_notes_say_what_a_single_modality_network_sees() {
-        assert_eq!(single_modality_note(Rgb, RgbT), None);
-        let unseen = single_modality_note(Thermal, Rgb).unwrap();
-        assert!(
-            unseen.contains("never thermal") && unseen.contains("equal"),
-            "{unseen}"
-        );
-        let only = single_modality_note(Thermal, Thermal).unwrap();
-        assert!(only.contains("sees nothing"), "{only}");
     }
 }
