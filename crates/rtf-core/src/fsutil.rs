@@ -101,7 +101,7 @@ pub fn resolved(path: &Path) -> PathBuf {
                 missing.extend(
                     existing
                         .components()
-                        .last()
+                        .next_back()
                         .map(|c| c.as_os_str().to_os_string()),
                 );
                 existing = parent;
