@@ -1,5 +1,6 @@
 //! Shared vocabulary of rtf: class sets and palettes, day/night, input conventions, and the
-//! atomic-write helper every crate uses for outputs, the host description benchmarks report.
+//! atomic-write helper every crate uses for outputs, the host description benchmarks report, the
+//! refusal a command's library layer says.
 //! No libtorch here.
 
 pub mod classes;
@@ -7,10 +8,12 @@ pub mod fsutil;
 pub mod host;
 pub mod input;
 pub mod npy;
+pub mod refusal;
 
 pub use classes::{ClassInfo, ClassSet, LabelValues};
 pub use fsutil::{resolved, write_atomic, write_bytes_atomic, AtomicWriteError};
 pub use input::InputConvention;
+pub use refusal::{refused, Refusal};
 
 use serde::{Deserialize, Serialize};
 

@@ -11,6 +11,7 @@
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
+use rtf_core::refusal::{refused, Refusal};
 use rtf_core::ClassSet;
 use rtf_data::images::{self, ThermalSamples};
 use rtf_data::thermal::ThermalNormalisation;
@@ -24,38 +25,16 @@ use crate::evaluate::EvalError;
 /// keeps its own message as the source.
 #[derive(Debug, thiserror::Error)]
 pub enum PredictError {
-    /// What was asked cannot be predicted (nothing was written).
-    #[error("{0}")]
-    Refused(String),
-    /// An error with what it concerns (a file, a frame) said first.
-    #[error("{message}")]
-    Because {
-        message: String,
-        #[source]
-        source: Box<dyn std::error::Error + Send + Sync>,
-    },
+    /// What was asked cannot be predicted (nothing was written), or failed on the file or
+    /// frame the message names.
+    #[error(transparent)]
+    Request(#[from] Refusal),
     #[error(transparent)]
     Data(#[from] DataError),
     #[error(transparent)]
     Eval(#[from] EvalError),
     #[error(transparent)]
     Tensor(#[from] tch::TchError),
-}
-
-impl PredictError {
-    fn because(
-        message: impl Into<String>,
-        source: impl std::error::Error + Send + Sync + 'static,
-    ) -> Self {
-        Self::Because {
-            message: message.into(),
-            source: Box::new(source),
-        }
-    }
-}
-
-fn refused(message: String) -> PredictError {
-    PredictError::Refused(message)
 }
 
 /// How a thermal file becomes [0, 1]: a given range, else the rule the weights were trained
@@ -112,7 +91,7 @@ fn described_class_set(path: &Path) -> Result<ClassSet, PredictError> {
         Some(format) => rtf_data::Dataset::open_as(path, format)?
             .description()
             .cloned()
-            .ok_or_else(|| refused("a described layout has a description".into()))?,
+            .ok_or_else(|| Refusal::Refused("a described layout has a description".into()))?,
         None => {
             return Err(refused(format!(
                 "--classes {}: not mf, freiburg, a dataset.yaml or a dataset root with one \
@@ -227,7 +206,7 @@ impl Planned {
 /// The `.png` files of a folder, by name (hidden ones, such as a stopped run's temporary
 /// files, left out).
 fn folder_images(path: &Path) -> Result<Vec<PathBuf>, PredictError> {
-    let listing = |e| PredictError::because(format!("cannot list {}", path.display()), e);
+    let listing = |e| Refusal::because(format!("cannot list {}", path.display()), e);
     let mut found = Vec::new();
     for entry in std::fs::read_dir(path).map_err(listing)? {
         let entry = entry.map_err(listing)?;
@@ -326,7 +305,7 @@ pub fn plan_outputs(
                     path.display()
                 )));
             }
-            may_write(&path).map_err(PredictError::Refused)?;
+            may_write(&path).map_err(Refusal::Refused)?;
         }
         let [ids, color, npy] = names.map(|n| out.join(n));
         planned.push(Planned {
@@ -374,7 +353,7 @@ fn preflight(
     }
     for ((h, w), path) in sizes {
         crate::evaluate::check_memory(network, 1, h, w, device)
-            .map_err(|e| PredictError::because(path.display().to_string(), e))?;
+            .map_err(|e| Refusal::because(path.display().to_string(), e))?;
     }
     Ok(())
 }
@@ -452,9 +431,8 @@ impl<'a> Prediction<'a> {
             .filter(|p| Some(*p) != rgb)
             .collect();
         preflight(&mf, self.network, self.device)?;
-        std::fs::create_dir_all(self.out).map_err(|e| {
-            PredictError::because(format!("cannot create {}", self.out.display()), e)
-        })?;
+        std::fs::create_dir_all(self.out)
+            .map_err(|e| Refusal::because(format!("cannot create {}", self.out.display()), e))?;
         let stale = remove_stale_temporaries(self.out, self.planned);
         if stale > 0 {
             eprintln!(
@@ -481,7 +459,7 @@ impl<'a> Prediction<'a> {
         let rule = thermal_rule(self.thermal_range, self.model, self.trained);
         let frame = read_pair(rgb, thermal, rule)?;
         crate::evaluate::check_memory(self.network, 1, frame.height, frame.width, self.device)
-            .map_err(|e| PredictError::because(rgb.display().to_string(), e))?;
+            .map_err(|e| Refusal::because(rgb.display().to_string(), e))?;
         Ok(Some(frame))
     }
 }
@@ -534,7 +512,7 @@ fn predict_frame(
     let source = plan.source.display().to_string();
     let input = crate::figure::frame_input(frame, network.input_convention()).to_device(device);
     let logits = crate::evaluate::logits(network, &input)
-        .map_err(|e| PredictError::because(source, e))?
+        .map_err(|e| Refusal::because(source, e))?
         .get(0)
         .to_kind(Kind::Float)
         .to_device(tch::Device::Cpu);
@@ -549,7 +527,7 @@ fn predict_frame(
         let shape: Vec<usize> = logits.size().iter().map(|&d| d as usize).collect();
         let values = Vec::<f32>::try_from(logits.flatten(0, -1))?;
         rtf_core::npy::write_f32(npy, &shape, &values)
-            .map_err(|e| PredictError::because(format!("writing {}", npy.display()), e))?;
+            .map_err(|e| Refusal::because(format!("writing {}", npy.display()), e))?;
     }
     Ok(())
 }
@@ -565,9 +543,10 @@ fn save_png(
 ) -> Result<(), PredictError> {
     let bytes =
         rtf_data::pngio::encode_png_u8_tagged(width as usize, height as usize, channels, samples)
-            .map_err(PredictError::Refused)?;
+            .map_err(Refusal::Refused)?;
     rtf_core::write_bytes_atomic(path, &bytes)
-        .map_err(|e| PredictError::because(format!("writing {}", path.display()), e))
+        .map_err(|e| Refusal::because(format!("writing {}", path.display()), e))?;
+    Ok(())
 }
 
 #[cfg(test)]

@@ -19,6 +19,8 @@ use std::process::Command;
 
 use tch::{CModule, Device, Kind, Tensor};
 
+use rtf_core::refusal::{flattened, refused, Refusal};
+
 use crate::fast::Precision;
 use crate::Network;
 
@@ -26,16 +28,10 @@ use crate::Network;
 /// its own message as the source.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
-    /// The network or what was asked cannot be exported.
-    #[error("{0}")]
-    Refused(String),
-    /// An error with what it concerns (a file, the tracer) said first.
-    #[error("{message}")]
-    Because {
-        message: String,
-        #[source]
-        source: Box<dyn std::error::Error + Send + Sync>,
-    },
+    /// The network or what was asked cannot be exported, or failed on the file or step the
+    /// message names.
+    #[error(transparent)]
+    Request(#[from] Refusal),
     #[error(transparent)]
     Tensor(#[from] tch::TchError),
     #[error(transparent)]
@@ -44,34 +40,6 @@ pub enum ExportError {
     Zip(#[from] zip::result::ZipError),
     #[error(transparent)]
     Json(#[from] serde_json::Error),
-}
-
-impl ExportError {
-    fn because(
-        message: impl Into<String>,
-        source: impl std::error::Error + Send + Sync + 'static,
-    ) -> Self {
-        Self::Because {
-            message: message.into(),
-            source: Box::new(source),
-        }
-    }
-
-    /// The message with its sources, `: `-joined (one line for a caller that shows only
-    /// the top of an error, as the atomic writer does).
-    fn flattened(&self) -> String {
-        let mut text = self.to_string();
-        let mut source = std::error::Error::source(self);
-        while let Some(e) = source {
-            text += &format!(": {e}");
-            source = e.source();
-        }
-        text
-    }
-}
-
-fn refused(message: String) -> ExportError {
-    ExportError::Refused(message)
 }
 
 /// The deployment file's kind.
@@ -167,7 +135,7 @@ fn metadata(network: &dyn Network, spec: &Export, in_channels: i64) -> serde_jso
 /// The TorchScript archive's first entry's folder (every entry sits under it).
 fn archive_prefix(file: &std::fs::File, archive: &Path) -> Result<String, ExportError> {
     let mut zip = zip::ZipArchive::new(file).map_err(|e| {
-        ExportError::because(
+        Refusal::because(
             format!("{}: not a TorchScript archive", archive.display()),
             e,
         )
@@ -185,7 +153,7 @@ fn add_extra_file(archive: &Path, name: &str, contents: &[u8]) -> Result<(), Exp
         .read(true)
         .write(true)
         .open(archive)
-        .map_err(|e| ExportError::because(format!("opening {}", archive.display()), e))?;
+        .map_err(|e| Refusal::because(format!("opening {}", archive.display()), e))?;
     let prefix = archive_prefix(&file, archive)?;
     let mut zip = zip::ZipWriter::new_append(file)?;
     let options = zip::write::SimpleFileOptions::default()
@@ -220,8 +188,7 @@ fn project_python() -> Result<PathBuf, ExportError> {
     }
     Err(refused(
         "ONNX export needs the project's .venv (PyTorch's ONNX exporter): run `cargo xtask \
-         setup`, or set RTF_PYTHON to a Python with torch and onnx"
-            .into(),
+         setup`, or set RTF_PYTHON to a Python with torch and onnx",
     ))
 }
 
@@ -264,7 +231,7 @@ pub fn trace(
     let (h, w) = (size.0 as i64, size.1 as i64);
     network
         .check_input(&[1, in_channels, h, w])
-        .map_err(|e| refused(format!("--size {}x{}: {e}", size.0, size.1)))?;
+        .map_err(|e| Refusal::Refused(format!("--size {}x{}: {e}", size.0, size.1)))?;
     let _guard = tch::no_grad_guard();
     let kind = precision.kind();
     // fp32 graphs get no casts at all (a cast's output carries no type for ONNX export).
@@ -286,9 +253,8 @@ pub fn trace(
             network.name()
         )));
     }
-    let module = traced.map_err(|e| {
-        ExportError::because(format!("{}: the JIT tracer failed", network.name()), e)
-    })?;
+    let module = traced
+        .map_err(|e| Refusal::because(format!("{}: the JIT tracer failed", network.name()), e))?;
     // A second input: a graph that baked in data-dependent choices gives other logits.
     // Its values span [-0.5, 2.5] (mean 1), unlike the example's [0, 1]: a branch on the input
     // statistics shows up.
@@ -315,10 +281,10 @@ pub fn export(network: &dyn Network, spec: &Export) -> Result<(), ExportError> {
     let meta_bytes = serde_json::to_vec_pretty(&meta)?;
     let save_torchscript = |path: &Path| -> Result<(), ExportError> {
         module.save(path).map_err(|e| {
-            ExportError::because(format!("saving TorchScript to {}", path.display()), e)
+            Refusal::because(format!("saving TorchScript to {}", path.display()), e)
         })?;
         // Flattened: the atomic writer shows only the top error.
-        add_extra_file(path, "rtf.json", &meta_bytes).map_err(|e| refused(e.flattened()))
+        add_extra_file(path, "rtf.json", &meta_bytes).map_err(|e| refused(flattened(&e)))
     };
     match spec.format {
         Format::Torchscript => {
@@ -353,7 +319,7 @@ fn torchscript_to_onnx(
             .arg(size.0.to_string())
             .arg(size.1.to_string())
             .output()
-            .map_err(|e| ExportError::because(format!("running {}", python.display()), e))?;
+            .map_err(|e| Refusal::because(format!("running {}", python.display()), e))?;
         print!("{}", String::from_utf8_lossy(&output.stdout));
         if !output.status.success() {
             return Err(refused(format!(

@@ -8,6 +8,7 @@
 
 use std::path::{Path, PathBuf};
 
+use rtf_core::refusal::{ensure, refused, Refusal};
 use rtf_core::ClassSet;
 use rtf_data::inspect::DatasetFormat;
 use rtf_models::{Modality, ModelConfig};
@@ -23,16 +24,9 @@ use crate::recipe::{self, RecipeInputs};
 /// says it (the flags are named); a wrapped error keeps its own message as the source.
 #[derive(Debug, thiserror::Error)]
 pub enum SetupError {
-    /// What was asked cannot make a run.
-    #[error("{0}")]
-    Refused(String),
-    /// An error with what it concerns (a file, a flag) said first.
-    #[error("{message}")]
-    Because {
-        message: String,
-        #[source]
-        source: Box<dyn std::error::Error + Send + Sync>,
-    },
+    /// What was asked cannot make a run, or failed on the file or flag the message names.
+    #[error(transparent)]
+    Request(#[from] Refusal),
     #[error(transparent)]
     Train(#[from] TrainError),
     #[error(transparent)]
@@ -45,26 +39,6 @@ pub enum SetupError {
     Recipe(#[from] recipe::RecipeError),
     #[error(transparent)]
     Io(#[from] std::io::Error),
-}
-
-impl SetupError {
-    fn because(
-        message: impl Into<String>,
-        source: impl std::error::Error + Send + Sync + 'static,
-    ) -> Self {
-        Self::Because {
-            message: message.into(),
-            source: Box::new(source),
-        }
-    }
-}
-
-/// `anyhow::ensure!` for [`SetupError::Refused`].
-fn ensure(condition: bool, message: impl FnOnce() -> String) -> Result<(), SetupError> {
-    match condition {
-        true => Ok(()),
-        false => Err(SetupError::Refused(message())),
-    }
 }
 
 /// A teacher given on the command line (`--teacher`, `--teacher-model`, `--teacher-inputs`).
@@ -189,7 +163,7 @@ fn open_dataset(root: &Path) -> Result<rtf_data::Dataset, SetupError> {
 /// from another directory finds it).
 fn dataset_of(data: &Path, asked: &NewRun) -> Result<(DatasetConfig, ClassSet), SetupError> {
     let root = std::fs::canonicalize(data).map_err(|e| {
-        SetupError::because(
+        Refusal::because(
             format!("{}: cannot open the dataset root", data.display()),
             e,
         )
@@ -316,7 +290,7 @@ fn teacher_ref(
         )
     })?;
     let name = teacher.model.as_ref().ok_or_else(|| {
-        SetupError::Refused(format!(
+        Refusal::Refused(format!(
             "{flag} {} is a weights file: name its network with {flag}-model",
             path.display()
         ))
@@ -334,13 +308,12 @@ fn run_teacher(
     inputs: Option<Modality>,
     flag: &str,
 ) -> Result<TeacherRef, SetupError> {
-    let run = crate::TrainedRun::open(path).map_err(|e| {
-        SetupError::because(format!("{flag} {}: not a run folder", path.display()), e)
-    })?;
+    let run = crate::TrainedRun::open(path)
+        .map_err(|e| Refusal::because(format!("{flag} {}: not a run folder", path.display()), e))?;
     let last = run.last_training();
     let weights = run.folder().weights();
     let weights = weights.selected().ok_or_else(|| {
-        SetupError::Refused(format!(
+        Refusal::Refused(format!(
             "{}: the run has no best.safetensors or final.safetensors yet ({flag})",
             path.display()
         ))
@@ -355,12 +328,11 @@ fn run_teacher(
 /// A `--config` file (YAML or JSON, the schema of config.json).
 fn config_file_run(path: &Path) -> Result<RunConfig, SetupError> {
     let text = std::fs::read_to_string(path)
-        .map_err(|e| SetupError::because(format!("{}: cannot read", path.display()), e))?;
+        .map_err(|e| Refusal::because(format!("{}: cannot read", path.display()), e))?;
     let yaml = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml"));
-    RunConfig::parse(&text, yaml)
-        .map_err(|e| SetupError::Refused(format!("{}: {e}", path.display())))
+    RunConfig::parse(&text, yaml).map_err(|e| refused(format!("{}: {e}", path.display())))
 }
 
 /// The `--teacher` or `--night-teacher` given, resolved.
@@ -397,7 +369,7 @@ fn required_data(asked: &NewRun) -> Result<&Path, SetupError> {
     asked
         .data
         .as_deref()
-        .ok_or_else(|| SetupError::Refused("--data is required".into()))
+        .ok_or_else(|| refused("--data is required"))
 }
 
 /// One supervised (or, with `--teacher`, teacher-student) training on the `--data` root.
@@ -438,13 +410,13 @@ fn apply_init(cfg: &mut RunConfig, path: &Path, reset_head: bool) -> Result<(), 
     // A single run, or a recipe left with one stage (its teachers given as weights).
     let mut stages = cfg.stages_mut();
     let [single] = stages.as_mut_slice() else {
-        return Err(SetupError::Refused(
-            "--init goes with a single-stage run (a pipeline's stages start from their own weights)".into(),
+        return Err(refused(
+            "--init goes with a single-stage run (a pipeline's stages start from their own weights)",
         ));
     };
     let single = &mut **single;
     let path = std::fs::canonicalize(path).map_err(|e| {
-        SetupError::because(
+        Refusal::because(
             format!("{}: cannot open the --init weights", path.display()),
             e,
         )
@@ -453,11 +425,11 @@ fn apply_init(cfg: &mut RunConfig, path: &Path, reset_head: bool) -> Result<(), 
     single.network.init_reset_head = reset_head;
     crate::init::check_init_weights(single).map_err(|e| match e {
         TrainError::Model(m @ rtf_models::ModelError::Mismatch { .. }) if !reset_head => {
-            SetupError::because(
+            SetupError::from(Refusal::because(
                 "--init: these weights do not fit the network (--reset-head starts the \
                  classifier head fresh when only the class count differs)",
                 m,
-            )
+            ))
         }
         other => other.into(),
     })?;
@@ -476,7 +448,7 @@ fn apply_optimizer_flags(o: &mut OptimizerConfig, flags: &Overrides) -> Result<(
     o.weight_decay = flags.weight_decay.unwrap_or(o.weight_decay);
     if let Some(epochs) = flags.warmup_epochs {
         let LrSchedule::WarmupPoly { warmup_epochs, .. } = &mut o.schedule else {
-            return Err(SetupError::Refused("--warmup-epochs goes with a warm-up-then-poly schedule (--optimizer adamw, --recipe cmx-mf)".into()));
+            return Err(refused("--warmup-epochs goes with a warm-up-then-poly schedule (--optimizer adamw, --recipe cmx-mf)"));
         };
         *warmup_epochs = epochs;
     }
