@@ -142,15 +142,8 @@ fn the_cmx_mf_recipe_trains_with_the_official_augmentation() {
         fill.iter().zip(expected).all(|(a, b)| (a - b).abs() < 1e-3),
         "{fill:?}"
     );
-    let steps = std::fs::read_to_string(run.join("steps.jsonl")).unwrap();
-    let losses: Vec<f64> = steps
-        .lines()
-        .map(|l| {
-            serde_json::from_str::<serde_json::Value>(l).unwrap()["loss"]
-                .as_f64()
-                .unwrap()
-        })
-        .collect();
+    let steps = rtf_train::step_log::read(&run).unwrap();
+    let losses: Vec<f64> = steps.iter().map(|s| s.loss).collect();
     assert!(
         losses.len() == 3 && losses.iter().all(|l| l.is_finite() && *l > 0.0),
         "{losses:?}"

@@ -467,16 +467,9 @@ fn init_no_shuffle_and_no_augment_are_recorded_and_resumed() {
         after["network"]["init_from"], config["network"]["init_from"],
         "{before}"
     );
-    let steps = std::fs::read_to_string(run.join("steps.jsonl")).unwrap();
-    let epochs: Vec<u64> = steps
-        .lines()
-        .map(|l| {
-            serde_json::from_str::<serde_json::Value>(l).unwrap()["epoch"]
-                .as_u64()
-                .unwrap()
-        })
-        .collect();
-    assert_eq!(epochs, [0, 0, 1, 1], "{steps}");
+    let steps = rtf_train::step_log::read(&run).unwrap();
+    let epochs: Vec<usize> = steps.iter().map(|s| s.epoch).collect();
+    assert_eq!(epochs, [0, 0, 1, 1], "{steps:?}");
 
     let err = fails(&["train", "--resume", s(&run), "--no-shuffle"]);
     assert!(err.contains("--no-shuffle"), "{err}");

@@ -74,15 +74,8 @@ fn update_difference_where(
 }
 
 fn losses_of_rtf(run: &Path) -> Vec<f64> {
-    std::fs::read_to_string(run.join("steps.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| {
-            serde_json::from_str::<Value>(l).unwrap()["loss"]
-                .as_f64()
-                .unwrap()
-        })
-        .collect()
+    let steps = rtf_train::step_log::read(run).unwrap();
+    steps.iter().map(|s| s.loss).collect()
 }
 
 fn losses_of_reference(path: &Path) -> Vec<f64> {

@@ -4,10 +4,41 @@
 //! needs them one by one. A resume keeps the lines of the steps its checkpoint holds and drops
 //! any written after it, so the file always describes one uninterrupted run.
 
+use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
 
 pub const STEP_LOG_FILE: &str = "steps.jsonl";
+
+/// One line of the step log: a step's total loss and its named terms or metrics.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+pub struct StepRecord {
+    /// 0-based epoch.
+    pub epoch: usize,
+    /// 0-based step over the whole run.
+    pub step: u64,
+    pub loss: f64,
+    /// The terms the procedure reported (e.g. `ce_day`), by name.
+    #[serde(flatten)]
+    pub terms: BTreeMap<String, f64>,
+}
+
+/// Reads `run_dir/steps.jsonl`, one record per step. A line that is not a step record is an
+/// error naming the file and the line.
+pub fn read(run_dir: &Path) -> std::io::Result<Vec<StepRecord>> {
+    let path = run_dir.join(STEP_LOG_FILE);
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
+    text.lines()
+        .enumerate()
+        .map(|(i, line)| {
+            serde_json::from_str(line).map_err(|e| {
+                let at = format!("{}: line {}: {e}", path.display(), i + 1);
+                std::io::Error::new(std::io::ErrorKind::InvalidData, at)
+            })
+        })
+        .collect()
+}
 
 /// The open step log of rank 0 (other ranks write none).
 pub struct StepLog {
@@ -75,24 +106,31 @@ mod tests {
         drop(log);
         let mut log = StepLog::open(dir.path(), true, 2).unwrap();
         log.record(1, 2, 9.0, &no_terms()).unwrap();
-        let text = std::fs::read_to_string(dir.path().join(STEP_LOG_FILE)).unwrap();
-        let losses: Vec<f64> = text
-            .lines()
-            .map(|l| {
-                serde_json::from_str::<serde_json::Value>(l).unwrap()["loss"]
-                    .as_f64()
-                    .unwrap()
-            })
-            .collect();
+        let records = read(dir.path()).unwrap();
+        let losses: Vec<f64> = records.iter().map(|r| r.loss).collect();
         assert_eq!(losses, [0.5, 1.5, 9.0]);
-        assert!(
-            text.lines().last().unwrap().contains("\"epoch\":1"),
-            "{text}"
-        );
+        assert_eq!(records[2].epoch, 1, "{records:?}");
         let fresh = StepLog::open(dir.path(), true, 0).unwrap();
         drop(fresh);
-        assert!(std::fs::read_to_string(dir.path().join(STEP_LOG_FILE))
-            .unwrap()
-            .is_empty());
+        assert!(read(dir.path()).unwrap().is_empty());
+    }
+
+    #[test]
+    fn terms_read_back_by_name_and_a_bad_line_names_the_file_and_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut log = StepLog::open(dir.path(), true, 0).unwrap();
+        let terms = BTreeMap::from([("ce_day".to_string(), 0.25)]);
+        log.record(0, 0, 0.75, &terms).unwrap();
+        drop(log);
+        assert_eq!(read(dir.path()).unwrap()[0].terms, terms);
+        let path = dir.path().join(STEP_LOG_FILE);
+        let mut text = std::fs::read_to_string(&path).unwrap();
+        text += "{\"epoch\": 0}\n";
+        std::fs::write(&path, text).unwrap();
+        let error = read(dir.path()).unwrap_err().to_string();
+        assert!(
+            error.contains("steps.jsonl: line 2: missing field"),
+            "{error}"
+        );
     }
 }

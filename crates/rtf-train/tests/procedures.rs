@@ -172,22 +172,18 @@ fn the_codes_alternation_resumes_exactly_and_the_critic_starts_from_its_init() {
 
     let straight = tmp.path().join("straight");
     let expected = rtf_train::train(&cfg, &straight, false, &mut |_| {}).unwrap();
-    let steps: Vec<serde_json::Value> = std::fs::read_to_string(straight.join("steps.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let steps = rtf_train::step_log::read(&straight).unwrap();
     assert_eq!(steps.len(), 2 * 2, "2 day batches per epoch");
     for (i, step) in steps.iter().enumerate() {
         let critic_step = i % 2 == 0;
-        assert_eq!(
-            step.get("ce_day").is_none(),
-            critic_step,
-            "step {i}: {step}"
-        );
-        assert!(step["critic"].is_null() != critic_step, "step {i}: {step}");
+        let term = |name: &str| step.terms.get(name).copied();
+        assert_eq!(term("ce_day").is_none(), critic_step, "step {i}: {step:?}");
         assert!(
-            critic_step || step["adv_day"].as_f64().unwrap() > 0.0,
+            term("critic").is_none() != critic_step,
+            "step {i}: {step:?}"
+        );
+        assert!(
+            critic_step || term("adv_day").unwrap() > 0.0,
             "the day term"
         );
     }
