@@ -60,6 +60,17 @@ pub enum ModelError {
         saved: String,
         requested: String,
     },
+    #[error(
+        "{}: the network was trained on `{saved}` inputs; --inputs {asked} would score it on \
+         others (drop --inputs, use --drop for missing-modality scores, or --foreign-weights to \
+         force it)",
+        path.display()
+    )]
+    InputsContradict {
+        path: PathBuf,
+        saved: String,
+        asked: String,
+    },
     #[error("{context}: {source}")]
     Torch {
         context: String,

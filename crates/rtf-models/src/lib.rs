@@ -18,6 +18,7 @@ pub mod heatnet;
 pub mod inputs;
 pub mod kernels;
 pub mod layers;
+pub mod loaded;
 pub mod mfnet;
 pub mod mit_pretrained;
 pub mod onednn;

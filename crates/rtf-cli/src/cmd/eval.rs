@@ -10,6 +10,7 @@ use rtf_train::config::available_device;
 
 use super::{load_network, parse_size};
 use crate::output_guard::OutputGuard;
+use rtf_models::loaded::NetworkRequest;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -189,15 +190,15 @@ pub fn run(args: Args) -> Result<()> {
     let classes = split.class_set().clone();
     // Weights that record their classes score only data with the same ones (by name).
     super::check_classes(&args.weights, &args.data, &classes)?;
-    let loaded = load_network(
-        &args.model,
-        classes.len() as i64,
-        &args.weights,
+    let loaded = load_network(&NetworkRequest {
+        name: &args.model,
+        num_classes: classes.len() as i64,
+        weights: &args.weights,
         device,
-        args.precision,
-        args.foreign_weights,
-        args.inputs,
-    )?;
+        precision: args.precision,
+        foreign_weights: args.foreign_weights,
+        inputs: args.inputs,
+    })?;
     let network = loaded.net;
     rtf_eval::evaluate::install_quiet_panic_hook();
     let options = args.eval_options();

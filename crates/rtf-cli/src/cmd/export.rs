@@ -10,6 +10,7 @@ use rtf_models::fast::Precision;
 use tch::Device;
 
 use super::load_network;
+use rtf_models::loaded::NetworkRequest;
 
 #[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
 pub enum Format {
@@ -88,19 +89,20 @@ fn class_count(args: &Args) -> Result<(i64, Option<rtf_data::TrainedOn>)> {
 pub fn run(args: Args) -> Result<()> {
     refuse_overwriting_weights(&args)?;
     let (classes, record) = class_count(&args)?;
-    let super::LoadedNetwork {
+    let rtf_models::loaded::LoadedNetwork {
         mut vs,
         net: network,
         inputs,
-    } = load_network(
-        &args.model,
-        classes,
-        &args.weights,
-        Device::Cpu,
-        None,
-        false,
-        args.inputs,
-    )
+        ..
+    } = load_network(&NetworkRequest {
+        name: &args.model,
+        num_classes: classes,
+        weights: &args.weights,
+        device: Device::Cpu,
+        precision: None,
+        foreign_weights: false,
+        inputs: args.inputs,
+    })
     .with_context(|| format!("loading {} into {}", args.weights.display(), args.model))?;
     // Weights become constants of the graph: no autograd on them.
     vs.freeze();

@@ -40,63 +40,20 @@ pub fn open_dataset(root: &std::path::Path, purpose: &str) -> anyhow::Result<rtf
     Ok(dataset)
 }
 
-/// A network loaded for inference, behind the input mask it was trained with.
-pub struct LoadedNetwork {
-    pub vs: tch::nn::VarStore,
-    pub net: Box<dyn rtf_models::Network>,
-    /// The channels the network sees: the weights file's record (`rtf.inputs`), else
-    /// `--inputs`, else all four.
-    pub inputs: rtf_models::Modality,
-}
-
-/// Builds a network by name and loads weights (strict, reference names, checked against the
-/// file's model metadata unless `foreign_weights`; a file without metadata loads with a
-/// warning on stderr). With a precision, the network is wrapped in the fast inference path
-/// (BatchNorm folded, channels-last). The network sees the inputs it was trained on: an
-/// `--inputs` that contradicts the file's record is refused (unless `foreign_weights`), since
-/// it would score an RGB-only network on RGB-T input, or the reverse, without a word.
+/// [`rtf_models::loaded::load_network`] for a command: a bf16 request warned about where bf16
+/// is slow or emulated here (`crate::bf16_warning`), the loader's warnings printed on stderr.
 pub fn load_network(
-    name: &str,
-    num_classes: i64,
-    weights: &std::path::Path,
-    device: tch::Device,
-    precision: Option<rtf_models::fast::Precision>,
-    foreign_weights: bool,
-    inputs: Option<rtf_models::Modality>,
-) -> anyhow::Result<LoadedNetwork> {
-    let bf16 = precision == Some(rtf_models::fast::Precision::Bf16);
-    if let Some(warning) = crate::bf16_warning::inference(bf16, device) {
+    request: &rtf_models::loaded::NetworkRequest,
+) -> anyhow::Result<rtf_models::loaded::LoadedNetwork> {
+    let bf16 = request.precision == Some(rtf_models::fast::Precision::Bf16);
+    if let Some(warning) = crate::bf16_warning::inference(bf16, request.device) {
         eprintln!("warning: {warning}");
     }
-    let cfg = rtf_models::ModelConfig::from_name(name, num_classes)?;
-    let mut vs = tch::nn::VarStore::new(device);
-    let net = rtf_models::build(&vs.root(), &cfg)?;
-    let loaded = rtf_models::weights::load_checked(&mut vs, &cfg, weights, foreign_weights)?;
-    if let Some(warning) = rtf_models::weights::provenance_warning(weights, &loaded.provenance) {
+    let loaded = rtf_models::loaded::load_network(request)?;
+    for warning in &loaded.warnings {
         eprintln!("warning: {warning}");
     }
-    let inputs = match (loaded.inputs, inputs) {
-        (Some(saved), Some(asked)) if saved != asked && !foreign_weights => anyhow::bail!(
-            "{}: the network was trained on `{saved}` inputs; --inputs {asked} would score it \
-             on others (drop --inputs, use --drop for missing-modality scores, or \
-             --foreign-weights to force it)",
-            weights.display()
-        ),
-        (_, Some(asked)) => asked,
-        (Some(saved), None) => saved,
-        (None, None) => rtf_models::Modality::RgbT,
-    };
-    let net = match precision {
-        Some(p) => {
-            Box::new(rtf_models::fast::InferenceNet::new(net, p)?) as Box<dyn rtf_models::Network>
-        }
-        None => net,
-    };
-    Ok(LoadedNetwork {
-        vs,
-        net: rtf_models::masked(net, inputs),
-        inputs,
-    })
+    Ok(loaded)
 }
 
 /// The network configuration recorded in a weights file (`rtf.config`); None for weights

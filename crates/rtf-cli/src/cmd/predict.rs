@@ -9,6 +9,7 @@ use rtf_train::config::available_device;
 
 use super::load_network;
 use crate::output_guard::OutputGuard;
+use rtf_models::loaded::NetworkRequest;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -126,15 +127,15 @@ pub fn run(args: Args) -> Result<()> {
         &args.weights,
         trained.as_ref(),
     )?;
-    let network = load_network(
-        &args.model,
-        classes.len() as i64,
-        &args.weights,
+    let network = load_network(&NetworkRequest {
+        name: &args.model,
+        num_classes: classes.len() as i64,
+        weights: &args.weights,
         device,
-        args.precision,
-        args.foreign_weights,
-        args.inputs,
-    )?
+        precision: args.precision,
+        foreign_weights: args.foreign_weights,
+        inputs: args.inputs,
+    })?
     .net;
     let prediction = Prediction {
         out: &args.out,
