@@ -77,7 +77,7 @@ def inference(a, model, out):
 
 def training(a, model, out):
     args = ["--model", model, "--batch", str(a.train_batch), "--size", a.train_size, "--threads", str(a.threads),
-            "--rounds", "1", "--warmup", "1", "--steps", str(a.train_steps), "--precisions", a.train_precisions,
+            "--rounds", str(a.train_rounds), "--warmup", "1", "--steps", str(a.train_steps), "--precisions", a.train_precisions,
             "--rtf", a.rtf] + (["--skip", a.train_skip] if a.train_skip else [])
     samples, command = run(a.prefix, "bench_torch_train.py", args, os.path.join(out, f"train_{model}.json"))
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -183,6 +183,7 @@ def main():
     ap.add_argument("--train-batch", type=int, default=4)
     ap.add_argument("--train-size", default="640x480")
     ap.add_argument("--train-steps", type=int, default=2)
+    ap.add_argument("--train-rounds", type=int, default=1, help="interleaved training rounds (fresh processes each)")
     ap.add_argument("--train-skip", default="", help="PyTorch training configurations to leave out (bench_torch_train.py "
                     "--skip)")
     ap.add_argument("--rtf", default="target/release/rtf")
