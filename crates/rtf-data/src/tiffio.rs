@@ -1,6 +1,6 @@
 //! Thermal TIFFs as radiometric cameras export them (FLIR Boson/Tau tools, most RGB-T
 //! releases): one grey channel of 8- or 16-bit counts or 32-bit float temperatures,
-//! uncompressed, LZW, deflate or PackBits. Grey stored as RGB(A) with equal
+//! uncompressed, LZW, deflate or PackBits, in strips or tiles. Grey stored as RGB(A) with equal
 //! channels is read as grey. Anything else — 12-bit packed samples, signed or 64-bit samples,
 //! separate colour planes, JPEG-in-TIFF — is refused naming the file and what it is.
 
@@ -151,27 +151,70 @@ pub fn encode_grey(
 /// A one-strip little-endian grey TIFF of `bits`-bit samples written byte by byte (no
 /// compression): layouts the encoder does not write (12-bit packed), for tests and fixtures.
 pub fn raw_grey_tiff(width: u16, height: u16, bits: u16, data: &[u8]) -> Vec<u8> {
-    let tags: [(u16, u16, u32); 9] = [
-        (256, 3, width.into()),
-        (257, 3, height.into()),
-        (258, 3, bits.into()),
-        (259, 3, 1),
-        (262, 3, 1),
-        (273, 4, 8 + 2 + 9 * 12 + 4),
-        (277, 3, 1),
-        (278, 3, height.into()),
-        (279, 4, data.len() as u32),
-    ];
+    let (width, height, bits) = (width.into(), height.into(), bits.into());
+    raw_tiff(
+        &[
+            (256, SHORT, &[width]),
+            (257, SHORT, &[height]),
+            (258, SHORT, &[bits]),
+            (259, SHORT, &[1]),
+            (262, SHORT, &[1]),
+            (273, LONG, &[0]),
+            (277, SHORT, &[1]),
+            (278, SHORT, &[height]),
+            (279, LONG, &[data.len() as u32]),
+        ],
+        data,
+    )
+}
+
+/// TIFF field types [`raw_tiff`] writes.
+pub const SHORT: u16 = 3;
+pub const LONG: u16 = 4;
+
+/// A little-endian one-image TIFF written byte by byte from its tags `(tag, type, values)`, in
+/// ascending tag order, and the image data: layouts the encoder does not write (tiles, planes,
+/// packed samples), for tests and fixtures. Values of the offset tags (StripOffsets 273,
+/// TileOffsets 324) are given relative to the start of `data`.
+pub fn raw_tiff(tags: &[(u16, u16, &[u32])], data: &[u8]) -> Vec<u8> {
+    let ifd_len = 2 + tags.len() * 12 + 4;
+    let size = |kind: u16| if kind == SHORT { 2 } else { 4 };
+    let spilled: usize = tags
+        .iter()
+        .map(|(_, kind, values)| size(*kind) * values.len())
+        .filter(|&bytes| bytes > 4)
+        .sum();
+    let data_start = (8 + ifd_len + spilled) as u32;
     let mut out = b"II*\0".to_vec();
     out.extend(8u32.to_le_bytes());
     out.extend((tags.len() as u16).to_le_bytes());
-    for (tag, kind, value) in tags {
+    let mut arrays = Vec::new();
+    for &(tag, kind, values) in tags {
+        let shift = if matches!(tag, 273 | 324) {
+            data_start
+        } else {
+            0
+        };
+        let mut bytes = Vec::new();
+        for &v in values {
+            match kind {
+                SHORT => bytes.extend((v as u16).to_le_bytes()),
+                _ => bytes.extend((v + shift).to_le_bytes()),
+            }
+        }
         out.extend(tag.to_le_bytes());
         out.extend(kind.to_le_bytes());
-        out.extend(1u32.to_le_bytes());
-        out.extend(value.to_le_bytes());
+        out.extend((values.len() as u32).to_le_bytes());
+        if bytes.len() <= 4 {
+            bytes.resize(4, 0);
+            out.extend(bytes);
+        } else {
+            out.extend(((8 + ifd_len + arrays.len()) as u32).to_le_bytes());
+            arrays.extend(bytes);
+        }
     }
     out.extend(0u32.to_le_bytes());
+    out.extend(arrays);
     out.extend(data);
     out
 }
@@ -264,6 +307,107 @@ mod tests {
             ThermalSamples::Counts {
                 bits: 16,
                 values: vec![1, 2]
+            }
+        );
+    }
+
+    /// 16-bit samples of a `width`×`height` image cut into 16×16 tiles (row-major, the edge
+    /// tiles padded), as a tiled TIFF stores them.
+    fn tiles_of(values: &[u16], width: usize, height: usize) -> (Vec<u8>, Vec<u32>) {
+        let (across, down) = (width.div_ceil(16), height.div_ceil(16));
+        let mut data = Vec::new();
+        let mut offsets = Vec::new();
+        for ty in 0..down {
+            for tx in 0..across {
+                offsets.push(data.len() as u32);
+                for y in ty * 16..ty * 16 + 16 {
+                    for x in tx * 16..tx * 16 + 16 {
+                        let v = if x < width && y < height {
+                            values[y * width + x]
+                        } else {
+                            0
+                        };
+                        data.extend(v.to_le_bytes());
+                    }
+                }
+            }
+        }
+        (data, offsets)
+    }
+
+    #[test]
+    fn a_tiled_sixteen_bit_tiff_reads_back_pixel_for_pixel() {
+        let (width, height) = (20usize, 18usize);
+        let values: Vec<u16> = (0..width * height).map(|i| 20000 + i as u16 * 7).collect();
+        let (data, offsets) = tiles_of(&values, width, height);
+        let counts = vec![16 * 16 * 2; offsets.len()];
+        let (w, h) = (width as u32, height as u32);
+        let bytes = raw_tiff(
+            &[
+                (256, SHORT, &[w]),
+                (257, SHORT, &[h]),
+                (258, SHORT, &[16]),
+                (259, SHORT, &[1]),
+                (262, SHORT, &[1]),
+                (277, SHORT, &[1]),
+                (322, SHORT, &[16]),
+                (323, SHORT, &[16]),
+                (324, LONG, &offsets),
+                (325, LONG, &counts),
+            ],
+            &data,
+        );
+        let t = decode_thermal(&bytes, p()).unwrap();
+        assert_eq!((t.width, t.height), (width, height));
+        assert_eq!(t.samples, ThermalSamples::Counts { bits: 16, values });
+    }
+
+    #[test]
+    fn separate_colour_planes_are_refused_and_a_grey_plane_reads() {
+        // 2 × 1 pixels, RGB 8-bit stored plane by plane (planar configuration 2).
+        let planes = [10u8, 11, 20, 21, 30, 31];
+        let bytes = raw_tiff(
+            &[
+                (256, SHORT, &[2]),
+                (257, SHORT, &[1]),
+                (258, SHORT, &[8, 8, 8]),
+                (259, SHORT, &[1]),
+                (262, SHORT, &[2]),
+                (273, LONG, &[0, 2, 4]),
+                (277, SHORT, &[3]),
+                (278, SHORT, &[1]),
+                (279, LONG, &[2, 2, 2]),
+                (284, SHORT, &[2]),
+            ],
+            &planes,
+        );
+        let err = decode_thermal(&bytes, p()).unwrap_err().to_string();
+        assert!(
+            err.contains("ir.tiff") && err.contains("planar configuration 2"),
+            "{err}"
+        );
+        // One sample per pixel: planar and interleaved are the same bytes.
+        let grey = raw_tiff(
+            &[
+                (256, SHORT, &[2]),
+                (257, SHORT, &[1]),
+                (258, SHORT, &[8]),
+                (259, SHORT, &[1]),
+                (262, SHORT, &[1]),
+                (273, LONG, &[0]),
+                (277, SHORT, &[1]),
+                (278, SHORT, &[1]),
+                (279, LONG, &[2]),
+                (284, SHORT, &[2]),
+            ],
+            &[7, 9],
+        );
+        let t = decode_thermal(&grey, p()).unwrap();
+        assert_eq!(
+            t.samples,
+            ThermalSamples::Counts {
+                bits: 8,
+                values: vec![7, 9]
             }
         );
     }
