@@ -27,6 +27,7 @@ import datetime
 import json
 import os
 import shlex
+import statistics
 import subprocess
 import sys
 
@@ -81,9 +82,14 @@ def training(a, model, out):
             "--rtf", a.rtf] + (["--skip", a.train_skip] if a.train_skip else [])
     samples, command = run(a.prefix, "bench_torch_train.py", args, os.path.join(out, f"train_{model}.json"))
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    rows = {label: {k: sorted(r[k] for r in runs)[len(runs) // 2] for k in ("images_per_s", "peak_rss_mb")}
+    return {"model": model, "finished": stamp, "command": command, "rows": training_rows(samples)}
+
+
+def training_rows(samples):
+    """Per configuration, the median over its rounds (each round a fresh process: the median of its
+    timed steps) of the speed and of the peak RSS."""
+    return {label: {k: statistics.median(r[k] for r in runs) for k in ("images_per_s", "peak_rss_mb")}
             for label, runs in samples.items()}
-    return {"model": model, "finished": stamp, "command": command, "rows": rows}
 
 
 def ratio(x):
@@ -163,7 +169,8 @@ def markdown(report):
                 "configuration, interleaved rounds; commands: " + "; ".join(f"`{r['command']}`" for r in report["inference"]) + "):", ""]
         out += inference_table(report["inference"], label) + [""]
     if report["training"]:
-        out += ["Training steps (forward, loss, backward, SGD), median of the timed steps (commands: "
+        out += ["Training steps (forward, loss, backward, SGD), median of the timed steps (with several rounds, "
+                "the median of the rounds' medians; commands: "
                 + "; ".join(f"`{r['command']}`" for r in report["training"]) + "):", ""]
         out += training_table(report["training"], label) + [""]
     return "\n".join(out)
