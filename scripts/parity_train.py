@@ -117,12 +117,12 @@ def run(cmd, threads=None):
     return done.stdout
 
 
-def relative_update_difference(init, rtf, ref, parameters_only=False):
+def relative_update_difference(init, rtf, ref, parameters_only=False, leave_out=()):
     """‖Δrtf − Δref‖ / ‖Δref‖ over every tensor of the reference (num_batches_tracked aside;
-    parameters_only: BatchNorm's running statistics aside too)."""
+    parameters_only: BatchNorm's running statistics aside too; leave_out: these names aside)."""
     diff, norm = 0.0, 0.0
     for name, w0 in init.items():
-        if name.endswith("num_batches_tracked"):
+        if name.endswith("num_batches_tracked") or name in leave_out:
             continue
         if parameters_only and name.endswith(("running_mean", "running_var")):
             continue
@@ -214,6 +214,29 @@ def adversarial(args, data, model):
             "ref_critic": ref["critic"]}
 
 
+def inert_parameters(args, data, size, init, work):
+    """The parameters whose exact gradient is zero (reference_train_cmx.py inert): their updates
+    are rounding that AdamW scales to full steps, on either side."""
+    out = os.path.join(work, "inert.json")
+    run([sys.executable, os.path.join(HERE, "reference_train_cmx.py"), "inert", "--data", data, "--size", size,
+         "--init", init, "--batch-size", str(args.batch_size), "--out", out], args.threads)
+    with open(out) as f:
+        return json.load(f)["inert"]
+
+
+def largest_differences(init, rtf, ref, top=6):
+    """The tensors with the largest share of ‖Δrtf − Δref‖², with their own relative difference."""
+    rows = []
+    for name, w0 in init.items():
+        if name.endswith("num_batches_tracked"):
+            continue
+        d_rtf, d_ref = rtf[name].double() - w0.double(), ref[name].double() - w0.double()
+        diff, norm = float(((d_rtf - d_ref) ** 2).sum()), float((d_ref ** 2).sum())
+        rows.append((diff, name, (diff / norm) ** 0.5 if norm > 0 else float("inf")))
+    total = sum(r[0] for r in rows) or 1.0
+    return [{"name": n, "share": d / total, "rel_diff": r} for d, n, r in sorted(rows, reverse=True)[:top]]
+
+
 def cmx(args, data, size):
     """CMX's official recipe, rtf (`--recipe cmx-mf`) against scripts/reference_train_cmx.py."""
     work = os.path.join(args.work, "cmx-" + size)
@@ -242,9 +265,13 @@ def cmx(args, data, size):
         sys.exit(f"parity_train: cmx-{size}: rtf took {len(rtf_steps)} steps, the reference {len(ref_steps)}")
     read = reference_train.read_safetensors
     weights = (read(init), read(final), read(ref["net"]))
+    inert = inert_parameters(args, data, size, init, work)
     return {"model": "cmx-mit-" + size, "recipe": "cmx-mf", "steps": len(ref_steps),
             "update_rel_diff": relative_update_difference(*weights),
             "update_rel_diff_parameters": relative_update_difference(*weights, parameters_only=True),
+            "inert_parameters": inert,
+            "update_rel_diff_active": relative_update_difference(*weights, leave_out=set(inert)),
+            "largest_differences": largest_differences(*weights),
             "max_loss_rel_diff": max(abs(a - b) / abs(b) for a, b in zip(rtf_steps, ref_steps)),
             "rtf_losses": rtf_steps, "ref_losses": ref_steps, "ref_lrs": [r["lr"] for r in ref_records],
             "init": init, "rtf_final": final, "ref_final": ref["net"], "ref_groups": ref["groups"],

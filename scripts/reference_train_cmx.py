@@ -28,9 +28,13 @@ of rtf_data::loader::mix), so both sides drop the same samples and channels.
     python scripts/reference_train_cmx.py train --data ROOT --size b0 --init init.safetensors \\
         --out ref.safetensors --losses ref_losses.json --epochs 2 --batch-size 2 --warmup-epochs 1
 
+    python scripts/reference_train_cmx.py inert --data ROOT --size b0 --init init.safetensors \
+        --batch-size 4 --out inert.json
+
 `train` writes the final weights (parameters and BatchNorm statistics), a JSON list of per-step
 records {"epoch", "step", "lr", "loss"} (the loss before the step's update) and, with --groups,
-the names of the tensors in the decayed group.
+the names of the tensors in the decayed group. `inert` lists the parameters whose exact gradient
+is zero (the function's docs), which a comparison of updates may set aside.
 """
 import argparse
 import json
@@ -152,6 +156,33 @@ def train(args):
     print(f"reference_train_cmx: {len(records)} steps, last loss {records[-1]['loss']:.6f} -> {args.out}")
 
 
+def inert(args):
+    """The parameters whose gradient is zero in exact arithmetic: a bias that feeds a train-mode
+    BatchNorm only through linear maps shifts every sample of a channel alike, and the batch mean
+    takes the shift away. In float32 their gradient is rounding alone, which AdamW (dividing by its
+    running RMS) turns into full-size steps in a direction no two implementations share. Found by
+    measurement, not by name: the first batch's gradient in float64, from --init, where every
+    other parameter's largest |gradient| is many orders of magnitude above the threshold."""
+    torch.set_num_threads(args.threads)
+    net = cmx_reference.Cmx(args.size, args.classes, decoder_bn_eps=args.decoder_bn_eps)
+    reference_train.load_into(net, args.init)
+    net = net.double().train()
+    with open(os.path.join(args.data, args.split + ".txt")) as f:
+        names = [line.strip() for line in f if line.strip()]
+    x, y = next(batches(args.data, names, args.batch_size))
+    torch.manual_seed(mix(args.seed, 0, 0))
+    logits = net(*cmx_reference.official_inputs(x.double()))
+    F.cross_entropy(logits, y, ignore_index=255).backward()
+    largest = {n: float(p.grad.abs().max()) for n, p in net.named_parameters()}
+    top = max(largest.values())
+    found = sorted(n for n, g in largest.items() if g <= args.relative * top)
+    with open(args.out, "w") as f:
+        json.dump({"inert": found, "threshold": args.relative * top, "largest_gradient": top,
+                   "largest_inert_gradient": max((largest[n] for n in found), default=0.0),
+                   "smallest_active_gradient": min(g for n, g in largest.items() if n not in found)}, f, indent=1)
+    print(f"reference_train_cmx: {len(found)} inert parameters of {len(largest)} -> {args.out}")
+
+
 def init(args):
     torch.manual_seed(args.seed)
     net = cmx_reference.Cmx(args.size, args.classes)
@@ -186,8 +217,21 @@ def main():
     t.add_argument("--decoder-bn-eps", type=float, default=1e-3)
     t.add_argument("--seed", type=int, default=0, help="rtf's --seed: the per-step seeds derive from it")
     t.add_argument("--threads", type=int, default=torch.get_num_threads())
+    n = sub.add_parser("inert", help="list the parameters whose exact gradient is zero (float64, first batch)")
+    n.add_argument("--data", required=True, help="MF-layout root")
+    n.add_argument("--split", default="train")
+    n.add_argument("--size", required=True, choices=sorted(cmx_reference.SIZES))
+    n.add_argument("--classes", type=int, default=9)
+    n.add_argument("--init", required=True, help="starting weights (safetensors, official names)")
+    n.add_argument("--out", required=True, help="JSON: the inert names and the gradients' scale")
+    n.add_argument("--batch-size", type=int, default=8)
+    n.add_argument("--decoder-bn-eps", type=float, default=1e-3)
+    n.add_argument("--seed", type=int, default=0)
+    n.add_argument("--relative", type=float, default=1e-9,
+                   help="inert: largest |gradient| at most this fraction of the network's largest")
+    n.add_argument("--threads", type=int, default=torch.get_num_threads())
     args = ap.parse_args()
-    {"init": init, "train": train}[args.command](args)
+    {"init": init, "train": train, "inert": inert}[args.command](args)
 
 
 if __name__ == "__main__":
