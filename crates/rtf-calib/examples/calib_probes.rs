@@ -21,7 +21,8 @@ use rtf_calib::optimize::*;
 use rtf_calib::real_rig::{bands_from_profile, parallax_profile};
 use rtf_calib::rig::Rig;
 use rtf_calib::solve::{calibrate, Outcome};
-use rtf_calib::synth_rig::{write_rig, DepthSource, RigSynthConfig};
+use rtf_calib::synth_rig::{DepthSource, RigSynthConfig};
+use rtf_calib::synth_run::{calibrate_synthetic, SyntheticRun};
 use tch::{Device, Kind, Tensor};
 
 /// (name, the environment variable that gated it as a test, the probe).
@@ -75,43 +76,17 @@ fn main() {
 
 fn run_rig(cfg: &RigSynthConfig, settings: &Settings) -> (f64, f64, f64, Outcome) {
     let dir = tempfile::tempdir().unwrap();
-    let synth = write_rig(dir.path(), cfg).unwrap();
-    let rig = Rig::load(&synth.rig_path).unwrap();
-    let frames = load_frames(&rig, &mut |w| eprintln!("{w}")).unwrap();
-    let start = std::time::Instant::now();
-    let t0 = std::time::Instant::now();
-    let out = calibrate(&rig, &frames, settings, &mut |p| {
-        if std::env::var_os("RTF_CALIB_DEBUG").is_some() {
-            eprintln!(
-                "{:>7.2}s {} {}/{} loss {:.6}",
-                t0.elapsed().as_secs_f64(),
-                p.stage,
-                p.step,
-                p.total,
-                p.loss
-            )
-        }
-    })
-    .unwrap();
-    eprintln!(
-        "calibrate took {:.2}s, {} iterations",
-        start.elapsed().as_secs_f64(),
-        out.iterations
-    );
-    // Evaluate against the rendered (true) depth.
-    let truth_dir = tempfile::tempdir().unwrap();
-    let truth_rig = write_rig(
-        truth_dir.path(),
-        &RigSynthConfig {
-            depth: DepthSource::Given,
-            ..cfg.clone()
-        },
-    )
-    .unwrap();
-    let truth_frames = load_frames(&Rig::load(&truth_rig.rig_path).unwrap(), &mut |_| {}).unwrap();
+    let run = calibrate_synthetic(dir.path(), cfg, settings).unwrap();
+    let SyntheticRun {
+        rig,
+        frames,
+        synth,
+        outcome: out,
+        ..
+    } = &run;
     if std::env::var_os("RTF_CALIB_DEBUG").is_some() {
         let used: Vec<&Frame> = frames.iter().collect();
-        let scaling = Scaling::new(&rig.rgb, initial_params(&rig), &used);
+        let scaling = Scaling::new(&rig.rgb, initial_params(rig), &used);
         let pt = model::from_calibration(&synth.truth);
         let pe = model::from_calibration(&out.calibration);
         let tt: [f64; NUM_PARAMS] =
@@ -137,12 +112,13 @@ fn run_rig(cfg: &RigSynthConfig, settings: &Settings) -> (f64, f64, f64, Outcome
         }
         eprintln!("theta truth {tt:.2?}\ntheta est   {te:.2?}");
     }
-    let before = mean_map_error(&rig, &truth_frames, &out.initial, &synth.truth);
-    let after = mean_map_error(&rig, &truth_frames, &out.calibration, &synth.truth);
-    let (deg, metres) = out.calibration.extrinsic.difference(&synth.truth.extrinsic);
-    eprintln!("map error {before:.2} px -> {after:.3} px; rotation error {deg:.4}°, translation error {:.2} cm", metres * 100.0);
     eprintln!("est {:?}\ntruth {:?}", out.calibration, synth.truth);
-    (after, deg, metres, out)
+    (
+        run.after_px,
+        run.rotation_deg,
+        run.translation_m,
+        run.outcome,
+    )
 }
 
 /// Development aid, run with RTF_CALIB_DEBUG=1 [WIDTH=.. SEED=.. N_FRAMES=..].

@@ -20,5 +20,6 @@ pub mod se3;
 pub mod solve;
 pub mod stereo;
 pub mod synth_rig;
+pub mod synth_run;
 
 pub use error::{CalibError, Result};
