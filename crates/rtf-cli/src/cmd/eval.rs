@@ -6,11 +6,11 @@ use rtf_data::inspect::DatasetFormat;
 use rtf_data::FrameSource;
 use rtf_eval::scores_file::{single_modality_note, DroppedScores, HeatnetScores, ScoresFile};
 use rtf_eval::{EvalOptions, Scores};
+use rtf_models::loaded::NetworkRequest;
 use rtf_train::config::available_device;
 
 use super::{load_network, parse_size};
 use crate::output_guard::OutputGuard;
-use rtf_models::loaded::NetworkRequest;
 
 #[derive(clap::Args)]
 pub struct Args {

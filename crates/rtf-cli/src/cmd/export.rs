@@ -7,10 +7,10 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use rtf_models::export::Export;
 use rtf_models::fast::Precision;
+use rtf_models::loaded::NetworkRequest;
 use tch::Device;
 
 use super::load_network;
-use rtf_models::loaded::NetworkRequest;
 
 #[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
 pub enum Format {

@@ -5,11 +5,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use rtf_eval::predict::{self, Prediction};
+use rtf_models::loaded::NetworkRequest;
 use rtf_train::config::available_device;
 
 use super::load_network;
 use crate::output_guard::OutputGuard;
-use rtf_models::loaded::NetworkRequest;
 
 #[derive(clap::Args)]
 pub struct Args {
