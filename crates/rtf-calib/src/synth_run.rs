@@ -107,17 +107,22 @@ mod tests {
         Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap()
     }
 
+    /// A 160×120 synthetic rig of `frames` views.
+    fn small_rig(frames: usize, depth: DepthSource, seed: u64) -> RigSynthConfig {
+        RigSynthConfig {
+            width: 160,
+            height: 120,
+            frames,
+            depth,
+            seed,
+            ..Default::default()
+        }
+    }
+
     #[test]
     fn default_recipe_reaches_subpixel_on_small_synthetic_rig() {
         tch::set_num_threads(1);
-        let cfg = RigSynthConfig {
-            width: 160,
-            height: 120,
-            frames: 6,
-            depth: DepthSource::Given,
-            seed: 1,
-            ..Default::default()
-        };
+        let cfg = small_rig(6, DepthSource::Given, 1);
         let run = run_rig(&cfg, &default_settings());
         let (err, out) = (run.after_px, run.outcome);
         assert!(out.stopped.is_none());
@@ -135,14 +140,7 @@ mod tests {
     #[test]
     fn stereo_depth_rig_reaches_half_pixel() {
         tch::set_num_threads(1);
-        let cfg = RigSynthConfig {
-            width: 160,
-            height: 120,
-            frames: 6,
-            depth: DepthSource::Stereo,
-            seed: 4,
-            ..Default::default()
-        };
+        let cfg = small_rig(6, DepthSource::Stereo, 4);
         let run = run_rig(&cfg, &default_settings());
         let (err, out) = (run.after_px, run.outcome);
         assert!(out.stopped.is_none());
@@ -153,13 +151,8 @@ mod tests {
     fn eight_bit_thermal_rig_calibrates_too() {
         tch::set_num_threads(1);
         let cfg = RigSynthConfig {
-            width: 160,
-            height: 120,
-            frames: 5,
-            depth: DepthSource::Given,
-            seed: 7,
             thermal_16bit: false,
-            ..Default::default()
+            ..small_rig(5, DepthSource::Given, 7)
         };
         let err = run_rig(&cfg, &default_settings()).after_px;
         assert!(err < 0.3, "mean pixel-map error {err} px");
