@@ -17,7 +17,7 @@ use crate::{cpu_bf16_convolutions, cpu_has_native_bf16, Bf16Convolutions};
 /// has fp32's exponent range and needs none.
 ///
 /// Inference (rtf_models::fast): the folded weights and activations are of this type; the
-/// fast path runs fp32 and bf16 only ([`Precision::parse_inference`]).
+/// fast path runs fp16 on CUDA only (`rtf_models::fast::check_precision_on`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Precision {
@@ -48,16 +48,12 @@ impl Precision {
         }
     }
 
-    /// A precision the fast inference path runs (fp32, bf16): `rtf eval/predict/export/bench
-    /// model --precision`. fp16 is refused like any unknown name.
+    /// A precision the fast inference path runs: `rtf eval/predict/export/bench model
+    /// --precision`. fp16 runs on CUDA only; the device is checked where it is known
+    /// (`rtf_models::fast::check_precision_on`).
     pub fn parse_inference(text: &str) -> Result<Self, String> {
-        match text {
-            "fp32" | "float32" => Ok(Precision::Fp32),
-            "bf16" | "bfloat16" => Ok(Precision::Bf16),
-            other => Err(format!(
-                "unknown precision {other:?} (expected fp32 or bf16)"
-            )),
-        }
+        Self::parse(text)
+            .map_err(|_| format!("unknown precision {text:?} (expected fp32, bf16 or fp16 (CUDA))"))
     }
 
     /// The tensor type of this precision.
@@ -148,11 +144,12 @@ mod tests {
     }
 
     #[test]
-    fn inference_parsing_refuses_fp16_with_the_inference_message() {
+    fn inference_parsing_names_the_inference_precisions() {
         assert_eq!(Precision::parse_inference("bfloat16"), Ok(Precision::Bf16));
+        assert_eq!(Precision::parse_inference("half"), Ok(Precision::Fp16));
         assert_eq!(
-            Precision::parse_inference("fp16").unwrap_err(),
-            "unknown precision \"fp16\" (expected fp32 or bf16)"
+            Precision::parse_inference("fp8").unwrap_err(),
+            "unknown precision \"fp8\" (expected fp32, bf16 or fp16 (CUDA))"
         );
         assert_eq!(
             Precision::parse("fp8").unwrap_err(),

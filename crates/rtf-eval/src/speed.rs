@@ -199,6 +199,7 @@ fn check_options(opts: &BenchOptions) -> Result<(), SpeedError> {
             "the plain path runs in fp32 only".into(),
         ));
     }
+    rtf_models::fast::check_precision_on(opts.precision, opts.device)?;
     Ok(())
 }
 

@@ -2,16 +2,28 @@
 //! activations, in-place activations and residual adds, optional bfloat16.
 
 use serde::{Deserialize, Serialize};
-use tch::{Kind, Tensor};
+use tch::{Device, Kind, Tensor};
 
 use crate::error::ModelError;
 use crate::layers::to_channels_last;
 use crate::Network;
 
-/// Arithmetic precision of inference: fp32 or bf16 (one type with training's, which also has
-/// fp16; the fast path refuses fp16, and the CLI parses inference precisions with
-/// [`Precision::parse_inference`]).
+/// Arithmetic precision of inference: fp32, bf16, or fp16 on CUDA (one type with training's;
+/// the CLI parses inference precisions with [`Precision::parse_inference`]).
 pub use rtf_amp::Precision;
+
+/// Refuses fp16 inference off CUDA: libtorch's CPU convolutions have no fast fp16 kernels on
+/// most CPUs, and bf16 is the CPU's half-width type. Called where the device is known (the
+/// loaders, `rtf bench model`) and again by [`InferenceNet::forward`] on its input.
+pub fn check_precision_on(precision: Precision, device: Device) -> Result<(), ModelError> {
+    if precision == Precision::Fp16 && !device.is_cuda() {
+        return Err(ModelError::InvalidConfig {
+            network: "fast inference".into(),
+            reason: "fp16 runs on CUDA only: use bf16 (or fp32) on the CPU".into(),
+        });
+    }
+    Ok(())
+}
 
 /// Memory layout of activations (and weights) on the fast path.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -57,12 +69,6 @@ impl InferenceNet {
         precision: Precision,
         layout: Layout,
     ) -> Result<Self, ModelError> {
-        if precision == Precision::Fp16 {
-            return Err(ModelError::InvalidConfig {
-                network: net.name(),
-                reason: "the fast inference path runs fp32 or bf16, not fp16".into(),
-            });
-        }
         let channels_last = layout == Layout::ChannelsLast;
         let fused = crate::layers::with_fused_layout(channels_last, || {
             net.fuse_for_inference(precision.kind())
@@ -106,6 +112,7 @@ impl InferenceNet {
 
     /// [`forward`](Self::forward) without the shape check (for inputs already checked).
     pub fn forward_unchecked(&self, xs: &Tensor) -> Result<Tensor, ModelError> {
+        check_precision_on(self.precision, xs.device())?;
         let _guard = tch::no_grad_guard();
         let xs = xs
             .f_to_kind(self.precision.kind())
@@ -186,22 +193,24 @@ pub(crate) const FUSED_FP32_TOLERANCE: f64 = 1e-4;
 mod tests {
     use super::*;
 
-    /// Precision is one type with training's, which has fp16: the fast path refuses it by
-    /// name rather than folding weights into a type it does not run.
+    /// fp16 is CUDA's: on the CPU it is refused with the reason, by the check the loaders run
+    /// and by the forward itself.
     #[test]
-    fn the_fast_path_refuses_fp16_with_the_reason() {
-        let vs = tch::nn::VarStore::new(tch::Device::Cpu);
-        let cfg = crate::ModelConfig::from_name("mfnet", 9).unwrap();
-        let net = crate::build(&vs.root(), &cfg).unwrap();
-        let err = InferenceNet::new(net, Precision::Fp16)
+    fn fp16_is_refused_on_the_cpu_with_the_reason() {
+        let err = check_precision_on(Precision::Fp16, Device::Cpu)
             .unwrap_err()
             .to_string();
-        assert!(err.contains("runs fp32 or bf16, not fp16"), "{err}");
-        assert_eq!(
-            "fp16".parse::<Precision>().unwrap(),
-            Precision::Fp16,
-            "training's parser"
-        );
-        assert!(Precision::parse_inference("fp16").is_err());
+        assert!(err.contains("fp16 runs on CUDA only"), "{err}");
+        assert!(check_precision_on(Precision::Fp16, Device::Cuda(0)).is_ok());
+        assert!(check_precision_on(Precision::Bf16, Device::Cpu).is_ok());
+        let vs = tch::nn::VarStore::new(Device::Cpu);
+        let cfg = crate::ModelConfig::from_name("mfnet", 9).unwrap();
+        let net = crate::build(&vs.root(), &cfg).unwrap();
+        let fast = InferenceNet::new(net, Precision::Fp16).unwrap();
+        let err = fast
+            .forward(&Tensor::zeros([1, 4, 32, 32], (Kind::Float, Device::Cpu)))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("fp16 runs on CUDA only"), "{err}");
     }
 }

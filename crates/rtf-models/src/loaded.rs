@@ -44,6 +44,9 @@ pub struct LoadedNetwork {
 /// file's record is refused unless `foreign_weights`: it would score an RGB-only network on
 /// RGB-T input, or the reverse, without a word.
 pub fn load_network(request: &NetworkRequest) -> Result<LoadedNetwork, ModelError> {
+    if let Some(precision) = request.precision {
+        crate::fast::check_precision_on(precision, request.device)?;
+    }
     let cfg = ModelConfig::from_name(request.name, request.num_classes)?;
     let mut vs = VarStore::new(request.device);
     let net = crate::build(&vs.root(), &cfg)?;

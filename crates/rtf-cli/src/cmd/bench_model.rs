@@ -19,7 +19,7 @@ pub struct Args {
     /// Frames per forward pass.
     #[arg(long, default_value_t = 1)]
     pub batch: i64,
-    /// fp32 or bf16 (bf16 needs the fast path).
+    /// fp32, bf16 or fp16 (CUDA only); bf16 and fp16 need the fast path.
     #[arg(long, default_value = "fp32", value_parser = Precision::parse_inference)]
     pub precision: Precision,
     /// Time the plain eval forward (NCHW, unfolded BatchNorm) instead of the fast path.

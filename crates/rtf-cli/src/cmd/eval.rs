@@ -57,8 +57,8 @@ pub struct Args {
     /// What replaces a dropped modality: pixel value 0, or the split's per-channel mean.
     #[arg(long, value_enum, default_value = "zero")]
     pub drop_fill: FillArg,
-    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32 or bf16; default:
-    /// the plain path.
+    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32, bf16 or fp16
+    /// (CUDA only); default: the plain path.
     #[arg(long, value_parser = rtf_models::fast::Precision::parse_inference)]
     pub precision: Option<rtf_models::fast::Precision>,
     /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed). Default: what the

@@ -34,7 +34,8 @@ pub struct Args {
     /// Input size HxW the graph is traced at (height first), e.g. 480x640.
     #[arg(long, value_parser = parse_hw, default_value = "480x640")]
     pub size: (usize, usize),
-    /// Weights and arithmetic inside the graph; input and logits stay fp32.
+    /// Weights and arithmetic inside the graph (fp32 or bf16: the export traces on the CPU,
+    /// which runs no fp16); input and logits stay fp32.
     #[arg(long, default_value = "fp32", value_parser = Precision::parse_inference)]
     pub precision: Precision,
     /// Class count of the weights. Default: the class set the weights record (rtf train writes
@@ -88,6 +89,7 @@ fn class_count(args: &Args) -> Result<(i64, Option<rtf_data::TrainedOn>)> {
 
 pub fn run(args: Args) -> Result<()> {
     refuse_overwriting_weights(&args)?;
+    rtf_models::fast::check_precision_on(args.precision, Device::Cpu)?;
     let (classes, record) = class_count(&args)?;
     let rtf_models::loaded::LoadedNetwork {
         mut vs,

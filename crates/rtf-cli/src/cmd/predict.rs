@@ -46,8 +46,8 @@ pub struct Args {
     pub thermal_range: Option<(f64, f64)>,
     #[arg(long, default_value = "cpu")]
     pub device: String,
-    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32 or bf16; default:
-    /// the plain path.
+    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32, bf16 or fp16
+    /// (CUDA only); default: the plain path.
     #[arg(long, value_parser = rtf_models::fast::Precision::parse_inference)]
     pub precision: Option<rtf_models::fast::Precision>,
     /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed). Default: what the

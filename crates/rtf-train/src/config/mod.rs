@@ -1148,7 +1148,10 @@ pub fn parse_device(name: &str) -> Result<tch::Device, String> {
 }
 
 /// [`parse_device`], then checks libtorch can use it here, so a missing GPU is a clear error
-/// rather than a libtorch panic at the first tensor.
+/// rather than a libtorch panic at the first tensor. On CUDA it also turns on cuDNN's
+/// autotuner (PyTorch's `torch.backends.cudnn.benchmark = True`): each convolution shape is
+/// timed once over cuDNN's algorithms and the fastest kept, which pays for rtf's fixed frame
+/// sizes. `RTF_CUDNN_BENCHMARK=0` keeps cuDNN's heuristic choice instead.
 pub fn available_device(name: &str) -> Result<tch::Device, String> {
     let device = parse_device(name)?;
     if let tch::Device::Cuda(index) = device {
@@ -1163,6 +1166,7 @@ pub fn available_device(name: &str) -> Result<tch::Device, String> {
                 }
             ));
         }
+        tch::Cuda::cudnn_set_benchmark(std::env::var("RTF_CUDNN_BENCHMARK").as_deref() != Ok("0"));
     }
     Ok(device)
 }
