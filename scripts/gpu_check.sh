@@ -1,0 +1,101 @@
+#!/usr/bin/env bash
+# Issue 40 in one run on a lent GPU machine (docs/src/gpu.md): correctness on the GPU, then the
+# training and inference tables against PyTorch (scripts/gpu_bench.py), then scripts/gpu_smoke.sh,
+# then extras while the time budget lasts. Every phase writes its file under OUT at once, so a
+# run cut off by its time limit keeps what it finished.
+#
+# Usage, on the GPU machine from the repo root, with `rtf` built by scripts/gpu_build.sh against
+# that machine's PyTorch and the real MF frames copied beside it:
+#   scripts/gpu_check.sh RTF MF_SAMPLES OUT [BUDGET_S] [PHASES]
+# PHASES (default "env correct train infer smoke extra") picks and orders the phases; a phase
+# that would start after BUDGET_S seconds (default 420) is skipped and says so.
+set -uo pipefail
+rtf=$(realpath "$1")
+mf=$(realpath "$2")
+out=$(realpath -m "$3")
+budget=${4:-420}
+phases=${5:-env correct train infer smoke extra}
+here=$(cd "$(dirname "$0")" && pwd)
+work=$(mktemp -d)
+mkdir -p "$out"
+torch_dir=$(python3 -c 'import os, torch; print(os.path.dirname(torch.__file__))')
+nvidia_libs=$(ls -d "$torch_dir"/../nvidia/*/lib 2>/dev/null | tr '\n' ':')
+export LD_LIBRARY_PATH="$torch_dir/lib:$nvidia_libs${LD_LIBRARY_PATH:-}"
+export PYTHONUNBUFFERED=1
+status=0
+say() { echo "[$(date -u +%T) +${SECONDS}s] $*"; }
+
+phase_env() {
+    {
+        date -u
+        nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.max.sm --format=csv
+        python3 -c 'import torch; print("PyTorch", torch.__version__, "CUDA", torch.version.cuda,
+"cuDNN", torch.backends.cudnn.version(), torch.cuda.get_device_name(0))'
+        lscpu | grep -E '^(Model name|CPU\(s\))'
+        "$rtf" --version
+    } >"$out/env.txt" 2>&1
+    cat "$out/env.txt"
+}
+
+# The published MFNet on the two real MF frames: the GPU's labels against the CPU's (plain
+# path on the CPU; plain, fast fp32, fp16 and bf16 on the GPU). Then one SGD step of MFNet from
+# the published weights on the same batch, CPU against GPU: the weight updates compared.
+phase_correct() {
+    local frames=("$mf"/*.png) variant device precision
+    for variant in cpu:plain cuda:plain cuda:fp32 cuda:fp16 cuda:bf16; do
+        device=${variant%%:*} precision=${variant#*:}
+        local extra=()
+        [ "$precision" = plain ] || extra=(--precision "$precision")
+        "$rtf" predict --model mfnet --weights "$mf/mfnet_final.safetensors" --device "$device" \
+            "${extra[@]}" --logits --out "$work/mf_${device}_$precision" "${frames[@]}" >/dev/null || return 1
+    done
+    "$rtf" synth --out "$work/step_data" --count 8 --size 320x256 --seed 3 >/dev/null || return 1
+    for device in cpu cuda; do
+        "$rtf" train --model mfnet --data "$work/step_data" --init "$mf/mfnet_final.safetensors" \
+            --epochs 1 --max-steps 1 --batch-size 4 --no-shuffle --no-augment --seed 0 \
+            --device "$device" --out "$work/step_$device" >"$work/step_$device.log" 2>&1 ||
+            { tail "$work/step_$device.log"; return 1; }
+    done
+    python3 "$here/gpu_correctness.py" "$work" "$mf/mfnet_final.safetensors" | tee "$out/correct.txt"
+}
+
+phase_train() {
+    python3 "$here/gpu_bench.py" train --rtf "$rtf" --models mfnet:8,rtfnet50:4 --warmup 3 \
+        --iterations 10 --json "$out/train.json"
+}
+
+phase_infer() {
+    python3 "$here/gpu_bench.py" infer --rtf "$rtf" --heuristic-too \
+        --models mfnet,rtfnet50,rtfnet152,heatnet,cmx-mit-b2 --batches 1/8 --warmup 5 \
+        --iterations 20 --json "$out/infer.json"
+}
+
+phase_smoke() {
+    PYTHON=python3 bash "$here/gpu_smoke.sh" "$rtf" "$work/smoke" >"$out/smoke.log" 2>&1
+    local rc=$?
+    tail -n 25 "$out/smoke.log"
+    return $rc
+}
+
+# Second priority: torch.compile for two networks, and the CMX sizes around B2.
+phase_extra() {
+    python3 "$here/gpu_bench.py" infer --rtf "$rtf" --models mfnet:1,rtfnet50:1,cmx-mit-b0,cmx-mit-b4 \
+        --compile mfnet,rtfnet50 --warmup 5 --iterations 20 --json "$out/extra.json"
+}
+
+for name in $phases; do
+    if [ "$SECONDS" -ge "$budget" ]; then
+        say "skipped $name: ${SECONDS}s of the ${budget}s budget used"
+        continue
+    fi
+    say "phase $name"
+    if ! "phase_$name"; then
+        say "phase $name FAILED"
+        status=1
+    fi
+    ls "$out"/*.json >/dev/null 2>&1 &&
+        python3 "$here/gpu_bench.py" table $(ls "$out"/{train,infer,extra}.json 2>/dev/null) >"$out/tables.md"
+done
+say "done (status $status)"
+cat "$out/tables.md" 2>/dev/null | grep -E '^\*\*|^- ' || true
+exit $status
