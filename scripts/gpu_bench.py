@@ -224,10 +224,7 @@ def harness(args):
             for row in run_torch_worker(args, args.kind, model, batch, idle_mb, model in compiled):
                 results["rows"].append({**key, **row})
             for precision in args.precisions.split(","):
-                variants = [("", None)]
-                if args.heuristic_too and precision == "fp32":
-                    variants.append((" (cuDNN heuristics)", {**os.environ, "RTF_CUDNN_BENCHMARK": "0"}))
-                for suffix, env in variants:
+                for suffix, flags, env in rtf_variants(args, model, precision):
                     if args.kind == "infer":
                         cmd = [args.rtf, "bench", "model", "--model", model, "--batch", str(batch), "--precision",
                                precision, "--device", args.device, "--warmup", str(args.warmup), "--iterations",
@@ -236,13 +233,23 @@ def harness(args):
                         cmd = [args.rtf, "bench", "train", "--model", model, "--batch", str(batch), "--precision",
                                precision, "--device", args.device, "--warmup", str(args.warmup), "--steps",
                                str(args.iterations), "--json"]
-                    report = run_rtf(args, sampler, idle_mb, cmd, env)
+                    report = run_rtf(args, sampler, idle_mb, cmd + flags, env)
                     row = {**key, "label": f"rtf {precision}{suffix}", "precision": precision, **report}
                     row.pop("cpu", None)
                     results["rows"].append(row)
             print(summary_line(results["rows"], model, batch), flush=True)
             with open(args.json, "w") as f:  # after every network, so a cut-off run keeps its part
                 json.dump(results, f, indent=1)
+
+
+def rtf_variants(args, model, precision):
+    """(label suffix, extra flags, environment) of each rtf run: the default, and for the
+    --diagnose networks in fp32 also cuDNN's heuristics and (inference) the plain NCHW path."""
+    yield "", [], None
+    if model in args.diagnose.split(",") and precision == "fp32":
+        yield " (cuDNN heuristics)", [], {**os.environ, "RTF_CUDNN_BENCHMARK": "0"}
+        if args.kind == "infer":
+            yield " plain NCHW path", ["--plain"], None
 
 
 def summary_line(rows, model, batch):
@@ -325,8 +332,9 @@ def main():
             p.add_argument("--models", required=True, help="NAME[:B1/B2],... (batches override --batches)")
             p.add_argument("--batches", default="1/8" if name == "infer" else "4")
             p.add_argument("--compile", default="", help="networks also timed under torch.compile")
-            p.add_argument("--heuristic-too", action="store_true",
-                           help="also time rtf fp32 with cuDNN's heuristics (RTF_CUDNN_BENCHMARK=0)")
+            p.add_argument("--diagnose", default="",
+                           help="networks whose rtf fp32 is also timed with cuDNN's heuristics "
+                                "(RTF_CUDNN_BENCHMARK=0) and, for inference, on the plain NCHW path")
             p.add_argument("--json", required=True)
     p = sub.add_parser("table")
     p.add_argument("paths", nargs="+")

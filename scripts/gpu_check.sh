@@ -1,20 +1,20 @@
 #!/usr/bin/env bash
-# Issue 40 in one run on a lent GPU machine (docs/src/gpu.md): correctness on the GPU, then the
-# training and inference tables against PyTorch (scripts/gpu_bench.py), then scripts/gpu_smoke.sh,
-# then extras while the time budget lasts. Every phase writes its file under OUT at once, so a
+# Issue 40 in one run on a lent GPU machine (docs/src/gpu.md): correctness on the GPU and
+# scripts/gpu_smoke.sh, then the training and inference tables against PyTorch
+# (scripts/gpu_bench.py), then extras while the time budget lasts. Every phase writes its file under OUT at once, so a
 # run cut off by its time limit keeps what it finished.
 #
 # Usage, on the GPU machine from the repo root, with `rtf` built by scripts/gpu_build.sh against
 # that machine's PyTorch and the real MF frames copied beside it:
 #   scripts/gpu_check.sh RTF MF_SAMPLES OUT [BUDGET_S] [PHASES]
-# PHASES (default "env correct train infer smoke extra") picks and orders the phases; a phase
+# PHASES (default "env correct smoke train infer extra") picks and orders the phases; a phase
 # that would start after BUDGET_S seconds (default 420) is skipped and says so.
 set -uo pipefail
 rtf=$(realpath "$1")
 mf=$(realpath "$2")
 out=$(realpath -m "$3")
 budget=${4:-420}
-phases=${5:-env correct train infer smoke extra}
+phases=${5:-env correct smoke train infer extra}
 here=$(cd "$(dirname "$0")" && pwd)
 work=$(mktemp -d)
 mkdir -p "$out"
@@ -61,13 +61,13 @@ phase_correct() {
 
 phase_train() {
     python3 "$here/gpu_bench.py" train --rtf "$rtf" --models mfnet:8,rtfnet50:4 --warmup 3 \
-        --iterations 10 --json "$out/train.json"
+        --iterations 10 --diagnose mfnet,rtfnet50 --json "$out/train.json"
 }
 
 phase_infer() {
-    python3 "$here/gpu_bench.py" infer --rtf "$rtf" --heuristic-too \
+    python3 "$here/gpu_bench.py" infer --rtf "$rtf" --diagnose mfnet,rtfnet50 \
         --models mfnet,rtfnet50,rtfnet152,heatnet,cmx-mit-b2 --batches 1/8 --warmup 5 \
-        --iterations 20 --json "$out/infer.json"
+        --iterations 15 --json "$out/infer.json"
 }
 
 phase_smoke() {
