@@ -58,14 +58,18 @@ impl Trained {
         }
     }
 
-    /// Lays this network out channels-last in fp32 too, where `on`, the network is on the CPU
-    /// and the CPU has AVX-512 ([`fp32_channels_last_here`]). oneDNN's fp32 training kernels
-    /// take channels-last operands without reorders, and libtorch's BatchNorm and pointwise
-    /// kernels keep that layout: on a Xeon family 6 model 167 (AVX-512), 640×480, batch 4,
-    /// 2 threads, MFNet 2.16 → 2.71 images/s, RTFNet-50 0.127 → 0.148 (docs/src/benchmarks.md,
-    /// issue 41). For convolutional networks ([`Student::build`]).
+    /// Lays this network out channels-last in fp32 too, where `on` and the device trains
+    /// faster so: on the CPU where it has AVX-512 ([`fp32_channels_last_here`]): oneDNN's fp32
+    /// training kernels take channels-last operands without reorders, and libtorch's BatchNorm
+    /// and pointwise kernels keep that layout: on a Xeon family 6 model 167 (AVX-512), 640×480,
+    /// batch 4, 2 threads, MFNet 2.16 → 2.71 images/s, RTFNet-50 0.127 → 0.148
+    /// (docs/src/benchmarks.md, issue 41). On CUDA always ([`fp32_channels_last_on_cuda`]).
+    /// For convolutional networks ([`Student::build`]).
     pub fn fp32_channels_last(self, on: bool) -> Self {
-        let here = self.vs.device() == Device::Cpu && fp32_channels_last_here();
+        let here = match self.vs.device() {
+            Device::Cpu => fp32_channels_last_here(),
+            _ => fp32_channels_last_on_cuda(),
+        };
         self.laid_out_fp32(on && here)
     }
 
@@ -151,6 +155,14 @@ impl Trained {
         }
         self.optimizer.step(&self.vs, self.schedule.lr_at(at));
     }
+}
+
+/// Whether fp32 training on CUDA runs channels-last: yes unless `RTF_TRAIN_LAYOUT=nchw`.
+/// cuDNN's TF32 convolutions are laid out for NHWC: PyTorch's own fp32 training on an H100
+/// (libtorch 2.11, 640×480) ran channels_last 1.79× as fast as NCHW for MFNet (batch 8) and
+/// 1.59× for RTFNet-50 (batch 4) (docs/src/gpu.md).
+pub fn fp32_channels_last_on_cuda() -> bool {
+    std::env::var("RTF_TRAIN_LAYOUT").as_deref() != Ok("nchw")
 }
 
 /// Whether this CPU trains faster channels-last in fp32: where it has AVX-512 (`avx512f`), on
