@@ -224,6 +224,7 @@ fn inference_s(bf16: bool) -> Result<f64> {
         height: 240,
         warmup: 2,
         iterations: 5,
+        agreement: false,
         ..Default::default()
     };
     Ok(rtf_eval::speed::bench_model(&opts)?.median_ms / 1000.0)

@@ -46,6 +46,10 @@ pub struct Args {
     /// cpu, cuda or cuda:N.
     #[arg(long, default_value = "cpu")]
     pub device: String,
+    /// Skip the arg-max comparison with the plain fp32 path after the timing (its second
+    /// network and fp32 pass then stay out of the process's peak memory).
+    #[arg(long)]
+    pub no_agreement: bool,
     /// Print {model, batch, precision, median_ms, p95_ms, min_ms, fps, samples_ms, peak_rss_mb,
     /// cpu, ...} as JSON.
     #[arg(long)]
@@ -96,6 +100,7 @@ pub fn run(args: Args) -> Result<()> {
         iterations: args.iterations,
         weights: args.weights,
         device,
+        agreement: !args.no_agreement,
     };
     let report = bench_model(&opts)?;
     if args.json {
