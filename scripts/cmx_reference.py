@@ -356,8 +356,12 @@ class Cmx(nn.Module):
 
 def official_inputs(rgbt):
     """rtf's [B, 4, H, W] (R, G, B, T in [0, 1]) -> the official pipeline's network inputs."""
-    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
-    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
+    # On the input's device; in its type where that is half-width (a cast network), else fp32
+    # as the official pipeline's constants (a float64 reference keeps them so).
+    half = rgbt.dtype in (torch.float16, torch.bfloat16)
+    like = {"device": rgbt.device, "dtype": rgbt.dtype if half else torch.float32}
+    mean = torch.tensor(IMAGENET_MEAN, **like).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGENET_STD, **like).view(1, 3, 1, 1)
     bgr = rgbt[:, [2, 1, 0]]
     thermal = rgbt[:, 3:4].expand(-1, 3, -1, -1)
     return (bgr - mean) / std, (thermal - mean) / std

@@ -228,7 +228,7 @@ def harness(args):
                     if args.kind == "infer":
                         cmd = [args.rtf, "bench", "model", "--model", model, "--batch", str(batch), "--precision",
                                precision, "--device", args.device, "--warmup", str(args.warmup), "--iterations",
-                               str(args.iterations), "--json"]
+                               str(args.iterations), "--no-agreement", "--json"]
                     else:
                         cmd = [args.rtf, "bench", "train", "--model", model, "--batch", str(batch), "--precision",
                                precision, "--device", args.device, "--warmup", str(args.warmup), "--steps",

@@ -4,11 +4,13 @@
 1. The published MFNet on the real MF frames (mf_<device>_<precision>/*.npy logits): each GPU
    variant's arg-max labels against the CPU's plain path. Bounds: plain and fast fp32 ≥ 99.9 %
    (the issue's), fp16 ≥ 99.9 %, bf16 ≥ 99 % (8 mantissa bits move border pixels).
-2. One SGD step of MFNet from the published weights (step_cpu, step_cuda: final.safetensors):
-   the GPU's weight update against the CPU's, ‖Δgpu − Δcpu‖ / ‖Δcpu‖ over every float tensor,
-   and over the learnable parameters alone. Bound 1e-2: the GPU's fp32 convolutions run on
-   TF32 tensor cores by default (10 mantissa bits, ~5e-4 relative per product), in PyTorch and
-   rtf alike.
+2. One SGD step of MFNet from the published weights (step_<run>/final.safetensors for cpu,
+   cuda and cuda_fp32): the GPU's weight update against the CPU's, ‖Δgpu − Δcpu‖ / ‖Δcpu‖ over
+   the learnable parameters and over every float tensor (BatchNorm statistics too). The gate
+   is the GPU run without TF32 (NVIDIA_TF32_OVERRIDE=0: true fp32 products, only the order of
+   the sums differs): bound 1e-3. With TF32 (libtorch's default for convolutions, in PyTorch
+   and rtf alike: 10 mantissa bits in the forward and both backward convolutions) the
+   difference is reported, not bounded: it measures TF32, not rtf.
 
 Usage: gpu_correctness.py WORK INIT_WEIGHTS   (exit 1 when a bound is missed)
 """
@@ -47,27 +49,29 @@ for variant, bound in (("plain", 0.999), ("fp32", 0.999), ("fp16", 0.999), ("bf1
           f"max |logit difference| {worst:.3g}")
 
 init = load_file(init_path)
-after = {d: load_file(f"{work}/step_{d}/final.safetensors") for d in ("cpu", "cuda")}
-names = sorted(k for k in init if k in after["cpu"] and k in after["cuda"]
-               and np.issubdtype(init[k].dtype, np.floating))
+after = {run: load_file(f"{work}/step_{run}/final.safetensors") for run in ("cpu", "cuda", "cuda_fp32")}
+names = sorted(k for k in init if all(k in a for a in after.values()) and np.issubdtype(init[k].dtype, np.floating))
 check(len(names) > 0, f"{len(names)} float tensors shared by the initial and trained weights")
 
 
-def update_difference(keep):
+def update_difference(run, keep):
     num = den = 0.0
     for k in filter(keep, names):
         d_cpu = after["cpu"][k].astype(np.float64) - init[k]
-        d_gpu = after["cuda"][k].astype(np.float64) - init[k]
+        d_gpu = after[run][k].astype(np.float64) - init[k]
         num += float(((d_gpu - d_cpu) ** 2).sum())
         den += float((d_cpu ** 2).sum())
     return (num / den) ** 0.5, den ** 0.5
 
 
-moved, norm = update_difference(lambda k: True)
+_, norm = update_difference("cuda", lambda k: True)
 check(norm > 0, f"the CPU step moved the weights (‖Δcpu‖ = {norm:.3g})")
-check(moved <= 1e-2, f"one SGD step, GPU vs CPU: update difference {moved:.2e} over every float tensor "
-      "(bound 1e-2, TF32)")
-params, _ = update_difference(lambda k: "running_" not in k)
-check(params <= 1e-2, f"one SGD step, GPU vs CPU: update difference {params:.2e} over the learnable "
-      "parameters (bound 1e-2, TF32)")
+for run, label, bound in (("cuda_fp32", "GPU fp32 without TF32", 1e-3), ("cuda", "GPU with TF32 (default)", None)):
+    for scope, keep in (("the learnable parameters", lambda k: "running_" not in k), ("every float tensor", lambda k: True)):
+        moved, _ = update_difference(run, keep)
+        text = f"one SGD step, {label} vs CPU: update difference {moved:.2e} over {scope}"
+        if bound is None:
+            print(f"info {text} (TF32: reported, not bounded)")
+        else:
+            check(moved <= bound, f"{text} (bound {bound:g})")
 sys.exit(1 if failed else 0)
