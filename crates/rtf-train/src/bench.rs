@@ -44,7 +44,8 @@ pub struct TrainBenchReport {
     pub threads: i32,
     /// Images per second over all timed steps.
     pub images_per_s: f64,
-    /// Median seconds of one step, and of its parts.
+    /// Median seconds of one step, and of its parts (on CUDA the parts come from further
+    /// steps synchronised between parts; the step and the rate from steps timed whole).
     pub step_s: f64,
     pub forward_s: f64,
     pub backward_s: f64,
@@ -74,40 +75,35 @@ fn sync(device: Device) {
     }
 }
 
-/// Times `opts.steps` training steps after `opts.warmup` untimed ones.
+/// Times `opts.steps` training steps after `opts.warmup` untimed ones. On CUDA the steps are
+/// timed whole, as PyTorch's loop runs them (the host queues the next part while the device
+/// works), and the parts are timed in as many further steps, synchronised between parts.
 pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainError> {
     let cfg = bench_config(opts)?;
     tch::manual_seed(0);
-    let mut student = Student::build(&cfg, opts.device)?;
-    let loss_fn = cfg.learning.loss.build(None);
+    let mut bench = Bench {
+        student: Student::build(&cfg, opts.device)?,
+        loss_fn: cfg.learning.loss.build(None),
+        // The base rate: a schedule's first step may be 0 (a warm-up), and time does not care.
+        lr: cfg.learning.optimizer.lr,
+        device: opts.device,
+        steps_run: 0,
+    };
     let (w, h) = (opts.size.0 as i64, opts.size.1 as i64);
     let b = opts.batch as i64;
     let input = Tensor::rand([b, 4, h, w], (Kind::Float, opts.device));
     let target = Tensor::randint(9, [b, h, w], (Kind::Int64, opts.device));
-    // The base rate: a schedule's first step may be 0 (a warm-up), and time does not care.
-    let lr = cfg.learning.optimizer.lr;
-    let (mut fwd, mut bwd, mut opt) = (vec![], vec![], vec![]);
-    for i in 0..opts.warmup + opts.steps {
-        let [forward, backward, optimizer] = timed_step(
-            &mut student,
-            loss_fn.as_ref(),
-            (&input, &target),
-            lr,
-            opts.device,
-        )
-        .map_err(|what| TrainError::Diverged {
-            epoch: 0,
-            step: i as u64,
-            what,
-        })?;
-        if i >= opts.warmup {
-            fwd.push(forward);
-            bwd.push(backward);
-            opt.push(optimizer);
-        }
-    }
-    let mut steps: Vec<f64> = (0..fwd.len()).map(|i| fwd[i] + bwd[i] + opt[i]).collect();
+    let batch = (&input, &target);
+    let split_apart = opts.device.is_cuda();
+    bench.run(batch, opts.warmup, true)?;
+    let whole = bench.run(batch, opts.steps, !split_apart)?;
+    let parts = match split_apart {
+        true => bench.run(batch, opts.steps, true)?,
+        false => whole.clone(),
+    };
+    let mut steps: Vec<f64> = whole.iter().map(|p| p.iter().sum()).collect();
     let total: f64 = steps.iter().sum();
+    let part = |i: usize| median(&mut parts.iter().map(|p| p[i]).collect::<Vec<_>>());
     Ok(TrainBenchReport {
         model: opts.model.clone(),
         batch: opts.batch,
@@ -118,13 +114,44 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         threads: tch::get_num_threads(),
         images_per_s: (opts.steps * opts.batch) as f64 / total,
         step_s: median(&mut steps),
-        forward_s: median(&mut fwd),
-        backward_s: median(&mut bwd),
-        optimizer_s: median(&mut opt),
+        forward_s: part(0),
+        backward_s: part(1),
+        optimizer_s: part(2),
         peak_rss_mb: peak_rss_mb(),
         steps: opts.steps,
         cpu: rtf_core::host::CpuInfo::read(),
     })
+}
+
+/// The network, loss and rate being timed, and the steps run so far.
+struct Bench {
+    student: Student,
+    loss_fn: Box<dyn crate::loss::Loss>,
+    lr: f64,
+    device: Device,
+    steps_run: u64,
+}
+
+impl Bench {
+    /// `count` steps; each one's [forward and loss, backward, optimiser] seconds, the parts
+    /// synchronised apart where `split` (else only the sum is a time).
+    fn run(
+        &mut self,
+        batch: (&Tensor, &Tensor),
+        count: usize,
+        split: bool,
+    ) -> Result<Vec<[f64; 3]>, TrainError> {
+        (0..count)
+            .map(|_| {
+                self.steps_run += 1;
+                timed_step(self, batch, split).map_err(|what| TrainError::Diverged {
+                    epoch: 0,
+                    step: self.steps_run - 1,
+                    what,
+                })
+            })
+            .collect()
+    }
 }
 
 /// The supervised training config the benchmark's options describe (MFNet's paper recipe
@@ -154,27 +181,31 @@ fn bench_config(opts: &TrainBenchOptions) -> Result<TrainConfig, TrainError> {
 }
 
 /// One step of `Supervised::step`, timed part by part: [forward and loss, backward,
-/// optimiser] in seconds; the loss's value when it is not finite.
+/// optimiser] in seconds, synchronised between parts where `split` (the last part always ends
+/// synchronised: the loss's value is read); the loss's value when it is not finite.
 fn timed_step(
-    student: &mut Student,
-    loss_fn: &dyn crate::loss::Loss,
+    bench: &mut Bench,
     (input, target): (&Tensor, &Tensor),
-    lr: f64,
-    device: Device,
+    split: bool,
 ) -> Result<[f64; 3], String> {
+    let between_parts = |device| {
+        if split {
+            sync(device)
+        }
+    };
     let t0 = Instant::now();
-    let logits = student.logits(input);
-    let loss = loss_fn.compute(&logits, target);
-    sync(device);
+    let logits = bench.student.logits(input);
+    let loss = bench.loss_fn.compute(&logits, target);
+    between_parts(bench.device);
     let t1 = Instant::now();
-    let trained = &mut student.trained;
+    let trained = &mut bench.student.trained;
     trained.optimizer.zero_grad(&trained.vs);
     trained.optimizer.scale_loss(&loss).backward();
-    sync(device);
+    between_parts(bench.device);
     let t2 = Instant::now();
-    trained.optimizer.step(&trained.vs, lr);
+    trained.optimizer.step(&trained.vs, bench.lr);
     let value = f64::try_from(&loss).unwrap_or(f64::NAN);
-    sync(device);
+    sync(bench.device);
     let t3 = Instant::now();
     if !value.is_finite() {
         return Err(format!("loss is {value}"));
