@@ -21,6 +21,9 @@ import sys
 import numpy as np
 from safetensors.numpy import load_file
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from logit_agreement import agreement  # noqa: E402
+
 work, init_path = sys.argv[1:]
 failed = []
 
@@ -31,19 +34,10 @@ def check(ok, text):
         failed.append(text)
 
 
-cpu_files = sorted(glob.glob(f"{work}/mf_cpu_plain/*.npy"))
-check(len(cpu_files) == 2, f"{len(cpu_files)} CPU logit files of the real MF frames")
+mf_frames = len(glob.glob(f"{work}/mf_cpu_plain/*.npy"))
+check(mf_frames == 2, f"{mf_frames} CPU logit files of the real MF frames")
 for variant, bound in (("plain", 0.999), ("fp32", 0.999), ("fp16", 0.999), ("bf16", 0.99)):
-    same = total = 0
-    worst = 0.0
-    for cpu_file in cpu_files:
-        a = np.load(cpu_file)
-        b = np.load(f"{work}/mf_cuda_{variant}/{os.path.basename(cpu_file)}")
-        assert a.shape == b.shape, (cpu_file, a.shape, b.shape)
-        assert np.isfinite(b).all(), f"non-finite GPU logits ({variant})"
-        worst = max(worst, float(np.abs(a - b).max()))
-        same += int((a.argmax(0) == b.argmax(0)).sum())
-        total += a[0].size
+    same, total, worst = agreement(f"{work}/mf_cpu_plain", f"{work}/mf_cuda_{variant}")
     check(same / total >= bound, f"real MF frames, GPU {variant} vs CPU plain: labels agree on "
           f"{100 * same / total:.3f} % of {total} pixels (bound {100 * bound:.1f} %), "
           f"max |logit difference| {worst:.3g}")

@@ -61,22 +61,13 @@ predict_on cpu plain "$work/logits_cpu"
 predict_on "$gpu" plain "$work/logits_gpu"
 predict_on "$gpu" fp32 "$work/logits_gpu_fp32"
 predict_on "$gpu" bf16 "$work/logits_gpu_bf16"
-"$python" - "$work" <<'PY'
-import glob, os, sys
-import numpy as np
+"$python" - "$work" "$(dirname "$0")" <<'PY'
+import sys
 work = sys.argv[1]
-cpu_files = sorted(glob.glob(f"{work}/logits_cpu/*.npy"))
-assert cpu_files, "no logits written"
+sys.path.insert(0, sys.argv[2])
+from logit_agreement import agreement
 for variant, min_agreement in (("gpu", 0.999), ("gpu_fp32", 0.999), ("gpu_bf16", 0.99)):
-    same = total = 0
-    worst = 0.0
-    for cpu_file in cpu_files:
-        a = np.load(cpu_file)
-        b = np.load(f"{work}/logits_{variant}/{os.path.basename(cpu_file)}")
-        assert a.shape == b.shape, (cpu_file, a.shape, b.shape)
-        worst = max(worst, float(np.abs(a - b).max()))
-        same += int((a.argmax(0) == b.argmax(0)).sum())
-        total += a[0].size
+    same, total, worst = agreement(f"{work}/logits_cpu", f"{work}/logits_{variant}")
     print(f"{variant}: arg-max agreement with the CPU {100 * same / total:.3f} % of {total} pixels, "
           f"max |logit difference| {worst:.2e}")
     assert same / total >= min_agreement, variant
