@@ -6,8 +6,6 @@ use rtf_data::inspect::DatasetFormat;
 use rtf_data::FrameSource;
 use rtf_eval::scores_file::{single_modality_note, DroppedScores, HeatnetScores, ScoresFile};
 use rtf_eval::{EvalOptions, Scores};
-use rtf_models::loaded::NetworkRequest;
-use rtf_train::config::available_device;
 
 use super::{load_network, parse_size};
 use crate::output_guard::OutputGuard;
@@ -48,8 +46,8 @@ pub struct Args {
     pub resize: Option<(usize, usize)>,
     #[arg(long, default_value_t = 4)]
     pub batch_size: usize,
-    #[arg(long, default_value = "cpu")]
-    pub device: String,
+    #[command(flatten)]
+    pub run: super::RunFlags,
     /// Also score with this modality missing (repeatable: `--drop rgb --drop thermal`); the
     /// JSON gains a `dropped` list beside the normal scores, each with all / day / night.
     #[arg(long, value_enum)]
@@ -57,18 +55,6 @@ pub struct Args {
     /// What replaces a dropped modality: pixel value 0, or the split's per-channel mean.
     #[arg(long, value_enum, default_value = "zero")]
     pub drop_fill: FillArg,
-    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32, bf16 or fp16
-    /// (CUDA only); default: the plain path.
-    #[arg(long, value_parser = rtf_models::fast::Precision::parse_inference)]
-    pub precision: Option<rtf_models::fast::Precision>,
-    /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed). Default: what the
-    /// weights file records (rtf writes it), else all four; needed only for files without it.
-    #[arg(long, value_parser = rtf_models::Modality::parse)]
-    pub inputs: Option<rtf_models::Modality>,
-    /// Load weights whose metadata names another network (e.g. renamed or converted files);
-    /// names and shapes must still match.
-    #[arg(long)]
-    pub foreign_weights: bool,
     /// Run the network by sliding windows (--crop, --stride-rate) as the official CMX
     /// evaluator does, instead of on the whole image.
     #[arg(long)]
@@ -185,20 +171,17 @@ fn check_outputs(args: &Args) -> Result<()> {
 
 pub fn run(args: Args) -> Result<()> {
     check_outputs(&args)?;
-    let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
+    let device = args.run.device()?;
     let (split, dataset) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();
     // Weights that record their classes score only data with the same ones (by name).
     super::check_classes(&args.weights, &args.data, &classes)?;
-    let loaded = load_network(&NetworkRequest {
-        name: &args.model,
-        num_classes: classes.len() as i64,
-        weights: &args.weights,
+    let loaded = load_network(&args.run.request(
+        &args.model,
+        &args.weights,
+        classes.len() as i64,
         device,
-        precision: args.precision,
-        foreign_weights: args.foreign_weights,
-        inputs: args.inputs,
-    })?;
+    ))?;
     let network = loaded.net;
     rtf_eval::evaluate::install_quiet_panic_hook();
     let options = args.eval_options();

@@ -40,6 +40,54 @@ pub fn open_dataset(root: &std::path::Path, purpose: &str) -> anyhow::Result<rtf
     Ok(dataset)
 }
 
+/// How `rtf eval` and `rtf predict` run a weights file: the device, the inference path, the
+/// channels the network sees, and whether a file made for another network may load.
+#[derive(clap::Args)]
+pub struct RunFlags {
+    /// cpu, cuda or cuda:N.
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
+    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32, bf16 or fp16
+    /// (CUDA only); default: the plain path.
+    #[arg(long, value_parser = rtf_models::fast::Precision::parse_inference)]
+    pub precision: Option<rtf_models::fast::Precision>,
+    /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed). Default: what the
+    /// weights file records (rtf writes it), else all four; needed only for files without it.
+    #[arg(long, value_parser = rtf_models::Modality::parse)]
+    pub inputs: Option<rtf_models::Modality>,
+    /// Load weights whose metadata names another network (e.g. renamed or converted files);
+    /// names and shapes must still match.
+    #[arg(long)]
+    pub foreign_weights: bool,
+}
+
+impl RunFlags {
+    /// The device, checked to be usable here (a clear error rather than libtorch's panic).
+    pub fn device(&self) -> anyhow::Result<tch::Device> {
+        rtf_train::config::available_device(&self.device).map_err(anyhow::Error::msg)
+    }
+
+    /// The loader's request for network `name` with `weights` and `num_classes` outputs on
+    /// `device` (from [`device`](Self::device)).
+    pub fn request<'a>(
+        &self,
+        name: &'a str,
+        weights: &'a std::path::Path,
+        num_classes: i64,
+        device: tch::Device,
+    ) -> rtf_models::loaded::NetworkRequest<'a> {
+        rtf_models::loaded::NetworkRequest {
+            name,
+            num_classes,
+            weights,
+            device,
+            precision: self.precision,
+            foreign_weights: self.foreign_weights,
+            inputs: self.inputs,
+        }
+    }
+}
+
 /// [`rtf_models::loaded::load_network`] for a command: a bf16 request warned about where bf16
 /// is slow or emulated here (`crate::bf16_warning`), the loader's warnings printed on stderr.
 pub fn load_network(

@@ -5,8 +5,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use rtf_eval::predict::{self, Prediction};
-use rtf_models::loaded::NetworkRequest;
-use rtf_train::config::available_device;
 
 use super::load_network;
 use crate::output_guard::OutputGuard;
@@ -44,20 +42,8 @@ pub struct Args {
     /// 16-bit frame's own min:max (a float thermal then needs this option).
     #[arg(long, value_parser = parse_range)]
     pub thermal_range: Option<(f64, f64)>,
-    #[arg(long, default_value = "cpu")]
-    pub device: String,
-    /// Run the fast inference path (BatchNorm folded, channels-last) in fp32, bf16 or fp16
-    /// (CUDA only); default: the plain path.
-    #[arg(long, value_parser = rtf_models::fast::Precision::parse_inference)]
-    pub precision: Option<rtf_models::fast::Precision>,
-    /// Channels the network sees (rgb_t, rgb, thermal; the others zeroed). Default: what the
-    /// weights file records (rtf writes it), else all four; needed only for files without it.
-    #[arg(long, value_parser = rtf_models::Modality::parse)]
-    pub inputs: Option<rtf_models::Modality>,
-    /// Load weights whose metadata names another network (e.g. renamed or converted files);
-    /// names and shapes must still match.
-    #[arg(long)]
-    pub foreign_weights: bool,
+    #[command(flatten)]
+    pub run: super::RunFlags,
     /// Replace existing files that rtf did not write (or files of the dataset given with
     /// --classes). Without it such a file stops the run before anything is written; rtf's own
     /// outputs (a previous prediction) are replaced either way, inputs never.
@@ -119,7 +105,7 @@ fn plan(args: &Args) -> Result<Vec<predict::Planned>> {
 
 pub fn run(args: Args) -> Result<()> {
     let planned = plan(&args)?;
-    let device = available_device(&args.device).map_err(anyhow::Error::msg)?;
+    let device = args.run.device()?;
     let trained = super::trained_on(&args.weights)?;
     let classes = predict::class_set(
         args.classes.as_deref(),
@@ -127,15 +113,12 @@ pub fn run(args: Args) -> Result<()> {
         &args.weights,
         trained.as_ref(),
     )?;
-    let network = load_network(&NetworkRequest {
-        name: &args.model,
-        num_classes: classes.len() as i64,
-        weights: &args.weights,
+    let network = load_network(&args.run.request(
+        &args.model,
+        &args.weights,
+        classes.len() as i64,
         device,
-        precision: args.precision,
-        foreign_weights: args.foreign_weights,
-        inputs: args.inputs,
-    })?
+    ))?
     .net;
     let prediction = Prediction {
         out: &args.out,
