@@ -3,20 +3,21 @@
 # inference and training tables against PyTorch (scripts/gpu_bench.py), scripts/gpu_smoke.sh,
 # then extras while the time budget lasts. Every phase writes its file under OUT at once, so a
 # run cut off by its time limit keeps what it finished. On the H100 of 2026-11-27 the phases
-# took: correct 33 s, smoke 150 s, train 258 s, infer (4 networks) 209 s: the whole needs two
-# calls of a 15-minute lease (docs/src/gpu.md).
+# took: correct 33 s, smoke 150 s, train 258 s (with two diagnostic runs, now left out), infer
+# 209 s for six network-batch pairs (now seven): a 15-minute lease holds `env correct train
+# infer` in one call and `smoke` in a second, started at once while the machine is warm.
 #
 # Usage, on the GPU machine from the repo root, with `rtf` built by scripts/gpu_build.sh against
 # that machine's PyTorch and the real MF frames copied beside it:
 #   scripts/gpu_check.sh RTF MF_SAMPLES OUT [BUDGET_S] [PHASES]
-# PHASES (default "env correct infer train smoke extra") picks and orders the phases; a phase
+# PHASES (default "env correct train infer smoke extra") picks and orders the phases; a phase
 # that would start after BUDGET_S seconds (default 420) is skipped and says so.
 set -uo pipefail
 rtf=$(realpath "$1")
 mf=$(realpath "$2")
 out=$(realpath -m "$3")
 budget=${4:-420}
-phases=${5:-env correct infer train smoke extra}
+phases=${5:-env correct train infer smoke extra}
 here=$(cd "$(dirname "$0")" && pwd)
 work=$(mktemp -d)
 mkdir -p "$out"
@@ -65,12 +66,12 @@ phase_correct() {
 
 phase_train() {
     python3 "$here/gpu_bench.py" train --rtf "$rtf" --models mfnet:8,rtfnet50:4 --warmup 3 \
-        --iterations 10 --diagnose mfnet,rtfnet50 --json "$out/train.json"
+        --iterations 10 --json "$out/train.json"
 }
 
 phase_infer() {
-    python3 "$here/gpu_bench.py" infer --rtf "$rtf" --diagnose mfnet,rtfnet50 \
-        --models mfnet,rtfnet50,rtfnet152,heatnet,cmx-mit-b2 --batches 1/8 --warmup 5 \
+    python3 "$here/gpu_bench.py" infer --rtf "$rtf" --diagnose mfnet \
+        --models mfnet,rtfnet50,rtfnet152:1,heatnet:1,cmx-mit-b2:1 --batches 1/8 --warmup 5 \
         --iterations 15 --json "$out/infer.json"
 }
 
