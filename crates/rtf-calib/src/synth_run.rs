@@ -119,13 +119,18 @@ mod tests {
         }
     }
 
+    /// [`run_rig`] with the default recipe, which must not stop early: the true mean
+    /// pixel-map error after it, and its outcome.
+    fn run_to_the_end(cfg: &RigSynthConfig) -> (f64, Outcome) {
+        let run = run_rig(cfg, &default_settings());
+        assert!(run.outcome.stopped.is_none());
+        (run.after_px, run.outcome)
+    }
+
     #[test]
     fn default_recipe_reaches_subpixel_on_small_synthetic_rig() {
         tch::set_num_threads(1);
-        let cfg = small_rig(6, DepthSource::Given, 1);
-        let run = run_rig(&cfg, &default_settings());
-        let (err, out) = (run.after_px, run.outcome);
-        assert!(out.stopped.is_none());
+        let (err, out) = run_to_the_end(&small_rig(6, DepthSource::Given, 1));
         assert!(err < 0.3, "mean pixel-map error {err} px");
         // The truth found on a rig where both bands share their edges is a sharp optimum:
         // the shallow-optimum rule tuned on real pairs must not flag it.
@@ -140,10 +145,7 @@ mod tests {
     #[test]
     fn stereo_depth_rig_reaches_half_pixel() {
         tch::set_num_threads(1);
-        let cfg = small_rig(6, DepthSource::Stereo, 4);
-        let run = run_rig(&cfg, &default_settings());
-        let (err, out) = (run.after_px, run.outcome);
-        assert!(out.stopped.is_none());
+        let (err, _) = run_to_the_end(&small_rig(6, DepthSource::Stereo, 4));
         assert!(err < 0.5, "mean pixel-map error with SGM depth {err} px");
     }
 
