@@ -67,11 +67,6 @@ class MemorySampler:
         return max(self.peak, self.used_mb())
 
 
-def p95(values):
-    ordered = sorted(values)
-    return ordered[max(1, -(-95 * len(ordered) // 100)) - 1]
-
-
 # ------------------------------------------------------------------ PyTorch workers
 INFER_CONFIGS = [  # label, precision, channels_last, how (eager / autocast / cast / compile)
     ("torch fp32 NCHW", "fp32", False, "eager"),
@@ -266,6 +261,7 @@ def speed(row):
 
 # ------------------------------------------------------------------ tables
 def table(paths):
+    from bench_torch import p95  # nearest rank, as `rtf bench model`
     for path in paths:
         results = json.load(open(path))
         infer = results["kind"] == "infer"
