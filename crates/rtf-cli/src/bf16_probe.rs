@@ -22,11 +22,15 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// Which kind of work the probe times (`rtf bench bf16-probe --work inference|training`).
+/// Which kind of work the probe times (`rtf bench bf16-probe --work inference|training|conv3x3`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Work {
     Inference,
     Training,
+    /// One wide 3×3 convolution over bf16 maps: fp32 arithmetic (the Winograd form,
+    /// `rtf_models::winograd`) against oneDNN's bf16 kernels. Decides which of the two bf16
+    /// inference takes for such layers ([`choose_bf16_winograd`]).
+    Conv3x3,
 }
 
 impl Work {
@@ -34,6 +38,7 @@ impl Work {
         match self {
             Work::Inference => "inference",
             Work::Training => "training",
+            Work::Conv3x3 => "conv3x3",
         }
     }
 
@@ -42,6 +47,7 @@ impl Work {
         match self {
             Work::Inference => "MFNet's fast-path forward at 320x240, batch 1",
             Work::Training => "an MFNet training step at 320x240, batch 2",
+            Work::Conv3x3 => "a 3x3 convolution of 256 channels at 80x60 over bf16 maps",
         }
     }
 }
@@ -86,6 +92,7 @@ pub fn key(work: Work) -> String {
         "ATEN_CPU_CAPABILITY",
         "ONEDNN_MAX_CPU_ISA",
         "MKL_ENABLE_INSTRUCTIONS",
+        rtf_models::winograd::BF16_VAR,
     ]
     .iter()
     .filter_map(|var| std::env::var(var).ok().map(|v| format!("{var}={v}")))
@@ -182,10 +189,21 @@ fn write_cache(path: &Path, cache: &Cache) -> Result<()> {
 /// child inherits the environment and runs with this process's thread count.
 fn measure_in_child(work: Work) -> Result<Measured> {
     let exe = std::env::current_exe().context("cannot find the rtf binary for the bf16 probe")?;
-    let out = std::process::Command::new(&exe)
+    let mut child = std::process::Command::new(&exe);
+    child
         .args(["bench", "bf16-probe", "--work", work.name()])
         .env("OMP_NUM_THREADS", tch::get_num_threads().to_string())
-        .stderr(std::process::Stdio::inherit())
+        .stderr(std::process::Stdio::inherit());
+    // The others run with this process's choice of bf16 3×3 kernels (the 3×3 probe sets
+    // each form itself).
+    if let (Work::Inference | Work::Training, Ok(on)) = (work, rtf_models::winograd::bf16_applies())
+    {
+        child.env(
+            rtf_models::winograd::BF16_VAR,
+            if on { "on" } else { "off" },
+        );
+    }
+    let out = child
         .output()
         .with_context(|| format!("cannot start {}", exe.display()))?;
     anyhow::ensure!(
@@ -201,6 +219,7 @@ pub fn measure(work: Work) -> Result<Measured> {
     let (fp32_s, bf16_s) = match work {
         Work::Inference => (inference_s(false)?, inference_s(true)?),
         Work::Training => (training_s(false)?, training_s(true)?),
+        Work::Conv3x3 => (conv3x3_s(true)?, conv3x3_s(false)?),
     };
     let unix_time = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -247,6 +266,63 @@ fn training_s(bf16: bool) -> Result<f64> {
         optimizer: rtf_train::OptimizerConfig::mfnet_paper(),
     };
     Ok(rtf_train::bench::bench_train(&opts)?.step_s)
+}
+
+/// Seconds per pass of [`Work::Conv3x3`]'s convolution (+ bias, ReLU, folded as inference
+/// folds it), in the Winograd form or with oneDNN's bf16 kernels; median of 7 after 2.
+fn conv3x3_s(winograd: bool) -> Result<f64> {
+    use rtf_models::layers::{Act, ConvBnAct, ConvSpec, Fuse};
+    use tch::{Device, Kind, Tensor};
+    let _guard = tch::no_grad_guard();
+    let vs = tch::nn::VarStore::new(Device::Cpu);
+    let mut unit = ConvBnAct::new(
+        vs.root() / "conv",
+        None,
+        256,
+        256,
+        ConvSpec::new(3).bias(true),
+        Act::Relu,
+    );
+    rtf_models::winograd::with_bf16(winograd, || {
+        rtf_models::layers::with_fused_layout(true, || unit.fuse(Kind::BFloat16))
+    });
+    let xs = rtf_models::layers::to_channels_last(
+        &Tensor::randn([1, 256, 60, 80], (Kind::Float, Device::Cpu)).to_kind(Kind::BFloat16),
+    );
+    let mut times: Vec<f64> = (0..9)
+        .map(|_| {
+            let start = std::time::Instant::now();
+            let _ = tch::nn::ModuleT::forward_t(&unit, &xs, false);
+            start.elapsed().as_secs_f64()
+        })
+        .skip(2)
+        .collect();
+    times.sort_by(f64::total_cmp);
+    Ok(times[times.len() / 2])
+}
+
+/// Before bf16 inference on the CPU (`eval`, `predict`, `bench model`): where bf16 is native
+/// and [`rtf_models::winograd::BF16_VAR`] is unset, makes this process's choice between the
+/// Winograd form and oneDNN's bf16 kernels for the wide 3×3 convolutions, by the cached
+/// [`Work::Conv3x3`] measurement (measured first where there is none; with AMX oneDNN's
+/// kernels won 2–3×, without it the Winograd form ~4×: docs/src/benchmarks.md). Returns a
+/// warning where the measurement failed (then oneDNN's kernels run, rtf-models' default).
+pub fn choose_bf16_winograd() -> Option<String> {
+    if std::env::var_os(rtf_models::winograd::BF16_VAR).is_some()
+        || rtf_amp::cpu_has_native_bf16() != Some(true)
+    {
+        return None;
+    }
+    match measured(Work::Conv3x3) {
+        Ok((m, _)) => {
+            rtf_models::winograd::choose_bf16(m.speedup() < 1.0);
+            None
+        }
+        Err(e) => Some(format!(
+            "could not measure which bf16 3x3 convolutions are faster on this CPU ({e:#}); \
+             oneDNN's bf16 kernels run"
+        )),
+    }
 }
 
 /// The warning for a measurement, if bf16 measured slower than fp32.

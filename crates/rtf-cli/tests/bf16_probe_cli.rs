@@ -2,7 +2,8 @@
 //! `--precision bf16` times bf16 against fp32 once, caches the times in `$RTF_CACHE_DIR`, and
 //! warns with them when bf16 measured slower. Which way the measurement goes depends on the
 //! CPU, so the test edits the cached times to make each outcome decisive on every kind; where
-//! bf16 is emulated, the emulation warning is given and nothing is probed.
+//! bf16 is emulated, the emulation warning is given and nothing is probed. The same holds for
+//! the measurement that picks bf16's 3×3 kernels.
 
 mod common;
 use common::*;
@@ -11,28 +12,53 @@ use std::process::{Command, Output};
 
 const SLOWER: &str = "bf16 measured slower than fp32 on this CPU";
 
-fn bench_bf16(cache: &Path) -> Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_rtf"))
+fn bench_bf16_with(cache: &Path, vars: &[(&str, &str)]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rtf"))
         .args(["bench", "model", "--model", "mfnet", "--precision", "bf16"])
-        .args(["--size", "32x32", "--warmup", "0", "--iterations", "1"])
+        .args([
+            "--size",
+            "32x32",
+            "--warmup",
+            "0",
+            "--iterations",
+            "1",
+            "--json",
+        ])
         .env("RTF_CACHE_DIR", cache)
+        .env_remove(WINOGRAD_VAR)
+        .envs(vars.iter().copied())
         .output()
-        .expect("rtf runs");
+        .expect("rtf runs")
+}
+
+fn bench_bf16(cache: &Path) -> Output {
+    let out = bench_bf16_with(cache, &[]);
     assert!(out.status.success(), "{}", text(&out));
     out
+}
+
+const WINOGRAD_VAR: &str = "RTF_BF16_WINOGRAD";
+
+/// The report's `bf16_3x3`: which kernels the wide 3×3 convolutions took.
+fn kernels(out: &Output) -> String {
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON report");
+    report["bf16_3x3"].as_str().unwrap_or("none").to_string()
 }
 
 fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
-/// Sets every cached measurement's bf16 time to `factor` × its fp32 time.
-fn edit_cache(path: &Path, factor: f64) {
+/// Sets the bf16 time of every cached measurement whose key starts with `work` to `factor` ×
+/// its fp32 time.
+fn edit_cache(path: &Path, work: &str, factor: f64) {
     let mut cache: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
-    for m in cache["measurements"].as_object_mut().unwrap().values_mut() {
-        let fp32 = m["fp32_s"].as_f64().unwrap();
-        m["bf16_s"] = serde_json::json!(fp32 * factor);
+    for (key, m) in cache["measurements"].as_object_mut().unwrap() {
+        if key.starts_with(work) {
+            let fp32 = m["fp32_s"].as_f64().unwrap();
+            m["bf16_s"] = serde_json::json!(fp32 * factor);
+        }
     }
     std::fs::write(path, serde_json::to_string(&cache).unwrap()).unwrap();
 }
@@ -59,7 +85,7 @@ fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
     );
 
     // Read back, not measured again: the edited times are the ones reported.
-    edit_cache(&file, 2.0);
+    edit_cache(&file, "inference | ", 2.0);
     let line = stderr(&bench_bf16(&cache));
     assert!(
         line.contains(SLOWER) && line.contains("(0.50x fp32's speed"),
@@ -75,7 +101,7 @@ fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
         "{line}"
     );
 
-    edit_cache(&file, 0.5);
+    edit_cache(&file, "inference | ", 0.5);
     let line = stderr(&bench_bf16(&cache));
     assert!(!line.contains(SLOWER), "{line}");
 
@@ -84,7 +110,48 @@ fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
     bench_bf16(&cache);
     let fresh: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
-    assert_eq!(fresh["measurements"].as_object().unwrap().len(), 1);
+    let keys: Vec<&String> = fresh["measurements"].as_object().unwrap().keys().collect();
+    assert_eq!(
+        keys.len(),
+        2,
+        "the 3x3 kernels' and the inference measurement: {keys:?}"
+    );
+}
+
+/// bf16 inference's wide 3×3 convolutions take the Winograd form (fp32 arithmetic over bf16
+/// maps) or oneDNN's bf16 kernels as the cached measurement of the two says (edited here to
+/// decide each way on every CPU), `RTF_BF16_WINOGRAD=on|off` overrides it, and any other value
+/// is refused naming the variable. Where bf16 is emulated, the Winograd form without a probe.
+#[test]
+fn the_bf16_3x3_kernels_follow_the_measurement_and_the_variable() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let file = cache.join("bf16-probe.json");
+    let first = bench_bf16(&cache);
+    if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
+        assert_eq!(kernels(&first), "winograd", "{}", text(&first));
+        assert!(!file.exists(), "no probe where bf16 is emulated");
+    } else {
+        let written = std::fs::read_to_string(&file).expect("the probe's cache is written");
+        assert!(written.contains("conv3x3 | "), "{written}");
+        // Measured as "bf16" slower: the fp32-arithmetic Winograd form runs.
+        edit_cache(&file, "conv3x3 | ", 2.0);
+        assert_eq!(kernels(&bench_bf16(&cache)), "winograd");
+        edit_cache(&file, "conv3x3 | ", 0.5);
+        assert_eq!(kernels(&bench_bf16(&cache)), "onednn");
+    }
+    for (value, expected) in [("on", "winograd"), ("off", "onednn")] {
+        let out = bench_bf16_with(&cache, &[(WINOGRAD_VAR, value)]);
+        assert!(out.status.success(), "{}", text(&out));
+        assert_eq!(kernels(&out), expected, "{WINOGRAD_VAR}={value}");
+    }
+    let out = bench_bf16_with(&cache, &[(WINOGRAD_VAR, "maybe")]);
+    assert!(!out.status.success());
+    let said = stderr(&out);
+    assert!(
+        said.contains("RTF_BF16_WINOGRAD=\"maybe\": expected on or off"),
+        "{said}"
+    );
 }
 
 #[test]

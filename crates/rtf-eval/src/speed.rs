@@ -115,6 +115,11 @@ pub struct BenchReport {
     /// The CPU the passes ran on (identity and kernel-deciding flags).
     #[serde(default)]
     pub cpu: CpuInfo,
+    /// bf16 on the CPU's fast path: how its wide 3×3 convolutions ran, `winograd` (fp32
+    /// arithmetic over bf16 maps) or `onednn` (oneDNN's bf16 kernels); see
+    /// `rtf_models::winograd::bf16_applies`. None otherwise.
+    #[serde(default)]
+    pub bf16_3x3: Option<String>,
 }
 
 /// Median and minimum of a non-empty sample.
@@ -262,6 +267,18 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         samples_ms: per_frame_ms,
         peak_rss_mb,
         cpu: CpuInfo::read(),
+        bf16_3x3: bf16_3x3_kernels(opts),
+    })
+}
+
+/// [`BenchReport::bf16_3x3`] for these options.
+fn bf16_3x3_kernels(opts: &BenchOptions) -> Option<String> {
+    let fast_bf16_cpu = opts.precision == Precision::Bf16
+        && opts.path == ForwardPath::Fast
+        && opts.device == Device::Cpu;
+    fast_bf16_cpu.then(|| {
+        let winograd = rtf_models::winograd::bf16_applies().unwrap_or(false);
+        (if winograd { "winograd" } else { "onednn" }).to_string()
     })
 }
 

@@ -15,6 +15,7 @@
 #include <c10/core/impl/LocalDispatchKeySet.h>
 #include <torch/csrc/autograd/custom_function.h>
 
+#include <cstdint>
 #include <cstdlib>
 #include <cstring>
 #include <algorithm>
@@ -104,7 +105,8 @@ struct Bf16EmulatedConvolution : public torch::autograd::Function<Bf16EmulatedCo
 
 
 // ---- Winograd F(4x4, 3x3) (Lavin & Gray 2016) for the inference path (winograd.rs) ----------
-// A 3x3 convolution (stride 1, padding 1) of an NHWC float map, 4x4 output tiles: each 6x6
+// A 3x3 convolution (stride 1, padding 1) of an NHWC map (float, or bf16 converted on the way
+// in and out, the arithmetic in float), 4x4 output tiles: each 6x6
 // input tile d becomes V = Bt d B (36 values per channel), the channels are summed by 36 matrix
 // products M[xi] = V[xi] U[xi] (U = G g Gt, made once in Rust), and each tile's outputs are
 // At M A. Tiles go in chunks that keep V and M in cache; the transforms are loops over the
@@ -150,8 +152,41 @@ void wino43_finish(const float* in, const float* bias, const float* residual, bo
   }
 }
 
+// bf16 <-> float for maps stored in bf16 (the bf16 inference path on CPUs where fp32 Winograd
+// beats oneDNN's bf16 kernels, winograd.rs): a bf16 is the top half of a float, and the way back
+// rounds to nearest even, as c10::BFloat16 does (NaN stays a quiet NaN).
+RTF_WINO_CLONES
+void bf16_to_float(const uint16_t* in, float* out, int64_t count) {
+  for (int64_t i = 0; i < count; ++i) {
+    uint32_t bits = uint32_t(in[i]) << 16;
+    std::memcpy(out + i, &bits, sizeof bits);
+  }
+}
+
+RTF_WINO_CLONES
+void float_to_bf16(const float* in, uint16_t* out, int64_t count) {
+  for (int64_t i = 0; i < count; ++i) {
+    uint32_t bits;
+    std::memcpy(&bits, in + i, sizeof bits);
+    uint32_t rounded = (bits + 0x7fffu + ((bits >> 16) & 1u)) >> 16;
+    out[i] = in[i] != in[i] ? uint16_t(0x7fc0) : uint16_t(rounded);
+  }
+}
+
+// An NHWC map of float or bf16 values.
+struct NhwcMap {
+  const void* data;
+  bool bf16;
+  // Pixel p's C values as floats: the map's own where float, else converted into `scratch`.
+  const float* pixel(int64_t p, int64_t c, float* scratch) const {
+    if (!bf16) return static_cast<const float*>(data) + p * c;
+    bf16_to_float(static_cast<const uint16_t*>(data) + p * c, scratch, c);
+    return scratch;
+  }
+};
+
 struct Wino43Map {
-  const float* x;  // NHWC [N, H, W, C]
+  NhwcMap x;  // [N, H, W, C]
   int64_t n, h, w, c, k, tiles_h, tiles_w;
 };
 
@@ -160,6 +195,7 @@ void wino43_input(const Wino43Map& m, const float* zeros, int64_t t0, int64_t t1
   int64_t chunk = t1 - t0;
   at::parallel_for(t0, t1, 1, [&](int64_t begin, int64_t end) {
     std::vector<float> scratch(36 * m.c);
+    std::vector<float> pixels(m.x.bf16 ? 36 * m.c : 0);  // the tile's pixels, where bf16
     for (int64_t t = begin; t < end; ++t) {
       int64_t n = t / (m.tiles_h * m.tiles_w), r = t % (m.tiles_h * m.tiles_w);
       int64_t y0 = 4 * (r / m.tiles_w) - 1, x0 = 4 * (r % m.tiles_w) - 1;
@@ -170,7 +206,8 @@ void wino43_input(const Wino43Map& m, const float* zeros, int64_t t0, int64_t t1
         for (int row = 0; row < 6; ++row) {
           int64_t y = y0 + row, x = x0 + col;
           bool inside = y >= 0 && y < m.h && x >= 0 && x < m.w;
-          in[row] = inside ? m.x + ((n * m.h + y) * m.w + x) * m.c : zeros;
+          float* own = m.x.bf16 ? pixels.data() + (row * 6 + col) * m.c : nullptr;
+          in[row] = inside ? m.x.pixel((n * m.h + y) * m.w + x, m.c, own) : zeros;
           out[row] = scratch.data() + (row * 6 + col) * m.c;
         }
         wino43_bt(in, out, m.c);
@@ -189,14 +226,36 @@ void wino43_input(const Wino43Map& m, const float* zeros, int64_t t0, int64_t t1
   });
 }
 
-// The chunk's outputs from M[xi, t, :]: act(At M A + bias (+ residual)) into NHWC `y`.
+// Where a chunk's outputs go: act(At M A + bias (+ residual)) into NHWC `y`, float or bf16
+// (the residual in the output's type).
+struct Wino43Out {
+  const float* bias;
+  NhwcMap residual;  // data null: none
+  bool relu;
+  void* y;
+  bool bf16;
+};
+
+// Writes output pixel p from its K accumulated values `acc` (float scratch of K, overwritten).
+void wino43_store(const Wino43Out& o, int64_t p, int64_t k, float* acc, float* scratch) {
+  const float* res = o.residual.data != nullptr ? o.residual.pixel(p, k, scratch) : nullptr;
+  if (!o.bf16) {
+    wino43_finish(acc, o.bias, res, o.relu, static_cast<float*>(o.y) + p * k, k);
+    return;
+  }
+  wino43_finish(acc, o.bias, res, o.relu, acc, k);
+  float_to_bf16(acc, static_cast<uint16_t*>(o.y) + p * k, k);
+}
+
+// The chunk's outputs from M[xi, t, :].
 void wino43_output(const Wino43Map& m, const float* mm, int64_t t0, int64_t t1,
-                   const float* bias, const float* residual, bool relu, float* y) {
+                   const Wino43Out& o) {
   int64_t chunk = t1 - t0;
   at::parallel_for(t0, t1, 1, [&](int64_t begin, int64_t end) {
-    std::vector<float> scratch(24 * m.k + 16 * m.k);
-    float* rows = scratch.data();            // [4][6][K]
+    std::vector<float> scratch(24 * m.k + 16 * m.k + m.k);
+    float* rows = scratch.data();             // [4][6][K]
     float* tile = scratch.data() + 24 * m.k;  // [4][4][K]
+    float* residual = tile + 16 * m.k;        // [K], a bf16 residual's pixel
     for (int64_t t = begin; t < end; ++t) {
       int64_t n = t / (m.tiles_h * m.tiles_w), r = t % (m.tiles_h * m.tiles_w);
       int64_t y0 = 4 * (r / m.tiles_w), x0 = 4 * (r % m.tiles_w);
@@ -216,48 +275,55 @@ void wino43_output(const Wino43Map& m, const float* mm, int64_t t0, int64_t t1,
       }
       for (int a = 0; a < 4 && y0 + a < m.h; ++a) {
         for (int b = 0; b < 4 && x0 + b < m.w; ++b) {
-          int64_t at_ = ((n * m.h + y0 + a) * m.w + x0 + b) * m.k;
-          wino43_finish(tile + (a * 4 + b) * m.k, bias, residual != nullptr ? residual + at_ : nullptr,
-                        relu, y + at_, m.k);
+          int64_t p = (n * m.h + y0 + a) * m.w + x0 + b;
+          wino43_store(o, p, m.k, tile + (a * 4 + b) * m.k, residual);
         }
       }
     }
   });
 }
 
-// act(conv3x3(x) + bias (+ residual)) with U [36, C, K]; x, residual channels-last [N, C|K, H, W].
+// act(conv3x3(x) + bias (+ residual)) with U [36, C, K] (float); x, residual channels-last
+// [N, C|K, H, W], both float or both bf16 (the sums in float either way); the output in x's type.
 at::Tensor wino43_conv(const at::Tensor& x_in, const at::Tensor& u, const at::Tensor* bias,
                        const at::Tensor* residual_in, bool relu) {
   at::NoGradGuard no_grad;
-  TORCH_CHECK(x_in.scalar_type() == at::kFloat && u.scalar_type() == at::kFloat,
-              "winograd F(4x4, 3x3): float32 only");
+  bool bf16 = x_in.scalar_type() == at::kBFloat16;
+  TORCH_CHECK((bf16 || x_in.scalar_type() == at::kFloat) && u.scalar_type() == at::kFloat,
+              "winograd F(4x4, 3x3): float32 or bf16 maps, float32 U");
   TORCH_CHECK(u.dim() == 3 && u.size(0) == 36 && u.size(1) == x_in.size(1),
               "winograd F(4x4, 3x3): expected U [36, C, K]");
+  TORCH_CHECK(bias == nullptr || bias->scalar_type() == at::kFloat,
+              "winograd F(4x4, 3x3): float32 bias");
+  TORCH_CHECK(residual_in == nullptr || residual_in->scalar_type() == x_in.scalar_type(),
+              "winograd F(4x4, 3x3): the residual in the input's type");
   at::Tensor x = x_in.permute({0, 2, 3, 1}).contiguous();
   at::Tensor u_c = u.contiguous();
-  Wino43Map m{x.data_ptr<float>(), x.size(0), x.size(1), x.size(2), x.size(3), u.size(2), 0, 0};
+  Wino43Map m{{x.data_ptr(), bf16}, x.size(0), x.size(1), x.size(2), x.size(3), u.size(2), 0, 0};
   m.tiles_h = (m.h + 3) / 4;
   m.tiles_w = (m.w + 3) / 4;
   at::Tensor b = bias != nullptr ? bias->contiguous() : at::Tensor();
   at::Tensor res = residual_in != nullptr ? residual_in->permute({0, 2, 3, 1}).contiguous() : at::Tensor();
   at::Tensor y = at::empty({m.n, m.h, m.w, m.k}, x.options());
-  at::Tensor zeros = at::zeros({m.c}, x.options());
+  at::TensorOptions f32 = x.options().dtype(at::kFloat);
+  at::Tensor zeros = at::zeros({m.c}, f32);
+  Wino43Out o{b.defined() ? b.data_ptr<float>() : nullptr,
+              {res.defined() ? res.data_ptr() : nullptr, bf16}, relu, y.data_ptr(), bf16};
   int64_t tiles = m.n * m.tiles_h * m.tiles_w;
   // V and M of a chunk within ~8 MB each.
   int64_t per_chunk = std::max<int64_t>(16, (8 << 20) / (36 * 4 * std::max(m.c, m.k)));
-  at::Tensor v = at::empty({36, std::min(per_chunk, tiles), m.c}, x.options());
-  at::Tensor mm = at::empty({36, std::min(per_chunk, tiles), m.k}, x.options());
+  at::Tensor v = at::empty({36, std::min(per_chunk, tiles), m.c}, f32);
+  at::Tensor mm = at::empty({36, std::min(per_chunk, tiles), m.k}, f32);
   for (int64_t t0 = 0; t0 < tiles; t0 += per_chunk) {
     int64_t t1 = std::min(tiles, t0 + per_chunk), chunk = t1 - t0;
     at::Tensor vc = v.narrow(1, 0, chunk), mc = mm.narrow(1, 0, chunk);
     if (chunk != v.size(1)) {
-      vc = at::empty({36, chunk, m.c}, x.options());
-      mc = at::empty({36, chunk, m.k}, x.options());
+      vc = at::empty({36, chunk, m.c}, f32);
+      mc = at::empty({36, chunk, m.k}, f32);
     }
     wino43_input(m, zeros.data_ptr<float>(), t0, t1, vc.data_ptr<float>());
     at::bmm_out(mc, vc, u_c);
-    wino43_output(m, mc.data_ptr<float>(), t0, t1, b.defined() ? b.data_ptr<float>() : nullptr,
-                  res.defined() ? res.data_ptr<float>() : nullptr, relu, y.data_ptr<float>());
+    wino43_output(m, mc.data_ptr<float>(), t0, t1, o);
   }
   return y.permute({0, 3, 1, 2});
 }

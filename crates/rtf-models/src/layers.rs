@@ -881,9 +881,14 @@ impl ConvBnAct {
             bias: bias.as_ref().map(|b| b.repeat([4]).to_kind(kind)),
         });
         let weight = self.inference_form(weight, kind, lay_out);
+        // The Winograd forms add a float32 bias whatever the maps' type.
+        let bias_kind = match weight {
+            FoldedWeight::Winograd(_) => Kind::Float,
+            _ => kind,
+        };
         self.fused = Some(Fused {
             weight,
-            bias: bias.map(|b| b.to_kind(kind)),
+            bias: bias.map(|b| b.to_kind(bias_kind)),
             upsampled,
         });
     }
@@ -891,8 +896,10 @@ impl ConvBnAct {
 
 impl ConvBnAct {
     /// The folded float32 `weight` in the form inference runs it in: Winograd's where
-    /// [`crate::winograd::applies`] (fp32 on the CPU), else laid out by `lay_out` (in `kind`)
-    /// and packed for oneDNN where it can be.
+    /// [`crate::winograd::form`] has one, on the CPU, in fp32 and, where
+    /// [`crate::winograd::bf16_applies`], in bf16 (of the bf16-rounded weight, as bf16 kernels
+    /// would take it); else laid out by `lay_out` (in `kind`) and packed for oneDNN where it can
+    /// be.
     fn inference_form(
         &self,
         weight: Tensor,
@@ -901,10 +908,20 @@ impl ConvBnAct {
     ) -> FoldedWeight {
         let geometry = self.geometry();
         let dims = weight.size();
-        let winograd = (kind == Kind::Float && weight.device() == tch::Device::Cpu)
+        let winograd_kind = match kind {
+            Kind::Float => true,
+            // A bad RTF_BF16_WINOGRAD is reported by the commands before any fold.
+            Kind::BFloat16 => crate::winograd::bf16_applies().unwrap_or(false),
+            _ => false,
+        };
+        let winograd = (winograd_kind && weight.device() == tch::Device::Cpu)
             .then(|| crate::winograd::form(self.spec.kernel, geometry, dims[1], dims[0]))
             .flatten();
         if let (Some(form), false) = (winograd, self.spec.transposed) {
+            let weight = match kind {
+                Kind::BFloat16 => weight.to_kind(kind).to_kind(Kind::Float),
+                _ => weight,
+            };
             return FoldedWeight::Winograd(crate::winograd::weight_transform(&weight, form));
         }
         let dense = lay_out(weight);
@@ -1130,6 +1147,65 @@ mod tests {
                 let worst = (a - b).abs().max().double_value(&[]);
                 assert!(
                     worst <= 1e-4 * scale,
+                    "{c} channels, {name}: {worst} of {scale}"
+                );
+            }
+        }
+    }
+
+    /// In bf16 the same wide units fold into the Winograd forms where the bf16 choice says so
+    /// (float32 transformed weights and bias, bf16 maps in and out) and into bf16 weights for
+    /// oneDNN where it does not; both compute conv → BatchNorm → (+ residual) → ReLU
+    /// within bf16's rounding, and the two within bf16's rounding of each other.
+    #[test]
+    fn bf16_wide_units_fold_into_winograd_forms_where_chosen() {
+        tch::manual_seed(5);
+        let bf16 = |t: &Tensor| to_channels_last(&t.to_kind(Kind::BFloat16));
+        for (c, h, w, positions) in [(128, 9, 11, 36), (1024, 3, 5, 16)] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let conv = vs.root() / "conv";
+            let mut unit = ConvBnAct::new(
+                conv,
+                Some(vs.root() / "bn"),
+                c,
+                c,
+                ConvSpec::new(3),
+                Act::Relu,
+            );
+            randomise_bn(&vs);
+            let x = Tensor::randn([1, c, h, w], (Kind::Float, Device::Cpu));
+            let residual = Tensor::randn([1, c, h, w], (Kind::Float, Device::Cpu));
+            let plain_add = tch::no_grad(|| unit.forward_add(&x, &residual, false));
+            let mut outputs = Vec::new();
+            for winograd in [true, false] {
+                crate::winograd::with_bf16(winograd, || unit.fuse(Kind::BFloat16));
+                let f = unit.fused.as_ref().unwrap();
+                match (&f.weight, winograd) {
+                    (FoldedWeight::Winograd(u), true) => {
+                        assert_eq!((u.size()[0], u.kind()), (positions, Kind::Float));
+                        assert_eq!(f.bias.as_ref().unwrap().kind(), Kind::Float);
+                    }
+                    // Packed where oneDNN has bf16 kernels to pack for (not under an AVX2 cap).
+                    (FoldedWeight::Packed(_) | FoldedWeight::Dense(_), false) => {}
+                    (other, _) => panic!("{c} channels, winograd {winograd}: {other:?}"),
+                }
+                let y = tch::no_grad(|| unit.forward_add(&bf16(&x), &bf16(&residual), false));
+                assert_eq!(
+                    y.kind(),
+                    Kind::BFloat16,
+                    "{c} channels, winograd {winograd}"
+                );
+                outputs.push(y.to_kind(Kind::Float));
+            }
+            let scale = plain_add.abs().max().double_value(&[]);
+            for (name, a, b) in [
+                ("winograd", &plain_add, &outputs[0]),
+                ("onednn", &plain_add, &outputs[1]),
+                ("winograd against onednn", &outputs[1], &outputs[0]),
+            ] {
+                let worst = (a - b).abs().max().double_value(&[]);
+                assert!(
+                    worst <= 0.03 * scale,
                     "{c} channels, {name}: {worst} of {scale}"
                 );
             }

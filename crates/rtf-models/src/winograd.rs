@@ -16,6 +16,14 @@
 //! channels, whose larger maps need the transforms done in cache-sized chunks of tiles, in C++
 //! (csrc/ops.cpp `wino43_conv`; by libtorch ops over whole maps F(2×2, 3×3) lost: 512 channels
 //! at 60×80, 99 → 110 ms).
+//!
+//! bf16 inference can take the same forms over bf16 maps ([`bf16_applies`]): the maps are read
+//! and written in bf16 (F(4×4, 3×3) converts them inside its transforms), the weights are the
+//! bf16-rounded folded weights, and the arithmetic is float32. Where a CPU's bf16 kernels do no
+//! more multiply-adds per cycle than its fp32 ones (Intel AVX-512 without AMX: oneDNN's bf16
+//! 3×3 kernels ran 1.7× slower than its fp32 direct ones on family 6 model 167 with AMX capped
+//! off, issue 41), Winograd's 4× fewer multiply-adds win; with AMX, oneDNN's bf16 kernels do.
+//! So the choice is measured per CPU (rtf-cli's bf16 probe), never assumed.
 
 use tch::{Kind, Tensor};
 
@@ -63,6 +71,56 @@ fn enabled() -> (bool, bool) {
         Ok("f23") => (true, false),
         _ => (true, true),
     })
+}
+
+/// The environment variable that decides [`bf16_applies`]: `on` or `off`.
+pub const BF16_VAR: &str = "RTF_BF16_WINOGRAD";
+
+/// The process's choice for bf16 maps, made by [`choose_bf16`]: 0 none, 1 on, 2 off.
+static BF16_CHOICE: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
+
+/// Sets whether bf16 folds made from now on in this process take the Winograd forms (what a
+/// measurement on this CPU found faster; [`BF16_VAR`] still overrides it).
+pub fn choose_bf16(on: bool) {
+    BF16_CHOICE.store(if on { 1 } else { 2 }, std::sync::atomic::Ordering::Relaxed);
+}
+
+thread_local! {
+    /// Set inside [`with_bf16`]: this thread's folds take (or not) the bf16 forms.
+    static BF16_SCOPE: std::cell::Cell<Option<bool>> = const { std::cell::Cell::new(None) };
+}
+
+/// Runs `f` (a fold) with the bf16 Winograd forms on or off whatever the process's choice (to
+/// measure both, or to test one).
+pub fn with_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
+    let previous = BF16_SCOPE.with(|c| c.replace(Some(on)));
+    let out = f();
+    BF16_SCOPE.with(|c| c.set(previous));
+    out
+}
+
+/// Whether a bf16 fold on the CPU takes the Winograd forms (over bf16 maps) where [`form`] has
+/// one: inside [`with_bf16`], its setting; else [`BF16_VAR`] if set (`on`/`off`; anything else
+/// is an error); else the choice of [`choose_bf16`]; else only where the CPU has no bf16
+/// arithmetic (there oneDNN's bf16 kernels convert every product: fp32 Winograd beats them
+/// without a measurement).
+pub fn bf16_applies() -> Result<bool, String> {
+    if let Some(on) = BF16_SCOPE.with(|c| c.get()) {
+        return Ok(on);
+    }
+    match std::env::var(BF16_VAR).as_deref().map(str::trim) {
+        Ok("on") => return Ok(true),
+        Ok("off") => return Ok(false),
+        Ok(other) => return Err(format!("{BF16_VAR}={other:?}: expected on or off")),
+        Err(_) => {}
+    }
+    Ok(
+        match BF16_CHOICE.load(std::sync::atomic::Ordering::Relaxed) {
+            1 => true,
+            2 => false,
+            _ => rtf_amp::cpu_has_native_bf16() == Some(false),
+        },
+    )
 }
 
 /// Bᵀ (input transform), row-major 4×4.
@@ -134,8 +192,9 @@ pub fn weight_transform(weight: &Tensor, form: Form) -> Tensor {
 }
 
 /// `act(conv3x3(xs) + bias (+ residual))` with `u` from [`weight_transform`] (either form):
-/// float32 input [N, C, H, W] (any layout; channels-last avoids a copy), `residual`
-/// [N, K, H, W], output float32 [N, K, H, W] laid out channels-last. `relu` applies a ReLU last.
+/// input [N, C, H, W] float32 or bf16 (any layout; channels-last avoids a copy), `residual`
+/// [N, K, H, W] of the same type, float32 `bias`; output [N, K, H, W] in the input's type, laid
+/// out channels-last, computed in float32. `relu` applies a ReLU last.
 pub fn conv3x3(
     xs: &Tensor,
     u: &Tensor,
@@ -145,6 +204,12 @@ pub fn conv3x3(
 ) -> Tensor {
     if u.size()[0] == 36 {
         conv3x3_f43(xs, u, bias, residual, relu)
+    } else if xs.kind() == Kind::BFloat16 {
+        // The widest layers' maps are small (15×20 and 30×40 at 480×640): casting them costs
+        // little beside the products.
+        let float = |t: &Tensor| t.to_kind(Kind::Float);
+        let residual = residual.map(float);
+        conv3x3_f23(&float(xs), u, bias, residual.as_ref(), relu).to_kind(Kind::BFloat16)
     } else {
         conv3x3_f23(xs, u, bias, residual, relu)
     }
@@ -293,6 +358,50 @@ mod tests {
                     assert!(close(&y, &expected), "{form:?} no bias");
                 }
             }
+        }
+    }
+
+    /// Over bf16 maps both forms compute in float32 and round once, on the way out: the
+    /// float32 form's output of the same bf16 values, rounded to bf16, up to the float sums'
+    /// order (a rounding boundary may fall between them: one bf16 step, 2^-8 relative).
+    #[test]
+    fn over_bf16_maps_is_the_float_form_rounded_once() {
+        tch::manual_seed(12);
+        let opts = (Kind::Float, Device::Cpu);
+        let bf16 = |t: &Tensor| to_channels_last(&t.to_kind(Kind::BFloat16));
+        for (n, c, k, h, w) in [(1, 6, 5, 9, 7), (2, 4, 3, 5, 6)] {
+            let x = bf16(&Tensor::randn([n, c, h, w], opts));
+            let residual = bf16(&Tensor::randn([n, k, h, w], opts));
+            let weight = Tensor::randn([k, c, 3, 3], opts);
+            let bias = Tensor::randn([k], opts);
+            for form in [Form::F23, Form::F43] {
+                let u = weight_transform(&weight, form);
+                let float = |t: &Tensor| t.to_kind(Kind::Float);
+                let y = conv3x3(&x, &u, Some(&bias), Some(&residual), true);
+                assert_eq!(y.kind(), Kind::BFloat16);
+                assert!(is_channels_last(&y), "{form:?}");
+                let expected = conv3x3(&float(&x), &u, Some(&bias), Some(&float(&residual)), true);
+                let scale = expected.abs().max().double_value(&[]);
+                let worst = (float(&y) - &expected).abs().max().double_value(&[]);
+                assert!(worst <= scale / 256.0, "{form:?}: {worst} of {scale}");
+                let rounded = float(&expected.to_kind(Kind::BFloat16));
+                let exact = float(&y)
+                    .eq_tensor(&rounded)
+                    .to_kind(Kind::Float)
+                    .mean(Kind::Float);
+                assert!(exact.double_value(&[]) > 0.95, "{form:?}: rounded once");
+            }
+        }
+    }
+
+    #[test]
+    fn the_bf16_choice_is_scoped_and_defaults_to_where_bf16_is_emulated() {
+        assert_eq!(with_bf16(true, bf16_applies), Ok(true));
+        assert_eq!(with_bf16(false, || with_bf16(true, bf16_applies)), Ok(true));
+        assert_eq!(with_bf16(false, bf16_applies), Ok(false));
+        if std::env::var_os(BF16_VAR).is_none() {
+            let default = bf16_applies().unwrap();
+            assert_eq!(default, rtf_amp::cpu_has_native_bf16() == Some(false));
         }
     }
 

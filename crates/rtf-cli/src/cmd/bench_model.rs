@@ -75,9 +75,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
     let bf16 = args.precision == Precision::Bf16;
-    if let Some(warning) = crate::bf16_warning::inference(bf16, device) {
-        eprintln!("warning: {warning}");
-    }
+    super::prepare_inference(bf16, device)?;
     let num_classes = match (args.classes, &args.weights) {
         (Some(n), _) => Some(n),
         (None, Some(weights)) => super::weights_config(weights)?.map(|c| c.num_classes()),
@@ -134,6 +132,13 @@ fn print_report(report: &rtf_eval::speed::BenchReport) {
             .map_or("unknown".to_string(), |m| format!("{m:.0} MiB"))
     );
     println!("CPU: {}", report.cpu.label());
+    if let Some(kernels) = &report.bf16_3x3 {
+        let how = match kernels.as_str() {
+            "winograd" => "Winograd forms, fp32 arithmetic over bf16 maps",
+            _ => "oneDNN's bf16 kernels",
+        };
+        println!("bf16 3x3 convolutions of 128+ channels: {how}");
+    }
     if let Some(agreement) = report.agreement_with_plain {
         println!(
             "arg-max agreement with the plain fp32 path: {:.4} % of pixels",

@@ -88,15 +88,29 @@ impl RunFlags {
     }
 }
 
-/// [`rtf_models::loaded::load_network`] for a command: a bf16 request warned about where bf16
-/// is slow or emulated here (`crate::bf16_warning`), the loader's warnings printed on stderr.
+/// Before folding a network for inference: for bf16 on the CPU, a bad `RTF_BF16_WINOGRAD`
+/// refused and the choice of 3×3 kernels made ([`crate::bf16_probe::choose_bf16_winograd`]);
+/// then the warning where bf16 is slow or emulated here ([`crate::bf16_warning`]), on stderr.
+pub fn prepare_inference(bf16: bool, device: tch::Device) -> anyhow::Result<()> {
+    if bf16 && device == tch::Device::Cpu {
+        rtf_models::winograd::bf16_applies().map_err(anyhow::Error::msg)?;
+        if let Some(warning) = crate::bf16_probe::choose_bf16_winograd() {
+            eprintln!("warning: {warning}");
+        }
+    }
+    if let Some(warning) = crate::bf16_warning::inference(bf16, device) {
+        eprintln!("warning: {warning}");
+    }
+    Ok(())
+}
+
+/// [`rtf_models::loaded::load_network`] for a command: [`prepare_inference`] first, the
+/// loader's warnings printed on stderr.
 pub fn load_network(
     request: &rtf_models::loaded::NetworkRequest,
 ) -> anyhow::Result<rtf_models::loaded::LoadedNetwork> {
     let bf16 = request.precision == Some(rtf_models::fast::Precision::Bf16);
-    if let Some(warning) = crate::bf16_warning::inference(bf16, request.device) {
-        eprintln!("warning: {warning}");
-    }
+    prepare_inference(bf16, request.device)?;
     let loaded = rtf_models::loaded::load_network(request)?;
     for warning in &loaded.warnings {
         eprintln!("warning: {warning}");
