@@ -5,8 +5,9 @@
 //! AMX capped off by `ONEDNN_MAX_CPU_ISA`, rtf's bf16 inference ran at 0.72× (MFNet) and 0.54×
 //! (RTFNet-50) of its fp32 speed, and PyTorch's bf16 autocast was slower than its fp32 too: the
 //! bf16 dot-product instruction there has the throughput of the fp32 FMAs it replaces, so bf16
-//! saves memory traffic only, pays for conversions and reorders, and loses the Winograd 3×3
-//! convolutions of rtf's fp32 fast path. With AMX on the same CPU bf16 ran 2.7× and 4.4× faster
+//! saves memory traffic only and pays for conversions and reorders (the wide 3×3 layers now
+//! take fp32 Winograd over bf16 maps there, below, which left RTFNet-50 at 0.86× its fp32).
+//! With AMX on the same CPU bf16 ran 2.7× and 4.4× faster
 //! than fp32; on AMD Zen 4 with `avx512_bf16` 1.6–1.9× (docs/src/benchmarks.md).
 //!
 //! So where bf16 is native, `--precision bf16` on the CPU times a small fixed workload once in
@@ -16,6 +17,11 @@
 //! `~/.cache/rtf`), `bf16-probe.json`. The probe runs in a child process (about a second for
 //! inference, a few for training), so the command's own memory peak and state are untouched. Where bf16 measured slower, the command says so on
 //! stderr with the measured times before its work; the precision stays what the user typed.
+//!
+//! Before bf16 inference a third measurement, cached the same way, picks the kernels of the
+//! wide 3×3 convolutions ([`Work::Conv3x3`], [`choose_bf16_winograd`]): the fp32 Winograd form
+//! over bf16 maps, or oneDNN's bf16 kernels, whichever ran one such layer faster here. Both
+//! compute bf16 inference (bf16 maps and weights, float sums); only the speed differs.
 
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
