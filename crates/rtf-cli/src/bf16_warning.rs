@@ -4,14 +4,17 @@
 //! Where the CPU has no bf16 instructions (no `avx512_bf16`, `amx_bf16` or Arm `bf16`, or
 //! oneDNN capped below `AVX512_CORE_BF16` by `ONEDNN_MAX_CPU_ISA`:
 //! [`rtf_amp::cpu_bf16_arithmetic`]) every bf16 product is computed by converting to fp32 and
-//! back. For inference (the fast path's bf16 weights and activations) that is libtorch's and
-//! oneDNN's generic bf16 kernels: an AVX2 EPYC, batch 1, 640×480, 2 threads, measured MFNet at
-//! 1.16 s against 102 ms in fp32 (~11×) and RTFNet-50 at 75 s against 2.28 s (~33×) (issue 31).
-//! Training routes its bf16 convolutions through fp32 kernels instead
-//! ([`rtf_amp::Bf16Convolutions::Emulated`]), which keeps a native kernel's numbers at fp32
-//! kernels' speed plus the casts: slower than fp32 (MFNet, 320×240, batch 2: 5.45 against 7.67
-//! images/s with emulation forced on an AVX-512 EPYC, docs/src/benchmarks.md round 5), saving
-//! only activation memory. Neither is expected to beat fp32 on such a CPU, hence the advice.
+//! back. libtorch's and oneDNN's generic bf16 kernels do that slowly: an AVX2 EPYC, batch 1,
+//! 640×480, 2 threads, measured the fast path's bf16 MFNet at 1.16 s against 102 ms in fp32
+//! (~11×) and RTFNet-50 at 75 s against 2.28 s (~33×) (issue 31). So rtf routes bf16
+//! convolutions through fp32 kernels there ([`rtf_amp::Bf16Convolutions::Emulated`]), which
+//! keeps a native kernel's numbers (bf16 operands, float sums, bf16 outputs) at fp32 kernels'
+//! speed plus the casts: in training (MFNet, 320×240, batch 2: 5.45 against 7.67 images/s with
+//! emulation forced on an AVX-512 EPYC, docs/src/benchmarks.md round 5) and, since issue 41, in
+//! inference (the fast path's folds: MFNet 97 against 88 ms, RTFNet-50 1.61 against 1.50 s in
+//! fp32, under AVX2 caps on an Intel Xeon). Slower than fp32 either way, saving only activation
+//! memory, hence the advice; with `RTF_BF16_CONVOLUTIONS=native` the generic kernels run and
+//! the warning gives their cost.
 //!
 //! Where bf16 is native, it can still be slower than fp32 (Intel AVX-512 without AMX, issue
 //! 41): [`crate::bf16_probe`] measures it once per CPU kind and the warning gives the times.
@@ -28,8 +31,11 @@ use tch::Device;
 /// bf16 emulated, or native but measured slower than fp32 ([`crate::bf16_probe`]).
 pub fn inference(bf16: bool, device: Device) -> Option<String> {
     let arithmetic = rtf_amp::cpu_bf16_arithmetic();
-    inference_message(bf16, device, &arithmetic)
-        .or_else(|| native_but_slower(bf16, device, &arithmetic, Work::Inference))
+    let convolutions = rtf_amp::cpu_bf16_convolutions().ok();
+    inference_message(bf16, device, &arithmetic, convolutions).or_else(|| {
+        let native = convolutions == Some(Bf16Convolutions::Native);
+        native_but_slower(bf16 && native, device, &arithmetic, Work::Inference)
+    })
 }
 
 /// Where bf16 is native on the CPU: the probe's warning if bf16 measured slower than fp32
@@ -68,15 +74,41 @@ pub fn training(precision: Precision, device: Device) -> Option<String> {
         })
 }
 
-fn inference_message(bf16: bool, device: Device, arithmetic: &Bf16Arithmetic) -> Option<String> {
-    (bf16 && device == Device::Cpu && arithmetic.is_native() == Some(false)).then(|| {
-        format!(
-            "bf16 is emulated on this CPU ({}): bf16 inference runs far slower than fp32 \
-             (measured on an AVX2 EPYC, batch 1, 640x480: MFNet ~11x, RTFNet-50 ~33x); use \
-             --precision fp32",
-            arithmetic.reason()
-        )
-    })
+fn inference_message(
+    bf16: bool,
+    device: Device,
+    arithmetic: &Bf16Arithmetic,
+    convolutions: Option<Bf16Convolutions>,
+) -> Option<String> {
+    if !bf16 || device != Device::Cpu {
+        return None;
+    }
+    let native = arithmetic.is_native();
+    match convolutions {
+        Some(Bf16Convolutions::Emulated) => Some(format!(
+            "bf16 is emulated on this CPU ({}): rtf runs bf16 inference on fp32 kernels, a \
+             little slower than fp32 (measured under AVX2 caps, batch 1, 640x480: MFNet 0.91x, \
+             RTFNet-50 0.93x fp32's speed) and saving only activation memory; use --precision \
+             fp32",
+            emulated_because(arithmetic)
+        )),
+        _ if native == Some(false) => Some(format!(
+            "bf16 is emulated on this CPU ({}; {}=native): libtorch's generic bf16 kernels run \
+             far slower than fp32 (measured on an AVX2 EPYC, batch 1, 640x480: MFNet ~11x, \
+             RTFNet-50 ~33x); use --precision fp32",
+            arithmetic.reason(),
+            rtf_amp::BF16_CONVOLUTIONS_VAR
+        )),
+        _ => None,
+    }
+}
+
+/// Why rtf emulates bf16 convolutions: the CPU's missing arithmetic, else the variable.
+fn emulated_because(arithmetic: &Bf16Arithmetic) -> String {
+    match arithmetic.is_native() {
+        Some(false) => arithmetic.reason(),
+        _ => format!("{}=emulated", rtf_amp::BF16_CONVOLUTIONS_VAR),
+    }
 }
 
 fn training_message(
@@ -88,10 +120,7 @@ fn training_message(
     if !bf16 || device != Device::Cpu || convolutions != Some(Bf16Convolutions::Emulated) {
         return None;
     }
-    let why = match arithmetic.is_native() {
-        Some(false) => arithmetic.reason(),
-        _ => format!("{}=emulated", rtf_amp::BF16_CONVOLUTIONS_VAR),
-    };
+    let why = emulated_because(arithmetic);
     Some(format!(
         "bf16 is emulated on this CPU ({why}): rtf runs its bf16 convolutions on fp32 kernels, \
          so a bf16 step is slower than fp32 (MFNet ~1.4x with emulation forced on an AVX-512 \
@@ -111,25 +140,43 @@ mod tests {
     }
 
     #[test]
-    fn inference_warns_for_bf16_on_a_cpu_without_bf16_only() {
-        let line = inference_message(true, Device::Cpu, &Bf16Arithmetic::MissingFromCpu).unwrap();
+    fn inference_warns_where_bf16_is_emulated_with_the_cost_of_the_kernels_that_run() {
+        let emulated = Some(Bf16Convolutions::Emulated);
+        let native = Some(Bf16Convolutions::Native);
+        let missing = Bf16Arithmetic::MissingFromCpu;
+        let line = inference_message(true, Device::Cpu, &missing, emulated).unwrap();
         assert!(
-            line.contains("no avx512_bf16") && line.contains("~33x"),
+            line.contains("no avx512_bf16")
+                && line.contains("on fp32 kernels")
+                && line.contains("0.93x"),
             "{line}"
         );
         assert!(line.ends_with("use --precision fp32") && !line.contains('\n'));
-        let line = inference_message(true, Device::Cpu, &capped()).unwrap();
+        let line = inference_message(true, Device::Cpu, &capped(), emulated).unwrap();
         assert!(line.contains("ONEDNN_MAX_CPU_ISA=AVX2"), "{line}");
-        assert_eq!(inference_message(false, Device::Cpu, &capped()), None);
-        assert_eq!(inference_message(true, Device::Cuda(0), &capped()), None);
+        // libtorch's generic kernels forced: their own cost.
+        let line = inference_message(true, Device::Cpu, &capped(), native).unwrap();
+        assert!(
+            line.contains("RTF_BF16_CONVOLUTIONS=native") && line.contains("~33x"),
+            "{line}"
+        );
+        // Emulation forced on a CPU with bf16 arithmetic: said, with the variable.
+        let line = inference_message(true, Device::Cpu, &Bf16Arithmetic::Native, emulated);
+        assert!(line.unwrap().contains("(RTF_BF16_CONVOLUTIONS=emulated)"));
         assert_eq!(
-            inference_message(true, Device::Cpu, &Bf16Arithmetic::Native),
+            inference_message(false, Device::Cpu, &capped(), emulated),
             None
         );
         assert_eq!(
-            inference_message(true, Device::Cpu, &Bf16Arithmetic::Unknown),
+            inference_message(true, Device::Cuda(0), &capped(), emulated),
             None
         );
+        for arithmetic in [Bf16Arithmetic::Native, Bf16Arithmetic::Unknown] {
+            assert_eq!(
+                inference_message(true, Device::Cpu, &arithmetic, native),
+                None
+            );
+        }
     }
 
     #[test]

@@ -350,6 +350,33 @@ pub fn with_fused_layout<T>(channels_last: bool, f: impl FnOnce() -> T) -> T {
 }
 
 thread_local! {
+    /// Set inside [`with_emulated_bf16`].
+    static FUSE_EMULATED_BF16: std::cell::Cell<Option<bool>> = const { std::cell::Cell::new(None) };
+}
+
+/// Runs `f` (a fuse) with bf16 folds made as where bf16 is emulated, or not, whatever the CPU
+/// (to test both on one machine).
+pub fn with_emulated_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
+    let previous = FUSE_EMULATED_BF16.with(|c| c.replace(Some(on)));
+    let out = f();
+    FUSE_EMULATED_BF16.with(|c| c.set(previous));
+    out
+}
+
+/// Whether a bf16 fold on the CPU computes its convolutions with float32 kernels over bf16
+/// maps: where rtf emulates bf16 convolutions ([`rtf_amp::emulates_bf16_convolutions_on`]:
+/// the CPU has no bf16 arithmetic, or `RTF_BF16_CONVOLUTIONS=emulated`). There oneDNN's bf16
+/// kernels convert every product in generic code (RTFNet-50 at 480×640 under AVX2 caps: 54 s
+/// against 1.6 s in fp32), and fp32 kernels with the casts around them are a few times fp32's
+/// time, the numbers those of a bf16 kernel (bf16 operands, float sums, bf16 output).
+fn emulates_bf16(weight: &Tensor) -> bool {
+    weight.device() == tch::Device::Cpu
+        && FUSE_EMULATED_BF16
+            .with(|c| c.get())
+            .unwrap_or_else(|| rtf_amp::emulates_bf16_convolutions_on(tch::Device::Cpu))
+}
+
+thread_local! {
     /// Set while counting parameters: every variable starts as zeros (lazily allocated), so
     /// building even RTFNet-152 costs next to nothing.
     static ZERO_INIT: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
@@ -452,6 +479,10 @@ impl FoldedWeight {
 struct Fused {
     weight: FoldedWeight,
     bias: Option<Tensor>,
+    /// bf16 maps, float32 weights and kernels: the maps are cast to float32 on the way in and
+    /// rounded to bf16 on the way out ([`emulates_bf16`]; the Winograd forms convert inside
+    /// their transforms instead and leave this unset).
+    float_arith: bool,
     /// Nearest ×2 upsampling followed by this 3×3 convolution, as the four output phases of
     /// one 2×2 convolution of the small map (see [`ConvBnAct::forward_upsampled`]).
     upsampled: Option<PhaseConv>,
@@ -624,15 +655,34 @@ impl ConvBnAct {
     /// Winograd form), `None` otherwise.
     fn fused_conv_act(&self, xs: &Tensor, train: bool) -> Option<Tensor> {
         let f = self.fusing_post_ops(train)?;
-        match &f.weight {
+        let ys = match &f.weight {
             FoldedWeight::Winograd(u) => Some(self.winograd_conv(xs, u, f, None)),
             weight => conv_with_post_op(
-                xs,
+                &self.kernel_input(xs),
                 weight.for_onednn()?,
                 f.bias.as_ref(),
                 self.geometry(),
                 self.act.post_op(),
             ),
+        };
+        ys.map(|ys| self.map_output(ys))
+    }
+
+    /// A map as this folded unit's kernels take it: float32 where it computes emulated bf16
+    /// with float32 kernels ([`Fused::float_arith`]), else as it is.
+    fn kernel_input(&self, xs: &Tensor) -> Tensor {
+        match &self.fused {
+            Some(f) if f.float_arith => xs.to_kind(Kind::Float),
+            _ => xs.shallow_clone(),
+        }
+    }
+
+    /// A folded unit's output in the maps' type: rounded to bf16 where [`Self::kernel_input`]
+    /// made it float32.
+    fn map_output(&self, ys: Tensor) -> Tensor {
+        match &self.fused {
+            Some(f) if f.float_arith => ys.to_kind(Kind::BFloat16),
+            _ => ys,
         }
     }
 
@@ -671,7 +721,10 @@ impl ConvBnAct {
                 FoldedWeight::Winograd(u) => {
                     crate::winograd::conv3x3(xs, u, f.bias.as_ref(), None, false)
                 }
-                weight => self.conv(xs, &weight.dense(), f.bias.as_ref()),
+                weight => {
+                    let ys = self.conv(&self.kernel_input(xs), &weight.dense(), f.bias.as_ref());
+                    self.map_output(ys)
+                }
             },
             _ => self.batch_norm(self.conv(xs, &self.weight, self.bias.as_ref()), train),
         }
@@ -733,11 +786,12 @@ impl ConvBnAct {
                 groups: 1,
                 transposed: false,
             };
+            let xs = self.kernel_input(xs);
             // [B, c_in, H, W] -> [B, 4·c_out, H + 1, W + 1]
             let phases = self
                 .fusing_post_ops(train)
                 .and_then(|_| {
-                    conv_with_post_op(xs, weight, bias.as_ref(), geometry, self.act.post_op())
+                    conv_with_post_op(&xs, weight, bias.as_ref(), geometry, self.act.post_op())
                 })
                 .unwrap_or_else(|| {
                     let ys = xs.conv2d(weight, bias.as_ref(), [1], [1], [1], 1);
@@ -776,14 +830,15 @@ impl ConvBnAct {
             let fused = match &f.weight {
                 FoldedWeight::Winograd(u) => Some(self.winograd_conv(xs, u, f, Some(residual))),
                 weight => weight.for_onednn().and_then(|w| {
-                    conv_add_with_post_op(
-                        xs,
-                        residual,
+                    let ys = conv_add_with_post_op(
+                        &self.kernel_input(xs),
+                        &self.kernel_input(residual),
                         w,
                         f.bias.as_ref(),
                         self.geometry(),
                         self.act.post_op(),
-                    )
+                    );
+                    ys.map(|ys| self.map_output(ys))
                 }),
             };
             if let Some(ys) = fused {
@@ -868,8 +923,14 @@ impl ConvBnAct {
     /// Lays the folded float32 `weight` and `bias` out for inference in `kind`.
     fn store_fused(&mut self, weight: Tensor, bias: Option<Tensor>, kind: Kind) {
         let channels_last = FUSE_CHANNELS_LAST.with(|c| c.get());
+        let emulated = kind == Kind::BFloat16 && emulates_bf16(&weight);
+        // Emulated bf16 keeps float32 weights of bf16 values (what a bf16 kernel would take).
+        let (weight, stored_kind) = match emulated {
+            true => (weight.to_kind(kind).to_kind(Kind::Float), Kind::Float),
+            false => (weight, kind),
+        };
         let lay_out = |w: Tensor| {
-            let w = w.to_kind(kind);
+            let w = w.to_kind(stored_kind);
             if channels_last {
                 to_channels_last(&w)
             } else {
@@ -878,18 +939,17 @@ impl ConvBnAct {
         };
         let upsampled = self.spec.nearest_upsampled_input.then(|| PhaseConv {
             weight: lay_out(nearest_up2_conv3x3_as_phases(&weight)),
-            bias: bias.as_ref().map(|b| b.repeat([4]).to_kind(kind)),
+            bias: bias.as_ref().map(|b| b.repeat([4]).to_kind(stored_kind)),
         });
         let weight = self.inference_form(weight, kind, lay_out);
+        let winograd = matches!(weight, FoldedWeight::Winograd(_));
         // The Winograd forms add a float32 bias whatever the maps' type.
-        let bias_kind = match weight {
-            FoldedWeight::Winograd(_) => Kind::Float,
-            _ => kind,
-        };
+        let bias_kind = if winograd { Kind::Float } else { stored_kind };
         self.fused = Some(Fused {
             weight,
             bias: bias.map(|b| b.to_kind(bias_kind)),
             upsampled,
+            float_arith: emulated && !winograd,
         });
     }
 }
@@ -1313,6 +1373,56 @@ mod tests {
             assert_eq!(fused.kind(), Kind::Float);
             assert!(plain.allclose(&fused, 0.05, 0.05, false), "{act:?} bf16");
         }
+    }
+
+    /// Where bf16 is emulated, a bf16 fold keeps float32 weights of bf16 values and computes
+    /// with float32 kernels over bf16 maps: every entry point (the unit, + residual, then max
+    /// pooling, on a nearest-upsampled input) gives bf16 maps (float logits for the phase
+    /// form) within bf16's rounding of the fp32 plain path, as the native bf16 fold does.
+    #[test]
+    fn emulated_bf16_folds_compute_in_float_over_bf16_maps() {
+        tch::manual_seed(6);
+        let opts = (Kind::Float, Device::Cpu);
+        let bf16 = |t: &Tensor| to_channels_last(&t.to_kind(Kind::BFloat16));
+        let close = |a: &Tensor, b: &Tensor| a.allclose(&b.to_kind(Kind::Float), 0.05, 0.05, false);
+        for (spec, act) in [
+            (ConvSpec::new(3).bias(true), Act::LeakyRelu(0.2)),
+            (ConvSpec::new(1), Act::Relu),
+            (ConvSpec::new(2).stride(2).transposed(), Act::Relu),
+        ] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let mut unit =
+                ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
+            randomise_bn(&vs);
+            let x = Tensor::randn([2, 6, 12, 16], opts);
+            let plain = tch::no_grad(|| unit.forward_t(&x, false));
+            let residual = Tensor::randn(plain.size(), opts);
+            let plain_add = tch::no_grad(|| unit.forward_add(&x, &residual, false));
+            let pool = |t: &Tensor| t.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
+            with_emulated_bf16(true, || unit.fuse(Kind::BFloat16));
+            let f = unit.fused.as_ref().unwrap();
+            assert!(f.float_arith, "{spec:?}");
+            assert_eq!(f.weight.for_onednn().unwrap().kind(), Kind::Float);
+            let ys = tch::no_grad(|| unit.forward_t(&bf16(&x), false));
+            assert_eq!(ys.kind(), Kind::BFloat16);
+            assert!(close(&plain, &ys), "{spec:?}");
+            let ys = tch::no_grad(|| unit.forward_add(&bf16(&x), &bf16(&residual), false));
+            assert_eq!(ys.kind(), Kind::BFloat16);
+            assert!(close(&plain_add, &ys), "{spec:?} + residual");
+            let ys = tch::no_grad(|| unit.forward_then_max_pool(&bf16(&x), false, pool));
+            assert!(close(&pool(&plain), &ys), "{spec:?} then max pool");
+            with_emulated_bf16(false, || unit.fuse(Kind::BFloat16));
+            assert!(!unit.fused.as_ref().unwrap().float_arith);
+        }
+        let vs = nn::VarStore::new(Device::Cpu);
+        let spec = ConvSpec::new(3).bias(true).nearest_upsampled_input();
+        let mut unit = ConvBnAct::new(vs.root() / "conv", None, 6, 5, spec, Act::Relu);
+        let x = Tensor::randn([1, 6, 5, 7], opts);
+        let plain = tch::no_grad(|| unit.forward_upsampled(&x, false));
+        with_emulated_bf16(true, || unit.fuse(Kind::BFloat16));
+        let logits = tch::no_grad(|| unit.forward_upsampled(&bf16(&x), false));
+        assert_eq!(logits.kind(), Kind::Float);
+        assert!(close(&plain, &logits), "phase form");
     }
 
     #[test]
