@@ -63,12 +63,18 @@ fn edit_cache(path: &Path, work: &str, factor: f64) {
     std::fs::write(path, serde_json::to_string(&cache).unwrap()).unwrap();
 }
 
+/// A fresh cache folder, its probe file's path, and a first bf16 run that fills it.
+fn first_bf16_run(tmp: &Path) -> (std::path::PathBuf, std::path::PathBuf, Output) {
+    let cache = tmp.join("cache");
+    let file = cache.join("bf16-probe.json");
+    let first = bench_bf16(&cache);
+    (cache, file, first)
+}
+
 #[test]
 fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
     let tmp = tempfile::tempdir().unwrap();
-    let cache = tmp.path().join("cache");
-    let file = cache.join("bf16-probe.json");
-    let first = bench_bf16(&cache);
+    let (cache, file, first) = first_bf16_run(tmp.path());
     if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
         assert!(
             stderr(&first).contains("bf16 is emulated"),
@@ -125,9 +131,7 @@ fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
 #[test]
 fn the_bf16_3x3_kernels_follow_the_measurement_and_the_variable() {
     let tmp = tempfile::tempdir().unwrap();
-    let cache = tmp.path().join("cache");
-    let file = cache.join("bf16-probe.json");
-    let first = bench_bf16(&cache);
+    let (cache, file, first) = first_bf16_run(tmp.path());
     if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
         assert_eq!(kernels(&first), "winograd", "{}", text(&first));
         assert!(!file.exists(), "no probe where bf16 is emulated");
