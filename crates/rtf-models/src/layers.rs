@@ -343,19 +343,7 @@ thread_local! {
 /// Runs `f` (a fuse) preparing channels-last weights or, with `channels_last = false`,
 /// contiguous NCHW ones (libtorch picks a convolution's layout from its input *and* weight).
 pub fn with_fused_layout<T>(channels_last: bool, f: impl FnOnce() -> T) -> T {
-    with_scoped(&FUSE_CHANNELS_LAST, channels_last, f)
-}
-
-/// Runs `f` with this thread's `setting` set to `value`, restoring it after.
-pub(crate) fn with_scoped<V: Copy, T>(
-    setting: &'static std::thread::LocalKey<std::cell::Cell<V>>,
-    value: V,
-    f: impl FnOnce() -> T,
-) -> T {
-    let previous = setting.with(|c| c.replace(value));
-    let out = f();
-    setting.with(|c| c.set(previous));
-    out
+    crate::scoped::with(&FUSE_CHANNELS_LAST, channels_last, f)
 }
 
 thread_local! {
@@ -366,7 +354,7 @@ thread_local! {
 /// Runs `f` (a fuse) with bf16 folds made as where bf16 is emulated, or not, whatever the CPU
 /// (to test both on one machine).
 pub fn with_emulated_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
-    with_scoped(&FUSE_EMULATED_BF16, Some(on), f)
+    crate::scoped::with(&FUSE_EMULATED_BF16, Some(on), f)
 }
 
 /// Whether a bf16 fold on the CPU computes its convolutions with float32 kernels over bf16
@@ -390,7 +378,7 @@ thread_local! {
 
 /// Runs `f` with variable initialisation skipped (for counting parameters).
 pub fn with_zero_init<T>(f: impl FnOnce() -> T) -> T {
-    with_scoped(&ZERO_INIT, true, f)
+    crate::scoped::with(&ZERO_INIT, true, f)
 }
 
 /// A trainable variable; inside [`with_zero_init`] an uninitialised one (never touched, so

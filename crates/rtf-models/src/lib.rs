@@ -24,6 +24,7 @@ pub mod mit_pretrained;
 pub mod onednn;
 pub mod resnet;
 pub mod rtfnet;
+mod scoped;
 pub mod sync_bn;
 pub mod tolerance;
 pub mod weights;

@@ -93,7 +93,7 @@ thread_local! {
 /// Runs `f` (a fold) with the bf16 Winograd forms on or off whatever the process's choice (to
 /// measure both, or to test one).
 pub fn with_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
-    crate::layers::with_scoped(&BF16_SCOPE, Some(on), f)
+    crate::scoped::with(&BF16_SCOPE, Some(on), f)
 }
 
 /// Whether a bf16 fold on the CPU takes the Winograd forms (over bf16 maps) where [`form`] has
