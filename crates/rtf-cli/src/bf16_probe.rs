@@ -200,10 +200,9 @@ fn measure_in_child(work: Work) -> Result<Measured> {
         .args(["bench", "bf16-probe", "--work", work.name()])
         .env("OMP_NUM_THREADS", tch::get_num_threads().to_string())
         .stderr(std::process::Stdio::inherit());
-    // The others run with this process's choice of bf16 3×3 kernels (the 3×3 probe sets
-    // each form itself).
-    if let (Work::Inference | Work::Training, Ok(on)) = (work, rtf_models::winograd::bf16_applies())
-    {
+    // Inference runs with this process's choice of bf16 3×3 kernels (training does not fold;
+    // the 3×3 probe sets each form itself).
+    if let (Work::Inference, Ok(on)) = (work, rtf_models::winograd::bf16_applies()) {
         child.env(
             rtf_models::winograd::BF16_VAR,
             if on { "on" } else { "off" },
@@ -295,7 +294,7 @@ fn conv3x3_s(winograd: bool) -> Result<f64> {
     let xs = rtf_models::layers::to_channels_last(
         &Tensor::randn([1, 256, 60, 80], (Kind::Float, Device::Cpu)).to_kind(Kind::BFloat16),
     );
-    let mut times: Vec<f64> = (0..9)
+    let times: Vec<f64> = (0..9)
         .map(|_| {
             let start = std::time::Instant::now();
             let _ = tch::nn::ModuleT::forward_t(&unit, &xs, false);
@@ -303,15 +302,14 @@ fn conv3x3_s(winograd: bool) -> Result<f64> {
         })
         .skip(2)
         .collect();
-    times.sort_by(f64::total_cmp);
-    Ok(times[times.len() / 2])
+    Ok(rtf_eval::speed::median_min(&times).0)
 }
 
-/// Before bf16 inference on the CPU (`eval`, `predict`, `bench model`): where bf16 is native
-/// and [`rtf_models::winograd::BF16_VAR`] is unset, makes this process's choice between the
-/// Winograd form and oneDNN's bf16 kernels for the wide 3×3 convolutions, by the cached
-/// [`Work::Conv3x3`] measurement (measured first where there is none; with AMX oneDNN's
-/// kernels won 2–3×, without it the Winograd form ~4×: docs/src/benchmarks.md). Returns a
+/// Before bf16 inference on the CPU (`eval`, `predict`, `bench model`, `export`): where bf16 is
+/// native and [`rtf_models::winograd::BF16_VAR`] is unset, makes this process's choice between
+/// the Winograd form and oneDNN's bf16 kernels for the wide 3×3 convolutions, by the cached
+/// [`Work::Conv3x3`] measurement (measured first where there is none; on an Intel Xeon with AMX
+/// oneDNN's kernels won 5×, with AMX capped off the Winograd form 3×: docs/src/benchmarks.md). Returns a
 /// warning where the measurement failed (then oneDNN's kernels run, rtf-models' default).
 pub fn choose_bf16_winograd() -> Option<String> {
     if std::env::var_os(rtf_models::winograd::BF16_VAR).is_some()

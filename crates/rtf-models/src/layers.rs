@@ -361,8 +361,8 @@ pub fn with_emulated_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
 /// maps: where rtf emulates bf16 convolutions ([`rtf_amp::emulates_bf16_convolutions_on`]:
 /// the CPU has no bf16 arithmetic, or `RTF_BF16_CONVOLUTIONS=emulated`). There oneDNN's bf16
 /// kernels convert every product in generic code (RTFNet-50 at 480×640 under AVX2 caps: 54 s
-/// against 1.6 s in fp32), and fp32 kernels with the casts around them are a few times fp32's
-/// time, the numbers those of a bf16 kernel (bf16 operands, float sums, bf16 output).
+/// against 1.5 s in fp32), and fp32 kernels with the casts around them take about 1.1× fp32's
+/// time (1.61 s), the numbers those of a bf16 kernel (bf16 operands, float sums, bf16 output).
 fn emulates_bf16(weight: &Tensor) -> bool {
     weight.device() == tch::Device::Cpu
         && FUSE_EMULATED_BF16
@@ -916,12 +916,9 @@ impl ConvBnAct {
         let channels_last = FUSE_CHANNELS_LAST.with(|c| c.get());
         let emulated = kind == Kind::BFloat16 && emulates_bf16(&weight);
         // Emulated bf16 keeps float32 weights of bf16 values (what a bf16 kernel would take).
-        let (weight, stored_kind) = match emulated {
-            true => (weight.to_kind(kind).to_kind(Kind::Float), Kind::Float),
-            false => (weight, kind),
-        };
+        let stored_kind = if emulated { Kind::Float } else { kind };
         let lay_out = |w: Tensor| {
-            let w = w.to_kind(stored_kind);
+            let w = w.to_kind(kind).to_kind(stored_kind);
             if channels_last {
                 to_channels_last(&w)
             } else {
