@@ -32,7 +32,7 @@ pub enum AmpError {
     Refused(&'static str),
     #[error("autocast to {kind:?} is not supported on {device:?} (CPU: bf16; CUDA: bf16, fp16)")]
     Unsupported { device: Device, kind: Kind },
-    #[error("environment variable {BF16_CONVOLUTIONS_VAR}=`{0}`: expected `native` or `emulated`")]
+    #[error("environment variable {BF16_CONVOLUTIONS_VAR}=`{0}`: expected `native`, `emulated` or `mixed`")]
     BadConvolutionChoice(String),
 }
 
@@ -226,7 +226,8 @@ fn cpuinfo_has_native_bf16(info: &str) -> Option<bool> {
 pub const BF16_CONVOLUTIONS_VAR: &str = "RTF_BF16_CONVOLUTIONS";
 
 /// How convolutions inside a CPU bf16 autocast region are computed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Bf16Convolutions {
     /// libtorch's own bf16 kernels (oneDNN's where the CPU has bf16 arithmetic).
     Native,
@@ -236,6 +237,11 @@ pub enum Bf16Convolutions {
     /// kernels are generic (no avx512_bf16 / AMX: ~10× slower than fp32). rtf's networks route
     /// their convolutions through it (rtf-models `layers`).
     Emulated,
+    /// Spatial convolutions (3×3 and larger, not transposed) emulated, the others (1×1,
+    /// transposed) on libtorch's bf16 kernels: on Intel AVX-512 without AMX, oneDNN's bf16 3×3
+    /// kernels lose to its fp32 ones while its 1×1 kernels do not (issue 41; chosen there by
+    /// measurement, rtf-cli `bf16_kernels`).
+    Mixed,
 }
 
 impl Bf16Convolutions {
@@ -243,35 +249,82 @@ impl Bf16Convolutions {
         match self {
             Bf16Convolutions::Native => "native",
             Bf16Convolutions::Emulated => "emulated",
+            Bf16Convolutions::Mixed => "mixed",
+        }
+    }
+
+    /// Whether a convolution with a spatial kernel (`spatial`: larger than 1×1, not transposed)
+    /// or not is computed emulated under this choice.
+    pub fn emulates(self, spatial: bool) -> bool {
+        match self {
+            Bf16Convolutions::Native => false,
+            Bf16Convolutions::Emulated => true,
+            Bf16Convolutions::Mixed => spatial,
         }
     }
 }
 
-/// The choice for this process: `RTF_BF16_CONVOLUTIONS=native|emulated` if set, else emulated
-/// exactly where the CPU is known to lack bf16 arithmetic ([`cpu_has_native_bf16`]). Read once.
+/// This process's choice where the environment leaves it open and the CPU has bf16
+/// arithmetic: made once, by a measurement or from a run's record ([`choose_process_bf16_convolutions`]).
+static PROCESS_CHOICE: std::sync::OnceLock<Bf16Convolutions> = std::sync::OnceLock::new();
+
+/// The choice in force: `RTF_BF16_CONVOLUTIONS=native|emulated|mixed` if set, else emulated
+/// where the CPU is known to lack bf16 arithmetic ([`cpu_has_native_bf16`]), else this
+/// process's choice if one was made ([`choose_process_bf16_convolutions`]), else native. The
+/// variable and the CPU's flags are read once.
 pub fn cpu_bf16_convolutions() -> Result<Bf16Convolutions, AmpError> {
-    static CHOICE: std::sync::OnceLock<Result<Bf16Convolutions, String>> =
+    static FROM_ENV: std::sync::OnceLock<Result<Option<Bf16Convolutions>, String>> =
         std::sync::OnceLock::new();
-    CHOICE
+    let from_env = FROM_ENV
         .get_or_init(|| {
-            let var = std::env::var(BF16_CONVOLUTIONS_VAR).ok();
-            choose_bf16_convolutions(var.as_deref(), cpu_has_native_bf16())
+            parse_bf16_convolutions(std::env::var(BF16_CONVOLUTIONS_VAR).ok().as_deref())
         })
         .clone()
-        .map_err(AmpError::BadConvolutionChoice)
+        .map_err(AmpError::BadConvolutionChoice)?;
+    Ok(choose_bf16_convolutions(
+        from_env,
+        PROCESS_CHOICE.get().copied(),
+        cpu_has_native_bf16(),
+    ))
 }
 
-/// [`cpu_bf16_convolutions`] from the variable's value and the CPU's bf16 flag.
-fn choose_bf16_convolutions(
-    var: Option<&str>,
-    native_bf16: Option<bool>,
-) -> Result<Bf16Convolutions, String> {
+/// Whether `RTF_BF16_CONVOLUTIONS` makes the choice (set, to a valid value or not).
+pub fn bf16_convolutions_set_by_env() -> bool {
+    std::env::var_os(BF16_CONVOLUTIONS_VAR).is_some()
+}
+
+/// Makes this process's choice (the first call's stands) and returns the choice then in force
+/// ([`cpu_bf16_convolutions`]: the variable and a CPU without bf16 arithmetic still decide).
+pub fn choose_process_bf16_convolutions(
+    choice: Bf16Convolutions,
+) -> Result<Bf16Convolutions, AmpError> {
+    let _ = PROCESS_CHOICE.set(choice);
+    cpu_bf16_convolutions()
+}
+
+/// The variable's value: `None` where unset, an error naming the value where it is neither
+/// `native`, `emulated` nor `mixed`.
+fn parse_bf16_convolutions(var: Option<&str>) -> Result<Option<Bf16Convolutions>, String> {
     match var.map(str::trim) {
-        Some("native") => Ok(Bf16Convolutions::Native),
-        Some("emulated") => Ok(Bf16Convolutions::Emulated),
+        None => Ok(None),
+        Some("native") => Ok(Some(Bf16Convolutions::Native)),
+        Some("emulated") => Ok(Some(Bf16Convolutions::Emulated)),
+        Some("mixed") => Ok(Some(Bf16Convolutions::Mixed)),
         Some(other) => Err(other.to_owned()),
-        None if native_bf16 == Some(false) => Ok(Bf16Convolutions::Emulated),
-        None => Ok(Bf16Convolutions::Native),
+    }
+}
+
+/// [`cpu_bf16_convolutions`] from the variable's choice, the process's and the CPU's bf16 flag.
+fn choose_bf16_convolutions(
+    from_env: Option<Bf16Convolutions>,
+    process: Option<Bf16Convolutions>,
+    native_bf16: Option<bool>,
+) -> Bf16Convolutions {
+    match (from_env, process) {
+        (Some(choice), _) => choice,
+        _ if native_bf16 == Some(false) => Bf16Convolutions::Emulated,
+        (None, Some(choice)) => choice,
+        (None, None) => Bf16Convolutions::Native,
     }
 }
 
@@ -282,10 +335,12 @@ pub fn emulates_bf16_convolutions_on(device: Device) -> bool {
 }
 
 /// Whether a convolution of an input on `device` made now, on this thread, should be the
-/// emulated bf16 one: [`emulates_bf16_convolutions_on`] that device, inside a bf16 autocast
-/// region.
-pub fn emulates_bf16_convolution(device: Device) -> bool {
-    emulates_bf16_convolutions_on(device)
+/// emulated bf16 one: inside a CPU bf16 autocast region, where the choice in force
+/// ([`cpu_bf16_convolutions`]) emulates such a convolution (`spatial`: a kernel larger than
+/// 1×1, not transposed; [`Bf16Convolutions::emulates`]).
+pub fn emulates_bf16_convolution(device: Device, spatial: bool) -> bool {
+    device == Device::Cpu
+        && cpu_bf16_convolutions().is_ok_and(|c| c.emulates(spatial))
         && state(Device::Cpu).is_ok_and(|s| s.enabled && s.dtype == Kind::BFloat16)
 }
 
@@ -393,18 +448,31 @@ mod tests {
     #[test]
     fn bf16_convolutions_are_emulated_where_the_cpu_lacks_bf16_unless_told() {
         use Bf16Convolutions::*;
-        assert_eq!(choose_bf16_convolutions(None, Some(false)), Ok(Emulated));
-        assert_eq!(choose_bf16_convolutions(None, Some(true)), Ok(Native));
-        assert_eq!(choose_bf16_convolutions(None, None), Ok(Native));
+        let choose = choose_bf16_convolutions;
+        assert_eq!(choose(None, None, Some(false)), Emulated);
+        assert_eq!(choose(None, None, Some(true)), Native);
+        assert_eq!(choose(None, None, None), Native);
+        // The process's choice (measured, or a run's record) where the CPU has bf16 ...
+        assert_eq!(choose(None, Some(Emulated), Some(true)), Emulated);
+        assert_eq!(choose(None, Some(Emulated), None), Emulated);
+        // ... but not where it has none: libtorch's generic kernels only when told.
+        assert_eq!(choose(None, Some(Native), Some(false)), Emulated);
+        // The variable over both.
+        assert_eq!(choose(Some(Native), Some(Emulated), Some(false)), Native);
+        assert_eq!(choose(Some(Emulated), Some(Native), Some(true)), Emulated);
+        assert_eq!(choose(None, Some(Mixed), Some(true)), Mixed);
+        assert_eq!(choose(None, Some(Mixed), Some(false)), Emulated);
+        assert_eq!(parse_bf16_convolutions(Some("mixed")), Ok(Some(Mixed)));
+        // Mixed: spatial kernels emulated, 1×1 and transposed on the bf16 kernels.
+        assert!(Mixed.emulates(true) && !Mixed.emulates(false));
+        assert!(Emulated.emulates(false) && !Native.emulates(true));
+        assert_eq!(parse_bf16_convolutions(Some(" native")), Ok(Some(Native)));
         assert_eq!(
-            choose_bf16_convolutions(Some("native"), Some(false)),
-            Ok(Native)
+            parse_bf16_convolutions(Some("emulated")),
+            Ok(Some(Emulated))
         );
-        assert_eq!(
-            choose_bf16_convolutions(Some("emulated"), Some(true)),
-            Ok(Emulated)
-        );
-        let err = choose_bf16_convolutions(Some("fast"), None).unwrap_err();
+        assert_eq!(parse_bf16_convolutions(None), Ok(None));
+        let err = parse_bf16_convolutions(Some("fast")).unwrap_err();
         let message = AmpError::BadConvolutionChoice(err).to_string();
         assert!(
             message.contains("RTF_BF16_CONVOLUTIONS=`fast`"),
@@ -413,12 +481,28 @@ mod tests {
     }
 
     #[test]
+    fn the_choice_is_recorded_by_its_name() {
+        let text = serde_json::to_string(&Bf16Convolutions::Emulated).unwrap();
+        assert_eq!(text, "\"emulated\"");
+        let back: Bf16Convolutions = serde_json::from_str("\"native\"").unwrap();
+        assert_eq!(back, Bf16Convolutions::Native);
+    }
+
+    #[test]
     fn only_cpu_bf16_regions_emulate_and_only_if_chosen() {
-        let chosen = cpu_bf16_convolutions().unwrap() == Bf16Convolutions::Emulated;
-        assert!(!emulates_bf16_convolution(Device::Cpu), "no region open");
+        let chosen = cpu_bf16_convolutions().unwrap();
+        assert!(
+            !emulates_bf16_convolution(Device::Cpu, true),
+            "no region open"
+        );
         autocast(Device::Cpu, Some(Kind::BFloat16), || {
-            assert_eq!(emulates_bf16_convolution(Device::Cpu), chosen);
-            assert!(!emulates_bf16_convolution(Device::Cuda(0)));
+            for spatial in [true, false] {
+                assert_eq!(
+                    emulates_bf16_convolution(Device::Cpu, spatial),
+                    chosen.emulates(spatial)
+                );
+                assert!(!emulates_bf16_convolution(Device::Cuda(0), spatial));
+            }
         })
         .unwrap();
     }

@@ -608,7 +608,8 @@ impl ConvBnAct {
 
     fn conv(&self, xs: &Tensor, weight: &Tensor, bias: Option<&Tensor>) -> Tensor {
         let s = &self.spec;
-        if rtf_amp::emulates_bf16_convolution(xs.device()) {
+        let spatial = s.kernel > 1 && !s.transposed;
+        if rtf_amp::emulates_bf16_convolution(xs.device(), spatial) {
             return bf16_emulated_convolution(xs, weight, bias, self.geometry());
         }
         if s.transposed {

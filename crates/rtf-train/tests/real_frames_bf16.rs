@@ -1,7 +1,7 @@
 //! A bf16 training step on real imagery: the two raw MF frames (../shared/data/mf-samples,
 //! 640×480, thermal in alpha) through the published MFNet weights in training mode, fp32
-//! against bf16 autocast (libtorch's bf16 kernels or rtf's emulated ones, whichever this CPU
-//! gets; `cargo xtask test` runs both). It covers what random frames could hide: real
+//! against bf16 autocast (libtorch's bf16 kernels, rtf's emulated ones or the two mixed,
+//! whichever this CPU gets; `cargo xtask test` runs all three). It covers what random frames could hide: real
 //! activation ranges through the bf16 convolutions and MFNet's phase-form `decode1`.
 //! Labels are the fp32 network's own predictions (the samples carry none).
 

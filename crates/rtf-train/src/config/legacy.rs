@@ -95,6 +95,7 @@ impl From<LegacyFlatConfig> for TrainConfig {
             compute: ComputeConfig {
                 device: f.device,
                 world_size: f.world_size,
+                bf16_convolutions: None,
             },
         }
     }

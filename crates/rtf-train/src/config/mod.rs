@@ -122,6 +122,13 @@ pub struct ComputeConfig {
     /// resume needs as many. None = a single-process run.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub world_size: Option<usize>,
+    /// bf16 on the CPU: which convolution kernels the run started with
+    /// ([`rtf_amp::Bf16Convolutions`], chosen by measurement where the CPU has bf16 arithmetic
+    /// and `RTF_BF16_CONVOLUTIONS` is unset), recorded so that a resume computes the same
+    /// numbers (a `--config` may set it). None = not recorded (fp32, another device, or a run
+    /// before the record).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
 }
 
 /// The sections as they are read: every one required, no other key.
@@ -1012,6 +1019,7 @@ impl TrainConfig {
             compute: ComputeConfig {
                 device: "cpu".into(),
                 world_size: None,
+                bf16_convolutions: None,
             },
         }
     }
