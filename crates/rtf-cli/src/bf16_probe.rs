@@ -24,6 +24,7 @@
 //! compute bf16 inference (bf16 maps and weights, float sums); only the speed differs.
 
 use anyhow::{Context, Result};
+use rtf_amp::Bf16Convolutions;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -37,6 +38,11 @@ pub enum Work {
     /// `rtf_models::winograd`) against oneDNN's bf16 kernels. Decides which of the two bf16
     /// inference takes for such layers ([`choose_bf16_winograd`]).
     Conv3x3,
+    /// One wide 3×3 convolution's forward and backward over bf16 operands, as training runs
+    /// it: fp32 kernels (rtf's emulated convolutions) against oneDNN's bf16 kernels. Decides
+    /// whether bf16 training takes [`rtf_amp::Bf16Convolutions::Mixed`]
+    /// ([`choose_training_convolutions`]).
+    Conv3x3Training,
 }
 
 impl Work {
@@ -45,6 +51,7 @@ impl Work {
             Work::Inference => "inference",
             Work::Training => "training",
             Work::Conv3x3 => "conv3x3",
+            Work::Conv3x3Training => "conv3x3-training",
         }
     }
 
@@ -54,11 +61,16 @@ impl Work {
             Work::Inference => "MFNet's fast-path forward at 320x240, batch 1",
             Work::Training => "an MFNet training step at 320x240, batch 2",
             Work::Conv3x3 => "a 3x3 convolution of 256 channels at 80x60 over bf16 maps",
+            Work::Conv3x3Training => {
+                "a 3x3 convolution of 256 channels at 80x60, batch 2, forward and backward"
+            }
         }
     }
 }
 
-/// One measurement: seconds per unit of the work in each precision.
+/// One measurement: seconds per unit of the work in each precision. Where the work compares
+/// two ways of bf16 ([`Work::Conv3x3`], [`Work::Conv3x3Training`]), `fp32_s` is the way with
+/// fp32 kernels (Winograd, emulated) and `bf16_s` oneDNN's bf16 kernels.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Measured {
@@ -92,7 +104,8 @@ pub fn cache_path() -> Option<PathBuf> {
 }
 
 /// What decides which kernels run: the CPU (vendor, family, model, name), the caps set in the
-/// environment, the libtorch build and the thread count.
+/// environment, the libtorch build and the thread count; for [`Work::Training`], the bf16
+/// convolutions in force (crate::bf16_kernels has made the run's choice by then).
 pub fn key(work: Work) -> String {
     let caps: Vec<String> = [
         "ATEN_CPU_CAPABILITY",
@@ -103,8 +116,12 @@ pub fn key(work: Work) -> String {
     .iter()
     .filter_map(|var| std::env::var(var).ok().map(|v| format!("{var}={v}")))
     .collect();
+    let convolutions = match (work, rtf_amp::cpu_bf16_convolutions()) {
+        (Work::Training, Ok(choice)) => format!(" | {} convolutions", choice.name()),
+        _ => String::new(),
+    };
     format!(
-        "{} | {} | caps [{}] | libtorch {} | {} threads",
+        "{}{convolutions} | {} | caps [{}] | libtorch {} | {} threads",
         work.name(),
         cpu_identity(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default()),
         caps.join(" "),
@@ -200,8 +217,11 @@ fn measure_in_child(work: Work) -> Result<Measured> {
         .args(["bench", "bf16-probe", "--work", work.name()])
         .env("OMP_NUM_THREADS", tch::get_num_threads().to_string())
         .stderr(std::process::Stdio::inherit());
-    // Inference runs with this process's choice of bf16 3×3 kernels (training does not fold;
-    // the 3×3 probe sets each form itself).
+    // Inference runs with this process's choice of bf16 3×3 kernels, training with its bf16
+    // convolutions (the 3×3 probes set each way themselves).
+    if let (Work::Training, Ok(choice)) = (work, rtf_amp::cpu_bf16_convolutions()) {
+        child.env(rtf_amp::BF16_CONVOLUTIONS_VAR, choice.name());
+    }
     if let (Work::Inference, Ok(on)) = (work, rtf_models::winograd::bf16_applies()) {
         child.env(
             rtf_models::winograd::BF16_VAR,
@@ -225,6 +245,7 @@ pub fn measure(work: Work) -> Result<Measured> {
         Work::Inference => (inference_s(false)?, inference_s(true)?),
         Work::Training => (training_s(false)?, training_s(true)?),
         Work::Conv3x3 => (conv3x3_s(true)?, conv3x3_s(false)?),
+        Work::Conv3x3Training => (conv3x3_training_s(true), conv3x3_training_s(false)),
     };
     let unix_time = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -303,6 +324,84 @@ fn conv3x3_s(winograd: bool) -> Result<f64> {
         .skip(2)
         .collect();
     Ok(rtf_eval::speed::median_min(&times).0)
+}
+
+/// Seconds per forward and backward of [`Work::Conv3x3Training`]'s convolution over bf16
+/// operands, on fp32 kernels (`emulated`, as rtf's emulated convolutions run it) or oneDNN's
+/// bf16 kernels; channels-last, as bf16 training lays its maps out; median of 5 after 2.
+fn conv3x3_training_s(emulated: bool) -> f64 {
+    use rtf_models::layers::{bf16_emulated_convolution, to_channels_last};
+    use rtf_models::onednn::Geometry;
+    use tch::{Device, Kind, Tensor};
+    let bf16 = (Kind::BFloat16, Device::Cpu);
+    let xs = to_channels_last(&Tensor::randn([2, 256, 60, 80], bf16)).set_requires_grad(true);
+    let w =
+        to_channels_last(&(Tensor::randn([256, 256, 3, 3], bf16) * 0.02)).set_requires_grad(true);
+    let geometry = Geometry {
+        stride: 1,
+        padding: 1,
+        dilation: 1,
+        groups: 1,
+        transposed: false,
+    };
+    let times: Vec<f64> = (0..7)
+        .map(|_| {
+            let start = std::time::Instant::now();
+            let ys = match emulated {
+                true => bf16_emulated_convolution(&xs, &w, None, geometry),
+                false => xs.conv2d(&w, None::<Tensor>, [1, 1], [1, 1], [1, 1], 1),
+            };
+            ys.sum(Kind::Float).backward();
+            start.elapsed().as_secs_f64()
+        })
+        .skip(2)
+        .collect();
+    rtf_eval::speed::median_min(&times).0
+}
+
+/// Before bf16 training on the CPU: where bf16 is native and
+/// [`rtf_amp::BF16_CONVOLUTIONS_VAR`] is unset, [`rtf_amp::Bf16Convolutions::Mixed`] if the
+/// cached [`Work::Conv3x3Training`] measurement found fp32 kernels faster for a wide 3×3 layer
+/// here (measured first where there is none; with AMX capped off on an Intel Xeon, RTFNet-50's
+/// bf16 step ran 1.17× faster and MFNet's 1.10× so, docs/src/benchmarks.md), else native; with
+/// the line that says a mixed choice. `None` where nothing is measured (the choice in force
+/// stands); a failed measurement is a warning, and the bf16 kernels run.
+pub fn choose_training_convolutions() -> Option<(Bf16Convolutions, Option<String>)> {
+    if rtf_amp::bf16_convolutions_set_by_env() || rtf_amp::cpu_has_native_bf16() != Some(true) {
+        return None;
+    }
+    match measured(Work::Conv3x3Training) {
+        // `fp32_s` is the emulated layer's: below 1, the fp32 kernels were the faster.
+        Ok((m, cache)) if m.speedup() < 1.0 => Some((
+            Bf16Convolutions::Mixed,
+            Some(mixed_choice_message(&m, cache.as_deref())),
+        )),
+        Ok(_) => Some((Bf16Convolutions::Native, None)),
+        Err(e) => Some((
+            Bf16Convolutions::Native,
+            Some(format!(
+                "warning: could not measure which bf16 convolutions train faster on this CPU \
+                 ({e:#}); oneDNN's bf16 kernels run"
+            )),
+        )),
+    }
+}
+
+/// The line that says bf16 training runs its spatial convolutions on fp32 kernels.
+fn mixed_choice_message(m: &Measured, cache: Option<&Path>) -> String {
+    let cached = cache.map_or("not cached".to_string(), |p| {
+        format!("cached in {}", p.display())
+    });
+    format!(
+        "bf16 training runs its 3x3 and larger convolutions on fp32 kernels over bf16 operands \
+         here ({}=mixed): {} took {:.1} ms so against {:.1} ms on oneDNN's bf16 kernels (bf16 \
+         operands, float sums either way; {cached}; {}=native|emulated|mixed decides instead)",
+        rtf_amp::BF16_CONVOLUTIONS_VAR,
+        Work::Conv3x3Training.workload(),
+        1000.0 * m.fp32_s,
+        1000.0 * m.bf16_s,
+        rtf_amp::BF16_CONVOLUTIONS_VAR
+    )
 }
 
 /// Before bf16 inference on the CPU (`eval`, `predict`, `bench model`, `export`): where bf16 is
@@ -386,6 +485,19 @@ mod tests {
             slower_message(Work::Inference, &m(0.060, 0.060), None),
             None
         );
+    }
+
+    #[test]
+    fn a_mixed_choice_is_said_with_both_times_and_the_way_to_decide_instead() {
+        let line = mixed_choice_message(&m(0.120, 0.180), Some(Path::new("/c/p.json")));
+        assert!(
+            line.contains("forward and backward took 120.0 ms so against 180.0 ms"),
+            "{line}"
+        );
+        assert!(
+            line.contains("cached in /c/p.json") && line.contains("(RTF_BF16_CONVOLUTIONS=mixed)")
+        );
+        assert!(!line.contains('\n'));
     }
 
     #[test]

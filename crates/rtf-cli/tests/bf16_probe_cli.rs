@@ -175,3 +175,74 @@ fn fp32_never_probes() {
         text(&out)
     );
 }
+
+/// bf16 training's convolution kernels (issue 41): where bf16 is native, a new run takes
+/// mixed (spatial convolutions on fp32 kernels) or native as the cached `conv3x3-training`
+/// measurement says (edited here to decide each way on every CPU) and records the choice in its
+/// config.json; a resume keeps the record whatever the measurement says now, and the variable
+/// overrides it with a warning. Where bf16 is emulated nothing is probed and emulated is
+/// recorded.
+#[test]
+fn bf16_training_records_the_measured_kernels_and_a_resume_keeps_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    synth_mf(&data, "6", "0", "32x32");
+    let cache = tmp.path().join("cache");
+    let file = cache.join("bf16-probe.json");
+    let train = |args: &[&str], vars: &[(&str, &str)]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_rtf"))
+            .args(args)
+            .env("RTF_CACHE_DIR", &cache)
+            .env_remove("RTF_BF16_CONVOLUTIONS")
+            .envs(vars.iter().copied())
+            .output()
+            .expect("rtf runs");
+        assert!(out.status.success(), "{}", text(&out));
+        out
+    };
+    let new_run = |name: &str| {
+        let run = tmp.path().join(name);
+        let out = train(&short_train(&data, &run, "1", &["--precision", "bf16"]), &[]);
+        (run, stderr(&out))
+    };
+    let recorded = |run: &Path| {
+        json_file(&run.join("config.json"))["compute"]["bf16_convolutions"]
+            .as_str()
+            .unwrap_or("none")
+            .to_string()
+    };
+    let (first, _) = new_run("first");
+    if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
+        assert_eq!(recorded(&first), "emulated");
+        assert!(!file.exists(), "no probe where bf16 is emulated");
+        return;
+    }
+    let written = std::fs::read_to_string(&file).expect("the probe's cache is written");
+    assert!(written.contains("conv3x3-training | "), "{written}");
+
+    edit_cache(&file, "conv3x3-training | ", 2.0);
+    let (mixed, said) = new_run("mixed");
+    assert_eq!(recorded(&mixed), "mixed");
+    assert!(said.contains("(RTF_BF16_CONVOLUTIONS=mixed)"), "{said}");
+    edit_cache(&file, "conv3x3-training | ", 0.5);
+    let (native, said) = new_run("native");
+    assert_eq!(recorded(&native), "native");
+    assert!(!said.contains("on fp32 kernels"), "{said}");
+
+    // The resume keeps the run's kernels though the measurement now says native ...
+    let resume = ["train", "--resume", s(&mixed), "--epochs", "2"];
+    let said = stderr(&train(&resume, &[]));
+    assert!(
+        said.contains("as the run started (compute.bf16_convolutions: mixed"),
+        "{said}"
+    );
+    assert_eq!(recorded(&mixed), "mixed");
+    // ... and the variable overrides the record, saying what that costs.
+    let resume = ["train", "--resume", s(&mixed), "--epochs", "3"];
+    let said = stderr(&train(&resume, &[("RTF_BF16_CONVOLUTIONS", "native")]));
+    assert!(
+        said.contains("warning: the run started with mixed bf16 convolutions")
+            && said.contains("RTF_BF16_CONVOLUTIONS is set"),
+        "{said}"
+    );
+}

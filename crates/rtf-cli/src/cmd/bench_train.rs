@@ -50,6 +50,9 @@ pub fn run(args: Args) -> Result<()> {
     }
     let optimizer = OptimizerConfig::paper_default(args.optimizer);
     let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
+    if let Some(line) = crate::bf16_kernels::settle_for_bench(args.precision, device)? {
+        eprintln!("{line}");
+    }
     if let Some(warning) = crate::bf16_warning::training(args.precision, device) {
         eprintln!("warning: {warning}");
     }

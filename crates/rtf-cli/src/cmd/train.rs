@@ -223,6 +223,12 @@ pub fn run(args: Args) -> Result<()> {
         }
         return Ok(());
     }
+    // Before the trainer records the configuration: bf16 CPU stages record their kernels.
+    for line in crate::bf16_kernels::settle_for_run(&mut cfg, resume, ddp.is_some())? {
+        if root {
+            eprintln!("{line}");
+        }
+    }
     prepare_arithmetic(&cfg, root)?;
     let stop = stop_on_signals();
     match &cfg {
