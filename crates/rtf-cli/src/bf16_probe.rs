@@ -337,18 +337,11 @@ fn conv3x3_training_s(emulated: bool) -> f64 {
     let xs = to_channels_last(&Tensor::randn([2, 256, 60, 80], bf16)).set_requires_grad(true);
     let w =
         to_channels_last(&(Tensor::randn([256, 256, 3, 3], bf16) * 0.02)).set_requires_grad(true);
-    let geometry = Geometry {
-        stride: 1,
-        padding: 1,
-        dilation: 1,
-        groups: 1,
-        transposed: false,
-    };
     let times: Vec<f64> = (0..7)
         .map(|_| {
             let start = std::time::Instant::now();
             let ys = match emulated {
-                true => bf16_emulated_convolution(&xs, &w, None, geometry),
+                true => bf16_emulated_convolution(&xs, &w, None, Geometry::SAME_3X3),
                 false => xs.conv2d(&w, None::<Tensor>, [1, 1], [1, 1], [1, 1], 1),
             };
             ys.sum(Kind::Float).backward();

@@ -202,7 +202,10 @@ fn bf16_training_records_the_measured_kernels_and_a_resume_keeps_them() {
     };
     let new_run = |name: &str| {
         let run = tmp.path().join(name);
-        let out = train(&short_train(&data, &run, "1", &["--precision", "bf16"]), &[]);
+        let out = train(
+            &short_train(&data, &run, "1", &["--precision", "bf16"]),
+            &[],
+        );
         (run, stderr(&out))
     };
     let recorded = |run: &Path| {

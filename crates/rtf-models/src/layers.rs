@@ -771,13 +771,7 @@ impl ConvBnAct {
             false,
         ) = (&self.fused, train)
         {
-            let geometry = Geometry {
-                stride: 1,
-                padding: 1,
-                dilation: 1,
-                groups: 1,
-                transposed: false,
-            };
+            let geometry = Geometry::SAME_3X3;
             let xs = self.kernel_input(xs);
             // [B, c_in, H, W] -> [B, 4·c_out, H + 1, W + 1]
             let phases = self

@@ -163,6 +163,17 @@ pub struct Geometry {
     pub transposed: bool,
 }
 
+impl Geometry {
+    /// A 3×3 convolution's that keeps the size: stride 1, padding 1, no dilation, one group.
+    pub const SAME_3X3: Geometry = Geometry {
+        stride: 1,
+        padding: 1,
+        dilation: 1,
+        groups: 1,
+        transposed: false,
+    };
+}
+
 /// The arguments every fused call shares, as the C functions take them.
 struct Args {
     padding: [i64; 2],
