@@ -3,8 +3,8 @@
 //!
 //! On an Intel AVX-512 CPU without AMX, oneDNN's bf16 3×3 kernels lose to its fp32 ones, its
 //! 1×1 kernels do not: with AMX capped off on a Xeon (family 6 model 167), RTFNet-50's bf16
-//! training step ran 1.17× and MFNet's 1.10× faster with their 3×3 and larger convolutions on
-//! fp32 kernels over bf16 operands and the rest on the bf16 kernels
+//! training step ran 1.12–1.17× and MFNet's 1.12× faster with their 3×3 and larger
+//! convolutions on fp32 kernels over bf16 operands and the rest on the bf16 kernels
 //! ([`rtf_amp::Bf16Convolutions::Mixed`]) than all on the bf16 kernels, and faster than all on
 //! fp32 kernels ([`rtf_amp::Bf16Convolutions::Emulated`]; docs/src/benchmarks.md). With AMX,
 //! oneDNN's bf16 kernels win by far. Every way computes bf16 training (bf16 operands, float

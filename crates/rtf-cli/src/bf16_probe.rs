@@ -22,6 +22,10 @@
 //! wide 3×3 convolutions ([`Work::Conv3x3`], [`choose_bf16_winograd`]): the fp32 Winograd form
 //! over bf16 maps, or oneDNN's bf16 kernels, whichever ran one such layer faster here. Both
 //! compute bf16 inference (bf16 maps and weights, float sums); only the speed differs.
+//!
+//! Before bf16 training a fourth, [`Work::Conv3x3Training`], times such a layer's forward and
+//! backward on fp32 kernels over bf16 operands against oneDNN's bf16 kernels and so picks the
+//! run's convolution kernels ([`choose_training_convolutions`], crate::bf16_kernels).
 
 use anyhow::{Context, Result};
 use rtf_amp::Bf16Convolutions;
@@ -356,8 +360,8 @@ fn conv3x3_training_s(emulated: bool) -> f64 {
 /// [`rtf_amp::BF16_CONVOLUTIONS_VAR`] is unset, [`rtf_amp::Bf16Convolutions::Mixed`] if the
 /// cached [`Work::Conv3x3Training`] measurement found fp32 kernels faster for a wide 3×3 layer
 /// here (measured first where there is none; with AMX capped off on an Intel Xeon, RTFNet-50's
-/// bf16 step ran 1.17× faster and MFNet's 1.10× so, docs/src/benchmarks.md), else native; with
-/// the line that says a mixed choice. `None` where nothing is measured (the choice in force
+/// bf16 step ran 1.12–1.17× faster and MFNet's 1.12× so, docs/src/benchmarks.md), else native;
+/// with the line that says a mixed choice. `None` where nothing is measured (the choice in force
 /// stands); a failed measurement is a warning, and the bf16 kernels run.
 pub fn choose_training_convolutions() -> Option<(Bf16Convolutions, Option<String>)> {
     if rtf_amp::bf16_convolutions_set_by_env() || rtf_amp::cpu_has_native_bf16() != Some(true) {
