@@ -64,18 +64,14 @@ pub fn training(precision: Precision, device: Device) -> Option<String> {
     let bf16 = precision == Precision::Bf16;
     let arithmetic = rtf_amp::cpu_bf16_arithmetic();
     let convolutions = rtf_amp::cpu_bf16_convolutions().ok();
-    // Emulation chosen by measurement on a CPU with bf16 arithmetic (crate::bf16_kernels) is
-    // bf16's faster way there, said when chosen: no emulation warning, the probe's instead.
-    let measured_choice =
-        arithmetic.is_native() == Some(true) && !rtf_amp::bf16_convolutions_set_by_env();
-    let told = convolutions.filter(|_| !measured_choice);
     precision
         .slow_on(device)
-        .or_else(|| training_message(bf16, device, &arithmetic, told))
+        .or_else(|| training_message(bf16, device, &arithmetic, convolutions))
         .or_else(|| {
-            // rtf's emulated convolutions forced on a native CPU already have their warning.
-            let forced = told == Some(Bf16Convolutions::Emulated);
-            native_but_slower(bf16 && !forced, device, &arithmetic, Work::Training)
+            // rtf's emulated convolutions forced on a native CPU already have their warning;
+            // native and mixed (crate::bf16_kernels) get the probe's.
+            let emulated = convolutions == Some(Bf16Convolutions::Emulated);
+            native_but_slower(bf16 && !emulated, device, &arithmetic, Work::Training)
         })
 }
 
