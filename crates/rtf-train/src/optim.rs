@@ -83,7 +83,8 @@ impl Optimizer {
     /// gradient holds an inf or NaN (the step must be skipped). One fused check-and-unscale per
     /// gradient (PyTorch's GradScaler kernel) into one flag on the device, read once: a read
     /// per gradient waited for the device each time (on an H100, RTFNet-50's fp16 optimiser
-    /// step took 51 ms against 5 ms in fp32; docs/src/gpu.md).
+    /// step took 51 ms against 5 ms in fp32, docs/src/gpu-2026-11-27.md; fused, 12 ms,
+    /// docs/src/gpu.md).
     fn unscale(&mut self, vs: &VarStore) -> bool {
         let scale = self.loss_scale();
         let device = vs.device();

@@ -160,7 +160,8 @@ impl Trained {
 /// Whether fp32 training on CUDA runs channels-last: yes unless `RTF_TRAIN_LAYOUT=nchw`.
 /// cuDNN's TF32 convolutions are laid out for NHWC: PyTorch's own fp32 training on an H100
 /// (libtorch 2.11, 640×480) ran channels_last 1.79× as fast as NCHW for MFNet (batch 8) and
-/// 1.59× for RTFNet-50 (batch 4) (docs/src/gpu.md).
+/// 1.59× for RTFNet-50 (batch 4) (docs/src/gpu-2026-11-27.md); rtf's own fp32 went from 155 to
+/// 268 images/s (MFNet) and from 47 to 68 (RTFNet-50) when it did the same (docs/src/gpu.md).
 pub fn fp32_channels_last_on_cuda() -> bool {
     std::env::var("RTF_TRAIN_LAYOUT").as_deref() != Ok("nchw")
 }
