@@ -687,7 +687,8 @@ impl ConvBnAct {
         residual: Option<&Tensor>,
     ) -> Tensor {
         let relu = self.act == Act::Relu;
-        let ys = crate::winograd::conv3x3(xs, u, f.bias.as_ref(), residual, relu);
+        let d = self.spec.dilation;
+        let ys = crate::winograd::conv3x3_dilated(xs, u, f.bias.as_ref(), residual, relu, d);
         if relu {
             ys
         } else {
@@ -711,7 +712,8 @@ impl ConvBnAct {
         match (&self.fused, train) {
             (Some(f), false) => match &f.weight {
                 FoldedWeight::Winograd(u) => {
-                    crate::winograd::conv3x3(xs, u, f.bias.as_ref(), None, false)
+                    let d = self.spec.dilation;
+                    crate::winograd::conv3x3_dilated(xs, u, f.bias.as_ref(), None, false, d)
                 }
                 weight => {
                     let ys = self.conv(&self.kernel_input(xs), &weight.dense(), f.bias.as_ref());
@@ -1147,18 +1149,21 @@ mod tests {
     }
 
     /// Wide 3×3 units fold into a Winograd form (F(4×4, 3×3) from 128 channels, F(2×2, 3×3)
-    /// from 1024), other units into packed oneDNN weights; either way the folded unit computes
-    /// what conv → BatchNorm → (+ residual) → ReLU does.
+    /// from 1024; dilated ones too, through their phase sub-maps), other units into packed
+    /// oneDNN weights; either way the folded unit computes what conv → BatchNorm → (+ residual)
+    /// → ReLU does.
     #[test]
     fn wide_units_fold_into_winograd_forms_with_the_same_values() {
         tch::manual_seed(4);
-        for (c, h, w, form) in [
-            (128, 9, 11, Some(36)),
-            (1024, 3, 5, Some(16)),
-            (64, 6, 7, None),
+        for (c, h, w, dilation, form) in [
+            (128, 9, 11, 1, Some(36)),
+            (1024, 3, 5, 1, Some(16)),
+            (64, 6, 7, 1, None),
+            (128, 10, 13, 2, Some(36)),
+            (128, 9, 8, 4, Some(36)),
         ] {
             let vs = nn::VarStore::new(Device::Cpu);
-            let spec = ConvSpec::new(3);
+            let spec = ConvSpec::new(3).dilation(dilation);
             let mut unit = ConvBnAct::new(
                 vs.root() / "conv",
                 Some(vs.root() / "bn"),
@@ -1190,7 +1195,7 @@ mod tests {
                 let worst = (a - b).abs().max().double_value(&[]);
                 assert!(
                     worst <= 1e-4 * scale,
-                    "{c} channels, {name}: {worst} of {scale}"
+                    "{c} channels, dilation {dilation}, {name}: {worst} of {scale}"
                 );
             }
         }

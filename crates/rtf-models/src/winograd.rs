@@ -45,13 +45,17 @@ pub enum Form {
 }
 
 /// The Winograd form of a convolution of this shape on the inference path, if any: 3×3,
-/// stride 1, padding 1, no dilation, no groups, not transposed; F(2×2, 3×3) from
-/// [`MIN_CHANNELS`] input and output channels, F(4×4, 3×3) from [`MIN_CHANNELS_F43`].
-/// `RTF_WINOGRAD=off` turns both forms off, `RTF_WINOGRAD=f23` keeps only F(2×2, 3×3) (to
-/// compare speeds; read once per process).
+/// stride 1, padding equal to the dilation (the size kept: dilated ones run as
+/// [`conv3x3_dilated`]), no groups, not transposed; F(2×2, 3×3) from [`MIN_CHANNELS`] input
+/// and output channels, F(4×4, 3×3) from [`MIN_CHANNELS_F43`]. `RTF_WINOGRAD=off` turns both
+/// forms off, `RTF_WINOGRAD=f23` keeps only F(2×2, 3×3) (to compare speeds; read once per
+/// process).
 pub fn form(kernel: i64, geometry: Geometry, c_in: i64, c_out: i64) -> Option<Form> {
     let g = geometry;
-    let plain = kernel == 3 && (g.stride, g.padding, g.dilation, g.groups) == (1, 1, 1, 1);
+    let plain = kernel == 3
+        && (g.stride, g.groups) == (1, 1)
+        && g.dilation >= 1
+        && g.padding == g.dilation;
     let channels = c_in.min(c_out);
     let (f23, f43) = enabled();
     if !plain || g.transposed || channels < MIN_CHANNELS_F43 {
@@ -212,6 +216,66 @@ pub fn conv3x3(
     }
 }
 
+/// [`conv3x3`] of a 3×3 convolution with dilation `d` and padding `d` (PSPNet's dilated
+/// ResNet layers: HeatNet's layer3 and layer4 at 1/8 resolution). Such a convolution reads
+/// only pixels of its output's phase (y mod d, x mod d), so it is d² plain 3×3 convolutions
+/// (padding 1) of the phase sub-maps, run as one batch of N·d² maps in the Winograd form and
+/// interleaved back (the space-to-batch of dilated convolutions). Maps whose sides are not
+/// multiples of d are zero-padded after, which is the convolution's own zero padding, and the
+/// output is cropped.
+pub fn conv3x3_dilated(
+    xs: &Tensor,
+    u: &Tensor,
+    bias: Option<&Tensor>,
+    residual: Option<&Tensor>,
+    relu: bool,
+    d: i64,
+) -> Tensor {
+    if d == 1 {
+        return conv3x3(xs, u, bias, residual, relu);
+    }
+    let (n, _, h, w) = xs.size4().expect("winograd::conv3x3_dilated takes [N, C, H, W]");
+    let residual = residual.map(|r| to_phases(r, d));
+    let ys = conv3x3(&to_phases(xs, d), u, bias, residual.as_ref(), relu);
+    from_phases(&ys, n, d, h, w)
+}
+
+/// [N, C, H, W] -> [N·d², C, ⌈H/d⌉, ⌈W/d⌉], channels-last: batch entry n·d² + py·d + px holds
+/// the pixels (d·u + py, d·v + px), zero where past the map.
+fn to_phases(xs: &Tensor, d: i64) -> Tensor {
+    let (n, c, h, w) = xs.size4().expect("[N, C, H, W]");
+    let (hs, ws) = ((h + d - 1) / d, (w + d - 1) / d);
+    // [N, H, W, C] (a view of a channels-last map), zero-padded after to whole phases
+    let nhwc = xs.permute([0, 2, 3, 1]);
+    let nhwc = match (hs * d - h, ws * d - w) {
+        (0, 0) => nhwc,
+        (ph, pw) => nhwc.constant_pad_nd([0, 0, 0, pw, 0, ph]),
+    };
+    // [N, hs, d, ws, d, C] -> [N, d, d, hs, ws, C] -> [N·d², hs, ws, C] -> NCHW view
+    nhwc.reshape([n, hs, d, ws, d, c])
+        .permute([0, 2, 4, 1, 3, 5])
+        .contiguous()
+        .view([n * d * d, hs, ws, c])
+        .permute([0, 3, 1, 2])
+}
+
+/// The inverse of [`to_phases`], cropped to [N, K, H, W], channels-last.
+fn from_phases(ys: &Tensor, n: i64, d: i64, h: i64, w: i64) -> Tensor {
+    let (_, k, hs, ws) = ys.size4().expect("[N·d², K, hs, ws]");
+    // [N·d², hs, ws, K] -> [N, d, d, hs, ws, K] -> [N, hs, d, ws, d, K] -> [N, hs·d, ws·d, K]
+    let nhwc = ys
+        .permute([0, 2, 3, 1])
+        .reshape([n, d, d, hs, ws, k])
+        .permute([0, 3, 1, 4, 2, 5])
+        .contiguous()
+        .view([n, hs * d, ws * d, k]);
+    let nhwc = match (hs * d == h, ws * d == w) {
+        (true, true) => nhwc,
+        _ => nhwc.narrow(1, 0, h).narrow(2, 0, w).contiguous(),
+    };
+    nhwc.permute([0, 3, 1, 2])
+}
+
 /// [`conv3x3`] in F(4×4, 3×3), by csrc/ops.cpp (CPU float32 tensors).
 fn conv3x3_f43(
     xs: &Tensor,
@@ -303,9 +367,10 @@ mod tests {
         xs.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
     }
 
+    /// Laid out [N, H, W, C] in memory, in libtorch's sense (a size-1 dimension's stride does
+    /// not count: a cropped map of one frame keeps its uncropped batch stride).
     fn is_channels_last(xs: &Tensor) -> bool {
-        let (size, stride) = (xs.size(), xs.stride());
-        stride == [size[1] * size[2] * size[3], 1, size[3] * size[1], size[1]]
+        xs.permute([0, 2, 3, 1]).is_contiguous()
     }
 
     fn geometry(stride: i64, padding: i64, dilation: i64, transposed: bool) -> Geometry {
@@ -354,6 +419,42 @@ mod tests {
                     let expected = x.conv2d(&weight, None::<Tensor>, [1], [1], [1], 1).relu();
                     assert!(close(&y, &expected), "{form:?} no bias");
                 }
+            }
+        }
+    }
+
+    /// Dilated 3×3 convolutions (padding = dilation) through the phase sub-maps equal the
+    /// direct dilated convolution, at sides that are and are not multiples of the dilation,
+    /// with a residual, in both forms and over bf16 maps.
+    #[test]
+    fn dilated_equals_the_direct_dilated_convolution() {
+        tch::manual_seed(13);
+        let opts = (Kind::Float, Device::Cpu);
+        for (n, c, k, h, w, d) in [(1, 5, 6, 12, 16, 2), (2, 3, 4, 13, 18, 4), (1, 4, 3, 3, 2, 2)] {
+            let x = to_channels_last(&Tensor::randn([n, c, h, w], opts));
+            let weight = Tensor::randn([k, c, 3, 3], opts);
+            let bias = Tensor::randn([k], opts);
+            let residual = to_channels_last(&Tensor::randn([n, k, h, w], opts));
+            let direct = x.conv2d(&weight, Some(&bias), [1], [d], [d], 1);
+            let expected = (&direct + &residual).relu();
+            let scale = expected.abs().max().double_value(&[]);
+            for form in [Form::F23, Form::F43] {
+                let u = weight_transform(&weight, form);
+                let y = conv3x3_dilated(&x, &u, Some(&bias), Some(&residual), true, d);
+                assert_eq!(y.size(), [n, k, h, w]);
+                assert!(is_channels_last(&y), "{form:?} d={d}");
+                let worst = (&y - &expected).abs().max().double_value(&[]);
+                assert!(worst <= 1e-4 * scale, "{form:?} {h}x{w} d={d}: {worst} of {scale}");
+                // Over bf16 maps: the direct convolution of the same bf16 values, up to the
+                // output's rounding to bf16 (2^-8 relative) and the float sums' order.
+                let (xb, rb) = (x.to_kind(Kind::BFloat16), residual.to_kind(Kind::BFloat16));
+                let y = conv3x3_dilated(&xb, &u, Some(&bias), Some(&rb), true, d);
+                assert_eq!((y.kind(), y.size()), (Kind::BFloat16, vec![n, k, h, w]));
+                let float = |t: &Tensor| t.to_kind(Kind::Float);
+                let direct = float(&xb).conv2d(&weight, Some(&bias), [1], [d], [d], 1);
+                let expected = (direct + float(&rb)).relu();
+                let worst = (float(&y) - &expected).abs().max().double_value(&[]);
+                assert!(worst <= scale / 128.0, "{form:?} bf16 d={d}: {worst} of {scale}");
             }
         }
     }
@@ -410,7 +511,11 @@ mod tests {
         assert_eq!(form(3, plain, 2048, 128), Some(Form::F43));
         assert_eq!(form(3, plain, 64, 64), None);
         assert_eq!(form(3, geometry(2, 1, 1, false), 2048, 2048), None);
-        assert_eq!(form(3, geometry(1, 2, 2, false), 2048, 2048), None);
+        // Dilated with the size kept (padding = dilation): the phase form; else none.
+        assert_eq!(form(3, geometry(1, 2, 2, false), 2048, 2048), Some(Form::F23));
+        assert_eq!(form(3, geometry(1, 4, 4, false), 512, 512), Some(Form::F43));
+        assert_eq!(form(3, geometry(1, 1, 2, false), 512, 512), None);
+        assert_eq!(form(3, geometry(2, 2, 2, false), 512, 512), None);
         assert_eq!(form(1, geometry(1, 0, 1, false), 2048, 2048), None);
         assert_eq!(form(3, geometry(1, 1, 1, true), 2048, 2048), None);
         let grouped = Geometry { groups: 2, ..plain };
