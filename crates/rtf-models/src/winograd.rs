@@ -1,5 +1,6 @@
-//! 3×3 convolutions (stride 1, padding 1, no dilation or groups) by Winograd's minimal
-//! filtering F(2×2, 3×3) (Lavin & Gray, CVPR 2016), for the inference path's widest layers.
+//! 3×3 convolutions (stride 1, no groups, padding equal to the dilation) by Winograd's minimal
+//! filtering F(2×2, 3×3) (Lavin & Gray, CVPR 2016), for the inference path's widest layers;
+//! dilated ones through their phase sub-maps ([`conv3x3_dilated`]).
 //!
 //! Each 2×2 output tile is `Aᵀ [(G g Gᵀ) ⊙ (Bᵀ d B)] A` of the 4×4 input tile `d` around it:
 //! summed over input channels, the elementwise product becomes 16 independent matrix products
