@@ -53,10 +53,8 @@ pub enum Form {
 /// process).
 pub fn form(kernel: i64, geometry: Geometry, c_in: i64, c_out: i64) -> Option<Form> {
     let g = geometry;
-    let plain = kernel == 3
-        && (g.stride, g.groups) == (1, 1)
-        && g.dilation >= 1
-        && g.padding == g.dilation;
+    let plain =
+        kernel == 3 && (g.stride, g.groups) == (1, 1) && g.dilation >= 1 && g.padding == g.dilation;
     let channels = c_in.min(c_out);
     let (f23, f43) = enabled();
     if !plain || g.transposed || channels < MIN_CHANNELS_F43 {
@@ -235,7 +233,9 @@ pub fn conv3x3_dilated(
     if d == 1 {
         return conv3x3(xs, u, bias, residual, relu);
     }
-    let (n, _, h, w) = xs.size4().expect("winograd::conv3x3_dilated takes [N, C, H, W]");
+    let (n, _, h, w) = xs
+        .size4()
+        .expect("winograd::conv3x3_dilated takes [N, C, H, W]");
     let residual = residual.map(|r| to_phases(r, d));
     let ys = conv3x3(&to_phases(xs, d), u, bias, residual.as_ref(), relu);
     from_phases(&ys, n, d, h, w)
@@ -431,7 +431,11 @@ mod tests {
     fn dilated_equals_the_direct_dilated_convolution() {
         tch::manual_seed(13);
         let opts = (Kind::Float, Device::Cpu);
-        for (n, c, k, h, w, d) in [(1, 5, 6, 12, 16, 2), (2, 3, 4, 13, 18, 4), (1, 4, 3, 3, 2, 2)] {
+        for (n, c, k, h, w, d) in [
+            (1, 5, 6, 12, 16, 2),
+            (2, 3, 4, 13, 18, 4),
+            (1, 4, 3, 3, 2, 2),
+        ] {
             let x = to_channels_last(&Tensor::randn([n, c, h, w], opts));
             let weight = Tensor::randn([k, c, 3, 3], opts);
             let bias = Tensor::randn([k], opts);
@@ -445,7 +449,10 @@ mod tests {
                 assert_eq!(y.size(), [n, k, h, w]);
                 assert!(is_channels_last(&y), "{form:?} d={d}");
                 let worst = (&y - &expected).abs().max().double_value(&[]);
-                assert!(worst <= 1e-4 * scale, "{form:?} {h}x{w} d={d}: {worst} of {scale}");
+                assert!(
+                    worst <= 1e-4 * scale,
+                    "{form:?} {h}x{w} d={d}: {worst} of {scale}"
+                );
                 // Over bf16 maps: the direct convolution of the same bf16 values, up to the
                 // output's rounding to bf16 (2^-8 relative) and the float sums' order.
                 let (xb, rb) = (x.to_kind(Kind::BFloat16), residual.to_kind(Kind::BFloat16));
@@ -455,7 +462,10 @@ mod tests {
                 let direct = float(&xb).conv2d(&weight, Some(&bias), [1], [d], [d], 1);
                 let expected = (direct + float(&rb)).relu();
                 let worst = (float(&y) - &expected).abs().max().double_value(&[]);
-                assert!(worst <= scale / 128.0, "{form:?} bf16 d={d}: {worst} of {scale}");
+                assert!(
+                    worst <= scale / 128.0,
+                    "{form:?} bf16 d={d}: {worst} of {scale}"
+                );
             }
         }
     }
@@ -513,7 +523,10 @@ mod tests {
         assert_eq!(form(3, plain, 64, 64), None);
         assert_eq!(form(3, geometry(2, 1, 1, false), 2048, 2048), None);
         // Dilated with the size kept (padding = dilation): the phase form; else none.
-        assert_eq!(form(3, geometry(1, 2, 2, false), 2048, 2048), Some(Form::F23));
+        assert_eq!(
+            form(3, geometry(1, 2, 2, false), 2048, 2048),
+            Some(Form::F23)
+        );
         assert_eq!(form(3, geometry(1, 4, 4, false), 512, 512), Some(Form::F43));
         assert_eq!(form(3, geometry(1, 1, 2, false), 512, 512), None);
         assert_eq!(form(3, geometry(2, 2, 2, false), 512, 512), None);
