@@ -111,12 +111,17 @@ struct Bf16EmulatedConvolution : public torch::autograd::Function<Bf16EmulatedCo
 // products M[xi] = V[xi] U[xi] (U = G g Gt, made once in Rust), and each tile's outputs are
 // At M A. Tiles go in chunks that keep V and M in cache; the transforms are loops over the
 // channels, which the compiler vectorises (a copy per instruction set, picked at run time).
+// `GCC ivdep` lets it: their rows arrive as arrays of pointers, which it must otherwise assume
+// may overlap, and it left the loops scalar (64 channels at 120x160: 7.5 -> 4.9 ms a layer,
+// examples/winograd_layers.rs). No caller overlaps a read row with a written one, except
+// wino43_finish in place (in == out), which reads each element before writing it.
 
 // Scratch rows of C floats: out[r] = Bt · in (6 rows) for r in 0..6.
 #define RTF_WINO_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 
 RTF_WINO_CLONES
 void wino43_bt(const float* const in[6], float* const out[6], int64_t c_count) {
+#pragma GCC ivdep
   for (int64_t c = 0; c < c_count; ++c) {
     float d0 = in[0][c], d1 = in[1][c], d2 = in[2][c], d3 = in[3][c], d4 = in[4][c],
           d5 = in[5][c];
@@ -132,6 +137,7 @@ void wino43_bt(const float* const in[6], float* const out[6], int64_t c_count) {
 // out[r] = At · in (6 rows -> 4) for r in 0..4.
 RTF_WINO_CLONES
 void wino43_at(const float* const in[6], float* const out[4], int64_t c_count) {
+#pragma GCC ivdep
   for (int64_t c = 0; c < c_count; ++c) {
     float m0 = in[0][c], m1 = in[1][c], m2 = in[2][c], m3 = in[3][c], m4 = in[4][c],
           m5 = in[5][c];
@@ -146,6 +152,7 @@ void wino43_at(const float* const in[6], float* const out[4], int64_t c_count) {
 RTF_WINO_CLONES
 void wino43_finish(const float* in, const float* bias, const float* residual, bool relu,
                    float* out, int64_t c_count) {
+#pragma GCC ivdep
   for (int64_t c = 0; c < c_count; ++c) {
     float v = in[c] + (bias != nullptr ? bias[c] : 0.f) + (residual != nullptr ? residual[c] : 0.f);
     out[c] = relu ? (v > 0.f ? v : 0.f) : v;

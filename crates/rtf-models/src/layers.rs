@@ -1148,7 +1148,7 @@ mod tests {
         }
     }
 
-    /// Wide 3×3 units fold into a Winograd form (F(4×4, 3×3) from 128 channels, F(2×2, 3×3)
+    /// Wide 3×3 units fold into a Winograd form (F(4×4, 3×3) from 64 channels, F(2×2, 3×3)
     /// from 1024; dilated ones too, through their phase sub-maps), other units into packed
     /// oneDNN weights; either way the folded unit computes what conv → BatchNorm → (+ residual)
     /// → ReLU does.
@@ -1158,7 +1158,8 @@ mod tests {
         for (c, h, w, dilation, form) in [
             (128, 9, 11, 1, Some(36)),
             (1024, 3, 5, 1, Some(16)),
-            (64, 6, 7, 1, None),
+            (64, 6, 7, 1, Some(36)),
+            (32, 6, 7, 1, None),
             (128, 10, 13, 2, Some(36)),
             (128, 9, 8, 4, Some(36)),
         ] {

@@ -13,10 +13,12 @@
 //! Two forms ([`form`] picks by width): F(2×2, 3×3) by libtorch ops for the widest layers
 //! (RTFNet-50's decoder at 1/32 and 1/16: 2048 and 1024 channels on 15×20 and 30×40 maps at
 //! 480×640), where the matrix products dominate and whole-map transforms cost little; and
-//! F(4×4, 3×3) (36 products per 4×4 tile, 4× fewer multiply-adds than direct) for 128 to 1023
+//! F(4×4, 3×3) (36 products per 4×4 tile, 4× fewer multiply-adds than direct) for 64 to 1023
 //! channels, whose larger maps need the transforms done in cache-sized chunks of tiles, in C++
 //! (csrc/ops.cpp `wino43_conv`; by libtorch ops over whole maps F(2×2, 3×3) lost: 512 channels
-//! at 60×80, 99 → 110 ms).
+//! at 60×80, 99 → 110 ms). From 64 channels since the transforms are vectorised (issue 41,
+//! `examples/winograd_layers.rs`: 64 channels at 120×160, 4.9 against oneDNN's direct 6.2 ms
+//! on an AVX-512 EPYC; before, at 7.5 ms, the form began at 128).
 //!
 //! bf16 inference can take the same forms over bf16 maps ([`bf16_applies`]): the maps are read
 //! and written in bf16 (F(4×4, 3×3) converts them inside its transforms), the weights are the
@@ -33,7 +35,7 @@ use crate::onednn::Geometry;
 /// Input and output channels from which [`form`] takes F(2×2, 3×3).
 pub const MIN_CHANNELS: i64 = 1024;
 /// Input and output channels from which (up to [`MIN_CHANNELS`]) [`form`] takes F(4×4, 3×3).
-pub const MIN_CHANNELS_F43: i64 = 128;
+pub const MIN_CHANNELS_F43: i64 = 64;
 
 /// Which Winograd form a convolution takes on the inference path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -520,7 +522,8 @@ mod tests {
         assert_eq!(form(3, plain, 1024, 2048), Some(Form::F23));
         assert_eq!(form(3, plain, 512, 2048), Some(Form::F43));
         assert_eq!(form(3, plain, 2048, 128), Some(Form::F43));
-        assert_eq!(form(3, plain, 64, 64), None);
+        assert_eq!(form(3, plain, 64, 64), Some(Form::F43));
+        assert_eq!(form(3, plain, 32, 64), None);
         assert_eq!(form(3, geometry(2, 1, 1, false), 2048, 2048), None);
         // Dilated with the size kept (padding = dilation): the phase form; else none.
         assert_eq!(
