@@ -13,9 +13,10 @@
 //! So where bf16 is native, `--precision bf16` on the CPU times a small fixed workload once in
 //! each precision — MFNet at 320×240: the fast path's forward for inference, a training step
 //! (batch 2) for training — and caches the result per CPU model, oneDNN/libtorch/MKL caps,
-//! libtorch build and thread count in `$RTF_CACHE_DIR` (default `$XDG_CACHE_HOME/rtf`, else
-//! `~/.cache/rtf`), `bf16-probe.json`. The probe runs in a child process (about a second for
-//! inference, a few for training), so the command's own memory peak and state are untouched. Where bf16 measured slower, the command says so on
+//! libtorch build, revision of rtf's Winograd forms and thread count in `$RTF_CACHE_DIR`
+//! (default `$XDG_CACHE_HOME/rtf`, else `~/.cache/rtf`), `bf16-probe.json`. The probe runs in
+//! a child process (about a second for inference, a few for training), so the command's own
+//! memory peak and state are untouched. Where bf16 measured slower, the command says so on
 //! stderr with the measured times before its work; the precision stays what the user typed.
 //!
 //! Before bf16 inference a third measurement, cached the same way, picks the kernels of the
@@ -108,8 +109,9 @@ pub fn cache_path() -> Option<PathBuf> {
 }
 
 /// What decides which kernels run: the CPU (vendor, family, model, name), the caps set in the
-/// environment, the libtorch build and the thread count; for [`Work::Training`], the bf16
-/// convolutions in force (crate::bf16_kernels has made the run's choice by then).
+/// environment, the libtorch build, rtf's Winograd forms ([`rtf_models::winograd::REVISION`])
+/// and the thread count; for [`Work::Training`], the bf16 convolutions in force
+/// (crate::bf16_kernels has made the run's choice by then).
 pub fn key(work: Work) -> String {
     let caps: Vec<String> = [
         "ATEN_CPU_CAPABILITY",
@@ -125,11 +127,12 @@ pub fn key(work: Work) -> String {
         _ => String::new(),
     };
     format!(
-        "{}{convolutions} | {} | caps [{}] | libtorch {} | {} threads",
+        "{}{convolutions} | {} | caps [{}] | libtorch {} | winograd r{} | {} threads",
         work.name(),
         cpu_identity(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default()),
         caps.join(" "),
         libtorch_identity(),
+        rtf_models::winograd::REVISION,
         tch::get_num_threads()
     )
 }
@@ -514,7 +517,9 @@ mod tests {
         let (i, t) = (key(Work::Inference), key(Work::Training));
         assert_ne!(i, t);
         assert!(
-            i.starts_with("inference | ") && i.contains("libtorch "),
+            i.starts_with("inference | ")
+                && i.contains("libtorch ")
+                && i.contains(&format!("winograd r{}", rtf_models::winograd::REVISION)),
             "{i}"
         );
         assert!(

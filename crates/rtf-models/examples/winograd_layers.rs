@@ -6,7 +6,8 @@
 //! 480×640 (64 channels at 120×160 down to 512 at 15×20). Best of 20 passes, three rounds
 //! interleaved; the largest difference from the direct convolution is printed beside.
 //!
-//! `cargo run --release -p rtf-models --example winograd_layers [-- THREADS]` (default 2).
+//! `cargo run --release -p rtf-models --example winograd_layers [-- THREADS] [bf16]` (default
+//! 2 threads; `bf16` adds each shape over bf16 maps: oneDNN's bf16 kernels against the form).
 //! Results and the machine they came from: docs/src/speed-by-kind.md (issue 41).
 use std::time::Instant;
 
@@ -33,8 +34,10 @@ fn channels_last(size: [i64; 4]) -> Tensor {
 fn main() {
     let threads = std::env::args()
         .nth(1)
-        .map_or(2, |t| t.parse().expect("THREADS: a whole number"));
+        .and_then(|t| t.parse().ok())
+        .unwrap_or(2);
     tch::set_num_threads(threads);
+    let bf16 = std::env::args().any(|a| a == "bf16");
     let _no_grad = tch::no_grad_guard();
     println!(
         "{threads} threads; ms, best of 20; direct | F(4x4,3x3) (max |diff|) | products alone"
@@ -63,5 +66,15 @@ fn main() {
             "{c:>3} ch {h}x{w} (max |diff| {diff:.1e}): {}",
             rounds.join("   ")
         );
+        if bf16 {
+            // Over bf16 maps: oneDNN's bf16 kernels against the form (float arithmetic).
+            let (xb, wb) = (x.to_kind(Kind::BFloat16), weight.to_kind(Kind::BFloat16));
+            let direct = || xb.conv2d(&wb, None::<Tensor>, [1, 1], [1, 1], [1, 1], 1);
+            let form = || winograd::conv3x3(&xb, &u, None, None, false);
+            let rounds: Vec<String> = (0..3)
+                .map(|_| format!("{:.2} | {:.2}", best_ms(&direct, 20), best_ms(&form, 20)))
+                .collect();
+            println!("    bf16 maps: {}", rounds.join("   "));
+        }
     }
 }

@@ -37,6 +37,12 @@ pub const MIN_CHANNELS: i64 = 1024;
 /// Input and output channels from which (up to [`MIN_CHANNELS`]) [`form`] takes F(4×4, 3×3).
 pub const MIN_CHANNELS_F43: i64 = 64;
 
+/// The forms' implementation, counted up whenever their speed changes (which layers take them,
+/// how fast they run), so that timings cached against them (rtf-cli's bf16 probe, which picks
+/// between these forms and oneDNN's bf16 kernels) are measured again rather than reused.
+/// 2: transforms vectorised, F(4×4, 3×3) from 64 channels (issue 41).
+pub const REVISION: u32 = 2;
+
 /// Which Winograd form a convolution takes on the inference path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Form {
