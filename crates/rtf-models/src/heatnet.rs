@@ -163,6 +163,24 @@ fn back(p: &nn::Path, c_in: i64) -> (ResLayer, ResLayer) {
 struct PspModule {
     stages: Vec<ConvBnAct>,
     bottleneck: ConvBnAct,
+    /// The inference form, prepared by [`Fuse::fuse`].
+    folded: Option<PspFolded>,
+}
+
+/// The PSP module's inference form, the same function with a fifth of the bottleneck's work.
+/// The stages end without an activation, and a 1×1 convolution (mixing channels per pixel)
+/// commutes with bilinear upsampling (mixing pixels per channel with weights that sum to 1), so
+/// the bottleneck's columns over bin i's prior compose with that stage:
+/// `B_i·up(C_i·pool_i(x)) = up((B_i·C_i)·pool_i(x))`. The 4 × 2048 prior columns then run on
+/// 1 + 4 + 9 + 36 pooled pixels instead of h×w upsampled ones; only the input's 2048 columns
+/// run at full size, with the summed priors added before the ReLU. (At 640×480 the
+/// bottleneck is HeatNet's largest convolution: 10240 → 1024 at 80×60.)
+#[derive(Debug)]
+struct PspFolded {
+    /// ReLU(B_x·x + bias + priors): 1×1, features → out.
+    main: ConvBnAct,
+    /// Per bin, B_i·C_i as a 1×1 weight [out, features, 1, 1], float32.
+    priors: Vec<Tensor>,
 }
 
 fn psp_module(p: nn::Path, features: i64, out: i64) -> PspModule {
@@ -188,7 +206,11 @@ fn psp_module(p: nn::Path, features: i64, out: i64) -> PspModule {
         spec.bias(true),
         Act::Relu,
     );
-    PspModule { stages, bottleneck }
+    PspModule {
+        stages,
+        bottleneck,
+        folded: None,
+    }
 }
 
 fn bilinear(xs: &Tensor, h: i64, w: i64) -> Tensor {
@@ -197,6 +219,9 @@ fn bilinear(xs: &Tensor, h: i64, w: i64) -> Tensor {
 
 impl ModuleT for PspModule {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
+        if let (Some(folded), false) = (&self.folded, train) {
+            return folded.forward(xs);
+        }
         let (h, w) = (xs.size()[2], xs.size()[3]);
         let mut priors: Vec<Tensor> = BINS
             .iter()
@@ -211,6 +236,63 @@ impl ModuleT for PspModule {
             .collect();
         priors.push(xs.shallow_clone());
         Tensor::cat(&priors, 1).apply_t(&self.bottleneck, train)
+    }
+}
+
+impl Fuse for PspModule {
+    fn fuse(&mut self, kind: Kind) {
+        let _guard = tch::no_grad_guard();
+        let (weight, bias) = self.bottleneck.folded_float();
+        let (out, features) = (weight.size()[0], weight.size()[1] / (BINS.len() as i64 + 1));
+        // The reference concatenates [prior_1, …, prior_4, x]: B_i and B_x are column blocks.
+        // -> [out, features]
+        let columns = |i: usize| {
+            weight
+                .flatten(1, 3)
+                .narrow(1, i as i64 * features, features)
+        };
+        let mut bias = bias.unwrap_or_else(|| Tensor::zeros([out], (Kind::Float, weight.device())));
+        let mut priors = Vec::with_capacity(BINS.len());
+        for (i, stage) in self.stages.iter().enumerate() {
+            let (stage_weight, stage_bias) = stage.folded_float();
+            // A stage's bias is constant over pixels, which upsampling keeps: it joins the bias.
+            if let Some(stage_bias) = stage_bias {
+                bias += columns(i).mv(&stage_bias);
+            }
+            let composed = columns(i).matmul(&stage_weight.flatten(1, 3));
+            priors.push(composed.view([out, features, 1, 1]));
+        }
+        let main_weight = columns(BINS.len()).contiguous().view([out, features, 1, 1]);
+        let main =
+            ConvBnAct::folded_from(main_weight, Some(bias), ConvSpec::new(1), Act::Relu, kind);
+        self.folded = Some(PspFolded { main, priors });
+    }
+}
+
+impl PspFolded {
+    /// [B, features, h, w] -> [B, out, h, w]
+    fn forward(&self, xs: &Tensor) -> Tensor {
+        let (h, w) = (xs.size()[2], xs.size()[3]);
+        // Σ_i up((B_i·C_i)·pool_i(x)) in float32 -> [B, out, h, w]
+        let mut priors = BINS.iter().zip(&self.priors).map(|(&bin, weight)| {
+            let pooled = xs.adaptive_avg_pool2d([bin, bin]).to_kind(Kind::Float);
+            bilinear(
+                &pooled.conv2d(weight, None::<Tensor>, [1], [0], [1], 1),
+                h,
+                w,
+            )
+        });
+        let mut sum = priors.next().expect("PSP has bins");
+        for prior in priors {
+            let _ = sum.g_add_(&prior);
+        }
+        let sum = sum.to_kind(xs.kind());
+        let sum = if crate::layers::is_channels_last(xs) {
+            crate::layers::to_channels_last(&sum)
+        } else {
+            sum.contiguous()
+        };
+        self.main.forward_add(xs, &sum, false)
     }
 }
 
@@ -373,8 +455,7 @@ impl Fuse for HeatNet {
         }
         self.layer3.fuse(kind);
         self.layer4.fuse(kind);
-        self.psp.stages.fuse(kind);
-        self.psp.bottleneck.fuse(kind);
+        self.psp.fuse(kind);
         self.up.fuse(kind);
         self.last.fuse(kind);
     }
@@ -579,6 +660,78 @@ mod tests {
         assert_eq!(out.size(), vec![2, 1, 64, 96]);
         assert!(critic.check_input(&[2, 13, 64, 96]).is_ok());
         assert!(critic.check_input(&[2, 4, 64, 96]).is_err());
+    }
+
+    /// HeatNet's PSP module on `features` channels, its stages with a bias if `stage_bias`
+    /// (the reference's have none; the fold takes one into the bottleneck's bias).
+    fn psp_for_test(p: nn::Path, features: i64, out: i64, stage_bias: bool) -> PspModule {
+        let mut psp = psp_module(&p / "psp", features, out);
+        if stage_bias {
+            let spec = ConvSpec::new(1).bias(true);
+            psp.stages = (0..BINS.len())
+                .map(|i| {
+                    ConvBnAct::new(
+                        &p / "biased" / i,
+                        None,
+                        features,
+                        features,
+                        spec,
+                        Act::Identity,
+                    )
+                })
+                .collect();
+        }
+        psp
+    }
+
+    #[test]
+    fn folded_psp_module_is_the_same_function() {
+        use crate::fast::{max_relative_difference, FUSED_FP32_TOLERANCE};
+        use crate::layers::to_channels_last;
+        tch::manual_seed(11);
+        for stage_bias in [false, true] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let mut psp = psp_for_test(vs.root(), 16, 8, stage_bias);
+            // Weights of unit gain and inputs with per-channel offsets, so that every bin's
+            // prior weighs as much as the input's own columns (the reference init, std 0.02,
+            // would leave the priors too small for a lost bin to show).
+            tch::no_grad(|| {
+                for mut var in vs.trainable_variables() {
+                    let fan_in = if var.dim() == 4 { var.size()[1] } else { 1 };
+                    let _ = var.copy_(&(var.randn_like() / (fan_in as f64).sqrt()));
+                }
+            });
+            // Odd sizes: the 6-bin pool overlaps windows, bilinear weights are uneven.
+            let offsets = Tensor::randn([1, 16, 1, 1], (Kind::Float, Device::Cpu)) * 2.0;
+            let x = Tensor::randn([2, 16, 13, 7], (Kind::Float, Device::Cpu)) + offsets;
+            let plain = tch::no_grad(|| psp.forward_t(&x, false));
+            psp.fuse(Kind::Float);
+            let folded = tch::no_grad(|| psp.forward_t(&to_channels_last(&x), false));
+            let rel = max_relative_difference(&plain, &folded);
+            assert!(
+                rel < FUSED_FP32_TOLERANCE,
+                "fp32, stage bias {stage_bias}: {rel}"
+            );
+            // Training never takes the fold: gradients reach the stages' own weights.
+            psp.forward_t(&x, true).sum(Kind::Float).backward();
+            let stages = if stage_bias { "biased." } else { "psp.stages." };
+            for (name, var) in vs.variables() {
+                if name.starts_with(stages) {
+                    let grad = var.grad().abs().sum(Kind::Float).double_value(&[]);
+                    assert!(grad > 0.0, "{name} has no gradient");
+                }
+            }
+
+            // bf16: against float32 of the same bf16 input; the weights' and output's bf16
+            // rounding (2⁻⁹ relative each) stays far below what a lost or misplaced bin costs.
+            let x16 = to_channels_last(&x.to_kind(Kind::BFloat16));
+            let plain = tch::no_grad(|| psp.forward_t(&x16.to_kind(Kind::Float), true));
+            psp.fuse(Kind::BFloat16);
+            let folded = tch::no_grad(|| psp.forward_t(&x16, false));
+            assert_eq!(folded.kind(), Kind::BFloat16);
+            let rel = max_relative_difference(&plain, &folded.to_kind(Kind::Float));
+            assert!(rel < 2e-2, "bf16, stage bias {stage_bias}: {rel}");
+        }
     }
 
     #[test]

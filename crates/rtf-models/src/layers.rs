@@ -886,6 +886,42 @@ impl ConvBnAct {
     /// [`batch_norm_affine`]).
     pub fn fuse_with_affine(&mut self, kind: Kind, affine: Option<(&Tensor, &Tensor)>) {
         let _guard = tch::no_grad_guard();
+        let (weight, bias) = self.fold_affines(affine);
+        self.store_fused(weight, bias, kind);
+    }
+
+    /// This unit's convolution with its eval-mode BatchNorm folded in, float32: (weight,
+    /// bias). For folds that combine several units into one (e.g. HeatNet's PSP module).
+    pub fn folded_float(&self) -> (Tensor, Option<Tensor>) {
+        self.fold_affines(None)
+    }
+
+    /// A unit of the given folded float32 `weight` and `bias`, in no VarStore and without a
+    /// BatchNorm, prepared for inference in `kind`: a convolution the fast path derives from a
+    /// network's own (e.g. a block of a wider one's input columns). Inference only.
+    pub fn folded_from(
+        weight: Tensor,
+        bias: Option<Tensor>,
+        spec: ConvSpec,
+        act: Act,
+        kind: Kind,
+    ) -> Self {
+        let mut unit = Self {
+            weight: weight.shallow_clone(),
+            bias: bias.as_ref().map(Tensor::shallow_clone),
+            spec: spec.bias(bias.is_some()),
+            bn: None,
+            act,
+            fused: None,
+        };
+        tch::no_grad(|| unit.store_fused(weight, bias, kind));
+        unit
+    }
+
+    /// The float32 convolution weight and bias with this unit's BatchNorm and then `affine`
+    /// folded in.
+    fn fold_affines(&self, affine: Option<(&Tensor, &Tensor)>) -> (Tensor, Option<Tensor>) {
+        let _guard = tch::no_grad_guard();
         let weight = self.weight.to_kind(Kind::Float);
         let bias = self.bias.as_ref().map(|b| b.to_kind(Kind::Float));
         let mut folds: Vec<(Tensor, Tensor)> = self.bn.iter().map(batch_norm_affine).collect();
@@ -905,7 +941,7 @@ impl ConvBnAct {
             // Out of place: `weight` may be the variable itself (`to_kind` of a float one).
             weight = &weight * per_channel;
         }
-        self.store_fused(weight, bias, kind);
+        (weight, bias)
     }
 
     /// Lays the folded float32 `weight` and `bias` out for inference in `kind`.
