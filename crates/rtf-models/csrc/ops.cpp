@@ -148,6 +148,22 @@ void wino43_at(const float* const in[6], float* const out[4], int64_t c_count) {
   }
 }
 
+// out[r] = A · in (4 rows -> 6; A = Atᵀ) for r in 0..6: the output transform's transpose,
+// which carries an output gradient's 4x4 tile into the 6x6 transformed domain.
+RTF_WINO_CLONES
+void wino43_a(const float* const in[4], float* const out[6], int64_t c_count) {
+#pragma GCC ivdep
+  for (int64_t c = 0; c < c_count; ++c) {
+    float g0 = in[0][c], g1 = in[1][c], g2 = in[2][c], g3 = in[3][c];
+    out[0][c] = g0;
+    out[1][c] = g0 + g1 + g2 + g3;
+    out[2][c] = g0 - g1 + g2 - g3;
+    out[3][c] = g0 + 2.f * g1 + 4.f * g2 + 8.f * g3;
+    out[4][c] = g0 - 2.f * g1 + 4.f * g2 - 8.f * g3;
+    out[5][c] = g3;
+  }
+}
+
 // out = act(in + bias (+ residual)), c_count floats.
 RTF_WINO_CLONES
 void wino43_finish(const float* in, const float* bias, const float* residual, bool relu,
@@ -334,6 +350,101 @@ at::Tensor wino43_conv(const at::Tensor& x_in, const at::Tensor& u, const at::Te
   }
   return y.permute({0, 3, 1, 2});
 }
+
+// Mg[xi, t, :] = (A gy Aᵀ)[xi] for the chunk's tiles [t0, t1) of the float NHWC output
+// gradient `gy` (tiles as in wino43_input, with the output's 4x4 grid; zero past the map).
+void wino43_grad_tiles(const Wino43Map& m, const float* gy, const float* zeros, int64_t t0,
+                       int64_t t1, float* mg) {
+  int64_t chunk = t1 - t0;
+  at::parallel_for(t0, t1, 1, [&](int64_t begin, int64_t end) {
+    std::vector<float> scratch(24 * m.k);  // [6][4][K]
+    for (int64_t t = begin; t < end; ++t) {
+      int64_t n = t / (m.tiles_h * m.tiles_w), r = t % (m.tiles_h * m.tiles_w);
+      int64_t y0 = 4 * (r / m.tiles_w), x0 = 4 * (r % m.tiles_w);
+      for (int b = 0; b < 4; ++b) {
+        const float* in[4];
+        float* out[6];
+        for (int a = 0; a < 4; ++a) {
+          int64_t y = y0 + a, x = x0 + b;
+          in[a] = y < m.h && x < m.w ? gy + ((n * m.h + y) * m.w + x) * m.k : zeros;
+        }
+        for (int xi = 0; xi < 6; ++xi) out[xi] = scratch.data() + (xi * 4 + b) * m.k;
+        wino43_a(in, out, m.k);
+      }
+      for (int xi = 0; xi < 6; ++xi) {
+        const float* in[4];
+        float* out[6];
+        for (int b = 0; b < 4; ++b) in[b] = scratch.data() + (xi * 4 + b) * m.k;
+        for (int eta = 0; eta < 6; ++eta) out[eta] = mg + ((xi * 6 + eta) * chunk + (t - t0)) * m.k;
+        wino43_a(in, out, m.k);
+      }
+    }
+  });
+}
+
+// The weight gradient [K, C, 3, 3] of a 3x3 convolution (stride 1, padding 1) of float maps,
+// from its input x [N, C, H, W] and output gradient gy [N, K, H, W], in F(4x4, 3x3): the
+// forward pass is Y = At (U ⊙ V) A per tile with U = G w Gt, so dU[xi] = Σ_t V[xi, t]ᵀ Mg[xi, t]
+// (36 products over the tiles, chunked as in wino43_conv) and dw = Gt dU G.
+at::Tensor wino43_weight_grad(const at::Tensor& x_in, const at::Tensor& gy_in,
+                              const at::Tensor& g) {
+  at::NoGradGuard no_grad;
+  at::Tensor x = x_in.permute({0, 2, 3, 1}).contiguous();
+  at::Tensor gy = gy_in.permute({0, 2, 3, 1}).contiguous();
+  Wino43Map m{{x.data_ptr(), false}, x.size(0), x.size(1), x.size(2), x.size(3), gy.size(3), 0, 0};
+  m.tiles_h = (m.h + 3) / 4;
+  m.tiles_w = (m.w + 3) / 4;
+  at::TensorOptions f32 = x.options();
+  at::Tensor zeros = at::zeros({std::max(m.c, m.k)}, f32);
+  at::Tensor du = at::zeros({36, m.c, m.k}, f32);
+  int64_t tiles = m.n * m.tiles_h * m.tiles_w;
+  int64_t per_chunk = std::max<int64_t>(16, (8 << 20) / (36 * 4 * std::max(m.c, m.k)));
+  for (int64_t t0 = 0; t0 < tiles; t0 += per_chunk) {
+    int64_t t1 = std::min(tiles, t0 + per_chunk), chunk = t1 - t0;
+    at::Tensor v = at::empty({36, chunk, m.c}, f32), mg = at::empty({36, chunk, m.k}, f32);
+    wino43_input(m, zeros.data_ptr<float>(), t0, t1, v.data_ptr<float>());
+    wino43_grad_tiles(m, gy.data_ptr<float>(), zeros.data_ptr<float>(), t0, t1,
+                      mg.data_ptr<float>());
+    du.baddbmm_(v.transpose(1, 2), mg);
+  }
+  return at::einsum("ai,abck,bj->kcij", {g, du.view({6, 6, m.c, m.k}), g});
+}
+
+// U = G w Gt per channel pair: [K, C, 3, 3] -> [36, C, K] (winograd.rs `weight_transform`, with
+// its G for F(4x4, 3x3) passed in as `g` [6, 3]).
+at::Tensor wino43_weight(const at::Tensor& w, const at::Tensor& g) {
+  return at::einsum("ai,kcij,bj->abck", {g, w.to(at::kFloat), g})
+      .reshape({36, w.size(1), w.size(0)})
+      .contiguous();
+}
+
+// A 3x3 convolution (stride 1, padding 1, no bias, float32) for training, all three passes in
+// F(4x4, 3x3): the forward pass, and the input's gradient, a 3x3 convolution of the output's
+// gradient with the weight flipped and its channel axes swapped, both by wino43_conv; the
+// weight's gradient by wino43_weight_grad. `g` is the form's G [6, 3]; the transformed weights
+// are made from `w` in each pass, not kept.
+struct Winograd43Convolution : public torch::autograd::Function<Winograd43Convolution> {
+  static at::Tensor forward(AutogradContext* ctx, const at::Tensor& x, const at::Tensor& w,
+                            const at::Tensor& g) {
+    ctx->save_for_backward({x, w, g});
+    return wino43_conv(x, wino43_weight(w, g), nullptr, nullptr, false);
+  }
+
+  static variable_list backward(AutogradContext* ctx, variable_list grads) {
+    auto saved = ctx->get_saved_variables();
+    const at::Tensor &x = saved[0], &w = saved[1], &g = saved[2];
+    at::Tensor gx, gw;
+    if (ctx->needs_input_grad(0)) {
+      // [K, C, 3, 3] -> [C, K, 3, 3], taps reversed
+      at::Tensor w_back = w.flip({2, 3}).transpose(0, 1);
+      gx = wino43_conv(grads[0], wino43_weight(w_back, g), nullptr, nullptr, false);
+    }
+    if (ctx->needs_input_grad(1)) {
+      gw = wino43_weight_grad(x, grads[0], g);
+    }
+    return {gx, gw, at::Tensor()};
+  }
+};
 }  // namespace
 
 extern "C" {
@@ -439,6 +550,20 @@ char* rtf_winograd43_conv(at::Tensor* x, at::Tensor* u, at::Tensor* b, at::Tenso
     return strdup(e.what());
   } catch (...) {
     return strdup("unknown C++ exception in rtf_winograd43_conv");
+  }
+}
+
+// `*out` = conv3x3(x, w) (stride 1, padding 1, no bias) for training, differentiable, by
+// Winograd F(4x4, 3x3) (see Winograd43Convolution); `g` is the form's G [6, 3].
+char* rtf_winograd43_train_conv(at::Tensor* x, at::Tensor* w, at::Tensor* g, at::Tensor** out) {
+  try {
+    *out = nullptr;
+    *out = new at::Tensor(Winograd43Convolution::apply(*x, *w, *g));
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_winograd43_train_conv");
   }
 }
 

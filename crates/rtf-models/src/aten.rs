@@ -50,6 +50,12 @@ pub(crate) mod ffi {
             relu: c_int,
             out: *mut *mut torch_sys::C_tensor,
         ) -> *mut c_char;
+        pub fn rtf_winograd43_train_conv(
+            x: *mut torch_sys::C_tensor,
+            w: *mut torch_sys::C_tensor,
+            g: *mut torch_sys::C_tensor,
+            out: *mut *mut torch_sys::C_tensor,
+        ) -> *mut c_char;
         pub fn rtf_ops_free_error(error: *mut c_char);
     }
 }

@@ -720,8 +720,38 @@ impl ConvBnAct {
                     self.map_output(ys)
                 }
             },
-            _ => self.batch_norm(self.conv(xs, &self.weight, self.bias.as_ref()), train),
+            _ => {
+                let ys = match self.winograd_training_conv(xs, train) {
+                    Some(ys) => ys,
+                    None => self.conv(xs, &self.weight, self.bias.as_ref()),
+                };
+                self.batch_norm(ys, train)
+            }
         }
+    }
+
+    /// The training convolution in F(4×4, 3×3) (forward and input gradient; [4× fewer
+    /// multiply-adds](crate::winograd)), where it applies: training, float32 channels-last maps
+    /// on the CPU (rtf's fp32 training layout on AVX-512 CPUs) outside any autocast region, a
+    /// 3×3 stride-1 convolution without bias whose shape gains ([`crate::winograd::trains_in_f43`]).
+    /// Never on the plain inference path, which stays the reference's arithmetic.
+    fn winograd_training_conv(&self, xs: &Tensor, train: bool) -> Option<Tensor> {
+        let dims = self.weight.size();
+        let applies = train
+            && self.bias.is_none()
+            && !self.spec.transposed
+            && xs.device() == tch::Device::Cpu
+            && xs.kind() == Kind::Float
+            && self.weight.kind() == Kind::Float
+            && is_channels_last(xs)
+            && rtf_amp::state(tch::Device::Cpu).is_ok_and(|s| !s.enabled)
+            && crate::winograd::trains_in_f43(
+                self.spec.kernel,
+                self.geometry(),
+                dims[0],
+                &xs.size(),
+            );
+        applies.then(|| crate::winograd::conv3x3_f43_train(xs, &self.weight))
     }
 
     /// The unit's BatchNorm, if it has one.
@@ -1358,6 +1388,53 @@ mod tests {
         // And the bias gradient is zero at that scale in both forms.
         for bias_gradient in [&phase_form[3], &direct[3]] {
             assert!(crate::tolerance::max_abs(bias_gradient) <= 1e-5 * gradient_scale);
+        }
+    }
+
+    /// A training unit over channels-last float32 maps of a shape that gains takes the
+    /// F(4×4, 3×3) training form, over NCHW maps the direct convolution: the same output (after
+    /// training-mode BatchNorm) and gradients, each at the scale of the sum it is.
+    #[test]
+    fn training_over_channels_last_maps_takes_the_winograd_form_with_the_same_gradients() {
+        tch::manual_seed(10);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let unit = ConvBnAct::new(
+            vs.root() / "c",
+            Some(vs.root() / "bn"),
+            128,
+            128,
+            ConvSpec::new(3),
+            // Not a ReLU: outputs within rounding of 0 would flip its mask between the two
+            // forms, a full upstream value apiece in the input gradient.
+            Act::Identity,
+        );
+        let x = Tensor::randn([4, 128, 30, 38], (Kind::Float, Device::Cpu));
+        assert!(crate::winograd::trains_in_f43(
+            3,
+            unit.geometry(),
+            128,
+            &x.size()
+        ));
+        let upstream = Tensor::randn([4, 128, 30, 38], (Kind::Float, Device::Cpu));
+        let run = |channels_last: bool| {
+            for mut v in vs.trainable_variables() {
+                v.zero_grad();
+            }
+            let x = match channels_last {
+                true => to_channels_last(&x),
+                false => x.copy(),
+            }
+            .set_requires_grad(true);
+            let y = nn::ModuleT::forward_t(&unit, &x, true);
+            (&y * &upstream).sum(Kind::Float).backward();
+            [y.detach(), x.grad(), unit.weight.grad().copy()]
+        };
+        let (winograd, direct) = (run(true), run(false));
+        let names = ["output", "input gradient", "weight gradient"];
+        for (name, (w, d)) in names.iter().zip(winograd.iter().zip(&direct)) {
+            if let Err(e) = crate::tolerance::close_at_scale(name, w, d, 0.0, 1e-4) {
+                panic!("training Winograd form against direct: {e}");
+            }
         }
     }
 

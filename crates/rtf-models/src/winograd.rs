@@ -314,6 +314,57 @@ fn conv3x3_f43(
     }
 }
 
+/// Channels (input and output) from which, up to [`TRAIN_MAX_CHANNELS`], a training
+/// convolution takes [`conv3x3_f43_train`]: below, the transforms cost what the products save.
+pub const TRAIN_MIN_CHANNELS: i64 = 128;
+/// The most channels a training convolution takes [`conv3x3_f43_train`] with: wider layers
+/// transform weights and weight gradients of 36·C·K floats in every pass, which costs more
+/// than their few tiles save (2048 channels at 15×20: 2× slower).
+pub const TRAIN_MAX_CHANNELS: i64 = 1024;
+/// The fewest 4×4 output tiles (over the batch) for [`conv3x3_f43_train`]: with fewer, its 36
+/// products are too thin to run fast (512 channels at 15×20, batch 4: 80 tiles, slower).
+pub const TRAIN_MIN_TILES: i64 = 256;
+
+/// Whether a training convolution of this shape, over an input [N, C, H, W], takes
+/// [`conv3x3_f43_train`]: a 3×3 convolution that keeps the size, undilated, of
+/// [`TRAIN_MIN_CHANNELS`]–[`TRAIN_MAX_CHANNELS`] channels and at least [`TRAIN_MIN_TILES`]
+/// tiles. Measured per shape with `examples/winograd_training_layers.rs` (docs/src/speed-by-
+/// kind.md). `RTF_WINOGRAD=off` or `f23` turns it off.
+pub fn trains_in_f43(kernel: i64, geometry: Geometry, c_out: i64, input: &[i64]) -> bool {
+    let [n, c_in, h, w] = input else {
+        return false;
+    };
+    let channels = (*c_in).min(c_out)..=(*c_in).max(c_out);
+    let tiles = n * ((h + 3) / 4) * ((w + 3) / 4);
+    geometry.dilation == 1
+        && enabled().1
+        && form(kernel, geometry, *c_in, c_out).is_some()
+        && channels.start() >= &TRAIN_MIN_CHANNELS
+        && channels.end() <= &TRAIN_MAX_CHANNELS
+        && tiles >= TRAIN_MIN_TILES
+}
+
+/// A 3×3 convolution (stride 1, padding 1, no bias) of float32 maps for training, in
+/// F(4×4, 3×3) and differentiable: the forward pass and the input's gradient by the form, the
+/// weight's gradient by libtorch's kernels (csrc/ops.cpp `Winograd43Convolution`).
+/// [N, C, H, W] (channels-last avoids a copy), weight [K, C, 3, 3] -> [N, K, H, W],
+/// channels-last.
+pub fn conv3x3_f43_train(xs: &Tensor, weight: &Tensor) -> Tensor {
+    let g = matrix(&G43, 6, weight);
+    let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
+    // SAFETY: the `as_ptr` are live `at::Tensor*` for the call; the result is taken as
+    // `shim_result` requires.
+    unsafe {
+        let error = crate::aten::ffi::rtf_winograd43_train_conv(
+            xs.as_ptr() as *mut torch_sys::C_tensor,
+            weight.as_ptr() as *mut torch_sys::C_tensor,
+            g.as_ptr() as *mut torch_sys::C_tensor,
+            &mut out,
+        );
+        crate::aten::shim_result("winograd F(4x4, 3x3) training", error, out)
+    }
+}
+
 /// [`conv3x3`] in F(2×2, 3×3), by libtorch ops.
 fn conv3x3_f23(
     xs: &Tensor,
@@ -475,6 +526,83 @@ mod tests {
                     "{form:?} bf16 d={d}: {worst} of {scale}"
                 );
             }
+        }
+    }
+
+    /// Training takes the form only where it measured faster: 128–1024 channels, enough tiles.
+    #[test]
+    fn training_takes_the_form_by_channels_and_tiles() {
+        let same = Geometry::SAME_3X3;
+        let takes = |c_out, input: [i64; 4]| trains_in_f43(3, same, c_out, &input);
+        assert!(takes(512, [4, 512, 60, 80]));
+        assert!(takes(128, [4, 128, 240, 320]));
+        assert!(takes(1024, [4, 1024, 30, 40]));
+        // 80 tiles; 2048 channels; 64 channels.
+        assert!(!takes(512, [4, 512, 15, 20]));
+        assert!(!takes(2048, [4, 2048, 30, 40]));
+        assert!(!takes(64, [4, 64, 120, 160]));
+        let strided = Geometry { stride: 2, ..same };
+        let dilated = Geometry {
+            dilation: 2,
+            padding: 2,
+            ..same
+        };
+        for geometry in [strided, dilated] {
+            assert!(!trains_in_f43(3, geometry, 256, &[4, 256, 120, 160]));
+        }
+        assert!(!trains_in_f43(
+            1,
+            Geometry { padding: 0, ..same },
+            256,
+            &[4, 256, 120, 160]
+        ));
+    }
+
+    /// The training form is the direct convolution with its gradients: output, input gradient
+    /// (by the form, of the flipped and transposed weight) and weight gradient, at sides that
+    /// are and are not multiples of the 4×4 tile, NCHW and channels-last inputs; an input that
+    /// needs no gradient gets none.
+    #[test]
+    fn training_form_has_the_direct_convolutions_gradients() {
+        tch::manual_seed(14);
+        let opts = (Kind::Float, Device::Cpu);
+        for (n, c, k, h, w, channels_last) in [
+            (2, 5, 7, 9, 14, true),
+            (1, 3, 4, 8, 8, false),
+            (4, 64, 96, 61, 83, true),
+        ] {
+            let x = Tensor::randn([n, c, h, w], opts);
+            let x = if channels_last {
+                to_channels_last(&x)
+            } else {
+                x
+            };
+            let weight = Tensor::randn([k, c, 3, 3], opts);
+            let upstream = Tensor::randn([n, k, h, w], opts);
+            let run = |conv: &dyn Fn(&Tensor, &Tensor) -> Tensor| {
+                let leaf = |t: &Tensor| t.detach().copy().set_requires_grad(true);
+                let (x, weight) = (leaf(&x), leaf(&weight));
+                let y = conv(&x, &weight);
+                (&y * &upstream).sum(Kind::Float).backward();
+                [y.detach(), x.grad(), weight.grad()]
+            };
+            let direct = run(&|x, w| x.conv2d(w, None::<Tensor>, [1], [1], [1], 1));
+            let form = run(&|x, w| conv3x3_f43_train(x, w));
+            assert!(is_channels_last(&form[0]));
+            for (what, (a, b)) in ["output", "input gradient", "weight gradient"]
+                .iter()
+                .zip(direct.iter().zip(&form))
+            {
+                let scale = a.abs().max().double_value(&[]);
+                let worst = (a - b).abs().max().double_value(&[]);
+                assert!(worst <= 1e-4 * scale, "{what} {h}x{w}: {worst} of {scale}");
+            }
+            let frozen = Tensor::randn([n, c, h, w], opts);
+            let weight = weight.set_requires_grad(true);
+            conv3x3_f43_train(&frozen, &weight)
+                .sum(Kind::Float)
+                .backward();
+            assert!(!frozen.grad().defined() && weight.grad().defined());
         }
     }
 
