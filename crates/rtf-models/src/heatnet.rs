@@ -698,7 +698,7 @@ mod tests {
             tch::no_grad(|| {
                 for mut var in vs.trainable_variables() {
                     let fan_in = if var.dim() == 4 { var.size()[1] } else { 1 };
-                    let _ = var.copy_(&(var.randn_like() / (fan_in as f64).sqrt()));
+                    var.copy_(&(var.randn_like() / (fan_in as f64).sqrt()));
                 }
             });
             // Odd sizes: the 6-bin pool overlaps windows, bilinear weights are uneven.
