@@ -104,7 +104,7 @@ struct Bf16EmulatedConvolution : public torch::autograd::Function<Bf16EmulatedCo
 };
 
 
-// ---- Winograd F(4x4, 3x3) (Lavin & Gray 2016) for the inference path (winograd.rs) ----------
+// ---- Winograd F(4x4, 3x3) (Lavin & Gray 2016) for inference and fp32 training (winograd.rs) --
 // A 3x3 convolution (stride 1, padding 1) of an NHWC map (float, or bf16 converted on the way
 // in and out, the arithmetic in float), 4x4 output tiles: each 6x6
 // input tile d becomes V = Bt d B (36 values per channel), the channels are summed by 36 matrix

@@ -27,6 +27,11 @@
 //! 3×3 kernels ran 1.7× slower than its fp32 direct ones on family 6 model 167 with AMX capped
 //! off, issue 41), Winograd's 4× fewer multiply-adds win; with AMX, oneDNN's bf16 kernels do.
 //! So the choice is measured per CPU (rtf-cli's bf16 probe), never assumed.
+//!
+//! fp32 training takes F(4×4, 3×3) too, in all three passes ([`conv3x3_f43_train`]: forward,
+//! input gradient, weight gradient), for the shapes where it measured faster
+//! ([`trains_in_f43`]; docs/src/speed-by-kind.md, RTFNet-50 training 1.20× → 1.49× PyTorch's
+//! best on an AVX-512 EPYC).
 
 use tch::{Kind, Tensor};
 
