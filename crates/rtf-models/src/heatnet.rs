@@ -183,20 +183,16 @@ struct PspFolded {
     priors: Vec<Tensor>,
 }
 
+/// One 1×1 convolution `features → features` per bin, under `p / i / 1` (`psp.stages.i.1`).
+fn psp_stages(p: &nn::Path, features: i64, spec: ConvSpec) -> Vec<ConvBnAct> {
+    (0..BINS.len())
+        .map(|i| ConvBnAct::new(p / i / 1, None, features, features, spec, Act::Identity))
+        .collect()
+}
+
 fn psp_module(p: nn::Path, features: i64, out: i64) -> PspModule {
     let spec = ConvSpec::new(1).scheme(InitScheme::NORMAL_002);
-    let stages = (0..BINS.len())
-        .map(|i| {
-            ConvBnAct::new(
-                &p / "stages" / i / 1,
-                None,
-                features,
-                features,
-                spec,
-                Act::Identity,
-            )
-        })
-        .collect();
+    let stages = psp_stages(&(&p / "stages"), features, spec);
     let c_cat = features * (BINS.len() as i64 + 1);
     let bottleneck = ConvBnAct::new(
         &p / "bottleneck",
@@ -667,19 +663,7 @@ mod tests {
     fn psp_for_test(p: nn::Path, features: i64, out: i64, stage_bias: bool) -> PspModule {
         let mut psp = psp_module(&p / "psp", features, out);
         if stage_bias {
-            let spec = ConvSpec::new(1).bias(true);
-            psp.stages = (0..BINS.len())
-                .map(|i| {
-                    ConvBnAct::new(
-                        &p / "biased" / i,
-                        None,
-                        features,
-                        features,
-                        spec,
-                        Act::Identity,
-                    )
-                })
-                .collect();
+            psp.stages = psp_stages(&(&p / "biased"), features, ConvSpec::new(1).bias(true));
         }
         psp
     }
