@@ -120,7 +120,13 @@ pub struct BenchReport {
     /// `rtf_models::winograd::bf16_applies`. None otherwise.
     #[serde(default)]
     pub bf16_3x3: Option<String>,
+    /// Fast path: MiB of the plain network's weights freed once folded (those the folded path
+    /// does not read; `InferenceNet::release_plain_weights`). None on the plain path.
+    #[serde(default)]
+    pub plain_weights_released_mb: Option<f64>,
 }
+
+const MIB: f64 = 1024.0 * 1024.0;
 
 /// Median and minimum of a non-empty sample.
 pub fn median_min(samples: &[f64]) -> (f64, f64) {
@@ -223,13 +229,17 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         .num_classes
         .unwrap_or_else(|| rtf_models::default_num_classes(&opts.model));
     let cfg = ModelConfig::from_name(&opts.model, classes)?;
-    let (_vs, net) = seeded_network(opts, &cfg)?;
+    let (vs, net) = seeded_network(opts, &cfg)?;
+    let mut released_mb = None;
     let shape = [opts.batch, 4, opts.height, opts.width];
     net.check_input(&shape)?;
     let input = Tensor::rand(shape, (Kind::Float, opts.device));
     let timed = match opts.path {
         ForwardPath::Fast => {
-            Timed::Fast(InferenceNet::with_layout(net, opts.precision, opts.layout)?)
+            let (fast, released) =
+                InferenceNet::releasing_plain_weights(net, opts.precision, opts.layout, &vs)?;
+            released_mb = Some(released.bytes as f64 / MIB);
+            Timed::Fast(fast)
         }
         ForwardPath::Plain => Timed::Plain(net),
     };
@@ -268,6 +278,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         peak_rss_mb,
         cpu: CpuInfo::read(),
         bf16_3x3: bf16_3x3_kernels(opts),
+        plain_weights_released_mb: released_mb,
     })
 }
 

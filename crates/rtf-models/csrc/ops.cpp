@@ -567,6 +567,22 @@ char* rtf_winograd43_train_conv(at::Tensor* x, at::Tensor* w, at::Tensor* g, at:
   }
 }
 
+// How many hold `t`: `*handles`, the `at::Tensor` handles on its TensorImpl (a shallow copy,
+// or an op that returns its input unchanged, adds one); `*storage_users`, the TensorImpls on
+// its storage (a view adds one); 0 for a tensor without storage. What the fast path's release
+// of the plain weights compares before and after folding (fast.rs).
+char* rtf_tensor_holders(at::Tensor* t, int64_t* handles, int64_t* storage_users) {
+  try {
+    *handles = static_cast<int64_t>(t->use_count());
+    *storage_users = t->has_storage() ? static_cast<int64_t>(t->storage().use_count()) : 0;
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_tensor_holders");
+  }
+}
+
 void rtf_ops_free_error(char* error) {
   free(error);
 }

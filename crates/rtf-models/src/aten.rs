@@ -56,6 +56,11 @@ pub(crate) mod ffi {
             g: *mut torch_sys::C_tensor,
             out: *mut *mut torch_sys::C_tensor,
         ) -> *mut c_char;
+        pub fn rtf_tensor_holders(
+            t: *mut torch_sys::C_tensor,
+            handles: *mut i64,
+            storage_users: *mut i64,
+        ) -> *mut c_char;
         pub fn rtf_ops_free_error(error: *mut c_char);
     }
 }
@@ -126,4 +131,21 @@ pub fn fused_sgd_(
         );
         check("fused SGD", error);
     }
+}
+
+/// Who holds `t`'s memory: (handles on its TensorImpl, TensorImpls on its storage). Counts,
+/// not identities: meaningful compared with the same tensor's counts at another time.
+pub fn tensor_holders(t: &Tensor) -> (i64, i64) {
+    let (mut handles, mut storage_users) = (0i64, 0i64);
+    // SAFETY: `as_ptr` is a live `at::Tensor*` for the call; the shim only reads reference
+    // counts into the two locals and returns null or a message, as `check` requires.
+    unsafe {
+        let error = ffi::rtf_tensor_holders(
+            t.as_ptr() as *mut torch_sys::C_tensor,
+            &mut handles,
+            &mut storage_users,
+        );
+        check("tensor holders", error);
+    }
+    (handles, storage_users)
 }

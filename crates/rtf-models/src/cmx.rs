@@ -289,11 +289,13 @@ fn drop_path(xs: Tensor, rate: f64, train: bool) -> Tensor {
 struct Linear {
     weight: Tensor,
     bias: Option<Tensor>,
-    /// The fast path's kind and its bias in that kind ([`Fuse`]); eval forwards use them,
-    /// casting the weight per call (as autocast does) rather than holding a second copy of it:
-    /// bf16 CMX-B4 then peaks at 1281 instead of 1486 MiB for 2–7 % of its speed (batch 1,
-    /// 480×640, 2 threads, Xeon family 6 model 167). A float32 weight is used as it is.
-    fast: Option<(Kind, Option<Tensor>)>,
+    /// The fast path's kind, its handle on the float32 weight and its bias in that kind
+    /// ([`Fuse`]); eval forwards use them, casting the weight per call (as autocast does)
+    /// rather than holding a second copy of it: bf16 CMX-B4 then peaks at 1281 instead of 1486
+    /// MiB for 2–7 % of its speed (batch 1, 480×640, 2 threads, Xeon family 6 model 167). A
+    /// float32 weight is used as it is. The handle is what tells
+    /// [`crate::fast::InferenceNet::release_plain_weights`] that the fast path reads it.
+    fast: Option<(Kind, Tensor, Option<Tensor>)>,
 }
 
 /// How a fresh linear layer is drawn.
@@ -331,7 +333,7 @@ fn linear(p: nn::Path, c_in: i64, c_out: i64, bias: bool, init: LinearInit) -> L
 impl ModuleT for Linear {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
         match (&self.fast, train) {
-            (Some((kind, bias)), false) => xs.linear(&self.weight.to_kind(*kind), bias.as_ref()),
+            (Some((kind, weight, bias)), false) => xs.linear(&weight.to_kind(*kind), bias.as_ref()),
             _ => xs.linear(&self.weight, self.bias.as_ref()),
         }
     }
@@ -340,7 +342,7 @@ impl ModuleT for Linear {
 impl Fuse for Linear {
     fn fuse(&mut self, kind: Kind) {
         let bias = self.bias.as_ref().map(|b| inference_copy(b, kind));
-        self.fast = Some((kind, bias));
+        self.fast = Some((kind, self.weight.shallow_clone(), bias));
     }
 }
 

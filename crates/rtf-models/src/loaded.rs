@@ -9,7 +9,7 @@ use std::path::Path;
 
 use tch::nn::VarStore;
 
-use crate::fast::{InferenceNet, Precision};
+use crate::fast::{InferenceNet, Layout, Precision};
 use crate::{Modality, ModelConfig, ModelError, Network};
 
 /// What to load, and how far to trust the file.
@@ -31,6 +31,8 @@ pub struct NetworkRequest<'a> {
 
 /// A network loaded for inference, behind the input mask it was trained with.
 pub struct LoadedNetwork {
+    /// The network's variables; with a fast-path `precision`, those the folded path does not
+    /// read are emptied ([`InferenceNet::release_plain_weights`]), so this is not for saving.
     pub vs: VarStore,
     pub net: Box<dyn Network>,
     /// The channels the network sees: the weights file's record (`rtf.inputs`), else the
@@ -69,7 +71,10 @@ pub fn load_network(request: &NetworkRequest) -> Result<LoadedNetwork, ModelErro
         (None, None) => Modality::RgbT,
     };
     let net = match request.precision {
-        Some(p) => Box::new(InferenceNet::new(net, p)?) as Box<dyn Network>,
+        Some(p) => {
+            let (fast, _) = InferenceNet::releasing_plain_weights(net, p, Layout::default(), &vs)?;
+            Box::new(fast) as Box<dyn Network>
+        }
         None => net,
     };
     Ok(LoadedNetwork {

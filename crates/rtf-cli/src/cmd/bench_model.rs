@@ -139,6 +139,9 @@ fn print_report(report: &rtf_eval::speed::BenchReport) {
         };
         println!("bf16 3x3 convolutions of 128+ channels: {how}");
     }
+    if let Some(released) = report.plain_weights_released_mb {
+        println!("plain weights released once folded: {released:.0} MiB");
+    }
     if let Some(agreement) = report.agreement_with_plain {
         println!(
             "arg-max agreement with the plain fp32 path: {:.4} % of pixels",
