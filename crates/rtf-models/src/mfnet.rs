@@ -874,16 +874,32 @@ mod tests {
         assert!(Config::variant('a', 9).is_none() && Config::variant('o', 9).is_none());
     }
 
+    /// The fused path's unpooling uses its own pooling's indices: it computes the plain path's
+    /// function. Up to rounding, which can flip a max-pool's choice where two values of a
+    /// window are within it, and the unpooled map then differs at that pixel and spreads: 1
+    /// draw in 150 of weights and input here (measured, max relative difference 1.1e-2 against
+    /// ≤ 4.2e-7 for the others). So three inputs, of which at least two must agree; wrong
+    /// indices would fail all three.
     #[test]
     fn unpooling_variant_uses_pooling_indices_and_fuses() {
         use crate::fast::{max_relative_difference, InferenceNet, Precision, FUSED_FP32_TOLERANCE};
         let cfg = Config::variant('h', 9).unwrap();
         let (_vs, net) = build(&cfg);
         let net: Box<dyn Network> = Box::new(net);
-        let x = Tensor::rand([1, 4, 32, 32], (Kind::Float, Device::Cpu));
-        let plain = tch::no_grad(|| net.forward_t(&x, false));
+        let inputs: Vec<Tensor> = (0..3)
+            .map(|_| Tensor::rand([1, 4, 32, 32], (Kind::Float, Device::Cpu)))
+            .collect();
+        let plain: Vec<Tensor> = inputs
+            .iter()
+            .map(|x| tch::no_grad(|| net.forward_t(x, false)))
+            .collect();
         let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
-        let rel = max_relative_difference(&plain, &fast.forward(&x).unwrap());
-        assert!(rel < FUSED_FP32_TOLERANCE, "max relative difference {rel}");
+        let rel: Vec<f64> = inputs
+            .iter()
+            .zip(&plain)
+            .map(|(x, p)| max_relative_difference(p, &fast.forward(x).unwrap()))
+            .collect();
+        let agreeing = rel.iter().filter(|&&r| r < FUSED_FP32_TOLERANCE).count();
+        assert!(agreeing >= 2, "max relative differences {rel:?}");
     }
 }
