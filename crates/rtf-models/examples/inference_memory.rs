@@ -1,12 +1,12 @@
 //! Where the fast path's memory goes, phase by phase: resident memory (Linux `VmRSS`) after
-//! building the network, after folding it, after releasing its plain weights
-//! (`InferenceNet::release_plain_weights`), and after the forward passes, with the process's
-//! peak (`VmHWM`) after each phase. Random weights, a random input, batch 1.
+//! building the network, after folding it (releasing its plain weights as rtf's commands do,
+//! `InferenceNet::releasing_plain_weights`), and after each forward pass, with the process's
+//! peak (`VmHWM`). Random weights, a random input, batch 1.
 //!
 //! `cargo run --release -p rtf-models --example inference_memory -- MODEL [fp32|bf16]
 //! [WIDTHxHEIGHT] [THREADS] [keep]` (default fp32, 640x480, 2 threads; `keep` skips the
 //! release, for the same phases without it). Results: docs/src/speed-by-kind.md.
-use rtf_models::fast::{InferenceNet, Layout, PlainWeights, Precision};
+use rtf_models::fast::{InferenceNet, Layout, Precision};
 use rtf_models::ModelConfig;
 use tch::{Device, Kind, Tensor};
 
@@ -53,16 +53,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let cfg = ModelConfig::from_name(model, rtf_models::default_num_classes(model))?;
     let net = rtf_models::build(&vs.root(), &cfg)?;
     report("built");
-    let plain = PlainWeights::record(&vs);
-    let fast = InferenceNet::with_layout(net, precision, Layout::ChannelsLast)?;
-    report("folded");
-    if !keep {
-        let released = fast.release_plain_weights(plain);
-        report(&format!(
-            "released {:.0} MiB",
-            released.bytes as f64 / 1048576.0
-        ));
-    }
+    let fast = if keep {
+        let fast = InferenceNet::with_layout(net, precision, Layout::ChannelsLast)?;
+        report("folded");
+        fast
+    } else {
+        let (fast, released) =
+            InferenceNet::releasing_plain_weights(net, precision, Layout::ChannelsLast, &vs)?;
+        let mib = released.bytes as f64 / 1048576.0;
+        report(&format!("folded, {mib:.0} MiB released"));
+        fast
+    };
     let input = Tensor::rand([1, 4, height, width], (Kind::Float, Device::Cpu));
     for pass in 1..=3 {
         let _ = fast.forward(&input)?;

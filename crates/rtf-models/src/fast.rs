@@ -6,6 +6,7 @@ use tch::{Device, Kind, Tensor};
 
 use crate::error::ModelError;
 use crate::layers::to_channels_last;
+pub use crate::release::{PlainWeights, Released};
 use crate::Network;
 
 /// Arithmetic precision of inference: fp32, bf16, or fp16 on CUDA (one type with training's;
@@ -97,7 +98,7 @@ impl InferenceNet {
         vs: &tch::nn::VarStore,
     ) -> Result<(Self, Released), ModelError> {
         let plain = PlainWeights::record(vs);
-        let fast = Self::with_layout(net, precision, layout)?;
+        let fast = plain.while_folding(|| Self::with_layout(net, precision, layout))?;
         let released = fast.release_plain_weights(plain);
         Ok((fast, released))
     }
@@ -165,64 +166,6 @@ impl InferenceNet {
     }
 }
 
-/// The plain network's variables (weights, biases, BatchNorm statistics) and who held each one
-/// before folding: [`record`](Self::record) it before [`InferenceNet::new`], then
-/// [`InferenceNet::release_plain_weights`] frees what the folded path did not take.
-///
-/// Why: the folded path computes its own weights, so without this a fused network keeps both
-/// (RTFNet-50: 707 MiB of float32 weights beside its folded copies, docs/src/gpu.md's memory
-/// miss in fp16/bf16). Why by holders: a fold may return a variable itself (a float32
-/// convolution without BatchNorm, already in the layout) or a view of it, and a network may run
-/// a part it does not fold on the plain weights; what no fold took a handle on is dead weight.
-pub struct PlainWeights {
-    /// Each variable (a shallow copy: the same TensorImpl as the VarStore's) with its holders
-    /// ([`crate::aten::tensor_holders`]) when recorded.
-    vars: Vec<(Tensor, (i64, i64))>,
-}
-
-impl PlainWeights {
-    /// Snapshot of `vs`'s variables and their holders, to be taken before folding.
-    pub fn record(vs: &tch::nn::VarStore) -> Self {
-        let variables = vs.variables_.lock().unwrap_or_else(|e| e.into_inner());
-        let vars = variables
-            .named_variables
-            .values()
-            .map(|t| {
-                let var = t.shallow_clone();
-                let holders = crate::aten::tensor_holders(&var);
-                (var, holders)
-            })
-            .collect();
-        Self { vars }
-    }
-
-    /// Empties each variable whose holders are those recorded; keeps the others.
-    fn release_unheld(self) -> Released {
-        let mut released = Released::default();
-        let _guard = tch::no_grad_guard();
-        for (mut var, before) in self.vars {
-            if crate::aten::tensor_holders(&var) != before {
-                released.kept += 1;
-                continue;
-            }
-            released.variables += 1;
-            released.bytes += (var.numel() * var.kind().elt_size_in_bytes()) as i64;
-            var.set_data(&Tensor::empty([0], (var.kind(), var.device())));
-        }
-        released
-    }
-}
-
-/// What [`InferenceNet::release_plain_weights`] did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Released {
-    /// Variables emptied, and the bytes they held.
-    pub variables: usize,
-    pub bytes: i64,
-    /// Variables the folded path still holds (kept).
-    pub kept: usize,
-}
-
 /// An inference net is a network too, so evaluation and prediction take either. Its forward
 /// is eval-only: the fused weights carry no gradients.
 impl tch::nn::ModuleT for InferenceNet {
@@ -280,56 +223,34 @@ mod tests {
 
     const FLOAT_CPU: (Kind, Device) = (Kind::Float, Device::Cpu);
 
-    /// A variable something took a handle on, or a view of, after the record is kept; one
-    /// nothing took is emptied, in the VarStore and in every handle on it (a module's).
-    #[test]
-    fn release_frees_what_nothing_took_and_keeps_what_something_holds() {
-        let vs = tch::nn::VarStore::new(Device::Cpu);
-        let root = vs.root();
-        let module_handle = root.zeros("unheld", &[64, 32]);
-        let aliased = root.ones("aliased", &[8]);
-        let viewed = root.ones("viewed", &[4, 4]);
-        let plain = PlainWeights::record(&vs);
-        // What folds do: return the variable itself, or a view of it.
-        let fold_alias = aliased.to_kind(Kind::Float);
-        let fold_view = viewed.view([-1]);
-        let released = plain.release_unheld();
-        assert_eq!(
-            released,
-            Released {
-                variables: 1,
-                bytes: 64 * 32 * 4,
-                kept: 2
-            }
-        );
-        assert_eq!(module_handle.size(), [0]);
-        assert_eq!(vs.variables()["unheld"].size(), [0]);
-        assert_eq!(fold_alias.sum(Kind::Float).double_value(&[]), 8.0);
-        assert_eq!(fold_view.sum(Kind::Float).double_value(&[]), 16.0);
-    }
-
-    /// Builds `name`, records, folds for `precision`, releases: the logits before and after
-    /// the release, what it released, and the plain weights' bytes.
+    /// Builds `name` twice with the same weights (copied: other tests draw from the global
+    /// generator meanwhile): folded for `precision` as it is, and folded while releasing (as
+    /// rtf's commands load a network). Their logits on one input, what the release freed, and
+    /// the plain weights' bytes.
     fn fold_and_release(name: &str, precision: Precision) -> (Tensor, Tensor, Released, i64) {
-        tch::manual_seed(3);
-        let vs = tch::nn::VarStore::new(Device::Cpu);
         let cfg = crate::ModelConfig::from_name(name, 5).unwrap();
-        let net = crate::build(&vs.root(), &cfg).unwrap();
+        let kept_vs = tch::nn::VarStore::new(Device::Cpu);
+        let net = crate::build(&kept_vs.root(), &cfg).unwrap();
         let side = 2 * net.size_multiple().max(16);
         let x = Tensor::rand([1, 4, side, side + net.size_multiple()], FLOAT_CPU);
+        let kept = InferenceNet::new(net, precision)
+            .unwrap()
+            .forward(&x)
+            .unwrap();
+        let mut vs = tch::nn::VarStore::new(Device::Cpu);
+        let net = crate::build(&vs.root(), &cfg).unwrap();
+        vs.copy(&kept_vs).unwrap();
         let total = vs.variables().values().map(|t| t.numel() as i64 * 4).sum();
-        let plain = PlainWeights::record(&vs);
-        let fast = InferenceNet::new(net, precision).unwrap();
-        let before = fast.forward(&x).unwrap();
-        let released = fast.release_plain_weights(plain);
-        let after = fast.forward(&x).unwrap();
-        (before, after, released, total)
+        let (fast, released) =
+            InferenceNet::releasing_plain_weights(net, precision, Layout::default(), &vs).unwrap();
+        (kept, fast.forward(&x).unwrap(), released, total)
     }
 
-    /// One network of each family the fast path folds, in fp32 and bf16: after the release its
-    /// folded forward gives the same logits, bit for bit (a weight the fold still reads, emptied,
-    /// would fail or change them), and the plain weights' memory went (most of it: what is kept
-    /// is what a fold returned as is). Networks without a folded path keep everything.
+    /// One network of each family the fast path folds, in fp32 and bf16: folded while releasing,
+    /// it gives the logits of the same network folded without, bit for bit (a weight a fold or
+    /// the folded forward still reads, emptied, would fail or change them), and the plain
+    /// weights' memory went (most of it: what is kept is what a fold returned as is). Networks
+    /// without a folded path keep everything.
     #[test]
     fn released_networks_give_the_same_logits_and_free_the_plain_weights() {
         let folded = [
@@ -348,10 +269,10 @@ mod tests {
         ];
         for name in folded {
             for precision in [Precision::Fp32, Precision::Bf16] {
-                let (before, after, released, total) = fold_and_release(name, precision);
+                let (kept, released_logits, released, total) = fold_and_release(name, precision);
                 eprintln!("{name} {precision}: {released:?} of {total} bytes");
                 assert!(
-                    before.equal(&after),
+                    kept.equal(&released_logits),
                     "{name} {precision}: the release changed the logits"
                 );
                 // CMX's linear layers and LayerNorms run on the plain weights (kept); the
@@ -368,9 +289,9 @@ mod tests {
             }
         }
         for name in ["erfnet-4c", "enet-4c"] {
-            let (before, after, released, _) = fold_and_release(name, Precision::Fp32);
+            let (kept, released_logits, released, _) = fold_and_release(name, Precision::Fp32);
             assert_eq!(released, Released::default(), "{name}");
-            assert!(before.equal(&after), "{name}");
+            assert!(kept.equal(&released_logits), "{name}");
         }
     }
 

@@ -918,6 +918,13 @@ impl ConvBnAct {
         let _guard = tch::no_grad_guard();
         let (weight, bias) = self.fold_affines(affine);
         self.store_fused(weight, bias, kind);
+        // Under InferenceNet::releasing_plain_weights, the plain tensors go now, not after
+        // the whole network has folded: the fold never holds two copies of the network.
+        let bn = self.bn.as_mut().map(BatchNorm::tensors_mut);
+        let own = [Some(&mut self.weight), self.bias.as_mut()]
+            .into_iter()
+            .flatten();
+        crate::release::release_folded(own.chain(bn.into_iter().flatten()));
     }
 
     /// This unit's convolution with its eval-mode BatchNorm folded in, float32: (weight,

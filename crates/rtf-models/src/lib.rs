@@ -22,6 +22,7 @@ pub mod loaded;
 pub mod mfnet;
 pub mod mit_pretrained;
 pub mod onednn;
+pub mod release;
 pub mod resnet;
 pub mod rtfnet;
 mod scoped;

@@ -76,6 +76,16 @@ impl BatchNorm {
     pub fn eps(&self) -> f64 {
         self.eps
     }
+
+    /// Its tensors (running statistics, affine), for the fast path's release of what a fold
+    /// has taken in ([`crate::release`]).
+    pub(crate) fn tensors_mut(&mut self) -> Vec<&mut Tensor> {
+        let bn = &mut self.inner;
+        let mut tensors = vec![&mut bn.running_mean, &mut bn.running_var];
+        tensors.extend(bn.ws.as_mut());
+        tensors.extend(bn.bs.as_mut());
+        tensors
+    }
 }
 
 impl std::ops::Deref for BatchNorm {
