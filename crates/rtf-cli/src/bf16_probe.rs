@@ -297,6 +297,7 @@ fn training_s(bf16: bool) -> Result<f64> {
         warmup: 1,
         steps: 3,
         optimizer: rtf_train::OptimizerConfig::mfnet_paper(),
+        count_ops: false,
     };
     Ok(rtf_train::bench::bench_train(&opts)?.step_s)
 }

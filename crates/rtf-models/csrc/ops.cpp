@@ -12,6 +12,7 @@
 
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
+#include <ATen/record_function.h>
 #include <c10/core/impl/LocalDispatchKeySet.h>
 #include <torch/csrc/autograd/custom_function.h>
 
@@ -20,6 +21,10 @@
 #include <cstring>
 #include <algorithm>
 #include <exception>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <string>
 #include <vector>
 
 namespace {
@@ -445,6 +450,33 @@ struct Winograd43Convolution : public torch::autograd::Function<Winograd43Convol
     return {gx, gw, at::Tensor()};
   }
 };
+// The operator counter (`rtf_op_counter_start` / `_stop`): every ATen operator and autograd
+// node the dispatcher and the engine record (RecordFunction, the events torch.profiler
+// counts), by name: how many in all, and how many at the outermost level (not called from
+// another recorded one on the same thread).
+struct OpCount {
+  int64_t all = 0;
+  int64_t outermost = 0;
+};
+std::mutex op_counts_mutex;
+std::map<std::string, OpCount> op_counts;
+thread_local int op_depth = 0;
+
+std::unique_ptr<at::ObserverContext> count_op_start(const at::RecordFunction& fn) {
+  {
+    std::lock_guard<std::mutex> lock(op_counts_mutex);
+    OpCount& count = op_counts[fn.name()];
+    count.all += 1;
+    count.outermost += op_depth == 0 ? 1 : 0;
+  }
+  op_depth += 1;
+  return nullptr;
+}
+
+void count_op_end(const at::RecordFunction&, at::ObserverContext*) {
+  op_depth -= 1;
+}
+
 }  // namespace
 
 extern "C" {
@@ -580,6 +612,45 @@ char* rtf_tensor_holders(at::Tensor* t, int64_t* handles, int64_t* storage_users
     return strdup(e.what());
   } catch (...) {
     return strdup("unknown C++ exception in rtf_tensor_holders");
+  }
+}
+
+// Starts counting operators (see OpCount), from zero; `*handle` is for `rtf_op_counter_stop`.
+char* rtf_op_counter_start(uint64_t* handle) {
+  try {
+    {
+      std::lock_guard<std::mutex> lock(op_counts_mutex);
+      op_counts.clear();
+    }
+    *handle = at::addGlobalCallback(
+        at::RecordFunctionCallback(count_op_start, count_op_end)
+            .scopes({at::RecordScope::FUNCTION, at::RecordScope::BACKWARD_FUNCTION}));
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_op_counter_start");
+  }
+}
+
+// Stops counting; `*table` = one malloc'd line per operator, "name\tall\toutermost\n"
+// (freed with rtf_ops_free_error).
+char* rtf_op_counter_stop(uint64_t handle, char** table) {
+  try {
+    *table = nullptr;
+    at::removeCallback(handle);
+    std::ostringstream out;
+    std::lock_guard<std::mutex> lock(op_counts_mutex);
+    for (const auto& [name, count] : op_counts) {
+      out << name << '\t' << count.all << '\t' << count.outermost << '\n';
+    }
+    op_counts.clear();
+    *table = strdup(out.str().c_str());
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_op_counter_stop");
   }
 }
 

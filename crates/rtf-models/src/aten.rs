@@ -61,6 +61,8 @@ pub(crate) mod ffi {
             handles: *mut i64,
             storage_users: *mut i64,
         ) -> *mut c_char;
+        pub fn rtf_op_counter_start(handle: *mut u64) -> *mut c_char;
+        pub fn rtf_op_counter_stop(handle: u64, table: *mut *mut c_char) -> *mut c_char;
         pub fn rtf_ops_free_error(error: *mut c_char);
     }
 }
@@ -148,4 +150,76 @@ pub fn tensor_holders(t: &Tensor) -> (i64, i64) {
         check("tensor holders", error);
     }
     (handles, storage_users)
+}
+
+/// How often each operator ran: (in all, at the outermost level), by name. ATen operators
+/// (`aten::…`) and autograd nodes as libtorch records them for its profiler (the events
+/// `torch.profiler` counts), so PyTorch's counts of the same work compare name by name.
+pub type OpCounts = std::collections::BTreeMap<String, (u64, u64)>;
+
+/// Runs `f` with every operator counted (any thread; one counter at a time per process:
+/// operators that other threads run meanwhile count too). On a GPU each operator is one or
+/// more kernel launches, so this is the host's share of a step, device-independent.
+pub fn count_ops<T>(f: impl FnOnce() -> T) -> (T, OpCounts) {
+    let mut handle = 0u64;
+    // SAFETY: the shim writes the callback's handle into the local and returns null or a
+    // message, as `check` requires.
+    unsafe { check("op counter", ffi::rtf_op_counter_start(&mut handle)) };
+    let out = f();
+    let mut table: *mut std::ffi::c_char = std::ptr::null_mut();
+    // SAFETY: `handle` came from the start call; on success `table` is a NUL-terminated
+    // string the shim malloc'd, read once and freed here.
+    let text = unsafe {
+        check("op counter", ffi::rtf_op_counter_stop(handle, &mut table));
+        let text = std::ffi::CStr::from_ptr(table)
+            .to_string_lossy()
+            .into_owned();
+        ffi::rtf_ops_free_error(table);
+        text
+    };
+    (out, parse_op_counts(&text))
+}
+
+/// The shim's table: "name\tall\toutermost" lines.
+fn parse_op_counts(text: &str) -> OpCounts {
+    text.lines()
+        .filter_map(|line| {
+            let mut fields = line.rsplitn(3, '\t');
+            let outermost = fields.next()?.parse().ok()?;
+            let all = fields.next()?.parse().ok()?;
+            Some((fields.next()?.to_string(), (all, outermost)))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::{Device, Kind};
+
+    /// The counter sees the operators a forward and a backward run, nested ones too, and
+    /// counts the outermost once each; nothing outside its closure.
+    #[test]
+    fn counts_the_operators_of_a_forward_and_a_backward() {
+        let x = Tensor::rand([4, 3], (Kind::Float, Device::Cpu)).set_requires_grad(true);
+        let before = x.exp();
+        let (_, counts) = count_ops(|| {
+            let y = (&x * 2.0).mm(&x.tr()).sum(Kind::Float);
+            y.backward();
+        });
+        let _after = before.sin();
+        let get = |name: &str| counts.get(name).copied().unwrap_or_default();
+        assert_eq!(get("aten::mm").1, 1, "{counts:?}");
+        assert_eq!(get("aten::sum").1, 1, "{counts:?}");
+        assert!(get("aten::mul").0 >= 1, "{counts:?}");
+        let outside = get("aten::exp").0 + get("aten::sin").0;
+        assert_eq!(outside, 0, "counted outside the closure: {counts:?}");
+        assert!(
+            counts.keys().any(|k| k.contains("MmBackward")),
+            "no backward node: {counts:?}"
+        );
+        let all: u64 = counts.values().map(|c| c.0).sum();
+        let outermost: u64 = counts.values().map(|c| c.1).sum();
+        assert!(all > outermost && outermost >= 4, "{all} {outermost}");
+    }
 }

@@ -13,6 +13,7 @@ use tch::{Device, Kind, Tensor};
 use crate::config::{OptimizerConfig, Precision, TrainConfig};
 use crate::error::TrainError;
 use crate::procedure::Student;
+use rtf_models::aten::{count_ops, OpCounts};
 
 /// What to time.
 #[derive(Debug, Clone)]
@@ -28,6 +29,20 @@ pub struct TrainBenchOptions {
     /// Timed steps.
     pub steps: usize,
     pub optimizer: OptimizerConfig,
+    /// After the timed steps, one more with its operators counted ([`StepOpCounts`]).
+    pub count_ops: bool,
+}
+
+/// The operators one step runs, part by part ([`rtf_models::aten::count_ops`]): the host's
+/// share of a step, which on a GPU is one or more kernel launches each.
+/// `scripts/profile_train_torch.py --counts` counts PyTorch's step the same way.
+#[derive(Debug, Clone, Serialize)]
+pub struct StepOpCounts {
+    /// Forward and loss.
+    pub forward: OpCounts,
+    /// Zeroing the gradients and the backward pass.
+    pub backward: OpCounts,
+    pub optimizer: OpCounts,
 }
 
 /// Timings of the steps (the `rtf bench train --json` record).
@@ -55,6 +70,8 @@ pub struct TrainBenchReport {
     pub steps: usize,
     /// The CPU the steps ran on (identity and kernel-deciding flags).
     pub cpu: rtf_core::host::CpuInfo,
+    /// With [`TrainBenchOptions::count_ops`]: the operators of one further step.
+    pub op_counts: Option<StepOpCounts>,
 }
 
 fn median(values: &mut [f64]) -> f64 {
@@ -101,6 +118,7 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         true => bench.run(batch, opts.steps, true)?,
         false => whole.clone(),
     };
+    let op_counts = opts.count_ops.then(|| counted_step(&mut bench, batch));
     let mut steps: Vec<f64> = whole.iter().map(|p| p.iter().sum()).collect();
     let total: f64 = steps.iter().sum();
     let part = |i: usize| median(&mut parts.iter().map(|p| p[i]).collect::<Vec<_>>());
@@ -120,6 +138,7 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         peak_rss_mb: peak_rss_mb(),
         steps: opts.steps,
         cpu: rtf_core::host::CpuInfo::read(),
+        op_counts,
     })
 }
 
@@ -213,6 +232,26 @@ fn timed_step(
     Ok([t1 - t0, t2 - t1, t3 - t2].map(|d| d.as_secs_f64()))
 }
 
+/// One step of [`timed_step`]'s parts, each with its operators counted instead of timed.
+fn counted_step(bench: &mut Bench, (input, target): (&Tensor, &Tensor)) -> StepOpCounts {
+    let (loss, forward) = count_ops(|| {
+        let logits = bench.student.logits(input);
+        bench.loss_fn.compute(&logits, target)
+    });
+    let trained = &mut bench.student.trained;
+    let ((), backward) = count_ops(|| {
+        trained.optimizer.zero_grad(&trained.vs);
+        trained.optimizer.scale_loss(&loss).backward();
+    });
+    let ((), optimizer) = count_ops(|| trained.optimizer.step(&trained.vs, bench.lr));
+    sync(bench.device);
+    StepOpCounts {
+        forward,
+        backward,
+        optimizer,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -227,7 +266,53 @@ mod tests {
             warmup: 1,
             steps: 2,
             optimizer: OptimizerConfig::mfnet_paper(),
+            count_ops: false,
         }
+    }
+
+    /// The counted step's parts hold what each part runs: convolutions forward, their
+    /// backward nodes, one update kernel per parameter tensor in the optimiser, and the
+    /// gradients' zeroing (one fill per parameter tensor) in the backward part.
+    #[test]
+    fn counts_the_operators_of_each_part_of_a_step() {
+        let report = bench_train(&TrainBenchOptions {
+            count_ops: true,
+            ..options(Precision::Fp32)
+        })
+        .unwrap();
+        let counts = report.op_counts.expect("counted");
+        let outermost = |part: &OpCounts, name: &str| part.get(name).map_or(0, |c| c.1);
+        let params = {
+            let cfg = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
+            let vs = tch::nn::VarStore::new(Device::Cpu);
+            rtf_models::build(&vs.root(), &cfg).unwrap();
+            vs.trainable_variables().len() as u64
+        };
+        assert!(
+            counts.forward.get("aten::conv2d").is_some_and(|c| c.0 > 10),
+            "{:?}",
+            counts.forward
+        );
+        assert!(
+            counts
+                .backward
+                .keys()
+                .any(|k| k.contains("ConvolutionBackward")),
+            "{:?}",
+            counts.backward
+        );
+        assert_eq!(
+            outermost(&counts.backward, "aten::zero_"),
+            params,
+            "{:?}",
+            counts.backward
+        );
+        let updates: u64 = counts.optimizer.values().map(|c| c.1).sum();
+        assert!(
+            updates >= params,
+            "{updates} < {params}: {:?}",
+            counts.optimizer
+        );
     }
 
     #[test]

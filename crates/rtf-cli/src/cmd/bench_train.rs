@@ -41,6 +41,11 @@ pub struct Args {
     /// Print {model, batch, size, precision, images_per_s, peak_rss_mb, cpu, ...} as JSON.
     #[arg(long)]
     pub json: bool,
+    /// After the timed steps, count the operators of one more step, part by part (libtorch's
+    /// profiler events: on a GPU, kernel launches); `scripts/profile_train_torch.py --counts`
+    /// counts PyTorch's step alike.
+    #[arg(long)]
+    pub count_ops: bool,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -66,6 +71,7 @@ pub fn run(args: Args) -> Result<()> {
         warmup: args.warmup,
         steps: args.steps,
         optimizer,
+        count_ops: args.count_ops,
     })?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
@@ -88,6 +94,33 @@ pub fn run(args: Args) -> Result<()> {
                 .map_or("unknown".to_string(), |m| format!("{m:.0} MiB"))
         );
         println!("CPU: {}", report.cpu.label());
+        if let Some(counts) = &report.op_counts {
+            print_op_counts(counts);
+        }
     }
     Ok(())
+}
+
+/// Per part: operators at the outermost level and in all, and the most frequent outermost.
+fn print_op_counts(counts: &rtf_train::bench::StepOpCounts) {
+    let parts = [
+        ("forward+loss", &counts.forward),
+        ("zero_grad+backward", &counts.backward),
+        ("optimiser", &counts.optimizer),
+    ];
+    for (part, ops) in parts {
+        let outermost: u64 = ops.values().map(|c| c.1).sum();
+        let all: u64 = ops.values().map(|c| c.0).sum();
+        let mut top: Vec<(&String, u64)> = ops.iter().map(|(n, c)| (n, c.1)).collect();
+        top.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
+        let top: Vec<String> = top
+            .iter()
+            .take(8)
+            .map(|(n, c)| format!("{n} {c}"))
+            .collect();
+        println!(
+            "{part}: {outermost} operators outermost, {all} in all; {}",
+            top.join(", ")
+        );
+    }
 }
