@@ -25,6 +25,7 @@
 #include <mutex>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <vector>
 
 namespace {
@@ -525,24 +526,63 @@ char* rtf_bf16_emulated_convolution(at::Tensor* x, at::Tensor* w, at::Tensor* b,
   }
 }
 
-// One SGD step of `param` (PyTorch's rules, no dampening or Nesterov) in one fused pass:
-// g = grad + weight_decay·param; buf = g on the first step, else momentum·buf + g;
-// param -= lr·buf. `buf` must be shaped like `param`; with momentum 0 it is left alone.
-char* rtf_fused_sgd(at::Tensor* param, at::Tensor* grad, at::Tensor* buf, double weight_decay,
-                    double momentum, double lr, int is_first_step) {
+// One SGD step of each of the `n` `params` (PyTorch's rules, no dampening or Nesterov) in ATen's
+// fused kernel, all in one call (on CUDA a multi-tensor kernel: a few launches for the lot,
+// not one per tensor): g = grad + weight_decay·param; buf = g on the first step, else
+// momentum·buf + g; param -= lr·buf. Each `bufs[i]` is shaped like `params[i]`; with momentum 0
+// `bufs` is not read (may be null). All on one device, of one type.
+char* rtf_fused_sgd(at::Tensor** params, at::Tensor** grads, at::Tensor** bufs, int64_t n,
+                    double weight_decay, double momentum, double lr, int is_first_step) {
   try {
     at::NoGradGuard no_grad;
-    std::vector<at::Tensor> params{*param}, grads{*grad}, bufs;
-    if (momentum != 0.0) {
-      bufs.push_back(*buf);
+    std::vector<at::Tensor> param_list, grad_list, buf_list;
+    for (int64_t i = 0; i < n; ++i) {
+      param_list.push_back(*params[i]);
+      grad_list.push_back(*grads[i]);
+      if (momentum != 0.0) {
+        buf_list.push_back(*bufs[i]);
+      }
     }
-    at::_fused_sgd_(params, grads, bufs, weight_decay, momentum, lr, /*dampening=*/0.0,
-                    /*nesterov=*/false, /*maximize=*/false, is_first_step != 0);
+    at::_fused_sgd_(param_list, grad_list, buf_list, weight_decay, momentum, lr,
+                    /*dampening=*/0.0, /*nesterov=*/false, /*maximize=*/false, is_first_step != 0);
     return nullptr;
   } catch (const std::exception& e) {
     return strdup(e.what());
   } catch (...) {
     return strdup("unknown C++ exception in rtf_fused_sgd");
+  }
+}
+
+// Zeroes the gradients of the `n` `params`, as PyTorch's `Optimizer.zero_grad(set_to_none=False)`
+// does: a gradient with a history is detached, one without stops requiring grad, then one
+// `_foreach_zero_` per device and type (on CUDA a few launches for the lot, not one per tensor).
+// Parameters without a gradient are left alone.
+char* rtf_zero_grads(at::Tensor** params, int64_t n) {
+  try {
+    std::map<std::tuple<int, int, int>, std::vector<at::Tensor>> groups;
+    for (int64_t i = 0; i < n; ++i) {
+      at::Tensor& grad = params[i]->mutable_grad();
+      if (!grad.defined()) {
+        continue;
+      }
+      if (grad.grad_fn()) {
+        grad.detach_();
+      } else {
+        grad.requires_grad_(false);
+      }
+      auto key = std::make_tuple(static_cast<int>(grad.device().type()),
+                                 static_cast<int>(grad.device().index()),
+                                 static_cast<int>(grad.scalar_type()));
+      groups[key].push_back(grad);
+    }
+    for (auto& [key, grads] : groups) {
+      at::_foreach_zero_(grads);
+    }
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_zero_grads");
   }
 }
 
@@ -615,14 +655,16 @@ char* rtf_tensor_holders(at::Tensor* t, int64_t* handles, int64_t* storage_users
   }
 }
 
-// Starts counting operators (see OpCount), from zero; `*handle` is for `rtf_op_counter_stop`.
+// Starts counting the operators this thread runs (see OpCount; the autograd engine carries the
+// callback to the threads that run a backward for it), from zero; `*handle` is for
+// `rtf_op_counter_stop`, on the same thread.
 char* rtf_op_counter_start(uint64_t* handle) {
   try {
     {
       std::lock_guard<std::mutex> lock(op_counts_mutex);
       op_counts.clear();
     }
-    *handle = at::addGlobalCallback(
+    *handle = at::addThreadLocalCallback(
         at::RecordFunctionCallback(count_op_start, count_op_end)
             .scopes({at::RecordScope::FUNCTION, at::RecordScope::BACKWARD_FUNCTION}));
     return nullptr;

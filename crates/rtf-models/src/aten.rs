@@ -26,14 +26,16 @@ pub(crate) mod ffi {
             out: *mut *mut torch_sys::C_tensor,
         ) -> *mut c_char;
         pub fn rtf_fused_sgd(
-            param: *mut torch_sys::C_tensor,
-            grad: *mut torch_sys::C_tensor,
-            buf: *mut torch_sys::C_tensor,
+            params: *const *mut torch_sys::C_tensor,
+            grads: *const *mut torch_sys::C_tensor,
+            bufs: *const *mut torch_sys::C_tensor,
+            n: i64,
             weight_decay: f64,
             momentum: f64,
             lr: f64,
             is_first_step: c_int,
         ) -> *mut c_char;
+        pub fn rtf_zero_grads(params: *const *mut torch_sys::C_tensor, n: i64) -> *mut c_char;
         pub fn rtf_pack_conv_weight(
             w: *mut torch_sys::C_tensor,
             padding: *const i64,
@@ -103,29 +105,39 @@ pub(crate) unsafe fn shim_result(
     }
 }
 
-/// One SGD update of `param` in place, PyTorch's rules (no dampening, no Nesterov), as ATen's
-/// fused kernel computes it in one pass: g = grad + weight_decay·param; buf = g on the first
-/// step (`first_step`), else momentum·buf + g; param −= lr·buf (with momentum 0, param −= lr·g
-/// and `buf` is not touched). `buf` is shaped like `param`. Instead of the five passes and
-/// three temporaries of the same update in tensor ops (RTFNet-50's update: 0.37 s against
-/// PyTorch's 0.15 s, docs/src/benchmarks.md).
+/// One SGD update of each of `params` in place, PyTorch's rules (no dampening, no Nesterov),
+/// as ATen's fused kernel computes it in one pass: g = grad + weight_decay·param; buf = g on
+/// the first step (`first_step`), else momentum·buf + g; param −= lr·buf (with momentum 0,
+/// param −= lr·g and `bufs` is not read). `grads[i]` and `bufs[i]` are shaped and laid out
+/// like `params[i]`; all on one device, of one type. Instead of the five passes and three
+/// temporaries of the same update in tensor ops (RTFNet-50's update: 0.37 s against
+/// PyTorch's 0.15 s, docs/src/benchmarks.md), and in one call for them all: on CUDA a few
+/// multi-tensor launches, not one per tensor (docs/src/gpu.md).
 pub fn fused_sgd_(
-    param: &Tensor,
-    grad: &Tensor,
-    buf: &Tensor,
+    params: &[Tensor],
+    grads: &[Tensor],
+    bufs: &[Tensor],
     weight_decay: f64,
     momentum: f64,
     lr: f64,
     first_step: bool,
 ) {
-    let ptr = |t: &Tensor| t.as_ptr() as *mut torch_sys::C_tensor;
-    // SAFETY: the three `as_ptr` are live `at::Tensor*` for the call; the shim updates their
-    // storage in place (no tensor is made) and returns null or a message, as `check` requires.
+    assert!(params.len() == grads.len() && (momentum == 0.0 || bufs.len() == params.len()));
+    let ptrs = |ts: &[Tensor]| -> Vec<*mut torch_sys::C_tensor> {
+        ts.iter()
+            .map(|t| t.as_ptr() as *mut torch_sys::C_tensor)
+            .collect()
+    };
+    let (params_, grads_, bufs_) = (ptrs(params), ptrs(grads), ptrs(bufs));
+    // SAFETY: the pointer arrays hold live `at::Tensor*` (borrowed from the slices) for the
+    // call, `n` of each (`bufs` only read with momentum); the shim updates their storage in
+    // place (no tensor is made) and returns null or a message, as `check` requires.
     unsafe {
         let error = ffi::rtf_fused_sgd(
-            ptr(param),
-            ptr(grad),
-            ptr(buf),
+            params_.as_ptr(),
+            grads_.as_ptr(),
+            bufs_.as_ptr(),
+            params.len() as i64,
             weight_decay,
             momentum,
             lr,
@@ -133,6 +145,25 @@ pub fn fused_sgd_(
         );
         check("fused SGD", error);
     }
+}
+
+/// Zeroes the gradients of `params` as PyTorch's `zero_grad(set_to_none=False)` does (a
+/// gradient with a history detached, one without no longer requiring grad), in one
+/// `_foreach_zero_` per device and type: on CUDA a few launches, not one per parameter.
+/// Parameters without a gradient are left alone.
+pub fn zero_grads(params: &[Tensor]) {
+    let ptrs: Vec<*mut torch_sys::C_tensor> = params
+        .iter()
+        .map(|t| t.as_ptr() as *mut torch_sys::C_tensor)
+        .collect();
+    // SAFETY: `ptrs` holds live `at::Tensor*` (borrowed from `params`) for the call; the shim
+    // zeroes their gradients in place and returns null or a message, as `check` requires.
+    unsafe {
+        check(
+            "zero grads",
+            ffi::rtf_zero_grads(ptrs.as_ptr(), ptrs.len() as i64),
+        )
+    };
 }
 
 /// Who holds `t`'s memory: (handles on its TensorImpl, TensorImpls on its storage). Counts,
@@ -157,9 +188,10 @@ pub fn tensor_holders(t: &Tensor) -> (i64, i64) {
 /// `torch.profiler` counts), so PyTorch's counts of the same work compare name by name.
 pub type OpCounts = std::collections::BTreeMap<String, (u64, u64)>;
 
-/// Runs `f` with every operator counted (any thread; one counter at a time per process:
-/// operators that other threads run meanwhile count too). On a GPU each operator is one or
-/// more kernel launches, so this is the host's share of a step, device-independent.
+/// Runs `f` with every operator it runs counted (on this thread, and on the autograd
+/// engine's threads for its backward passes; other threads' operators do not count; one
+/// counter at a time per process). On a GPU each operator is one or more kernel launches, so
+/// this is the host's share of a step, device-independent.
 pub fn count_ops<T>(f: impl FnOnce() -> T) -> (T, OpCounts) {
     let mut handle = 0u64;
     // SAFETY: the shim writes the callback's handle into the local and returns null or a

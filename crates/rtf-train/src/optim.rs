@@ -125,6 +125,7 @@ impl Optimizer {
             return;
         }
         let scope = self.config.decay_scope;
+        let mut fused = FusedSgd::default();
         tch::no_grad(|| {
             for (name, param) in trainable(vs) {
                 let grad = param.grad();
@@ -134,12 +135,14 @@ impl Optimizer {
                 let wd = decay_of(scope, &param, self.config.weight_decay);
                 match self.config.kind {
                     OptimizerKind::Sgd if fusable(&param, &grad) => {
-                        self.fused_sgd_step(&name, &param, &grad, lr, wd)
+                        let (buffer, first_step) = self.sgd_buffer(&name, &param, &grad);
+                        fused.add(wd, first_step, param, grad, buffer);
                     }
                     OptimizerKind::Adamw => self.adamw_step(&name, &param, &grad, lr, wd),
                     _ => self.step_written_out(&name, param, grad, lr, wd),
                 }
             }
+            fused.run(self.config.momentum, lr);
         });
     }
 
@@ -168,12 +171,12 @@ impl Optimizer {
         let _ = param.addcdiv_(&(&m * (-lr / bias1)), &denom);
     }
 
-    /// SGD's update in ATen's fused kernel: one pass, no temporaries.
-    fn fused_sgd_step(&mut self, name: &str, param: &Tensor, grad: &Tensor, lr: f64, wd: f64) {
-        let cfg = &self.config;
+    /// The momentum buffer of `param` for the fused SGD kernel, and whether this is its first
+    /// step (the buffer then starts as the gradient; with momentum 0, the gradient itself).
+    fn sgd_buffer(&mut self, name: &str, param: &Tensor, grad: &Tensor) -> (Tensor, bool) {
         let key = format!("momentum/{name}");
-        let (buffer, first_step) = match self.state.get(&key) {
-            _ if cfg.momentum == 0.0 => (grad.shallow_clone(), false),
+        match self.state.get(&key) {
+            _ if self.config.momentum == 0.0 => (grad.shallow_clone(), false),
             Some(buffer) if buffer.stride() == param.stride() => (buffer.shallow_clone(), false),
             Some(_) => {
                 // A buffer restored with another layout (a checkpoint is laid out
@@ -188,8 +191,7 @@ impl Optimizer {
                 self.state.insert(key, buffer.shallow_clone());
                 (buffer, true)
             }
-        };
-        rtf_models::aten::fused_sgd_(param, grad, &buffer, wd, cfg.momentum, lr, first_step);
+        }
     }
 
     /// The update rules written out (RMSprop; SGD where the fused kernel does not apply).
@@ -237,11 +239,12 @@ impl Optimizer {
             .shallow_clone()
     }
 
-    /// Clears the gradients of every trainable variable.
+    /// Clears the gradients of every trainable variable (in place, as the papers' PyTorch
+    /// code did: `zero_grad(set_to_none=False)`), all in one call
+    /// ([`rtf_models::aten::zero_grads`]).
     pub fn zero_grad(&self, vs: &VarStore) {
-        for (_, mut param) in trainable(vs) {
-            param.zero_grad();
-        }
+        let params: Vec<Tensor> = trainable(vs).into_iter().map(|(_, p)| p).collect();
+        rtf_models::aten::zero_grads(&params);
     }
 
     /// The per-parameter state (for checkpoints).
@@ -260,6 +263,39 @@ fn decay_of(scope: DecayScope, param: &Tensor, weight_decay: f64) -> f64 {
     match scope.decays(param) {
         true => weight_decay,
         false => 0.0,
+    }
+}
+
+/// The parameters a step updates in ATen's fused SGD kernel, grouped by what one call shares
+/// (weight decay, first step, device), so that each group is one call: on CUDA a few
+/// multi-tensor launches instead of one per parameter (docs/src/gpu.md, MFNet's host-bound
+/// step).
+#[derive(Default)]
+struct FusedSgd {
+    /// (weight decay's bits, first step, CUDA index or −1) → (params, grads, buffers).
+    groups: BTreeMap<(u64, bool, i64), [Vec<Tensor>; 3]>,
+}
+
+impl FusedSgd {
+    fn add(&mut self, wd: f64, first_step: bool, param: Tensor, grad: Tensor, buffer: Tensor) {
+        let device = match param.device() {
+            tch::Device::Cuda(i) => i as i64,
+            _ => -1,
+        };
+        let [params, grads, buffers] = self
+            .groups
+            .entry((wd.to_bits(), first_step, device))
+            .or_default();
+        params.push(param);
+        grads.push(grad);
+        buffers.push(buffer);
+    }
+
+    fn run(self, momentum: f64, lr: f64) {
+        for ((wd, first_step, _), [params, grads, buffers]) in self.groups {
+            let wd = f64::from_bits(wd);
+            rtf_models::aten::fused_sgd_(&params, &grads, &buffers, wd, momentum, lr, first_step);
+        }
     }
 }
 
@@ -380,6 +416,74 @@ mod tests {
             }
             assert_eq!(optimizer.state().len(), usize::from(momentum != 0.0));
         }
+    }
+
+    /// One fused call per group: a decaying weight matrix, a non-decaying bias (CMX's decay
+    /// scope), and a parameter that joins at the second step (its buffer's first step while the
+    /// others' is not), each following SGD's rule; the gradients zeroed in between, a
+    /// parameter without a gradient left without one.
+    #[test]
+    fn fused_sgd_groups_follow_the_rule_per_parameter() {
+        let cfg = OptimizerConfig {
+            momentum: 0.9,
+            weight_decay: 0.05,
+            decay_scope: crate::config::DecayScope::ConvAndLinearWeights,
+            ..OptimizerConfig::mfnet_paper()
+        };
+        let vs = VarStore::new(Device::Cpu);
+        let starts = [
+            vec![1.0f32, -2.0, 0.5, 3.0],
+            vec![0.25, -1.0],
+            vec![2.0, 4.0],
+        ];
+        let w = vs
+            .root()
+            .var_copy("w", &Tensor::from_slice(&starts[0]).view([2, 2]));
+        let b = vs.root().var_copy("b", &Tensor::from_slice(&starts[1]));
+        let late = vs.root().var_copy("late", &Tensor::from_slice(&starts[2]));
+        let idle = vs.root().var_copy("idle", &Tensor::from_slice(&[1.0f32]));
+        let mut optimizer = Optimizer::new(&cfg);
+        // Expected, per parameter: (values, buffer, weight decay).
+        let mut expected: Vec<(Vec<f64>, Vec<f64>, f64)> = starts
+            .iter()
+            .zip([0.05, 0.0, 0.0])
+            .map(|(s, wd)| (s.iter().map(|&v| v as f64).collect(), vec![], wd))
+            .collect();
+        for step in 0..3 {
+            optimizer.zero_grad(&vs);
+            let mut loss = (&w * &w).sum(Kind::Float) + (&b * &b).sum(Kind::Float);
+            if step > 0 {
+                loss += (&late * &late).sum(Kind::Float);
+            }
+            loss.backward(); // grad = 2p
+            optimizer.step(&vs, 0.1);
+            for (i, (values, buffer, wd)) in expected.iter_mut().enumerate() {
+                if i == 2 && step == 0 {
+                    continue;
+                }
+                let g: Vec<f64> = values.iter().map(|v| 2.0 * v + *wd * v).collect();
+                *buffer = match buffer.is_empty() {
+                    true => g,
+                    false => buffer.iter().zip(&g).map(|(b, g)| 0.9 * b + g).collect(),
+                };
+                values
+                    .iter_mut()
+                    .zip(buffer.iter())
+                    .for_each(|(v, b)| *v -= 0.1 * b);
+            }
+        }
+        for (tensor, (values, _, _)) in [&w, &b, &late].into_iter().zip(&expected) {
+            let got = Vec::<f32>::try_from(&tensor.flatten(0, -1)).unwrap();
+            assert_close(&got, values);
+        }
+        assert!(
+            !idle.grad().defined(),
+            "a parameter no loss reached has no gradient"
+        );
+        assert_eq!(optimizer.state().len(), 3, "a buffer per updated parameter");
+        optimizer.zero_grad(&vs);
+        assert_eq!(w.grad().abs().sum(Kind::Float).double_value(&[]), 0.0);
+        assert!(!w.grad().requires_grad());
     }
 
     /// Three RMSprop steps (PyTorch's `torch.optim.RMSprop` rule), with and without momentum.
