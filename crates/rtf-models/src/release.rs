@@ -81,10 +81,8 @@ impl PlainWeights {
             .filter(|v| v.bytes > 0)
             .map(|v| (v.var.data_ptr() as usize, v.holders))
             .collect();
-        let previous = RECORDED.with(|r| r.replace(Some(recorded)));
-        let out = fold();
-        RECORDED.with(|r| r.replace(previous));
-        out
+        let _restore = Restore(RECORDED.with(|r| r.replace(Some(recorded))));
+        fold()
     }
 
     /// Empties each variable whose holders are those recorded; keeps the others. Counts what
@@ -108,6 +106,18 @@ impl PlainWeights {
             }
         }
         released
+    }
+}
+
+/// Puts back the recorded holders as they were before [`PlainWeights::while_folding`], also
+/// when the fold panics: a stale record on a thread that goes on (a caught panic) would free
+/// the tensors of a later fold that happen to reuse the recorded addresses.
+struct Restore(Option<HashMap<usize, (i64, i64)>>);
+
+impl Drop for Restore {
+    fn drop(&mut self) {
+        let previous = self.0.take();
+        RECORDED.with(|r| r.replace(previous));
     }
 }
 
@@ -195,5 +205,20 @@ mod tests {
             }
         );
         assert_eq!(held.size(), [0]);
+    }
+
+    /// A fold that panics leaves no record behind: a unit folded later on the same thread
+    /// frees nothing.
+    #[test]
+    fn a_panicking_fold_leaves_no_record() {
+        let vs = tch::nn::VarStore::new(Device::Cpu);
+        let mut weight = vs.root().ones("weight", &[8]);
+        let plain = PlainWeights::record(&vs);
+        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            plain.while_folding(|| panic!("a fold that fails"))
+        }));
+        assert!(caught.is_err());
+        release_folded([&mut weight]);
+        assert_eq!(weight.size(), [8]);
     }
 }
