@@ -31,19 +31,11 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_torch import build  # noqa: E402
 
 
-def step(net, opt, x, y, set_to_none=False):
-    loss = F.cross_entropy(net(x), y)
-    opt.zero_grad(set_to_none=set_to_none)
-    loss.backward()
-    opt.step()
-    loss.item()
-
-
 PARTS = ("forward+loss", "zero_grad+backward", "optimiser")
 
 
-def counted_step(net, opt, x, y, set_to_none):
-    """One step, each part inside a profiler range named after it."""
+def step(net, opt, x, y, set_to_none=False):
+    """One step, each part inside a profiler range named after it (the counts' parts)."""
     with record_function(PARTS[0]):
         loss = F.cross_entropy(net(x), y)
     with record_function(PARTS[1]):
@@ -120,7 +112,7 @@ def main():
         step(net, opt, x, y, set_to_none)
     if a.counts:
         with profile(activities=[ProfilerActivity.CPU]) as prof:
-            counted_step(net, opt, x, y, set_to_none)
+            step(net, opt, x, y, set_to_none)
         counts = part_counts(prof)
         print(f"{a.model} {'channels_last' if a.channels_last else 'NCHW'} batch {a.batch}: one step's operators "
               f"(torch {torch.__version__}; zero_grad: {a.zero_grad}; SGD {'foreach' if a.foreach else 'default'})")
@@ -132,7 +124,8 @@ def main():
         return
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         step(net, opt, x, y, set_to_none)
-    events = sorted(prof.key_averages(), key=lambda e: -e.self_cpu_time_total)
+    # The parts' ranges are not operators (and hold no self time of their own).
+    events = sorted((e for e in prof.key_averages() if e.key not in PARTS), key=lambda e: -e.self_cpu_time_total)
     total = sum(e.self_cpu_time_total for e in events)
     rows = [{"op": e.key, "calls": e.count, "self_s": e.self_cpu_time_total / 1e6} for e in events]
     print(f"{a.model} {'channels_last' if a.channels_last else 'NCHW'}: one step, {total / 1e6:.3f} s self CPU "

@@ -121,12 +121,10 @@ pub struct BenchReport {
     #[serde(default)]
     pub bf16_3x3: Option<String>,
     /// Fast path: MiB of the plain network's weights freed once folded (those the folded path
-    /// does not read; `InferenceNet::release_plain_weights`). None on the plain path.
+    /// does not read; `InferenceNet::releasing_plain_weights`). None on the plain path.
     #[serde(default)]
     pub plain_weights_released_mb: Option<f64>,
 }
-
-const MIB: f64 = 1024.0 * 1024.0;
 
 /// Median and minimum of a non-empty sample.
 pub fn median_min(samples: &[f64]) -> (f64, f64) {
@@ -238,7 +236,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         ForwardPath::Fast => {
             let (fast, released) =
                 InferenceNet::releasing_plain_weights(net, opts.precision, opts.layout, &vs)?;
-            released_mb = Some(released.bytes as f64 / MIB);
+            released_mb = Some(released.mib());
             Timed::Fast(fast)
         }
         ForwardPath::Plain => Timed::Plain(net),

@@ -60,8 +60,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     } else {
         let (fast, released) =
             InferenceNet::releasing_plain_weights(net, precision, Layout::ChannelsLast, &vs)?;
-        let mib = released.bytes as f64 / 1048576.0;
-        report(&format!("folded, {mib:.0} MiB released"));
+        report(&format!("folded, {:.0} MiB released", released.mib()));
         fast
     };
     let input = Tensor::rand([1, 4, height, width], (Kind::Float, Device::Cpu));

@@ -294,7 +294,7 @@ struct Linear {
     /// rather than holding a second copy of it: bf16 CMX-B4 then peaks at 1281 instead of 1486
     /// MiB for 2–7 % of its speed (batch 1, 480×640, 2 threads, Xeon family 6 model 167). A
     /// float32 weight is used as it is. The handle is what tells
-    /// [`crate::fast::InferenceNet::release_plain_weights`] that the fast path reads it.
+    /// [`crate::fast::InferenceNet::releasing_plain_weights`] that the fast path reads it.
     fast: Option<(Kind, Tensor, Option<Tensor>)>,
 }
 

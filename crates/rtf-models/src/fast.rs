@@ -6,7 +6,8 @@ use tch::{Device, Kind, Tensor};
 
 use crate::error::ModelError;
 use crate::layers::to_channels_last;
-pub use crate::release::{PlainWeights, Released};
+use crate::release::PlainWeights;
+pub use crate::release::Released;
 use crate::Network;
 
 /// Arithmetic precision of inference: fp32, bf16, or fp16 on CUDA (one type with training's;
@@ -88,9 +89,12 @@ impl InferenceNet {
         })
     }
 
-    /// [`with_layout`](Self::with_layout) over a network whose weights are `vs`'s, then
-    /// [`release_plain_weights`](Self::release_plain_weights): a network kept for inference
-    /// alone, as rtf's commands load one.
+    /// [`with_layout`](Self::with_layout) over a network whose weights are `vs`'s, freeing
+    /// every plain variable the folded path does not hold ([`crate::release`]): each unit's as
+    /// it folds, the rest after. A network kept for inference alone, as rtf's commands load
+    /// one: afterwards only the folded path runs, and the plain network inside (and `vs`,
+    /// e.g. for saving) must not be used. A network without a folded path runs on its plain
+    /// weights, so nothing is released from it.
     pub fn releasing_plain_weights(
         net: Box<dyn Network>,
         precision: Precision,
@@ -99,7 +103,10 @@ impl InferenceNet {
     ) -> Result<(Self, Released), ModelError> {
         let plain = PlainWeights::record(vs);
         let fast = plain.while_folding(|| Self::with_layout(net, precision, layout))?;
-        let released = fast.release_plain_weights(plain);
+        let released = match fast.fused {
+            true => plain.release_unheld(),
+            false => Released::default(),
+        };
         Ok((fast, released))
     }
 
@@ -118,18 +125,6 @@ impl InferenceNet {
     /// Whether the folded path is in use.
     pub fn is_fused(&self) -> bool {
         self.fused
-    }
-
-    /// Frees every variable of `plain` that folding left unheld: its memory goes, its shape
-    /// becomes `[0]`. Afterwards only the folded path runs: the plain network inside (and its
-    /// VarStore, e.g. for saving) must not be used. A network without a folded path runs on
-    /// its plain weights, so nothing is released from it.
-    pub fn release_plain_weights(&self, plain: PlainWeights) -> Released {
-        if self.fused {
-            plain.release_unheld()
-        } else {
-            Released::default()
-        }
     }
 
     /// [B, 4, H, W] float input (already scaled) -> float logits [B, classes, H, W].

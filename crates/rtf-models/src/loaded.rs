@@ -32,7 +32,7 @@ pub struct NetworkRequest<'a> {
 /// A network loaded for inference, behind the input mask it was trained with.
 pub struct LoadedNetwork {
     /// The network's variables; with a fast-path `precision`, those the folded path does not
-    /// read are emptied ([`InferenceNet::release_plain_weights`]), so this is not for saving.
+    /// read are emptied ([`InferenceNet::releasing_plain_weights`]), so this is not for saving.
     pub vs: VarStore,
     pub net: Box<dyn Network>,
     /// The channels the network sees: the weights file's record (`rtf.inputs`), else the

@@ -31,7 +31,7 @@ thread_local! {
 /// The plain network's variables (weights, biases, BatchNorm statistics) and who held each one
 /// before folding: [`record`](Self::record) it before the fold, fold inside
 /// [`while_folding`](Self::while_folding), then [`release_unheld`](Self::release_unheld).
-pub struct PlainWeights {
+pub(crate) struct PlainWeights {
     vars: Vec<RecordedVar>,
 }
 
@@ -53,9 +53,16 @@ pub struct Released {
     pub kept: usize,
 }
 
+impl Released {
+    /// [`bytes`](Self::bytes) in MiB.
+    pub fn mib(&self) -> f64 {
+        self.bytes as f64 / (1024.0 * 1024.0)
+    }
+}
+
 impl PlainWeights {
     /// Snapshot of `vs`'s variables and their holders, to be taken before folding.
-    pub fn record(vs: &tch::nn::VarStore) -> Self {
+    pub(crate) fn record(vs: &tch::nn::VarStore) -> Self {
         let variables = vs.variables_.lock().unwrap_or_else(|e| e.into_inner());
         let vars = variables
             .named_variables

@@ -204,7 +204,7 @@ fn bench_config(opts: &TrainBenchOptions) -> Result<TrainConfig, TrainError> {
 /// synchronised: the loss's value is read); the loss's value when it is not finite.
 fn timed_step(
     bench: &mut Bench,
-    (input, target): (&Tensor, &Tensor),
+    batch: (&Tensor, &Tensor),
     split: bool,
 ) -> Result<[f64; 3], String> {
     let between_parts = |device| {
@@ -213,16 +213,13 @@ fn timed_step(
         }
     };
     let t0 = Instant::now();
-    let logits = bench.student.logits(input);
-    let loss = bench.loss_fn.compute(&logits, target);
+    let loss = bench.forward_loss(batch);
     between_parts(bench.device);
     let t1 = Instant::now();
-    let trained = &mut bench.student.trained;
-    trained.optimizer.zero_grad(&trained.vs);
-    trained.optimizer.scale_loss(&loss).backward();
+    bench.backward(&loss);
     between_parts(bench.device);
     let t2 = Instant::now();
-    trained.optimizer.step(&trained.vs, bench.lr);
+    bench.update();
     let value = f64::try_from(&loss).unwrap_or(f64::NAN);
     sync(bench.device);
     let t3 = Instant::now();
@@ -232,23 +229,37 @@ fn timed_step(
     Ok([t1 - t0, t2 - t1, t3 - t2].map(|d| d.as_secs_f64()))
 }
 
-/// One step of [`timed_step`]'s parts, each with its operators counted instead of timed.
-fn counted_step(bench: &mut Bench, (input, target): (&Tensor, &Tensor)) -> StepOpCounts {
-    let (loss, forward) = count_ops(|| {
-        let logits = bench.student.logits(input);
-        bench.loss_fn.compute(&logits, target)
-    });
-    let trained = &mut bench.student.trained;
-    let ((), backward) = count_ops(|| {
-        trained.optimizer.zero_grad(&trained.vs);
-        trained.optimizer.scale_loss(&loss).backward();
-    });
-    let ((), optimizer) = count_ops(|| trained.optimizer.step(&trained.vs, bench.lr));
+/// The same step's parts, each with its operators counted instead of timed.
+fn counted_step(bench: &mut Bench, batch: (&Tensor, &Tensor)) -> StepOpCounts {
+    let (loss, forward) = count_ops(|| bench.forward_loss(batch));
+    let ((), backward) = count_ops(|| bench.backward(&loss));
+    let ((), optimizer) = count_ops(|| bench.update());
     sync(bench.device);
     StepOpCounts {
         forward,
         backward,
         optimizer,
+    }
+}
+
+impl Bench {
+    /// A step's first part: the network's logits and the loss.
+    fn forward_loss(&self, (input, target): (&Tensor, &Tensor)) -> Tensor {
+        let logits = self.student.logits(input);
+        self.loss_fn.compute(&logits, target)
+    }
+
+    /// Its second: the gradients zeroed, the (scaled) loss back-propagated.
+    fn backward(&mut self, loss: &Tensor) {
+        let trained = &mut self.student.trained;
+        trained.optimizer.zero_grad(&trained.vs);
+        trained.optimizer.scale_loss(loss).backward();
+    }
+
+    /// Its third: the optimiser's update at the base rate.
+    fn update(&mut self) {
+        let trained = &mut self.student.trained;
+        trained.optimizer.step(&trained.vs, self.lr);
     }
 }
 
