@@ -203,9 +203,18 @@ const EMULATED_KINDS: [EmulatedKind; 2] = [
     },
 ];
 
-/// The tests whose code a forced outcome changes (bf16 folds and training, both layouts).
+/// The tests whose code a forced outcome changes: bf16 folds and training (the whole networks'
+/// fused paths, the bf16 units), training in both layouts.
 const DECISION_DEPENDENT: [&[&str]; 2] = [
-    &["-p", "rtf-models", "--lib"],
+    &[
+        "-p",
+        "rtf-models",
+        "--lib",
+        "--",
+        "bf16",
+        "fused",
+        "released_networks",
+    ],
     &[
         "-p",
         "rtf-train",
