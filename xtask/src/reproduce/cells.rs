@@ -142,9 +142,18 @@ impl Context {
             if self.budget != Budget::Paper && !eval.iter().any(|a| a == "--resize") {
                 eval.extend([
                     "--resize".to_string(),
-                    self.budget.synth(Data::Freiburg).1.to_string(),
+                    self.budget.synth(cell.eval_on).1.to_string(),
                 ]);
             }
+        }
+        if let Some(map) = cell.class_map {
+            // Scored on the other dataset: at its CPU-budget frame size (Freiburg's test
+            // preprocessing would give 320×704), through the map.
+            if self.budget != Budget::Paper && !eval.iter().any(|a| a == "--resize") {
+                let size = self.budget.synth(cell.eval_on).1;
+                eval.extend(["--resize".to_string(), size.to_string()]);
+            }
+            eval.extend(["--class-map".to_string(), map.to_string()]);
         }
         train.extend(["--seed".into(), seed.to_string()]);
         train.extend(["--device".into(), self.device.clone()]);

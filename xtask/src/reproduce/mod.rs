@@ -1167,6 +1167,19 @@ the frame names; MFNet's mIoU convention for MFNet's tables, RTFNet's for RTFNet
 on Freiburg Thermal, each named in the table (spec §2). Freiburg Thermal's only labelled
 held-out part is its test layout, so Freiburg cells report their final weights.
 
+**Across datasets** (HeatNet Tab. I's MF→FR-T and FR-T→MF rows): the network trained on one
+dataset is scored on the other's test split with `rtf eval --class-map` and the built-in map
+of the paper's comparison (`mf-to-freiburg` / `freiburg-to-mf`: person, car, bicycle; MF's
+`bike` is Freiburg's `bicycle`, Freiburg's person and bicycle classes already hold riders and
+motorcycles), at the evaluated dataset's CPU-budget frame size. The columns are the IoUs of
+the three classes and their mean (Day/Night: the mean of the day and the night value). Truth
+pixels of the other classes count as false positives where predicted as one of the three, as
+in the authors' code, which maps Freiburg's other classes to MF's unlabeled (spec §5). The
+paper's MF-trained HeatNet learned Freiburg's classes from its teacher on MF images and is
+scored on all 12; rtf's `mf-heatnet` learns MF's labels, so that row measures the three shared
+classes and leaves the paper's 12-class Mean without a measured counterpart. These cells
+train their network again (the same recipe as the MF→MF or FR-T row's cell), once per seed.
+
 **Cells.** Each trained network is an ordinary run folder `<out>/<table>/<cell>/seed<k>/`
 (`rtf train` files plus `cell.json`, the exact commands, `eval.json`, `xtask.log`). A re-run
 skips finished cells, resumes interrupted ones (`rtf train --resume`; Ctrl-C checkpoints),
