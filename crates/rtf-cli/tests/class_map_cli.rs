@@ -47,16 +47,35 @@ fn an_mf_network_is_scored_on_freiburg_through_the_papers_map_and_a_users() {
     );
     synth_mf(&mf, "8", "3", "64x48");
     ok(&[
-        "synth", "--format", "freiburg", "--out", s(&fr), "--count", "12", "--size", "64x48",
+        "synth",
+        "--format",
+        "freiburg",
+        "--out",
+        s(&fr),
+        "--count",
+        "12",
+        "--size",
+        "64x48",
     ]);
     ok(&short_train(&mf, &run, "1", &["--model", "mfnet"]));
     let weights = run.join("final.safetensors");
 
     // Without a map the class sets differ: refused, naming both.
     let plain = fails(&[
-        "eval", "--model", "mfnet", "--weights", s(&weights), "--data", s(&fr), "--split", "test",
+        "eval",
+        "--model",
+        "mfnet",
+        "--weights",
+        s(&weights),
+        "--data",
+        s(&fr),
+        "--split",
+        "test",
     ]);
-    assert!(plain.contains("bicycle") && plain.contains("bike"), "{plain}");
+    assert!(
+        plain.contains("bicycle") && plain.contains("bike"),
+        "{plain}"
+    );
 
     let json = tmp.path().join("mapped.json");
     let mut args = eval_args(&weights, &fr, &json, "mf-to-freiburg");
@@ -66,7 +85,10 @@ fn an_mf_network_is_scored_on_freiburg_through_the_papers_map_and_a_users() {
         printed.contains("class map mf-to-freiburg (built-in): scored person, car, bicycle"),
         "{printed}"
     );
-    assert!(printed.contains("mIoU over the scored classes"), "{printed}");
+    assert!(
+        printed.contains("mIoU over the scored classes"),
+        "{printed}"
+    );
     let j = json_file(&json);
     assert_eq!(
         j["class_names"],
@@ -75,7 +97,10 @@ fn an_mf_network_is_scored_on_freiburg_through_the_papers_map_and_a_users() {
     let map = &j["class_map"];
     assert_eq!(map["name"], "mf-to-freiburg");
     assert_eq!(map["source"], "built-in");
-    assert_eq!(map["scored"], serde_json::json!(["person", "car", "bicycle"]));
+    assert_eq!(
+        map["scored"],
+        serde_json::json!(["person", "car", "bicycle"])
+    );
     assert_eq!(map["network"]["bicycle"], serde_json::json!(["bike"]));
     assert_eq!(map["data"]["bicycle"], serde_json::json!(["bicycle"]));
     assert!(j.get("heatnet").is_none(), "no 13-class HeatNet mIoU: {j}");
@@ -106,7 +131,11 @@ fn an_mf_network_is_scored_on_freiburg_through_the_papers_map_and_a_users() {
         }
         None => assert!(defined.is_empty()),
     }
-    assert_eq!(j["dropped"].as_array().map(Vec::len), Some(1), "--drop through the map");
+    assert_eq!(
+        j["dropped"].as_array().map(Vec::len),
+        Some(1),
+        "--drop through the map"
+    );
 
     // A user's map: people only, the other classes' pixels dropped.
     let yaml = tmp.path().join("people.yaml");
@@ -122,21 +151,37 @@ fn an_mf_network_is_scored_on_freiburg_through_the_papers_map_and_a_users() {
     assert_eq!(m["class_names"], serde_json::json!(["people", "other"]));
     assert_eq!(m["class_map"]["name"], "people");
     assert_eq!(m["class_map"]["other_pixels"], "ignored");
-    assert_eq!(m["confusion"][1], serde_json::json!([0, 0]), "no other truth");
+    assert_eq!(
+        m["confusion"][1],
+        serde_json::json!([0, 0]),
+        "no other truth"
+    );
 
     // Bad maps: named with the class, before anything is written.
     let bad = tmp.path().join("bad.yaml");
     let refused = tmp.path().join("refused.json");
     for (text, needle) in [
-        ("classes:\n  - name: p\n    network: [pedestrian]\n    data: [person]\n", "`pedestrian`"),
-        ("classes:\n  - name: p\n    network: [person]\n    data: [40]\n", "id 40"),
+        (
+            "classes:\n  - name: p\n    network: [pedestrian]\n    data: [person]\n",
+            "`pedestrian`",
+        ),
+        (
+            "classes:\n  - name: p\n    network: [person]\n    data: [40]\n",
+            "id 40",
+        ),
         ("classes:\n  - name: p\n    network: [person\n", "line"),
     ] {
         std::fs::write(&bad, text).unwrap();
         let err = fails(&eval_args(&weights, &fr, &refused, s(&bad)));
-        assert!(err.contains("bad.yaml") && err.contains(needle), "{needle}: {err}");
+        assert!(
+            err.contains("bad.yaml") && err.contains(needle),
+            "{needle}: {err}"
+        );
         assert!(!refused.exists());
     }
     let err = fails(&eval_args(&weights, &fr, &refused, "mf-to-nowhere"));
-    assert!(err.contains("mf-to-nowhere") && err.contains("freiburg-to-mf"), "{err}");
+    assert!(
+        err.contains("mf-to-nowhere") && err.contains("freiburg-to-mf"),
+        "{err}"
+    );
 }

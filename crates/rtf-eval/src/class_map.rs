@@ -165,7 +165,11 @@ impl ClassMap {
             _ => return None,
         };
         let pair = |scored: &str, mf: &str, freiburg: &str| {
-            let (n, d) = if mf_side { (mf, freiburg) } else { (freiburg, mf) };
+            let (n, d) = if mf_side {
+                (mf, freiburg)
+            } else {
+                (freiburg, mf)
+            };
             ScoredClass {
                 name: scored.into(),
                 network: vec![ClassRef::Name(n.into())],
@@ -210,7 +214,11 @@ impl ClassMap {
     /// Checks the map against the network's and the dataset's class sets: every class it
     /// names must be one of its side's (by name or id), none may count twice, and each
     /// scored class needs a class on both sides.
-    pub fn resolve(&self, network: &ClassSet, data: &ClassSet) -> Result<ClassMapping, ClassMapError> {
+    pub fn resolve(
+        &self,
+        network: &ClassSet,
+        data: &ClassSet,
+    ) -> Result<ClassMapping, ClassMapError> {
         let k = self.classes.len();
         if k == 0 || k >= DROPPED as usize {
             return Err(self.invalid(format!("{k} scored classes (1 to 254 possible)")));
@@ -409,7 +417,9 @@ impl ClassMapScores {
             scored: mapping.scored.clone(),
             other_pixels: mapping.map.other_pixels,
             network: by_scored(&mapping.network_classes, &|i| mapping.network_to_scored(i)),
-            data: by_scored(&mapping.data_classes, &|i| Some(mapping.data_to_scored(i as u8))),
+            data: by_scored(&mapping.data_classes, &|i| {
+                Some(mapping.data_to_scored(i as u8))
+            }),
             miou: miou(&report.all),
             day_miou,
             night_miou,
@@ -451,7 +461,11 @@ mod tests {
         set("net", &["bg", "car", "person", "bike"], None)
     }
     fn data_set() -> ClassSet {
-        set("data", &["road", "person", "rider", "vehicle", "sky"], Some(9))
+        set(
+            "data",
+            &["road", "person", "rider", "vehicle", "sky"],
+            Some(9),
+        )
     }
 
     /// person ← person / person + rider; vehicle ← car + bike (by id) / vehicle.
@@ -510,7 +524,12 @@ classes:
         let source: Arc<dyn FrameSource> = Arc::new(MemorySource {
             frames: vec![
                 // Data ids (9 ignored) against network ids.
-                frame("d", Daytime::Day, &[1, 2, 3, 3, 0, 4, 9, 1], &[2, 2, 1, 3, 2, 0, 2, 0]),
+                frame(
+                    "d",
+                    Daytime::Day,
+                    &[1, 2, 3, 3, 0, 4, 9, 1],
+                    &[2, 2, 1, 3, 2, 0, 2, 0],
+                ),
                 frame("n", Daytime::Night, &[3, 1], &[0, 2]),
             ],
             class_set: data_set(),
@@ -538,7 +557,11 @@ classes:
         let rows = [[3, 0, 1], [0, 2, 1], [1, 0, 1]];
         for (t, row) in rows.iter().enumerate() {
             for (p, &count) in row.iter().enumerate() {
-                assert_eq!(report.confusion.get(t, p), count, "truth {t} prediction {p}");
+                assert_eq!(
+                    report.confusion.get(t, p),
+                    count,
+                    "truth {t} prediction {p}"
+                );
             }
         }
         // person: TP 3, truth 4, predicted 4 (one road pixel taken for a person).
@@ -573,7 +596,10 @@ classes:
     #[test]
     fn the_built_in_maps_fit_mf_and_freiburg_both_ways() {
         let (mf, fr) = (ClassSet::mf(), ClassSet::freiburg());
-        let to_fr = ClassMap::load("mf-to-freiburg").unwrap().resolve(&mf, &fr).unwrap();
+        let to_fr = ClassMap::load("mf-to-freiburg")
+            .unwrap()
+            .resolve(&mf, &fr)
+            .unwrap();
         assert_eq!(to_fr.scored, ["person", "car", "bicycle"]);
         // MF bike (3) → bicycle (2); MF curve → other; Freiburg bicycle (11) → 2, road →
         // other, ignore (13) dropped.
@@ -582,7 +608,10 @@ classes:
         assert_eq!(to_fr.data_to_scored(11), 2);
         assert_eq!(to_fr.data_to_scored(0), 3);
         assert_eq!(to_fr.data_to_scored(13), to_fr.dropped());
-        let to_mf = ClassMap::load("freiburg-to-mf").unwrap().resolve(&fr, &mf).unwrap();
+        let to_mf = ClassMap::load("freiburg-to-mf")
+            .unwrap()
+            .resolve(&fr, &mf)
+            .unwrap();
         assert_eq!(to_mf.network_to_scored(9), Some(0));
         assert_eq!(to_mf.data_to_scored(1), 1);
         assert_eq!(
@@ -610,13 +639,19 @@ classes:
     fn bad_maps_name_the_file_and_the_class() {
         let err = resolve_error(&MAP.replace("[person, rider]", "[person, cyclist]"));
         assert!(err.contains("`cyclist`") && err.contains("data"), "{err}");
-        assert!(err.contains("0 road"), "the data's classes are listed: {err}");
+        assert!(
+            err.contains("0 road"),
+            "the data's classes are listed: {err}"
+        );
         let err = resolve_error(&MAP.replace("[car, 3]", "[car, 7]"));
         assert!(err.contains("id 7") && err.contains("network"), "{err}");
         let err = resolve_error(&MAP.replace("[vehicle]", "[vehicle, rider]"));
         assert!(err.contains("`rider`") && err.contains("both"), "{err}");
         let err = resolve_error(&MAP.replace("    data: [vehicle]\n", "    data: []\n"));
-        assert!(err.contains("`vehicle`") && err.contains("no data class"), "{err}");
+        assert!(
+            err.contains("`vehicle`") && err.contains("no data class"),
+            "{err}"
+        );
         let err = resolve_error("classes:\n  - name: person\n    network: [person\n");
         assert!(err.contains("line"), "where it does not parse: {err}");
         let err = resolve_error(&MAP.replace("classes:", "clases:"));

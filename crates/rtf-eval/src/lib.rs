@@ -17,8 +17,8 @@ pub use evaluate::inference;
 
 pub use class_map::{ClassMap, ClassMapError, ClassMapScores, ClassMapping, OtherPixels};
 pub use evaluate::{
-    evaluate, evaluate_mapped, evaluate_with_drop, DropFill, EvalError, EvalOptions, EvalReport, Modality,
-    ModalityDrop,
+    evaluate, evaluate_mapped, evaluate_with_drop, DropFill, EvalError, EvalOptions, EvalReport,
+    Modality, ModalityDrop,
 };
 pub use inference::{Inference, InferenceOptions};
 pub use metrics::{ClassScore, ConfusionMatrix, Scores};

@@ -695,4 +695,32 @@ esac
         std::fs::write(tmp.path().join(CELL_FILE), "nope").unwrap();
         assert!(check_spec(tmp.path(), &spec).is_err());
     }
+
+    /// HeatNet Tab. I's cross-dataset cells train on one dataset and are scored on the other
+    /// through the built-in map, at the evaluated dataset's CPU-budget size.
+    #[test]
+    fn cross_dataset_cells_evaluate_the_other_dataset_through_the_map() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut ctx = fake_context(tmp.path());
+        ctx.budget = Budget::Quick;
+        let fr = tmp.path().join("fr");
+        ctx.data.insert(Data::Freiburg, (fr.clone(), false));
+        let tables = crate::reproduce::tables::all(false);
+        let tab1 = tables.iter().find(|t| t.id == "heatnet-tab1").unwrap();
+        let spec = |id: &str| ctx.spec(tab1, tab1.cell(id).unwrap(), 0).unwrap();
+        let to_fr = spec("mf-to-fr-mfnet");
+        assert_eq!(to_fr["train_data"], json!(tmp.path().join("data")));
+        assert_eq!(to_fr["eval_data"], json!(fr));
+        let eval = strings(&to_fr["rtf_eval"]).join(" ");
+        assert!(
+            eval.ends_with("--resize 192x96 --class-map mf-to-freiburg"),
+            "{eval}"
+        );
+        let back = strings(&spec("fr-to-mf-heatnet")["rtf_eval"]).join(" ");
+        assert!(back.contains("--resize 96x64"), "{back}");
+        assert!(back.ends_with("--class-map freiburg-to-mf"), "{back}");
+        // The Freiburg rows keep their evaluation as before.
+        let own = strings(&spec("heatnet")["rtf_eval"]).join(" ");
+        assert!(own.ends_with("--resize 192x96"), "{own}");
+    }
 }

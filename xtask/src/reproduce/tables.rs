@@ -1366,6 +1366,60 @@ mod tests {
         assert!(t.convention.contains("stand-ins"));
     }
 
+    /// HeatNet Tab. I's MF↔FR-T rows are measured through the built-in class maps: every
+    /// cell runs (none blocked without BDD), the columns read the scored classes.
+    #[test]
+    fn heatnet_tab1_cross_dataset_rows_go_through_the_class_maps() {
+        let t = heatnet_tab1(false);
+        assert!(t.cells.iter().all(|c| c.blocked.is_none()));
+        let maps: Vec<(&str, Data, Option<&str>)> = t
+            .cells
+            .iter()
+            .filter(|c| c.eval_on != c.data)
+            .map(|c| (c.id.as_str(), c.eval_on, c.class_map))
+            .collect();
+        let to_fr = (Data::Freiburg, Some("mf-to-freiburg"));
+        assert_eq!(
+            maps,
+            [
+                ("mf-to-fr-mfnet", to_fr.0, to_fr.1),
+                ("mf-to-fr-rtfnet50", to_fr.0, to_fr.1),
+                ("mf-to-fr-heatnet", to_fr.0, to_fr.1),
+                ("fr-to-mf-heatnet", Data::Mf, Some("freiburg-to-mf")),
+            ]
+        );
+        assert!(t
+            .cells
+            .iter()
+            .all(|c| (c.eval_on != c.data) == c.class_map.is_some()));
+        let row = |label: &str| t.rows.iter().find(|r| r.label == label).unwrap();
+        let metrics = |label: &str| -> Vec<Option<Metric>> {
+            row(label)
+                .measure
+                .iter()
+                .map(|m| m.as_ref().map(|m| m.metric.clone()))
+                .collect()
+        };
+        let mfnet = metrics("MF→FR-T Day/Night: MFNet");
+        assert!(mfnet[..9].iter().all(Option::is_none));
+        assert_eq!(mfnet[9], Some(Metric::ClassIoU(Subset::DayNight, 0)));
+        assert_eq!(mfnet[11], Some(Metric::ClassIoU(Subset::DayNight, 2)));
+        assert_eq!(
+            mfnet[12],
+            Some(Metric::MeanClassIoU(Subset::DayNight, &[0, 1, 2]))
+        );
+        // The paper's MF-trained HeatNet is scored on 12 classes: no 3-class Mean beside it.
+        let heatnet = metrics("MF→FR-T Day/Night: HeatNet");
+        assert_eq!(heatnet[10], Some(Metric::ClassIoU(Subset::DayNight, 1)));
+        assert_eq!(heatnet[12], None);
+        let back = metrics("FR-T→MF: HeatNet");
+        assert_eq!(back[9], Some(Metric::ClassIoU(Subset::All, 0)));
+        assert_eq!(
+            row("FR-T→MF: HeatNet").measure[9].as_ref().unwrap().cell,
+            "fr-to-mf-heatnet"
+        );
+    }
+
     #[test]
     fn paper_numbers_are_transcribed_as_printed() {
         let t = all(false);

@@ -180,14 +180,7 @@ pub fn run(args: Args) -> Result<()> {
     let device = args.run.device()?;
     let (split, dataset) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();
-    let (network_classes, mapping) = match &args.class_map {
-        // Weights that record their classes score only data with the same ones (by name).
-        None => {
-            super::check_classes(&args.weights, &args.data, &classes)?;
-            (classes.clone(), None)
-        }
-        Some(map) => class_mapping(map, &args.weights, &classes)?,
-    };
+    let (network_classes, mapping) = class_mapping(&args, &classes)?;
     let loaded = load_network(&args.run.request(
         &args.model,
         &args.weights,
@@ -203,14 +196,8 @@ pub fn run(args: Args) -> Result<()> {
         .as_ref()
         .map(|_| rtf_data::fingerprint::fingerprint_opened(&dataset))
         .transpose()?;
-    let report = rtf_eval::evaluate_mapped(
-        network.as_ref(),
-        split.clone(),
-        &options,
-        None,
-        mapping.as_ref(),
-        device,
-    )?;
+    let (net, map) = (network.as_ref(), mapping.as_ref());
+    let report = rtf_eval::evaluate_mapped(net, split.clone(), &options, None, map, device)?;
     let (heatnet, mapped) = match &mapping {
         None => (
             print_scores(&args, dataset.format(), &report, loaded.inputs),
@@ -218,15 +205,8 @@ pub fn run(args: Args) -> Result<()> {
         ),
         Some(m) => (None, Some(print_mapped(&args, m, &report, loaded.inputs))),
     };
-    let dropped = scores_without_modalities(
-        &args,
-        network.as_ref(),
-        loaded.inputs,
-        &split,
-        &options,
-        mapping.as_ref(),
-        device,
-    )?;
+    let (sees, options) = (loaded.inputs, &options);
+    let dropped = scores_without_modalities(&args, net, sees, &split, options, map, device)?;
     if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
         let file = ScoresFile {
             schema: EVAL_SCHEMA,
@@ -323,18 +303,24 @@ fn print_scores(
     heatnet
 }
 
-/// `--class-map`: the network's class set (its weights' record, else the map's
-/// `network_classes`, else MF's as for any weights without a record) and the map checked
-/// against it and the data's, before anything runs.
+/// The network's class set and the `--class-map` checked against it and the data's, before
+/// anything runs. Without a map: the data's classes, which weights that record theirs must
+/// have (by name). With one: the weights' record, else the map's `network_classes`, else
+/// MF's (as for any weights without a record).
 fn class_mapping(
-    spec: &str,
-    weights: &Path,
+    args: &Args,
     data: &rtf_core::ClassSet,
 ) -> Result<(rtf_core::ClassSet, Option<ClassMapping>)> {
+    let Some(spec) = &args.class_map else {
+        super::check_classes(&args.weights, &args.data, data)?;
+        return Ok((data.clone(), None));
+    };
     let map = ClassMap::load(spec)?;
-    let network = match super::trained_on(weights)? {
+    let network = match super::trained_on(&args.weights)? {
         Some(trained) => trained.classes,
-        None => map.network_class_set()?.unwrap_or_else(rtf_core::ClassSet::mf),
+        None => map
+            .network_class_set()?
+            .unwrap_or_else(rtf_core::ClassSet::mf),
     };
     let mapping = map.resolve(&network, data)?;
     Ok((network, Some(mapping)))
