@@ -192,7 +192,8 @@ fn check_mapping(
     let data = source.class_set().names();
     if network.num_classes() as usize != map.network_classes.len() || data != map.data_classes {
         return Err(EvalError::Shape(format!(
-            "class map `{}` was checked against a network of {} classes and data of classes              {:?}; this network has {} and the data {:?}",
+            "class map `{}` was checked against a network of {} classes and data of classes \
+             {:?}; this network has {} and the data {:?}",
             map.map.name,
             map.network_classes.len(),
             map.data_classes,

@@ -639,6 +639,15 @@ pub fn claims(table: &str, v: &Value) -> Vec<Claim> {
                 &pairs,
             )]
         }
+        "heatnet-tab1" => vec![greater(
+            v,
+            "MF-trained networks do not generalise to FR-T (HeatNet Sec. V-B): MFNet's and \
+             RTFNet-50's person/car/bicycle mean on MF above the same on FR-T Day/Night",
+            &[
+                (("MF→MF: MFNet", "Mean"), ("MF→FR-T Day/Night: MFNet", "Mean")),
+                (("MF→MF: RTFNet-50", "Mean"), ("MF→FR-T Day/Night: RTFNet-50", "Mean")),
+            ],
+        )],
         "heatnet-tab2" => vec![greater(
             v,
             "The domain discriminator helps at night: V5 night mIoU above V3",

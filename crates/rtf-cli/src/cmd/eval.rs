@@ -262,14 +262,7 @@ fn print_scores(
     report: &rtf_eval::EvalReport,
     inputs: rtf_models::Modality,
 ) -> Option<HeatnetScores> {
-    println!(
-        "{} on {} `{}` ({} frames, inputs {})",
-        args.model,
-        args.data.display(),
-        args.split,
-        report.frames,
-        inputs
-    );
+    print_header(args, report, inputs);
     println!("inference: {}", args.inference().describe());
     println!("{}", report.all.table());
     let heatnet = (format == DatasetFormat::Freiburg).then(|| HeatnetScores::of(report));
@@ -326,6 +319,18 @@ fn class_mapping(
     Ok((network, Some(mapping)))
 }
 
+/// The first line of the scores: network, data, split, frames, inputs.
+fn print_header(args: &Args, report: &rtf_eval::EvalReport, inputs: rtf_models::Modality) {
+    println!(
+        "{} on {} `{}` ({} frames, inputs {})",
+        args.model,
+        args.data.display(),
+        args.split,
+        report.frames,
+        inputs
+    );
+}
+
 /// The scores through a class map: the scored classes' table (then "other"), the mean IoU over
 /// the scored classes, day and night. Returns them for the JSON.
 fn print_mapped(
@@ -335,14 +340,7 @@ fn print_mapped(
     inputs: rtf_models::Modality,
 ) -> ClassMapScores {
     let s = ClassMapScores::of(mapping, report);
-    println!(
-        "{} on {} `{}` ({} frames, inputs {})",
-        args.model,
-        args.data.display(),
-        args.split,
-        report.frames,
-        inputs
-    );
+    print_header(args, report, inputs);
     println!(
         "class map {} ({}): scored {}; other pixels {:?}",
         s.name,
