@@ -593,8 +593,12 @@ fn dry_run_cell(ctx: &Context, t: &Table, c: &tables::Cell, seed: usize) -> Resu
     let network = ctx
         .network(c)
         .unwrap_or_else(|_| "<the recipe's network>".into());
-    let eval = cells::eval_command(ctx, &dir, &spec, &network, &weights)?;
-    Ok(format!("rtf {}\nrtf {}\n", train.join(" "), eval.join(" ")))
+    let mut text = format!("rtf {}\n", train.join(" "));
+    for run in cells::eval_runs(&spec) {
+        let eval = cells::eval_command(ctx, &dir, &spec, &network, &weights, run)?;
+        text += &format!("rtf {}\n", eval.join(" "));
+    }
+    Ok(text)
 }
 
 /// The reason recorded for a cell that `--cells` leaves out.
