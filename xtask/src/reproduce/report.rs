@@ -255,11 +255,12 @@ fn cell_recipes(ctx: &Context, table: &Table) -> serde_json::Map<String, Value> 
     let mut recipes = serde_json::Map::new();
     for cell in &table.cells {
         if let Ok(spec) = ctx.spec(table, cell, 0) {
-            recipes.insert(
-                cell.id.clone(),
-                json!({"rtf_train": spec["rtf_train"], "rtf_eval": spec["rtf_eval"],
-                       "eval_data": spec["eval_data"]}),
-            );
+            let mut recipe = json!({"rtf_train": spec["rtf_train"], "rtf_eval": spec["rtf_eval"],
+                                    "eval_data": spec["eval_data"]});
+            if let Some(own) = spec.get("rtf_eval_own") {
+                recipe["rtf_eval_own"] = own.clone();
+            }
+            recipes.insert(cell.id.clone(), recipe);
         }
     }
     recipes
