@@ -233,11 +233,8 @@ impl ClassMap {
             }
             seen.push(&c.name);
         }
-        let side = |set: &ClassSet, which: &str, refs: fn(&ScoredClass) -> &[ClassRef]| {
-            self.side(set, which, refs)
-        };
-        let network_to_scored = side(network, "network", |c| &c.network)?;
-        let data_to_scored = side(data, "data", |c| &c.data)?;
+        let network_to_scored = self.side(network, "network", |c| &c.network)?;
+        let data_to_scored = self.side(data, "data", |c| &c.data)?;
         let other = k as u8;
         let data_lookup = (0..256usize)
             .map(|v| match data_to_scored.get(v) {
