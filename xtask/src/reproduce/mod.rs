@@ -1182,7 +1182,9 @@ in the authors' code, which maps Freiburg's other classes to MF's unlabeled (spe
 paper's MF-trained HeatNet learned Freiburg's classes from its teacher on MF images and is
 scored on all 12; rtf's `mf-heatnet` learns MF's labels, so that row measures the three shared
 classes and leaves the paper's 12-class Mean without a measured counterpart. These cells
-train their network again (the same recipe as the MF→MF or FR-T row's cell), once per seed.
+train their network again (the same recipe as the MF→MF or FR-T row's cell), once per seed,
+and also score it on its own dataset's test split (`eval-own.json`): whether it learned is
+judged there, against the same all-unlabelled bar as every other cell.
 
 **Cells.** Each trained network is an ordinary run folder `<out>/<table>/<cell>/seed<k>/`
 (`rtf train` files plus `cell.json`, the exact commands, `eval.json`, `xtask.log`). A re-run
