@@ -21,6 +21,7 @@ use rtf_models::Network;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
 
+use crate::class_map::ClassMapping;
 use crate::metrics::{ConfusionMatrix, Scores};
 
 pub mod inference;
@@ -37,6 +38,8 @@ pub enum EvalError {
     Inference(String),
     #[error(transparent)]
     Torch(#[from] tch::TchError),
+    #[error(transparent)]
+    ClassMap(#[from] crate::class_map::ClassMapError),
     #[error(
         "out of memory: {network} on a batch of {batch} frame(s) of {width}x{height} needs {}, \
          {}{detail}; run at a smaller size (--resize WxH, e.g. 640x480) or with a smaller \
@@ -158,8 +161,47 @@ pub fn evaluate_with_drop(
     drop: Option<ModalityDrop>,
     device: Device,
 ) -> Result<EvalReport, EvalError> {
+    evaluate_mapped(network, source, options, drop, None, device)
+}
+
+/// [`evaluate_with_drop`] through a class map: predictions and labels translated to the
+/// map's scored classes (then "other"), so a network is scored on a dataset with another
+/// class set (`crate::class_map`). The report's classes are the map's
+/// ([`ClassMapping::matrix_names`]); without a map it is [`evaluate_with_drop`].
+pub fn evaluate_mapped(
+    network: &dyn Network,
+    source: Arc<dyn FrameSource>,
+    options: &EvalOptions,
+    drop: Option<ModalityDrop>,
+    map: Option<&ClassMapping>,
+    device: Device,
+) -> Result<EvalReport, EvalError> {
+    if let Some(map) = map {
+        check_mapping(network, source.as_ref(), map)?;
+    }
     let loader = split_loader(source, options, network.input_convention());
-    evaluate_loader_with(network, &loader, drop, &options.inference, device)
+    evaluate_loader_inner(network, &loader, drop, &options.inference, map, device)
+}
+
+/// Refuses a map resolved for other class sets than the network's outputs and the split's.
+fn check_mapping(
+    network: &dyn Network,
+    source: &dyn FrameSource,
+    map: &ClassMapping,
+) -> Result<(), EvalError> {
+    let data = source.class_set().names();
+    if network.num_classes() as usize != map.network_classes.len() || data != map.data_classes {
+        return Err(EvalError::Shape(format!(
+            "class map `{}` was checked against a network of {} classes and data of classes \
+             {:?}; this network has {} and the data {:?}",
+            map.map.name,
+            map.network_classes.len(),
+            map.data_classes,
+            network.num_classes(),
+            data
+        )));
+    }
+    Ok(())
 }
 
 /// The loader that [`evaluate_loader`] reads a split through (in order, every frame, no
@@ -208,30 +250,31 @@ pub fn evaluate_loader_with(
     inference: &InferenceOptions,
     device: Device,
 ) -> Result<EvalReport, EvalError> {
+    evaluate_loader_inner(network, loader, drop, inference, None, device)
+}
+
+/// [`evaluate_loader_with`], through `map` when given ([`evaluate_mapped`]).
+fn evaluate_loader_inner(
+    network: &dyn Network,
+    loader: &Loader,
+    drop: Option<ModalityDrop>,
+    inference: &InferenceOptions,
+    map: Option<&ClassMapping>,
+    device: Device,
+) -> Result<EvalReport, EvalError> {
     inference.validate()?;
+    let fill = drop_fill_values(network, loader, drop)?;
     let source = loader.source();
-    let convention = network.input_convention();
-    // Values (already in the network's input scale) of the dropped channels.
-    let fill: Option<(usize, Vec<f64>)> = match drop {
-        None => None,
-        Some(d) => {
-            let (first, count) = d.modality.channels();
-            let unit = match d.fill {
-                DropFill::Zero => vec![0.0; count],
-                DropFill::Mean => channel_means(source.as_ref())?[first..first + count].to_vec(),
-            };
-            let values = unit
-                .iter()
-                .map(|&u| convention.apply(u as f32) as f64)
-                .collect();
-            Some((first, values))
-        }
+    let classes = source.class_set();
+    // Without a map the split's classes; with one the scored classes, then "other".
+    let (names, ignore): (Vec<&str>, Option<u8>) = match map {
+        None => (classes.names(), classes.ignore_id),
+        Some(m) => (m.matrix_names(), Some(m.dropped())),
     };
-    let classes = source.class_set().clone();
-    let n = classes.len();
-    let mut day = ConfusionMatrix::new(n, classes.ignore_id);
-    let mut night = ConfusionMatrix::new(n, classes.ignore_id);
-    let mut unknown = ConfusionMatrix::new(n, classes.ignore_id);
+    let n = names.len();
+    let mut day = ConfusionMatrix::new(n, ignore);
+    let mut night = ConfusionMatrix::new(n, ignore);
+    let mut unknown = ConfusionMatrix::new(n, ignore);
     check_split_memory(network, loader, inference, device)?;
     let mut frames = 0;
     let _guard = tch::no_grad_guard();
@@ -243,8 +286,11 @@ pub fn evaluate_loader_with(
                 let _ = input.narrow(1, (first + c) as i64, 1).fill_(v);
             }
         }
-        let prediction = inference::predict(network, &input, inference)?;
-        let target = batch.target.to_device(device);
+        let mut prediction = inference::predict(network, &input, inference)?;
+        let mut target = batch.target.to_device(device);
+        if let Some(m) = map {
+            (target, prediction) = (m.map_truth(&target), m.map_prediction(&prediction));
+        }
         for (i, daytime) in batch.daytimes.iter().enumerate() {
             let matrix = match daytime {
                 Some(Daytime::Day) => &mut day,
@@ -255,7 +301,6 @@ pub fn evaluate_loader_with(
         }
         frames += batch.names.len();
     }
-    let names = classes.names();
     let mut all = day.clone();
     all.merge(&night);
     all.merge(&unknown);
@@ -267,6 +312,27 @@ pub fn evaluate_loader_with(
         night: scores_if_any(&night),
         confusion: all,
     })
+}
+
+/// The first channel and the values (in the network's input scale) that replace a dropped
+/// modality; None without a drop.
+fn drop_fill_values(
+    network: &dyn Network,
+    loader: &Loader,
+    drop: Option<ModalityDrop>,
+) -> Result<Option<(usize, Vec<f64>)>, EvalError> {
+    let Some(d) = drop else { return Ok(None) };
+    let (first, count) = d.modality.channels();
+    let unit = match d.fill {
+        DropFill::Zero => vec![0.0; count],
+        DropFill::Mean => channel_means(loader.source().as_ref())?[first..first + count].to_vec(),
+    };
+    let convention = network.input_convention();
+    let values = unit
+        .iter()
+        .map(|&u| convention.apply(u as f32) as f64)
+        .collect();
+    Ok(Some((first, values)))
 }
 
 /// [`check_memory`] for the largest forward pass of an evaluation of `loader`'s frames.

@@ -1,6 +1,7 @@
 //! rtf-eval: metrics (confusion matrix, per-class Acc/IoU in the papers' conventions),
 //! evaluation of any network on a split, figures.
 
+pub mod class_map;
 pub mod evaluate;
 pub mod figure;
 pub mod metrics;
@@ -14,9 +15,10 @@ pub const EVAL_SCHEMA: &str = "rtf-eval/1";
 /// Whole image, sliding windows, scales and flip (a part of [`evaluate`]).
 pub use evaluate::inference;
 
+pub use class_map::{ClassMap, ClassMapError, ClassMapScores, ClassMapping, OtherPixels};
 pub use evaluate::{
-    evaluate, evaluate_with_drop, DropFill, EvalError, EvalOptions, EvalReport, Modality,
-    ModalityDrop,
+    evaluate, evaluate_mapped, evaluate_with_drop, DropFill, EvalError, EvalOptions, EvalReport,
+    Modality, ModalityDrop,
 };
 pub use inference::{Inference, InferenceOptions};
 pub use metrics::{ClassScore, ConfusionMatrix, Scores};

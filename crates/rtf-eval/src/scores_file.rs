@@ -43,6 +43,10 @@ pub struct ScoresFile<'a> {
     pub night: Option<&'a Scores>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub heatnet: Option<HeatnetScores>,
+    /// `--class-map`: the map, the classes it scores and their mean IoU; the scores and the
+    /// matrix above are then over the scored classes and "other".
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub class_map: Option<crate::ClassMapScores>,
     /// Content hash of the data evaluated (`rtf data fingerprint`).
     pub data_fingerprint: &'a rtf_data::Fingerprint,
     /// Class names, then the split's pixel counts, rows = truth, columns = prediction.

@@ -15,6 +15,9 @@ use std::process::{Command, Stdio};
 
 pub const CELL_FILE: &str = "cell.json";
 pub const EVAL_FILE: &str = "eval.json";
+/// A cross-dataset cell's evaluation on its training dataset's test split (no class map):
+/// whether its network learned is judged on it, as for every other cell.
+pub const OWN_EVAL_FILE: &str = "eval-own.json";
 pub const BENCH_FILE: &str = "bench.json";
 const LOG_FILE: &str = "xtask.log";
 
@@ -130,25 +133,10 @@ impl Context {
                 v
             }
         };
-        let mut eval = self.budget.eval_args(*train_real);
-        if let Train::Recipe(r) = &cell.train {
-            // The recipe's last stage sees these channels; the CPU budgets' frame size.
-            let inputs = self
-                .recipes
-                .get(*r)
-                .and_then(|e| e.get("inputs").and_then(Value::as_str))
-                .unwrap_or("rgb_t");
-            eval.extend(["--inputs".to_string(), inputs.to_string()]);
-            if self.budget != Budget::Paper && !eval.iter().any(|a| a == "--resize") {
-                eval.extend([
-                    "--resize".to_string(),
-                    self.budget.synth(Data::Freiburg).1.to_string(),
-                ]);
-            }
-        }
+        let eval = self.eval_flags(cell, cell.eval_on, *train_real);
         train.extend(["--seed".into(), seed.to_string()]);
         train.extend(["--device".into(), self.device.clone()]);
-        Ok(json!({
+        let mut spec = json!({
             "table": table.id,
             "cell": cell.id,
             "seed": seed,
@@ -157,7 +145,44 @@ impl Context {
             "eval_data": eval_root,
             "rtf_train": train,
             "rtf_eval": eval,
-        }))
+        });
+        if cell.class_map.is_some() {
+            spec["rtf_eval_own"] = json!(self.eval_flags(cell, cell.data, *train_real));
+        }
+        Ok(spec)
+    }
+
+    /// `rtf eval` flags of the cell's network on `target`'s test split: the budget's, the
+    /// recipe's inputs and the CPU budgets' frame size, and the class map where `target` is
+    /// not the training dataset.
+    fn eval_flags(&self, cell: &Cell, target: Data, train_real: bool) -> Vec<String> {
+        let mut eval = self.budget.eval_args(train_real);
+        if let Train::Recipe(r) = &cell.train {
+            // The recipe's last stage sees these channels; the CPU budgets' frame size.
+            let inputs = self
+                .recipes
+                .get(*r)
+                .and_then(|e| e.get("inputs").and_then(Value::as_str))
+                .unwrap_or("rgb_t");
+            eval.extend(["--inputs".to_string(), inputs.to_string()]);
+        }
+        let other = target != cell.data;
+        let resized = eval.iter().any(|a| a == "--resize");
+        // Recipes on the CPU budgets, and any network on the other dataset (Freiburg's test
+        // preprocessing would give 320×704): that dataset's synthetic frame size.
+        if self.budget != Budget::Paper
+            && !resized
+            && (other || matches!(cell.train, Train::Recipe(_)))
+        {
+            eval.extend([
+                "--resize".to_string(),
+                self.budget.synth(target).1.to_string(),
+            ]);
+        }
+        if let (true, Some(map)) = (other, cell.class_map) {
+            eval.extend(["--class-map".to_string(), map.to_string()]);
+        }
+        eval
     }
 }
 
@@ -249,6 +274,10 @@ fn run_cell(ctx: &Context, table: &Table, cell: &Cell, seed: usize, dir: &Path) 
 /// Takes the scores of `other`, a finished cell with the same training and evaluation, instead
 /// of training again (recorded as `reused_from` in the cell's spec).
 fn reuse(ctx: &Context, cell: &Cell, dir: &Path, spec: &Value, other: PathBuf) -> Result<Outcome> {
+    if other.join(OWN_EVAL_FILE).is_file() {
+        std::fs::copy(other.join(OWN_EVAL_FILE), dir.join(OWN_EVAL_FILE))
+            .with_context(|| format!("copying {}", other.join(OWN_EVAL_FILE).display()))?;
+    }
     std::fs::copy(other.join(EVAL_FILE), dir.join(EVAL_FILE))
         .with_context(|| format!("copying {}", other.join(EVAL_FILE).display()))?;
     let mut spec = spec.clone();
@@ -280,24 +309,38 @@ fn train(ctx: &Context, dir: &Path, spec: &Value, resume: bool) -> Result<Outcom
     }
 }
 
-/// `rtf eval` of the cell's weights on the test split into `eval.json`. The protocol: the
-/// checkpoint picked on validation where a validation split was used (MF), else the final
-/// weights.
+/// `rtf eval` of the cell's weights on the test split into `eval.json` (a cross-dataset cell:
+/// first on its own dataset's into `eval-own.json`; `eval.json` comes last, as it marks the
+/// cell done). The protocol: the checkpoint picked on validation where a validation split was
+/// used (MF), else the final weights.
 fn evaluate(ctx: &Context, dir: &Path, spec: &Value, network: &str) -> Result<()> {
     let weights = Weights::of(dir)
         .selected()
         .map_or_else(|| dir.join(rtf_run::FINAL_FILE), Path::to_path_buf);
-    let args = eval_command(ctx, dir, spec, network, &weights)?;
-    let ended = rtf(ctx, dir, &args)?;
-    if ended != Ended::Exit(0) {
-        bail!(
-            "`rtf {}` failed ({ended}); its output: {}{}",
-            args.join(" "),
-            dir.join(LOG_FILE).display(),
-            log_tail(dir)
-        );
+    for run in eval_runs(spec) {
+        let args = eval_command(ctx, dir, spec, network, &weights, run)?;
+        let ended = rtf(ctx, dir, &args)?;
+        if ended != Ended::Exit(0) {
+            bail!(
+                "`rtf {}` failed ({ended}); its output: {}{}",
+                args.join(" "),
+                dir.join(LOG_FILE).display(),
+                log_tail(dir)
+            );
+        }
     }
     Ok(())
+}
+
+/// A cell's evaluations in the order they run, as (data key, flags key, file) of its spec:
+/// a cross-dataset cell's on its own dataset first, then the table's into `eval.json`.
+pub fn eval_runs(spec: &Value) -> Vec<(&'static str, &'static str, &'static str)> {
+    let mut runs = Vec::new();
+    if spec.get("rtf_eval_own").is_some() {
+        runs.push(("train_data", "rtf_eval_own", OWN_EVAL_FILE));
+    }
+    runs.push(("eval_data", "rtf_eval", EVAL_FILE));
+    runs
 }
 
 /// The `rtf` arguments of a fresh training of the cell in `dir`.
@@ -309,13 +352,16 @@ pub fn train_command(dir: &Path, spec: &Value) -> Result<Vec<String>> {
     Ok(args)
 }
 
-/// The `rtf` arguments of the cell's evaluation of `weights` on the test split.
+/// The `rtf` arguments of the cell's evaluation of `weights` on the test split of the spec's
+/// `data` root with its `flags`, into `file` (`("eval_data", "rtf_eval", EVAL_FILE)`: the
+/// table's evaluation).
 pub fn eval_command(
     ctx: &Context,
     dir: &Path,
     spec: &Value,
     network: &str,
     weights: &Path,
+    (data, flags, file): (&str, &str, &str),
 ) -> Result<Vec<String>> {
     let mut args: Vec<String> = [
         "eval",
@@ -324,17 +370,17 @@ pub fn eval_command(
         "--weights",
         &weights.display().to_string(),
         "--data",
-        spec["eval_data"].as_str().context("eval_data")?,
+        spec[data].as_str().context("eval data")?,
         "--split",
         "test",
         "--json",
-        &dir.join(EVAL_FILE).display().to_string(),
+        &dir.join(file).display().to_string(),
         "--device",
         &ctx.device,
     ]
     .map(String::from)
     .to_vec();
-    args.extend(strings(&spec["rtf_eval"]));
+    args.extend(strings(&spec[flags]));
     Ok(args)
 }
 
@@ -685,5 +731,42 @@ esac
         );
         std::fs::write(tmp.path().join(CELL_FILE), "nope").unwrap();
         assert!(check_spec(tmp.path(), &spec).is_err());
+    }
+
+    /// HeatNet Tab. I's cross-dataset cells train on one dataset and are scored on the other
+    /// through the built-in map, at the evaluated dataset's CPU-budget size.
+    #[test]
+    fn cross_dataset_cells_evaluate_the_other_dataset_through_the_map() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut ctx = fake_context(tmp.path());
+        ctx.budget = Budget::Quick;
+        let fr = tmp.path().join("fr");
+        ctx.data.insert(Data::Freiburg, (fr.clone(), false));
+        let tables = crate::reproduce::tables::all(false);
+        let tab1 = tables.iter().find(|t| t.id == "heatnet-tab1").unwrap();
+        let spec = |id: &str| ctx.spec(tab1, tab1.cell(id).unwrap(), 0).unwrap();
+        let to_fr = spec("mf-to-fr-mfnet");
+        assert_eq!(to_fr["train_data"], json!(tmp.path().join("data")));
+        assert_eq!(to_fr["eval_data"], json!(fr));
+        let eval = strings(&to_fr["rtf_eval"]).join(" ");
+        assert!(
+            eval.ends_with("--resize 192x96 --class-map mf-to-freiburg"),
+            "{eval}"
+        );
+        let back = strings(&spec("fr-to-mf-heatnet")["rtf_eval"]).join(" ");
+        assert!(back.contains("--resize 96x64"), "{back}");
+        assert!(back.ends_with("--class-map freiburg-to-mf"), "{back}");
+        // Whether the network learned is judged on its own dataset, without the map.
+        assert_eq!(strings(&to_fr["rtf_eval_own"]).join(" "), "--batch-size 4");
+        let own_back = strings(&spec("fr-to-mf-heatnet")["rtf_eval_own"]).join(" ");
+        assert!(own_back.ends_with("--resize 192x96"), "{own_back}");
+        let runs: Vec<_> = eval_runs(&to_fr).into_iter().map(|r| r.2).collect();
+        assert_eq!(runs, [OWN_EVAL_FILE, EVAL_FILE]);
+        // The Freiburg rows keep their evaluation as before.
+        let own = spec("heatnet");
+        let flags = strings(&own["rtf_eval"]).join(" ");
+        assert!(flags.ends_with("--resize 192x96"), "{flags}");
+        assert!(own.get("rtf_eval_own").is_none());
+        assert_eq!(eval_runs(&own).len(), 1);
     }
 }

@@ -51,6 +51,9 @@ pub struct Cell {
     pub data: Data,
     /// Evaluation data (differs for the cross-dataset rows of HeatNet Tab. I).
     pub eval_on: Data,
+    /// `rtf eval --class-map` (a built-in map) where `eval_on`'s classes are not the
+    /// network's.
+    pub class_map: Option<&'static str>,
     /// Measure the inference time (`rtf bench model`) too.
     pub bench: bool,
     /// Why this cell cannot be run by rtf yet (reported, never silently skipped).
@@ -202,6 +205,7 @@ fn cell(id: &str, train: Train, data: Data) -> Cell {
         train,
         data,
         eval_on: data,
+        class_map: None,
         bench: false,
         blocked: None,
     }
@@ -1012,8 +1016,6 @@ const HEATNET_TAB1: [(&str, &str, &str, [&str; 13]); 16] = [
 /// MF class ids of person, car, bike (spec §1), in Tab. I's column order person, car, bicycle.
 const MF_PERSON_CAR_BIKE: [usize; 3] = [2, 1, 3];
 
-const CROSS_DATASET: &str = "`rtf eval` has no cross-dataset class map yet (MF↔FR-T through \
-     person/car/bicycle, HeatNet Tab. I): needs an `--class-map` evaluation";
 const BDD_EVAL: &str = "`rtf eval` does not open BDD100K roots yet (RGB-only evaluation of the \
      distilled network)";
 
@@ -1039,7 +1041,12 @@ fn heatnet_tab1(with_bdd: bool) -> Table {
                      nan-mean over them, ignore (13) dropped, background (12) predictions count \
                      as false positives; Day/Night = mean of the day and the night score (spec \
                      §2). MF rows: RTFNet-convention class IoU of person, car, bicycle and \
-                     their mean. Freiburg cells report the final weights: its only labelled \
+                     their mean. MF↔FR-T rows: scored through `rtf eval --class-map` \
+                     (mf-to-freiburg, freiburg-to-mf: person, car, bicycle; the other classes' \
+                     truth pixels count as false positives where predicted as one of the three, \
+                     as the authors' code maps them to MF's unlabeled), the mean over the \
+                     three; the MF-trained HeatNet learns MF's classes here, so its row has no \
+                     12-class Mean. Freiburg cells report the final weights: its only labelled \
                      held-out part is the test layout, so no checkpoint is picked on it.",
         columns,
         rows,
@@ -1054,30 +1061,14 @@ fn heatnet_tab1_cells(with_bdd: bool) -> Vec<Cell> {
         cell("mf-mfnet", Train::Model("mfnet"), Data::Mf),
         cell("mf-rtfnet50", Train::Model("rtfnet50"), Data::Mf),
         cell("mf-heatnet", Train::Model("heatnet"), Data::Mf),
-        Cell {
-            eval_on: Data::Freiburg,
-            blocked: Some(CROSS_DATASET),
-            ..cell("mf-to-fr-mfnet", Train::Model("mfnet"), Data::Mf)
-        },
-        Cell {
-            eval_on: Data::Freiburg,
-            blocked: Some(CROSS_DATASET),
-            ..cell("mf-to-fr-rtfnet50", Train::Model("rtfnet50"), Data::Mf)
-        },
-        Cell {
-            eval_on: Data::Freiburg,
-            blocked: Some(CROSS_DATASET),
-            ..cell("mf-to-fr-heatnet", Train::Model("heatnet"), Data::Mf)
-        },
-        Cell {
-            eval_on: Data::Mf,
-            blocked: Some(CROSS_DATASET),
-            ..cell(
-                "fr-to-mf-heatnet",
-                Train::Recipe("heatnet-v6"),
-                Data::Freiburg,
-            )
-        },
+        cross("mf-to-fr-mfnet", Train::Model("mfnet"), Data::Mf),
+        cross("mf-to-fr-rtfnet50", Train::Model("rtfnet50"), Data::Mf),
+        cross("mf-to-fr-heatnet", Train::Model("heatnet"), Data::Mf),
+        cross(
+            "fr-to-mf-heatnet",
+            Train::Recipe("heatnet-v6"),
+            Data::Freiburg,
+        ),
         cell(
             "teacher-rgb",
             Train::Recipe("heatnet-teacher-rgb"),
@@ -1106,6 +1097,24 @@ fn heatnet_tab1_cells(with_bdd: bool) -> Vec<Cell> {
     cells
 }
 
+/// A cell trained on `data` and scored on the other of MF and Freiburg Thermal through the
+/// built-in map of HeatNet Tab. I (person, car, bicycle; `rtf eval --class-map`).
+fn cross(id: &str, train: Train, data: Data) -> Cell {
+    let (eval_on, map) = match data {
+        Data::Mf => (Data::Freiburg, "mf-to-freiburg"),
+        _ => (Data::Mf, "freiburg-to-mf"),
+    };
+    Cell {
+        eval_on,
+        class_map: Some(map),
+        ..cell(id, train, data)
+    }
+}
+
+/// Indices of person, car, bicycle in a `rtf eval --class-map` scores file of [`cross`]'s
+/// maps (the scored classes, in Tab. I's column order).
+const MAPPED_PERSON_CAR_BICYCLE: [usize; 3] = [0, 1, 2];
+
 /// One row of HeatNet Tab. I from its transcription `(label, cell, subset, paper values)`:
 /// Freiburg rows measure the 12 class IoUs and HeatNet's mean, MF rows person, car, bicycle
 /// and their mean (RTFNet-convention IoU).
@@ -1126,7 +1135,24 @@ fn heatnet_tab1_row(
             metric,
         })
     };
-    let measure: Vec<Option<Measure>> = if c.eval_on == Data::Mf {
+    let measure: Vec<Option<Measure>> = if c.class_map.is_some() {
+        // Through the map: the three shared classes and their mean. The paper's MF-trained
+        // HeatNet row scores all 12 FR-T classes (its network learned Freiburg's classes from
+        // the teacher on MF images, §V-B); rtf's learns MF's, so that row's Mean (over 12) has
+        // no measured counterpart.
+        let mut v = vec![None; 9];
+        v.extend(
+            MAPPED_PERSON_CAR_BICYCLE
+                .iter()
+                .map(|&k| m(Metric::ClassIoU(subset, k))),
+        );
+        let twelve = paper[0] != "-";
+        v.push(match twelve {
+            true => None,
+            false => m(Metric::MeanClassIoU(subset, &MAPPED_PERSON_CAR_BICYCLE)),
+        });
+        v
+    } else if c.eval_on == Data::Mf {
         let mut v = vec![None; 9];
         v.extend(
             MF_PERSON_CAR_BIKE
@@ -1338,6 +1364,60 @@ mod tests {
         // The paper's column is labelled as the paper's: the source names CMX and its venue.
         assert!(t.source.contains("CMX") && t.source.contains("T-ITS 2023"));
         assert!(t.convention.contains("stand-ins"));
+    }
+
+    /// HeatNet Tab. I's MF↔FR-T rows are measured through the built-in class maps: every
+    /// cell runs (none blocked without BDD), the columns read the scored classes.
+    #[test]
+    fn heatnet_tab1_cross_dataset_rows_go_through_the_class_maps() {
+        let t = heatnet_tab1(false);
+        assert!(t.cells.iter().all(|c| c.blocked.is_none()));
+        let maps: Vec<(&str, Data, Option<&str>)> = t
+            .cells
+            .iter()
+            .filter(|c| c.eval_on != c.data)
+            .map(|c| (c.id.as_str(), c.eval_on, c.class_map))
+            .collect();
+        let to_fr = (Data::Freiburg, Some("mf-to-freiburg"));
+        assert_eq!(
+            maps,
+            [
+                ("mf-to-fr-mfnet", to_fr.0, to_fr.1),
+                ("mf-to-fr-rtfnet50", to_fr.0, to_fr.1),
+                ("mf-to-fr-heatnet", to_fr.0, to_fr.1),
+                ("fr-to-mf-heatnet", Data::Mf, Some("freiburg-to-mf")),
+            ]
+        );
+        assert!(t
+            .cells
+            .iter()
+            .all(|c| (c.eval_on != c.data) == c.class_map.is_some()));
+        let row = |label: &str| t.rows.iter().find(|r| r.label == label).unwrap();
+        let metrics = |label: &str| -> Vec<Option<Metric>> {
+            row(label)
+                .measure
+                .iter()
+                .map(|m| m.as_ref().map(|m| m.metric.clone()))
+                .collect()
+        };
+        let mfnet = metrics("MF→FR-T Day/Night: MFNet");
+        assert!(mfnet[..9].iter().all(Option::is_none));
+        assert_eq!(mfnet[9], Some(Metric::ClassIoU(Subset::DayNight, 0)));
+        assert_eq!(mfnet[11], Some(Metric::ClassIoU(Subset::DayNight, 2)));
+        assert_eq!(
+            mfnet[12],
+            Some(Metric::MeanClassIoU(Subset::DayNight, &[0, 1, 2]))
+        );
+        // The paper's MF-trained HeatNet is scored on 12 classes: no 3-class Mean beside it.
+        let heatnet = metrics("MF→FR-T Day/Night: HeatNet");
+        assert_eq!(heatnet[10], Some(Metric::ClassIoU(Subset::DayNight, 1)));
+        assert_eq!(heatnet[12], None);
+        let back = metrics("FR-T→MF: HeatNet");
+        assert_eq!(back[9], Some(Metric::ClassIoU(Subset::All, 0)));
+        assert_eq!(
+            row("FR-T→MF: HeatNet").measure[9].as_ref().unwrap().cell,
+            "fr-to-mf-heatnet"
+        );
     }
 
     #[test]

@@ -5,7 +5,7 @@ use anyhow::{Context, Result};
 use rtf_data::inspect::DatasetFormat;
 use rtf_data::FrameSource;
 use rtf_eval::scores_file::{single_modality_note, DroppedScores, HeatnetScores, ScoresFile};
-use rtf_eval::{EvalOptions, Scores};
+use rtf_eval::{ClassMap, ClassMapScores, ClassMapping, EvalOptions, Scores};
 
 use super::{load_network, parse_size};
 use crate::output_guard::OutputGuard;
@@ -32,8 +32,14 @@ pub struct Args {
     pub json: Option<PathBuf>,
     /// Write a PNG grid (RGB | thermal | ground truth | prediction) of the first frames, with
     /// column titles and a class legend.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "class_map")]
     pub figure: Option<PathBuf>,
+    /// Score a network on data with another class set through a class map: a built-in one
+    /// (`mf-to-freiburg`, `freiburg-to-mf`: HeatNet Tab. I's person, car, bicycle) or a YAML
+    /// file naming the scored classes and, for each, the network's and the data's classes
+    /// that count as it (docs: training.md, "Another dataset's classes").
+    #[arg(long, value_name = "MAP")]
+    pub class_map: Option<String>,
     /// Replace an existing --json or --figure file that rtf did not write, or a file of the
     /// dataset evaluated (without it such a path stops the run before anything is computed).
     #[arg(long)]
@@ -174,12 +180,11 @@ pub fn run(args: Args) -> Result<()> {
     let device = args.run.device()?;
     let (split, dataset) = open_split(&args.data, &args.split)?;
     let classes = split.class_set().clone();
-    // Weights that record their classes score only data with the same ones (by name).
-    super::check_classes(&args.weights, &args.data, &classes)?;
+    let (network_classes, mapping) = class_mapping(&args, &classes)?;
     let loaded = load_network(&args.run.request(
         &args.model,
         &args.weights,
-        classes.len() as i64,
+        network_classes.len() as i64,
         device,
     ))?;
     let network = loaded.net;
@@ -191,20 +196,24 @@ pub fn run(args: Args) -> Result<()> {
         .as_ref()
         .map(|_| rtf_data::fingerprint::fingerprint_opened(&dataset))
         .transpose()?;
-    let report = rtf_eval::evaluate(network.as_ref(), split.clone(), &options, device)?;
-    let heatnet = print_scores(&args, dataset.format(), &report, loaded.inputs);
-    let dropped = scores_without_modalities(
-        &args,
-        network.as_ref(),
-        loaded.inputs,
-        &split,
-        &options,
-        device,
-    )?;
+    let (net, map) = (network.as_ref(), mapping.as_ref());
+    let report = rtf_eval::evaluate_mapped(net, split.clone(), &options, None, map, device)?;
+    let (heatnet, mapped) = match &mapping {
+        None => (
+            print_scores(&args, dataset.format(), &report, loaded.inputs),
+            None,
+        ),
+        Some(m) => (None, Some(print_mapped(&args, m, &report, loaded.inputs))),
+    };
+    let (sees, options) = (loaded.inputs, &options);
+    let dropped = scores_without_modalities(&args, net, sees, &split, options, map, device)?;
     if let (Some(path), Some(data_fingerprint)) = (&args.json, &data_fingerprint) {
         let file = ScoresFile {
             schema: EVAL_SCHEMA,
-            class_names: classes.names(),
+            class_names: mapping
+                .as_ref()
+                .map_or_else(|| classes.names(), |m| m.matrix_names()),
+            class_map: mapped,
             confusion: confusion_rows(&report.confusion),
             dropped,
             model: &args.model,
@@ -253,14 +262,7 @@ fn print_scores(
     report: &rtf_eval::EvalReport,
     inputs: rtf_models::Modality,
 ) -> Option<HeatnetScores> {
-    println!(
-        "{} on {} `{}` ({} frames, inputs {})",
-        args.model,
-        args.data.display(),
-        args.split,
-        report.frames,
-        inputs
-    );
+    print_header(args, report, inputs);
     println!("inference: {}", args.inference().describe());
     println!("{}", report.all.table());
     let heatnet = (format == DatasetFormat::Freiburg).then(|| HeatnetScores::of(report));
@@ -294,6 +296,71 @@ fn print_scores(
     heatnet
 }
 
+/// The network's class set and the `--class-map` checked against it and the data's, before
+/// anything runs. Without a map: the data's classes, which weights that record theirs must
+/// have (by name). With one: the weights' record, else the map's `network_classes`, else
+/// MF's (as for any weights without a record).
+fn class_mapping(
+    args: &Args,
+    data: &rtf_core::ClassSet,
+) -> Result<(rtf_core::ClassSet, Option<ClassMapping>)> {
+    let Some(spec) = &args.class_map else {
+        super::check_classes(&args.weights, &args.data, data)?;
+        return Ok((data.clone(), None));
+    };
+    let map = ClassMap::load(spec)?;
+    let network = match super::trained_on(&args.weights)? {
+        Some(trained) => trained.classes,
+        None => map
+            .network_class_set()?
+            .unwrap_or_else(rtf_core::ClassSet::mf),
+    };
+    let mapping = map.resolve(&network, data)?;
+    Ok((network, Some(mapping)))
+}
+
+/// The first line of the scores: network, data, split, frames, inputs.
+fn print_header(args: &Args, report: &rtf_eval::EvalReport, inputs: rtf_models::Modality) {
+    println!(
+        "{} on {} `{}` ({} frames, inputs {})",
+        args.model,
+        args.data.display(),
+        args.split,
+        report.frames,
+        inputs
+    );
+}
+
+/// The scores through a class map: the scored classes' table (then "other"), the mean IoU over
+/// the scored classes, day and night. Returns them for the JSON.
+fn print_mapped(
+    args: &Args,
+    mapping: &ClassMapping,
+    report: &rtf_eval::EvalReport,
+    inputs: rtf_models::Modality,
+) -> ClassMapScores {
+    let s = ClassMapScores::of(mapping, report);
+    print_header(args, report, inputs);
+    println!(
+        "class map {} ({}): scored {}; other pixels {:?}",
+        s.name,
+        s.source,
+        s.scored.join(", "),
+        s.other_pixels
+    );
+    println!("inference: {}", args.inference().describe());
+    println!("{}", report.all.table());
+    let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.1}", 100.0 * v));
+    println!(
+        "mIoU over the scored classes: {}  day {}  night {}  day/night {}",
+        pct(s.miou),
+        pct(s.day_miou),
+        pct(s.night_miou),
+        pct(s.day_night_miou)
+    );
+    s
+}
+
 /// `--drop`: the evaluation again with each named modality missing; prints and returns them.
 fn scores_without_modalities(
     args: &Args,
@@ -301,6 +368,7 @@ fn scores_without_modalities(
     sees: rtf_models::Modality,
     split: &Arc<dyn FrameSource>,
     options: &EvalOptions,
+    mapping: Option<&ClassMapping>,
     device: tch::Device,
 ) -> Result<Vec<DroppedScores>> {
     let mut dropped = Vec::new();
@@ -318,7 +386,14 @@ fn scores_without_modalities(
         if let Some(note) = single_modality_note(drop.modality, sees) {
             eprintln!("note: --drop {}: {note}", drop.modality.name());
         }
-        let r = rtf_eval::evaluate_with_drop(network, split.clone(), options, Some(drop), device)?;
+        let r = rtf_eval::evaluate_mapped(
+            network,
+            split.clone(),
+            options,
+            Some(drop),
+            mapping,
+            device,
+        )?;
         let pct = |s: &Option<Scores>| {
             s.as_ref()
                 .map_or("-".into(), |s| format!("{:.1}", 100.0 * s.miou))
