@@ -3,6 +3,7 @@
 
 pub mod evaluate;
 pub mod figure;
+pub mod kernels;
 pub mod metrics;
 pub mod predict;
 pub mod scores_file;
