@@ -186,7 +186,8 @@ const EMULATED_KINDS: [EmulatedKind; 2] = [
         // faster for bf16 3x3 convolutions (issue 57), Zen 4 measured oneDNN's bf16 faster.
         outcomes: &[
             Outcome {
-                name: "bf16 convolutions mixed, bf16 3x3 in Winograd form (Intel model 207's probe)",
+                name:
+                    "bf16 convolutions mixed, bf16 3x3 in Winograd form (Intel model 207's probe)",
                 env: &[
                     ("RTF_BF16_CONVOLUTIONS", "mixed"),
                     ("RTF_BF16_WINOGRAD", "on"),

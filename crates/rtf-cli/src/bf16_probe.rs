@@ -20,9 +20,9 @@
 //! stderr with the measured times before its work; the precision stays what the user typed.
 //!
 //! Before bf16 inference a third measurement, cached the same way, picks the kernels of the
-//! wide 3×3 convolutions ([`Work::Conv3x3`], [`choose_bf16_winograd`]): the fp32 Winograd form
-//! over bf16 maps, or oneDNN's bf16 kernels, whichever ran one such layer faster here. Both
-//! compute bf16 inference (bf16 maps and weights, float sums); only the speed differs.
+//! wide 3×3 convolutions: the library's (`rtf_eval::kernels`, so that a library caller gets
+//! the kernels `rtf predict` gets), made in this process through [`policy`] and [`probe`],
+//! this binary's reading of its environment.
 //!
 //! Before bf16 training a fourth, [`Work::Conv3x3Training`], times such a layer's forward and
 //! backward on fp32 kernels over bf16 operands against oneDNN's bf16 kernels and so picks the
@@ -30,8 +30,9 @@
 
 use anyhow::{Context, Result};
 use rtf_amp::Bf16Convolutions;
-use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
+use rtf_eval::kernels::probe::{Measured, Probe};
+use rtf_eval::kernels::KernelPolicy;
+use rtf_models::fast::InferenceKernels;
 use std::path::{Path, PathBuf};
 
 /// Which kind of work the probe times (`rtf bench bf16-probe --work inference|training|conv3x3`).
@@ -39,10 +40,6 @@ use std::path::{Path, PathBuf};
 pub enum Work {
     Inference,
     Training,
-    /// One wide 3×3 convolution over bf16 maps: fp32 arithmetic (the Winograd form,
-    /// `rtf_models::winograd`) against oneDNN's bf16 kernels. Decides which of the two bf16
-    /// inference takes for such layers ([`choose_bf16_winograd`]).
-    Conv3x3,
     /// One wide 3×3 convolution's forward and backward over bf16 operands, as training runs
     /// it: fp32 kernels (rtf's emulated convolutions) against oneDNN's bf16 kernels. Decides
     /// whether bf16 training takes [`rtf_amp::Bf16Convolutions::Mixed`]
@@ -55,7 +52,6 @@ impl Work {
         match self {
             Work::Inference => "inference",
             Work::Training => "training",
-            Work::Conv3x3 => "conv3x3",
             Work::Conv3x3Training => "conv3x3-training",
         }
     }
@@ -65,7 +61,6 @@ impl Work {
         match self {
             Work::Inference => "MFNet's fast-path forward at 320x240, batch 1",
             Work::Training => "an MFNet training step at 320x240, batch 2",
-            Work::Conv3x3 => "a 3x3 convolution of 256 channels at 80x60 over bf16 maps",
             Work::Conv3x3Training => {
                 "a 3x3 convolution of 256 channels at 80x60, batch 2, forward and backward"
             }
@@ -73,151 +68,63 @@ impl Work {
     }
 }
 
-/// One measurement: seconds per unit of the work in each precision. Where the work compares
-/// two ways of bf16 ([`Work::Conv3x3`], [`Work::Conv3x3Training`]), `fp32_s` is the way with
-/// fp32 kernels (Winograd, emulated) and `bf16_s` oneDNN's bf16 kernels.
-#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct Measured {
-    pub fp32_s: f64,
-    pub bf16_s: f64,
-    /// When it was measured (seconds since the Unix epoch).
-    pub unix_time: u64,
+/// The kernel policy of this process's environment (`RTF_WINOGRAD`, `RTF_BF16_WINOGRAD`):
+/// rtf's commands read it here, at their edge, and pass it into the library.
+pub fn policy() -> Result<KernelPolicy> {
+    Ok(KernelPolicy::from_vars(|var| std::env::var(var).ok())?)
 }
 
-impl Measured {
-    /// bf16's speed as a multiple of fp32's (below 1: bf16 is slower).
-    pub fn speedup(&self) -> f64 {
-        self.fp32_s / self.bf16_s
-    }
-}
-
-/// The cache file: measurements by [`key`].
-#[derive(Serialize, Deserialize, Default, Debug)]
-#[serde(deny_unknown_fields)]
-struct Cache {
-    measurements: BTreeMap<String, Measured>,
-}
-
-/// The cache file's path (`$RTF_CACHE_DIR`, `$XDG_CACHE_HOME/rtf` or `~/.cache/rtf`).
-pub fn cache_path() -> Option<PathBuf> {
-    let dir = std::env::var_os("RTF_CACHE_DIR")
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|d| PathBuf::from(d).join("rtf")))
-        .or_else(|| std::env::var_os("HOME").map(|d| PathBuf::from(d).join(".cache/rtf")))?;
-    Some(dir.join("bf16-probe.json"))
-}
-
-/// What decides which kernels run: the CPU (vendor, family, model, name), the caps set in the
-/// environment, the libtorch build, rtf's Winograd forms ([`rtf_models::winograd::REVISION`])
-/// and the thread count; for [`Work::Training`], the bf16 convolutions in force
-/// (crate::bf16_kernels has made the run's choice by then).
-pub fn key(work: Work) -> String {
+/// The cache of kernel measurements: `$RTF_CACHE_DIR`, `$XDG_CACHE_HOME/rtf` or
+/// `~/.cache/rtf`, file `bf16-probe.json`; measurements told apart by the instruction-set
+/// caps set in the environment.
+pub fn probe() -> Probe {
     let caps: Vec<String> = [
         "ATEN_CPU_CAPABILITY",
         "ONEDNN_MAX_CPU_ISA",
         "MKL_ENABLE_INSTRUCTIONS",
-        rtf_models::winograd::BF16_VAR,
     ]
     .iter()
     .filter_map(|var| std::env::var(var).ok().map(|v| format!("{var}={v}")))
     .collect();
-    let convolutions = match (work, rtf_amp::cpu_bf16_convolutions()) {
-        (Work::Training, Ok(choice)) => format!(" | {} convolutions", choice.name()),
-        _ => String::new(),
-    };
-    format!(
-        "{}{convolutions} | {} | caps [{}] | libtorch {} | winograd r{} | {} threads",
-        work.name(),
-        cpu_identity(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default()),
-        caps.join(" "),
-        libtorch_identity(),
-        rtf_models::winograd::REVISION,
-        tch::get_num_threads()
-    )
-}
-
-/// "vendor family/model name" of the first processor in `/proc/cpuinfo`.
-fn cpu_identity(cpuinfo: &str) -> String {
-    let field = |name: &str| {
-        cpuinfo
-            .lines()
-            .find(|l| l.split(':').next().is_some_and(|k| k.trim() == name))
-            .and_then(|l| l.split_once(':'))
-            .map_or("?", |(_, v)| v.trim())
-            .to_string()
-    };
-    format!(
-        "{} family {} model {} {}",
-        field("vendor_id"),
-        field("cpu family"),
-        field("model"),
-        field("model name")
-    )
-}
-
-/// The libtorch this process runs: the version next to the loaded `libtorch_cpu.so` (a PyPI
-/// wheel's `version.py`, a libtorch archive's `build-version`), else its path.
-fn libtorch_identity() -> String {
-    let maps = std::fs::read_to_string("/proc/self/maps").unwrap_or_default();
-    let Some(lib) = maps
-        .lines()
-        .filter_map(|l| l.split_whitespace().nth(5))
-        .find(|p| p.ends_with("/libtorch_cpu.so"))
+    let dir = std::env::var_os("RTF_CACHE_DIR")
         .map(PathBuf::from)
-    else {
-        return "?".into();
+        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|d| PathBuf::from(d).join("rtf")))
+        .or_else(|| std::env::var_os("HOME").map(|d| PathBuf::from(d).join(".cache/rtf")));
+    match dir {
+        Some(dir) => Probe::cached_in(dir.join("bf16-probe.json"), caps),
+        None => Probe::uncached(caps),
+    }
+}
+
+/// What decides which kernels `work` runs besides the machine ([`Probe::key`]): for
+/// [`Work::Training`], the bf16 convolutions in force (crate::bf16_kernels has made the run's
+/// choice by then); for [`Work::Inference`], the kernels of its wide 3×3 convolutions.
+pub fn key(work: Work, inference: Option<&InferenceKernels>) -> String {
+    let what = match (work, rtf_amp::cpu_bf16_convolutions(), inference) {
+        (Work::Training, Ok(choice), _) => format!("training | {} convolutions", choice.name()),
+        (Work::Inference, _, Some(k)) if k.bf16_winograd => "inference | winograd 3x3".into(),
+        (work, ..) => work.name().to_string(),
     };
-    let root = lib
-        .parent()
-        .and_then(Path::parent)
-        .unwrap_or(Path::new("/"));
-    if let Ok(text) = std::fs::read_to_string(root.join("version.py")) {
-        if let Some(line) = text.lines().find(|l| l.starts_with("__version__")) {
-            return line.split('\'').nth(1).unwrap_or(line).to_string();
-        }
-    }
-    std::fs::read_to_string(root.join("build-version"))
-        .map(|v| v.trim().to_string())
-        .unwrap_or_else(|_| lib.display().to_string())
+    probe().key(&what)
 }
 
-/// The cached measurement for `work` on this machine, measuring (and caching) it first if
-/// there is none. A cache that cannot be read or written costs a measurement, never the run.
-pub fn measured(work: Work) -> Result<(Measured, Option<PathBuf>)> {
-    let key = key(work);
-    let path = cache_path();
-    let mut cache = path.as_deref().map(read_cache).unwrap_or_default();
-    if let Some(m) = cache.measurements.get(&key) {
-        return Ok((m.clone(), path));
-    }
-    let m = measure_in_child(work)?;
-    cache.measurements.insert(key, m.clone());
-    let written = path.filter(|p| write_cache(p, &cache).is_ok());
-    Ok((m, written))
-}
-
-fn read_cache(path: &Path) -> Cache {
-    std::fs::read_to_string(path)
-        .ok()
-        .and_then(|text| serde_json::from_str(&text).ok())
-        .unwrap_or_default()
-}
-
-fn write_cache(path: &Path, cache: &Cache) -> Result<()> {
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
-    let text = serde_json::to_string_pretty(cache)?;
-    rtf_core::write_bytes_atomic(path, text.as_bytes())
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+/// The cached measurement for `work` on this machine, measuring (and caching) it first in a
+/// child process if there is none; inference with `inference`'s kernels.
+pub fn measured(
+    work: Work,
+    inference: Option<&InferenceKernels>,
+) -> Result<(Measured, Option<PathBuf>)> {
+    probe()
+        .measured(&key(work, inference), || {
+            measure_in_child(work, inference).map_err(|e| format!("{e:#}"))
+        })
+        .map_err(anyhow::Error::msg)
 }
 
 /// [`measure`] in a child process (`rtf bench bf16-probe`), so this process's peak memory,
 /// allocator, oneDNN caches and random state are what they would be without the probe. The
 /// child inherits the environment and runs with this process's thread count.
-fn measure_in_child(work: Work) -> Result<Measured> {
+fn measure_in_child(work: Work, inference: Option<&InferenceKernels>) -> Result<Measured> {
     let exe = std::env::current_exe().context("cannot find the rtf binary for the bf16 probe")?;
     let mut child = std::process::Command::new(&exe);
     child
@@ -229,11 +136,9 @@ fn measure_in_child(work: Work) -> Result<Measured> {
     if let (Work::Training, Ok(choice)) = (work, rtf_amp::cpu_bf16_convolutions()) {
         child.env(rtf_amp::BF16_CONVOLUTIONS_VAR, choice.name());
     }
-    if let (Work::Inference, Ok(on)) = (work, rtf_models::winograd::bf16_applies()) {
-        child.env(
-            rtf_models::winograd::BF16_VAR,
-            if on { "on" } else { "off" },
-        );
+    if let (Work::Inference, Some(k)) = (work, inference) {
+        let on = if k.bf16_winograd { "on" } else { "off" };
+        child.env(rtf_eval::kernels::BF16_WINOGRAD_VAR, on);
     }
     let out = child
         .output()
@@ -251,22 +156,23 @@ pub fn measure(work: Work) -> Result<Measured> {
     let (fp32_s, bf16_s) = match work {
         Work::Inference => (inference_s(false)?, inference_s(true)?),
         Work::Training => (training_s(false)?, training_s(true)?),
-        Work::Conv3x3 => (conv3x3_s(true)?, conv3x3_s(false)?),
         Work::Conv3x3Training => (conv3x3_training_s(true), conv3x3_training_s(false)),
     };
-    let unix_time = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    Ok(Measured {
-        fp32_s,
-        bf16_s,
-        unix_time,
-    })
+    Ok(Measured::now(fp32_s, bf16_s))
 }
 
 fn inference_s(bf16: bool) -> Result<f64> {
     use rtf_models::fast::Precision;
+    // The parent passes its kernels in the environment (measure_in_child).
+    let policy = policy()?;
+    let kernels = InferenceKernels {
+        winograd: policy.winograd,
+        bf16_winograd: policy
+            .bf16_winograd
+            .unwrap_or_else(rtf_models::winograd::bf16_default),
+    };
     let opts = rtf_eval::speed::BenchOptions {
+        kernels,
         precision: if bf16 {
             Precision::Bf16
         } else {
@@ -300,38 +206,6 @@ fn training_s(bf16: bool) -> Result<f64> {
         count_ops: false,
     };
     Ok(rtf_train::bench::bench_train(&opts)?.step_s)
-}
-
-/// Seconds per pass of [`Work::Conv3x3`]'s convolution (+ bias, ReLU, folded as inference
-/// folds it), in the Winograd form or with oneDNN's bf16 kernels; median of 7 after 2.
-fn conv3x3_s(winograd: bool) -> Result<f64> {
-    use rtf_models::layers::{Act, ConvBnAct, ConvSpec, Fuse};
-    use tch::{Device, Kind, Tensor};
-    let _guard = tch::no_grad_guard();
-    let vs = tch::nn::VarStore::new(Device::Cpu);
-    let mut unit = ConvBnAct::new(
-        vs.root() / "conv",
-        None,
-        256,
-        256,
-        ConvSpec::new(3).bias(true),
-        Act::Relu,
-    );
-    rtf_models::winograd::with_bf16(winograd, || {
-        rtf_models::layers::with_fused_layout(true, || unit.fuse(Kind::BFloat16))
-    });
-    let xs = rtf_models::layers::to_channels_last(
-        &Tensor::randn([1, 256, 60, 80], (Kind::Float, Device::Cpu)).to_kind(Kind::BFloat16),
-    );
-    let times: Vec<f64> = (0..9)
-        .map(|_| {
-            let start = std::time::Instant::now();
-            let _ = tch::nn::ModuleT::forward_t(&unit, &xs, false);
-            start.elapsed().as_secs_f64()
-        })
-        .skip(2)
-        .collect();
-    Ok(rtf_eval::speed::median_min(&times).0)
 }
 
 /// Seconds per forward and backward of [`Work::Conv3x3Training`]'s convolution over bf16
@@ -371,7 +245,7 @@ pub fn choose_training_convolutions() -> Option<(Bf16Convolutions, Option<String
     if rtf_amp::bf16_convolutions_set_by_env() || rtf_amp::cpu_has_native_bf16() != Some(true) {
         return None;
     }
-    match measured(Work::Conv3x3Training) {
+    match measured(Work::Conv3x3Training, None) {
         // `fp32_s` is the emulated layer's: below 1, the fp32 kernels were the faster.
         Ok((m, cache)) if m.speedup() < 1.0 => Some((
             Bf16Convolutions::Mixed,
@@ -403,30 +277,6 @@ fn mixed_choice_message(m: &Measured, cache: Option<&Path>) -> String {
         1000.0 * m.bf16_s,
         rtf_amp::BF16_CONVOLUTIONS_VAR
     )
-}
-
-/// Before bf16 inference on the CPU (`eval`, `predict`, `bench model`, `export`): where bf16 is
-/// native and [`rtf_models::winograd::BF16_VAR`] is unset, makes this process's choice between
-/// the Winograd form and oneDNN's bf16 kernels for the wide 3×3 convolutions, by the cached
-/// [`Work::Conv3x3`] measurement (measured first where there is none; on an Intel Xeon with AMX
-/// oneDNN's kernels won 5×, with AMX capped off the Winograd form 3×: docs/src/benchmarks.md). Returns a
-/// warning where the measurement failed (then oneDNN's kernels run, rtf-models' default).
-pub fn choose_bf16_winograd() -> Option<String> {
-    if std::env::var_os(rtf_models::winograd::BF16_VAR).is_some()
-        || rtf_amp::cpu_has_native_bf16() != Some(true)
-    {
-        return None;
-    }
-    match measured(Work::Conv3x3) {
-        Ok((m, _)) => {
-            rtf_models::winograd::choose_bf16(m.speedup() < 1.0);
-            None
-        }
-        Err(e) => Some(format!(
-            "could not measure which bf16 3x3 convolutions are faster on this CPU ({e:#}); \
-             oneDNN's bf16 kernels run"
-        )),
-    }
 }
 
 /// The warning for a measurement, if bf16 measured slower than fp32.
@@ -499,45 +349,5 @@ mod tests {
             line.contains("cached in /c/p.json") && line.contains("(RTF_BF16_CONVOLUTIONS=mixed)")
         );
         assert!(!line.contains('\n'));
-    }
-
-    #[test]
-    fn the_cpu_is_named_by_vendor_family_model_and_name() {
-        let info = "processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 167\n\
-                    model name\t: Intel(R) Xeon(R) Processor\nflags\t\t: avx2\nprocessor\t: 1\n\
-                    vendor_id\t: Other\n";
-        assert_eq!(
-            cpu_identity(info),
-            "GenuineIntel family 6 model 167 Intel(R) Xeon(R) Processor"
-        );
-        assert_eq!(cpu_identity(""), "? family ? model ? ?");
-    }
-
-    #[test]
-    fn the_key_tells_the_works_apart_and_names_libtorch() {
-        let (i, t) = (key(Work::Inference), key(Work::Training));
-        assert_ne!(i, t);
-        assert!(
-            i.starts_with("inference | ")
-                && i.contains("libtorch ")
-                && i.contains(&format!("winograd r{}", rtf_models::winograd::REVISION)),
-            "{i}"
-        );
-        assert!(
-            !i.contains("libtorch ?"),
-            "libtorch_cpu.so is mapped in a test: {i}"
-        );
-    }
-
-    #[test]
-    fn a_cache_round_trips_and_a_broken_one_reads_as_empty() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("sub/bf16-probe.json");
-        let mut cache = Cache::default();
-        cache.measurements.insert("k".into(), m(1.0, 0.5));
-        write_cache(&path, &cache).unwrap();
-        assert_eq!(read_cache(&path).measurements["k"], m(1.0, 0.5));
-        std::fs::write(&path, "{ not json").unwrap();
-        assert!(read_cache(&path).measurements.is_empty());
     }
 }

@@ -24,17 +24,19 @@
 
 use crate::bf16_probe::Work;
 use rtf_amp::{Bf16Arithmetic, Bf16Convolutions};
+use rtf_models::fast::InferenceKernels;
 use rtf_train::config::Precision;
 use tch::Device;
 
 /// The warning for bf16 inference (`eval`, `predict`, `bench model`) on `device`, if any:
 /// bf16 emulated, or native but measured slower than fp32 ([`crate::bf16_probe`]).
-pub fn inference(bf16: bool, device: Device) -> Option<String> {
+pub fn inference(bf16: bool, device: Device, kernels: &InferenceKernels) -> Option<String> {
     let arithmetic = rtf_amp::cpu_bf16_arithmetic();
     let convolutions = rtf_amp::cpu_bf16_convolutions().ok();
     inference_message(bf16, device, &arithmetic, convolutions).or_else(|| {
         let native = convolutions == Some(Bf16Convolutions::Native);
-        native_but_slower(bf16 && native, device, &arithmetic, Work::Inference)
+        let work = (Work::Inference, Some(kernels));
+        native_but_slower(bf16 && native, device, &arithmetic, work)
     })
 }
 
@@ -44,12 +46,12 @@ fn native_but_slower(
     bf16: bool,
     device: Device,
     arithmetic: &Bf16Arithmetic,
-    work: Work,
+    (work, kernels): (Work, Option<&InferenceKernels>),
 ) -> Option<String> {
     if !bf16 || device != Device::Cpu || arithmetic.is_native() != Some(true) {
         return None;
     }
-    match crate::bf16_probe::measured(work) {
+    match crate::bf16_probe::measured(work, kernels) {
         Ok((m, cache)) => crate::bf16_probe::slower_message(work, &m, cache.as_deref()),
         Err(e) => Some(format!(
             "could not measure whether bf16 pays on this CPU ({e:#}); bf16 may be slower than fp32 here"
@@ -71,7 +73,12 @@ pub fn training(precision: Precision, device: Device) -> Option<String> {
             // rtf's emulated convolutions forced on a native CPU already have their warning;
             // native and mixed (crate::bf16_kernels) get the probe's.
             let emulated = convolutions == Some(Bf16Convolutions::Emulated);
-            native_but_slower(bf16 && !emulated, device, &arithmetic, Work::Training)
+            native_but_slower(
+                bf16 && !emulated,
+                device,
+                &arithmetic,
+                (Work::Training, None),
+            )
         })
 }
 

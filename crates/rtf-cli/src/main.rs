@@ -63,7 +63,18 @@ fn main() {
     // page-faulting activations in again on every pass, and mimalloc keeps it without
     // fragmenting (allocator).
     allocator::set_purge_delay();
-    let result = match cli.command {
+    // The kernel policy is read here, once, and passed in: the Winograd forms in force for
+    // the command (training's as well as the folds', which also record them).
+    let result = bf16_probe::policy()
+        .and_then(|policy| rtf_models::winograd::with_forms(policy.winograd, || run(cli.command)));
+    if let Err(err) = result {
+        eprintln!("error: {err:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Synth(args) => cmd::synth::run(args),
         Command::Data(args) => cmd::data::run(args),
         Command::Models(args) => cmd::models::run(args),
@@ -75,9 +86,5 @@ fn main() {
         Command::Report(args) => cmd::report::run(args),
         Command::Predict(args) => cmd::predict::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),
-    };
-    if let Err(err) = result {
-        eprintln!("error: {err:#}");
-        std::process::exit(1);
     }
 }

@@ -36,8 +36,7 @@ const BF16_CONVOLUTIONS: &str = "RTF_BF16_CONVOLUTIONS";
 fn probed_choice(cache: &Path) -> &'static str {
     let file = cache.join("bf16-probe.json");
     let cache: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&file).expect("the probe's cache"))
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(&file).expect("the probe's cache")).unwrap();
     let (_, m) = cache["measurements"]
         .as_object()
         .unwrap()
@@ -80,9 +79,7 @@ fn bench_train_reports_the_issue_fields() {
         let convolutions = report["convolutions"].as_str().unwrap();
         let expected = match precision {
             "fp32" => "fp32".to_string(),
-            _ if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) => {
-                "bf16 emulated".into()
-            }
+            _ if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) => "bf16 emulated".into(),
             _ => format!("bf16 {}", probed_choice(&cache)),
         };
         assert_eq!(convolutions, expected, "{report}");

@@ -4,6 +4,7 @@
 pub mod class_map;
 pub mod evaluate;
 pub mod figure;
+pub mod kernels;
 pub mod metrics;
 pub mod predict;
 pub mod scores_file;

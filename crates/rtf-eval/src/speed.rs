@@ -9,7 +9,9 @@ use serde::{Deserialize, Serialize};
 use tch::{nn, Device, Kind, Tensor};
 
 use rtf_core::host::{peak_rss_mb, CpuInfo};
-use rtf_models::fast::{argmax_agreement, InferenceNet, Layout, Precision};
+use rtf_models::fast::{
+    argmax_agreement, FoldOptions, InferenceKernels, InferenceNet, Layout, Precision,
+};
 use rtf_models::{ModelConfig, ModelError, Network};
 
 #[derive(Debug, thiserror::Error)]
@@ -41,6 +43,8 @@ pub struct BenchOptions {
     pub path: ForwardPath,
     /// Activation layout of the fast path.
     pub layout: Layout,
+    /// The fast path's kernels where there is a choice ([`crate::kernels`]).
+    pub kernels: InferenceKernels,
     pub height: i64,
     pub width: i64,
     pub warmup: usize,
@@ -63,6 +67,7 @@ impl Default for BenchOptions {
             precision: Precision::Fp32,
             path: ForwardPath::Fast,
             layout: Layout::ChannelsLast,
+            kernels: InferenceKernels::unmeasured(),
             height: 480,
             width: 640,
             warmup: 3,
@@ -116,10 +121,13 @@ pub struct BenchReport {
     #[serde(default)]
     pub cpu: CpuInfo,
     /// bf16 on the CPU's fast path: how its wide 3×3 convolutions ran, `winograd` (fp32
-    /// arithmetic over bf16 maps) or `onednn` (oneDNN's bf16 kernels); see
-    /// `rtf_models::winograd::bf16_applies`. None otherwise.
+    /// arithmetic over bf16 maps) or `onednn` (oneDNN's bf16 kernels), as
+    /// [`BenchReport::kernels`] says. None otherwise.
     #[serde(default)]
     pub bf16_3x3: Option<String>,
+    /// Fast path: the kernels the fold took where there is a choice. None on the plain path.
+    #[serde(default)]
+    pub kernels: Option<InferenceKernels>,
     /// Fast path: MiB of the plain network's weights freed once folded (those the folded path
     /// does not read; `InferenceNet::releasing_plain_weights`). None on the plain path.
     #[serde(default)]
@@ -234,8 +242,10 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     let input = Tensor::rand(shape, (Kind::Float, opts.device));
     let timed = match opts.path {
         ForwardPath::Fast => {
-            let (fast, released) =
-                InferenceNet::releasing_plain_weights(net, opts.precision, opts.layout, &vs)?;
+            let fold = FoldOptions::new(opts.precision)
+                .layout(opts.layout)
+                .kernels(opts.kernels);
+            let (fast, released) = InferenceNet::releasing_plain_weights(net, &fold, &vs)?;
             released_mb = Some(released.mib());
             Timed::Fast(fast)
         }
@@ -276,6 +286,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         peak_rss_mb,
         cpu: CpuInfo::read(),
         bf16_3x3: bf16_3x3_kernels(opts),
+        kernels: (opts.path == ForwardPath::Fast).then_some(opts.kernels),
         plain_weights_released_mb: released_mb,
     })
 }
@@ -286,8 +297,12 @@ fn bf16_3x3_kernels(opts: &BenchOptions) -> Option<String> {
         && opts.path == ForwardPath::Fast
         && opts.device == Device::Cpu;
     fast_bf16_cpu.then(|| {
-        let winograd = rtf_models::winograd::bf16_applies().unwrap_or(false);
-        (if winograd { "winograd" } else { "onednn" }).to_string()
+        (if opts.kernels.bf16_winograd {
+            "winograd"
+        } else {
+            "onednn"
+        })
+        .to_string()
     })
 }
 

@@ -6,7 +6,7 @@
 //! `cargo run --release -p rtf-models --example inference_memory -- MODEL [fp32|bf16]
 //! [WIDTHxHEIGHT] [THREADS] [keep]` (default fp32, 640x480, 2 threads; `keep` skips the
 //! release, for the same phases without it). Results: docs/src/speed-by-kind.md.
-use rtf_models::fast::{InferenceNet, Layout, Precision};
+use rtf_models::fast::{FoldOptions, InferenceNet, Layout, Precision};
 use rtf_models::ModelConfig;
 use tch::{Device, Kind, Tensor};
 
@@ -59,7 +59,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         fast
     } else {
         let (fast, released) =
-            InferenceNet::releasing_plain_weights(net, precision, Layout::ChannelsLast, &vs)?;
+            InferenceNet::releasing_plain_weights(net, &FoldOptions::new(precision), &vs)?;
         report(&format!("folded, {:.0} MiB released", released.mib()));
         fast
     };

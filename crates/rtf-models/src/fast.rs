@@ -49,31 +49,92 @@ impl std::str::FromStr for Layout {
     }
 }
 
+/// The kernels a fold takes where there is a choice (issue 61): chosen by the caller (rtf's
+/// commands and the Python package through `rtf_eval::kernels`, from a measurement, their
+/// flags or, in the CLI, its environment), passed in and recorded, never read from the
+/// process.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InferenceKernels {
+    /// The Winograd forms the fp32 (and, with `bf16_winograd`, bf16) 3×3 convolutions may take.
+    pub winograd: crate::winograd::Forms,
+    /// bf16's wide 3×3 convolutions in the Winograd forms (fp32 arithmetic over bf16 maps)
+    /// rather than on oneDNN's bf16 kernels.
+    pub bf16_winograd: bool,
+}
+
+impl InferenceKernels {
+    /// Without a measurement: every form, and bf16 in the Winograd forms only where the CPU
+    /// has no bf16 arithmetic ([`crate::winograd::bf16_default`]).
+    pub fn unmeasured() -> Self {
+        Self {
+            winograd: crate::winograd::Forms::All,
+            bf16_winograd: crate::winograd::bf16_default(),
+        }
+    }
+}
+
+/// How a network is folded for inference: precision, activation layout and kernels.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FoldOptions {
+    pub precision: Precision,
+    pub layout: Layout,
+    pub kernels: InferenceKernels,
+}
+
+impl FoldOptions {
+    /// `precision`, channels-last, [`InferenceKernels::unmeasured`].
+    pub fn new(precision: Precision) -> Self {
+        Self {
+            precision,
+            layout: Layout::ChannelsLast,
+            kernels: InferenceKernels::unmeasured(),
+        }
+    }
+
+    pub fn layout(self, layout: Layout) -> Self {
+        Self { layout, ..self }
+    }
+
+    pub fn kernels(self, kernels: InferenceKernels) -> Self {
+        Self { kernels, ..self }
+    }
+}
+
 /// A network prepared for inference. Build the network, load its weights, then wrap it.
 #[derive(Debug)]
 pub struct InferenceNet {
     net: Box<dyn Network>,
-    precision: Precision,
+    options: FoldOptions,
     fused: bool,
-    layout: Layout,
 }
 
 impl InferenceNet {
-    /// Fuses `net` for `precision`. Networks without a fused path run their plain eval
-    /// forward (still without autograd) in fp32 only.
+    /// Fuses `net` for `precision` ([`FoldOptions::new`]). Networks without a fused path run
+    /// their plain eval forward (still without autograd) in fp32 only.
     pub fn new(net: Box<dyn Network>, precision: Precision) -> Result<Self, ModelError> {
-        Self::with_layout(net, precision, Layout::ChannelsLast)
+        Self::fold(net, &FoldOptions::new(precision))
     }
 
     /// [`new`](Self::new) with a chosen activation layout.
     pub fn with_layout(
-        mut net: Box<dyn Network>,
+        net: Box<dyn Network>,
         precision: Precision,
         layout: Layout,
     ) -> Result<Self, ModelError> {
-        let channels_last = layout == Layout::ChannelsLast;
+        Self::fold(net, &FoldOptions::new(precision).layout(layout))
+    }
+
+    /// Folds `net` as `options` say: the layout and kernels are the fold's for the duration of
+    /// the call only (the units read them while they fold), and recorded.
+    pub fn fold(mut net: Box<dyn Network>, options: &FoldOptions) -> Result<Self, ModelError> {
+        let (precision, kernels) = (options.precision, options.kernels);
+        let channels_last = options.layout == Layout::ChannelsLast;
         let fused = crate::layers::with_fused_layout(channels_last, || {
-            net.fuse_for_inference(precision.kind())
+            crate::winograd::with_forms(kernels.winograd, || {
+                crate::winograd::with_bf16(kernels.bf16_winograd, || {
+                    net.fuse_for_inference(precision.kind())
+                })
+            })
         });
         if !fused && precision != Precision::Fp32 {
             return Err(ModelError::InvalidConfig {
@@ -83,13 +144,12 @@ impl InferenceNet {
         }
         Ok(Self {
             net,
-            precision,
+            options: *options,
             fused,
-            layout,
         })
     }
 
-    /// [`with_layout`](Self::with_layout) over a network whose weights are `vs`'s, freeing
+    /// [`fold`](Self::fold) over a network whose weights are `vs`'s, freeing
     /// every plain variable the folded path does not hold ([`crate::release`]): each unit's as
     /// it folds, the rest after. A network kept for inference alone, as rtf's commands load
     /// one: afterwards only the folded path runs, and the plain network inside (and `vs`,
@@ -97,12 +157,11 @@ impl InferenceNet {
     /// weights, so nothing is released from it.
     pub fn releasing_plain_weights(
         net: Box<dyn Network>,
-        precision: Precision,
-        layout: Layout,
+        options: &FoldOptions,
         vs: &tch::nn::VarStore,
     ) -> Result<(Self, Released), ModelError> {
         let plain = PlainWeights::record(vs);
-        let fast = plain.while_folding(|| Self::with_layout(net, precision, layout))?;
+        let fast = plain.while_folding(|| Self::fold(net, options))?;
         let released = match fast.fused {
             true => plain.release_unheld(),
             false => Released::default(),
@@ -115,11 +174,16 @@ impl InferenceNet {
     }
 
     pub fn precision(&self) -> Precision {
-        self.precision
+        self.options.precision
     }
 
     pub fn layout(&self) -> Layout {
-        self.layout
+        self.options.layout
+    }
+
+    /// How this network was folded (precision, layout, kernels).
+    pub fn options(&self) -> &FoldOptions {
+        &self.options
     }
 
     /// Whether the folded path is in use.
@@ -135,10 +199,10 @@ impl InferenceNet {
 
     /// [`forward`](Self::forward) without the shape check (for inputs already checked).
     pub fn forward_unchecked(&self, xs: &Tensor) -> Result<Tensor, ModelError> {
-        check_precision_on(self.precision, xs.device())?;
+        check_precision_on(self.options.precision, xs.device())?;
         let _guard = tch::no_grad_guard();
         let xs = xs
-            .f_to_kind(self.precision.kind())
+            .f_to_kind(self.options.precision.kind())
             .map_err(|source| ModelError::Torch {
                 context: format!("{}: input conversion", self.net.name()),
                 source,
@@ -237,7 +301,7 @@ mod tests {
         vs.copy(&kept_vs).unwrap();
         let total = vs.variables().values().map(|t| t.numel() as i64 * 4).sum();
         let (fast, released) =
-            InferenceNet::releasing_plain_weights(net, precision, Layout::default(), &vs).unwrap();
+            InferenceNet::releasing_plain_weights(net, &FoldOptions::new(precision), &vs).unwrap();
         (kept, fast.forward(&x).unwrap(), released, total)
     }
 

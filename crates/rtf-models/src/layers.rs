@@ -1028,8 +1028,7 @@ impl ConvBnAct {
         let dims = weight.size();
         let winograd_kind = match kind {
             Kind::Float => true,
-            // A bad RTF_BF16_WINOGRAD is reported by the commands before any fold.
-            Kind::BFloat16 => crate::winograd::bf16_applies().unwrap_or(false),
+            Kind::BFloat16 => crate::winograd::bf16_applies(),
             _ => false,
         };
         let winograd = (winograd_kind && weight.device() == tch::Device::Cpu)

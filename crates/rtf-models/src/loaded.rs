@@ -9,7 +9,7 @@ use std::path::Path;
 
 use tch::nn::VarStore;
 
-use crate::fast::{InferenceNet, Layout, Precision};
+use crate::fast::{FoldOptions, InferenceKernels, InferenceNet, Precision};
 use crate::{Modality, ModelConfig, ModelError, Network};
 
 /// What to load, and how far to trust the file.
@@ -22,6 +22,9 @@ pub struct NetworkRequest<'a> {
     pub device: tch::Device,
     /// The fast path's precision (BatchNorm folded, channels-last); None: the network as built.
     pub precision: Option<Precision>,
+    /// The fast path's kernels where there is a choice (`rtf_eval::kernels` chooses them as
+    /// the commands do).
+    pub kernels: InferenceKernels,
     /// Loads weights saved for another network, or with other inputs, than the one asked.
     pub foreign_weights: bool,
     /// `--inputs`: the channels the network sees, when the file does not say (or, with
@@ -72,7 +75,8 @@ pub fn load_network(request: &NetworkRequest) -> Result<LoadedNetwork, ModelErro
     };
     let net = match request.precision {
         Some(p) => {
-            let (fast, _) = InferenceNet::releasing_plain_weights(net, p, Layout::default(), &vs)?;
+            let options = FoldOptions::new(p).kernels(request.kernels);
+            let (fast, _) = InferenceNet::releasing_plain_weights(net, &options, &vs)?;
             Box::new(fast) as Box<dyn Network>
         }
         None => net,
@@ -106,6 +110,7 @@ mod tests {
             weights,
             device: tch::Device::Cpu,
             precision: None,
+            kernels: InferenceKernels::unmeasured(),
             foreign_weights: foreign,
             inputs,
         }

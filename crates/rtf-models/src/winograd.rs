@@ -26,7 +26,7 @@
 //! more multiply-adds per cycle than its fp32 ones (Intel AVX-512 without AMX: oneDNN's bf16
 //! 3×3 kernels ran 1.7× slower than its fp32 direct ones on family 6 model 167 with AMX capped
 //! off, issue 41), Winograd's 4× fewer multiply-adds win; with AMX, oneDNN's bf16 kernels do.
-//! So the choice is measured per CPU (rtf-cli's bf16 probe), never assumed.
+//! So the choice is measured per CPU (rtf-eval's `kernels` probe), never assumed, and passed in.
 //!
 //! fp32 training takes F(4×4, 3×3) too, in all three passes ([`conv3x3_f43_train`]: forward,
 //! input gradient, weight gradient), for the shapes where it measured faster
@@ -61,15 +61,14 @@ pub enum Form {
 /// The Winograd form of a convolution of this shape on the inference path, if any: 3×3,
 /// stride 1, padding equal to the dilation (the size kept: dilated ones run as
 /// [`conv3x3_dilated`]), no groups, not transposed; F(2×2, 3×3) from [`MIN_CHANNELS`] input
-/// and output channels, F(4×4, 3×3) from [`MIN_CHANNELS_F43`]. `RTF_WINOGRAD=off` turns both
-/// forms off, `RTF_WINOGRAD=f23` keeps only F(2×2, 3×3) (to compare speeds; read once per
-/// process).
+/// and output channels, F(4×4, 3×3) from [`MIN_CHANNELS_F43`], as far as the [`Forms`] in
+/// force ([`with_forms`]) allow.
 pub fn form(kernel: i64, geometry: Geometry, c_in: i64, c_out: i64) -> Option<Form> {
     let g = geometry;
     let plain =
         kernel == 3 && (g.stride, g.groups) == (1, 1) && g.dilation >= 1 && g.padding == g.dilation;
     let channels = c_in.min(c_out);
-    let (f23, f43) = enabled();
+    let (f23, f43) = FORMS.with(|c| c.get()).enabled();
     if !plain || g.transposed || channels < MIN_CHANNELS_F43 {
         None
     } else if channels >= MIN_CHANNELS {
@@ -79,61 +78,68 @@ pub fn form(kernel: i64, geometry: Geometry, c_in: i64, c_out: i64) -> Option<Fo
     }
 }
 
-/// Which forms `RTF_WINOGRAD` leaves on: (F(2×2, 3×3), F(4×4, 3×3)).
-fn enabled() -> (bool, bool) {
-    static ENABLED: std::sync::OnceLock<(bool, bool)> = std::sync::OnceLock::new();
-    *ENABLED.get_or_init(|| match std::env::var("RTF_WINOGRAD").as_deref() {
-        Ok("off") => (false, false),
-        Ok("f23") => (true, false),
-        _ => (true, true),
-    })
+/// Which Winograd forms rtf may take, a kernel choice passed in by the caller (issue 61; the
+/// CLI's `RTF_WINOGRAD`): both (the default), F(2×2, 3×3) only, or none (to compare speeds).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Forms {
+    #[default]
+    All,
+    F23,
+    Off,
 }
 
-/// The environment variable that decides [`bf16_applies`]: `on` or `off`.
-pub const BF16_VAR: &str = "RTF_BF16_WINOGRAD";
+impl Forms {
+    /// (F(2×2, 3×3), F(4×4, 3×3)) allowed.
+    pub fn enabled(self) -> (bool, bool) {
+        match self {
+            Forms::All => (true, true),
+            Forms::F23 => (true, false),
+            Forms::Off => (false, false),
+        }
+    }
+}
 
-/// The process's choice for bf16 maps, made by [`choose_bf16`]: 0 none, 1 on, 2 off.
-static BF16_CHOICE: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
-
-/// Sets whether bf16 folds made from now on in this process take the Winograd forms (what a
-/// measurement on this CPU found faster; [`BF16_VAR`] still overrides it).
-pub fn choose_bf16(on: bool) {
-    BF16_CHOICE.store(if on { 1 } else { 2 }, std::sync::atomic::Ordering::Relaxed);
+impl std::str::FromStr for Forms {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim() {
+            "on" | "all" => Ok(Forms::All),
+            "f23" => Ok(Forms::F23),
+            "off" => Ok(Forms::Off),
+            other => Err(format!("{other:?}: expected on, f23 or off")),
+        }
+    }
 }
 
 thread_local! {
+    /// Set inside [`with_forms`] (a fold, a training step): the forms its convolutions may take.
+    static FORMS: std::cell::Cell<Forms> = const { std::cell::Cell::new(Forms::All) };
     /// Set inside [`with_bf16`]: this thread's folds take (or not) the bf16 forms.
     static BF16_SCOPE: std::cell::Cell<Option<bool>> = const { std::cell::Cell::new(None) };
 }
 
-/// Runs `f` (a fold) with the bf16 Winograd forms on or off whatever the process's choice (to
-/// measure both, or to test one).
+/// Runs `f` (a fold, or training steps) with the Winograd forms limited to `forms`.
+pub fn with_forms<T>(forms: Forms, f: impl FnOnce() -> T) -> T {
+    crate::scoped::with(&FORMS, forms, f)
+}
+
+/// Runs `f` (a fold) with the bf16 Winograd forms on or off.
 pub fn with_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
     crate::scoped::with(&BF16_SCOPE, Some(on), f)
 }
 
 /// Whether a bf16 fold on the CPU takes the Winograd forms (over bf16 maps) where [`form`] has
-/// one: inside [`with_bf16`], its setting; else [`BF16_VAR`] if set (`on`/`off`; anything else
-/// is an error); else the choice of [`choose_bf16`]; else only where the CPU has no bf16
-/// arithmetic (there oneDNN's bf16 kernels convert every product: fp32 Winograd beats them
-/// without a measurement).
-pub fn bf16_applies() -> Result<bool, String> {
-    if let Some(on) = BF16_SCOPE.with(|c| c.get()) {
-        return Ok(on);
-    }
-    match std::env::var(BF16_VAR).as_deref().map(str::trim) {
-        Ok("on") => return Ok(true),
-        Ok("off") => return Ok(false),
-        Ok(other) => return Err(format!("{BF16_VAR}={other:?}: expected on or off")),
-        Err(_) => {}
-    }
-    Ok(
-        match BF16_CHOICE.load(std::sync::atomic::Ordering::Relaxed) {
-            1 => true,
-            2 => false,
-            _ => rtf_amp::cpu_has_native_bf16() == Some(false),
-        },
-    )
+/// one: inside [`with_bf16`] (the fold's [`crate::fast::InferenceKernels`]), its setting; else
+/// [`bf16_default`].
+pub fn bf16_applies() -> bool {
+    BF16_SCOPE.with(|c| c.get()).unwrap_or_else(bf16_default)
+}
+
+/// Without a measurement, the bf16 forms only where the CPU has no bf16 arithmetic: there
+/// oneDNN's bf16 kernels convert every product, and the fp32 Winograd form beats them.
+pub fn bf16_default() -> bool {
+    rtf_amp::cpu_has_native_bf16() == Some(false)
 }
 
 /// Bᵀ (input transform), row-major 4×4.
@@ -334,7 +340,7 @@ pub const TRAIN_MIN_TILES: i64 = 256;
 /// [`conv3x3_f43_train`]: a 3×3 convolution that keeps the size, undilated, of
 /// [`TRAIN_MIN_CHANNELS`]–[`TRAIN_MAX_CHANNELS`] channels and at least [`TRAIN_MIN_TILES`]
 /// tiles. Measured per shape with `examples/winograd_training_layers.rs` (docs/src/speed-by-
-/// kind.md). `RTF_WINOGRAD=off` or `f23` turns it off.
+/// kind.md). [`Forms::Off`] or [`Forms::F23`] in force ([`with_forms`]) turns it off.
 pub fn trains_in_f43(kernel: i64, geometry: Geometry, c_out: i64, input: &[i64]) -> bool {
     let [n, c_in, h, w] = input else {
         return false;
@@ -342,7 +348,7 @@ pub fn trains_in_f43(kernel: i64, geometry: Geometry, c_out: i64, input: &[i64])
     let channels = (*c_in).min(c_out)..=(*c_in).max(c_out);
     let tiles = n * ((h + 3) / 4) * ((w + 3) / 4);
     geometry.dilation == 1
-        && enabled().1
+        && FORMS.with(|c| c.get()).enabled().1
         && form(kernel, geometry, *c_in, c_out).is_some()
         && channels.start() >= &TRAIN_MIN_CHANNELS
         && channels.end() <= &TRAIN_MAX_CHANNELS
@@ -646,13 +652,38 @@ mod tests {
 
     #[test]
     fn the_bf16_choice_is_scoped_and_defaults_to_where_bf16_is_emulated() {
-        assert_eq!(with_bf16(true, bf16_applies), Ok(true));
-        assert_eq!(with_bf16(false, || with_bf16(true, bf16_applies)), Ok(true));
-        assert_eq!(with_bf16(false, bf16_applies), Ok(false));
-        if std::env::var_os(BF16_VAR).is_none() {
-            let default = bf16_applies().unwrap();
-            assert_eq!(default, rtf_amp::cpu_has_native_bf16() == Some(false));
-        }
+        assert!(with_bf16(true, bf16_applies));
+        assert!(with_bf16(false, || with_bf16(true, bf16_applies)));
+        assert!(!with_bf16(false, bf16_applies));
+        assert_eq!(
+            bf16_applies(),
+            rtf_amp::cpu_has_native_bf16() == Some(false)
+        );
+    }
+
+    #[test]
+    fn forms_in_force_limit_the_forms_taken() {
+        let plain = geometry(1, 1, 1, false);
+        let both = |forms| {
+            with_forms(forms, || {
+                (form(3, plain, 1024, 2048), form(3, plain, 512, 512))
+            })
+        };
+        assert_eq!(both(Forms::All), (Some(Form::F23), Some(Form::F43)));
+        assert_eq!(both(Forms::F23), (Some(Form::F23), None));
+        assert_eq!(both(Forms::Off), (None, None));
+        assert!(!with_forms(Forms::F23, || trains_in_f43(
+            3,
+            plain,
+            256,
+            &[4, 256, 120, 160]
+        )));
+        assert_eq!("on".parse(), Ok(Forms::All));
+        assert_eq!(" f23".parse(), Ok(Forms::F23));
+        assert!("maybe"
+            .parse::<Forms>()
+            .unwrap_err()
+            .contains("on, f23 or off"));
     }
 
     #[test]

@@ -74,8 +74,7 @@ pub fn run(args: Args) -> Result<()> {
         tch::set_num_threads(threads);
     }
     let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
-    let bf16 = args.precision == Precision::Bf16;
-    super::prepare_inference(bf16, device)?;
+    let kernels = super::prepare_inference(Some(args.precision), device)?;
     let num_classes = match (args.classes, &args.weights) {
         (Some(n), _) => Some(n),
         (None, Some(weights)) => super::weights_config(weights)?.map(|c| c.num_classes()),
@@ -92,6 +91,7 @@ pub fn run(args: Args) -> Result<()> {
             ForwardPath::Fast
         },
         layout: args.layout,
+        kernels,
         width: args.size.0 as i64,
         height: args.size.1 as i64,
         warmup: args.warmup,

@@ -102,6 +102,7 @@ pub fn run(args: Args) -> Result<()> {
         weights: &args.weights,
         device: Device::Cpu,
         precision: None,
+        kernels: rtf_models::fast::InferenceKernels::unmeasured(),
         foreign_weights: false,
         inputs: args.inputs,
     })

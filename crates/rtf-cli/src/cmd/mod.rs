@@ -82,36 +82,49 @@ impl RunFlags {
             weights,
             device,
             precision: self.precision,
+            kernels: rtf_models::fast::InferenceKernels::unmeasured(),
             foreign_weights: self.foreign_weights,
             inputs: self.inputs,
         }
     }
 }
 
-/// Before folding a network for inference: for bf16 on the CPU, a bad `RTF_BF16_WINOGRAD`
-/// refused and the choice of 3×3 kernels made ([`crate::bf16_probe::choose_bf16_winograd`]);
+/// Before folding a network for inference in `precision` (None: the plain path): the kernels
+/// the fold takes, chosen by the library as for any caller ([`rtf_eval::kernels`]) under this
+/// process's policy ([`crate::bf16_probe::policy`]: a bad `RTF_BF16_WINOGRAD` is refused here);
 /// then the warning where bf16 is slow or emulated here ([`crate::bf16_warning`]), on stderr.
-pub fn prepare_inference(bf16: bool, device: tch::Device) -> anyhow::Result<()> {
-    if bf16 && device == tch::Device::Cpu {
-        rtf_models::winograd::bf16_applies().map_err(anyhow::Error::msg)?;
-        if let Some(warning) = crate::bf16_probe::choose_bf16_winograd() {
-            eprintln!("warning: {warning}");
+pub fn prepare_inference(
+    precision: Option<rtf_models::fast::Precision>,
+    device: tch::Device,
+) -> anyhow::Result<rtf_models::fast::InferenceKernels> {
+    let policy = crate::bf16_probe::policy()?;
+    let (kernels, warnings) = match precision {
+        Some(p) => {
+            rtf_eval::kernels::inference_kernels(&policy, p, device, &crate::bf16_probe::probe())
         }
-    }
-    if let Some(warning) = crate::bf16_warning::inference(bf16, device) {
+        None => (rtf_models::fast::InferenceKernels::unmeasured(), Vec::new()),
+    };
+    for warning in warnings {
         eprintln!("warning: {warning}");
     }
-    Ok(())
+    let bf16 = precision == Some(rtf_models::fast::Precision::Bf16);
+    if let Some(warning) = crate::bf16_warning::inference(bf16, device, &kernels) {
+        eprintln!("warning: {warning}");
+    }
+    Ok(kernels)
 }
 
-/// [`rtf_models::loaded::load_network`] for a command: [`prepare_inference`] first, the
-/// loader's warnings printed on stderr.
+/// [`rtf_models::loaded::load_network`] for a command: the kernels chosen first
+/// ([`prepare_inference`]), the loader's warnings printed on stderr.
 pub fn load_network(
     request: &rtf_models::loaded::NetworkRequest,
 ) -> anyhow::Result<rtf_models::loaded::LoadedNetwork> {
-    let bf16 = request.precision == Some(rtf_models::fast::Precision::Bf16);
-    prepare_inference(bf16, request.device)?;
-    let loaded = rtf_models::loaded::load_network(request)?;
+    let kernels = prepare_inference(request.precision, request.device)?;
+    let request = rtf_models::loaded::NetworkRequest {
+        kernels,
+        ..*request
+    };
+    let loaded = rtf_models::loaded::load_network(&request)?;
     for warning in &loaded.warnings {
         eprintln!("warning: {warning}");
     }

@@ -1,0 +1,166 @@
+//! The inference kernel policy (project issue 61): which kernels the fast path takes where
+//! there is a choice, resolved once by the caller and passed into the fold
+//! ([`rtf_models::fast::FoldOptions`]), so that `rtf predict`, `rtf eval`, `rtf bench model`
+//! and a library caller (the Python package) fold the same network the same way.
+//!
+//! A [`KernelPolicy`] holds what the user decided (rtf's binaries read it from their
+//! environment, [`KernelPolicy::from_vars`]; the library never does); [`inference_kernels`]
+//! resolves what it leaves open for a precision and device: bf16's wide 3×3 convolutions in the
+//! Winograd forms or on oneDNN's bf16 kernels, by a measurement of both on this CPU, cached
+//! ([`probe`]). Every way computes the same function (bf16 maps, float sums); only the speed
+//! differs, and the rounding inside the kernels.
+
+pub mod probe;
+
+use rtf_models::fast::{InferenceKernels, Precision};
+use rtf_models::winograd::Forms;
+use tch::Device;
+
+/// The variable that decides [`KernelPolicy::winograd`] in rtf's binaries.
+pub const WINOGRAD_VAR: &str = "RTF_WINOGRAD";
+/// The variable that decides [`KernelPolicy::bf16_winograd`] in rtf's binaries.
+pub const BF16_WINOGRAD_VAR: &str = "RTF_BF16_WINOGRAD";
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum KernelError {
+    #[error("{var}={value:?}: expected {expected}")]
+    BadValue {
+        var: &'static str,
+        value: String,
+        expected: &'static str,
+    },
+}
+
+/// The kernel choices a user made; `None` leaves a choice to [`inference_kernels`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub struct KernelPolicy {
+    /// The Winograd forms allowed (fp32 inference and training, bf16 inference).
+    pub winograd: Forms,
+    /// bf16 inference's wide 3×3 convolutions in the Winograd forms (`true`) or on oneDNN's
+    /// bf16 kernels; `None`: measured on this CPU where it has bf16 arithmetic.
+    pub bf16_winograd: Option<bool>,
+}
+
+impl KernelPolicy {
+    /// The policy from variables (`get(name)`, e.g. a process's environment):
+    /// `RTF_WINOGRAD=on|f23|off`, `RTF_BF16_WINOGRAD=on|off`; a bad value is an error naming
+    /// the variable.
+    pub fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Self, KernelError> {
+        let bad = |var, value: &str, expected| KernelError::BadValue {
+            var,
+            value: value.to_owned(),
+            expected,
+        };
+        let winograd = match get(WINOGRAD_VAR) {
+            Some(v) => v
+                .parse()
+                .map_err(|_| bad(WINOGRAD_VAR, &v, "on, f23 or off"))?,
+            None => Forms::All,
+        };
+        let bf16_winograd = match get(BF16_WINOGRAD_VAR).as_deref().map(str::trim) {
+            Some("on") => Some(true),
+            Some("off") => Some(false),
+            Some(other) => return Err(bad(BF16_WINOGRAD_VAR, other, "on or off")),
+            None => None,
+        };
+        Ok(Self {
+            winograd,
+            bf16_winograd,
+        })
+    }
+}
+
+/// The kernels a fold for `precision` on `device` takes under `policy`, with the warnings to
+/// give (a failed measurement). bf16 on a CPU with bf16 arithmetic and no choice made: the
+/// faster of the two ways for a wide 3×3 layer as measured here ([`probe::Work::Conv3x3`],
+/// cached in `probe`'s file); elsewhere [`InferenceKernels::unmeasured`]'s choice.
+pub fn inference_kernels(
+    policy: &KernelPolicy,
+    precision: Precision,
+    device: Device,
+    probe: &probe::Probe,
+) -> (InferenceKernels, Vec<String>) {
+    let mut kernels = InferenceKernels {
+        winograd: policy.winograd,
+        ..InferenceKernels::unmeasured()
+    };
+    let mut warnings = Vec::new();
+    let measured_here = precision == Precision::Bf16
+        && device == Device::Cpu
+        && rtf_amp::cpu_has_native_bf16() == Some(true);
+    match policy.bf16_winograd {
+        Some(on) => kernels.bf16_winograd = on,
+        None if measured_here => match probe
+            .measured(&probe.key(probe::Work::Conv3x3.name()), || {
+                probe::measure_conv3x3(policy.winograd)
+            }) {
+            Ok((m, _)) => kernels.bf16_winograd = m.speedup() < 1.0,
+            Err(e) => warnings.push(format!(
+                "could not measure which bf16 3x3 convolutions are faster on this CPU ({e}); \
+                 oneDNN's bf16 kernels run"
+            )),
+        },
+        None => {}
+    }
+    (kernels, warnings)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn vars<'a>(pairs: &'a [(&'a str, &'a str)]) -> impl Fn(&str) -> Option<String> + 'a {
+        move |name| {
+            pairs
+                .iter()
+                .find(|(k, _)| *k == name)
+                .map(|(_, v)| v.to_string())
+        }
+    }
+
+    #[test]
+    fn the_policy_reads_its_variables_and_names_a_bad_one() {
+        assert_eq!(
+            KernelPolicy::from_vars(vars(&[])),
+            Ok(KernelPolicy::default())
+        );
+        let p = KernelPolicy::from_vars(vars(&[(WINOGRAD_VAR, "f23"), (BF16_WINOGRAD_VAR, "on")]));
+        assert_eq!(
+            p,
+            Ok(KernelPolicy {
+                winograd: Forms::F23,
+                bf16_winograd: Some(true)
+            })
+        );
+        let e = KernelPolicy::from_vars(vars(&[(BF16_WINOGRAD_VAR, "maybe")])).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "RTF_BF16_WINOGRAD=\"maybe\": expected on or off"
+        );
+        let e = KernelPolicy::from_vars(vars(&[(WINOGRAD_VAR, "fast")])).unwrap_err();
+        assert!(e.to_string().contains("RTF_WINOGRAD=\"fast\""), "{e}");
+    }
+
+    /// A choice made is taken as made, without a measurement (no cache written); fp32 and
+    /// other devices measure nothing.
+    #[test]
+    fn a_choice_made_is_not_measured() {
+        let dir = tempfile::tempdir().unwrap();
+        let probe = probe::Probe::cached_in(dir.path().join("p.json"), Vec::new());
+        for on in [true, false] {
+            let policy = KernelPolicy {
+                bf16_winograd: Some(on),
+                ..Default::default()
+            };
+            let (k, w) = inference_kernels(&policy, Precision::Bf16, Device::Cpu, &probe);
+            assert_eq!((k.bf16_winograd, w.len()), (on, 0));
+        }
+        let policy = KernelPolicy {
+            winograd: Forms::Off,
+            ..Default::default()
+        };
+        let (k, _) = inference_kernels(&policy, Precision::Fp32, Device::Cpu, &probe);
+        assert_eq!(k.winograd, Forms::Off);
+        assert!(!dir.path().join("p.json").exists());
+    }
+}
