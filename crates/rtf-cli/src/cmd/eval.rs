@@ -205,7 +205,7 @@ pub fn run(args: Args) -> Result<()> {
         let file = ScoresFile {
             schema: EVAL_SCHEMA,
             class_names: classes.names(),
-            confusion: confusion_rows(&report.confusion),
+            confusion: report.confusion.rows(),
             dropped,
             model: &args.model,
             inputs: loaded.inputs,
@@ -235,14 +235,6 @@ pub fn run(args: Args) -> Result<()> {
         )?;
     }
     Ok(())
-}
-
-/// The confusion matrix as rows: truth, then prediction.
-fn confusion_rows(confusion: &rtf_eval::ConfusionMatrix) -> Vec<Vec<u64>> {
-    let n = confusion.num_classes();
-    (0..n)
-        .map(|t| (0..n).map(|p| confusion.get(t, p)).collect())
-        .collect()
 }
 
 /// Prints the scores: RTFNet's convention table, then HeatNet's (Freiburg Thermal) or the MFNet

@@ -1,0 +1,83 @@
+"""`rtf.load_network` and the network object against `rtf predict` (bit for bit)."""
+
+import numpy as np
+import pytest
+import torch
+
+import rtf
+from conftest import MF_SAMPLES, read_png, read_rgba
+
+FRAME = MF_SAMPLES / "01234N.png"
+MFNET = MF_SAMPLES / "mfnet_final.safetensors"
+
+
+def predicted(run_rtf, tmp_path, model, weights, frame):
+    out = tmp_path / "pred"
+    run_rtf("predict", "--model", model, "--weights", weights, "--out", out, "--logits", frame)
+    return np.load(out / f"{frame.stem}.npy"), read_png(out / f"{frame.stem}.png")
+
+
+def test_mfnet_published_weights_on_a_real_frame_equal_rtf_predict(run_rtf, tmp_path):
+    net = rtf.load_network("mfnet", weights=MFNET)
+    rgb, thermal = read_rgba(FRAME)
+    logits = net.logits(rgb, thermal)
+    cli_logits, cli_ids = predicted(run_rtf, tmp_path, "mfnet", MFNET, FRAME)
+    assert logits.dtype == np.float32 and logits.shape == (9, 480, 640)
+    assert np.array_equal(logits, cli_logits)
+    ids = net.predict(rgb, thermal)
+    assert ids.dtype == np.uint8 and np.array_equal(ids, cli_ids)
+    # A real frame has more than one class in it: the comparison is not of two blanks.
+    assert len(np.unique(ids)) > 1
+
+
+@pytest.mark.parametrize("model", ["rtfnet50", "cmx-b0"])
+def test_random_weights_saved_and_loaded_equal_rtf_predict(model, run_rtf, tmp_path):
+    torch.manual_seed(0)
+    weights = tmp_path / f"{model}.safetensors"
+    rtf.load_network(model).save(weights)
+    net = rtf.load_network(model, weights=weights)
+    rgb, thermal = read_rgba(FRAME)
+    cli_logits, cli_ids = predicted(run_rtf, tmp_path, model, weights, FRAME)
+    assert np.array_equal(net.logits(rgb, thermal), cli_logits)
+    assert np.array_equal(net.predict(rgb, thermal), cli_ids)
+
+
+def test_the_forward_pass_takes_torch_tensors_and_matches_logits():
+    net = rtf.load_network("mfnet", weights=MFNET)
+    rgb, thermal = read_rgba(FRAME)
+    x = torch.cat(
+        [
+            torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0,
+            torch.from_numpy(thermal)[None].float() / 255.0,
+        ]
+    )[None]
+    out = net(x)
+    assert isinstance(out, torch.Tensor) and out.shape == (1, 9, 480, 640)
+    assert torch.equal(out[0], torch.from_numpy(net.logits(rgb, thermal)))
+
+
+def test_classes_colours_and_models():
+    net = rtf.load_network("mfnet", weights=MFNET)
+    names = [c["name"] for c in net.classes]
+    assert len(names) == 9 and names[0] == "unlabeled"
+    ids = np.array([[0, 1], [2, 8]], dtype=np.uint8)
+    colours = net.colorize(ids)
+    assert colours.shape == (2, 2, 3) and colours.dtype == np.uint8
+    assert tuple(colours[0, 1]) == tuple(net.classes[1]["color"])
+    records = {m["name"]: m for m in rtf.models()}
+    assert records["mfnet"]["parameters"] > 0 and records["mfnet"]["classes"] == "mf"
+    assert "heatnet-critic" not in records
+
+
+def test_a_user_loop_trains_the_network_through_torch_autograd():
+    torch.manual_seed(0)
+    net = rtf.load_network("mfnet").train()
+    params = net.parameters()
+    opt = torch.optim.SGD(params, lr=0.01)
+    x = torch.rand(2, 4, 64, 64)
+    y = torch.randint(0, 9, (2, 64, 64))
+    before = [p.detach().clone() for p in params]
+    loss = torch.nn.functional.cross_entropy(net(x), y)
+    loss.backward()
+    opt.step()
+    assert any(not torch.equal(a, p.detach()) for a, p in zip(before, params))
