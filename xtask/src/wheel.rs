@@ -43,7 +43,7 @@ fn build(root: &Path, python: &Path) -> Result<PathBuf> {
     let out = root.join("target/wheels");
     let before = wheels_in(&out);
     let status = Command::new(python)
-        .args(["-m", "maturin", "build", "--release", "--auditwheel", "skip"])
+        .args(["-m", "maturin", "build", "--release", "--strip", "--auditwheel", "skip"])
         .args(["--compatibility", "linux", "-m", "crates/rtf-py/Cargo.toml"])
         .arg("-i")
         .arg(python)

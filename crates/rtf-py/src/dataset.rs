@@ -12,6 +12,7 @@ use rtf_data::{Dataset, Frame, FrameSource};
 use tch::Tensor;
 
 use crate::errors::PyResultExt;
+use crate::loader::LoaderRequest;
 use crate::methods::to_numpy;
 
 /// The classes of a set in output order: id, name, colour, the label value a dataset file
@@ -87,6 +88,36 @@ impl PyDataset {
             source,
             name: name.to_string(),
         })
+    }
+
+    /// An iterable of `(x, y)` torch batches of `split`, built by rtf's loader threads as
+    /// `rtf train` builds its training batches: `x` float32 [B, 4, H, W] (R, G, B, T after
+    /// `model`'s input convention), `y` int64 [B, H, W] (output indices, the ignore id where
+    /// the loss ignores). `augment`: the horizontal flips of MFNet's and RTFNet's recipes;
+    /// `size`: (width, height) every frame is resized to; `seed`: `rtf train --seed`. Each
+    /// `iter()` is the next epoch from `epoch`; `loader.epoch(e)` is epoch `e`.
+    #[pyo3(signature = (split, batch_size, shuffle=true, augment=true, workers=2, seed=0, size=None, model="mfnet", epoch=0))]
+    #[allow(clippy::too_many_arguments)]
+    fn loader(
+        &self,
+        split: &str,
+        batch_size: usize,
+        shuffle: bool,
+        augment: bool,
+        workers: usize,
+        seed: u64,
+        size: Option<(usize, usize)>,
+        model: &str,
+        epoch: u64,
+    ) -> PyResult<crate::loader::PyLoader> {
+        let cfg = LoaderRequest::config(batch_size, shuffle, augment, workers, seed, size)?;
+        let request = LoaderRequest {
+            split,
+            model,
+            cfg,
+            epoch,
+        };
+        request.open(self)
     }
 
     fn __repr__(&self) -> String {

@@ -7,6 +7,7 @@ mod arrays;
 mod dataset;
 mod errors;
 mod evaluate;
+mod loader;
 mod methods;
 mod network;
 
@@ -29,6 +30,8 @@ fn _rtf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<dataset::PyDataset>()?;
     m.add_class::<dataset::PySplit>()?;
     m.add_class::<dataset::PyFrame>()?;
+    m.add_class::<loader::PyLoader>()?;
+    m.add_class::<loader::PyEpoch>()?;
     m.add_function(wrap_pyfunction!(network::load_network, m)?)?;
     m.add_function(wrap_pyfunction!(network::models, m)?)?;
     m.add_function(wrap_pyfunction!(dataset::open_dataset, m)?)?;
