@@ -44,17 +44,22 @@ def save_png(path, array):
 
 
 def train_a_few_steps(net, ds, steps):
+    """`steps` SGD steps of a plain PyTorch loop over rtf's loader (epoch after epoch)."""
     net.train()
     opt = torch.optim.SGD(net.parameters(), lr=0.01, momentum=0.9)
     ignore = ds.ignore_id if ds.ignore_id is not None else -100
-    for step, (x, y) in enumerate(ds.loader("train", 4, seed=0, size=(320, 240))):
-        if step == steps:
-            break
-        loss = torch.nn.functional.cross_entropy(net(x), y, ignore_index=ignore)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        print(f"step {step}: loss {loss.item():.4f}")
+    loader = ds.loader("train", 4, seed=0, size=(320, 240))
+    step = 0
+    while step < steps:
+        for x, y in loader:
+            loss = torch.nn.functional.cross_entropy(net(x), y, ignore_index=ignore)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            print(f"step {step}: loss {loss.item():.4f}")
+            step += 1
+            if step == steps:
+                break
     net.eval()
 
 

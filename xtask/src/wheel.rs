@@ -18,7 +18,7 @@ Install it with `pip install target/wheels/rtf-*.whl` into an environment with t
 /// Parses `[--python PATH]`, builds the wheel and returns its path.
 pub fn wheel(root: &Path, args: &[String]) -> Result<PathBuf> {
     let python = match args {
-        [] => setup::ensure_libtorch(root)?,
+        [] => return build(root, &setup::ensure_libtorch(root)?, None),
         [flag, path] if flag == "--python" => PathBuf::from(path),
         [flag] if flag == "-h" || flag == "--help" => {
             println!("{USAGE}");
@@ -26,15 +26,16 @@ pub fn wheel(root: &Path, args: &[String]) -> Result<PathBuf> {
         }
         _ => bail!("unexpected arguments {args:?}\n\n{USAGE}"),
     };
-    build(root, &python)
+    let torch = setup::torch_package_dir(&python)?;
+    build(root, &python, Some(&torch))
 }
 
-/// maturin, run by `python`: the extension linked against `python`'s torch (LIBTORCH = its
-/// package folder), torch-sys's include lookup and PyO3 pointed at the same interpreter. No
-/// auditwheel repair: the wheel must not bundle libtorch (it takes torch/lib through the
-/// `$ORIGIN/../torch/lib` rpath set by crates/rtf-py/build.rs).
-fn build(root: &Path, python: &Path) -> Result<PathBuf> {
-    let torch = setup::torch_package_dir(python)?;
+/// maturin, run by `python`: the extension linked against `torch` (LIBTORCH; None: the
+/// project's `.libtorch`, as every other build, so that switching does not rebuild torch-sys),
+/// torch-sys's include lookup and PyO3 pointed at the same interpreter. No auditwheel repair:
+/// the wheel must not bundle libtorch (it takes torch/lib through the `$ORIGIN/../torch/lib`
+/// rpath set by crates/rtf-py/build.rs).
+fn build(root: &Path, python: &Path, torch: Option<&Path>) -> Result<PathBuf> {
     let bin = python.parent().context("the interpreter's folder")?;
     let path = std::env::join_paths(
         std::iter::once(bin.to_path_buf())
@@ -42,14 +43,17 @@ fn build(root: &Path, python: &Path) -> Result<PathBuf> {
     )?;
     let out = root.join("target/wheels");
     let before = wheels_in(&out);
-    let status = Command::new(python)
+    let mut maturin = Command::new(python);
+    if let Some(torch) = torch {
+        maturin.env("LIBTORCH", torch);
+    }
+    let status = maturin
         .args(["-m", "maturin", "build", "--release", "--strip", "--auditwheel", "skip"])
         .args(["--compatibility", "linux", "-m", "crates/rtf-py/Cargo.toml"])
         .arg("-i")
         .arg(python)
         .arg("--out")
         .arg(&out)
-        .env("LIBTORCH", &torch)
         .env("PYO3_PYTHON", python)
         .env("VIRTUAL_ENV", bin.parent().unwrap_or(bin))
         .env("PATH", path)
@@ -93,7 +97,7 @@ fn newest_wheel(dir: &Path, before: &[(PathBuf, std::time::SystemTime)]) -> Resu
 /// kept), then pytest over crates/rtf-py/tests (which run the release `rtf` for the CLI's side).
 pub fn pytest(root: &Path) -> Result<()> {
     let python = setup::ensure_libtorch(root)?;
-    let wheel = build(root, &python)?;
+    let wheel = build(root, &python, None)?;
     let status = Command::new(&python)
         .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"])
         .args(["--no-deps", "--force-reinstall"])

@@ -1,10 +1,14 @@
 //! NumPy arrays in (through the buffer protocol: no copy until rtf's own planes are filled),
 //! each checked for dtype and shape with an `rtf.InputError` naming what was given and what
-//! is expected, before anything runs.
+//! is expected, before anything runs; tensors and class sets out.
 
 use pyo3::buffer::{Element, PyBuffer};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use pyo3_tch::PyTensor;
+use rtf_core::ClassSet;
 use rtf_data::images::ThermalSamples;
+use tch::Tensor;
 
 use crate::errors::input;
 
@@ -98,4 +102,26 @@ pub fn ids(obj: &Bound<'_, PyAny>) -> PyResult<(Vec<u8>, usize, usize)> {
             given(obj)
         ))),
     }
+}
+
+/// A tensor to NumPy (`Tensor.numpy()`: the same memory).
+pub fn to_numpy(py: Python<'_>, tensor: Tensor) -> PyResult<Bound<'_, PyAny>> {
+    PyTensor(tensor).into_pyobject(py)?.call_method0("numpy")
+}
+
+/// The classes of a set in output order: id, name, colour, the label value a dataset file
+/// uses for it; the ignore id (if any) is `Dataset.ignore_id`.
+pub fn class_records<'py>(py: Python<'py>, set: &ClassSet) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    set.classes
+        .iter()
+        .map(|class| {
+            let record = PyDict::new(py);
+            record.set_item("id", class.id)?;
+            record.set_item("name", &class.name)?;
+            let [r, g, b] = class.color;
+            record.set_item("color", (r, g, b))?;
+            record.set_item("label_value", set.label_value(class.id))?;
+            Ok(record)
+        })
+        .collect()
 }

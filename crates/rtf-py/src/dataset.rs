@@ -7,30 +7,12 @@ use std::sync::Arc;
 use pyo3::exceptions::PyIndexError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use rtf_core::ClassSet;
 use rtf_data::{Dataset, Frame, FrameSource};
 use tch::Tensor;
 
 use crate::errors::PyResultExt;
 use crate::loader::LoaderRequest;
-use crate::methods::to_numpy;
-
-/// The classes of a set in output order: id, name, colour, the label value a dataset file
-/// uses for it; the ignore id (if any) is `Dataset.ignore_id`.
-pub fn class_records<'py>(py: Python<'py>, set: &ClassSet) -> PyResult<Vec<Bound<'py, PyDict>>> {
-    set.classes
-        .iter()
-        .map(|class| {
-            let record = PyDict::new(py);
-            record.set_item("id", class.id)?;
-            record.set_item("name", &class.name)?;
-            let [r, g, b] = class.color;
-            record.set_item("color", (r, g, b))?;
-            record.set_item("label_value", set.label_value(class.id))?;
-            Ok(record)
-        })
-        .collect()
-}
+use crate::arrays::{class_records, to_numpy};
 
 /// A dataset root (`rtf.open_dataset`): MF, Freiburg Thermal or a described layout
 /// (dataset.yaml, MSRS, PST900, FMB).
@@ -117,7 +99,7 @@ impl PyDataset {
             cfg,
             epoch,
         };
-        request.open(self)
+        request.open(&self.dataset)
     }
 
     fn __repr__(&self) -> String {

@@ -12,7 +12,6 @@ use pyo3_tch::PyTensor;
 use rtf_data::{AugmentConfig, Batch, DataError, Loader, LoaderConfig};
 use rtf_models::ModelConfig;
 
-use crate::dataset::PyDataset;
 use crate::errors::{input, PyResultExt};
 
 /// Batches of a split, epoch after epoch.
@@ -25,12 +24,12 @@ pub struct PyLoader {
 /// The loader `rtf train` builds for its training frames (trainer.rs `loader`): the batch
 /// size, shuffling, seed, worker threads, a prefetch of 2, the augmentation and resize.
 fn training_loader(
-    data: &PyDataset,
+    data: &rtf_data::Dataset,
     split: &str,
     cfg: LoaderConfig,
     model: &str,
 ) -> PyResult<Loader> {
-    let source = data.dataset.split(split, true).py()?;
+    let source = data.split(split, true).py()?;
     let classes = source.class_set().len() as i64;
     let convention = ModelConfig::from_name(model, classes).py()?.input_convention();
     Ok(Loader::new(source, cfg, convention))
@@ -73,7 +72,7 @@ impl LoaderRequest<'_> {
         })
     }
 
-    pub fn open(self, data: &PyDataset) -> PyResult<PyLoader> {
+    pub fn open(self, data: &rtf_data::Dataset) -> PyResult<PyLoader> {
         Ok(PyLoader {
             loader: Arc::new(training_loader(data, self.split, self.cfg, self.model)?),
             next_epoch: AtomicU64::new(self.epoch),

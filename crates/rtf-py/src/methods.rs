@@ -11,14 +11,9 @@ use rtf_data::Frame;
 use rtf_eval::predict::{self, PairSamples};
 use tch::{Kind, Tensor};
 
-use crate::arrays;
+use crate::arrays::{self, to_numpy};
 use crate::errors::{input, PyResultExt, TorchError};
 use crate::network::PyNetwork;
-
-/// A tensor to NumPy (`Tensor.numpy()`: the same memory).
-pub fn to_numpy(py: Python<'_>, tensor: Tensor) -> PyResult<Bound<'_, PyAny>> {
-    PyTensor(tensor).into_pyobject(py)?.call_method0("numpy")
-}
 
 fn check_range(range: Option<(f64, f64)>) -> PyResult<Option<(f64, f64)>> {
     match range {
@@ -167,7 +162,7 @@ impl PyNetwork {
     /// dataset's id for it).
     #[getter]
     fn classes<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
-        crate::dataset::class_records(py, &self.classes)
+        arrays::class_records(py, &self.classes)
     }
 
     /// The device the network is on (`cpu`, `cuda:0`, ...).
