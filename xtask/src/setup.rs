@@ -151,7 +151,7 @@ fn ensure_protoc() -> Result<()> {
 }
 
 /// `pip install --quiet <args>` with the venv's Python.
-fn pip_install(python: &Path, args: &[&str]) -> Result<()> {
+pub fn pip_install(python: &Path, args: &[&str]) -> Result<()> {
     let status = Command::new(python)
         .args([
             "-m",

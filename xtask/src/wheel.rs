@@ -37,10 +37,9 @@ pub fn wheel(root: &Path, args: &[String]) -> Result<PathBuf> {
 /// rpath set by crates/rtf-py/build.rs).
 fn build(root: &Path, python: &Path, torch: Option<&Path>) -> Result<PathBuf> {
     let bin = python.parent().context("the interpreter's folder")?;
-    let path = std::env::join_paths(
-        std::iter::once(bin.to_path_buf())
-            .chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default())),
-    )?;
+    let path = std::env::join_paths(std::iter::once(bin.to_path_buf()).chain(
+        std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()),
+    ))?;
     let out = root.join("target/wheels");
     let before = wheels_in(&out);
     let mut maturin = Command::new(python);
@@ -48,7 +47,15 @@ fn build(root: &Path, python: &Path, torch: Option<&Path>) -> Result<PathBuf> {
         maturin.env("LIBTORCH", torch);
     }
     let status = maturin
-        .args(["-m", "maturin", "build", "--release", "--strip", "--auditwheel", "skip"])
+        .args([
+            "-m",
+            "maturin",
+            "build",
+            "--release",
+            "--strip",
+            "--auditwheel",
+            "skip",
+        ])
         .args(["--compatibility", "linux", "-m", "crates/rtf-py/Cargo.toml"])
         .arg("-i")
         .arg(python)
@@ -98,15 +105,8 @@ fn newest_wheel(dir: &Path, before: &[(PathBuf, std::time::SystemTime)]) -> Resu
 pub fn pytest(root: &Path) -> Result<()> {
     let python = setup::ensure_libtorch(root)?;
     let wheel = build(root, &python, None)?;
-    let status = Command::new(&python)
-        .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"])
-        .args(["--no-deps", "--force-reinstall"])
-        .arg(&wheel)
-        .status()
-        .context("cannot run pip in .venv")?;
-    if !status.success() {
-        bail!("pip install {} failed", wheel.display());
-    }
+    let wheel = wheel.to_string_lossy();
+    setup::pip_install(&python, &["--no-deps", "--force-reinstall", &wheel])?;
     let status = Command::new(&python)
         .args(["-m", "pytest", "-q", "crates/rtf-py/tests"])
         .env("RTF_BIN", root.join("target/release/rtf"))

@@ -544,7 +544,10 @@ pub fn frame_logits(
 /// The class of each pixel of `logits` [classes, H, W] (row-major): output indices.
 pub fn class_ids(logits: &tch::Tensor) -> Result<Vec<u8>, PredictError> {
     Ok(Vec::<u8>::try_from(
-        logits.f_argmax(0, false)?.f_to_kind(Kind::Uint8)?.flatten(0, -1),
+        logits
+            .f_argmax(0, false)?
+            .f_to_kind(Kind::Uint8)?
+            .flatten(0, -1),
     )?)
 }
 
@@ -557,8 +560,7 @@ fn predict_frame(
     device: tch::Device,
 ) -> Result<(), PredictError> {
     let source = plan.source.display().to_string();
-    let logits =
-        frame_logits(network, frame, device).map_err(|e| Refusal::because(source, e))?;
+    let logits = frame_logits(network, frame, device).map_err(|e| Refusal::because(source, e))?;
     let ids = class_ids(&logits)?;
     let (w, h) = (frame.width as u32, frame.height as u32);
     let colors = classes.colorize(&ids);

@@ -17,10 +17,15 @@ fn given(obj: &Bound<'_, PyAny>) -> String {
     let dtype = obj
         .getattr("dtype")
         .and_then(|d| d.str().map(|s| s.to_string()));
-    let shape = obj.getattr("shape").and_then(|s| s.str().map(|s| s.to_string()));
+    let shape = obj
+        .getattr("shape")
+        .and_then(|s| s.str().map(|s| s.to_string()));
     match (dtype, shape) {
         (Ok(dtype), Ok(shape)) => format!("dtype {dtype}, shape {shape}"),
-        _ => format!("a {}", obj.get_type().name().map_or("?".into(), |n| n.to_string())),
+        _ => format!(
+            "a {}",
+            obj.get_type().name().map_or("?".into(), |n| n.to_string())
+        ),
     }
 }
 

@@ -10,9 +10,9 @@ use pyo3::types::PyDict;
 use rtf_data::{Dataset, Frame, FrameSource};
 use tch::Tensor;
 
+use crate::arrays::{class_records, to_numpy};
 use crate::errors::PyResultExt;
 use crate::loader::LoaderRequest;
-use crate::arrays::{class_records, to_numpy};
 
 /// A dataset root (`rtf.open_dataset`): MF, Freiburg Thermal or a described layout
 /// (dataset.yaml, MSRS, PST900, FMB).

@@ -32,12 +32,7 @@ create_exception!(
     "An argument from Python of the wrong type, dtype, shape or device, refused before \
      anything runs."
 );
-create_exception!(
-    rtf,
-    TorchError,
-    Error,
-    "An error libtorch reported (tch)."
-);
+create_exception!(rtf, TorchError, Error, "An error libtorch reported (tch).");
 
 /// Adds the exception classes to the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

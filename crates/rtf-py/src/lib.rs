@@ -38,4 +38,3 @@ fn _rtf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(evaluate::evaluate_json, m)?)?;
     Ok(())
 }
-

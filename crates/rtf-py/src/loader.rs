@@ -31,7 +31,9 @@ fn training_loader(
 ) -> PyResult<Loader> {
     let source = data.split(split, true).py()?;
     let classes = source.class_set().len() as i64;
-    let convention = ModelConfig::from_name(model, classes).py()?.input_convention();
+    let convention = ModelConfig::from_name(model, classes)
+        .py()?
+        .input_convention();
     Ok(Loader::new(source, cfg, convention))
 }
 

@@ -198,7 +198,11 @@ impl PyNetwork {
     /// optimiser.
     fn parameters(&self) -> Vec<PyTensor> {
         let held = self.held.lock().unwrap_or_else(|e| e.into_inner());
-        held.vs.trainable_variables().into_iter().map(PyTensor).collect()
+        held.vs
+            .trainable_variables()
+            .into_iter()
+            .map(PyTensor)
+            .collect()
     }
 
     /// Writes the weights as `rtf train` does (safetensors, reference names, the network and

@@ -111,33 +111,36 @@ pub fn load_network(
     let precision = parse_precision(precision)?;
     let trained = weights.as_deref().map(trained_on).transpose()?.flatten();
     let path = weights.as_deref().unwrap_or(Path::new(""));
-    let classes =
-        predict::class_set(classes.as_deref(), name, path, trained.as_ref()).py()?;
+    let classes = predict::class_set(classes.as_deref(), name, path, trained.as_ref()).py()?;
     prepare_kernels(precision, device)?;
     let n = classes.len() as i64;
     let cfg = ModelConfig::from_name(name, n).py()?;
-    let (held, inputs) = py.allow_threads(|| match &weights {
-        Some(weights) => {
-            let request = rtf_models::loaded::NetworkRequest {
-                name,
-                num_classes: n,
-                weights,
-                device,
-                precision,
-                foreign_weights: false,
-                inputs: None,
-            };
-            rtf_models::loaded::load_network(&request).map(|loaded| {
-                for warning in &loaded.warnings {
-                    eprintln!("warning: {warning}");
-                }
-                let held = Held { vs: loaded.vs, net: loaded.net };
-                (held, loaded.inputs)
-            })
-        }
-        None => random_network(name, n, device, precision).map(|h| (h, Modality::RgbT)),
-    })
-    .py()?;
+    let (held, inputs) = py
+        .allow_threads(|| match &weights {
+            Some(weights) => {
+                let request = rtf_models::loaded::NetworkRequest {
+                    name,
+                    num_classes: n,
+                    weights,
+                    device,
+                    precision,
+                    foreign_weights: false,
+                    inputs: None,
+                };
+                rtf_models::loaded::load_network(&request).map(|loaded| {
+                    for warning in &loaded.warnings {
+                        eprintln!("warning: {warning}");
+                    }
+                    let held = Held {
+                        vs: loaded.vs,
+                        net: loaded.net,
+                    };
+                    (held, loaded.inputs)
+                })
+            }
+            None => random_network(name, n, device, precision).map(|h| (h, Modality::RgbT)),
+        })
+        .py()?;
     let built = Built {
         cfg,
         modality: inputs,
