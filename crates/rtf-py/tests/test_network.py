@@ -11,9 +11,10 @@ FRAME = MF_SAMPLES / "01234N.png"
 MFNET = MF_SAMPLES / "mfnet_final.safetensors"
 
 
-def predicted(run_rtf, tmp_path, model, weights, frame):
+def predicted(run_rtf, tmp_path, model, weights, frame, *extra):
     out = tmp_path / "pred"
-    run_rtf("predict", "--model", model, "--weights", weights, "--out", out, "--logits", frame)
+    run_rtf("predict", "--model", model, "--weights", weights, "--out", out, "--logits", *extra,
+            frame)
     return np.load(out / f"{frame.stem}.npy"), read_png(out / f"{frame.stem}.png")
 
 
@@ -28,6 +29,19 @@ def test_mfnet_published_weights_on_a_real_frame_equal_rtf_predict(run_rtf, tmp_
     assert ids.dtype == np.uint8 and np.array_equal(ids, cli_ids)
     # A real frame has more than one class in it: the comparison is not of two blanks.
     assert len(np.unique(ids)) > 1
+
+
+def test_the_fp32_fast_path_equals_rtf_predict_precision_fp32(run_rtf, tmp_path):
+    net = rtf.load_network("mfnet", weights=MFNET, precision="fp32")
+    rgb, thermal = read_rgba(FRAME)
+    cli_logits, cli_ids = predicted(
+        run_rtf, tmp_path, "mfnet", MFNET, FRAME, "--precision", "fp32"
+    )
+    assert np.array_equal(net.logits(rgb, thermal), cli_logits)
+    assert np.array_equal(net.predict(rgb, thermal), cli_ids)
+    # A fast-path network keeps only its folded weights: it cannot be saved.
+    with pytest.raises(rtf.InputError, match="precision=None"):
+        net.save(tmp_path / "folded.safetensors")
 
 
 @pytest.mark.parametrize("model", ["rtfnet50", "cmx-mit-b0"])
