@@ -63,18 +63,20 @@ fn prepare_kernels(precision: Option<Precision>, device: tch::Device) -> PyResul
 }
 
 /// The network `name` with random weights (libtorch's generator: `torch.manual_seed` seeds
-/// it), as `rtf_models::loaded::load_network` builds it, folded for `precision`.
+/// it), as `rtf_models::loaded::load_network` builds it, folded for `precision` (one this
+/// device runs: fp16 only on CUDA).
 fn random_network(
-    name: &str,
-    classes: i64,
+    cfg: &ModelConfig,
     device: tch::Device,
     precision: Option<Precision>,
 ) -> Result<Held, rtf_models::ModelError> {
-    let cfg = ModelConfig::from_name(name, classes)?;
     let vs = VarStore::new(device);
-    let net = rtf_models::build(&vs.root(), &cfg)?;
+    let net = rtf_models::build(&vs.root(), cfg)?;
     let net = match precision {
-        Some(p) => Box::new(InferenceNet::with_layout(net, p, Layout::default())?) as _,
+        Some(p) => {
+            rtf_models::fast::check_precision_on(p, device)?;
+            Box::new(InferenceNet::with_layout(net, p, Layout::default())?) as _
+        }
         None => net,
     };
     Ok(Held { vs, net })
@@ -138,7 +140,7 @@ pub fn load_network(
                     (held, loaded.inputs)
                 })
             }
-            None => random_network(name, n, device, precision).map(|h| (h, Modality::RgbT)),
+            None => random_network(&cfg, device, precision).map(|h| (h, Modality::RgbT)),
         })
         .py()?;
     let built = Built {

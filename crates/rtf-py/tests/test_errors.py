@@ -81,6 +81,8 @@ def test_unknown_network_device_or_precision():
         rtf.load_network("mfnet", device="tpu")
     with pytest.raises(rtf.InputError, match="precision"):
         rtf.load_network("mfnet", precision="int3")
+    with pytest.raises(rtf.ModelError, match="fp16"):
+        rtf.load_network("mfnet", precision="fp16")
 
 
 def test_a_dataset_path_that_is_not_one(tmp_path):
