@@ -101,3 +101,30 @@ def test_a_user_loop_trains_the_network_through_torch_autograd():
     loss.backward()
     opt.step()
     assert any(not torch.equal(a, p.detach()) for a, p in zip(before, params))
+
+
+def test_the_gil_is_released_while_the_network_runs():
+    """Python keeps running beside `net.logits`: the longest pause of a counting loop in
+    another thread stays well below the call's length (holding the GIL, it would be all of it)."""
+    import threading
+    import time
+
+    net = rtf.load_network("mfnet", weights=MFNET)
+    rgb, thermal = read_rgba(FRAME)
+    span = {}
+
+    def work():
+        span["start"] = time.perf_counter()
+        net.logits(rgb, thermal)
+        span["end"] = time.perf_counter()
+
+    worker = threading.Thread(target=work)
+    worker.start()
+    stamps = []
+    while worker.is_alive():
+        stamps.append(time.perf_counter())
+    worker.join()
+    inside = [t for t in stamps if span["start"] <= t <= span["end"]]
+    call = span["end"] - span["start"]
+    longest = max(b - a for a, b in zip(inside, inside[1:]))
+    assert len(inside) > 2 and longest < 0.5 * call, (longest, call, len(inside))
