@@ -6,6 +6,7 @@ mod convert;
 mod hostile;
 mod reproduce;
 mod setup;
+mod wheel;
 
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -15,7 +16,10 @@ const USAGE: &str = "usage: cargo xtask <task>
 
 tasks:
   setup    install libtorch (PyPI torch==2.13.0) into .venv and link .libtorch (idempotent)
-  test     setup, then run the whole test suite (release build)
+  test     setup, then run the whole test suite (release build), then the Python package's
+           tests (wheel built and installed into .venv, pytest)
+  wheel    build the Python package: target/wheels/rtf-*.whl (--python PATH: another
+           interpreter with torch==2.13.0 and maturin; default .venv)
   demo     setup, build, synthesise a small RGB-T dataset, train MFNet, evaluate, draw predictions
   convert-pth IN.pth OUT.safetensors  convert a PyTorch checkpoint (published weights) for rtf
   calib-check  full-size accuracy/timing run of `rtf calibrate` on real-imagery and synthetic rigs with ground truth
@@ -31,6 +35,7 @@ fn main() -> Result<()> {
     match args.first().map(String::as_str) {
         Some("setup") => setup::ensure_libtorch(&root).map(|_| ()),
         Some("test") => test(&root, &args[1..]),
+        Some("wheel") => wheel::wheel(&root, &args[1..]).map(|_| ()),
         Some("demo") => demo(&root, &args[1..]),
         Some("convert-pth") => convert::convert_pth(&root, &args[1..]),
         Some("calib-check") => calib_check::calib_check(&root, &args[1..]),
@@ -91,7 +96,10 @@ fn run(root: &Path, program: &str, args: &[&str]) -> Result<()> {
 
 fn test(root: &Path, extra: &[String]) -> Result<()> {
     setup::ensure_libtorch(root)?;
-    let mut args = vec!["test", "--workspace", "--release"];
+    // rtf-py (the Python extension) is left out: its python-extension features of tch would
+    // be unified into every test binary, which would then need libpython; its tests are the
+    // pytest pass below.
+    let mut args = vec!["test", "--workspace", "--exclude", "rtf-py", "--release"];
     args.extend(extra.iter().map(String::as_str));
     // The ONNX export check (PyTorch exporter + onnxruntime, which `setup` installs) runs in
     // the whole suite; a plain `cargo test` skips it (about 40 s).
@@ -129,6 +137,7 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
         }
         emulated_kind_passes(root)?;
         reproduce::smoke(root)?;
+        wheel::pytest(root)?;
     }
     Ok(())
 }

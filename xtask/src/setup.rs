@@ -81,14 +81,18 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
 /// Python packages the scripts and tests use, as (import name, PyPI name): the benchmark peers
 /// (`scripts/bench_*.py`) need NumPy and Pillow; the TensorBoard test reads event files back
 /// with TensorBoard's reader; `rtf export --format onnx` and its test use PyTorch's ONNX
-/// exporter (`onnx`, `onnxscript`) and check the result with onnxruntime.
-const SCRIPT_PACKAGES: [(&str, &str); 6] = [
+/// exporter (`onnx`, `onnxscript`) and check the result with onnxruntime; `cargo xtask
+/// wheel` builds the Python package with maturin, and `cargo xtask test` runs its tests with
+/// pytest.
+const SCRIPT_PACKAGES: [(&str, &str); 8] = [
     ("numpy", "numpy"),
     ("PIL", "pillow"),
     ("tensorboard", "tensorboard"),
     ("onnx", "onnx"),
     ("onnxscript", "onnxscript"),
     ("onnxruntime", "onnxruntime"),
+    ("maturin", "maturin>=1.16,<2"),
+    ("pytest", "pytest"),
 ];
 
 fn ensure_script_packages(python: &Path) -> Result<()> {
@@ -147,7 +151,7 @@ fn ensure_protoc() -> Result<()> {
 }
 
 /// `pip install --quiet <args>` with the venv's Python.
-fn pip_install(python: &Path, args: &[&str]) -> Result<()> {
+pub fn pip_install(python: &Path, args: &[&str]) -> Result<()> {
     let status = Command::new(python)
         .args([
             "-m",
@@ -195,7 +199,7 @@ fn pip_knows_torch(python: &Path) -> bool {
         .is_ok_and(|o| o.status.success())
 }
 
-fn torch_package_dir(python: &Path) -> Result<PathBuf> {
+pub fn torch_package_dir(python: &Path) -> Result<PathBuf> {
     let out = Command::new(python)
         .args([
             "-c",

@@ -55,6 +55,14 @@ impl ConfusionMatrix {
         self.counts[truth * self.num_classes + prediction]
     }
 
+    /// The counts as rows (truth) of columns (prediction), as `rtf eval --json` writes them.
+    pub fn rows(&self) -> Vec<Vec<u64>> {
+        let n = self.num_classes;
+        (0..n)
+            .map(|t| (0..n).map(|p| self.get(t, p)).collect())
+            .collect()
+    }
+
     /// Adds a batch: `truth` and `prediction` hold class ids of the same shape (any integer
     /// kind, any device).
     pub fn update(&mut self, truth: &Tensor, prediction: &Tensor) {

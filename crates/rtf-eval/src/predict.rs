@@ -164,18 +164,43 @@ pub fn read_pair(
             rgb.height
         )));
     }
-    let values = rule
-        .for_samples(&thermal.samples)
-        .apply_samples(&thermal.samples, thermal_path)?;
-    Ok(Frame {
-        daytime: None,
+    let pair = PairSamples {
         name: stem(rgb_path),
         width: rgb.width,
         height: rgb.height,
         rgb: rgb.rgb,
-        thermal: values,
-        label: None,
-    })
+        thermal: &thermal.samples,
+    };
+    pair.into_frame(rule, thermal_path)
+}
+
+/// An RGB + thermal pair of one size as read (interleaved RGB bytes, thermal samples), before
+/// the thermal rule: what [`read_pair`] reads from files and rtf-py takes from arrays.
+pub struct PairSamples<'a> {
+    pub name: String,
+    pub width: usize,
+    pub height: usize,
+    /// Interleaved R, G, B bytes (`3 * width * height`).
+    pub rgb: Vec<u8>,
+    pub thermal: &'a ThermalSamples,
+}
+
+impl PairSamples<'_> {
+    /// The frame, its thermal mapped to [0, 1] by `rule`; `source` names the thermal in errors.
+    pub fn into_frame(self, rule: ThermalRule, source: &Path) -> Result<Frame, PredictError> {
+        let values = rule
+            .for_samples(self.thermal)
+            .apply_samples(self.thermal, source)?;
+        Ok(Frame {
+            daytime: None,
+            name: self.name,
+            width: self.width,
+            height: self.height,
+            rgb: self.rgb,
+            thermal: values,
+            label: None,
+        })
+    }
 }
 
 /// One frame to predict: its input and its outputs in the output folder.
@@ -501,6 +526,31 @@ impl Prepared<'_, '_> {
     }
 }
 
+/// One frame's logits [classes, H, W], float32 on the CPU, as `rtf predict` computes them
+/// (the frame's input after the network's convention, padded to its size multiple); rtf-py's
+/// `net.logits` is this function.
+pub fn frame_logits(
+    network: &dyn Network,
+    frame: &Frame,
+    device: tch::Device,
+) -> Result<tch::Tensor, EvalError> {
+    let input = crate::figure::frame_input(frame, network.input_convention()).to_device(device);
+    Ok(crate::evaluate::logits(network, &input)?
+        .get(0)
+        .f_to_kind(Kind::Float)?
+        .f_to_device(tch::Device::Cpu)?)
+}
+
+/// The class of each pixel of `logits` [classes, H, W] (row-major): output indices.
+pub fn class_ids(logits: &tch::Tensor) -> Result<Vec<u8>, PredictError> {
+    Ok(Vec::<u8>::try_from(
+        logits
+            .f_argmax(0, false)?
+            .f_to_kind(Kind::Uint8)?
+            .flatten(0, -1),
+    )?)
+}
+
 /// Runs the network on one frame and writes its outputs, each whole (temp + rename).
 fn predict_frame(
     network: &dyn Network,
@@ -510,13 +560,8 @@ fn predict_frame(
     device: tch::Device,
 ) -> Result<(), PredictError> {
     let source = plan.source.display().to_string();
-    let input = crate::figure::frame_input(frame, network.input_convention()).to_device(device);
-    let logits = crate::evaluate::logits(network, &input)
-        .map_err(|e| Refusal::because(source, e))?
-        .get(0)
-        .to_kind(Kind::Float)
-        .to_device(tch::Device::Cpu);
-    let ids = Vec::<u8>::try_from(logits.argmax(0, false).to_kind(Kind::Uint8).flatten(0, -1))?;
+    let logits = frame_logits(network, frame, device).map_err(|e| Refusal::because(source, e))?;
+    let ids = class_ids(&logits)?;
     let (w, h) = (frame.width as u32, frame.height as u32);
     let colors = classes.colorize(&ids);
     // Ids as the dataset has them (its label values), colours by the network's outputs.

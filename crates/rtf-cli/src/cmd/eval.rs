@@ -214,7 +214,7 @@ pub fn run(args: Args) -> Result<()> {
                 .as_ref()
                 .map_or_else(|| classes.names(), |m| m.matrix_names()),
             class_map: mapped,
-            confusion: confusion_rows(&report.confusion),
+            confusion: report.confusion.rows(),
             dropped,
             model: &args.model,
             inputs: loaded.inputs,
@@ -244,14 +244,6 @@ pub fn run(args: Args) -> Result<()> {
         )?;
     }
     Ok(())
-}
-
-/// The confusion matrix as rows: truth, then prediction.
-fn confusion_rows(confusion: &rtf_eval::ConfusionMatrix) -> Vec<Vec<u64>> {
-    let n = confusion.num_classes();
-    (0..n)
-        .map(|t| (0..n).map(|p| confusion.get(t, p)).collect())
-        .collect()
 }
 
 /// Prints the scores: RTFNet's convention table, then HeatNet's (Freiburg Thermal) or the MFNet

@@ -1,0 +1,132 @@
+"""rtf from Python: RGB-thermal segmentation networks, datasets and evaluation on the same
+library as the ``rtf`` command (numbers equal to the CLI's, bit for bit).
+
+    import rtf
+    net = rtf.load_network("mfnet", weights="mfnet.safetensors")
+    logits = net.logits(rgb, thermal)          # numpy [classes, H, W] float32
+    ds = rtf.open_dataset("data/msrs")
+    scores = rtf.evaluate(net, ds, split="test")
+"""
+
+import json as _json
+
+# The extension links libtorch of exactly this version (tch 0.26): another torch crashes
+# inside libtorch rather than failing, so it is refused here, before the extension loads.
+TORCH_VERSION = "2.13.0"
+
+
+def _check_torch():
+    try:
+        import torch
+    except ImportError as err:  # pragma: no cover - torch is a dependency of the wheel
+        raise ImportError(
+            f"rtf needs torch=={TORCH_VERSION} (pip install torch=={TORCH_VERSION}): {err}"
+        ) from err
+    found = torch.__version__.split("+")[0]
+    if found != TORCH_VERSION:
+        raise ImportError(
+            f"rtf was built for torch {TORCH_VERSION} but torch {torch.__version__} is "
+            f"installed ({torch.__file__}); install torch=={TORCH_VERSION} or rebuild the "
+            "wheel against this torch"
+        )
+
+
+_check_torch()
+
+from ._rtf import (  # noqa: E402  (torch first: it loads the libraries the extension links)
+    DataError,
+    Dataset,
+    Error,
+    EvalError,
+    Epoch,
+    Frame,
+    InputError,
+    Loader,
+    ModelError,
+    Network,
+    Split,
+    TorchError,
+    __version__,
+    load_network,
+    models,
+    open_dataset,
+)
+from . import _rtf  # noqa: E402
+
+
+class Scores:
+    """What ``rtf eval --json`` writes: ``miou``, ``macc``, ``miou_mfnet``, ``pixel_acc``,
+    ``per_class`` (name -> IoU, None for a class without pixels), ``day`` / ``night`` (the
+    same for the day and night frames, None where the split has none), ``confusion`` (rows =
+    truth, columns = prediction), ``class_names``, ``frames``; ``json`` is the whole record."""
+
+    def __init__(self, record):
+        self.json = record
+        self._all = record["all"]
+        self.frames = record["frames"]
+        self.class_names = record["class_names"]
+        self.confusion = record["confusion"]
+        self.day = Scores._part(record["day"])
+        self.night = Scores._part(record["night"])
+
+    @staticmethod
+    def _part(scores):
+        if scores is None:
+            return None
+        return _Part(scores)
+
+    def __getattr__(self, name):
+        return getattr(_Part(self._all), name)
+
+    def __repr__(self):
+        return f"rtf.Scores(miou={self._all['miou']:.4f}, frames={self.frames})"
+
+
+class _Part:
+    """One set of scores (all frames, day or night)."""
+
+    def __init__(self, scores):
+        self.json = scores
+        self.miou = scores["miou"]
+        self.macc = scores["macc"]
+        self.miou_mfnet = scores["miou_mfnet"]
+        self.pixel_acc = scores["pixel_acc"]
+        self.pixels = scores["pixels"]
+        self.per_class = {c["name"]: c["iou"] for c in scores["per_class"]}
+        self.per_class_acc = {c["name"]: c["acc"] for c in scores["per_class"]}
+
+    def __repr__(self):
+        return f"rtf.Scores(miou={self.miou:.4f})"
+
+
+def evaluate(net, data, split="test", sliding=False, scales=None, flip=False,
+             batch_size=4, resize=None):
+    """Scores ``net`` on ``split`` of ``data`` (``rtf.open_dataset``) as ``rtf eval`` does
+    (``sliding``: 480x640 windows at stride rate 2/3; ``scales``: e.g. [0.75, 1, 1.25];
+    ``flip``; ``resize``: (width, height)). Returns :class:`Scores`, equal to
+    ``rtf eval --json``."""
+    record = _rtf.evaluate_json(net, data, split, sliding, scales, flip, batch_size, resize)
+    return Scores(_json.loads(record))
+
+
+__all__ = [
+    "DataError",
+    "Dataset",
+    "Error",
+    "EvalError",
+    "Epoch",
+    "Frame",
+    "InputError",
+    "Loader",
+    "ModelError",
+    "Network",
+    "Scores",
+    "Split",
+    "TORCH_VERSION",
+    "TorchError",
+    "__version__",
+    "evaluate",
+    "load_network",
+    "models",
+    "open_dataset",
+]

@@ -1,0 +1,186 @@
+//! `rtf.load_network` and the network object: logits and class ids of a frame given as NumPy
+//! arrays (the frame `rtf predict` builds from files, run by the same function,
+//! `rtf_eval::predict::frame_logits`), the forward pass on torch tensors (no copy in or out),
+//! its classes and palette. The GIL is released while the network runs.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use rtf_core::ClassSet;
+use rtf_data::TrainedOn;
+use rtf_eval::predict;
+use rtf_models::fast::{InferenceNet, Layout, Precision};
+use rtf_models::{Modality, ModelConfig, Network};
+use tch::nn::VarStore;
+
+use crate::errors::{input, PyResultExt};
+
+/// A network and its variables (kept alive with it), behind a lock so that Python threads may
+/// share the object while the GIL is released.
+pub struct Held {
+    pub vs: VarStore,
+    pub net: Box<dyn Network>,
+}
+
+/// How a network was built: its configuration, the channels it sees, its inference path.
+pub struct Built {
+    pub cfg: ModelConfig,
+    pub modality: Modality,
+    pub precision: Option<Precision>,
+}
+
+/// A segmentation network loaded for inference (`rtf.load_network`).
+#[pyclass(module = "rtf", name = "Network")]
+pub struct PyNetwork {
+    pub held: Mutex<Held>,
+    #[pyo3(get)]
+    pub name: String,
+    pub built: Built,
+    pub classes: ClassSet,
+    pub trained: Option<TrainedOn>,
+    pub device: tch::Device,
+    #[pyo3(get)]
+    pub weights: Option<PathBuf>,
+    /// The channels the network sees (`rgb_t`, `rgb`, `thermal`).
+    #[pyo3(get)]
+    pub inputs: String,
+    /// Training mode for `__call__` (BatchNorm batch statistics, dropout), `train()` / `eval()`.
+    #[pyo3(get)]
+    pub training: bool,
+}
+
+/// For bf16 on the CPU, the 3×3 kernel choice the library offers today (a bad
+/// `RTF_BF16_WINOGRAD` refused). Issue 61's library `KernelPolicy` replaces this function:
+/// until then `rtf predict`'s measured probe (rtf-cli) is not run from Python, so bf16 logits
+/// may take other kernels than the CLI's on a CPU where the probe would switch them.
+fn prepare_kernels(precision: Option<Precision>, device: tch::Device) -> PyResult<()> {
+    if precision == Some(Precision::Bf16) && device == tch::Device::Cpu {
+        rtf_models::winograd::bf16_applies().map_err(input)?;
+    }
+    Ok(())
+}
+
+/// The network `name` with random weights (libtorch's generator: `torch.manual_seed` seeds
+/// it), as `rtf_models::loaded::load_network` builds it, folded for `precision` (one this
+/// device runs: fp16 only on CUDA).
+fn random_network(
+    cfg: &ModelConfig,
+    device: tch::Device,
+    precision: Option<Precision>,
+) -> Result<Held, rtf_models::ModelError> {
+    let vs = VarStore::new(device);
+    let net = rtf_models::build(&vs.root(), cfg)?;
+    let net = match precision {
+        Some(p) => {
+            rtf_models::fast::check_precision_on(p, device)?;
+            Box::new(InferenceNet::with_layout(net, p, Layout::default())?) as _
+        }
+        None => net,
+    };
+    Ok(Held { vs, net })
+}
+
+/// The class set and thermal rule a weights file records (`rtf predict`'s reading).
+fn trained_on(weights: &Path) -> PyResult<Option<TrainedOn>> {
+    let file = rtf_models::weights::read_weights_metadata(weights).py()?;
+    TrainedOn::from_metadata(&file.metadata, weights).py()
+}
+
+fn parse_device(name: &str) -> PyResult<tch::Device> {
+    rtf_train::config::available_device(name).map_err(|e| input(format!("device: {e}")))
+}
+
+fn parse_precision(text: Option<&str>) -> PyResult<Option<Precision>> {
+    text.map(|t| Precision::parse_inference(t).map_err(|e| input(format!("precision: {e}"))))
+        .transpose()
+}
+
+/// Loads network `name` (see `rtf.models()`) with `weights` (a safetensors file, reference
+/// names; None: random weights), as `rtf predict` loads it.
+#[pyfunction]
+#[pyo3(signature = (name, weights=None, classes=None, device="cpu", precision=None))]
+pub fn load_network(
+    py: Python<'_>,
+    name: &str,
+    weights: Option<PathBuf>,
+    classes: Option<String>,
+    device: &str,
+    precision: Option<&str>,
+) -> PyResult<PyNetwork> {
+    let device = parse_device(device)?;
+    let precision = parse_precision(precision)?;
+    let trained = weights.as_deref().map(trained_on).transpose()?.flatten();
+    let path = weights.as_deref().unwrap_or(Path::new(""));
+    let classes = predict::class_set(classes.as_deref(), name, path, trained.as_ref()).py()?;
+    prepare_kernels(precision, device)?;
+    let n = classes.len() as i64;
+    let cfg = ModelConfig::from_name(name, n).py()?;
+    let (held, inputs) = py
+        .allow_threads(|| match &weights {
+            Some(weights) => {
+                let request = rtf_models::loaded::NetworkRequest {
+                    name,
+                    num_classes: n,
+                    weights,
+                    device,
+                    precision,
+                    foreign_weights: false,
+                    inputs: None,
+                };
+                rtf_models::loaded::load_network(&request).map(|loaded| {
+                    for warning in &loaded.warnings {
+                        eprintln!("warning: {warning}");
+                    }
+                    let held = Held {
+                        vs: loaded.vs,
+                        net: loaded.net,
+                    };
+                    (held, loaded.inputs)
+                })
+            }
+            None => random_network(&cfg, device, precision).map(|h| (h, Modality::RgbT)),
+        })
+        .py()?;
+    let built = Built {
+        cfg,
+        modality: inputs,
+        precision,
+    };
+    Ok(PyNetwork {
+        held: Mutex::new(held),
+        name: name.to_string(),
+        built,
+        classes,
+        trained,
+        device,
+        weights,
+        inputs: inputs.to_string(),
+        training: false,
+    })
+}
+
+/// One record per network: name, parameters, MiB of float32 parameters, inputs (the 4
+/// channels R, G, B, T), default class set.
+#[pyfunction]
+pub fn models(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
+    let infos = rtf_models::model_infos().py()?;
+    infos
+        .into_iter()
+        .filter(|info| ModelConfig::from_name(&info.name, 1).is_ok())
+        .map(|info| {
+            let record = PyDict::new(py);
+            let classes = match rtf_models::default_num_classes(&info.name) {
+                13 => "freiburg",
+                _ => "mf",
+            };
+            record.set_item("name", &info.name)?;
+            record.set_item("parameters", info.params)?;
+            record.set_item("megabytes", info.megabytes)?;
+            record.set_item("inputs", Modality::RgbT.name())?;
+            record.set_item("classes", classes)?;
+            Ok(record)
+        })
+        .collect()
+}

@@ -1,0 +1,56 @@
+"""Shared fixtures: the release `rtf` binary (the CLI side of every comparison), the shared
+real data, and small synthetic datasets made by `rtf synth`."""
+
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+SHARED = Path(os.environ.get("RTF_SHARED_DATA", "/work/shared/data"))
+MF_SAMPLES = SHARED / "mf-samples"
+
+
+@pytest.fixture(scope="session")
+def rtf_bin():
+    path = Path(os.environ.get("RTF_BIN", ROOT / "target/release/rtf"))
+    if not path.exists():
+        pytest.fail(f"{path} missing: build it with `cargo build --release -p rtf-cli`")
+    return path
+
+
+@pytest.fixture(scope="session")
+def run_rtf(rtf_bin):
+    def run(*args):
+        done = subprocess.run(
+            [str(rtf_bin), *map(str, args)], capture_output=True, text=True
+        )
+        assert done.returncode == 0, f"rtf {' '.join(map(str, args))}:\n{done.stderr}"
+        return done.stdout
+
+    return run
+
+
+@pytest.fixture(scope="session")
+def synth(run_rtf, tmp_path_factory):
+    """A small MF-layout synthetic dataset with labels (day and night frames)."""
+    out = tmp_path_factory.mktemp("synth") / "data"
+    run_rtf("synth", "--out", out, "--count", 12, "--seed", 3, "--size", "160x128")
+    return out
+
+
+def read_rgba(path):
+    """An MF frame as the dataset holds it: (RGB H×W×3 uint8, thermal H×W uint8)."""
+    from PIL import Image
+
+    rgba = np.asarray(Image.open(path))
+    assert rgba.dtype == np.uint8 and rgba.shape[2] == 4, rgba.shape
+    return np.ascontiguousarray(rgba[..., :3]), np.ascontiguousarray(rgba[..., 3])
+
+
+def read_png(path):
+    from PIL import Image
+
+    return np.asarray(Image.open(path))
