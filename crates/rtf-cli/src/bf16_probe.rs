@@ -74,26 +74,10 @@ pub fn policy() -> Result<KernelPolicy> {
     Ok(KernelPolicy::from_vars(|var| std::env::var(var).ok())?)
 }
 
-/// The cache of kernel measurements: `$RTF_CACHE_DIR`, `$XDG_CACHE_HOME/rtf` or
-/// `~/.cache/rtf`, file `bf16-probe.json`; measurements told apart by the instruction-set
-/// caps set in the environment.
+/// The cache of kernel measurements, from this process's environment
+/// ([`Probe::from_vars`]: `$RTF_CACHE_DIR`, `$XDG_CACHE_HOME/rtf` or `~/.cache/rtf`).
 pub fn probe() -> Probe {
-    let caps: Vec<String> = [
-        "ATEN_CPU_CAPABILITY",
-        "ONEDNN_MAX_CPU_ISA",
-        "MKL_ENABLE_INSTRUCTIONS",
-    ]
-    .iter()
-    .filter_map(|var| std::env::var(var).ok().map(|v| format!("{var}={v}")))
-    .collect();
-    let dir = std::env::var_os("RTF_CACHE_DIR")
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|d| PathBuf::from(d).join("rtf")))
-        .or_else(|| std::env::var_os("HOME").map(|d| PathBuf::from(d).join(".cache/rtf")));
-    match dir {
-        Some(dir) => Probe::cached_in(dir.join("bf16-probe.json"), caps),
-        None => Probe::uncached(caps),
-    }
+    Probe::from_vars(|var| std::env::var_os(var))
 }
 
 /// What decides which kernels `work` runs besides the machine ([`Probe::key`]): for

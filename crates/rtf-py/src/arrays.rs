@@ -5,7 +5,7 @@
 use pyo3::buffer::{Element, PyBuffer};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use pyo3_tch::PyTensor;
+use crate::tensor::PyTensor;
 use rtf_core::ClassSet;
 use rtf_data::images::ThermalSamples;
 use tch::Tensor;

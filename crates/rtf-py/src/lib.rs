@@ -10,6 +10,7 @@ mod evaluate;
 mod loader;
 mod methods;
 mod network;
+mod tensor;
 
 use pyo3::prelude::*;
 

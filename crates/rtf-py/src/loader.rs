@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use crossbeam_channel::Receiver;
 use pyo3::prelude::*;
-use pyo3_tch::PyTensor;
+use crate::tensor::PyTensor;
 use rtf_data::{AugmentConfig, Batch, DataError, Loader, LoaderConfig};
 use rtf_models::ModelConfig;
 

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use pyo3_tch::PyTensor;
+use crate::tensor::PyTensor;
 use rtf_data::Frame;
 use rtf_eval::predict::{self, PairSamples};
 use tch::{Kind, Tensor};

@@ -11,7 +11,9 @@ use pyo3::types::PyDict;
 use rtf_core::ClassSet;
 use rtf_data::TrainedOn;
 use rtf_eval::predict;
-use rtf_models::fast::{InferenceNet, Layout, Precision};
+use rtf_eval::kernels::probe::Probe;
+use rtf_eval::kernels::KernelPolicy;
+use rtf_models::fast::{FoldOptions, InferenceKernels, InferenceNet, Precision};
 use rtf_models::{Modality, ModelConfig, Network};
 use tch::nn::VarStore;
 
@@ -51,15 +53,25 @@ pub struct PyNetwork {
     pub training: bool,
 }
 
-/// For bf16 on the CPU, the 3×3 kernel choice the library offers today (a bad
-/// `RTF_BF16_WINOGRAD` refused). Issue 61's library `KernelPolicy` replaces this function:
-/// until then `rtf predict`'s measured probe (rtf-cli) is not run from Python, so bf16 logits
-/// may take other kernels than the CLI's on a CPU where the probe would switch them.
-fn prepare_kernels(precision: Option<Precision>, device: tch::Device) -> PyResult<()> {
-    if precision == Some(Precision::Bf16) && device == tch::Device::Cpu {
-        rtf_models::winograd::bf16_applies().map_err(input)?;
+/// The kernels a fold for `precision` takes: the library's choice for any caller
+/// (`rtf_eval::kernels`), under the policy and probe cache of this process's environment, as
+/// `rtf predict` makes it (`RTF_WINOGRAD`, `RTF_BF16_WINOGRAD`, `RTF_CACHE_DIR`; the package
+/// is this process's edge). A bad variable is refused naming it.
+fn inference_kernels(precision: Option<Precision>, device: tch::Device) -> PyResult<InferenceKernels> {
+    let policy =
+        KernelPolicy::from_vars(|var| std::env::var(var).ok()).map_err(|e| input(e.to_string()))?;
+    let Some(precision) = precision else {
+        return Ok(InferenceKernels {
+            winograd: policy.winograd,
+            ..InferenceKernels::unmeasured()
+        });
+    };
+    let probe = Probe::from_vars(|var| std::env::var_os(var));
+    let (kernels, warnings) = rtf_eval::kernels::inference_kernels(&policy, precision, device, &probe);
+    for warning in warnings {
+        eprintln!("warning: {warning}");
     }
-    Ok(())
+    Ok(kernels)
 }
 
 /// The network `name` with random weights (libtorch's generator: `torch.manual_seed` seeds
@@ -69,13 +81,14 @@ fn random_network(
     cfg: &ModelConfig,
     device: tch::Device,
     precision: Option<Precision>,
+    kernels: InferenceKernels,
 ) -> Result<Held, rtf_models::ModelError> {
     let vs = VarStore::new(device);
     let net = rtf_models::build(&vs.root(), cfg)?;
     let net = match precision {
         Some(p) => {
             rtf_models::fast::check_precision_on(p, device)?;
-            Box::new(InferenceNet::with_layout(net, p, Layout::default())?) as _
+            Box::new(InferenceNet::fold(net, &FoldOptions::new(p).kernels(kernels))?) as _
         }
         None => net,
     };
@@ -114,7 +127,7 @@ pub fn load_network(
     let trained = weights.as_deref().map(trained_on).transpose()?.flatten();
     let path = weights.as_deref().unwrap_or(Path::new(""));
     let classes = predict::class_set(classes.as_deref(), name, path, trained.as_ref()).py()?;
-    prepare_kernels(precision, device)?;
+    let kernels = inference_kernels(precision, device)?;
     let n = classes.len() as i64;
     let cfg = ModelConfig::from_name(name, n).py()?;
     let (held, inputs) = py
@@ -126,6 +139,7 @@ pub fn load_network(
                     weights,
                     device,
                     precision,
+                    kernels,
                     foreign_weights: false,
                     inputs: None,
                 };
@@ -140,7 +154,7 @@ pub fn load_network(
                     (held, loaded.inputs)
                 })
             }
-            None => random_network(&cfg, device, precision).map(|h| (h, Modality::RgbT)),
+            None => random_network(&cfg, device, precision, kernels).map(|h| (h, Modality::RgbT)),
         })
         .py()?;
     let built = Built {

@@ -66,6 +66,13 @@ impl Work {
     }
 }
 
+/// The variables that cap the instruction sets libtorch, oneDNN and MKL dispatch to.
+const CAP_VARS: [&str; 3] = [
+    "ATEN_CPU_CAPABILITY",
+    "ONEDNN_MAX_CPU_ISA",
+    "MKL_ENABLE_INSTRUCTIONS",
+];
+
 /// Where measurements are cached and what, besides the machine, tells them apart.
 #[derive(Clone, Debug, Default)]
 pub struct Probe {
@@ -87,6 +94,26 @@ impl Probe {
     /// Measurements made every time (no cache file).
     pub fn uncached(caps: Vec<String>) -> Self {
         Self { file: None, caps }
+    }
+
+    /// The probe of a process whose variables `get` reads (rtf's binaries and the Python
+    /// package pass their environment): cached in `$RTF_CACHE_DIR/bf16-probe.json`, else
+    /// `$XDG_CACHE_HOME/rtf/…`, else `$HOME/.cache/rtf/…` (uncached without any of them);
+    /// told apart by the instruction-set caps set (`ATEN_CPU_CAPABILITY`,
+    /// `ONEDNN_MAX_CPU_ISA`, `MKL_ENABLE_INSTRUCTIONS`).
+    pub fn from_vars(get: impl Fn(&str) -> Option<std::ffi::OsString>) -> Self {
+        let caps: Vec<String> = CAP_VARS
+            .iter()
+            .filter_map(|var| get(var).map(|v| format!("{var}={}", v.to_string_lossy())))
+            .collect();
+        let dir = get("RTF_CACHE_DIR")
+            .map(PathBuf::from)
+            .or_else(|| get("XDG_CACHE_HOME").map(|d| PathBuf::from(d).join("rtf")))
+            .or_else(|| get("HOME").map(|d| PathBuf::from(d).join(".cache/rtf")));
+        match dir {
+            Some(dir) => Self::cached_in(dir.join("bf16-probe.json"), caps),
+            None => Self::uncached(caps),
+        }
     }
 
     /// The cache file, if any.
@@ -243,6 +270,30 @@ mod tests {
             bf16_s,
             unix_time: 0,
         }
+    }
+
+    #[test]
+    fn the_cache_and_caps_come_from_the_variables_given() {
+        let vars = |pairs: &'static [(&'static str, &'static str)]| {
+            move |name: &str| {
+                pairs
+                    .iter()
+                    .find(|(k, _)| *k == name)
+                    .map(|(_, v)| std::ffi::OsString::from(v))
+            }
+        };
+        let p = Probe::from_vars(vars(&[
+            ("RTF_CACHE_DIR", "/c"),
+            ("HOME", "/h"),
+            ("ONEDNN_MAX_CPU_ISA", "AVX2"),
+        ]));
+        assert_eq!(p.file(), Some(Path::new("/c/bf16-probe.json")));
+        assert!(p.key("w").contains("caps [ONEDNN_MAX_CPU_ISA=AVX2]"));
+        let p = Probe::from_vars(vars(&[("XDG_CACHE_HOME", "/x"), ("HOME", "/h")]));
+        assert_eq!(p.file(), Some(Path::new("/x/rtf/bf16-probe.json")));
+        let p = Probe::from_vars(vars(&[("HOME", "/h")]));
+        assert_eq!(p.file(), Some(Path::new("/h/.cache/rtf/bf16-probe.json")));
+        assert_eq!(Probe::from_vars(vars(&[])).file(), None);
     }
 
     #[test]
