@@ -7,6 +7,7 @@
 //! - [`synth`] writes synthetic datasets in the real layouts.
 
 pub mod augment;
+pub mod conditions;
 pub mod bdd;
 pub mod dataset;
 pub mod described;
