@@ -81,7 +81,12 @@ struct Lookup<'a> {
 
 impl<'a> Lookup<'a> {
     fn new(description: &'a DatasetDescription, frames: &'a SplitFrames<'a>) -> Self {
-        let by_name = frames.names.iter().enumerate().map(|(i, n)| (*n, i)).collect();
+        let by_name = frames
+            .names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| (*n, i))
+            .collect();
         Self {
             description,
             frames,
@@ -157,7 +162,12 @@ impl<'a> Lookup<'a> {
             let full = fields.len() == spec.rgb.fields().len();
             if spec.name == self.frames.split {
                 let here: Vec<usize> = match full {
-                    true => self.by_name.get(frame_name(&fields).as_str()).into_iter().copied().collect(),
+                    true => self
+                        .by_name
+                        .get(frame_name(&fields).as_str())
+                        .into_iter()
+                        .copied()
+                        .collect(),
                     false => (0..self.frames.names.len())
                         .filter(|&i| agrees(&fields, self.frames.fields[i]))
                         .collect(),
@@ -171,7 +181,11 @@ impl<'a> Lookup<'a> {
             if full {
                 let rgb = spec.rgb.path(&fields);
                 if rgb.is_file() {
-                    push(None, format!("{} ({})", frame_name(&fields), spec.name), rgb);
+                    push(
+                        None,
+                        format!("{} ({})", frame_name(&fields), spec.name),
+                        rgb,
+                    );
                 }
                 continue;
             }
@@ -181,7 +195,11 @@ impl<'a> Lookup<'a> {
             }
             for (f, rgb) in &self.scans[&spec.name] {
                 if agrees(&fields, f) {
-                    push(None, format!("{} ({})", frame_name(f), spec.name), rgb.clone());
+                    push(
+                        None,
+                        format!("{} ({})", frame_name(f), spec.name),
+                        rgb.clone(),
+                    );
                 }
             }
         }

@@ -18,8 +18,8 @@ use crate::description::{
 use crate::frame::check_label_ids;
 use crate::images::{read_label, read_rgb, read_thermal, RgbImage};
 use crate::pattern::{frame_key, frame_name, value, Fields};
-use crate::split_list::{agrees, line_error, read_split_list};
 use crate::pngio::{PngImage, Samples};
+use crate::split_list::{agrees, line_error, read_split_list};
 use crate::{DataError, Frame, FrameSource};
 
 /// A described dataset; [`Self::split`] opens one of its splits.
@@ -167,7 +167,11 @@ fn listed_entries(
                 }
                 Err(message) => return Err(line_error(list, line, message)),
             };
-            let missing = entry.files().into_iter().find(|p| !p.is_file()).map(Path::to_path_buf);
+            let missing = entry
+                .files()
+                .into_iter()
+                .find(|p| !p.is_file())
+                .map(Path::to_path_buf);
             if let Some(missing) = missing {
                 if unmatched == UnmatchedLines::Warn {
                     skipped += 1;
@@ -229,7 +233,10 @@ fn listed_entry(
             "names {} frames of split '{}' ({}): write more of the path",
             many.len(),
             spec.name,
-            many.iter().map(|f| frame_name(f)).collect::<Vec<_>>().join(", ")
+            many.iter()
+                .map(|f| frame_name(f))
+                .collect::<Vec<_>>()
+                .join(", ")
         )),
     })
 }
@@ -248,10 +255,14 @@ fn entry_of(spec: &SplitSpec, fields: &Fields) -> Entry {
 impl Entry {
     fn files(&self) -> Vec<&Path> {
         let label = self.label.as_deref();
-        [Some(self.rgb.as_path()), Some(self.thermal.as_path()), label]
-            .into_iter()
-            .flatten()
-            .collect()
+        [
+            Some(self.rgb.as_path()),
+            Some(self.thermal.as_path()),
+            label,
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
     }
 }
 
@@ -283,7 +294,10 @@ fn paired_entries(spec: &SplitSpec) -> Result<Vec<Entry>, DataError> {
                 });
             }
         }
-        if let Some((fields, path)) = found.iter().find(|(f, _)| !rgb_keys.contains(&frame_key(f))) {
+        if let Some((fields, path)) = found
+            .iter()
+            .find(|(f, _)| !rgb_keys.contains(&frame_key(f)))
+        {
             return Err(DataError::MissingPartner {
                 path: path.clone(),
                 what: "RGB",
@@ -292,7 +306,10 @@ fn paired_entries(spec: &SplitSpec) -> Result<Vec<Entry>, DataError> {
         }
         let by_key: HashMap<String, PathBuf> =
             found.into_iter().map(|(f, p)| (frame_key(&f), p)).collect();
-        if let Some((fields, path)) = rgb_files.iter().find(|(f, _)| !by_key.contains_key(&frame_key(f))) {
+        if let Some((fields, path)) = rgb_files
+            .iter()
+            .find(|(f, _)| !by_key.contains_key(&frame_key(f)))
+        {
             return Err(DataError::MissingPartner {
                 path: path.clone(),
                 what,
@@ -305,7 +322,8 @@ fn paired_entries(spec: &SplitSpec) -> Result<Vec<Entry>, DataError> {
         .iter()
         .map(|(fields, path)| {
             let key = frame_key(fields);
-            let partner = |m: &Option<HashMap<String, PathBuf>>| m.as_ref().map(|m| m[&key].clone());
+            let partner =
+                |m: &Option<HashMap<String, PathBuf>>| m.as_ref().map(|m| m[&key].clone());
             Entry {
                 name: frame_name(fields),
                 fields: fields.clone(),

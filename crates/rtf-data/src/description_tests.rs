@@ -4,7 +4,8 @@ use super::*;
 use crate::testutil::*;
 
 /// The issue's example, verbatim.
-pub(crate) const EXAMPLE: &str = "classes:                      # id = label value; colour for palettes and colour-coded labels
+pub(crate) const EXAMPLE: &str =
+    "classes:                      # id = label value; colour for palettes and colour-coded labels
   - {id: 0, name: background, color: [0, 0, 0]}
   - {id: 1, name: pedestrian, color: [220, 20, 60]}
 ignore_id: 255                # optional
@@ -207,8 +208,7 @@ fn contradictions_are_refused_with_the_line() {
     );
     let text = refused(&temp, 7);
     assert!(text.contains("to_temperature"), "{text}");
-    let same_colour =
-        EXAMPLE.replace("[220, 20, 60]", "[0, 0, 0]") + "label_encoding: colors\n";
+    let same_colour = EXAMPLE.replace("[220, 20, 60]", "[0, 0, 0]") + "label_encoding: colors\n";
     let text = refused(&same_colour, 3);
     assert!(text.contains("distinct colours"), "{text}");
 }

@@ -7,8 +7,8 @@
 //! - [`synth`] writes synthetic datasets in the real layouts.
 
 pub mod augment;
-pub mod conditions;
 pub mod bdd;
+pub mod conditions;
 pub mod dataset;
 pub mod described;
 pub mod description;
@@ -46,5 +46,7 @@ pub use loader::{Batch, Loader, LoaderConfig};
 pub use mf::{MfDataset, MfSplit};
 pub use trained_on::TrainedOn;
 
+#[cfg(test)]
+mod sequence_tests;
 #[cfg(test)]
 pub(crate) mod testutil;

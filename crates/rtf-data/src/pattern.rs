@@ -69,7 +69,11 @@ impl FilePattern {
             }
             segments.push(segment);
         }
-        if !segments.iter().flatten().any(|p| matches!(p, Piece::Field(_))) {
+        if !segments
+            .iter()
+            .flatten()
+            .any(|p| matches!(p, Piece::Field(_)))
+        {
             return Err(format!("'{template}': no {{field}} in the path"));
         }
         Ok(Self {
@@ -86,7 +90,10 @@ impl FilePattern {
             true => String::new(),
             false => format!(".{}", self.extensions.join("|")),
         };
-        self.dir.join(template.join("/") + &ext).display().to_string()
+        self.dir
+            .join(template.join("/") + &ext)
+            .display()
+            .to_string()
     }
 
     /// The field names, in order.
@@ -104,7 +111,10 @@ impl FilePattern {
     /// Whether a field is in a folder of the template (not only in the file name).
     pub fn has_folder_fields(&self) -> bool {
         let folders = &self.segments[..self.segments.len() - 1];
-        folders.iter().flatten().any(|p| matches!(p, Piece::Field(_)))
+        folders
+            .iter()
+            .flatten()
+            .any(|p| matches!(p, Piece::Field(_)))
     }
 
     /// The path of `fields` below `dir`, without a folder pattern's extension.
@@ -434,11 +444,44 @@ mod tests {
     }
 
     #[test]
+    fn fields_in_folders_are_found_by_walking_and_a_path_tail_binds_some_fields() {
+        let dir = tempfile::tempdir().unwrap();
+        for f in [
+            "s0/V0/visible/I1.jpg",
+            "s0/V1/visible/I1.jpg",
+            "s0/V1/lwir/I1.jpg",
+            "x.jpg",
+        ] {
+            let path = dir.path().join(f);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(path, b"x").unwrap();
+        }
+        let p = FilePattern::parse(dir.path().into(), "{set}/{video}/visible/{frame}.jpg").unwrap();
+        assert_eq!(p.fields(), ["set", "video", "frame"]);
+        assert!(p.has_folder_fields());
+        let found = p.find().unwrap();
+        let names: Vec<String> = found.iter().map(|(f, _)| frame_name(f)).collect();
+        assert_eq!(names, ["s0/V0/I1", "s0/V1/I1"]);
+        assert_eq!(p.path(&found[1].0), dir.path().join("s0/V1/visible/I1.jpg"));
+        let tail = p.match_tail(&["V1", "visible", "I1.jpg"]).unwrap().unwrap();
+        assert_eq!(tail, fields(&[("video", "V1"), ("frame", "I1")]));
+        assert_eq!(p.match_tail(&["lwir", "I1.jpg"]).unwrap(), None);
+        assert_eq!(p.match_name("I1.png").unwrap(), None);
+        for (template, says) in [
+            ("{a}/../{b}.png", "not a folder"),
+            ("{a}/{a}.png", "used twice"),
+        ] {
+            let err = FilePattern::parse(".".into(), template).unwrap_err();
+            assert!(err.contains(says), "{template}: {err}");
+        }
+    }
+
+    #[test]
     fn bad_templates_say_what_is_wrong() {
         for (template, says) in [
             ("{seq}_{seq}.png", "used twice"),
             ("{a}{b}.png", "side by side"),
-            ("frame.png", "no {field}"),
+            ("frame.png", "no {field} in the path"),
             ("{seq.png", "without its"),
             ("{se q}.png", "not a field name"),
         ] {

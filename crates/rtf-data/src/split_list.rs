@@ -25,7 +25,13 @@ pub fn read_list_lines(list: &Path) -> Result<Vec<(usize, Vec<String>)>, DataErr
         .enumerate()
         .map(|(i, line)| {
             let tokens = line.split([',', '\t', ' ']).map(str::trim);
-            (i + 1, tokens.filter(|t| !t.is_empty()).map(String::from).collect::<Vec<_>>())
+            (
+                i + 1,
+                tokens
+                    .filter(|t| !t.is_empty())
+                    .map(String::from)
+                    .collect::<Vec<_>>(),
+            )
         })
         .filter(|(_, tokens)| !tokens.is_empty())
         .collect();
