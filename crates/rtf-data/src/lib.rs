@@ -33,6 +33,7 @@ pub mod synth;
 pub mod thermal;
 pub mod tiffio;
 pub mod trained_on;
+pub mod unknown;
 
 pub use augment::{resize_frame, AugmentConfig, ScaleCrop};
 pub use dataset::{open, Dataset, DatasetFormat};

@@ -1,5 +1,6 @@
-//! Prediction of image files (`rtf predict`): MF-layout RGBA PNGs (thermal in alpha) and a
-//! separate RGB + thermal pair, each frame's class ids, palette colours and, if asked, logits
+//! Prediction of image files (`rtf predict`): MF-layout RGBA PNGs (thermal in alpha), a
+//! separate RGB + thermal pair, or every frame of a dataset split (any layout, read by its
+//! readers; outputs named by the frame's name, a folder per `/`), each frame's class ids, palette colours and, if asked, logits
 //! written beside it. Everything that can refuse a run does so before a file is written
 //! ([`plan_outputs`], [`Prediction::prepare`]): outputs two inputs would share, an output
 //! that is an input, a file that is not an RGBA PNG, a frame too large for memory. Frames are
@@ -180,7 +181,10 @@ pub fn read_pair(
 
 /// One frame to predict: its input and its outputs in the output folder.
 pub struct Planned {
+    /// The input file, or for a dataset frame its name.
     pub source: PathBuf,
+    /// The frame's index in the split predicted ([`Prediction::split`]); `None` for files.
+    pub frame: Option<usize>,
     /// `<stem>.png`: class ids.
     pub ids: PathBuf,
     /// `<stem>_color.png`: the class set's palette.
@@ -279,9 +283,7 @@ pub fn plan_outputs(
     may_write: &dyn Fn(&Path) -> Result<(), String>,
 ) -> Result<Vec<Planned>, PredictError> {
     check_inputs(out, inputs)?;
-    let mut writer: HashMap<PathBuf, &Path> = Default::default();
-    let mut planned = Vec::with_capacity(sources.len());
-    for source in sources {
+    let named = sources.iter().map(|source| {
         let stem = stem(source);
         if stem.is_empty() {
             return Err(refused(format!(
@@ -289,6 +291,50 @@ pub fn plan_outputs(
                 source.display()
             )));
         }
+        Ok((stem, source.clone(), None))
+    });
+    let named: Vec<_> = named.collect::<Result<_, PredictError>>()?;
+    plan_named(out, named, logits, may_write)
+}
+
+/// The outputs of every frame of a dataset split, named by the frame's name (`names[i]` is
+/// frame `i`'s): a frame `set00/V000/I00050` writes `out/set00/V000/I00050.png` and its
+/// `_color.png` (and `.npy`), so same-named files of different sequences never collide. Two
+/// frames that would write one file, or a name that is not a relative path, are refused
+/// before anything is written.
+pub fn plan_frames(
+    out: &Path,
+    names: &[String],
+    logits: bool,
+    may_write: &dyn Fn(&Path) -> Result<(), String>,
+) -> Result<Vec<Planned>, PredictError> {
+    check_inputs(out, &[])?;
+    let named = names.iter().enumerate().map(|(i, name)| {
+        let relative = Path::new(name);
+        let plain = relative
+            .components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if name.is_empty() || !plain {
+            return Err(refused(format!(
+                "frame '{name}': its name is not a relative path to write its outputs under"
+            )));
+        }
+        Ok((name.clone(), PathBuf::from(name), Some(i)))
+    });
+    let named: Vec<_> = named.collect::<Result<_, PredictError>>()?;
+    plan_named(out, named, logits, may_write)
+}
+
+/// [`plan_outputs`] of (output stem below `out`, source, frame index) triples.
+fn plan_named(
+    out: &Path,
+    named: Vec<(String, PathBuf, Option<usize>)>,
+    logits: bool,
+    may_write: &dyn Fn(&Path) -> Result<(), String>,
+) -> Result<Vec<Planned>, PredictError> {
+    let mut writer: HashMap<PathBuf, PathBuf> = Default::default();
+    let mut planned = Vec::with_capacity(named.len());
+    for (stem, source, frame) in named {
         let names = [
             format!("{stem}.png"),
             format!("{stem}_color.png"),
@@ -296,7 +342,7 @@ pub fn plan_outputs(
         ];
         for name in &names[..if logits { 3 } else { 2 }] {
             let path = out.join(name);
-            if let Some(other) = writer.insert(path.clone(), source) {
+            if let Some(other) = writer.insert(path.clone(), source.clone()) {
                 return Err(refused(format!(
                     "{} and {} would both write {}: give the inputs distinct file names or \
                      predict them into separate --out folders (nothing was written)",
@@ -309,7 +355,8 @@ pub fn plan_outputs(
         }
         let [ids, color, npy] = names.map(|n| out.join(n));
         planned.push(Planned {
-            source: source.clone(),
+            source,
+            frame,
             ids,
             color,
             logits: logits.then_some(npy),
@@ -394,6 +441,8 @@ pub struct Prediction<'a> {
     pub skip_existing: bool,
     /// The separate RGB + thermal pair, if given (its RGB file is one of the planned sources).
     pub pair: Option<(&'a Path, &'a Path)>,
+    /// The dataset split whose frames the plans with a frame index are ([`plan_frames`]).
+    pub split: Option<&'a dyn rtf_data::FrameSource>,
     /// `--thermal-range` for the pair ([`thermal_rule`]).
     pub thermal_range: Option<(f64, f64)>,
     /// The network's name (its default thermal rule).
@@ -427,10 +476,12 @@ impl<'a> Prediction<'a> {
         let rgb = self.pair.map(|(rgb, _)| rgb);
         let mf: Vec<&Path> = todo
             .iter()
+            .filter(|p| p.frame.is_none())
             .map(|p| p.source.as_path())
             .filter(|p| Some(*p) != rgb)
             .collect();
         preflight(&mf, self.network, self.device)?;
+        self.check_split_memory(&todo)?;
         std::fs::create_dir_all(self.out)
             .map_err(|e| Refusal::because(format!("cannot create {}", self.out.display()), e))?;
         let stale = remove_stale_temporaries(self.out, self.planned);
@@ -445,6 +496,18 @@ impl<'a> Prediction<'a> {
             todo,
             pair,
         })
+    }
+
+    /// A dataset split's first frame to predict, read whole (its files' problems named) and
+    /// its memory checked, before anything is written.
+    fn check_split_memory(&self, todo: &[&Planned]) -> Result<(), PredictError> {
+        let (Some(split), Some(first)) = (self.split, todo.iter().find_map(|p| p.frame)) else {
+            return Ok(());
+        };
+        let frame = split.load_unlabelled(first)?;
+        crate::evaluate::check_memory(self.network, 1, frame.height, frame.width, self.device)
+            .map_err(|e| Refusal::because(format!("frame '{}'", frame.name), e))?;
+        Ok(())
     }
 
     /// The separate RGB + thermal pair (one frame, read whole and its memory checked before
@@ -487,9 +550,13 @@ impl Prepared<'_, '_> {
         let rgb = job.pair.map(|(rgb, _)| rgb);
         let _guard = tch::no_grad_guard();
         for plan in self.todo {
-            let frame = match pair.take() {
-                Some(frame) if Some(plan.source.as_path()) == rgb => frame,
-                kept => {
+            let frame = match (pair.take(), plan.frame.zip(job.split)) {
+                (kept, Some((index, split))) => {
+                    pair = kept;
+                    split.load_unlabelled(index)?
+                }
+                (Some(frame), None) if Some(plan.source.as_path()) == rgb => frame,
+                (kept, None) => {
                     pair = kept;
                     rtf_data::mf::read_mf_image(&plan.source)?
                 }
@@ -510,6 +577,10 @@ fn predict_frame(
     device: tch::Device,
 ) -> Result<(), PredictError> {
     let source = plan.source.display().to_string();
+    if let Some(folder) = plan.ids.parent() {
+        std::fs::create_dir_all(folder)
+            .map_err(|e| Refusal::because(format!("cannot create {}", folder.display()), e))?;
+    }
     let input = crate::figure::frame_input(frame, network.input_convention()).to_device(device);
     let logits = crate::evaluate::logits(network, &input)
         .map_err(|e| Refusal::because(source, e))?
