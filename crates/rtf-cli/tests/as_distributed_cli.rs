@@ -93,23 +93,6 @@ fn roads(root: &Path) {
     .unwrap();
 }
 
-fn files_of(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(dir).unwrap().flatten() {
-            let path = entry.path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                out.push((path.clone(), std::fs::read(&path).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
-}
-
 #[test]
 fn a_dataset_as_distributed_checks_trains_evaluates_predicts_and_reports_unconverted() {
     let tmp = tempfile::tempdir().unwrap();

@@ -120,20 +120,16 @@ fn sequence_set(root: &Path) {
     std::fs::write(root.join("dataset.yaml"), yaml()).unwrap();
 }
 
-fn files_of(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(dir).unwrap().flatten() {
-            let path = entry.path();
-            match path.is_dir() {
-                true => stack.push(path),
-                false => out.push((path.clone(), std::fs::read(&path).unwrap())),
-            }
-        }
+/// A temporary folder holding the set as `kaist/`; None (said) without the shared data.
+fn sequence_tmp() -> Option<(tempfile::TempDir, PathBuf)> {
+    if !msrs().is_dir() {
+        eprintln!("notice: no ../shared/data/msrs-samples; the sequence-layout test is skipped");
+        return None;
     }
-    out.sort();
-    out
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("kaist");
+    sequence_set(&data);
+    Some((tmp, data))
 }
 
 fn predict_args<'a>(weights: &'a Path, data: &'a Path, out: &'a Path) -> Vec<&'a str> {
@@ -154,13 +150,9 @@ fn predict_args<'a>(weights: &'a Path, data: &'a Path, out: &'a Path) -> Vec<&'a
 
 #[test]
 fn a_sequence_recorded_set_checks_trains_evaluates_and_predicts_by_split_as_shipped() {
-    if !msrs().is_dir() {
-        eprintln!("notice: no ../shared/data/msrs-samples; the sequence-layout test is skipped");
+    let Some((tmp, data)) = sequence_tmp() else {
         return;
-    }
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("kaist");
-    sequence_set(&data);
+    };
     let before = files_of(&data);
     let check = ok(&["data", "check", s(&data)]);
     assert!(
@@ -245,13 +237,9 @@ fn a_sequence_recorded_set_checks_trains_evaluates_and_predicts_by_split_as_ship
 
 #[test]
 fn a_night_list_in_another_naming_stops_the_commands_naming_the_list_and_line() {
-    if !msrs().is_dir() {
-        eprintln!("notice: no ../shared/data/msrs-samples; the sequence-layout test is skipped");
+    let Some((_tmp, data)) = sequence_tmp() else {
         return;
-    }
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("kaist");
-    sequence_set(&data);
+    };
     std::fs::write(
         data.join("test_night.txt"),
         "set01_V001_I00050.png\nset07_V000_I00050.png\n",
@@ -261,19 +249,25 @@ fn a_night_list_in_another_naming_stops_the_commands_naming_the_list_and_line() 
         vec!["data", "stats", s(&data)],
         vec!["data", "check", s(&data)],
     ] {
-        let err = fails(&args);
+        let out = rtf(&args);
+        let said = text(&out);
+        assert!(!out.status.success(), "{said}");
         assert!(
-            err.contains("test_night.txt") && err.contains("line 2"),
-            "{err}"
+            said.contains("test_night.txt") && said.contains("line 2"),
+            "{said}"
         );
-        assert_eq!(
-            err.matches("test_night.txt").count(),
-            1,
-            "the list named once: {err}"
-        );
+        for line in said.lines().filter(|l| l.contains("test_night.txt")) {
+            assert_eq!(
+                line.matches("test_night.txt").count(),
+                1,
+                "named once: {line}"
+            );
+        }
     }
     std::fs::remove_file(data.join("dataset.yaml")).unwrap();
-    let err = fails(&["data", "check", s(&data)]);
+    let out = rtf(&["data", "check", s(&data)]);
+    let err = text(&out);
+    assert!(!out.status.success(), "{err}");
     assert!(
         err.contains("no layout rtf knows") && err.contains("MF: images/ holds folders"),
         "{err}"
