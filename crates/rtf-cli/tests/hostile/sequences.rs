@@ -71,15 +71,19 @@ pub fn cases(f: &Fixture) -> Vec<Case> {
         "sq_partner",
         &YAML.replace(
             "images/{set}/{video}/lwir/{frame}.jpg",
-            "images/set00/lwir/{frame}.jpg",
+            "images/{set}/V000/lwir/{frame}.jpg",
         ),
     );
     let wide = root(
         "sq_wide",
-        &YAML.replace(
-            "images/{set}/{video}/lwir/{frame}.jpg",
-            "images/{set}/{video}/visible/{frame}_ir.jpg",
-        ),
+        // The split walks its folders (no list), where the RGB pattern meets the thermal files.
+        &YAML
+            .replace(
+                "images/{set}/{video}/lwir/{frame}.jpg",
+                "images/{set}/{video}/visible/{frame}_ir.jpg",
+            )
+            .replace("    list: [day.txt, night.txt]\n", "")
+            .replace("night: {list: night.txt}\n", ""),
     );
     std::fs::copy(
         wide.join("images/set00/V000/lwir/I00001.jpg"),
