@@ -6,7 +6,7 @@
 //! colours in hex. The fixture is the
 //! worked example of docs/src/bring-your-data.md, generated here in that exact form.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 mod common;
 use common::*;

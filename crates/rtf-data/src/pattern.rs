@@ -85,7 +85,7 @@ impl FilePattern {
 
     /// The pattern as a user reads it: `dir/{set}/{seq}_eo-{n}.jpg`, or `dir/{name}.png|jpg`.
     pub fn describe(&self) -> String {
-        let template: Vec<String> = self.segments.iter().map(|s| written(s)).collect();
+        let template: Vec<String> = self.segments.iter().map(written).collect();
         let ext = match self.extensions.is_empty() {
             true => String::new(),
             false => format!(".{}", self.extensions.join("|")),
