@@ -226,6 +226,42 @@ fn a_sequence_recorded_set_checks_trains_evaluates_and_predicts_by_split_as_ship
             "the set's colours"
         );
     }
+    // Several pairs in one call; two named alike would write one output: refused first.
+    let pair = |video: &str, frame: &str, folder: &str| {
+        data.join(format!("images/set00/{video}/{folder}/{frame}.jpg"))
+    };
+    let (rgb_a, th_a) = (
+        pair("V000", "I00050", "visible"),
+        pair("V000", "I00050", "lwir"),
+    );
+    let (rgb_b, th_b) = (
+        pair("V001", "I00050", "visible"),
+        pair("V001", "I00050", "lwir"),
+    );
+    let (rgb_c, th_c) = (
+        pair("V000", "I00051", "visible"),
+        pair("V000", "I00051", "lwir"),
+    );
+    let pairs = tmp.path().join("pairs");
+    let with = |b: &Path, tb: &Path| {
+        let mut args = vec!["predict", "--model", "mfnet", "--weights", s(&weights)];
+        args.extend([
+            "--out",
+            s(&pairs),
+            "--rgb",
+            s(&rgb_a),
+            "--thermal",
+            s(&th_a),
+        ]);
+        args.extend(["--rgb", s(b), "--thermal", s(tb)]);
+        args.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let args = with(&rgb_b, &th_b);
+    let err = fails(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(err.contains("would both write") && !pairs.exists(), "{err}");
+    let args = with(&rgb_c, &th_c);
+    ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(pairs.join("I00050.png").is_file() && pairs.join("I00051_color.png").is_file());
     let inside = data.join("pred");
     let err = fails(&predict_args(&weights, &data, &inside));
     assert!(

@@ -1,7 +1,7 @@
 //! Prediction of image files (`rtf predict`): MF-layout RGBA PNGs (thermal in alpha), a
 //! separate RGB + thermal pair, or every frame of a dataset split (any layout, read by its
-//! readers; outputs named by the frame's name, a folder per `/`), each frame's class ids, palette colours and, if asked, logits
-//! written beside it. Everything that can refuse a run does so before a file is written
+//! readers; outputs named by the frame's name, a folder per `/`), each frame's class ids,
+//! palette colours and, if asked, logits written beside it. Everything that can refuse a run does so before a file is written
 //! ([`plan_outputs`], [`Prediction::prepare`]): outputs two inputs would share, an output
 //! that is an input, a file that is not an RGBA PNG, a frame too large for memory. Frames are
 //! then read, run and written one at a time (memory bounded by a frame), each output written
@@ -439,8 +439,8 @@ pub struct Prediction<'a> {
     pub planned: &'a [Planned],
     /// Frames whose outputs all exist already are skipped.
     pub skip_existing: bool,
-    /// The separate RGB + thermal pair, if given (its RGB file is one of the planned sources).
-    pub pair: Option<(&'a Path, &'a Path)>,
+    /// The separate RGB + thermal pairs given (each RGB file is one of the planned sources).
+    pub pairs: &'a [(PathBuf, PathBuf)],
     /// The dataset split whose frames the plans with a frame index are ([`plan_frames`]).
     pub split: Option<&'a dyn rtf_data::FrameSource>,
     /// `--thermal-range` for the pair ([`thermal_rule`]).
@@ -454,15 +454,16 @@ pub struct Prediction<'a> {
     pub device: tch::Device,
 }
 
-/// A prediction checked and ready to run: the frames to do, and the pair read whole.
+/// A prediction checked and ready to run: the frames to do.
 pub struct Prepared<'p, 'a> {
     job: &'p Prediction<'a>,
     todo: Vec<&'p Planned>,
-    pair: Option<Frame>,
+    /// How the pairs' thermal becomes [0, 1] (decided, and said, once).
+    rule: Option<ThermalRule<'a>>,
 }
 
 impl<'a> Prediction<'a> {
-    /// Every check before a file is written: the pair read whole and its memory checked, the
+    /// Every check before a file is written: each pair read whole and its memory checked, the
     /// header and memory of every RGBA PNG; then the output folder made, and the temporary
     /// files a stopped run left there removed (said on stderr).
     pub fn prepare(&self) -> Result<Prepared<'_, 'a>, PredictError> {
@@ -472,13 +473,15 @@ impl<'a> Prediction<'a> {
             .iter()
             .filter(|p| !(self.skip_existing && p.done()))
             .collect();
-        let pair = self.read_pair_checked(&todo)?;
-        let rgb = self.pair.map(|(rgb, _)| rgb);
+        let rule = (!self.pairs.is_empty())
+            .then(|| thermal_rule(self.thermal_range, self.model, self.trained));
+        if let Some(rule) = rule {
+            self.check_pairs(&todo, rule)?;
+        }
         let mf: Vec<&Path> = todo
             .iter()
-            .filter(|p| p.frame.is_none())
+            .filter(|p| p.frame.is_none() && self.thermal_of(&p.source).is_none())
             .map(|p| p.source.as_path())
-            .filter(|p| Some(*p) != rgb)
             .collect();
         preflight(&mf, self.network, self.device)?;
         self.check_split_memory(&todo)?;
@@ -494,7 +497,7 @@ impl<'a> Prediction<'a> {
         Ok(Prepared {
             job: self,
             todo,
-            pair,
+            rule,
         })
     }
 
@@ -510,20 +513,26 @@ impl<'a> Prediction<'a> {
         Ok(())
     }
 
-    /// The separate RGB + thermal pair (one frame, read whole and its memory checked before
-    /// anything is written), unless it is not given or skipped.
-    fn read_pair_checked(&self, todo: &[&Planned]) -> Result<Option<Frame>, PredictError> {
-        let Some((rgb, thermal)) = self.pair else {
-            return Ok(None);
-        };
-        if !todo.iter().any(|p| p.source == rgb) {
-            return Ok(None);
+    /// The thermal partner of `rgb` when it is the RGB file of a pair given.
+    fn thermal_of(&self, rgb: &Path) -> Option<&Path> {
+        (self.pairs.iter())
+            .find(|(r, _)| r == rgb)
+            .map(|(_, t)| t.as_path())
+    }
+
+    /// Every pair to predict read whole (the two files' problems named) and its memory
+    /// checked, before anything is written; read again when its turn comes (memory bounded
+    /// by a frame).
+    fn check_pairs(&self, todo: &[&Planned], rule: ThermalRule) -> Result<(), PredictError> {
+        for plan in todo {
+            let Some(thermal) = self.thermal_of(&plan.source) else {
+                continue;
+            };
+            let frame = read_pair(&plan.source, thermal, rule)?;
+            crate::evaluate::check_memory(self.network, 1, frame.height, frame.width, self.device)
+                .map_err(|e| Refusal::because(plan.source.display().to_string(), e))?;
         }
-        let rule = thermal_rule(self.thermal_range, self.model, self.trained);
-        let frame = read_pair(rgb, thermal, rule)?;
-        crate::evaluate::check_memory(self.network, 1, frame.height, frame.width, self.device)
-            .map_err(|e| Refusal::because(rgb.display().to_string(), e))?;
-        Ok(Some(frame))
+        Ok(())
     }
 }
 
@@ -546,20 +555,13 @@ impl Prepared<'_, '_> {
     /// a frame); `done` hears of each once its outputs are written.
     pub fn run(self, done: &mut dyn FnMut(&Planned)) -> Result<(), PredictError> {
         let job = self.job;
-        let mut pair = self.pair;
-        let rgb = job.pair.map(|(rgb, _)| rgb);
         let _guard = tch::no_grad_guard();
         for plan in self.todo {
-            let frame = match (pair.take(), plan.frame.zip(job.split)) {
-                (kept, Some((index, split))) => {
-                    pair = kept;
-                    split.load_unlabelled(index)?
-                }
-                (Some(frame), None) if Some(plan.source.as_path()) == rgb => frame,
-                (kept, None) => {
-                    pair = kept;
-                    rtf_data::mf::read_mf_image(&plan.source)?
-                }
+            let pair = job.thermal_of(&plan.source).zip(self.rule);
+            let frame = match (plan.frame.zip(job.split), pair) {
+                (Some((index, split)), _) => split.load_unlabelled(index)?,
+                (None, Some((thermal, rule))) => read_pair(&plan.source, thermal, rule)?,
+                (None, None) => rtf_data::mf::read_mf_image(&plan.source)?,
             };
             predict_frame(job.network, &frame, plan, job.classes, job.device)?;
             done(plan);

@@ -41,13 +41,14 @@ pub struct Args {
     /// others mf). Refused when the weights record another class set.
     #[arg(long)]
     pub classes: Option<String>,
-    /// RGB image (PNG or JPEG) of a pair given as separate files (with --thermal).
+    /// RGB image (PNG or JPEG) of a pair given as separate files (with --thermal); repeat
+    /// both for several pairs (the n-th --rgb with the n-th --thermal).
     #[arg(long, requires = "thermal")]
-    pub rgb: Option<PathBuf>,
-    /// Thermal image of a pair given as separate files (with --rgb): PNG (8/16-bit), TIFF
-    /// (8/16-bit, 32-bit float) or .npy, as the datasets' readers take them.
+    pub rgb: Vec<PathBuf>,
+    /// Thermal image of a pair given as separate files (with --rgb): PNG (8/16-bit), JPEG
+    /// (grey), TIFF (8/16-bit, 32-bit float) or .npy, as the datasets' readers take them.
     #[arg(long, requires = "rgb")]
-    pub thermal: Option<PathBuf>,
+    pub thermal: Vec<PathBuf>,
     /// 16-bit or float thermal: raw counts (or the float file's degrees) LO:HI mapped to
     /// [0, 1] (clipped). Default: the thermal rule the weights record (a dataset.yaml's
     /// `thermal:`), else HeatNet models use the Freiburg reference 21800:25000 and others each
@@ -89,12 +90,19 @@ fn parse_range(text: &str) -> Result<(f64, f64), String> {
 /// anything is written where they would land on an input, each other or a file rtf may not
 /// replace (crate::output_guard).
 fn plan(args: &Args) -> Result<Vec<predict::Planned>> {
+    if args.rgb.len() != args.thermal.len() {
+        bail!(
+            "{} --rgb but {} --thermal: give one thermal file per RGB file, in the same order (nothing was written)",
+            args.rgb.len(),
+            args.thermal.len()
+        );
+    }
     let images = predict::expand_images(&args.images)?;
     let mut sources: Vec<PathBuf> = images.clone();
-    sources.extend(args.rgb.clone());
+    sources.extend(args.rgb.iter().cloned());
     let mut inputs: Vec<&Path> = images.iter().map(PathBuf::as_path).collect();
-    inputs.extend(args.rgb.as_deref());
-    inputs.extend(args.thermal.as_deref());
+    inputs.extend(args.rgb.iter().map(PathBuf::as_path));
+    inputs.extend(args.thermal.iter().map(PathBuf::as_path));
     inputs.push(&args.weights);
     let mut guard = OutputGuard::new(args.overwrite).reading(inputs.iter().copied());
     if let Some(root) = args
@@ -179,11 +187,17 @@ pub fn run(args: Args) -> Result<()> {
         device,
     ))?
     .net;
+    let pairs: Vec<(PathBuf, PathBuf)> = args
+        .rgb
+        .iter()
+        .cloned()
+        .zip(args.thermal.iter().cloned())
+        .collect();
     let prediction = Prediction {
         out: &args.out,
         planned: &planned,
         skip_existing: args.skip_existing,
-        pair: args.rgb.as_deref().zip(args.thermal.as_deref()),
+        pairs: &pairs,
         split: split.as_deref(),
         thermal_range: args.thermal_range,
         model: &args.model,
