@@ -13,7 +13,7 @@ use rtf_core::Daytime;
 
 use crate::description::{DatasetDescription, NightRule, UnmatchedLines};
 use crate::pattern::{frame_name, Fields};
-use crate::split_list::{agrees, line_error, line_fields, read_list_lines};
+use crate::split_list::{line_error, line_fields, read_list_lines, PartialIndex};
 use crate::DataError;
 
 /// The frames of the split being opened: names, fields, RGB files, in order.
@@ -77,6 +77,8 @@ struct Lookup<'a> {
     frames: &'a SplitFrames<'a>,
     by_name: HashMap<&'a str, usize>,
     scans: HashMap<String, Vec<(Fields, PathBuf)>>,
+    /// Per split, its frames by some of their fields.
+    indices: HashMap<String, PartialIndex>,
 }
 
 impl<'a> Lookup<'a> {
@@ -92,6 +94,7 @@ impl<'a> Lookup<'a> {
             frames,
             by_name,
             scans: HashMap::new(),
+            indices: HashMap::new(),
         }
     }
 
@@ -168,9 +171,9 @@ impl<'a> Lookup<'a> {
                         .into_iter()
                         .copied()
                         .collect(),
-                    false => (0..self.frames.names.len())
-                        .filter(|&i| agrees(&fields, self.frames.fields[i]))
-                        .collect(),
+                    false => (self.indices.entry(spec.name.clone()).or_default())
+                        .lookup(self.frames.fields.iter().copied(), &fields)
+                        .to_vec(),
                 };
                 for i in here {
                     let name = format!("{} ({})", self.frames.names[i], spec.name);
@@ -193,14 +196,12 @@ impl<'a> Lookup<'a> {
                 let found = spec.rgb.find().map_err(|e| e.to_string())?;
                 self.scans.insert(spec.name.clone(), found);
             }
-            for (f, rgb) in &self.scans[&spec.name] {
-                if agrees(&fields, f) {
-                    push(
-                        None,
-                        format!("{} ({})", frame_name(f), spec.name),
-                        rgb.clone(),
-                    );
-                }
+            let scan = &self.scans[&spec.name];
+            let index = self.indices.entry(spec.name.clone()).or_default();
+            for &i in index.lookup(scan.iter().map(|(f, _)| f), &fields) {
+                let (f, rgb) = &scan[i];
+                let name = format!("{} ({})", frame_name(f), spec.name);
+                push(None, name, rgb.clone());
             }
         }
         Ok(out)

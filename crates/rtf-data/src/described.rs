@@ -19,7 +19,7 @@ use crate::frame::check_label_ids;
 use crate::images::{read_label, read_rgb, read_thermal, RgbImage};
 use crate::pattern::{frame_key, frame_name, value, Fields};
 use crate::pngio::{PngImage, Samples};
-use crate::split_list::{agrees, line_error, read_split_list};
+use crate::split_list::{line_error, read_split_list, PartialIndex};
 use crate::{DataError, Frame, FrameSource};
 
 /// A described dataset; [`Self::split`] opens one of its splits.
@@ -153,7 +153,7 @@ fn listed_entries(
     unmatched: UnmatchedLines,
     warnings: &mut Vec<String>,
 ) -> Result<Vec<Entry>, DataError> {
-    let mut scan: Option<Vec<(Fields, PathBuf)>> = None;
+    let mut scan: Option<(Vec<(Fields, PathBuf)>, PartialIndex)> = None;
     let mut seen = HashSet::new();
     let mut out = Vec::new();
     for list in &spec.lists {
@@ -209,17 +209,17 @@ fn listed_entries(
 fn listed_entry(
     spec: &SplitSpec,
     fields: &Fields,
-    scan: &mut Option<Vec<(Fields, PathBuf)>>,
+    scan: &mut Option<(Vec<(Fields, PathBuf)>, PartialIndex)>,
 ) -> Result<Result<Entry, String>, DataError> {
     if fields.len() == spec.rgb.fields().len() {
         return Ok(Ok(entry_of(spec, fields)));
     }
     if scan.is_none() {
-        *scan = Some(spec.rgb.find()?);
+        *scan = Some((spec.rgb.find()?, PartialIndex::default()));
     }
-    let hits: Vec<&Fields> = (scan.iter().flatten())
-        .filter(|(f, _)| agrees(fields, f))
-        .map(|(f, _)| f)
+    let (found, index) = scan.as_mut().expect("scanned above");
+    let hits: Vec<&Fields> = (index.lookup(found.iter().map(|(f, _)| f), fields).iter())
+        .map(|&i| &found[i].0)
         .collect();
     Ok(match hits.as_slice() {
         [one] => Ok(entry_of(spec, one)),

@@ -80,6 +80,36 @@ pub fn agrees(partial: &Fields, fields: &Fields) -> bool {
     partial.iter().all(|(f, v)| value(fields, f) == v)
 }
 
+/// Frames looked up by the values of some of their fields (a list line that stops short of
+/// folder fields): one table per set of fields, built on first use, so a list of N such lines
+/// over N frames costs O(N), not O(N²).
+#[derive(Default)]
+pub struct PartialIndex {
+    tables:
+        std::collections::HashMap<Vec<String>, std::collections::HashMap<Vec<String>, Vec<usize>>>,
+}
+
+impl PartialIndex {
+    /// The indices of the frames of `frames` that agree with `partial` ([`agrees`]).
+    pub fn lookup<'f>(
+        &mut self,
+        frames: impl Iterator<Item = &'f Fields>,
+        partial: &Fields,
+    ) -> &[usize] {
+        let names: Vec<String> = partial.iter().map(|(f, _)| f.clone()).collect();
+        let table = self.tables.entry(names.clone()).or_insert_with(|| {
+            let mut table: std::collections::HashMap<Vec<String>, Vec<usize>> = Default::default();
+            for (i, fields) in frames.enumerate() {
+                let key = names.iter().map(|n| value(fields, n).to_string()).collect();
+                table.entry(key).or_default().push(i);
+            }
+            table
+        });
+        let key: Vec<String> = partial.iter().map(|(_, v)| v.clone()).collect();
+        table.get(&key).map_or(&[], Vec::as_slice)
+    }
+}
+
 /// The fields of the frame a line names by `spec`'s patterns (module docs), in the RGB
 /// pattern's order; `None` when no entry of the line matches them (nor is a frame name).
 pub fn line_fields(spec: &SplitSpec, tokens: &[String]) -> Result<Option<Fields>, String> {
