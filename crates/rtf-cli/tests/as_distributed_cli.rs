@@ -6,7 +6,7 @@
 //! colours in hex. The fixture is the
 //! worked example of docs/src/bring-your-data.md, generated here in that exact form.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 mod common;
 use common::*;
@@ -91,23 +91,6 @@ fn roads(root: &Path) {
         "color/day_a_eo-3.jpg\tthermal16/day_a_thermal-3.tiff\nnight_b/2\n",
     )
     .unwrap();
-}
-
-fn files_of(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(dir).unwrap().flatten() {
-            let path = entry.path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                out.push((path.clone(), std::fs::read(&path).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 #[test]

@@ -148,6 +148,15 @@ impl ClassSet {
         self.classes.iter().map(|c| c.name.as_str()).collect()
     }
 
+    /// Whether class 0 is "unlabelled" (named unlabeled, unlabelled or void, as MF's is and as
+    /// a dataset.yaml declares it): the condition of the MFNet paper's mIoU, which leaves
+    /// class 0 out of the sums ([`first_is_unlabelled`]).
+    pub fn first_is_unlabelled(&self) -> bool {
+        self.classes
+            .first()
+            .is_some_and(|c| first_is_unlabelled(&[&c.name]))
+    }
+
     /// Palette colour of a label id; ids outside the set (e.g. ignore) are drawn white.
     pub fn color(&self, id: u8) -> [u8; 3] {
         self.classes
@@ -159,6 +168,17 @@ impl ClassSet {
     pub fn colorize(&self, ids: &[u8]) -> Vec<u8> {
         ids.iter().flat_map(|&id| self.color(id)).collect()
     }
+}
+
+/// Whether the first of class `names` names unlabelled pixels: `unlabeled`, `unlabelled` or
+/// `void` (any case). Only then is the MFNet paper's mIoU (class 0 out of the sums) a score
+/// of the set; for a set whose class 0 is a class (road, background, …) it would silently drop
+/// that class.
+pub fn first_is_unlabelled(names: &[&str]) -> bool {
+    names.first().is_some_and(|n| {
+        let n = n.to_ascii_lowercase();
+        matches!(n.as_str(), "unlabeled" | "unlabelled" | "void")
+    })
 }
 
 #[cfg(test)]

@@ -87,12 +87,14 @@ pub fn recognise(root: &Path) -> Option<DatasetFormat> {
         return Some(DatasetFormat::Plain);
     }
     if root.join("images").is_dir() && root.join("labels").is_dir() {
-        // BDD keeps its images in per-split folders; MF keeps PNGs directly in images/.
-        return Some(if bdd_splits(root).is_empty() {
-            DatasetFormat::Mf
-        } else {
-            DatasetFormat::Bdd
-        });
+        // BDD keeps its images in per-split folders; MF keeps PNGs directly in images/. An
+        // images/ of folders only (a set recorded as sequences) is neither.
+        if !bdd_splits(root).is_empty() {
+            return Some(DatasetFormat::Bdd);
+        }
+        if !only_folders(&root.join("images")) {
+            return Some(DatasetFormat::Mf);
+        }
     }
     let mut found = Vec::new();
     for name in ["fl_rgb", "ImagesRGB"] {
@@ -102,6 +104,18 @@ pub fn recognise(root: &Path) -> Option<DatasetFormat> {
         return Some(DatasetFormat::Freiburg);
     }
     crate::layouts::recognise(root).map(DatasetFormat::from)
+}
+
+/// Whether `dir` holds folders and no file (hidden entries aside).
+fn only_folders(dir: &Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    let visible: Vec<std::fs::DirEntry> = entries
+        .flatten()
+        .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
+        .collect();
+    !visible.is_empty() && visible.iter().all(|e| e.path().is_dir())
 }
 
 /// Sub-folders of `images/` that have a matching `labels/` folder (BDD splits).
@@ -358,6 +372,10 @@ impl Dataset {
         labels: bool,
     ) -> Result<DescribedSplit, DataError> {
         let split = DescribedDataset::new(description.clone()).split(name)?;
+        // What the user asked to have skipped (unmatched_lines: warn) is said, counted.
+        for warning in split.warnings() {
+            eprintln!("warning: {warning}");
+        }
         if labels && !split.labelled() {
             return Err(self.error(&format!(
                 "the `{}` split has no labels to evaluate against",

@@ -12,11 +12,14 @@ use std::sync::Arc;
 
 use rtf_core::{ClassSet, Daytime};
 
-use crate::description::{DatasetDescription, FilePattern, LabelEncoding, NightRule, SplitSpec};
+use crate::description::{
+    DatasetDescription, FilePattern, LabelEncoding, SplitSpec, UnmatchedLines,
+};
 use crate::frame::check_label_ids;
 use crate::images::{read_label, read_rgb, read_thermal, RgbImage};
 use crate::pattern::{frame_key, frame_name, value, Fields};
 use crate::pngio::{PngImage, Samples};
+use crate::split_list::{line_error, read_split_list, PartialIndex};
 use crate::{DataError, Frame, FrameSource};
 
 /// A described dataset; [`Self::split`] opens one of its splits.
@@ -66,22 +69,29 @@ impl DescribedDataset {
                 name: name.to_string(),
                 available: self.description.split_names().join(", "),
             })?;
-        let entries = match &spec.list {
-            Some(list) => listed_entries(spec, list)?,
-            None => paired_entries(spec)?,
+        let mut warnings = Vec::new();
+        let unmatched = self.description.unmatched_lines;
+        let mut entries = match spec.lists.is_empty() {
+            true => paired_entries(spec)?,
+            false => listed_entries(spec, unmatched, &mut warnings)?,
         };
-        let entries = entries
-            .into_iter()
-            .map(|mut e| {
-                e.daytime = daytime(&self.description.night, &e.name);
-                e
-            })
-            .collect();
+        let frames = crate::conditions::SplitFrames {
+            split: name,
+            names: entries.iter().map(|e| e.name.as_str()).collect(),
+            fields: entries.iter().map(|e| &e.fields).collect(),
+            rgb: entries.iter().map(|e| e.rgb.as_path()).collect(),
+        };
+        let (daytimes, more) = crate::conditions::daytimes(&self.description, &frames)?;
+        warnings.extend(more);
+        for (e, daytime) in entries.iter_mut().zip(daytimes) {
+            e.daytime = daytime;
+        }
         Ok(DescribedSplit {
             description: self.description.clone(),
             split: name.to_string(),
             entries,
             palette: palette(&self.description),
+            warnings,
         })
     }
 }
@@ -115,19 +125,11 @@ pub fn parse_holdout(val_split: &str) -> Option<usize> {
 #[derive(Debug, Clone)]
 struct Entry {
     name: String,
+    fields: Fields,
     rgb: PathBuf,
     thermal: PathBuf,
     label: Option<PathBuf>,
     daytime: Option<Daytime>,
-}
-
-fn daytime(rule: &NightRule, name: &str) -> Option<Daytime> {
-    let night = match rule {
-        NightRule::None => return None,
-        NightRule::Suffix(s) => name.ends_with(s.as_str()),
-        NightRule::List { names, .. } => names.contains(name),
-    };
-    Some(if night { Daytime::Night } else { Daytime::Day })
 }
 
 fn palette(d: &DatasetDescription) -> HashMap<[u8; 3], u8> {
@@ -143,29 +145,106 @@ fn palette(d: &DatasetDescription) -> HashMap<[u8; 3], u8> {
     map
 }
 
-/// Frames named by a list file: each must have every file of the split.
-fn listed_entries(spec: &SplitSpec, list: &Path) -> Result<Vec<Entry>, DataError> {
-    crate::split_list::read_split_list(spec, list)?
-        .into_iter()
-        .map(|(line, fields)| {
-            let entry = entry_of(spec, &fields);
-            let files = [Some(&entry.rgb), Some(&entry.thermal), entry.label.as_ref()];
-            if let Some(missing) = files.into_iter().flatten().find(|p| !p.is_file()) {
+/// Frames named by the split's list files (their union, each frame once, in list order):
+/// each must have every file of the split. A line naming no frame is an error naming the list
+/// and the line (or, with `unmatched_lines: warn`, skipped and counted in a warning).
+fn listed_entries(
+    spec: &SplitSpec,
+    unmatched: UnmatchedLines,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<Entry>, DataError> {
+    let mut scan: Option<(Vec<(Fields, PathBuf)>, PartialIndex)> = None;
+    let mut seen = HashSet::new();
+    let mut out = Vec::new();
+    for list in &spec.lists {
+        let mut skipped = 0;
+        for (line, fields) in read_split_list(spec, list)? {
+            let entry = match listed_entry(spec, &fields, &mut scan)? {
+                Ok(entry) => entry,
+                Err(_) if unmatched == UnmatchedLines::Warn => {
+                    skipped += 1;
+                    continue;
+                }
+                Err(message) => return Err(line_error(list, line, message)),
+            };
+            let missing = entry
+                .files()
+                .into_iter()
+                .find(|p| !p.is_file())
+                .map(Path::to_path_buf);
+            if let Some(missing) = missing {
+                if unmatched == UnmatchedLines::Warn {
+                    skipped += 1;
+                    continue;
+                }
                 return Err(DataError::MissingFrame {
                     split_file: list.to_path_buf(),
                     line,
                     name: entry.name,
-                    missing: missing.clone(),
+                    missing,
                 });
             }
-            Ok(entry)
-        })
-        .collect()
+            if seen.insert(entry.name.clone()) {
+                out.push(entry);
+            }
+        }
+        if skipped > 0 {
+            warnings.push(format!(
+                "{}: {skipped} line(s) name no frame of split '{}' (skipped: unmatched_lines: warn)",
+                list.display(),
+                spec.name
+            ));
+        }
+    }
+    if out.is_empty() {
+        return Err(DataError::EmptySplit {
+            path: spec.lists[0].clone(),
+        });
+    }
+    Ok(out)
+}
+
+/// The frame of a list line's fields: all of them, or the one frame of the split that agrees
+/// with some of them (the split's RGB files scanned once, when a line needs it).
+fn listed_entry(
+    spec: &SplitSpec,
+    fields: &Fields,
+    scan: &mut Option<(Vec<(Fields, PathBuf)>, PartialIndex)>,
+) -> Result<Result<Entry, String>, DataError> {
+    if fields.len() == spec.rgb.fields().len() {
+        return Ok(Ok(entry_of(spec, fields)));
+    }
+    if scan.is_none() {
+        *scan = Some((spec.rgb.find()?, PartialIndex::default()));
+    }
+    let (found, index) = scan.as_mut().expect("scanned above");
+    let hits: Vec<&Fields> = (index.lookup(found.iter().map(|(f, _)| f), fields).iter())
+        .map(|&i| &found[i].0)
+        .collect();
+    Ok(match hits.as_slice() {
+        [one] => Ok(entry_of(spec, one)),
+        [] => Err(format!(
+            "'{}' names no frame of split '{}' ({})",
+            frame_name(fields),
+            spec.name,
+            spec.rgb.describe()
+        )),
+        many => Err(format!(
+            "names {} frames of split '{}' ({}): write more of the path",
+            many.len(),
+            spec.name,
+            many.iter()
+                .map(|f| frame_name(f))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )),
+    })
 }
 
 fn entry_of(spec: &SplitSpec, fields: &Fields) -> Entry {
     Entry {
         name: frame_name(fields),
+        fields: fields.clone(),
         rgb: spec.rgb.path(fields),
         thermal: spec.thermal.path(fields),
         label: spec.labels.as_ref().map(|l| l.path(fields)),
@@ -173,8 +252,22 @@ fn entry_of(spec: &SplitSpec, fields: &Fields) -> Entry {
     }
 }
 
-/// Frames found by listing the folders: every RGB needs its thermal (and label, when the split
-/// has labels), and every thermal or label its RGB.
+impl Entry {
+    fn files(&self) -> Vec<&Path> {
+        let label = self.label.as_deref();
+        [
+            Some(self.rgb.as_path()),
+            Some(self.thermal.as_path()),
+            label,
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
+    }
+}
+
+/// Frames found by walking the folders: every RGB needs its thermal (and label, when the split
+/// has labels), and every thermal or label its RGB; no file may match two roles' patterns.
 fn paired_entries(spec: &SplitSpec) -> Result<Vec<Entry>, DataError> {
     let rgb_files = spec.rgb.find()?;
     if rgb_files.is_empty() {
@@ -182,33 +275,63 @@ fn paired_entries(spec: &SplitSpec) -> Result<Vec<Entry>, DataError> {
             path: spec.rgb.dir.clone(),
         });
     }
-    let rgb_set: HashSet<String> = rgb_files.iter().map(|(f, _)| frame_key(f)).collect();
+    let mut roles: HashMap<PathBuf, &'static str> =
+        rgb_files.iter().map(|(_, p)| (p.clone(), "RGB")).collect();
+    let rgb_keys: HashSet<String> = rgb_files.iter().map(|(f, _)| frame_key(f)).collect();
+    let mut thermal = None;
+    let mut labels = None;
     let partners = [
-        Some((&spec.thermal, "thermal")),
-        spec.labels.as_ref().map(|l| (l, "label")),
+        Some((&spec.thermal, "thermal", &mut thermal)),
+        spec.labels.as_ref().map(|l| (l, "label", &mut labels)),
     ];
-    for (pattern, what) in partners.into_iter().flatten() {
+    for (pattern, what, slot) in partners.into_iter().flatten() {
         let found = pattern.find()?;
-        if let Some((fields, path)) = found.iter().find(|(f, _)| !rgb_set.contains(&frame_key(f))) {
+        for (_, path) in &found {
+            if let Some(other) = roles.insert(path.clone(), what) {
+                return Err(DataError::Format {
+                    path: path.clone(),
+                    message: format!("matches both the {other} and the {what} pattern ({}): make the patterns tell the roles apart", pattern.describe()),
+                });
+            }
+        }
+        if let Some((fields, path)) = found
+            .iter()
+            .find(|(f, _)| !rgb_keys.contains(&frame_key(f)))
+        {
             return Err(DataError::MissingPartner {
                 path: path.clone(),
                 what: "RGB",
                 partner: spec.rgb.path(&reorder(fields, &spec.rgb)),
             });
         }
-        if let Some((fields, path)) = rgb_files.iter().find(|(f, _)| !pattern.path(f).is_file()) {
+        let by_key: HashMap<String, PathBuf> =
+            found.into_iter().map(|(f, p)| (frame_key(&f), p)).collect();
+        if let Some((fields, path)) = rgb_files
+            .iter()
+            .find(|(f, _)| !by_key.contains_key(&frame_key(f)))
+        {
             return Err(DataError::MissingPartner {
                 path: path.clone(),
                 what,
                 partner: pattern.path(fields),
             });
         }
+        *slot = Some(by_key);
     }
     Ok(rgb_files
         .iter()
-        .map(|(fields, path)| Entry {
-            rgb: path.clone(),
-            ..entry_of(spec, fields)
+        .map(|(fields, path)| {
+            let key = frame_key(fields);
+            let partner =
+                |m: &Option<HashMap<String, PathBuf>>| m.as_ref().map(|m| m[&key].clone());
+            Entry {
+                name: frame_name(fields),
+                fields: fields.clone(),
+                rgb: path.clone(),
+                thermal: partner(&thermal).expect("a split has thermal"),
+                label: partner(&labels),
+                daytime: None,
+            }
         })
         .collect())
 }
@@ -229,6 +352,7 @@ pub struct DescribedSplit {
     split: String,
     entries: Vec<Entry>,
     palette: HashMap<[u8; 3], u8>,
+    warnings: Vec<String>,
 }
 
 impl DescribedSplit {
@@ -253,11 +377,18 @@ impl DescribedSplit {
                 .map(|(_, e)| e.clone())
                 .collect(),
             palette: self.palette.clone(),
+            warnings: self.warnings.clone(),
         };
         (
             part(false, ""),
             part(true, &format!(" (held out: 1 in {every})")),
         )
+    }
+
+    /// What opening the split skipped (list lines naming no frame, with
+    /// `unmatched_lines: warn`): for the commands to print.
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
     }
 
     /// Whether the split's frames have labels.
@@ -267,12 +398,7 @@ impl DescribedSplit {
 
     /// The files frame `index` reads (for fingerprints and checks).
     pub fn files(&self, index: usize) -> Vec<&Path> {
-        let e = &self.entries[index];
-        let label = e.label.as_deref();
-        [Some(e.rgb.as_path()), Some(e.thermal.as_path()), label]
-            .into_iter()
-            .flatten()
-            .collect()
+        self.entries[index].files()
     }
 
     fn read(&self, index: usize, with_label: bool) -> Result<Frame, DataError> {

@@ -13,13 +13,15 @@
 //!   range: [21800, 25000]       # 16-bit raw counts mapped linearly to [0, 1], clipped
 //! splits:                       # optional; default {train,val,test}/{rgb,thermal,labels}
 //!   train: {rgb: train/rgb, thermal: "train/ir/{name}_ir.png", labels: train/labels}
-//! night: {suffix: N}            # or {list: night.txt}; default none
+//! night: {suffix: N}            # or {list: night.txt} or {list: [a.txt, b.txt]}; default none
+//! day: {list: [train_day.txt, test_day.txt]}   # optional, with night lists
+//! unmatched_lines: error        # or warn: a list line naming no frame (default: error)
 //! ```
 //!
 //! Unknown keys and contradictions are refused with the file and the line: a description
 //! that rtf silently reads differently from what its writer meant costs a training run.
 
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Component, Path, PathBuf};
 
 use rtf_core::{ClassInfo, ClassSet};
@@ -73,14 +75,28 @@ pub enum NightRule {
     None,
     /// Names ending in this suffix are night, all others day (MF/MSRS: `N`).
     Suffix(String),
-    /// The names in this list file are night, all others day.
-    List {
-        file: PathBuf,
-        names: HashSet<String>,
+    /// The frames the lines of these list files name (in the formats of split lists,
+    /// [`crate::split_list`]): with night lists only, the others are day; with day lists
+    /// only, the others are night; with both, a frame in neither has no condition. Every line
+    /// must name one frame of the dataset, and no frame may be both.
+    Lists {
+        day: Vec<PathBuf>,
+        night: Vec<PathBuf>,
     },
 }
 
-/// One split: its files and, optionally, the list file that names its frames.
+/// What a list line that names no frame of the dataset is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UnmatchedLines {
+    /// An error naming the list and the line (the default: never silently nothing).
+    #[default]
+    Error,
+    /// Skipped, counted in a warning per list ([`crate::DescribedSplit::warnings`]).
+    Warn,
+}
+
+/// One split: its files and, optionally, the list files whose union names its frames.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SplitSpec {
     pub name: String,
@@ -88,7 +104,8 @@ pub struct SplitSpec {
     pub thermal: FilePattern,
     /// `None`: the split has no labels (unlabelled frames).
     pub labels: Option<FilePattern>,
-    pub list: Option<PathBuf>,
+    /// Empty: every frame the patterns find.
+    pub lists: Vec<PathBuf>,
 }
 
 /// A dataset as rtf reads it, whichever way it was described.
@@ -105,6 +122,7 @@ pub struct DatasetDescription {
     pub thermal: ThermalNormalisation,
     pub splits: Vec<SplitSpec>,
     pub night: NightRule,
+    pub unmatched_lines: UnmatchedLines,
 }
 
 impl DatasetDescription {
@@ -131,6 +149,9 @@ struct RawDescription {
     splits: Option<BTreeMap<String, RawSplit>>,
     #[serde(default)]
     night: RawNight,
+    day: Option<RawDay>,
+    #[serde(default)]
+    unmatched_lines: UnmatchedLines,
 }
 
 #[derive(Deserialize)]
@@ -220,15 +241,39 @@ struct RawSplit {
     rgb: String,
     thermal: String,
     labels: Option<String>,
-    list: Option<String>,
+    list: Option<Paths>,
 }
 
-/// `{suffix: N}` or `{list: night.txt}`; absent: day/night unknown.
+/// `list: a.txt` or `list: [a.txt, b.txt]`.
+#[derive(Deserialize, Clone)]
+#[serde(untagged)]
+enum Paths {
+    One(String),
+    Many(Vec<String>),
+}
+
+impl Paths {
+    fn written(&self) -> Vec<&str> {
+        match self {
+            Self::One(p) => vec![p.as_str()],
+            Self::Many(p) => p.iter().map(String::as_str).collect(),
+        }
+    }
+}
+
+/// `{suffix: N}` or `{list: night.txt}` (or several lists); absent: day/night unknown.
 #[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 struct RawNight {
     suffix: Option<String>,
-    list: Option<String>,
+    list: Option<Paths>,
+}
+
+/// `{list: day.txt}` (or several lists).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDay {
+    list: Paths,
 }
 
 /// Reads and checks `ROOT/dataset.yaml` (or any description file; paths in it are relative
@@ -259,7 +304,7 @@ pub fn parse_description(text: &str, file: &Path) -> Result<DatasetDescription, 
         Some(splits) => described_splits(splits, &root, &at)?,
         None => plain_splits(&root, &at)?,
     };
-    let night = night_rule(&raw.night, &root, &at)?;
+    let night = night_rule(&raw.night, raw.day.as_ref(), &root, &at)?;
     Ok(DatasetDescription {
         origin: file.to_path_buf(),
         root,
@@ -270,6 +315,7 @@ pub fn parse_description(text: &str, file: &Path) -> Result<DatasetDescription, 
         thermal,
         splits,
         night,
+        unmatched_lines: raw.unmatched_lines,
     })
 }
 
@@ -535,10 +581,10 @@ fn inside(root: &Path, written: &str, want_dir: bool, at: &Located) -> Result<Pa
     Ok(path)
 }
 
-/// A folder (`train/rgb` → `train/rgb/NAME.png`) or a pattern with `{name}` in its file name
-/// (`train/ir/{name}_ir.png`).
 /// A split's pattern as written: a folder (`train/rgb`: its `{name}.<ext>` files of the role's
-/// formats) or a folder and a file-name template with `{field}`s (`color/{seq}_eo-{n}.jpg`).
+/// formats) or a path template with `{field}`s in its file name and folders
+/// (`color/{seq}_eo-{n}.jpg`, `images/{set}/{video}/visible/{frame}.jpg`): the folders before
+/// the first field must exist.
 fn file_pattern(
     root: &Path,
     written: &str,
@@ -551,17 +597,29 @@ fn file_pattern(
             formats,
         ));
     }
-    let (dir, file) = written.rsplit_once('/').unwrap_or(("", written));
-    if dir.contains('{') || dir.contains('}') {
-        let message = format!("'{written}': {{fields}} go in the file name, not in its folders");
+    let components: Vec<&str> = written.split('/').collect();
+    let fixed = components
+        .iter()
+        .position(|c| c.contains('{') || c.contains('}'))
+        .unwrap_or(components.len());
+    let dir = match fixed {
+        0 => root.to_path_buf(),
+        _ => inside(root, &components[..fixed].join("/"), true, at)?,
+    };
+    let template = components[fixed..].join("/");
+    let pattern = FilePattern::parse(dir, &template)
+        .map_err(|message| at.error(at.line_with(written), message))?;
+    let file = components.last().copied().unwrap_or_default();
+    let allowed = Format::all_extensions(formats);
+    let ext = file.rsplit_once('.').map(|(_, e)| e.to_ascii_lowercase());
+    if !ext.as_deref().is_some_and(|e| allowed.contains(&e)) {
+        let message = format!(
+            "'{written}': the file name must end in one of .{} (the formats this role reads)",
+            allowed.join(", .")
+        );
         return Err(at.error(at.line_with(written), message));
     }
-    let dir = if dir.is_empty() {
-        root.to_path_buf()
-    } else {
-        inside(root, dir, true, at)?
-    };
-    FilePattern::parse(dir, file).map_err(|message| at.error(at.line_with(written), message))
+    Ok(pattern)
 }
 
 /// A partner's pattern has exactly the RGB pattern's fields (it is filled from them).
@@ -608,11 +666,7 @@ fn described_split(
         rgb,
         thermal,
         labels,
-        list: split
-            .list
-            .as_deref()
-            .map(|l| inside(root, l, false, at))
-            .transpose()?,
+        lists: list_files(split.list.as_ref(), root, at)?,
     })
 }
 
@@ -650,7 +704,7 @@ fn plain_splits(root: &Path, at: &Located) -> Result<Vec<SplitSpec>, DataError> 
             labels: labels
                 .is_dir()
                 .then(|| FilePattern::folder(labels, Format::LABEL)),
-            list: None,
+            lists: Vec::new(),
         });
     }
     if splits.is_empty() {
@@ -660,9 +714,19 @@ fn plain_splits(root: &Path, at: &Located) -> Result<Vec<SplitSpec>, DataError> 
     Ok(splits)
 }
 
-fn night_rule(raw: &RawNight, root: &Path, at: &Located) -> Result<NightRule, DataError> {
+fn night_rule(
+    raw: &RawNight,
+    day: Option<&RawDay>,
+    root: &Path,
+    at: &Located,
+) -> Result<NightRule, DataError> {
+    let day = list_files(day.map(|d| &d.list), root, at)?;
     Ok(match (&raw.suffix, &raw.list) {
-        (None, None) => NightRule::None,
+        (Some(_), _) if !day.is_empty() => {
+            let message = "day: lists go with night lists, not with a night suffix";
+            return Err(at.error(at.key_line("day"), message));
+        }
+        (None, None) if day.is_empty() => NightRule::None,
         (Some(_), Some(_)) => {
             let message = "night: give either suffix or list, not both";
             return Err(at.error(at.key_line("night"), message));
@@ -671,268 +735,25 @@ fn night_rule(raw: &RawNight, root: &Path, at: &Located) -> Result<NightRule, Da
             return Err(at.error(at.key_line("suffix"), "night suffix is empty"));
         }
         (Some(s), None) => NightRule::Suffix(s.clone()),
-        (None, Some(written)) => {
-            let file = inside(root, written, false, at)?;
-            let names = crate::mf::read_split_file(&file)?
-                .into_iter()
-                .map(|(_, n)| n)
-                .collect();
-            NightRule::List { file, names }
-        }
+        (None, night) => NightRule::Lists {
+            day,
+            night: list_files(night.as_ref(), root, at)?,
+        },
     })
 }
 
-#[cfg(test)]
-pub(crate) mod tests {
-    use super::*;
-    use crate::testutil::*;
-
-    /// The issue's example, verbatim.
-    pub(crate) const EXAMPLE: &str = "classes:                      # id = label value; colour for palettes and colour-coded labels
-  - {id: 0, name: background, color: [0, 0, 0]}
-  - {id: 1, name: pedestrian, color: [220, 20, 60]}
-ignore_id: 255                # optional
-thermal:
-  range: [21800, 25000]       # 16-bit raw counts mapped linearly to [0, 1], clipped
-";
-
-    /// A plain-layout root: dataset.yaml and `{train,val}/{rgb,thermal,labels}/NAME.png`.
-    pub(crate) fn plain_root(yaml: &str) -> tempfile::TempDir {
-        let dir = tempfile::tempdir().unwrap();
-        let folders = RgbtFolders {
-            rgb: "rgb",
-            thermal: "thermal",
-            labels: "labels",
-        };
-        for split in ["train", "val"] {
-            let d = dir.path().join(split);
-            for name in ["a", "b"] {
-                let raw = ThermalFixture::Raw16 { base: 21800 };
-                write_rgbt_frame(&d, &folders, name, (4, 3), raw, 2);
-            }
-        }
-        write(&dir.path().join(DESCRIPTION_FILE), yaml.as_bytes());
-        dir
+/// The list files written (one or several), each inside the dataset and existing.
+fn list_files(raw: Option<&Paths>, root: &Path, at: &Located) -> Result<Vec<PathBuf>, DataError> {
+    let written = raw.map(Paths::written).unwrap_or_default();
+    if raw.is_some() && written.is_empty() {
+        return Err(at.error(at.key_line("list"), "list: [] names no list file"));
     }
-
-    fn parse_in(root: &Path, yaml: &str) -> Result<DatasetDescription, DataError> {
-        parse_description(yaml, &root.join(DESCRIPTION_FILE))
-    }
-
-    /// The error text, which must name dataset.yaml and `line`.
-    fn refused(yaml: &str, line: usize) -> String {
-        let dir = plain_root(EXAMPLE);
-        let text = parse_in(dir.path(), yaml).unwrap_err().to_string();
-        assert!(text.contains("dataset.yaml"), "{text}");
-        assert!(text.contains(&format!("line {line}")), "{text}");
-        text
-    }
-
-    #[test]
-    fn the_issue_example_describes_the_plain_layout() {
-        let dir = plain_root(EXAMPLE);
-        let d = read_description(&dir.path().join(DESCRIPTION_FILE)).unwrap();
-        assert_eq!(d.layout, LayoutKind::Plain);
-        assert_eq!(d.class_set.names(), ["background", "pedestrian"]);
-        assert_eq!(d.class_set.ignore_id, Some(255));
-        assert_eq!(d.class_set.color(1), [220, 20, 60]);
-        assert_eq!(
-            d.thermal,
-            ThermalNormalisation::Range {
-                lo: 21800.0,
-                hi: 25000.0,
-                map: None
-            }
-        );
-        assert_eq!(d.split_names(), vec!["train", "val"]);
-        assert_eq!(d.night, NightRule::None);
-        let train = d.split("train").unwrap();
-        assert_eq!(
-            train.rgb.path(&vec![("name".into(), "a".into())]),
-            dir.path().join("train/rgb/a.png")
-        );
-        assert!(train.labels.is_some());
-    }
-
-    #[test]
-    fn colours_are_rgb_lists_or_hex_and_a_bad_hex_names_its_line() {
-        let dir = plain_root(EXAMPLE);
-        let hex = EXAMPLE.replace("[220, 20, 60]", "\"#DC143c\"");
-        let d = parse_in(dir.path(), &hex).unwrap();
-        assert_eq!(d.class_set.color(1), [220, 20, 60]);
-        for bad in [
-            "\"#DC143\"",
-            "\"DC143C\"",
-            "\"#GG0000\"",
-            "[1, 2]",
-            "[1, 2, 3, 4]",
-            "[1, 2, 300]",
-        ] {
-            let text = refused(&EXAMPLE.replace("[220, 20, 60]", bad), 3);
-            assert!(
-                text.contains("colour") || text.contains("invalid"),
-                "{bad}: {text}"
-            );
-        }
-    }
-
-    #[test]
-    fn named_field_patterns_need_the_same_fields_in_every_partner() {
-        let dir = plain_root(EXAMPLE);
-        let split = |rgb: &str, thermal: &str| {
-            format!("{EXAMPLE}splits:\n  train: {{rgb: \"{rgb}\", thermal: \"{thermal}\"}}\n")
-        };
-        let ok = split(
-            "train/rgb/{seq}_eo-{n}.jpg",
-            "train/thermal/{seq}_thermal-{n}.tiff",
-        );
-        let d = parse_in(dir.path(), &ok).unwrap();
-        assert_eq!(d.split("train").unwrap().thermal.fields(), ["seq", "n"]);
-        for (yaml, says) in [
-            (
-                split("train/rgb/{seq}_eo-{n}.jpg", "train/thermal/{seq}.tiff"),
-                "has fields {seq} but the RGB pattern has {n}, {seq}",
-            ),
-            (
-                split("train/{seq}/x-{n}.jpg", "train/thermal/{seq}-{n}.tiff"),
-                "go in the file name",
-            ),
-            (
-                split("train/rgb/{seq}_{seq}.jpg", "train/thermal/{seq}.tiff"),
-                "used twice",
-            ),
-        ] {
-            let text = refused(&yaml, 8);
-            assert!(text.contains(says), "{text}");
-        }
-    }
-
-    #[test]
-    fn unknown_keys_are_refused_with_their_line() {
-        let text = refused(&EXAMPLE.replace("ignore_id: 255", "ignore_idd: 255"), 4);
-        assert!(text.contains("ignore_idd"), "{text}");
-        let text = refused(&EXAMPLE.replace("name: pedestrian", "nam: pedestrian"), 3);
-        assert!(text.contains("nam"), "{text}");
-    }
-
-    #[test]
-    fn duplicate_class_ids_and_names_are_refused_with_the_line() {
-        let text = refused(
-            &EXAMPLE.replace("{id: 1, name: pedestrian", "{id: 0, name: pedestrian"),
-            3,
-        );
-        assert!(text.contains("class id 0 is given twice"), "{text}");
-        let text = refused(&EXAMPLE.replace("name: pedestrian", "name: background"), 3);
-        assert!(text.contains("'background' is given twice"), "{text}");
-        let ignored_twice = EXAMPLE.replace("ignore_id: 255", "ignore_id: [255, 255]");
-        assert!(refused(&ignored_twice, 4).contains("ignore_id 255 is given twice"));
-        let ignored_class = EXAMPLE.replace("ignore_id: 255", "ignore_id: [1, 255]");
-        assert!(refused(&ignored_class, 4).contains("ignore_id 1 is also a class id"));
-    }
-
-    #[test]
-    fn ids_as_the_dataset_has_them_map_to_outputs_in_the_list_order() {
-        let dir = plain_root(EXAMPLE);
-        // 0..N-1 listed out of order: the ids are the outputs, as before.
-        let swapped = EXAMPLE
-            .replace("{id: 0, name: background", "{id: 9, name: background")
-            .replace("{id: 1, name: pedestrian", "{id: 0, name: pedestrian")
-            .replace("{id: 9, name: background", "{id: 1, name: background");
-        let d = parse_in(dir.path(), &swapped).unwrap();
-        assert_eq!(d.class_set.names(), ["pedestrian", "background"]);
-        assert_eq!(d.class_set.label_values, None);
-        // Ids from 1 with 0 ignored (and 255): outputs follow the list, values recorded.
-        let from_one = EXAMPLE
-            .replace("{id: 1, name: pedestrian", "{id: 7, name: pedestrian")
-            .replace("{id: 0, name: background", "{id: 1, name: background")
-            .replace("ignore_id: 255", "ignore_id: [0, 255]");
-        let d = parse_in(dir.path(), &from_one).unwrap();
-        assert_eq!(d.class_set.names(), ["background", "pedestrian"]);
-        let values = d.class_set.label_values.as_ref().unwrap();
-        assert_eq!(
-            (values.classes.as_slice(), values.ignored.as_slice()),
-            (&[1u8, 7][..], &[0u8, 255][..])
-        );
-        assert_eq!(d.class_set.ignore_id, Some(255));
-        assert_eq!(
-            (d.class_set.label_value(0), d.class_set.label_value(1)),
-            (1, 7)
-        );
-    }
-
-    #[test]
-    fn contradictions_are_refused_with_the_line() {
-        let both = EXAMPLE.replace(
-            "range: [21800, 25000]",
-            "range: [21800, 25000]\n  min_max: true",
-        );
-        let text = refused(&both, 7);
-        assert!(
-            text.contains("one of range, min_max and percentile"),
-            "{text}"
-        );
-        let text = refused(&EXAMPLE.replace("[21800, 25000]", "[25000, 21800]"), 6);
-        assert!(text.contains("low end"), "{text}");
-        let text = refused(&EXAMPLE.replace("ignore_id: 255", "ignore_id: 1"), 4);
-        assert!(text.contains("also a class id"), "{text}");
-        let colour = format!("{EXAMPLE}ignore_color: [1, 1, 1]\n");
-        let text = refused(&colour, 7);
-        assert!(
-            text.contains("no effect with label_encoding: ids"),
-            "{text}"
-        );
-        let temp = EXAMPLE.replace(
-            "  range: [21800, 25000]",
-            "  min_max: true\n  to_temperature: {scale: 0.04, offset: -273.15, unit: celsius}",
-        );
-        let text = refused(&temp, 7);
-        assert!(text.contains("to_temperature"), "{text}");
-        let same_colour =
-            EXAMPLE.replace("[220, 20, 60]", "[0, 0, 0]") + "label_encoding: colors\n";
-        let text = refused(&same_colour, 3);
-        assert!(text.contains("distinct colours"), "{text}");
-    }
-
-    #[test]
-    fn a_path_outside_the_dataset_or_a_typo_is_refused_with_the_line() {
-        let splits = "splits:\n  train: {rgb: ../train/rgb, thermal: train/thermal}\n";
-        let text = refused(&format!("{EXAMPLE}{splits}"), 8);
-        assert!(text.contains("points outside the dataset folder"), "{text}");
-        let splits = "splits:\n  train: {rgb: train/rgbb, thermal: train/thermal}\n";
-        let text = refused(&format!("{EXAMPLE}{splits}"), 8);
-        assert!(
-            text.contains("train/rgbb") && text.contains("no such folder"),
-            "{text}"
-        );
-        let night = "night: {list: nights.txt}\n";
-        let text = refused(&format!("{EXAMPLE}{night}"), 7);
-        assert!(text.contains("no such file"), "{text}");
-    }
-
-    #[test]
-    fn patterns_split_lists_and_night_rules_resolve() {
-        let dir = plain_root(EXAMPLE);
-        write(&dir.path().join("lists/train.txt"), b"a\n");
-        write(&dir.path().join("night.txt"), b"b\n");
-        let yaml = format!(
-            "{EXAMPLE}splits:\n  train: {{rgb: \"train/rgb/{{name}}.png\", thermal: train/thermal, list: lists/train.txt}}\nnight: {{list: night.txt}}\n"
-        );
-        let d = parse_in(dir.path(), &yaml).unwrap();
-        let train = d.split("train").unwrap();
-        assert_eq!(
-            train.rgb.path(&vec![("name".into(), "x".into())]),
-            dir.path().join("train/rgb/x.png")
-        );
-        assert_eq!(train.labels, None);
-        assert_eq!(train.list, Some(dir.path().join("lists/train.txt")));
-        assert!(matches!(&d.night, NightRule::List { names, .. } if names.contains("b")));
-        let yaml = EXAMPLE.replace("  range: [21800, 25000]", "  percentile: [1, 99]")
-            + "night: {suffix: _n}\n";
-        let d = parse_in(dir.path(), &yaml).unwrap();
-        assert_eq!(
-            d.thermal,
-            ThermalNormalisation::Percentile { lo: 1.0, hi: 99.0 }
-        );
-        assert_eq!(d.night, NightRule::Suffix("_n".into()));
-    }
+    written
+        .into_iter()
+        .map(|w| inside(root, w, false, at))
+        .collect()
 }
+
+#[cfg(test)]
+#[path = "description_tests.rs"]
+pub(crate) mod tests;

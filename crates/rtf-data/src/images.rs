@@ -1,5 +1,5 @@
 //! The readers of a dataset's image files, as public RGB-T sets ship them: RGB as PNG or JPEG;
-//! thermal as PNG (8/16-bit), TIFF (8/16-bit integer, uncompressed, LZW, deflate or PackBits;
+//! thermal as PNG (8/16-bit), JPEG (8-bit grey, [`grey_of_jpeg`]), TIFF (8/16-bit integer, uncompressed, LZW, deflate or PackBits;
 //! 32-bit float) or `.npy` (integer counts, or float temperatures); labels as PNG. Every
 //! command that reads a frame — training, evaluation, prediction, the data check — reads it
 //! through these functions, so a file one of them accepts, all accept.
@@ -29,7 +29,7 @@ impl Format {
     /// Extensions of RGB images, in the order a folder pattern tries them.
     pub const RGB: &'static [Format] = &[Format::Png, Format::Jpeg];
     /// Formats of thermal images.
-    pub const THERMAL: &'static [Format] = &[Format::Png, Format::Tiff, Format::Npy];
+    pub const THERMAL: &'static [Format] = &[Format::Png, Format::Jpeg, Format::Tiff, Format::Npy];
     /// Formats of label images (lossless, one id or colour per pixel).
     pub const LABEL: &'static [Format] = &[Format::Png];
 
@@ -159,7 +159,8 @@ fn rgb_of_png(png: &PngImage, path: &Path) -> Result<RgbImage, DataError> {
     })
 }
 
-fn decode_jpeg(bytes: &[u8], path: &Path) -> Result<RgbImage, DataError> {
+/// A JPEG decoded as stored (grey or colour), within the decoder's memory limit.
+fn jpeg_image(bytes: &[u8], path: &Path) -> Result<image::DynamicImage, DataError> {
     let bad = |message: String| DataError::Format {
         path: path.to_path_buf(),
         message: format!("not a readable JPEG: {message}"),
@@ -168,7 +169,11 @@ fn decode_jpeg(bytes: &[u8], path: &Path) -> Result<RgbImage, DataError> {
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(MAX_DECODED_BYTES as u64);
     reader.limits(limits);
-    let decoded = reader.decode().map_err(|e| bad(e.to_string()))?;
+    reader.decode().map_err(|e| bad(e.to_string()))
+}
+
+fn decode_jpeg(bytes: &[u8], path: &Path) -> Result<RgbImage, DataError> {
+    let decoded = jpeg_image(bytes, path)?;
     let found = decoded.color().channel_count() as usize;
     if found != 3 {
         return Err(DataError::Channels {
@@ -196,8 +201,59 @@ pub fn decode_thermal(bytes: &[u8], path: &Path) -> Result<ThermalImage, DataErr
     match checked_format(path, bytes, Format::THERMAL, "a thermal image")? {
         Format::Tiff => crate::tiffio::decode_thermal_tiff(bytes, path),
         Format::Npy => thermal_of_npy(bytes, path),
-        _ => thermal_of_png(&decode_png(bytes, path)?, path),
+        Format::Jpeg => thermal_of_jpeg(bytes, path),
+        Format::Png => thermal_of_png(&decode_png(bytes, path)?, path),
     }
+}
+
+/// The most two channels of one pixel of a grey JPEG stored in three channels may differ:
+/// JPEG codes colour as luma and chroma, and the chroma planes' quantisation and subsampling
+/// leave grey pixels a few levels off grey after decoding. A colour-mapped rendering differs
+/// by far more.
+pub const JPEG_GREY_SPREAD: u8 = 8;
+
+/// An 8-bit thermal JPEG: grey as stored, or grey stored in three channels, read as the
+/// channels' mean (rounded), as the reference loaders' `mean(axis=2)` does, after checking
+/// that no pixel's channels differ by more than [`JPEG_GREY_SPREAD`].
+fn thermal_of_jpeg(bytes: &[u8], path: &Path) -> Result<ThermalImage, DataError> {
+    let decoded = jpeg_image(bytes, path)?;
+    let (width, height) = (decoded.width() as usize, decoded.height() as usize);
+    let values = match decoded.color().channel_count() {
+        1 => decoded.into_luma8().into_raw(),
+        _ => grey_of_jpeg(&decoded.into_rgb8().into_raw(), width, path)?,
+    };
+    Ok(ThermalImage {
+        width,
+        height,
+        samples: ThermalSamples::Counts {
+            bits: 8,
+            values: values.into_iter().map(u16::from).collect(),
+        },
+    })
+}
+
+/// The grey of interleaved RGB samples of a JPEG ([`thermal_of_jpeg`]); a pixel whose
+/// channels differ by more than [`JPEG_GREY_SPREAD`] is an error naming it.
+pub fn grey_of_jpeg(rgb: &[u8], width: usize, path: &Path) -> Result<Vec<u8>, DataError> {
+    rgb.chunks_exact(3)
+        .enumerate()
+        .map(|(i, p)| {
+            let spread = p.iter().max().unwrap() - p.iter().min().unwrap();
+            if spread > JPEG_GREY_SPREAD {
+                return Err(colour_thermal(
+                    path,
+                    3,
+                    &format!(
+                        " by {spread} levels at (x {}, y {}): RGB {p:?}; a grey JPEG's channels differ by at most {JPEG_GREY_SPREAD}",
+                        i % width.max(1),
+                        i / width.max(1)
+                    ),
+                ));
+            }
+            let sum: u16 = p.iter().map(|&v| u16::from(v)).sum();
+            Ok(((sum + 1) / 3) as u8)
+        })
+        .collect()
 }
 
 fn thermal_of_png(png: &PngImage, path: &Path) -> Result<ThermalImage, DataError> {
@@ -348,6 +404,37 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("ir.png") && err.contains("differ"), "{err}");
+    }
+
+    #[test]
+    fn grey_jpeg_thermal_in_one_or_three_channels_is_its_mean_and_colour_is_refused() {
+        let (w, h) = (16u32, 8u32);
+        let grey: Vec<u8> = (0..w * h).map(|i| (i * 2) as u8).collect();
+        let rgb: Vec<u8> = grey.iter().flat_map(|&g| [g, g, g]).collect();
+        let three = jpeg_bytes(w, h, &rgb);
+        let t = decode_thermal(&three, Path::new("lwir/I1.jpg")).unwrap();
+        let ThermalSamples::Counts { bits: 8, values } = &t.samples else {
+            panic!("{:?}", t.samples)
+        };
+        let decoded = decode_rgb(&three, Path::new("x.jpg")).unwrap().rgb;
+        let mean: Vec<u16> = decoded
+            .chunks_exact(3)
+            .map(|p| (p.iter().map(|&v| u16::from(v)).sum::<u16>() + 1) / 3)
+            .collect();
+        assert_eq!(values, &mean, "the channels' mean, rounded");
+        let mut one = Vec::new();
+        let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut one, 95);
+        image::ImageEncoder::write_image(enc, &grey, w, h, image::ExtendedColorType::L8).unwrap();
+        let t1 = decode_thermal(&one, Path::new("t.jpeg")).unwrap();
+        assert_eq!((t1.width, t1.height), (16, 8));
+        let colour: Vec<u8> = grey.iter().flat_map(|&g| [g, 255 - g, 0]).collect();
+        let err = decode_thermal(&jpeg_bytes(w, h, &colour), Path::new("lwir/c.jpg"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("lwir/c.jpg") && err.contains("differ") && err.contains("(x 0, y 0)"),
+            "{err}"
+        );
     }
 
     #[test]

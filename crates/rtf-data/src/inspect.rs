@@ -118,10 +118,15 @@ fn from_error(fallback: &Path, e: DataError) -> Problem {
         DataError::Layout { root, .. } | DataError::UnknownSplit { root, .. } => root.clone(),
         _ => fallback.to_path_buf(),
     };
+    // The problem prints its path first: the message names it no second time.
     let text = e.to_string();
-    let prefix = format!("{}: ", path.display());
+    let shown = path.display().to_string();
+    let message = [": ", ", "]
+        .iter()
+        .find_map(|sep| text.strip_prefix(&format!("{shown}{sep}")))
+        .unwrap_or(&text);
     Problem {
-        message: text.strip_prefix(&prefix).unwrap_or(&text).to_string(),
+        message: message.to_string(),
         path,
     }
 }
@@ -137,6 +142,10 @@ pub struct CheckReport {
     pub class_set: Option<ClassSet>,
     /// How thermal becomes [0, 1] (described layouts only).
     pub thermal: Option<String>,
+    /// A root of no known layout: a dataset.yaml skeleton from what it holds
+    /// ([`crate::unknown`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub skeleton: Option<String>,
 }
 
 impl CheckReport {
@@ -151,6 +160,7 @@ pub fn check(root: &Path) -> CheckReport {
     let fault = match format.map(|f| Dataset::open_as(root, f)) {
         Some(Ok(dataset)) => return check_opened(&dataset),
         Some(Err(e)) => from_error(root, e),
+        None if root.is_dir() => problem(root, crate::unknown::verdict(root)),
         None => problem(root, NOT_A_DATASET),
     };
     CheckReport {
@@ -160,6 +170,7 @@ pub fn check(root: &Path) -> CheckReport {
         problems: vec![fault],
         class_set: None,
         thermal: None,
+        skeleton: (format.is_none() && root.is_dir()).then(|| crate::unknown::skeleton(root)),
     }
 }
 
@@ -173,6 +184,8 @@ pub fn check_opened(dataset: &Dataset) -> CheckReport {
         Layout::Described(d) => check_described(d),
     };
     problems.sort_by(|a, b| a.path.cmp(&b.path).then(a.message.cmp(&b.message)));
+    // One problem found by two splits (a condition list both read) is said once.
+    problems.dedup_by(|a, b| a.path == b.path && a.message == b.message);
     CheckReport {
         root: root.to_path_buf(),
         format: Some(dataset.format()),
@@ -180,6 +193,7 @@ pub fn check_opened(dataset: &Dataset) -> CheckReport {
         problems,
         class_set: Some(dataset.class_set()),
         thermal: dataset.description().map(|d| d.thermal.describe()),
+        skeleton: None,
     }
 }
 

@@ -8,6 +8,7 @@
 
 pub mod augment;
 pub mod bdd;
+pub mod conditions;
 pub mod dataset;
 pub mod described;
 pub mod description;
@@ -32,6 +33,7 @@ pub mod synth;
 pub mod thermal;
 pub mod tiffio;
 pub mod trained_on;
+pub mod unknown;
 
 pub use augment::{resize_frame, AugmentConfig, ScaleCrop};
 pub use dataset::{open, Dataset, DatasetFormat};
@@ -45,5 +47,7 @@ pub use loader::{Batch, Loader, LoaderConfig};
 pub use mf::{MfDataset, MfSplit};
 pub use trained_on::TrainedOn;
 
+#[cfg(test)]
+mod sequence_tests;
 #[cfg(test)]
 pub(crate) mod testutil;

@@ -110,3 +110,12 @@ pub fn write_rgbt_frame(
         write(&file(folders.labels), &png_u8(w, h, 1, &ids(w, h, classes)));
     }
 }
+
+/// JPEG bytes (quality 95) of interleaved RGB.
+pub fn jpeg_rgb(w: usize, h: usize, rgb: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95);
+    image::ImageEncoder::write_image(enc, rgb, w as u32, h as u32, image::ExtendedColorType::Rgb8)
+        .unwrap();
+    out
+}

@@ -30,8 +30,11 @@ pub struct Scores {
     pub macc: f64,
     /// Mean IoU over all classes, NaN counted as 0 (RTFNet convention).
     pub miou: f64,
-    /// MFNet paper's mIoU: class 0 (unlabeled) removed from the sums and from the mean.
-    pub miou_mfnet: f64,
+    /// MFNet paper's mIoU: class 0 (unlabeled) removed from the sums and from the mean. Only
+    /// for class sets whose class 0 is unlabelled ([`rtf_core::classes::first_is_unlabelled`]);
+    /// `None` (JSON null) for others, whose one mIoU is [`Self::miou`].
+    #[serde(default)]
+    pub miou_mfnet: Option<f64>,
     /// Correct pixels / all counted pixels.
     pub pixel_acc: f64,
     pub pixels: u64,
@@ -144,14 +147,16 @@ impl ConfusionMatrix {
             values.into_iter().map(|v| v.unwrap_or(0.0)).sum::<f64>() / count
         };
         // MFNet eq. 2: sums over classes 2..n (1-based), i.e. row and column 0 dropped.
-        let miou_mfnet = mean_or_zero(
-            (1..n)
-                .map(|c| {
-                    let tp = self.get(c, c);
-                    ratio(tp, row_sum(c, 1) + col_sum(c, 1) - tp)
-                })
-                .collect(),
-        );
+        let miou_mfnet = rtf_core::classes::first_is_unlabelled(names).then(|| {
+            mean_or_zero(
+                (1..n)
+                    .map(|c| {
+                        let tp = self.get(c, c);
+                        ratio(tp, row_sum(c, 1) + col_sum(c, 1) - tp)
+                    })
+                    .collect(),
+            )
+        });
         let correct: u64 = (0..n).map(|c| self.get(c, c)).sum();
         let pixels = self.total();
         Scores {
@@ -232,7 +237,7 @@ mod tests {
     fn scores_by_hand() {
         // truth 0: 8 right, 2 as class 1; truth 1: 3 right, 1 as class 0; class 2: absent.
         let m = matrix_from(&[&[8, 2, 0], &[1, 3, 0], &[0, 0, 0]]);
-        let s = m.compute(&["bg", "car", "person"]);
+        let s = m.compute(&["unlabeled", "car", "person"]);
         assert_eq!(s.per_class[0].acc, Some(0.8));
         assert_eq!(s.per_class[1].acc, Some(0.75));
         assert_eq!(s.per_class[2].acc, None);
@@ -241,7 +246,13 @@ mod tests {
         assert!((s.macc - (0.8 + 0.75) / 3.0).abs() < 1e-12);
         assert!((s.miou - (8.0 / 11.0 + 0.5) / 3.0).abs() < 1e-12);
         // MFNet: class 1 with row/col 0 removed: 3 / (3 + 3 - 3) = 1; class 2 none -> 0.
-        assert!((s.miou_mfnet - 0.5).abs() < 1e-12);
+        assert!((s.miou_mfnet.unwrap() - 0.5).abs() < 1e-12);
+        // A set whose class 0 is a class (road): no MFNet-convention score, only the mIoU.
+        let road = m.compute(&["road", "car", "person"]);
+        assert_eq!(road.miou_mfnet, None);
+        assert_eq!(road.miou, s.miou);
+        let json = serde_json::to_value(&road).unwrap();
+        assert!(json["miou_mfnet"].is_null(), "{json}");
         assert_eq!(s.pixels, 14);
         assert!((s.pixel_acc - 11.0 / 14.0).abs() < 1e-12);
     }
@@ -275,8 +286,8 @@ mod tests {
     #[test]
     fn perfect_prediction_scores_one() {
         let m = matrix_from(&[&[5, 0], &[0, 5]]);
-        let s = m.compute(&["a", "b"]);
-        assert_eq!((s.macc, s.miou, s.miou_mfnet), (1.0, 1.0, 1.0));
+        let s = m.compute(&["void", "b"]);
+        assert_eq!((s.macc, s.miou, s.miou_mfnet), (1.0, 1.0, Some(1.0)));
         assert!(s.table().contains("100.0"));
     }
 }

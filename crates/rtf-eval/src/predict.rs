@@ -1,6 +1,7 @@
-//! Prediction of image files (`rtf predict`): MF-layout RGBA PNGs (thermal in alpha) and a
-//! separate RGB + thermal pair, each frame's class ids, palette colours and, if asked, logits
-//! written beside it. Everything that can refuse a run does so before a file is written
+//! Prediction of image files (`rtf predict`): MF-layout RGBA PNGs (thermal in alpha), a
+//! separate RGB + thermal pair, or every frame of a dataset split (any layout, read by its
+//! readers; outputs named by the frame's name, a folder per `/`), each frame's class ids,
+//! palette colours and, if asked, logits written beside it. Everything that can refuse a run does so before a file is written
 //! ([`plan_outputs`], [`Prediction::prepare`]): outputs two inputs would share, an output
 //! that is an input, a file that is not an RGBA PNG, a frame too large for memory. Frames are
 //! then read, run and written one at a time (memory bounded by a frame), each output written
@@ -205,7 +206,10 @@ impl PairSamples<'_> {
 
 /// One frame to predict: its input and its outputs in the output folder.
 pub struct Planned {
+    /// The input file, or for a dataset frame its name.
     pub source: PathBuf,
+    /// The frame's index in the split predicted ([`Prediction::split`]); `None` for files.
+    pub frame: Option<usize>,
     /// `<stem>.png`: class ids.
     pub ids: PathBuf,
     /// `<stem>_color.png`: the class set's palette.
@@ -304,9 +308,7 @@ pub fn plan_outputs(
     may_write: &dyn Fn(&Path) -> Result<(), String>,
 ) -> Result<Vec<Planned>, PredictError> {
     check_inputs(out, inputs)?;
-    let mut writer: HashMap<PathBuf, &Path> = Default::default();
-    let mut planned = Vec::with_capacity(sources.len());
-    for source in sources {
+    let named = sources.iter().map(|source| {
         let stem = stem(source);
         if stem.is_empty() {
             return Err(refused(format!(
@@ -314,6 +316,50 @@ pub fn plan_outputs(
                 source.display()
             )));
         }
+        Ok((stem, source.clone(), None))
+    });
+    let named: Vec<_> = named.collect::<Result<_, PredictError>>()?;
+    plan_named(out, named, logits, may_write)
+}
+
+/// The outputs of every frame of a dataset split, named by the frame's name (`names[i]` is
+/// frame `i`'s): a frame `set00/V000/I00050` writes `out/set00/V000/I00050.png` and its
+/// `_color.png` (and `.npy`), so same-named files of different sequences never collide. Two
+/// frames that would write one file, or a name that is not a relative path, are refused
+/// before anything is written.
+pub fn plan_frames(
+    out: &Path,
+    names: &[String],
+    logits: bool,
+    may_write: &dyn Fn(&Path) -> Result<(), String>,
+) -> Result<Vec<Planned>, PredictError> {
+    check_inputs(out, &[])?;
+    let named = names.iter().enumerate().map(|(i, name)| {
+        let relative = Path::new(name);
+        let plain = relative
+            .components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if name.is_empty() || !plain {
+            return Err(refused(format!(
+                "frame '{name}': its name is not a relative path to write its outputs under"
+            )));
+        }
+        Ok((name.clone(), PathBuf::from(name), Some(i)))
+    });
+    let named: Vec<_> = named.collect::<Result<_, PredictError>>()?;
+    plan_named(out, named, logits, may_write)
+}
+
+/// [`plan_outputs`] of (output stem below `out`, source, frame index) triples.
+fn plan_named(
+    out: &Path,
+    named: Vec<(String, PathBuf, Option<usize>)>,
+    logits: bool,
+    may_write: &dyn Fn(&Path) -> Result<(), String>,
+) -> Result<Vec<Planned>, PredictError> {
+    let mut writer: HashMap<PathBuf, PathBuf> = Default::default();
+    let mut planned = Vec::with_capacity(named.len());
+    for (stem, source, frame) in named {
         let names = [
             format!("{stem}.png"),
             format!("{stem}_color.png"),
@@ -321,7 +367,7 @@ pub fn plan_outputs(
         ];
         for name in &names[..if logits { 3 } else { 2 }] {
             let path = out.join(name);
-            if let Some(other) = writer.insert(path.clone(), source) {
+            if let Some(other) = writer.insert(path.clone(), source.clone()) {
                 return Err(refused(format!(
                     "{} and {} would both write {}: give the inputs distinct file names or \
                      predict them into separate --out folders (nothing was written)",
@@ -334,7 +380,8 @@ pub fn plan_outputs(
         }
         let [ids, color, npy] = names.map(|n| out.join(n));
         planned.push(Planned {
-            source: source.clone(),
+            source,
+            frame,
             ids,
             color,
             logits: logits.then_some(npy),
@@ -417,8 +464,10 @@ pub struct Prediction<'a> {
     pub planned: &'a [Planned],
     /// Frames whose outputs all exist already are skipped.
     pub skip_existing: bool,
-    /// The separate RGB + thermal pair, if given (its RGB file is one of the planned sources).
-    pub pair: Option<(&'a Path, &'a Path)>,
+    /// The separate RGB + thermal pairs given (each RGB file is one of the planned sources).
+    pub pairs: &'a [(PathBuf, PathBuf)],
+    /// The dataset split whose frames the plans with a frame index are ([`plan_frames`]).
+    pub split: Option<&'a dyn rtf_data::FrameSource>,
     /// `--thermal-range` for the pair ([`thermal_rule`]).
     pub thermal_range: Option<(f64, f64)>,
     /// The network's name (its default thermal rule).
@@ -430,15 +479,16 @@ pub struct Prediction<'a> {
     pub device: tch::Device,
 }
 
-/// A prediction checked and ready to run: the frames to do, and the pair read whole.
+/// A prediction checked and ready to run: the frames to do.
 pub struct Prepared<'p, 'a> {
     job: &'p Prediction<'a>,
     todo: Vec<&'p Planned>,
-    pair: Option<Frame>,
+    /// How the pairs' thermal becomes [0, 1] (decided, and said, once).
+    rule: Option<ThermalRule<'a>>,
 }
 
 impl<'a> Prediction<'a> {
-    /// Every check before a file is written: the pair read whole and its memory checked, the
+    /// Every check before a file is written: each pair read whole and its memory checked, the
     /// header and memory of every RGBA PNG; then the output folder made, and the temporary
     /// files a stopped run left there removed (said on stderr).
     pub fn prepare(&self) -> Result<Prepared<'_, 'a>, PredictError> {
@@ -448,14 +498,18 @@ impl<'a> Prediction<'a> {
             .iter()
             .filter(|p| !(self.skip_existing && p.done()))
             .collect();
-        let pair = self.read_pair_checked(&todo)?;
-        let rgb = self.pair.map(|(rgb, _)| rgb);
+        let rule = (!self.pairs.is_empty())
+            .then(|| thermal_rule(self.thermal_range, self.model, self.trained));
+        if let Some(rule) = rule {
+            self.check_pairs(&todo, rule)?;
+        }
         let mf: Vec<&Path> = todo
             .iter()
+            .filter(|p| p.frame.is_none() && self.thermal_of(&p.source).is_none())
             .map(|p| p.source.as_path())
-            .filter(|p| Some(*p) != rgb)
             .collect();
         preflight(&mf, self.network, self.device)?;
+        self.check_split_memory(&todo)?;
         std::fs::create_dir_all(self.out)
             .map_err(|e| Refusal::because(format!("cannot create {}", self.out.display()), e))?;
         let stale = remove_stale_temporaries(self.out, self.planned);
@@ -468,24 +522,42 @@ impl<'a> Prediction<'a> {
         Ok(Prepared {
             job: self,
             todo,
-            pair,
+            rule,
         })
     }
 
-    /// The separate RGB + thermal pair (one frame, read whole and its memory checked before
-    /// anything is written), unless it is not given or skipped.
-    fn read_pair_checked(&self, todo: &[&Planned]) -> Result<Option<Frame>, PredictError> {
-        let Some((rgb, thermal)) = self.pair else {
-            return Ok(None);
+    /// A dataset split's first frame to predict, read whole (its files' problems named) and
+    /// its memory checked, before anything is written.
+    fn check_split_memory(&self, todo: &[&Planned]) -> Result<(), PredictError> {
+        let (Some(split), Some(first)) = (self.split, todo.iter().find_map(|p| p.frame)) else {
+            return Ok(());
         };
-        if !todo.iter().any(|p| p.source == rgb) {
-            return Ok(None);
-        }
-        let rule = thermal_rule(self.thermal_range, self.model, self.trained);
-        let frame = read_pair(rgb, thermal, rule)?;
+        let frame = split.load_unlabelled(first)?;
         crate::evaluate::check_memory(self.network, 1, frame.height, frame.width, self.device)
-            .map_err(|e| Refusal::because(rgb.display().to_string(), e))?;
-        Ok(Some(frame))
+            .map_err(|e| Refusal::because(format!("frame '{}'", frame.name), e))?;
+        Ok(())
+    }
+
+    /// The thermal partner of `rgb` when it is the RGB file of a pair given.
+    fn thermal_of(&self, rgb: &Path) -> Option<&Path> {
+        (self.pairs.iter())
+            .find(|(r, _)| r == rgb)
+            .map(|(_, t)| t.as_path())
+    }
+
+    /// Every pair to predict read whole (the two files' problems named) and its memory
+    /// checked, before anything is written; read again when its turn comes (memory bounded
+    /// by a frame).
+    fn check_pairs(&self, todo: &[&Planned], rule: ThermalRule) -> Result<(), PredictError> {
+        for plan in todo {
+            let Some(thermal) = self.thermal_of(&plan.source) else {
+                continue;
+            };
+            let frame = read_pair(&plan.source, thermal, rule)?;
+            crate::evaluate::check_memory(self.network, 1, frame.height, frame.width, self.device)
+                .map_err(|e| Refusal::because(plan.source.display().to_string(), e))?;
+        }
+        Ok(())
     }
 }
 
@@ -508,16 +580,13 @@ impl Prepared<'_, '_> {
     /// a frame); `done` hears of each once its outputs are written.
     pub fn run(self, done: &mut dyn FnMut(&Planned)) -> Result<(), PredictError> {
         let job = self.job;
-        let mut pair = self.pair;
-        let rgb = job.pair.map(|(rgb, _)| rgb);
         let _guard = tch::no_grad_guard();
         for plan in self.todo {
-            let frame = match pair.take() {
-                Some(frame) if Some(plan.source.as_path()) == rgb => frame,
-                kept => {
-                    pair = kept;
-                    rtf_data::mf::read_mf_image(&plan.source)?
-                }
+            let pair = job.thermal_of(&plan.source).zip(self.rule);
+            let frame = match (plan.frame.zip(job.split), pair) {
+                (Some((index, split)), _) => split.load_unlabelled(index)?,
+                (None, Some((thermal, rule))) => read_pair(&plan.source, thermal, rule)?,
+                (None, None) => rtf_data::mf::read_mf_image(&plan.source)?,
             };
             predict_frame(job.network, &frame, plan, job.classes, job.device)?;
             done(plan);
@@ -560,6 +629,10 @@ fn predict_frame(
     device: tch::Device,
 ) -> Result<(), PredictError> {
     let source = plan.source.display().to_string();
+    if let Some(folder) = plan.ids.parent() {
+        std::fs::create_dir_all(folder)
+            .map_err(|e| Refusal::because(format!("cannot create {}", folder.display()), e))?;
+    }
     let logits = frame_logits(network, frame, device).map_err(|e| Refusal::because(source, e))?;
     let ids = class_ids(&logits)?;
     let (w, h) = (frame.width as u32, frame.height as u32);

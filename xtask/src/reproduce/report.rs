@@ -798,6 +798,16 @@ mod tests {
         assert_eq!(read_metric(&e, None, &Metric::InferenceMs), None);
         let no_day = json!({"miou": 0.1, "day": null});
         assert_eq!(read_metric(&no_day, None, &Metric::MIoU(Subset::Day)), None);
+        // A class set whose class 0 is a class (rtf eval writes null): no MFNet-convention
+        // number, never a 0 or a number that dropped a real class.
+        let road =
+            json!({"miou": 0.4, "miou_mfnet": null, "day": {"miou": 0.5, "miou_mfnet": null}});
+        for s in [Subset::All, Subset::Day, Subset::DayNight] {
+            assert_eq!(read_metric(&road, None, &Metric::MIoUMfnet(s)), None);
+        }
+        assert!(
+            (read_metric(&road, None, &Metric::MIoU(Subset::All)).unwrap() - 40.0).abs() < 1e-9
+        );
     }
 
     /// A cell whose seeds have not all finished says how many it averages.

@@ -50,6 +50,13 @@ pub fn run(args: Args) -> Result<()> {
                 for p in &report.problems {
                     println!("{p}");
                 }
+                if let Some(skeleton) = &report.skeleton {
+                    println!(
+                        "a {} beside the data describes any tree (docs: bring-your-data.md); from what {} holds:\n{skeleton}",
+                        rtf_data::description::DESCRIPTION_FILE,
+                        dir.display()
+                    );
+                }
                 let format = report.format.map_or("unknown", |f| f.name());
                 println!(
                     "{}: {} layout, {} frames decoded, {} problem(s)",

@@ -267,16 +267,22 @@ fn print_scores(
             pct(h.night_miou),
             pct(h.day_night_miou)
         ),
-        None => println!(
-            "MFNet paper (unlabeled excluded from the sums): mIoU {:.1}",
-            100.0 * report.all.miou_mfnet
-        ),
+        // Only for class sets whose class 0 is unlabelled (MF's): elsewhere class 0 is a class.
+        None => {
+            if let Some(m) = report.all.miou_mfnet {
+                println!(
+                    "MFNet paper (class 0 '{}' excluded from the sums): mIoU {:.1}",
+                    report.all.per_class[0].name,
+                    100.0 * m
+                );
+            }
+        }
     }
     for (label, scores) in [("day", &report.day), ("night", &report.night)] {
         if let Some(s) = scores {
-            let extra = match format {
-                DatasetFormat::Mf => format!("  mIoU(MFNet) {:.1}", 100.0 * s.miou_mfnet),
-                _ => String::new(),
+            let extra = match s.miou_mfnet {
+                Some(m) => format!("  mIoU(MFNet) {:.1}", 100.0 * m),
+                None => String::new(),
             };
             println!(
                 "{label}: mAcc {:.1}  mIoU {:.1}{extra}",

@@ -3,11 +3,14 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use std::sync::Arc;
+
+use anyhow::{bail, Result};
+use rtf_data::FrameSource;
 use rtf_eval::predict::{self, Prediction};
 
 use super::load_network;
-use crate::output_guard::OutputGuard;
+use crate::output_guard::{resolved, OutputGuard};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -17,9 +20,18 @@ pub struct Args {
     /// Weights (safetensors, reference names).
     #[arg(long)]
     pub weights: PathBuf,
-    /// Output folder: <stem>.png (class ids), <stem>_color.png (palette), <stem>.npy (--logits).
+    /// Output folder: <stem>.png (class ids), <stem>_color.png (palette), <stem>.npy (--logits);
+    /// with --data, <frame name>.png etc. (a folder per `/` of the name).
     #[arg(long)]
     pub out: PathBuf,
+    /// Predict every frame of a split of this dataset root (any layout rtf reads, dataset.yaml
+    /// included), each written under its frame's name. The class set defaults to the
+    /// dataset's; --out must be outside the dataset.
+    #[arg(long, conflicts_with_all = ["rgb", "images"])]
+    pub data: Option<PathBuf>,
+    /// The split of --data to predict.
+    #[arg(long, default_value = "test", requires = "data")]
+    pub split: String,
     /// Also write the logits as float32 .npy of shape [classes, H, W].
     #[arg(long)]
     pub logits: bool,
@@ -29,13 +41,14 @@ pub struct Args {
     /// others mf). Refused when the weights record another class set.
     #[arg(long)]
     pub classes: Option<String>,
-    /// RGB image (PNG or JPEG) of a pair given as separate files (with --thermal).
+    /// RGB image (PNG or JPEG) of a pair given as separate files (with --thermal); repeat
+    /// both for several pairs (the n-th --rgb with the n-th --thermal).
     #[arg(long, requires = "thermal")]
-    pub rgb: Option<PathBuf>,
-    /// Thermal image of a pair given as separate files (with --rgb): PNG (8/16-bit), TIFF
-    /// (8/16-bit, 32-bit float) or .npy, as the datasets' readers take them.
+    pub rgb: Vec<PathBuf>,
+    /// Thermal image of a pair given as separate files (with --rgb): PNG (8/16-bit), JPEG
+    /// (grey), TIFF (8/16-bit, 32-bit float) or .npy, as the datasets' readers take them.
     #[arg(long, requires = "rgb")]
-    pub thermal: Option<PathBuf>,
+    pub thermal: Vec<PathBuf>,
     /// 16-bit or float thermal: raw counts (or the float file's degrees) LO:HI mapped to
     /// [0, 1] (clipped). Default: the thermal rule the weights record (a dataset.yaml's
     /// `thermal:`), else HeatNet models use the Freiburg reference 21800:25000 and others each
@@ -59,7 +72,7 @@ pub struct Args {
     pub progress_every: u64,
     /// RGBA PNGs, thermal in the alpha channel (MF layout), or folders of them (their `.png`
     /// files, by name).
-    #[arg(required_unless_present = "rgb")]
+    #[arg(required_unless_present_any = ["rgb", "data"])]
     pub images: Vec<PathBuf>,
 }
 
@@ -77,12 +90,19 @@ fn parse_range(text: &str) -> Result<(f64, f64), String> {
 /// anything is written where they would land on an input, each other or a file rtf may not
 /// replace (crate::output_guard).
 fn plan(args: &Args) -> Result<Vec<predict::Planned>> {
+    if args.rgb.len() != args.thermal.len() {
+        bail!(
+            "{} --rgb but {} --thermal: give one thermal file per RGB file, in the same order (nothing was written)",
+            args.rgb.len(),
+            args.thermal.len()
+        );
+    }
     let images = predict::expand_images(&args.images)?;
     let mut sources: Vec<PathBuf> = images.clone();
-    sources.extend(args.rgb.clone());
+    sources.extend(args.rgb.iter().cloned());
     let mut inputs: Vec<&Path> = images.iter().map(PathBuf::as_path).collect();
-    inputs.extend(args.rgb.as_deref());
-    inputs.extend(args.thermal.as_deref());
+    inputs.extend(args.rgb.iter().map(PathBuf::as_path));
+    inputs.extend(args.thermal.iter().map(PathBuf::as_path));
     inputs.push(&args.weights);
     let mut guard = OutputGuard::new(args.overwrite).reading(inputs.iter().copied());
     if let Some(root) = args
@@ -103,12 +123,59 @@ fn plan(args: &Args) -> Result<Vec<predict::Planned>> {
     )?)
 }
 
+/// `--data ROOT --split S`: the split opened (every file of it checked to exist and pair up)
+/// and its frames' outputs planned by name; the outputs must be outside the dataset, so that
+/// no file of it changes.
+/// Also returns the class set to ask for: the dataset's.
+fn plan_split(
+    args: &Args,
+    data: &Path,
+) -> Result<(Vec<predict::Planned>, Arc<dyn FrameSource>, String)> {
+    let dataset = super::open_dataset(data, "a prediction")?;
+    let split = dataset.split(&args.split, false)?;
+    let (root, out) = (resolved(data), resolved(&args.out));
+    if out.starts_with(&root) {
+        bail!(
+            "--out {} is inside the dataset {}: predict into a folder outside it, so that no file of the dataset changes (nothing was written)",
+            args.out.display(),
+            data.display()
+        );
+    }
+    let names: Vec<String> = (0..split.len())
+        .map(|i| split.frame_name(i).to_string())
+        .collect();
+    let guard = OutputGuard::new(args.overwrite).reading([args.weights.as_path()]);
+    let may_write = |path: &Path| guard.check(path, "predict").map_err(|e| format!("{e:#}"));
+    let planned = predict::plan_frames(&args.out, &names, args.logits, &may_write)?;
+    eprintln!(
+        "predict: {} frames of split '{}' of {} ({})",
+        split.len(),
+        args.split,
+        data.display(),
+        dataset.layout_name()
+    );
+    let classes = match dataset.format() {
+        rtf_data::DatasetFormat::Mf => "mf".to_string(),
+        rtf_data::DatasetFormat::Freiburg => "freiburg".to_string(),
+        _ => data.display().to_string(),
+    };
+    Ok((planned, split, classes))
+}
+
 pub fn run(args: Args) -> Result<()> {
-    let planned = plan(&args)?;
+    let (planned, split, data_classes) = match &args.data {
+        Some(data) => {
+            let (planned, split, classes) = plan_split(&args, data)?;
+            (planned, Some(split), Some(classes))
+        }
+        None => (plan(&args)?, None, None),
+    };
     let device = args.run.device()?;
     let trained = super::trained_on(&args.weights)?;
+    // With --data the dataset's class set, unless --classes says otherwise.
+    let asked = args.classes.clone().or(data_classes);
     let classes = predict::class_set(
-        args.classes.as_deref(),
+        asked.as_deref(),
         &args.model,
         &args.weights,
         trained.as_ref(),
@@ -120,11 +187,18 @@ pub fn run(args: Args) -> Result<()> {
         device,
     ))?
     .net;
+    let pairs: Vec<(PathBuf, PathBuf)> = args
+        .rgb
+        .iter()
+        .cloned()
+        .zip(args.thermal.iter().cloned())
+        .collect();
     let prediction = Prediction {
         out: &args.out,
         planned: &planned,
         skip_existing: args.skip_existing,
-        pair: args.rgb.as_deref().zip(args.thermal.as_deref()),
+        pairs: &pairs,
+        split: split.as_deref(),
         thermal_range: args.thermal_range,
         model: &args.model,
         trained: trained.as_ref(),

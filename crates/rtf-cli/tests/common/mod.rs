@@ -123,3 +123,21 @@ pub fn train_then_signal(data: &Path, run: &Path, signal: i32) -> Output {
     assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
     child.wait_with_output().unwrap()
 }
+
+/// Every file below `root` with its bytes, sorted by path: compared before and after a
+/// command, it says that the command changed no file there.
+pub fn files_of(root: &Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(dir).unwrap().flatten() {
+            let path = entry.path();
+            match path.is_dir() {
+                true => stack.push(path),
+                false => out.push((path.clone(), std::fs::read(&path).unwrap())),
+            }
+        }
+    }
+    out.sort();
+    out
+}

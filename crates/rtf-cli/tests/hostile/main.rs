@@ -19,6 +19,7 @@
 //!
 //! One module per surface: `inputs` (predict, eval, data, memory: issue 15), `recipes`,
 //! `report`, `export`, `modality` (`--drop`, `--precision`), `ddp`, `owndata` (dataset.yaml),
+//! `sequences` (fields in folders, JPEG thermal, per-condition lists),
 //! `calib` (rig.yaml's prior) and `cmx` (CMX weights that do not fit).
 
 #[path = "../common/mod.rs"]
@@ -36,6 +37,7 @@ mod modality;
 mod owndata;
 mod recipes;
 mod report;
+mod sequences;
 mod verdict;
 
 use std::path::PathBuf;
@@ -81,7 +83,7 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
     let tmp = tempfile::tempdir().unwrap();
     let f = fixture(tmp.path());
     type Surface = (&'static str, fn(&Fixture) -> Vec<Case>);
-    let surfaces: [Surface; 15] = [
+    let surfaces: [Surface; 16] = [
         ("inputs", inputs::predict_images),
         ("inputs", inputs::predict_outputs),
         ("inputs", inputs::weights),
@@ -95,6 +97,7 @@ fn hostile_inputs_get_clear_errors_never_panics_or_silent_results() {
         ("modality", modality::cases),
         ("ddp", ddp::cases),
         ("owndata", owndata::cases),
+        ("sequences", sequences::cases),
         ("distributed", distributed::cases),
         ("calib", calib::cases),
     ];

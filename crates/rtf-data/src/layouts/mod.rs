@@ -96,7 +96,7 @@ impl Folders {
             labels: labels
                 .is_dir()
                 .then(|| FilePattern::folder(labels, Format::LABEL)),
-            list: None,
+            lists: Vec::new(),
         }
     }
 }
@@ -141,5 +141,6 @@ pub(crate) fn built_in(
         thermal: ThermalNormalisation::Byte,
         splits,
         night,
+        unmatched_lines: Default::default(),
     }
 }
