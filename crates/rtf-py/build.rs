@@ -9,10 +9,16 @@ fn python_include() -> std::path::PathBuf {
     println!("cargo:rerun-if-env-changed=PYO3_PYTHON");
     let python = std::env::var("PYO3_PYTHON").unwrap_or_else(|_| "python3".to_owned());
     let out = std::process::Command::new(&python)
-        .args(["-c", "import sysconfig; print(sysconfig.get_paths()['include'])"])
+        .args([
+            "-c",
+            "import sysconfig; print(sysconfig.get_paths()['include'])",
+        ])
         .output()
         .unwrap_or_else(|e| panic!("cannot run {python} for its include directory: {e}"));
-    assert!(out.status.success(), "{python} failed to name its include directory");
+    assert!(
+        out.status.success(),
+        "{python} failed to name its include directory"
+    );
     std::path::PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
 
@@ -27,5 +33,8 @@ fn main() {
         .include(python_include())
         .compile("rtf_py_tensor");
     println!("cargo:rustc-link-lib=torch_python");
-    println!("cargo:rustc-link-search=native={}", libtorch_lib().display());
+    println!(
+        "cargo:rustc-link-search=native={}",
+        libtorch_lib().display()
+    );
 }

@@ -2,10 +2,10 @@
 //! each checked for dtype and shape with an `rtf.InputError` naming what was given and what
 //! is expected, before anything runs; tensors and class sets out.
 
+use crate::tensor::PyTensor;
 use pyo3::buffer::{Element, PyBuffer};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use crate::tensor::PyTensor;
 use rtf_core::ClassSet;
 use rtf_data::images::ThermalSamples;
 use tch::Tensor;

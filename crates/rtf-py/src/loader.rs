@@ -6,9 +6,9 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
+use crate::tensor::PyTensor;
 use crossbeam_channel::Receiver;
 use pyo3::prelude::*;
-use crate::tensor::PyTensor;
 use rtf_data::{AugmentConfig, Batch, DataError, Loader, LoaderConfig};
 use rtf_models::ModelConfig;
 

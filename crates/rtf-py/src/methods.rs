@@ -4,9 +4,9 @@
 use std::panic::AssertUnwindSafe;
 use std::path::{Path, PathBuf};
 
+use crate::tensor::PyTensor;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use crate::tensor::PyTensor;
 use rtf_data::Frame;
 use rtf_eval::predict::{self, PairSamples};
 use tch::{Kind, Tensor};

@@ -10,9 +10,9 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rtf_core::ClassSet;
 use rtf_data::TrainedOn;
-use rtf_eval::predict;
 use rtf_eval::kernels::probe::Probe;
 use rtf_eval::kernels::KernelPolicy;
+use rtf_eval::predict;
 use rtf_models::fast::{FoldOptions, InferenceKernels, InferenceNet, Precision};
 use rtf_models::{Modality, ModelConfig, Network};
 use tch::nn::VarStore;
@@ -57,7 +57,10 @@ pub struct PyNetwork {
 /// (`rtf_eval::kernels`), under the policy and probe cache of this process's environment, as
 /// `rtf predict` makes it (`RTF_WINOGRAD`, `RTF_BF16_WINOGRAD`, `RTF_CACHE_DIR`; the package
 /// is this process's edge). A bad variable is refused naming it.
-fn inference_kernels(precision: Option<Precision>, device: tch::Device) -> PyResult<InferenceKernels> {
+fn inference_kernels(
+    precision: Option<Precision>,
+    device: tch::Device,
+) -> PyResult<InferenceKernels> {
     let policy =
         KernelPolicy::from_vars(|var| std::env::var(var).ok()).map_err(|e| input(e.to_string()))?;
     let Some(precision) = precision else {
@@ -67,7 +70,8 @@ fn inference_kernels(precision: Option<Precision>, device: tch::Device) -> PyRes
         });
     };
     let probe = Probe::from_vars(|var| std::env::var_os(var));
-    let (kernels, warnings) = rtf_eval::kernels::inference_kernels(&policy, precision, device, &probe);
+    let (kernels, warnings) =
+        rtf_eval::kernels::inference_kernels(&policy, precision, device, &probe);
     for warning in warnings {
         eprintln!("warning: {warning}");
     }
@@ -88,7 +92,10 @@ fn random_network(
     let net = match precision {
         Some(p) => {
             rtf_models::fast::check_precision_on(p, device)?;
-            Box::new(InferenceNet::fold(net, &FoldOptions::new(p).kernels(kernels))?) as _
+            Box::new(InferenceNet::fold(
+                net,
+                &FoldOptions::new(p).kernels(kernels),
+            )?) as _
         }
         None => net,
     };
