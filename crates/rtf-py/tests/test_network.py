@@ -44,6 +44,30 @@ def test_the_fp32_fast_path_equals_rtf_predict_precision_fp32(run_rtf, tmp_path)
         net.save(tmp_path / "folded.safetensors")
 
 
+@pytest.mark.parametrize("winograd", [None, "on", "off"])
+def test_the_bf16_fast_path_takes_the_cli_kernels(winograd, run_rtf, tmp_path, monkeypatch):
+    # One policy and one probe cache for both sides (the measured choice where the variable
+    # is unset): the same kernels, so the same bf16 logits bit for bit.
+    monkeypatch.setenv("RTF_CACHE_DIR", str(tmp_path / "cache"))
+    if winograd is None:
+        monkeypatch.delenv("RTF_BF16_WINOGRAD", raising=False)
+    else:
+        monkeypatch.setenv("RTF_BF16_WINOGRAD", winograd)
+    net = rtf.load_network("mfnet", weights=MFNET, precision="bf16")
+    rgb, thermal = read_rgba(FRAME)
+    cli_logits, cli_ids = predicted(
+        run_rtf, tmp_path, "mfnet", MFNET, FRAME, "--precision", "bf16"
+    )
+    assert np.array_equal(net.logits(rgb, thermal), cli_logits)
+    assert np.array_equal(net.predict(rgb, thermal), cli_ids)
+
+
+def test_a_bad_kernel_variable_is_refused_naming_it(monkeypatch):
+    monkeypatch.setenv("RTF_BF16_WINOGRAD", "maybe")
+    with pytest.raises(rtf.InputError, match="RTF_BF16_WINOGRAD"):
+        rtf.load_network("mfnet", weights=MFNET, precision="bf16")
+
+
 @pytest.mark.parametrize("model", ["rtfnet50", "cmx-mit-b0"])
 def test_random_weights_saved_and_loaded_equal_rtf_predict(model, run_rtf, tmp_path):
     from PIL import Image
