@@ -91,10 +91,15 @@ impl CalibFile {
         }
     }
 
+    /// The calib.yaml text [`save`](Self::save) writes.
+    pub fn to_yaml(&self) -> std::result::Result<String, String> {
+        serde_yaml_ng::to_string(self).map_err(|e| e.to_string())
+    }
+
     pub fn save(&self, path: &Path) -> Result<()> {
-        let text = serde_yaml_ng::to_string(self).map_err(|e| CalibError::Write {
+        let text = self.to_yaml().map_err(|message| CalibError::Write {
             path: path.into(),
-            message: e.to_string(),
+            message,
         })?;
         rtf_core::write_bytes_atomic(path, text.as_bytes()).map_err(|e| CalibError::Write {
             path: path.into(),

@@ -25,6 +25,9 @@ pub enum CalibError {
     Write { path: PathBuf, message: String },
     #[error("invalid setting: {0}")]
     Setting(String),
+    /// An output path that is an input of the rig (the message names both).
+    #[error("{0}")]
+    OverwritesInput(String),
     #[error("libtorch: {0}")]
     Torch(#[from] tch::TchError),
 }

@@ -16,6 +16,7 @@ pub mod overlay;
 pub mod quality;
 pub mod real_rig;
 pub mod rig;
+pub mod run;
 pub mod se3;
 pub mod solve;
 pub mod stereo;

@@ -641,6 +641,7 @@ mod tests {
 
     #[test]
     fn huge_batches_are_refused_before_they_run_with_size_and_estimate() {
+        let _memory = crate::memory_lock();
         let (_vs, net) = mfnet();
         if available_memory(Device::Cpu).is_none() {
             return; // not Linux: nothing to compare the estimate with

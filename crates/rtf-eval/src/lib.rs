@@ -24,6 +24,15 @@ pub use evaluate::{
 pub use inference::{Inference, InferenceOptions};
 pub use metrics::{ClassScore, ConfusionMatrix, Scores};
 
+/// Resident memory is process-wide: a test that estimates a forward pass's memory from it
+/// (evaluate::estimate_forward_bytes) and a test that allocates a lot at once hold this, so
+/// that neither runs while the other measures.
+#[cfg(test)]
+pub(crate) fn memory_lock() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 /// libtorch's generator is process-wide: a test that seeds it and expects the same draws
 /// holds this while it draws, so tests running in parallel cannot interleave theirs.
 #[cfg(test)]

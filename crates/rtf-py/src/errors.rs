@@ -33,6 +33,12 @@ create_exception!(
      anything runs."
 );
 create_exception!(rtf, TorchError, Error, "An error libtorch reported (tch).");
+create_exception!(
+    rtf,
+    CalibrationError,
+    Error,
+    "A rig, its images or a calibration that cannot be read, solved or written (rtf_calib)."
+);
 
 /// Adds the exception classes to the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -43,6 +49,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EvalError", py.get_type::<EvalError>())?;
     m.add("InputError", py.get_type::<InputError>())?;
     m.add("TorchError", py.get_type::<TorchError>())?;
+    m.add("CalibrationError", py.get_type::<CalibrationError>())?;
     Ok(())
 }
 
@@ -108,6 +115,15 @@ impl ToPy for rtf_eval::predict::PredictError {
             E::Eval(e) => e.to_py(),
             E::Tensor(e) => e.to_py(),
             E::Request(e) => InputError::new_err(message(&e)),
+        }
+    }
+}
+
+impl ToPy for rtf_calib::error::CalibError {
+    fn to_py(self) -> PyErr {
+        match self {
+            rtf_calib::error::CalibError::Torch(e) => e.to_py(),
+            other => CalibrationError::new_err(message(&other)),
         }
     }
 }

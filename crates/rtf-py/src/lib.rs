@@ -4,6 +4,7 @@
 //! `rtf.Error` subclasses (errors.rs) and the GIL is released while rtf computes.
 
 mod arrays;
+mod calibrate;
 mod dataset;
 mod errors;
 mod evaluate;
@@ -37,5 +38,6 @@ fn _rtf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(network::models, m)?)?;
     m.add_function(wrap_pyfunction!(dataset::open_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(evaluate::evaluate_json, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate::calibrate_yaml, m)?)?;
     Ok(())
 }

@@ -104,3 +104,4 @@ def test_a_torch_of_another_version_is_refused_naming_both(monkeypatch):
         rtf._check_torch()
     monkeypatch.setattr(torch, "__version__", "2.13.0+cu130")
     rtf._check_torch()
+

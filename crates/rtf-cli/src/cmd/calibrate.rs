@@ -4,11 +4,12 @@
 
 use anyhow::{bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use rtf_calib::calibfile::{CalibFile, Quality};
+use rtf_calib::calibfile::CalibFile;
 use rtf_calib::frames::{load_frames, Frame};
-use rtf_calib::optimize::{self, Recipe, Settings};
+use rtf_calib::optimize::{self, Recipe};
 use rtf_calib::quality::{Assessment, Verdict};
 use rtf_calib::rig::{OptimizerOverrides, Rig};
+use rtf_calib::run::{refuse_overwriting_inputs, CalibrateOptions, Calibrated, Prepared};
 use std::path::{Path, PathBuf};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -68,36 +69,21 @@ pub struct Args {
     pub format: FormatArg,
 }
 
-/// Refuses outputs that would overwrite the rig description or any input it lists.
-fn refuse_overwriting_inputs(rig_path: &Path, rig: &Rig, outputs: &[(&str, &Path)]) -> Result<()> {
-    let mut inputs = vec![("the rig description".to_string(), rig_path.to_path_buf())];
-    for (i, f) in rig.frames.iter().enumerate() {
-        let mut add = |what: &str, p: &Option<PathBuf>| {
-            if let Some(p) = p {
-                inputs.push((format!("frames[{i}].{what} of the rig"), p.clone()));
-            }
-        };
-        add("rgb", &Some(f.rgb.clone()));
-        add("thermal", &Some(f.thermal.clone()));
-        add("depth", &f.depth);
-        add("rgb_right", &f.rgb_right);
-    }
-    for (flag, out) in outputs {
-        let target = rtf_core::resolved(out);
-        if let Some((what, _)) = inputs.iter().find(|(_, p)| rtf_core::resolved(p) == target) {
-            bail!(
-                "{flag} {}: is {what} ({}); refusing to overwrite an input, choose another path",
-                out.display(),
-                rig_path.display()
-            );
-        }
-    }
-    Ok(())
-}
-
 pub fn run(args: Args) -> Result<()> {
     let (rig_path, out) = (args.rig.clone(), args.out.clone());
     tch::set_num_threads(args.threads.max(1));
+    let options = CalibrateOptions {
+        recipe: match args.recipe {
+            RecipeArg::Default => Recipe::Default,
+            RecipeArg::Paper => Recipe::Paper,
+        },
+        overrides: OptimizerOverrides {
+            iterations: args.iterations,
+            batch_size: args.batch_size,
+            learning_rate: args.learning_rate,
+        },
+        seed: args.seed,
+    };
     let rig = Rig::load(&rig_path)?;
     let camchain = rtf_calib::kalibr::camchain_path(&out);
     let mut outputs: Vec<(&str, &Path)> = vec![("--out", out.as_path())];
@@ -108,39 +94,31 @@ pub fn run(args: Args) -> Result<()> {
         outputs.push(("--format kalibr (camchain)", camchain.as_path()));
     }
     refuse_overwriting_inputs(&rig_path, &rig, &outputs)?;
-    let recipe = match args.recipe {
-        RecipeArg::Default => Recipe::Default,
-        RecipeArg::Paper => Recipe::Paper,
-    };
-    let flags = OptimizerOverrides {
-        iterations: args.iterations,
-        batch_size: args.batch_size,
-        learning_rate: args.learning_rate,
-    };
-    let settings = Settings::resolve(recipe, flags, rig.optimizer, args.seed)?;
-    let frames = load_frames(&rig, &mut |w| eprintln!("warning: {w}"))?;
+    let prepared = Prepared::new(&rig_path, rig, &options, &mut |w| eprintln!("warning: {w}"))?;
+    let (settings, frames) = (&prepared.settings, &prepared.frames);
     let stereo = frames.iter().filter(|f| f.depth_from_stereo).count();
     eprintln!(
         "{} usable frames ({} with stereo depth); recipe {:?}: iterations {}, batch size {}, learning rate {}",
         frames.len(),
         stereo,
-        recipe,
+        options.recipe,
         settings.iterations,
         settings.batch_size,
         settings.learning_rate
     );
     let start = std::time::Instant::now();
-    let outcome = calibrate_with_progress(&rig, &frames, &settings)?;
+    let calibrated = calibrate_with_progress(&prepared)?;
     let seconds = start.elapsed().as_secs_f64();
+    let outcome = &calibrated.outcome;
     if let Some(reason) = &outcome.stopped {
         eprintln!("warning: stopped early: {reason}");
     }
-    write_calibration(&args, &rig, &outcome, &camchain, seconds)?;
+    write_calibration(&args, &prepared.rig, &calibrated, &camchain, seconds)?;
     if let Some(dir) = &args.overlay {
         let written = rtf_calib::overlay::write_overlays(
             dir,
-            &rig.rgb,
-            &frames,
+            &prepared.rig.rgb,
+            frames,
             &outcome.initial,
             &outcome.calibration,
         )?;
@@ -151,7 +129,7 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     if let Some(truth_path) = &args.ground_truth {
-        compare_with_truth(&args, truth_path, &rig, frames, &outcome, seconds)?;
+        compare_with_truth(&args, truth_path, &prepared.rig, frames, outcome, seconds)?;
     }
     match &outcome.assessment {
         Some(a) => report_verdict(a, &out),
@@ -159,12 +137,9 @@ pub fn run(args: Args) -> Result<()> {
     }
 }
 
-/// [`rtf_calib::solve::calibrate`] under a progress bar (stage, step, loss, ETA).
-fn calibrate_with_progress(
-    rig: &Rig,
-    frames: &[Frame],
-    settings: &Settings,
-) -> Result<rtf_calib::solve::Outcome> {
+/// The library's calibration ([`Prepared::calibrate`]) under a progress bar (stage, step,
+/// loss, ETA).
+fn calibrate_with_progress(prepared: &Prepared) -> Result<Calibrated> {
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template(
@@ -172,30 +147,24 @@ fn calibrate_with_progress(
         )
         .expect("valid template"),
     );
-    let outcome = rtf_calib::solve::calibrate(rig, frames, settings, &mut |p| {
+    let calibrated = prepared.calibrate(&mut |p| {
         bar.set_length(p.total as u64);
         bar.set_position(p.step as u64);
         bar.set_message(format!("{} loss {:.6}", p.stage, p.loss));
     })?;
     bar.finish_and_clear();
-    Ok(outcome)
+    Ok(calibrated)
 }
 
 /// Writes calib.yaml (and the Kalibr camchain if asked) and prints the solution.
 fn write_calibration(
     args: &Args,
     rig: &Rig,
-    outcome: &rtf_calib::solve::Outcome,
+    calibrated: &Calibrated,
     camchain: &Path,
     seconds: f64,
 ) -> Result<()> {
-    let quality = Quality {
-        loss: outcome.loss,
-        frames_used: outcome.frames_used,
-        iterations: outcome.iterations,
-        assessment: outcome.assessment.clone(),
-    };
-    let file = CalibFile::from_calibration(&outcome.calibration, Some(quality));
+    let (outcome, file) = (&calibrated.outcome, &calibrated.file);
     file.save(&args.out)?;
     if args.format == FormatArg::Kalibr {
         rtf_calib::kalibr::Camchain::new(
@@ -230,17 +199,21 @@ fn compare_with_truth(
     args: &Args,
     truth_path: &Path,
     rig: &Rig,
-    frames: Vec<Frame>,
+    frames: &[Frame],
     outcome: &rtf_calib::solve::Outcome,
     seconds: f64,
 ) -> Result<()> {
     let truth = CalibFile::load(truth_path)?.calibration();
+    let loaded;
     let eval_frames = match &args.eval_rig {
-        Some(path) => load_frames(&Rig::load(path)?, &mut |w| eprintln!("warning: {w}"))?,
+        Some(path) => {
+            loaded = load_frames(&Rig::load(path)?, &mut |w| eprintln!("warning: {w}"))?;
+            &loaded
+        }
         None => frames,
     };
-    let before = optimize::mean_map_error(rig, &eval_frames, &outcome.initial, &truth);
-    let after = optimize::mean_map_error(rig, &eval_frames, &outcome.calibration, &truth);
+    let before = optimize::mean_map_error(rig, eval_frames, &outcome.initial, &truth);
+    let after = optimize::mean_map_error(rig, eval_frames, &outcome.calibration, &truth);
     let (deg, metres) = outcome.calibration.extrinsic.difference(&truth.extrinsic);
     println!(
         "vs ground truth: pixel-map error {after:.4} px (initial {before:.3} px); rotation error {deg:.4} deg; translation error {:.3} cm; time {seconds:.1} s",

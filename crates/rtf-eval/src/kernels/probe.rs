@@ -344,6 +344,7 @@ mod tests {
 
     #[test]
     fn the_conv3x3_measurement_times_both_ways() {
+        let _memory = crate::memory_lock();
         let m = measure_conv3x3(rtf_models::winograd::Forms::All).unwrap();
         assert!(m.fp32_s > 0.0 && m.bf16_s > 0.0, "{m:?}");
     }

@@ -34,6 +34,7 @@ def _check_torch():
 _check_torch()
 
 from ._rtf import (  # noqa: E402  (torch first: it loads the libraries the extension links)
+    CalibrationError,
     DataError,
     Dataset,
     Error,
@@ -109,7 +110,50 @@ def evaluate(net, data, split="test", sliding=False, scales=None, flip=False,
     return Scores(_json.loads(record))
 
 
+class Calibration:
+    """The calib.yaml ``rtf calibrate`` writes: ``yaml`` (its text, byte for byte), ``K`` (the
+    thermal camera's 3x3 intrinsics), ``distortion``, ``rotation`` (3x3, RGB to thermal),
+    ``translation`` (metres), ``loss``, ``verdict`` (``ok``, ``uncertain`` or ``failed``) and
+    its ``reason``, ``map_error_bound_px`` (the error bound, pixels; None where the data leave
+    the map free) and ``assessment`` (the whole quality record); ``json`` is the whole file as
+    values."""
+
+    def __init__(self, yaml, record):
+        self.yaml = yaml
+        self.json = record
+        t = record["thermal"]
+        self.K = [[t["fx"], 0.0, t["cx"]], [0.0, t["fy"], t["cy"]], [0.0, 0.0, 1.0]]
+        self.distortion = t["distortion"]
+        self.rotation = record["extrinsic"]["rotation"]
+        self.translation = record["extrinsic"]["translation"]
+        # calib.yaml's `quality`: the solver's figures and, flattened in, the assessment.
+        quality = record.get("quality") or {}
+        self.loss = quality.get("loss")
+        self.assessment = quality or None
+        self.verdict = quality.get("verdict")
+        self.reason = quality.get("reason")
+        self.map_error_bound_px = quality.get("map_error_bound_px")
+
+    def __repr__(self):
+        return f"rtf.Calibration(verdict={self.verdict!r}, loss={self.loss})"
+
+
+def calibrate(rig, out=None, recipe="default", iterations=None, batch_size=None,
+              learning_rate=None, seed=0, threads=1):
+    """Calibrates the thermal camera of the rig described by ``rig`` (a rig.yaml) against its
+    RGB camera, without a target, as ``rtf calibrate --rig RIG`` does with the same options
+    (``recipe``: "default" or "paper"; ``iterations``, ``batch_size``, ``learning_rate``
+    override the recipe's and the rig file's; ``seed``; ``threads``: libtorch CPU threads).
+    Writes calib.yaml to ``out`` if given (atomically; never over the rig or an input it
+    lists). Returns :class:`Calibration`, equal to the file the command writes."""
+    yaml, record = _rtf.calibrate_yaml(str(rig), None if out is None else str(out), recipe,
+                                       iterations, batch_size, learning_rate, seed, threads)
+    return Calibration(yaml, _json.loads(record))
+
+
 __all__ = [
+    "Calibration",
+    "CalibrationError",
     "DataError",
     "Dataset",
     "Error",
@@ -125,6 +169,7 @@ __all__ = [
     "TORCH_VERSION",
     "TorchError",
     "__version__",
+    "calibrate",
     "evaluate",
     "load_network",
     "models",

@@ -18,6 +18,33 @@ class ModelError(Error): ...
 class EvalError(Error): ...
 class InputError(Error): ...
 class TorchError(Error): ...
+class CalibrationError(Error): ...
+
+class Calibration:
+    yaml: str
+    json: dict[str, Any]
+    K: list[list[float]]
+    distortion: list[float]
+    rotation: list[list[float]]
+    translation: list[float]
+    loss: Optional[float]
+    verdict: Optional[str]
+    reason: Optional[str]
+    map_error_bound_px: Optional[float]
+    assessment: Optional[dict[str, Any]]
+
+def calibrate(
+    rig: _Path,
+    out: Optional[_Path] = None,
+    recipe: str = "default",
+    iterations: Optional[int] = None,
+    batch_size: Optional[int] = None,
+    learning_rate: Optional[float] = None,
+    seed: int = 0,
+    threads: int = 1,
+) -> Calibration:
+    """Calibrates the rig's thermal camera as `rtf calibrate --rig RIG` does; the calib.yaml it
+    writes (to `out` too, if given)."""
 
 def models() -> list[dict[str, Any]]:
     """One record per network: name, parameters, megabytes, inputs, classes."""
