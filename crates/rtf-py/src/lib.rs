@@ -11,6 +11,7 @@ mod evaluate;
 mod loader;
 mod methods;
 mod network;
+mod run;
 mod tensor;
 
 use pyo3::prelude::*;
@@ -39,5 +40,6 @@ fn _rtf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(dataset::open_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(evaluate::evaluate_json, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate::calibrate_yaml, m)?)?;
+    m.add_function(wrap_pyfunction!(run::read_run, m)?)?;
     Ok(())
 }

@@ -9,6 +9,7 @@ library as the ``rtf`` command (numbers equal to the CLI's, bit for bit).
 """
 
 import json as _json
+import pathlib as _pathlib
 
 # The extension links libtorch of exactly this version (tch 0.26): another torch crashes
 # inside libtorch rather than failing, so it is refused here, before the extension loads.
@@ -110,6 +111,34 @@ def evaluate(net, data, split="test", sliding=False, scales=None, flip=False,
     return Scores(_json.loads(record))
 
 
+class Run:
+    """A training run folder read back (``rtf train --out DIR``): ``dir``, ``config`` (its
+    config.json, None before the first step), ``epochs`` (log.jsonl: one dict per epoch with
+    every loss term and the validation scores), ``stages`` (a multi-stage recipe's stage
+    names; ``run.stage(name)`` is that stage's Run), and the weights files ``best``,
+    ``final`` and ``weights`` (the validated best where there is one, else the final)."""
+
+    def __init__(self, path):
+        record = _json.loads(_rtf.read_run(str(path)))
+        path_of = lambda p: None if p is None else _pathlib.Path(p)  # noqa: E731
+        self.dir = _pathlib.Path(record["dir"])
+        self.config = record["config"]
+        self.epochs = record["epochs"]
+        self.stages = record["stages"]
+        self.best = path_of(record["weights"]["best"])
+        self.final = path_of(record["weights"]["final"])
+        self.weights = path_of(record["weights"]["selected"])
+
+    def stage(self, name):
+        """The Run of stage ``name`` of a multi-stage recipe."""
+        if name not in self.stages:
+            raise DataError(f"{self.dir}: no stage {name!r} (stages: {', '.join(self.stages)})")
+        return Run(self.dir / name)
+
+    def __repr__(self):
+        return f"rtf.Run({self.dir!r}, epochs={len(self.epochs)})"
+
+
 class Calibration:
     """The calib.yaml ``rtf calibrate`` writes: ``yaml`` (its text, byte for byte), ``K`` (the
     thermal camera's 3x3 intrinsics), ``distortion``, ``rotation`` (3x3, RGB to thermal),
@@ -164,6 +193,7 @@ __all__ = [
     "Loader",
     "ModelError",
     "Network",
+    "Run",
     "Scores",
     "Split",
     "TORCH_VERSION",

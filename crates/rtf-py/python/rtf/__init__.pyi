@@ -1,6 +1,7 @@
 """Type stubs of the package `rtf` (the extension rtf._rtf and the Python layer)."""
 
 from os import PathLike
+from pathlib import Path
 from typing import Any, Iterator, Optional, Sequence, Union
 
 import numpy as np
@@ -19,6 +20,18 @@ class EvalError(Error): ...
 class InputError(Error): ...
 class TorchError(Error): ...
 class CalibrationError(Error): ...
+
+class Run:
+    dir: Path
+    config: Optional[dict[str, Any]]
+    epochs: list[dict[str, Any]]
+    stages: list[str]
+    best: Optional[Path]
+    final: Optional[Path]
+    weights: Optional[Path]
+    def __init__(self, path: _Path) -> None:
+        """A training run folder read back: config, per-epoch log, stages, weights files."""
+    def stage(self, name: str) -> "Run": ...
 
 class Calibration:
     yaml: str
