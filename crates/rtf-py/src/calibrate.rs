@@ -54,7 +54,8 @@ pub fn calibrate_yaml(
         )));
     }
     py.allow_threads(|| {
-        tch::set_num_threads(threads);
+        // libtorch's thread count is the process's: set for the calibration, then restored.
+        let _threads = Threads::set(threads);
         let loaded = Rig::load(&rig)?;
         if let Some(out) = &out {
             refuse_overwriting_inputs(&rig, &loaded, &[("out", out.as_path())])?;
@@ -68,6 +69,23 @@ pub fn calibrate_yaml(
     })
     .py()
     .and_then(|file| texts(&file, out.as_deref()))
+}
+
+/// libtorch's intra-op thread count set for a scope, restored when dropped.
+struct Threads(i32);
+
+impl Threads {
+    fn set(threads: i32) -> Self {
+        let before = tch::get_num_threads();
+        tch::set_num_threads(threads);
+        Threads(before)
+    }
+}
+
+impl Drop for Threads {
+    fn drop(&mut self) {
+        tch::set_num_threads(self.0);
+    }
 }
 
 fn texts(file: &rtf_calib::calibfile::CalibFile, out: Option<&Path>) -> PyResult<(String, String)> {

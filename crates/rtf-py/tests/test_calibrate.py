@@ -1,6 +1,7 @@
 """`rtf.calibrate` against `rtf calibrate`: the same calib.yaml, and the same refusals."""
 
 import pytest
+import torch
 
 import rtf
 
@@ -12,7 +13,9 @@ def test_calibrate_writes_what_rtf_calibrate_writes(run_rtf, tmp_path):
     cli = tmp_path / "cli.yaml"
     run_rtf("calibrate", "--rig", rig / "rig.yaml", "--out", cli, "--iterations", "3")
     ours = tmp_path / "py.yaml"
+    threads = torch.get_num_threads()
     result = rtf.calibrate(rig / "rig.yaml", out=ours, iterations=3)
+    assert torch.get_num_threads() == threads, "the process's thread count is restored"
     assert result.yaml == cli.read_text() == ours.read_text()
     assert result.verdict in ("ok", "uncertain", "failed") and result.reason
     assert result.verdict in cli.read_text()
