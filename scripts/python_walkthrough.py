@@ -8,7 +8,7 @@ synthetic MF-layout set (`rtf synth`, made into --out unless --data names a labe
 prediction half runs on the MSRS pair (vi/NAME.png RGB, ir/NAME.png 8-bit thermal).
 
 Usage: .venv/bin/python scripts/python_walkthrough.py --out DIR [--data ROOT] [--rtf target/release/rtf]
-       [--msrs /work/shared/data/msrs-samples] [--steps 4]
+       [--msrs ../shared/data/msrs-samples] [--steps 4]
 Needs the wheel installed (`cargo xtask wheel`, `pip install target/wheels/rtf-*.whl`).
 """
 import argparse
@@ -29,7 +29,8 @@ def args():
     p.add_argument("--out", required=True, help="new folder for the outputs")
     p.add_argument("--data", help="a labelled dataset root (default: rtf synth into --out)")
     p.add_argument("--rtf", default="target/release/rtf", help="the rtf binary (for rtf synth)")
-    p.add_argument("--msrs", default="/work/shared/data/msrs-samples")
+    shared = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared")
+    p.add_argument("--msrs", default=os.path.join(shared, "data", "msrs-samples"))
     p.add_argument("--steps", type=int, default=4)
     return p.parse_args()
 

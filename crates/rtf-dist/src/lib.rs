@@ -7,7 +7,7 @@
 //! parameters are broadcast once, every rank computes gradients on its own shard of the batch,
 //! gradients are averaged by bucketed all-reduce (flat buckets of about 25 MiB, DDP's default)
 //! and every rank then takes the same optimiser step. Processes are launched as PyTorch users
-//! launch them (`torchrun`, Slurm, a Kubernetes PyTorchJob): [`DistEnv::from_env`] reads
+//! launch them (`torchrun`, Slurm, a Kubernetes PyTorchJob): [`DistEnv::from_vars`] reads
 //! `RANK`, `LOCAL_RANK`, `WORLD_SIZE`, `MASTER_ADDR` and `MASTER_PORT`.
 //!
 //! Every collective runs under a timeout: a dead peer gives an error, never a hang.
@@ -91,13 +91,9 @@ pub struct DistEnv {
 }
 
 impl DistEnv {
-    /// Reads the launcher's variables. `Ok(None)` when `WORLD_SIZE` is unset (a plain run);
-    /// an error naming the variable when one is missing or malformed.
-    pub fn from_env() -> Result<Option<Self>, DistError> {
-        Self::from_vars(|name| std::env::var(name).ok())
-    }
-
-    /// [`Self::from_env`] over any variable lookup (for tests).
+    /// The launcher's variables through `var` (a binary passes its environment:
+    /// `|name| std::env::var(name).ok()`). `Ok(None)` when `WORLD_SIZE` is unset (a plain
+    /// run); an error naming the variable when one is missing or malformed.
     pub fn from_vars(var: impl Fn(&str) -> Option<String>) -> Result<Option<Self>, DistError> {
         let Some(world) = var("WORLD_SIZE") else {
             return Ok(None);

@@ -3,6 +3,7 @@
 //! `rtf_eval::predict::frame_logits`), the forward pass on torch tensors (no copy in or out),
 //! its classes and palette. The GIL is released while the network runs.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
@@ -54,22 +55,23 @@ pub struct PyNetwork {
 }
 
 /// The kernels a fold for `precision` takes: the library's choice for any caller
-/// (`rtf_eval::kernels`), under the policy and probe cache of this process's environment, as
-/// `rtf predict` makes it (`RTF_WINOGRAD`, `RTF_BF16_WINOGRAD`, `RTF_CACHE_DIR`; the package
-/// is this process's edge). A bad variable is refused naming it.
+/// (`rtf_eval::kernels`), under the policy and probe cache that `environ` (the Python layer
+/// passes `os.environ`: it is this process's edge) gives, as `rtf predict` makes it
+/// (`RTF_WINOGRAD`, `RTF_BF16_WINOGRAD`, `RTF_CACHE_DIR`). A bad variable is refused naming it.
 fn inference_kernels(
     precision: Option<Precision>,
     device: tch::Device,
+    environ: &HashMap<String, String>,
 ) -> PyResult<InferenceKernels> {
-    let policy =
-        KernelPolicy::from_vars(|var| std::env::var(var).ok()).map_err(|e| input(e.to_string()))?;
+    let policy = KernelPolicy::from_vars(|var| environ.get(var).cloned())
+        .map_err(|e| input(e.to_string()))?;
     let Some(precision) = precision else {
         return Ok(InferenceKernels {
             winograd: policy.winograd,
             ..InferenceKernels::unmeasured()
         });
     };
-    let probe = Probe::from_vars(|var| std::env::var_os(var));
+    let probe = Probe::from_vars(|var| environ.get(var).map(std::ffi::OsString::from));
     let (kernels, warnings) =
         rtf_eval::kernels::inference_kernels(&policy, precision, device, &probe);
     for warning in warnings {
@@ -120,7 +122,7 @@ fn parse_precision(text: Option<&str>) -> PyResult<Option<Precision>> {
 /// Loads network `name` (see `rtf.models()`) with `weights` (a safetensors file, reference
 /// names; None: random weights), as `rtf predict` loads it.
 #[pyfunction]
-#[pyo3(signature = (name, weights=None, classes=None, device="cpu", precision=None))]
+#[pyo3(signature = (name, weights=None, classes=None, device="cpu", precision=None, environ=None))]
 pub fn load_network(
     py: Python<'_>,
     name: &str,
@@ -128,13 +130,14 @@ pub fn load_network(
     classes: Option<String>,
     device: &str,
     precision: Option<&str>,
+    environ: Option<HashMap<String, String>>,
 ) -> PyResult<PyNetwork> {
     let device = parse_device(device)?;
     let precision = parse_precision(precision)?;
     let trained = weights.as_deref().map(trained_on).transpose()?.flatten();
     let path = weights.as_deref().unwrap_or(Path::new(""));
     let classes = predict::class_set(classes.as_deref(), name, path, trained.as_ref()).py()?;
-    let kernels = inference_kernels(precision, device)?;
+    let kernels = inference_kernels(precision, device, &environ.unwrap_or_default())?;
     let n = classes.len() as i64;
     let cfg = ModelConfig::from_name(name, n).py()?;
     let (held, inputs) = py

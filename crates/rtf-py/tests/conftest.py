@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[3]
-SHARED = Path(os.environ.get("RTF_SHARED_DATA", "/work/shared/data"))
+# The project's shared real data sits beside the repository (../shared/data), as the Rust
+# tests find it; RTF_SHARED_DATA points elsewhere.
+SHARED = Path(os.environ.get("RTF_SHARED_DATA", ROOT.parent / "shared" / "data"))
 MF_SAMPLES = SHARED / "mf-samples"
 
 

@@ -356,7 +356,7 @@ fn ignore_broken_pipes() {
 /// Under a launcher (torchrun, Slurm, a PyTorchJob: `WORLD_SIZE` set), joins the job's c10d
 /// group (rtf_train::ddp::join), this rank's broken pipes ignored first.
 fn join_job(cfg: &mut RunConfig, timeout_s: u64) -> Result<Group> {
-    let Some(env) = rtf_dist::DistEnv::from_env()? else {
+    let Some(env) = rtf_dist::DistEnv::from_vars(|name| std::env::var(name).ok())? else {
         return Ok(None);
     };
     ignore_broken_pipes();

@@ -9,6 +9,7 @@ library as the ``rtf`` command (numbers equal to the CLI's, bit for bit).
 """
 
 import json as _json
+import os as _os
 import pathlib as _pathlib
 
 # The extension links libtorch of exactly this version (tch 0.26): another torch crashes
@@ -49,11 +50,20 @@ from ._rtf import (  # noqa: E402  (torch first: it loads the libraries the exte
     Split,
     TorchError,
     __version__,
-    load_network,
     models,
     open_dataset,
 )
 from . import _rtf  # noqa: E402
+
+
+def load_network(name, weights=None, classes=None, device="cpu", precision=None):
+    """Loads network ``name`` (see ``rtf.models()``) with ``weights`` (a safetensors file,
+    reference names; None: random weights, seeded by ``torch.manual_seed``) as ``rtf predict``
+    loads it: ``classes`` (a class set's name, else the weights' record), ``device``,
+    ``precision`` (None: the plain path; "fp32", "bf16", "fp16" on CUDA: the fast path, its
+    kernels chosen as ``rtf predict`` chooses them under ``RTF_WINOGRAD``,
+    ``RTF_BF16_WINOGRAD`` and the measurement cache ``RTF_CACHE_DIR``, read here)."""
+    return _rtf.load_network(name, weights, classes, device, precision, dict(_os.environ))
 
 
 class Scores:
