@@ -26,10 +26,9 @@
 //!
 //! Before bf16 training a fourth, [`Work::Conv3x3Training`], times such a layer's forward and
 //! backward on fp32 kernels over bf16 operands against oneDNN's bf16 kernels and so picks the
-//! run's convolution kernels ([`choose_training_convolutions`], crate::bf16_kernels).
+//! run's convolution kernels ([`training_choice`], rtf_train::kernels).
 
 use anyhow::{Context, Result};
-use rtf_amp::Bf16Convolutions;
 use rtf_eval::kernels::probe::{Measured, Probe};
 use rtf_eval::kernels::KernelPolicy;
 use rtf_models::fast::InferenceKernels;
@@ -43,7 +42,7 @@ pub enum Work {
     /// One wide 3×3 convolution's forward and backward over bf16 operands, as training runs
     /// it: fp32 kernels (rtf's emulated convolutions) against oneDNN's bf16 kernels. Decides
     /// whether bf16 training takes [`rtf_amp::Bf16Convolutions::Mixed`]
-    /// ([`choose_training_convolutions`]).
+    /// ([`training_choice`]).
     Conv3x3Training,
 }
 
@@ -81,7 +80,7 @@ pub fn probe() -> Probe {
 }
 
 /// What decides which kernels `work` runs besides the machine ([`Probe::key`]): for
-/// [`Work::Training`], the bf16 convolutions in force (crate::bf16_kernels has made the run's
+/// [`Work::Training`], the bf16 convolutions in force (rtf_train::kernels has made the run's
 /// choice by then); for [`Work::Inference`], the kernels of its wide 3×3 convolutions.
 pub fn key(work: Work, inference: Option<&InferenceKernels>) -> String {
     let what = match (work, rtf_amp::cpu_bf16_convolutions(), inference) {
@@ -140,7 +139,9 @@ pub fn measure(work: Work) -> Result<Measured> {
     let (fp32_s, bf16_s) = match work {
         Work::Inference => (inference_s(false)?, inference_s(true)?),
         Work::Training => (training_s(false)?, training_s(true)?),
-        Work::Conv3x3Training => (conv3x3_training_s(true), conv3x3_training_s(false)),
+        Work::Conv3x3Training => {
+            return rtf_eval::kernels::probe::measure_conv3x3_training().map_err(anyhow::Error::msg)
+        }
     };
     Ok(Measured::now(fp32_s, bf16_s))
 }
@@ -192,75 +193,13 @@ fn training_s(bf16: bool) -> Result<f64> {
     Ok(rtf_train::bench::bench_train(&opts)?.step_s)
 }
 
-/// Seconds per forward and backward of [`Work::Conv3x3Training`]'s convolution over bf16
-/// operands, on fp32 kernels (`emulated`, as rtf's emulated convolutions run it) or oneDNN's
-/// bf16 kernels; channels-last, as bf16 training lays its maps out; median of 5 after 2.
-fn conv3x3_training_s(emulated: bool) -> f64 {
-    use rtf_models::layers::{bf16_emulated_convolution, to_channels_last};
-    use rtf_models::onednn::Geometry;
-    use tch::{Device, Kind, Tensor};
-    let bf16 = (Kind::BFloat16, Device::Cpu);
-    let xs = to_channels_last(&Tensor::randn([2, 256, 60, 80], bf16)).set_requires_grad(true);
-    let w =
-        to_channels_last(&(Tensor::randn([256, 256, 3, 3], bf16) * 0.02)).set_requires_grad(true);
-    let times: Vec<f64> = (0..7)
-        .map(|_| {
-            let start = std::time::Instant::now();
-            let ys = match emulated {
-                true => bf16_emulated_convolution(&xs, &w, None, Geometry::SAME_3X3),
-                false => xs.conv2d(&w, None::<Tensor>, [1, 1], [1, 1], [1, 1], 1),
-            };
-            ys.sum(Kind::Float).backward();
-            start.elapsed().as_secs_f64()
-        })
-        .skip(2)
-        .collect();
-    rtf_eval::speed::median_min(&times).0
-}
-
-/// Before bf16 training on the CPU: where bf16 is native and
-/// [`rtf_amp::BF16_CONVOLUTIONS_VAR`] is unset, [`rtf_amp::Bf16Convolutions::Mixed`] if the
-/// cached [`Work::Conv3x3Training`] measurement found fp32 kernels faster for a wide 3×3 layer
-/// here (measured first where there is none; with AMX capped off on an Intel Xeon, RTFNet-50's
-/// bf16 step ran 1.12–1.17× faster and MFNet's 1.12× so, docs/src/benchmarks.md), else native;
-/// with the line that says a mixed choice. `None` where nothing is measured (the choice in force
-/// stands); a failed measurement is a warning, and the bf16 kernels run.
-pub fn choose_training_convolutions() -> Option<(Bf16Convolutions, Option<String>)> {
-    if rtf_amp::bf16_convolutions_set_by_env() || rtf_amp::cpu_has_native_bf16() != Some(true) {
-        return None;
-    }
-    match measured(Work::Conv3x3Training, None) {
-        // `fp32_s` is the emulated layer's: below 1, the fp32 kernels were the faster.
-        Ok((m, cache)) if m.speedup() < 1.0 => Some((
-            Bf16Convolutions::Mixed,
-            Some(mixed_choice_message(&m, cache.as_deref())),
-        )),
-        Ok(_) => Some((Bf16Convolutions::Native, None)),
-        Err(e) => Some((
-            Bf16Convolutions::Native,
-            Some(format!(
-                "warning: could not measure which bf16 convolutions train faster on this CPU \
-                 ({e:#}); oneDNN's bf16 kernels run"
-            )),
-        )),
-    }
-}
-
-/// The line that says bf16 training runs its spatial convolutions on fp32 kernels.
-fn mixed_choice_message(m: &Measured, cache: Option<&Path>) -> String {
-    let cached = cache.map_or("not cached".to_string(), |p| {
-        format!("cached in {}", p.display())
-    });
-    format!(
-        "bf16 training runs its 3x3 and larger convolutions on fp32 kernels over bf16 operands \
-         here ({}=mixed): {} took {:.1} ms so against {:.1} ms on oneDNN's bf16 kernels (bf16 \
-         operands, float sums either way; {cached}; {}=native|emulated|mixed decides instead)",
-        rtf_amp::BF16_CONVOLUTIONS_VAR,
-        Work::Conv3x3Training.workload(),
-        1000.0 * m.fp32_s,
-        1000.0 * m.bf16_s,
-        rtf_amp::BF16_CONVOLUTIONS_VAR
-    )
+/// Before bf16 training on the CPU: the run's convolution kernels chosen by the cached
+/// [`Work::Conv3x3Training`] measurement (measured first, in a child process, where there is
+/// none; rtf_train::kernels::choose_training_convolutions says when it decides).
+pub fn training_choice() -> Option<rtf_train::kernels::Choice> {
+    rtf_train::kernels::choose_training_convolutions(|| {
+        measured(Work::Conv3x3Training, None).map_err(|e| format!("{e:#}"))
+    })
 }
 
 /// The warning for a measurement, if bf16 measured slower than fp32.
@@ -320,18 +259,5 @@ mod tests {
             slower_message(Work::Inference, &m(0.060, 0.060), None),
             None
         );
-    }
-
-    #[test]
-    fn a_mixed_choice_is_said_with_both_times_and_the_way_to_decide_instead() {
-        let line = mixed_choice_message(&m(0.120, 0.180), Some(Path::new("/c/p.json")));
-        assert!(
-            line.contains("forward and backward took 120.0 ms so against 180.0 ms"),
-            "{line}"
-        );
-        assert!(
-            line.contains("cached in /c/p.json") && line.contains("(RTF_BF16_CONVOLUTIONS=mixed)")
-        );
-        assert!(!line.contains('\n'));
     }
 }

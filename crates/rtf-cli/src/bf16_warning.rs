@@ -71,7 +71,7 @@ pub fn training(precision: Precision, device: Device) -> Option<String> {
         .or_else(|| training_message(bf16, device, &arithmetic, convolutions))
         .or_else(|| {
             // rtf's emulated convolutions forced on a native CPU already have their warning;
-            // native and mixed (crate::bf16_kernels) get the probe's.
+            // native and mixed (rtf_train::kernels) get the probe's.
             let emulated = convolutions == Some(Bf16Convolutions::Emulated);
             native_but_slower(
                 bf16 && !emulated,

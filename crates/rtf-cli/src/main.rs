@@ -1,7 +1,6 @@
 //! `rtf`: train, evaluate, run and calibrate RGB-thermal segmentation networks.
 
 mod allocator;
-mod bf16_kernels;
 mod bf16_probe;
 mod bf16_warning;
 mod cmd;

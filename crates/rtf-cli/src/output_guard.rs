@@ -4,7 +4,7 @@
 //! it, an `rtf eval --json` file — and not a file of a dataset the command was given.
 //! Replacing anything else takes `--overwrite`. New files may go anywhere (pseudo-labelling
 //! into an empty `Label/` folder keeps working); a training run's folder never is, or is
-//! inside, the dataset it trains on.
+//! inside, the dataset it trains on (rtf_train::launch::check_run_folder).
 
 use std::path::{Path, PathBuf};
 
@@ -89,24 +89,6 @@ pub fn written_by_rtf(path: &Path) -> bool {
     }
 }
 
-/// Refuses a training run folder that is, or is inside, the dataset root it trains on.
-pub fn check_run_folder(out: &Path, data: &Path) -> Result<()> {
-    // A dataset.yaml given as --data: its folder is the root.
-    let data = match data.is_file() {
-        true => data.parent().unwrap_or(Path::new(".")),
-        false => data,
-    };
-    let (run, root) = (resolved(out), resolved(data));
-    if data.is_dir() && run.starts_with(&root) {
-        bail!(
-            "--out {}: a run folder inside the dataset {} it trains on would mix the run's files with the data; choose a folder outside it (nothing was written)",
-            out.display(),
-            data.display()
-        );
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -154,15 +136,5 @@ mod tests {
             asked.check(&weights, "predict").is_err(),
             "an input, even with --overwrite"
         );
-    }
-
-    #[test]
-    fn a_run_folder_is_never_the_dataset_or_inside_it() {
-        let dir = tempfile::tempdir().unwrap();
-        let root = dir.path().join("data");
-        std::fs::create_dir_all(&root).unwrap();
-        assert!(check_run_folder(&root, &root).is_err());
-        assert!(check_run_folder(&root.join("runs/a"), &root).is_err());
-        check_run_folder(&dir.path().join("runs/a"), &root).unwrap();
     }
 }

@@ -9,11 +9,13 @@ pub mod host;
 pub mod input;
 pub mod npy;
 pub mod refusal;
+pub mod size;
 
 pub use classes::{ClassInfo, ClassSet, LabelValues};
 pub use fsutil::{resolved, write_atomic, write_bytes_atomic, AtomicWriteError};
 pub use input::InputConvention;
 pub use refusal::{refused, Refusal};
+pub use size::parse_size;
 
 use serde::{Deserialize, Serialize};
 

@@ -35,6 +35,13 @@ create_exception!(
 create_exception!(rtf, TorchError, Error, "An error libtorch reported (tch).");
 create_exception!(
     rtf,
+    TrainError,
+    Error,
+    "A training run that cannot be set up, continued or finished (rtf_train): a bad \
+     configuration, a run folder of another run, a diverged loss."
+);
+create_exception!(
+    rtf,
     CalibrationError,
     Error,
     "A rig, its images or a calibration that cannot be read, solved or written (rtf_calib)."
@@ -49,6 +56,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EvalError", py.get_type::<EvalError>())?;
     m.add("InputError", py.get_type::<InputError>())?;
     m.add("TorchError", py.get_type::<TorchError>())?;
+    m.add("TrainError", py.get_type::<TrainError>())?;
     m.add("CalibrationError", py.get_type::<CalibrationError>())?;
     Ok(())
 }
@@ -125,6 +133,37 @@ impl ToPy for rtf_calib::error::CalibError {
             rtf_calib::error::CalibError::Torch(e) => e.to_py(),
             other => CalibrationError::new_err(message(&other)),
         }
+    }
+}
+
+impl ToPy for rtf_train::TrainError {
+    fn to_py(self) -> PyErr {
+        use rtf_train::TrainError as E;
+        match self {
+            E::Data(e) => e.to_py(),
+            E::Model(e) => e.to_py(),
+            E::Eval(e) => e.to_py(),
+            other => TrainError::new_err(message(&other)),
+        }
+    }
+}
+
+impl ToPy for rtf_train::setup::SetupError {
+    fn to_py(self) -> PyErr {
+        use rtf_train::setup::SetupError as E;
+        match self {
+            E::Train(e) => e.to_py(),
+            E::Data(e) => e.to_py(),
+            E::Model(e) => e.to_py(),
+            E::Request(e) => InputError::new_err(message(&e)),
+            other => TrainError::new_err(message(&other)),
+        }
+    }
+}
+
+impl ToPy for rtf_amp::AmpError {
+    fn to_py(self) -> PyErr {
+        TrainError::new_err(message(&self))
     }
 }
 

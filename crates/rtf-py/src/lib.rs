@@ -13,6 +13,7 @@ mod methods;
 mod network;
 mod run;
 mod tensor;
+mod train;
 
 use pyo3::prelude::*;
 
@@ -41,5 +42,7 @@ fn _rtf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(evaluate::evaluate_json, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate::calibrate_yaml, m)?)?;
     m.add_function(wrap_pyfunction!(run::read_run, m)?)?;
+    m.add_function(wrap_pyfunction!(train::train, m)?)?;
+    m.add_function(wrap_pyfunction!(train::train_options, m)?)?;
     Ok(())
 }

@@ -56,3 +56,37 @@ def read_png(path):
     from PIL import Image
 
     return np.asarray(Image.open(path))
+
+
+def read_safetensors(path):
+    """The tensors of a safetensors file as {name: (dtype, shape, raw bytes)} and its
+    metadata (the format: an 8-byte little-endian header length, a JSON header, the data)."""
+    import json
+    import struct
+
+    blob = Path(path).read_bytes()
+    (n,) = struct.unpack("<Q", blob[:8])
+    header = json.loads(blob[8 : 8 + n])
+    data = blob[8 + n :]
+    meta = header.pop("__metadata__", {})
+    tensors = {
+        name: (h["dtype"], tuple(h["shape"]), data[h["data_offsets"][0] : h["data_offsets"][1]])
+        for name, h in header.items()
+    }
+    return tensors, meta
+
+
+def write_safetensors(path, tensors, meta):
+    """Writes {name: (dtype, shape, raw bytes)} and metadata as a safetensors file."""
+    import json
+    import struct
+
+    header, offset, chunks = {}, 0, []
+    for name, (dtype, shape, raw) in sorted(tensors.items()):
+        header[name] = {"dtype": dtype, "shape": list(shape), "data_offsets": [offset, offset + len(raw)]}
+        offset += len(raw)
+        chunks.append(raw)
+    header["__metadata__"] = meta
+    text = json.dumps(header).encode()
+    text += b" " * (-len(text) % 8)
+    Path(path).write_bytes(struct.pack("<Q", len(text)) + text + b"".join(chunks))

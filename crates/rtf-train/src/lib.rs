@@ -5,6 +5,8 @@
 //! ([`recipe`]). Every run folder has its full config before the first step, a JSON-lines log,
 //! atomic checkpoints, and `--resume` continues it exactly.
 
+#[cfg(feature = "cli")]
+pub mod args;
 pub mod bench;
 pub mod checkpoint;
 pub mod config;
@@ -12,11 +14,14 @@ pub mod ddp;
 pub mod error;
 pub mod folder;
 pub mod init;
+pub mod kernels;
 pub mod label_cache;
+pub mod launch;
 pub mod loss;
 pub mod optim;
 pub mod pipeline;
 pub mod procedure;
+pub mod progress;
 pub mod recipe;
 pub mod resume;
 pub mod run;

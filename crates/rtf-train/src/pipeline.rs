@@ -11,6 +11,7 @@ use std::sync::Arc;
 use crate::config::{PipelineConfig, RunConfig, StageConfig, TeacherRef, TrainConfig, WeightsRef};
 use crate::ddp::Ddp;
 use crate::error::TrainError;
+use crate::progress::{Epochs, InStage, Progress};
 use crate::run::{self as rundir, run_error, BEST_FILE, CONFIG_FILE, FINAL_FILE};
 use crate::trainer::{self, EpochRecord, TrainOutcome};
 
@@ -88,10 +89,23 @@ pub fn run_pipeline_distributed(
     stop: &AtomicBool,
     ddp: Option<Arc<Ddp>>,
 ) -> Result<PipelineOutcome, TrainError> {
+    let mut epochs = Epochs(|stage: &str, r: &EpochRecord| on_epoch(stage, r));
+    run_pipeline_observed(cfg, run_dir, resume, &mut epochs, stop, ddp)
+}
+
+/// [`run_pipeline_distributed`] reporting every step and epoch of every stage to `progress`.
+pub fn run_pipeline_observed(
+    cfg: &PipelineConfig,
+    run_dir: &Path,
+    resume: bool,
+    progress: &mut dyn Progress,
+    stop: &AtomicBool,
+    ddp: Option<Arc<Ddp>>,
+) -> Result<PipelineOutcome, TrainError> {
     let lock = open_run_folder(cfg, run_dir, resume, ddp.as_deref())?;
     let mut trained = Vec::new();
     for stage in &cfg.stages {
-        let Some(outcome) = train_stage(cfg, stage, run_dir, on_epoch, stop, ddp.clone())? else {
+        let Some(outcome) = train_stage(cfg, stage, run_dir, progress, stop, ddp.clone())? else {
             continue;
         };
         trained.push(stage.name.clone());
@@ -191,7 +205,7 @@ fn train_stage(
     cfg: &PipelineConfig,
     stage: &StageConfig,
     run_dir: &Path,
-    on_epoch: &mut dyn FnMut(&str, &EpochRecord),
+    progress: &mut dyn Progress,
     stop: &AtomicBool,
     ddp: Option<Arc<Ddp>>,
 ) -> Result<Option<TrainOutcome>, TrainError> {
@@ -222,14 +236,12 @@ fn train_stage(
             dir.display()
         );
     }
-    let outcome = trainer::train_distributed(
-        &resolved,
-        &dir,
-        started,
-        &mut |r| on_epoch(&stage.name, r),
-        stop,
-        ddp.clone(),
-    )?;
+    let mut in_stage = InStage {
+        stage: &stage.name,
+        inner: progress,
+    };
+    let outcome =
+        trainer::train_observed(&resolved, &dir, started, &mut in_stage, stop, ddp.clone())?;
     // Rank 0 has written the stage's weights before any rank reads them.
     barrier(ddp.as_deref())?;
     Ok(Some(outcome))

@@ -11,7 +11,7 @@ use std::path::Path;
 pub const STEP_LOG_FILE: &str = "steps.jsonl";
 
 /// One line of the step log: a step's total loss and its named terms or metrics.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize)]
 pub struct StepRecord {
     /// 0-based epoch.
     pub epoch: usize,
@@ -43,6 +43,8 @@ pub fn read(run_dir: &Path) -> std::io::Result<Vec<StepRecord>> {
 /// The open step log of rank 0 (other ranks write none).
 pub struct StepLog {
     file: Option<std::fs::File>,
+    /// The step recorded last (on every rank, written or not).
+    pub last: StepRecord,
 }
 
 impl StepLog {
@@ -50,7 +52,10 @@ impl StepLog {
     /// Errors are the file's (the caller names it: [`STEP_LOG_FILE`]).
     pub fn open(run_dir: &Path, is_root: bool, steps_done: u64) -> std::io::Result<Self> {
         if !is_root {
-            return Ok(Self { file: None });
+            return Ok(Self {
+                file: None,
+                last: StepRecord::default(),
+            });
         }
         let path = run_dir.join(STEP_LOG_FILE);
         let kept: String = match std::fs::read_to_string(&path) {
@@ -63,7 +68,10 @@ impl StepLog {
         };
         rtf_core::write_bytes_atomic(&path, kept.as_bytes()).map_err(std::io::Error::other)?;
         let file = std::fs::OpenOptions::new().append(true).open(&path)?;
-        Ok(Self { file: Some(file) })
+        Ok(Self {
+            file: Some(file),
+            last: StepRecord::default(),
+        })
     }
 
     /// Appends step `step` (0-based over the run) of `epoch` (0-based): its total loss and
@@ -75,11 +83,17 @@ impl StepLog {
         total: f64,
         terms: impl IntoIterator<Item = (&'a String, &'a f64)>,
     ) -> std::io::Result<()> {
+        self.last = StepRecord {
+            epoch,
+            step,
+            loss: total,
+            terms: terms.into_iter().map(|(k, v)| (k.clone(), *v)).collect(),
+        };
         let Some(file) = &mut self.file else {
             return Ok(());
         };
         let mut line = serde_json::json!({"epoch": epoch, "step": step, "loss": total});
-        for (name, value) in terms {
+        for (name, value) in &self.last.terms {
             line[name] = serde_json::json!(value);
         }
         writeln!(file, "{line}")

@@ -54,6 +54,7 @@ use crate::config::{
 use crate::ddp::Ddp;
 pub use crate::error::TrainError;
 use crate::procedure::{self, Procedure, StepBatches};
+use crate::progress::{Epochs, Progress};
 use crate::run::{self as rundir, run_error};
 pub use crate::run::{BEST_FILE, CHECKPOINT_FILE, CONFIG_FILE, FINAL_FILE, LOG_FILE};
 
@@ -296,12 +297,25 @@ pub fn train_distributed(
     stop: &AtomicBool,
     ddp: Option<Arc<Ddp>>,
 ) -> Result<TrainOutcome, TrainError> {
+    let mut epochs = Epochs(|_: &str, r: &EpochRecord| on_epoch(r));
+    train_observed(cfg, run_dir, resume, &mut epochs, stop, ddp)
+}
+
+/// [`train_distributed`] reporting every step and epoch to `progress`.
+pub fn train_observed(
+    cfg: &TrainConfig,
+    run_dir: &Path,
+    resume: bool,
+    progress: &mut dyn Progress,
+    stop: &AtomicBool,
+    ddp: Option<Arc<Ddp>>,
+) -> Result<TrainOutcome, TrainError> {
     cfg.validate()?;
     let device = cfg.device().map_err(TrainError::Config)?;
     let folder = RunFolder::open(FolderChecks::of(cfg), run_dir, resume, ddp.as_deref())?;
     let (mut run, streams) = Run::restore_or_start(cfg, folder, ddp, device)?;
     for epoch in run.state.epochs_done..cfg.schedule.epochs {
-        if let EpochEnd::Stopped = run.epoch(&streams, epoch, on_epoch, stop)? {
+        if let EpochEnd::Stopped = run.epoch(&streams, epoch, progress, stop)? {
             return run.stopped();
         }
     }
@@ -866,10 +880,10 @@ impl<'a> Run<'a> {
         &mut self,
         streams: &Streams,
         epoch: usize,
-        on_epoch: &mut dyn FnMut(&EpochRecord),
+        observer: &mut dyn Progress,
         stop: &AtomicBool,
     ) -> Result<EpochEnd, TrainError> {
-        let Some(progress) = self.train_steps(streams, epoch, stop)? else {
+        let Some(progress) = self.train_steps(streams, epoch, observer, stop)? else {
             return Ok(EpochEnd::Stopped);
         };
         let seconds = progress.elapsed().as_secs_f64();
@@ -888,7 +902,7 @@ impl<'a> Run<'a> {
             }
             (data_parallel, true) => {
                 self.save(epoch, &record)?;
-                on_epoch(&record);
+                observer.epoch("", &record);
                 match data_parallel {
                     true => self.stop_agreed,
                     false => stop.load(Ordering::Relaxed),
@@ -908,6 +922,7 @@ impl<'a> Run<'a> {
         &mut self,
         streams: &Streams,
         epoch: usize,
+        observer: &mut dyn Progress,
         stop: &AtomicBool,
     ) -> Result<Option<EpochProgress>, TrainError> {
         let steps_per_epoch = self.steps_per_epoch;
@@ -940,7 +955,16 @@ impl<'a> Run<'a> {
                 ),
                 None => None,
             };
-            let interrupted = self.step(epoch, step, batch, night_batch, &mut progress, stop)?;
+            let mut interrupted =
+                self.step(epoch, step, batch, night_batch, &mut progress, stop)?;
+            if self.folder.is_root {
+                observer.step("", &self.step_log.last);
+            }
+            // A stop asked while the observer ran (its exception, a signal) ends the run at this
+            // step; a data-parallel run stops only at a step every rank agreed on.
+            if self.ddp.is_none() {
+                interrupted |= stop.load(Ordering::Relaxed);
+            }
             bar.set_message(format!(
                 "loss {:.4} | {:.1} img/s",
                 progress.loss_sum / (step + 1) as f64,

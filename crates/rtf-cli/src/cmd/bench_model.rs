@@ -29,7 +29,7 @@ pub struct Args {
     #[arg(long, default_value = "nhwc")]
     pub layout: Layout,
     /// Input size as WIDTHxHEIGHT.
-    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    #[arg(long, default_value = "640x480", value_parser = rtf_core::parse_size)]
     pub size: (usize, usize),
     /// Untimed passes first.
     #[arg(long, default_value_t = 3)]
@@ -54,18 +54,6 @@ pub struct Args {
     /// cpu, ...} as JSON.
     #[arg(long)]
     pub json: bool,
-}
-
-/// `640x480` -> (640, 480).
-fn parse_size(text: &str) -> Result<(usize, usize), String> {
-    let parsed = text.split_once(['x', 'X']).and_then(|(w, h)| {
-        let w = w.trim().parse::<usize>().ok().filter(|&v| v > 0)?;
-        let h = h.trim().parse::<usize>().ok().filter(|&v| v > 0)?;
-        Some((w, h))
-    });
-    parsed.ok_or_else(|| {
-        format!("`{text}` is not WIDTHxHEIGHT with positive integers (e.g. 640x480)")
-    })
 }
 
 pub fn run(args: Args) -> Result<()> {

@@ -55,8 +55,13 @@ pub fn run(args: Args) -> Result<()> {
     }
     let optimizer = OptimizerConfig::paper_default(args.optimizer);
     let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
-    if let Some(line) = crate::bf16_kernels::settle_for_bench(args.precision, device)? {
-        eprintln!("{line}");
+    // The choice `rtf train` would make for a new run, made for this process.
+    if args.precision == Precision::Bf16 && device == tch::Device::Cpu {
+        let (_, line) =
+            rtf_train::kernels::measured_or_in_force(crate::bf16_probe::training_choice)?;
+        if let Some(line) = line {
+            eprintln!("{line}");
+        }
     }
     if let Some(warning) = crate::bf16_warning::training(args.precision, device) {
         eprintln!("warning: {warning}");

@@ -14,19 +14,7 @@ pub mod report;
 pub mod synth;
 pub mod train;
 
-/// Parses `WxH` (e.g. `640x480`) into (width, height).
-pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
-    let (w, h) = text
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("`{text}` is not WxH (e.g. 640x480)"))?;
-    let parse = |s: &str| s.trim().parse::<usize>().ok().filter(|&v| v > 0);
-    match (parse(w), parse(h)) {
-        (Some(w), Some(h)) => Ok((w, h)),
-        _ => Err(format!(
-            "`{text}` is not WxH with positive integers (e.g. 640x480)"
-        )),
-    }
-}
+pub use rtf_core::parse_size;
 
 /// A dataset root that `rtf train` / `rtf eval` read, opened once (rtf_data::dataset): MF,
 /// Freiburg Thermal, or a described layout (dataset.yaml, MSRS, PST900, FMB), the last
@@ -160,16 +148,4 @@ pub fn check_classes(
         t.check_data(weights, data, classes, rtf_data::trained_on::WEIGHTS_HINT)?;
     }
     Ok(trained)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sizes_parse() {
-        assert_eq!(parse_size("640x480"), Ok((640, 480)));
-        assert!(parse_size("640").is_err());
-        assert!(parse_size("0x4").is_err());
-    }
 }

@@ -1,222 +1,20 @@
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use anyhow::{bail, Context, Result};
-use rtf_train::config::{available_device, CriticInput, Precision, SelectMetric, TrainConfig};
-use rtf_train::setup::{NewRun, Overrides, TeacherArg};
-use rtf_train::{Modality, OptimizerKind, RunConfig};
+use anyhow::Result;
+use rtf_train::config::available_device;
+use rtf_train::launch::{Ended, Plan};
+use rtf_train::progress::Epochs;
+use rtf_train::RunConfig;
 
-use super::parse_size;
-
-#[derive(clap::Args)]
-pub struct Args {
-    /// A paper's recipe (`rtf recipes` lists them): procedure, networks, schedule, stages.
-    #[arg(long, conflicts_with = "config")]
-    pub recipe: Option<String>,
-    /// A run configuration (YAML or JSON, the schema of a run folder's config.json).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Network name (see `rtf models`; default mfnet). With a HeatNet recipe: one network for
-    /// every role (e.g. a light one on a CPU), the paper's networks otherwise.
-    #[arg(long)]
-    pub model: Option<String>,
-    /// Dataset root, MF or Freiburg Thermal layout (recognised by its folders). Freiburg:
-    /// trains on the training tree with the reference preprocessing and a random 640×320
-    /// window, validates on `<root>/val` if present (never on the test layout).
-    #[arg(long, required_unless_present_any = ["resume", "config"])]
-    pub data: Option<PathBuf>,
-    /// Run folder: config.json, log.jsonl, checkpoints, final.safetensors (one sub-folder per
-    /// stage for multi-stage recipes).
-    #[arg(long, required_unless_present = "resume")]
-    pub out: Option<PathBuf>,
-    /// Continue the run in this folder exactly where it stopped (its config.json is used).
-    /// --epochs extends it, finished or not: a multi-stage run in the stage it continues and
-    /// those after it, or its last stage once every stage is done. A finished run with nothing
-    /// to do says so and exits 0.
-    #[arg(long, conflicts_with_all = ["data", "out", "recipe", "config", "precision", "sync_bn", "init", "no_shuffle", "no_augment"])]
-    pub resume: Option<PathBuf>,
-    /// The day teacher (HeatNet's RGB teacher): a run folder, or a weights file with
-    /// --teacher-model. Without it, recipes train the teacher first.
-    #[arg(long)]
-    pub teacher: Option<PathBuf>,
-    /// Network of a --teacher weights file.
-    #[arg(long)]
-    pub teacher_model: Option<String>,
-    /// Channels the --teacher sees (rgb_t, rgb, thermal; default: its run's, else rgb_t).
-    #[arg(long, value_parser = Modality::parse)]
-    pub teacher_inputs: Option<Modality>,
-    /// The night teacher (two-stage: the thermal teacher; distillation: the RGB-T model).
-    #[arg(long)]
-    pub night_teacher: Option<PathBuf>,
-    #[arg(long)]
-    pub night_teacher_model: Option<String>,
-    #[arg(long, value_parser = Modality::parse)]
-    pub night_teacher_inputs: Option<Modality>,
-    /// Channels the trained network sees (rgb_t, rgb, thermal); the others are zeroed.
-    #[arg(long, value_parser = Modality::parse)]
-    pub inputs: Option<Modality>,
-    /// Teacher pixels below this confidence are ignored.
-    #[arg(long)]
-    pub threshold: Option<f64>,
-    /// Learn the teacher's softmax (soft targets) instead of its labels.
-    #[arg(long)]
-    pub soft: bool,
-    /// λ of the adversarial term (HeatNet: 0.01).
-    #[arg(long)]
-    pub lambda: Option<f64>,
-    /// What the critic reads: softmax (paper) or logits (published code).
-    #[arg(long, value_parser = parse_critic_input)]
-    pub critic_input: Option<CriticInput>,
-    /// Also push day outputs toward the night target (published code's --multidir).
-    #[arg(long)]
-    pub multidir: bool,
-    /// Critic steps per segmentation step.
-    #[arg(long)]
-    pub critic_steps: Option<usize>,
-    /// The critic starts from these weights (safetensors, reference names `conv1` …
-    /// `classifier`), as --init does for the segmentation network. Recorded in config.json.
-    #[arg(long)]
-    pub critic_init: Option<PathBuf>,
-    /// The published code's critic procedure instead of the paper's: the critic reads logits,
-    /// its targets are flipped (day 1, night 0), the segmentation step also keeps day outputs
-    /// on the day side, and steps alternate (--critic-steps critic steps, then one
-    /// segmentation step, each on its own batches, critic first). For parity runs.
-    #[arg(long)]
-    pub critic_code: bool,
-    /// Validation score that picks best.safetensors: miou, day_night_miou, heatnet_miou,
-    /// day_miou, night_miou (default: heatnet_miou on Freiburg, miou on MF).
-    #[arg(long, value_parser = parse_select)]
-    pub select_by: Option<SelectMetric>,
-    /// Number of epochs (MFNet paper: 80; HeatNet: 100 per stage).
-    #[arg(long)]
-    pub epochs: Option<usize>,
-    /// Batch size (MFNet paper: 6; HeatNet: 8).
-    #[arg(long)]
-    pub batch_size: Option<usize>,
-    /// sgd (MFNet paper: lr 0.01, momentum 0.9, weight decay 5e-4, ×0.94 every epoch),
-    /// rmsprop (HeatNet paper: lr 1e-4, no momentum or weight decay, ×0.5 every 30 epochs) or
-    /// adamw (CMX's training: lr 6e-5, weight decay 0.01 on convolution and linear weights
-    /// only, 10 epochs of linear warm-up then poly 0.9 per step); the flags below override
-    /// the chosen paper's values.
-    #[arg(long, value_parser = OptimizerKind::parse)]
-    pub optimizer: Option<OptimizerKind>,
-    /// Initial learning rate.
-    #[arg(long)]
-    pub lr: Option<f64>,
-    /// Learning-rate factor applied every --decay-every epochs.
-    #[arg(long)]
-    pub lr_decay: Option<f64>,
-    /// Epochs between learning-rate decays.
-    #[arg(long)]
-    pub decay_every: Option<usize>,
-    /// Epochs of linear warm-up of a warm-up-then-poly schedule (--optimizer adamw,
-    /// --recipe cmx-mf: 10).
-    #[arg(long)]
-    pub warmup_epochs: Option<usize>,
-    #[arg(long)]
-    pub momentum: Option<f64>,
-    #[arg(long)]
-    pub weight_decay: Option<f64>,
-    /// Disable horizontal-flip augmentation.
-    #[arg(long)]
-    pub no_flip: bool,
-    /// No augmentation at all (no flip, crop, window, rotation, modality drop-out, IR or
-    /// brightness scaling, noise): every frame as stored (resized if --resize). Recorded in
-    /// config.json.
-    #[arg(long)]
-    pub no_augment: bool,
-    /// Batches in the order of the split list every epoch instead of a new random order
-    /// (parity runs against a reference trainer). Recorded in config.json.
-    #[arg(long)]
-    pub no_shuffle: bool,
-    /// Start the network from these weights (safetensors under the reference names, e.g.
-    /// `rtf convert` output or another run's final.safetensors) instead of a fresh
-    /// initialisation: fine-tuning, parity runs. Every tensor must match the network; the
-    /// error names those that do not. Single-stage runs only. Recorded in config.json.
-    #[arg(long)]
-    pub init: Option<PathBuf>,
-    /// With --init: the network's class-dependent tensors (its classifier head) start fresh,
-    /// so that weights trained on another class set (e.g. MF's 9 classes) fine-tune onto this
-    /// dataset's classes. Every other tensor must still match; stderr lists the tensors that
-    /// start fresh. Recorded in config.json.
-    #[arg(long, requires = "init")]
-    pub reset_head: bool,
-    #[arg(long)]
-    pub seed: Option<u64>,
-    /// MF and described layouts (dataset.yaml, MSRS, PST900, FMB): the training split.
-    #[arg(long)]
-    pub train_split: Option<String>,
-    /// MF: validation split evaluated after every epoch ("none" to skip). Freiburg: "none"
-    /// skips the `val` layout. Described layouts: `val` when there is one, else none (said
-    /// on stderr); `holdout:N` holds every N-th training frame out for validation; `test`
-    /// only when named here (and announced).
-    #[arg(long)]
-    pub val_split: Option<String>,
-    /// Resize frames to WxH (labels nearest) before the network.
-    #[arg(long, value_parser = parse_size)]
-    pub resize: Option<(usize, usize)>,
-    /// Stop each epoch after N steps (quick experiments).
-    #[arg(long)]
-    pub max_steps: Option<usize>,
-    /// Also checkpoint every N steps inside an epoch (long epochs, preemptible machines).
-    /// Ctrl-C and SIGTERM always checkpoint the step they stop at.
-    #[arg(long)]
-    pub checkpoint_every: Option<usize>,
-    /// Data-loading threads.
-    #[arg(long)]
-    pub workers: Option<usize>,
-    /// cpu, cuda or cuda:N.
-    #[arg(long)]
-    pub device: Option<String>,
-    /// Arithmetic of the training step: fp32, bf16 or fp16 (CUDA only): autocast mixed
-    /// precision over fp32 weights and optimiser state, the loss scaled under fp16. Recorded in
-    /// config.json (a resume keeps it).
-    #[arg(long, value_parser = Precision::parse)]
-    pub precision: Option<Precision>,
-    /// Under torchrun: BatchNorm normalises with the statistics of every rank's batch together
-    /// (PyTorch's SyncBatchNorm) instead of each rank's own. Recorded in config.json.
-    #[arg(long)]
-    pub sync_bn: bool,
-    /// Every N epochs, a prediction grid of validation frames in TensorBoard (0: never).
-    #[arg(long, default_value_t = 5)]
-    pub tb_images_every: usize,
-    /// Under torchrun (RANK, WORLD_SIZE, MASTER_ADDR, MASTER_PORT set): seconds a collective
-    /// may wait for the other ranks before the run stops with an error.
-    #[arg(long, default_value_t = 300)]
-    pub dist_timeout: u64,
-    /// ImageNet ResNet weights (torchvision names, safetensors; see `cargo xtask convert-pth`)
-    /// for the encoders of RTFNet and the ResNet-based baselines.
-    #[arg(long)]
-    pub backbone_weights: Option<PathBuf>,
-}
+pub use rtf_train::args::TrainArgs as Args;
 
 pub fn run(args: Args) -> Result<()> {
-    let (mut cfg, run_dir, resume) = match &args.resume {
-        Some(run_dir) => {
-            let mut cfg = rtf_train::folder::read_config(run_dir)?;
-            if let Some(epochs) = args.epochs {
-                rtf_train::resume::extend(&mut cfg, run_dir, epochs)?;
-            }
-            cfg.validate()?;
-            (cfg, run_dir.clone(), true)
-        }
-        None => {
-            let out = args.out.clone().context("--out is required")?;
-            if let Some(data) = &args.data {
-                crate::output_guard::check_run_folder(&out, data)?;
-            }
-            let cfg = rtf_train::setup::new_run(&new_run_request(&args))?;
-            (cfg, out, false)
-        }
-    };
-    let ddp = join_job(&mut cfg, args.dist_timeout)?;
+    let mut plan = Plan::new(&args.request()?)?;
+    let ddp = join_job(&mut plan.cfg, args.dist_timeout)?;
     let root = ddp.as_ref().is_none_or(|d| d.is_root());
     // Exit 0 with nothing to do, so a scheduler's resume-until-done loop ends.
-    if let Some(finished) = resume
-        .then(|| rtf_train::resume::finished(&cfg, &run_dir))
-        .transpose()?
-        .flatten()
-    {
+    if let Some(finished) = plan.finished()? {
         if root {
             eprintln!("{finished}");
             println!("{}", finished.weights.display());
@@ -224,16 +22,48 @@ pub fn run(args: Args) -> Result<()> {
         return Ok(());
     }
     // Before the trainer records the configuration: bf16 CPU stages record their kernels.
-    for line in crate::bf16_kernels::settle_for_run(&mut cfg, resume, ddp.is_some())? {
-        if root {
-            eprintln!("{line}");
-        }
+    let (cfg, resume) = (&mut plan.cfg, plan.resume);
+    let lines = rtf_train::kernels::settle_for_run(
+        cfg,
+        resume,
+        ddp.is_some(),
+        crate::bf16_probe::training_choice,
+    )?;
+    for line in lines.iter().filter(|_| root) {
+        eprintln!("{line}");
     }
-    prepare_arithmetic(&cfg, root)?;
+    prepare_arithmetic(&plan.cfg, root)?;
     let stop = stop_on_signals();
-    match &cfg {
-        RunConfig::Single(single) => train_single(single, &run_dir, resume, stop, ddp),
-        RunConfig::Pipeline(pipeline) => train_pipeline(pipeline, &run_dir, resume, stop, ddp),
+    if root {
+        eprintln!("{}", announcement(&plan));
+    }
+    match plan.train(&mut Epochs(print_epoch), stop, ddp)? {
+        Ended::Trained(path) if root => println!("{}", path.display()),
+        Ended::Trained(_) => {}
+        Ended::Interrupted { stage, state } => interrupted(&plan.run_dir, stage, &state),
+    }
+    Ok(())
+}
+
+/// What the run about to train is, said before its first step.
+fn announcement(plan: &Plan) -> String {
+    match &plan.cfg {
+        RunConfig::Single(single) => format!(
+            "training {} ({}) for {} epochs into {}",
+            single.network.model.name(),
+            single.learning.procedure.name(),
+            single.schedule.epochs,
+            plan.run_dir.display()
+        ),
+        RunConfig::Pipeline(pipeline) => {
+            let names: Vec<&str> = pipeline.stages.iter().map(|s| s.name.as_str()).collect();
+            format!(
+                "training {} stage(s) ({}) into {}",
+                names.len(),
+                names.join(" → "),
+                plan.run_dir.display()
+            )
+        }
     }
 }
 
@@ -257,79 +87,16 @@ fn prepare_arithmetic(cfg: &RunConfig, root: bool) -> Result<()> {
     Ok(())
 }
 
-type Stop = &'static AtomicBool;
 type Group = Option<std::sync::Arc<rtf_train::ddp::Ddp>>;
 
-fn train_single(
-    single: &TrainConfig,
-    run_dir: &Path,
-    resume: bool,
-    stop: Stop,
-    ddp: Group,
-) -> Result<()> {
-    let root = ddp.as_ref().is_none_or(|d| d.is_root());
-    if root {
-        eprintln!(
-            "training {} ({}) for {} epochs into {}",
-            single.network.model.name(),
-            single.learning.procedure.name(),
-            single.schedule.epochs,
-            run_dir.display()
-        );
-    }
-    let outcome = rtf_train::trainer::train_distributed(
-        single,
-        run_dir,
-        resume,
-        &mut print_epoch(""),
-        stop,
-        ddp,
-    )?;
-    match &outcome.final_weights {
-        Some(path) if root => println!("{}", path.display()),
-        Some(_) => {}
-        None => interrupted(run_dir, "", &outcome.state),
-    }
-    Ok(())
-}
-
-fn train_pipeline(
-    pipeline: &rtf_train::PipelineConfig,
-    run_dir: &Path,
-    resume: bool,
-    stop: Stop,
-    ddp: Group,
-) -> Result<()> {
-    let root = ddp.as_ref().is_none_or(|d| d.is_root());
-    let names: Vec<&str> = pipeline.stages.iter().map(|s| s.name.as_str()).collect();
-    if root {
-        eprintln!(
-            "training {} stage(s) ({}) into {}",
-            names.len(),
-            names.join(" → "),
-            run_dir.display()
-        );
-    }
-    let outcome = rtf_train::pipeline::run_pipeline_distributed(
-        pipeline,
-        run_dir,
-        resume,
-        &mut |stage, r| print_epoch(stage)(r),
-        stop,
-        ddp,
-    )?;
-    match (&outcome.final_weights, &outcome.interrupted) {
-        (Some(path), _) if root => println!("{}", path.display()),
-        (Some(_), _) => {}
-        (None, Some((stage, o))) => interrupted(run_dir, &format!(" (stage {stage})"), &o.state),
-        (None, None) => bail!("the run stopped without final weights"),
-    }
-    Ok(())
-}
-
 /// A run stopped by a signal: its checkpoint is written; says how to continue, exits 130.
-fn interrupted(run_dir: &Path, stage: &str, state: &rtf_train::checkpoint::TrainState) -> ! {
+fn interrupted(
+    run_dir: &Path,
+    stage: Option<String>,
+    state: &rtf_train::checkpoint::TrainState,
+) -> ! {
     let batch = state.partial.as_ref().map_or(0, |p| p.batches);
+    let stage = stage.map_or(String::new(), |s| format!(" (stage {s})"));
     eprintln!(
         "interrupted{stage} in epoch {} after batch {batch}: checkpoint written; continue with \
          `rtf train --resume {}`",
@@ -364,8 +131,9 @@ fn join_job(cfg: &mut RunConfig, timeout_s: u64) -> Result<Group> {
     Ok(Some(rtf_train::ddp::join(&env, cfg, timeout)?))
 }
 
-fn print_epoch(stage: &str) -> impl FnMut(&rtf_train::EpochRecord) + '_ {
-    move |r| {
+/// An epoch's line on stderr.
+fn print_epoch(stage: &str, r: &rtf_train::EpochRecord) {
+    {
         let val = r.val.as_ref().map_or(String::new(), |v| {
             let dn = match (v.miou_day, v.miou_night) {
                 (Some(d), Some(n)) => format!(" (day {:.1}, night {:.1})", 100.0 * d, 100.0 * n),
@@ -403,70 +171,6 @@ fn print_epoch(stage: &str) -> impl FnMut(&rtf_train::EpochRecord) + '_ {
     }
 }
 
-/// The flags of a new run, typed for rtf_train::setup (which makes its configuration).
-fn new_run_request(args: &Args) -> NewRun {
-    let teacher = |path: &Option<PathBuf>, model: &Option<String>, inputs| TeacherArg {
-        path: path.clone(),
-        model: model.clone(),
-        inputs,
-    };
-    NewRun {
-        recipe: args.recipe.clone(),
-        config: args.config.clone(),
-        data: args.data.clone(),
-        train_split: args.train_split.clone(),
-        val_split: args.val_split.clone(),
-        teacher: teacher(&args.teacher, &args.teacher_model, args.teacher_inputs),
-        night_teacher: teacher(
-            &args.night_teacher,
-            &args.night_teacher_model,
-            args.night_teacher_inputs,
-        ),
-        init: args.init.clone(),
-        reset_head: args.reset_head,
-        overrides: overrides(args),
-    }
-}
-
-/// The values given over a recipe's or config's.
-fn overrides(args: &Args) -> Overrides {
-    Overrides {
-        model: args.model.clone(),
-        inputs: args.inputs,
-        threshold: args.threshold,
-        soft: args.soft,
-        lambda: args.lambda,
-        critic_input: args.critic_input,
-        multidir: args.multidir,
-        critic_steps: args.critic_steps,
-        critic_init: args.critic_init.clone(),
-        critic_code: args.critic_code,
-        select_by: args.select_by,
-        epochs: args.epochs,
-        batch_size: args.batch_size,
-        optimizer: args.optimizer,
-        lr: args.lr,
-        lr_decay: args.lr_decay,
-        decay_every: args.decay_every,
-        warmup_epochs: args.warmup_epochs,
-        momentum: args.momentum,
-        weight_decay: args.weight_decay,
-        no_flip: args.no_flip,
-        no_augment: args.no_augment,
-        no_shuffle: args.no_shuffle,
-        seed: args.seed,
-        resize: args.resize,
-        max_steps: args.max_steps,
-        checkpoint_every: args.checkpoint_every,
-        workers: args.workers,
-        device: args.device.clone(),
-        precision: args.precision,
-        sync_bn: args.sync_bn,
-        tb_images_every: args.tb_images_every,
-        backbone_weights: args.backbone_weights.clone(),
-    }
-}
-
 /// Set by the first Ctrl-C or SIGTERM (what schedulers and preemption send); training then
 /// checkpoints and stops after the step in flight.
 static STOP: AtomicBool = AtomicBool::new(false);
@@ -491,20 +195,4 @@ fn stop_on_signals() -> &'static AtomicBool {
         }
     }
     &STOP
-}
-
-fn parse_critic_input(text: &str) -> Result<CriticInput, String> {
-    match text {
-        "softmax" => Ok(CriticInput::Softmax),
-        "logits" => Ok(CriticInput::Logits),
-        other => Err(format!(
-            "unknown critic input `{other}` (expected softmax or logits)"
-        )),
-    }
-}
-
-fn parse_select(text: &str) -> Result<SelectMetric, String> {
-    serde_json::from_value(serde_json::Value::String(text.to_string())).map_err(|_| {
-        format!("unknown metric `{text}` (expected miou, day_night_miou, heatnet_miou, day_miou or night_miou)")
-    })
 }

@@ -56,12 +56,27 @@ pub enum Work {
     /// One wide 3×3 convolution over bf16 maps: the Winograd form (fp32 arithmetic) against
     /// oneDNN's bf16 kernels. Decides [`rtf_models::fast::InferenceKernels::bf16_winograd`].
     Conv3x3,
+    /// One wide 3×3 convolution's forward and backward over bf16 operands, as training runs
+    /// it: fp32 kernels (rtf's emulated convolutions) against oneDNN's bf16 kernels. Decides
+    /// whether bf16 training takes `rtf_amp::Bf16Convolutions::Mixed` (rtf-train `kernels`).
+    Conv3x3Training,
 }
 
 impl Work {
     pub fn name(self) -> &'static str {
         match self {
             Work::Conv3x3 => "conv3x3",
+            Work::Conv3x3Training => "conv3x3-training",
+        }
+    }
+
+    /// What is timed, for messages.
+    pub fn workload(self) -> &'static str {
+        match self {
+            Work::Conv3x3 => "a 3x3 convolution of 256 channels at 80x60, batch 1, folded",
+            Work::Conv3x3Training => {
+                "a 3x3 convolution of 256 channels at 80x60, batch 2, forward and backward"
+            }
         }
     }
 }
@@ -253,6 +268,44 @@ fn conv3x3_s(winograd: bool, forms: rtf_models::winograd::Forms) -> Result<f64, 
         .map(|_| {
             let start = std::time::Instant::now();
             let _ = tch::nn::ModuleT::forward_t(&unit, &xs, false);
+            start.elapsed().as_secs_f64()
+        })
+        .skip(2)
+        .collect();
+    Ok(crate::speed::median_min(&times).0)
+}
+
+/// [`Work::Conv3x3Training`] timed in this process: the convolution's forward and backward
+/// over bf16 operands, channels-last as bf16 training lays its maps out, on fp32 kernels
+/// (`fp32_s`, rtf's emulated convolution) and on oneDNN's bf16 kernels (`bf16_s`); median of
+/// 5 after 2. Fixed weights and input, so the caller's random stream is untouched.
+pub fn measure_conv3x3_training() -> Result<Measured, String> {
+    let emulated = conv3x3_training_s(true)?;
+    Ok(Measured::now(emulated, conv3x3_training_s(false)?))
+}
+
+fn conv3x3_training_s(emulated: bool) -> Result<f64, String> {
+    use rtf_models::layers::{bf16_emulated_convolution, to_channels_last};
+    use rtf_models::onednn::Geometry;
+    use tch::{Device, Kind, Tensor};
+    let fixed = |shape: [i64; 4], scale: f64| -> Result<Tensor, String> {
+        let n = shape.iter().product::<i64>();
+        let t = Tensor::arange(n, (Kind::Float, Device::Cpu))
+            .remainder(13)
+            .f_view(shape)
+            .map_err(|e| e.to_string())?;
+        Ok(to_channels_last(&((t - 6.0) * scale).to_kind(Kind::BFloat16)).set_requires_grad(true))
+    };
+    let xs = fixed([2, 256, 60, 80], 0.1)?;
+    let w = fixed([256, 256, 3, 3], 0.002)?;
+    let times: Vec<f64> = (0..7)
+        .map(|_| {
+            let start = std::time::Instant::now();
+            let ys = match emulated {
+                true => bf16_emulated_convolution(&xs, &w, None, Geometry::SAME_3X3),
+                false => xs.conv2d(&w, None::<Tensor>, [1, 1], [1, 1], [1, 1], 1),
+            };
+            ys.sum(Kind::Float).backward();
             start.elapsed().as_secs_f64()
         })
         .skip(2)

@@ -49,6 +49,7 @@ from ._rtf import (  # noqa: E402  (torch first: it loads the libraries the exte
     Network,
     Split,
     TorchError,
+    TrainError,
     __version__,
     models,
     open_dataset,
@@ -149,6 +150,76 @@ class Run:
         return f"rtf.Run({self.dir!r}, epochs={len(self.epochs)})"
 
 
+class Progress:
+    """What ``rtf.train``'s ``progress`` callback receives after every step and epoch:
+    ``kind`` ("step" or "epoch"), ``stage`` (a multi-stage recipe's stage, "" otherwise),
+    ``epoch`` (0-based, as log.jsonl counts), ``step`` (a step's 0-based index over the run;
+    None for an epoch), ``loss`` (the step's total loss, or the epoch's mean), ``losses`` (every
+    loss term by name) and ``record`` (the step as steps.jsonl holds it, the epoch as
+    log.jsonl holds it: learning rate, images/s, validation scores)."""
+
+    def __init__(self, kind, stage, record):
+        self.kind = kind
+        self.stage = stage
+        self.record = record
+        self.epoch = record["epoch"]
+        self.step = record.get("step") if kind == "step" else None
+        self.loss = record["loss"] if kind == "step" else record["train_loss"]
+        self.losses = record.get("losses", {})
+
+    def __repr__(self):
+        where = f"step {self.step}" if self.kind == "step" else "end"
+        return f"rtf.Progress(epoch={self.epoch}, {where}, loss={self.loss:.4f})"
+
+
+def _train_argv(options):
+    """``rtf train``'s command line for ``options`` (names with ``_`` for ``-``): True is a
+    flag given, False / None an option left out, (w, h) a size, a list repeated values."""
+    known = dict(_rtf.train_options())
+    argv = []
+    for name, value in options.items():
+        if name not in known:
+            raise TypeError(
+                f"rtf.train() got an unknown option {name!r}; rtf train's options are: "
+                + ", ".join(sorted(known))
+            )
+        if value is None or value is False:
+            continue
+        flag = "--" + name.replace("_", "-")
+        if not known[name]:
+            if value is not True:
+                raise TypeError(f"rtf.train(): {name} is a flag: True or False, got {value!r}")
+            argv.append(flag)
+        elif isinstance(value, tuple) and len(value) == 2:
+            argv += [flag, f"{value[0]}x{value[1]}"]
+        else:
+            argv += [flag, str(value)]
+    return argv
+
+
+def train(out=None, model=None, data=None, recipe=None, epochs=None, progress=None,
+          resume=None, **options):
+    """Trains as ``rtf train`` does, with every option of the command by name (``-`` as
+    ``_``; a flag is True; ``resize=(w, h)``): ``out`` (the run folder), ``model``, ``data``,
+    ``recipe``, ``epochs``, ``resume`` (a run folder to continue exactly; ``epochs`` then
+    extends it), and the others (``batch_size``, ``lr``, ``optimizer``, ``seed``,
+    ``no_augment``, ``precision``, ``teacher``, ...: ``rtf train --help``). ``progress`` is
+    called with a :class:`Progress` after every step and every epoch; an exception it raises
+    stops the run (checkpointed) and is raised here. Ctrl-C stops the run after the step in
+    flight, writes its checkpoint and raises KeyboardInterrupt; ``rtf.train(resume=out)``
+    continues it. Returns the run folder as :class:`Run`; its final weights are equal to
+    the command's for the same options."""
+    options = dict(out=out, model=model, data=data, recipe=recipe, epochs=epochs,
+                   resume=resume, **options)
+    argv = _train_argv(options)
+
+    def report(kind, stage, record):
+        progress(Progress(kind, stage, _json.loads(record)))
+
+    run_dir, _ = _rtf.train(argv, dict(_os.environ), None if progress is None else report)
+    return Run(run_dir)
+
+
 class Calibration:
     """The calib.yaml ``rtf calibrate`` writes: ``yaml`` (its text, byte for byte), ``K`` (the
     thermal camera's 3x3 intrinsics), ``distortion``, ``rotation`` (3x3, RGB to thermal),
@@ -203,15 +274,18 @@ __all__ = [
     "Loader",
     "ModelError",
     "Network",
+    "Progress",
     "Run",
     "Scores",
     "Split",
     "TORCH_VERSION",
     "TorchError",
+    "TrainError",
     "__version__",
     "calibrate",
     "evaluate",
     "load_network",
     "models",
     "open_dataset",
+    "train",
 ]

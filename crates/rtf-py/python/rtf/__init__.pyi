@@ -2,7 +2,7 @@
 
 from os import PathLike
 from pathlib import Path
-from typing import Any, Iterator, Optional, Sequence, Union
+from typing import Any, Callable, Iterator, Optional, Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -20,6 +20,7 @@ class EvalError(Error): ...
 class InputError(Error): ...
 class TorchError(Error): ...
 class CalibrationError(Error): ...
+class TrainError(Error): ...
 
 class Run:
     dir: Path
@@ -32,6 +33,29 @@ class Run:
     def __init__(self, path: _Path) -> None:
         """A training run folder read back: config, per-epoch log, stages, weights files."""
     def stage(self, name: str) -> "Run": ...
+
+class Progress:
+    kind: str
+    stage: str
+    epoch: int
+    step: Optional[int]
+    loss: float
+    losses: dict[str, float]
+    record: dict[str, Any]
+
+def train(
+    out: Optional[_Path] = None,
+    model: Optional[str] = None,
+    data: Optional[_Path] = None,
+    recipe: Optional[str] = None,
+    epochs: Optional[int] = None,
+    progress: Optional[Callable[[Progress], None]] = None,
+    resume: Optional[_Path] = None,
+    **options: Any,
+) -> Run:
+    """Trains as `rtf train` does with the same options by name (`-` as `_`, flags True,
+    `resize=(w, h)`); `progress` gets every step and epoch; Ctrl-C checkpoints and raises
+    KeyboardInterrupt, `resume=` continues. The run folder, read back."""
 
 class Calibration:
     yaml: str

@@ -1,0 +1,243 @@
+//! Which convolution kernels bf16 training takes on the CPU, chosen once per run and recorded
+//! (project issues 41 and 61; `rtf train` and the Python package's `rtf.train` both settle a
+//! run here).
+//!
+//! On an Intel AVX-512 CPU without AMX, oneDNN's bf16 3×3 kernels lose to its fp32 ones while
+//! its 1×1 kernels do not (docs/src/benchmarks.md); with AMX, or on AMD Zen 4, the bf16
+//! kernels win. Every way computes bf16 training (bf16 operands, float sums, bf16 outputs);
+//! only the speed differs, and the summation order inside the kernels.
+//!
+//! So where the CPU has bf16 arithmetic and the caller leaves the choice open, a new run takes
+//! [`Bf16Convolutions::Mixed`] where one wide 3×3 layer's forward and backward measured faster
+//! on fp32 kernels ([`choose_training_convolutions`] over a measurement the caller makes and
+//! caches: `rtf` in a child process, the Python package in its own), and records the choice
+//! in its configuration (`compute.bf16_convolutions`) before the first step: a resume
+//! computes with the kernels the run started with.
+//!
+//! Not measured: data-parallel runs (each rank would measure on its own; they keep the choice
+//! in force, recorded the same way) and resumes of runs from before the record (they keep the
+//! choice in force without one, which is what they started with).
+
+use std::path::{Path, PathBuf};
+
+use rtf_amp::{AmpError, Bf16Convolutions};
+use rtf_eval::kernels::probe::{Measured, Probe, Work};
+use tch::Device;
+
+use crate::config::{available_device, Precision, TrainConfig};
+use crate::RunConfig;
+
+/// A choice of bf16 convolutions with the line that says it, if any.
+pub type Choice = (Bf16Convolutions, Option<String>);
+
+/// Makes this process's choice for `cfg`'s bf16 CPU stages and records it in them; returns the
+/// lines to print (a measured mixed choice, a record that stands or is overridden, a failed
+/// probe). `choose` is called only for a new single-process run: the measured choice
+/// ([`choose_training_convolutions`]), or None to keep the choice in force.
+pub fn settle_for_run(
+    cfg: &mut RunConfig,
+    resume: bool,
+    data_parallel: bool,
+    choose: impl FnOnce() -> Option<Choice>,
+) -> Result<Vec<String>, AmpError> {
+    let mut stages: Vec<&mut TrainConfig> = cfg
+        .stages_mut()
+        .into_iter()
+        .filter(|s| trains_bf16_on_cpu(s))
+        .collect();
+    if stages.is_empty() {
+        return Ok(Vec::new());
+    }
+    let recorded = stages.iter().find_map(|s| s.compute.bf16_convolutions);
+    let mut lines = Vec::new();
+    let choice = match recorded {
+        Some(recorded) => {
+            let in_force = rtf_amp::choose_process_bf16_convolutions(recorded)?;
+            lines.extend(record_message(recorded, in_force));
+            in_force
+        }
+        // A run from before the record started with the choice in force without one.
+        None if resume => return Ok(Vec::new()),
+        None if data_parallel => rtf_amp::cpu_bf16_convolutions()?,
+        None => {
+            let (choice, line) = measured_or_in_force(choose)?;
+            lines.extend(line);
+            choice
+        }
+    };
+    for stage in &mut stages {
+        stage.compute.bf16_convolutions = Some(choice);
+    }
+    Ok(lines)
+}
+
+fn trains_bf16_on_cpu(stage: &TrainConfig) -> bool {
+    stage.learning.precision == Precision::Bf16
+        && available_device(&stage.compute.device).is_ok_and(|d| d == Device::Cpu)
+}
+
+/// `choose`'s choice, made for this process, where it makes one; else the choice in force.
+pub fn measured_or_in_force(choose: impl FnOnce() -> Option<Choice>) -> Result<Choice, AmpError> {
+    match choose() {
+        Some((choice, line)) => Ok((rtf_amp::choose_process_bf16_convolutions(choice)?, line)),
+        None => Ok((rtf_amp::cpu_bf16_convolutions()?, None)),
+    }
+}
+
+/// Where bf16 is native and `RTF_BF16_CONVOLUTIONS` leaves the choice open:
+/// [`Bf16Convolutions::Mixed`] if `measured` ([`Work::Conv3x3Training`], cached) found fp32
+/// kernels faster for a wide 3×3 layer, else native; with the line that says a mixed choice.
+/// `None` where nothing is measured (the choice in force stands); a failed measurement is a
+/// warning, and the bf16 kernels run.
+pub fn choose_training_convolutions(
+    measured: impl FnOnce() -> Result<(Measured, Option<PathBuf>), String>,
+) -> Option<Choice> {
+    if rtf_amp::bf16_convolutions_set_by_env() || rtf_amp::cpu_has_native_bf16() != Some(true) {
+        return None;
+    }
+    match measured() {
+        // `fp32_s` is the emulated layer's: below 1, the fp32 kernels were the faster.
+        Ok((m, cache)) if m.speedup() < 1.0 => Some((
+            Bf16Convolutions::Mixed,
+            Some(mixed_choice_message(&m, cache.as_deref())),
+        )),
+        Ok(_) => Some((Bf16Convolutions::Native, None)),
+        Err(e) => Some((
+            Bf16Convolutions::Native,
+            Some(format!(
+                "warning: could not measure which bf16 convolutions train faster on this CPU \
+                 ({e}); oneDNN's bf16 kernels run"
+            )),
+        )),
+    }
+}
+
+/// [`Work::Conv3x3Training`] measured in this process, cached by `probe` (under the key `rtf`
+/// uses, so that both share the measurement).
+pub fn measured_here(probe: &Probe) -> Result<(Measured, Option<PathBuf>), String> {
+    let key = probe.key(Work::Conv3x3Training.name());
+    probe.measured(&key, rtf_eval::kernels::probe::measure_conv3x3_training)
+}
+
+/// The line that says bf16 training runs its spatial convolutions on fp32 kernels.
+fn mixed_choice_message(m: &Measured, cache: Option<&Path>) -> String {
+    let cached = cache.map_or("not cached".to_string(), |p| {
+        format!("cached in {}", p.display())
+    });
+    format!(
+        "bf16 training runs its 3x3 and larger convolutions on fp32 kernels over bf16 operands \
+         here ({}=mixed): {} took {:.1} ms so against {:.1} ms on oneDNN's bf16 kernels (bf16 \
+         operands, float sums either way; {cached}; {}=native|emulated|mixed decides instead)",
+        rtf_amp::BF16_CONVOLUTIONS_VAR,
+        Work::Conv3x3Training.workload(),
+        1000.0 * m.fp32_s,
+        1000.0 * m.bf16_s,
+        rtf_amp::BF16_CONVOLUTIONS_VAR
+    )
+}
+
+/// What to say of a resumed run's recorded choice: that it stands where it differs from the
+/// default, or that the variable (or a CPU without bf16 arithmetic) overrides it.
+fn record_message(recorded: Bf16Convolutions, in_force: Bf16Convolutions) -> Option<String> {
+    if in_force != recorded {
+        return Some(format!(
+            "warning: the run started with {} bf16 convolutions (compute.bf16_convolutions in its \
+             config.json); {} run now ({}), so the resumed steps do not compute the same sums",
+            recorded.name(),
+            in_force.name(),
+            match rtf_amp::bf16_convolutions_set_by_env() {
+                true => format!("{} is set", rtf_amp::BF16_CONVOLUTIONS_VAR),
+                false => "this CPU has no bf16 arithmetic".into(),
+            }
+        ));
+    }
+    (recorded != Bf16Convolutions::Native && rtf_amp::cpu_has_native_bf16() == Some(true)).then(
+        || {
+            format!(
+                "bf16 training runs {} convolutions on fp32 kernels over bf16 operands, as the \
+                 run started (compute.bf16_convolutions: {} in its config.json)",
+                match recorded {
+                    Bf16Convolutions::Mixed => "its 3x3 and larger",
+                    _ => "all its",
+                },
+                recorded.name()
+            )
+        },
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(precision: Precision, device: &str) -> RunConfig {
+        let mut cfg = TrainConfig::mfnet_paper("data".into());
+        cfg.learning.precision = precision;
+        cfg.compute.device = device.into();
+        RunConfig::Single(Box::new(cfg))
+    }
+
+    fn recorded(cfg: &RunConfig) -> Option<Bf16Convolutions> {
+        cfg.stages()[0].1.compute.bf16_convolutions
+    }
+
+    fn never() -> Option<Choice> {
+        panic!("measured where nothing is chosen")
+    }
+
+    #[test]
+    fn only_bf16_on_the_cpu_is_settled_and_nothing_for_an_old_run_resumed() {
+        let mut fp32 = run(Precision::Fp32, "cpu");
+        assert!(settle_for_run(&mut fp32, false, false, never)
+            .unwrap()
+            .is_empty());
+        assert_eq!(recorded(&fp32), None);
+        let mut resumed = run(Precision::Bf16, "cpu");
+        assert!(settle_for_run(&mut resumed, true, false, never)
+            .unwrap()
+            .is_empty());
+        assert_eq!(recorded(&resumed), None, "a run from before the record");
+        // Data-parallel: the choice in force, recorded, nothing measured.
+        let mut ddp = run(Precision::Bf16, "cpu");
+        settle_for_run(&mut ddp, false, true, never).unwrap();
+        assert_eq!(
+            recorded(&ddp),
+            Some(rtf_amp::cpu_bf16_convolutions().unwrap())
+        );
+    }
+
+    #[test]
+    fn a_record_that_stands_is_said_only_where_it_is_emulation_by_choice() {
+        use Bf16Convolutions::*;
+        assert_eq!(record_message(Native, Native), None);
+        let overridden = record_message(Emulated, Native).unwrap();
+        assert!(
+            overridden.starts_with("warning: the run started with emulated")
+                && overridden.contains("native run now"),
+            "{overridden}"
+        );
+        let stands = record_message(Emulated, Emulated);
+        assert_eq!(
+            stands.is_some(),
+            rtf_amp::cpu_has_native_bf16() == Some(true)
+        );
+    }
+
+    #[test]
+    fn a_mixed_choice_is_said_with_both_times_and_the_way_to_decide_instead() {
+        let m = Measured {
+            fp32_s: 0.120,
+            bf16_s: 0.180,
+            unix_time: 0,
+        };
+        let line = mixed_choice_message(&m, Some(Path::new("/c/p.json")));
+        assert!(
+            line.contains("forward and backward took 120.0 ms so against 180.0 ms"),
+            "{line}"
+        );
+        assert!(
+            line.contains("cached in /c/p.json") && line.contains("(RTF_BF16_CONVOLUTIONS=mixed)")
+        );
+        assert!(!line.contains('\n'));
+    }
+}
