@@ -72,16 +72,19 @@ impl PyDataset {
         })
     }
 
-    /// An iterable of `(x, y)` torch batches of `split`, built by rtf's loader threads as
-    /// `rtf train` builds its training batches: `x` float32 [B, 4, H, W] (R, G, B, T after
-    /// `model`'s input convention), `y` int64 [B, H, W] (output indices, the ignore id where
-    /// the loss ignores). `augment`: the horizontal flips of MFNet's and RTFNet's recipes;
-    /// `size`: (width, height) every frame is resized to; `seed`: `rtf train --seed`. Each
-    /// `iter()` is the next epoch from `epoch`; `loader.epoch(e)` is epoch `e`.
-    #[pyo3(signature = (split, batch_size, shuffle=true, augment=true, workers=2, seed=0, size=None, model="mfnet", epoch=0))]
+    /// An iterable of `(x, y)` torch batches of `split`: the training batches of
+    /// `rtf train --data ROOT --train-split SPLIT` with these options (the trainer's own loader:
+    /// frames, order, augmentation and input convention), `x` float32 [B, 4, H, W] (R, G, B, T
+    /// after the network's input convention), `y` int64 [B, H, W] (output indices, the ignore
+    /// id where the loss ignores). `augment`: the recipe's or network's augmentation (False:
+    /// `--no-augment`); `shuffle` (False: `--no-shuffle`); `size`: (width, height) every frame
+    /// is resized to; `seed`: `--seed`; `model` (default mfnet) and `recipe`: as `rtf train`'s.
+    /// Each `iter()` is the next epoch from `epoch`; `loader.epoch(e)` is epoch `e`.
+    #[pyo3(signature = (split, batch_size, shuffle=true, augment=true, workers=2, seed=0, size=None, model=None, epoch=0, recipe=None))]
     #[allow(clippy::too_many_arguments)]
     fn loader(
         &self,
+        py: Python<'_>,
         split: &str,
         batch_size: usize,
         shuffle: bool,
@@ -89,17 +92,24 @@ impl PyDataset {
         workers: usize,
         seed: u64,
         size: Option<(usize, usize)>,
-        model: &str,
+        model: Option<&str>,
         epoch: u64,
+        recipe: Option<&str>,
     ) -> PyResult<crate::loader::PyLoader> {
-        let cfg = LoaderRequest::config(batch_size, shuffle, augment, workers, seed, size)?;
         let request = LoaderRequest {
+            root: &self.root,
             split,
             model,
-            cfg,
+            recipe,
+            batch_size,
+            shuffle,
+            augment,
+            workers,
+            seed,
+            size,
             epoch,
         };
-        request.open(&self.dataset)
+        request.open(py)
     }
 
     fn __repr__(&self) -> String {

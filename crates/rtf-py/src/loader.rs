@@ -1,5 +1,5 @@
-//! `Dataset.loader`: rtf's loader threads (rtf_data::Loader, configured as `rtf train`
-//! configures its training loader) as a Python iterable of torch `(x, y)` batches. Each
+//! `Dataset.loader`: rtf's loader threads (the loader `rtf train` builds for the same options:
+//! rtf_train::trainer::training_loader) as a Python iterable of torch `(x, y)` batches. Each
 //! `iter()` is the next epoch (from `epoch`, 0 by default, as training counts them); the
 //! batches of an epoch depend only on (seed, epoch).
 
@@ -9,8 +9,9 @@ use std::sync::Arc;
 use crate::tensor::PyTensor;
 use crossbeam_channel::Receiver;
 use pyo3::prelude::*;
-use rtf_data::{AugmentConfig, Batch, DataError, Loader, LoaderConfig};
-use rtf_models::ModelConfig;
+use rtf_data::{Batch, DataError, Loader};
+use rtf_train::setup::{NewRun, Overrides};
+use std::path::Path;
 
 use crate::errors::{input, PyResultExt};
 
@@ -21,62 +22,62 @@ pub struct PyLoader {
     next_epoch: AtomicU64,
 }
 
-/// The loader `rtf train` builds for its training frames (trainer.rs `loader`): the batch
-/// size, shuffling, seed, worker threads, a prefetch of 2, the augmentation and resize.
-fn training_loader(
-    data: &rtf_data::Dataset,
-    split: &str,
-    cfg: LoaderConfig,
-    model: &str,
-) -> PyResult<Loader> {
-    let source = data.split(split, true).py()?;
-    let classes = source.class_set().len() as i64;
-    let convention = ModelConfig::from_name(model, classes)
-        .py()?
-        .input_convention();
-    Ok(Loader::new(source, cfg, convention))
-}
-
-/// What `Dataset.loader` was asked for (see its docs in dataset.rs).
+/// What `Dataset.loader` was asked for (see its docs in dataset.rs): `rtf train`'s options
+/// that decide its training batches.
 pub struct LoaderRequest<'a> {
+    pub root: &'a Path,
     pub split: &'a str,
-    pub model: &'a str,
-    pub cfg: LoaderConfig,
+    pub model: Option<&'a str>,
+    pub recipe: Option<&'a str>,
+    pub batch_size: usize,
+    pub shuffle: bool,
+    pub augment: bool,
+    pub workers: usize,
+    pub seed: u64,
+    pub size: Option<(usize, usize)>,
     pub epoch: u64,
 }
 
 impl LoaderRequest<'_> {
-    /// The loader's configuration from `Dataset.loader`'s arguments: `augment` is the
-    /// horizontal flips of MFNet's and RTFNet's recipes.
-    pub fn config(
-        batch_size: usize,
-        shuffle: bool,
-        augment: bool,
-        workers: usize,
-        seed: u64,
-        size: Option<(usize, usize)>,
-    ) -> PyResult<LoaderConfig> {
-        if batch_size == 0 {
-            return Err(input("batch_size: expected at least 1, got 0"));
-        }
-        Ok(LoaderConfig {
-            batch_size,
-            shuffle,
-            drop_last: false,
-            seed,
-            workers,
-            prefetch: 2,
-            augment: AugmentConfig {
-                hflip: augment,
+    /// The run `rtf train --data ROOT --train-split SPLIT --val-split none` with these options
+    /// would make (rtf_train::setup): its configuration decides the loader.
+    fn new_run(&self) -> NewRun {
+        NewRun {
+            recipe: self.recipe.map(str::to_owned),
+            data: Some(self.root.to_path_buf()),
+            train_split: Some(self.split.to_owned()),
+            val_split: Some("none".into()),
+            overrides: Overrides {
+                model: self.model.map(str::to_owned),
+                batch_size: Some(self.batch_size),
+                seed: Some(self.seed),
+                workers: Some(self.workers),
+                no_shuffle: !self.shuffle,
+                no_augment: !self.augment,
+                resize: self.size,
                 ..Default::default()
             },
-            resize: size,
-        })
+            ..Default::default()
+        }
     }
 
-    pub fn open(self, data: &rtf_data::Dataset) -> PyResult<PyLoader> {
+    /// The trainer's loader of that run (rtf_train::trainer::training_loader; of its last
+    /// stage for a multi-stage recipe).
+    pub fn open(self, py: Python<'_>) -> PyResult<PyLoader> {
+        if self.batch_size == 0 {
+            return Err(input("batch_size: expected at least 1, got 0"));
+        }
+        let asked = self.new_run();
+        let loader = py.allow_threads(|| -> PyResult<Loader> {
+            let cfg = rtf_train::setup::new_run(&asked).py()?;
+            let stages = cfg.stages();
+            let (_, last) = stages
+                .last()
+                .ok_or_else(|| input("the recipe has no stage"))?;
+            rtf_train::trainer::training_loader(last).py()
+        })?;
         Ok(PyLoader {
-            loader: Arc::new(training_loader(data, self.split, self.cfg, self.model)?),
+            loader: Arc::new(loader),
             next_epoch: AtomicU64::new(self.epoch),
         })
     }

@@ -197,6 +197,22 @@ fn loader(
     )
 }
 
+/// The loader of the main stream `cfg` trains on (its first epoch is epoch 0), built as the
+/// trainer builds it: the same frames, order, augmentation and input convention for a seed.
+/// The Python package's `Dataset.loader` is this loader.
+pub fn training_loader(cfg: &TrainConfig) -> Result<Loader, TrainError> {
+    let sources = open_sources(&cfg.data.dataset, &cfg.learning.procedure)?;
+    let input = cfg.network.model.input_convention();
+    let seed = cfg.schedule.seed;
+    Ok(loader(
+        &cfg.data,
+        cfg.schedule.batch_size,
+        sources.main,
+        seed,
+        input,
+    ))
+}
+
 /// The default selection metric of a dataset: HeatNet's day/night mIoU where validation
 /// scores HeatNet's convention (Freiburg Thermal), mIoU elsewhere.
 pub fn default_select_metric(dataset: &rtf_data::Dataset) -> SelectMetric {

@@ -149,9 +149,12 @@ class Dataset:
         workers: int = 2,
         seed: int = 0,
         size: Optional[tuple[int, int]] = None,
-        model: str = "mfnet",
+        model: Optional[str] = None,
         epoch: int = 0,
-    ) -> Loader: ...
+        recipe: Optional[str] = None,
+    ) -> Loader:
+        """The training batches `rtf train --data ROOT --train-split SPLIT` makes with these
+        options (the trainer's own loader); each iteration is the next epoch."""
 
 class Split:
     name: str
