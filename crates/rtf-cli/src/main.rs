@@ -62,6 +62,10 @@ fn main() {
     // page-faulting activations in again on every pass, and mimalloc keeps it without
     // fragmenting (allocator).
     allocator::set_purge_delay();
+    // cuDNN's autotuner, a libtorch setting of the process: on unless RTF_CUDNN_BENCHMARK=0.
+    tch::Cuda::cudnn_set_benchmark(rtf_train::config::cudnn_benchmark(|v| {
+        std::env::var(v).ok()
+    }));
     // The kernel policy is read here, once, and passed in: the Winograd forms in force for
     // the command (training's as well as the folds', which also record them).
     let result = bf16_probe::policy()

@@ -74,6 +74,16 @@ pub fn train(
     for line in lines {
         eprintln!("{line}");
     }
+    // cuDNN's autotuner for a run on CUDA, as `rtf` sets it (RTF_CUDNN_BENCHMARK=0: off).
+    if plan
+        .cfg
+        .stages()
+        .iter()
+        .any(|(_, s)| s.compute.device.starts_with("cuda"))
+    {
+        let on = rtf_train::config::cudnn_benchmark(|var| env.get(var).cloned());
+        tch::Cuda::cudnn_set_benchmark(on);
+    }
     let mut observer = Observer {
         callback: progress,
         raised: None,

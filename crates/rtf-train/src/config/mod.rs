@@ -1156,10 +1156,8 @@ pub fn parse_device(name: &str) -> Result<tch::Device, String> {
 }
 
 /// [`parse_device`], then checks libtorch can use it here, so a missing GPU is a clear error
-/// rather than a libtorch panic at the first tensor. On CUDA it also turns on cuDNN's
-/// autotuner (PyTorch's `torch.backends.cudnn.benchmark = True`): each convolution shape is
-/// timed once over cuDNN's algorithms and the fastest kept, which pays for rtf's fixed frame
-/// sizes. `RTF_CUDNN_BENCHMARK=0` keeps cuDNN's heuristic choice instead.
+/// rather than a libtorch panic at the first tensor. (cuDNN's autotuner is the caller's: `rtf`
+/// turns it on for every command, `RTF_CUDNN_BENCHMARK=0` off; see [`cudnn_benchmark`].)
 pub fn available_device(name: &str) -> Result<tch::Device, String> {
     let device = parse_device(name)?;
     if let tch::Device::Cuda(index) = device {
@@ -1174,9 +1172,17 @@ pub fn available_device(name: &str) -> Result<tch::Device, String> {
                 }
             ));
         }
-        tch::Cuda::cudnn_set_benchmark(std::env::var("RTF_CUDNN_BENCHMARK").as_deref() != Ok("0"));
     }
     Ok(device)
+}
+
+/// Whether cuDNN's autotuner runs (PyTorch's `torch.backends.cudnn.benchmark = True`): each
+/// convolution shape is timed once over cuDNN's algorithms and the fastest kept, which pays
+/// for rtf's fixed frame sizes. On unless the caller's `RTF_CUDNN_BENCHMARK` (read by `get`,
+/// the binary's environment) is `0`. A libtorch setting of the whole process: the binary sets
+/// it (`tch::Cuda::cudnn_set_benchmark`).
+pub fn cudnn_benchmark(get: impl Fn(&str) -> Option<String>) -> bool {
+    get("RTF_CUDNN_BENCHMARK").as_deref() != Some("0")
 }
 
 #[cfg(test)]
