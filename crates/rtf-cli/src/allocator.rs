@@ -24,6 +24,7 @@
 //! the same `malloc`.
 
 use libmimalloc_sys::{mi_option_get, mi_option_set, mi_option_t};
+use rtf_train::config::Fp32Layout;
 
 /// `mi_option_purge_delay` in mimalloc v3's `mimalloc.h` (milliseconds before freed memory is
 /// returned to the OS; −1: never). `libmimalloc-sys` 0.1.49 declares no constant for it.
@@ -33,7 +34,7 @@ const MI_OPTION_PURGE_DELAY: mi_option_t = 15;
 pub const PURGE_DELAY_MS: i64 = 5000;
 
 /// The delay for training on a CPU (`rtf train`, `rtf bench train`) in bf16, and in fp32 where
-/// it runs channels-last (`rtf_train::procedure::fp32_channels_last_here`: AVX-512 CPUs). A
+/// it runs channels-last (`rtf_train::config::Fp32Layout`: AVX-512 CPUs by default). A
 /// ResNet-50 network's pass is 6–13 s (bf16) or 10–20 s (fp32) on 2 cores, and with 5 s the
 /// memory a backward pass freed was returned and faulted back in by the next forward (page
 /// zeroing: PSPNet-50 bf16 20–45 % of the samples at each step's start; RTFNet-50 fp32 16 %
@@ -65,11 +66,15 @@ pub fn set_purge_delay_ms(ms: i64) -> i64 {
     unsafe { mi_option_get(MI_OPTION_PURGE_DELAY) as i64 }
 }
 
-/// Training in `precision` on `device`: [`TRAINING_PURGE_DELAY_MS`] where it applies (a CPU,
-/// bf16 or channels-last fp32).
-pub fn set_purge_delay_for_training(precision: rtf_train::config::Precision, device: tch::Device) {
-    let fp32_channels_last = precision == rtf_train::config::Precision::Fp32
-        && rtf_train::procedure::fp32_channels_last_here();
+/// Training in `precision` on `device`, fp32 in `layout`: [`TRAINING_PURGE_DELAY_MS`] where it
+/// applies (a CPU, bf16 or channels-last fp32).
+pub fn set_purge_delay_for_training(
+    precision: rtf_train::config::Precision,
+    device: tch::Device,
+    layout: Fp32Layout,
+) {
+    let fp32_channels_last =
+        precision == rtf_train::config::Precision::Fp32 && layout == Fp32Layout::ChannelsLast;
     let bf16 = precision == rtf_train::config::Precision::Bf16;
     if device == tch::Device::Cpu && (bf16 || fp32_channels_last) {
         set_purge_delay_ms(TRAINING_PURGE_DELAY_MS);
@@ -94,14 +99,18 @@ mod tests {
             assert_eq!(set_purge_delay(), PURGE_DELAY_MS);
             // SAFETY (both reads): as in set_purge_delay.
             let current = || unsafe { mi_option_get(MI_OPTION_PURGE_DELAY) as i64 };
-            set_purge_delay_for_training(rtf_train::config::Precision::Fp32, tch::Device::Cpu);
-            let fp32 = match rtf_train::procedure::fp32_channels_last_here() {
-                true => TRAINING_PURGE_DELAY_MS,
-                false => PURGE_DELAY_MS,
-            };
-            assert_eq!(current(), fp32, "fp32: the longer delay only channels-last");
+            let (fp32, cpu) = (rtf_train::config::Precision::Fp32, tch::Device::Cpu);
+            set_purge_delay_for_training(fp32, cpu, Fp32Layout::Nchw);
+            assert_eq!(
+                current(),
+                PURGE_DELAY_MS,
+                "fp32: the longer delay only channels-last"
+            );
+            set_purge_delay_for_training(fp32, cpu, Fp32Layout::ChannelsLast);
+            assert_eq!(current(), TRAINING_PURGE_DELAY_MS);
             assert_eq!(set_purge_delay(), PURGE_DELAY_MS);
-            set_purge_delay_for_training(rtf_train::config::Precision::Bf16, tch::Device::Cpu);
+            let bf16 = rtf_train::config::Precision::Bf16;
+            set_purge_delay_for_training(bf16, cpu, Fp32Layout::Nchw);
             assert_eq!(current(), TRAINING_PURGE_DELAY_MS);
             assert_eq!(set_purge_delay(), PURGE_DELAY_MS);
         }

@@ -189,6 +189,7 @@ fn training_s(bf16: bool) -> Result<f64> {
         steps: 3,
         optimizer: rtf_train::OptimizerConfig::mfnet_paper(),
         count_ops: false,
+        fp32_layout: None,
     };
     Ok(rtf_train::bench::bench_train(&opts)?.step_s)
 }

@@ -12,6 +12,7 @@ use pyo3::exceptions::PyKeyboardInterrupt;
 use pyo3::prelude::*;
 use rtf_eval::kernels::probe::Probe;
 use rtf_train::args::TrainArgs;
+use rtf_train::config::Fp32Layout;
 use rtf_train::launch::{Ended, Plan};
 use rtf_train::progress::Progress;
 use rtf_train::step_log::StepRecord;
@@ -74,6 +75,9 @@ pub fn train(
     for line in lines {
         eprintln!("{line}");
     }
+    let layout = env.get("RTF_TRAIN_LAYOUT").map_or("", String::as_str);
+    let layout = Fp32Layout::parse(layout).map_err(|e| input(format!("RTF_TRAIN_LAYOUT: {e}")))?;
+    rtf_train::kernels::settle_fp32_layout(&mut plan.cfg, plan.resume, layout);
     // cuDNN's autotuner for a run on CUDA, as `rtf` sets it (RTF_CUDNN_BENCHMARK=0: off).
     if plan
         .cfg

@@ -31,6 +31,8 @@ pub struct TrainBenchOptions {
     pub optimizer: OptimizerConfig,
     /// After the timed steps, one more with its operators counted ([`StepOpCounts`]).
     pub count_ops: bool,
+    /// fp32: the layout of the feature maps (None: the faster on the device).
+    pub fp32_layout: Option<crate::config::Fp32Layout>,
 }
 
 /// The operators one step runs, part by part ([`rtf_models::aten::count_ops`]): the host's
@@ -186,6 +188,7 @@ fn bench_config(opts: &TrainBenchOptions) -> Result<TrainConfig, TrainError> {
     cfg.learning.optimizer = opts.optimizer.clone();
     cfg.learning.precision = opts.precision;
     cfg.schedule.batch_size = opts.batch;
+    cfg.compute.fp32_layout = opts.fp32_layout;
     cfg.compute.device = match opts.device {
         Device::Cpu => "cpu".into(),
         Device::Cuda(i) => format!("cuda:{i}"),
@@ -278,6 +281,7 @@ mod tests {
             steps: 2,
             optimizer: OptimizerConfig::mfnet_paper(),
             count_ops: false,
+            fp32_layout: None,
         }
     }
 

@@ -24,7 +24,7 @@ use rtf_amp::{AmpError, Bf16Convolutions};
 use rtf_eval::kernels::probe::{Measured, Probe, Work};
 use tch::Device;
 
-use crate::config::{available_device, Precision, TrainConfig};
+use crate::config::{available_device, Fp32Layout, Precision, TrainConfig};
 use crate::RunConfig;
 
 /// A choice of bf16 convolutions with the line that says it, if any.
@@ -69,6 +69,26 @@ pub fn settle_for_run(
         stage.compute.bf16_convolutions = Some(choice);
     }
     Ok(lines)
+}
+
+/// Records the fp32 stages' layout: `asked` (the caller's choice: `RTF_TRAIN_LAYOUT` for rtf's
+/// binaries) where given, else the layout a stage recorded when it started, else for a new run
+/// the faster on its device ([`Fp32Layout::faster_on`]). A resume of a run from before the
+/// record keeps none (the faster on the device, as it started).
+pub fn settle_fp32_layout(cfg: &mut RunConfig, resume: bool, asked: Option<Fp32Layout>) {
+    for stage in cfg.stages_mut() {
+        if stage.learning.precision != Precision::Fp32 {
+            continue;
+        }
+        let device = available_device(&stage.compute.device).unwrap_or(Device::Cpu);
+        let recorded = stage.compute.fp32_layout;
+        stage.compute.fp32_layout = match (asked, recorded, resume) {
+            (Some(asked), ..) => Some(asked),
+            (None, Some(recorded), _) => Some(recorded),
+            (None, None, true) => None,
+            (None, None, false) => Some(Fp32Layout::faster_on(device)),
+        };
+    }
 }
 
 fn trains_bf16_on_cpu(stage: &TrainConfig) -> bool {
@@ -204,6 +224,24 @@ mod tests {
             recorded(&ddp),
             Some(rtf_amp::cpu_bf16_convolutions().unwrap())
         );
+    }
+
+    #[test]
+    fn the_layout_asked_wins_a_record_stands_and_a_new_run_takes_the_faster() {
+        let layout = |cfg: &RunConfig| cfg.stages()[0].1.compute.fp32_layout;
+        let mut new = run(Precision::Fp32, "cpu");
+        settle_fp32_layout(&mut new, false, None);
+        assert_eq!(layout(&new), Some(Fp32Layout::faster_on(Device::Cpu)));
+        settle_fp32_layout(&mut new, true, Some(Fp32Layout::Nchw));
+        assert_eq!(layout(&new), Some(Fp32Layout::Nchw), "asked");
+        settle_fp32_layout(&mut new, true, None);
+        assert_eq!(layout(&new), Some(Fp32Layout::Nchw), "recorded");
+        let mut old = run(Precision::Fp32, "cpu");
+        settle_fp32_layout(&mut old, true, None);
+        assert_eq!(layout(&old), None, "a run from before the record");
+        let mut bf16 = run(Precision::Bf16, "cpu");
+        settle_fp32_layout(&mut bf16, false, Some(Fp32Layout::Nchw));
+        assert_eq!(layout(&bf16), None, "fp32 stages only");
     }
 
     #[test]

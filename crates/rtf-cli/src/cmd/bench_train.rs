@@ -4,7 +4,7 @@
 
 use anyhow::Result;
 use rtf_train::bench::{bench_train, TrainBenchOptions};
-use rtf_train::config::{OptimizerKind, Precision};
+use rtf_train::config::{Fp32Layout, OptimizerKind, Precision};
 use rtf_train::OptimizerConfig;
 
 use super::parse_size;
@@ -66,7 +66,9 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(warning) = crate::bf16_warning::training(args.precision, device) {
         eprintln!("warning: {warning}");
     }
-    crate::allocator::set_purge_delay_for_training(args.precision, device);
+    let layout = super::train::layout_asked()?;
+    let in_force = layout.unwrap_or_else(|| Fp32Layout::faster_on(device));
+    crate::allocator::set_purge_delay_for_training(args.precision, device, in_force);
     let report = bench_train(&TrainBenchOptions {
         model: args.model,
         batch: args.batch,
@@ -77,6 +79,7 @@ pub fn run(args: Args) -> Result<()> {
         steps: args.steps,
         optimizer,
         count_ops: args.count_ops,
+        fp32_layout: layout,
     })?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);

@@ -2,7 +2,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Result;
-use rtf_train::config::available_device;
+use rtf_train::config::{available_device, Fp32Layout};
 use rtf_train::launch::{Ended, Plan};
 use rtf_train::progress::Epochs;
 use rtf_train::RunConfig;
@@ -32,6 +32,7 @@ pub fn run(args: Args) -> Result<()> {
     for line in lines.iter().filter(|_| root) {
         eprintln!("{line}");
     }
+    rtf_train::kernels::settle_fp32_layout(&mut plan.cfg, plan.resume, layout_asked()?);
     prepare_arithmetic(&plan.cfg, root)?;
     let stop = stop_on_signals();
     if root {
@@ -43,6 +44,13 @@ pub fn run(args: Args) -> Result<()> {
         Ended::Interrupted { stage, state } => interrupted(&plan.run_dir, stage, &state),
     }
     Ok(())
+}
+
+/// The fp32 training layout `RTF_TRAIN_LAYOUT` asks for (`nchw`, `nhwc`; unset or `auto`:
+/// None, the faster on the device).
+pub fn layout_asked() -> Result<Option<Fp32Layout>> {
+    let var = std::env::var("RTF_TRAIN_LAYOUT").unwrap_or_default();
+    Fp32Layout::parse(&var).map_err(|e| anyhow::anyhow!("RTF_TRAIN_LAYOUT: {e}"))
 }
 
 /// What the run about to train is, said before its first step.
@@ -78,7 +86,13 @@ fn prepare_arithmetic(cfg: &RunConfig, root: bool) -> Result<()> {
             slow = slow.or_else(|| crate::bf16_warning::training(stage.learning.precision, device));
         }
         if i == 0 {
-            crate::allocator::set_purge_delay_for_training(stage.learning.precision, device);
+            let layout = stage.compute.fp32_layout;
+            let layout = layout.unwrap_or_else(|| Fp32Layout::faster_on(device));
+            crate::allocator::set_purge_delay_for_training(
+                stage.learning.precision,
+                device,
+                layout,
+            );
         }
     }
     if let Some(warning) = slow {

@@ -96,6 +96,7 @@ impl From<LegacyFlatConfig> for TrainConfig {
                 device: f.device,
                 world_size: f.world_size,
                 bf16_convolutions: None,
+                fp32_layout: None,
             },
         }
     }

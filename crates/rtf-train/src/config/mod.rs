@@ -129,6 +129,53 @@ pub struct ComputeConfig {
     /// before the record).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
+    /// fp32 stages: the layout of the feature maps the run started with
+    /// ([`Fp32Layout`]; chosen by the caller, `RTF_TRAIN_LAYOUT` for rtf's binaries, else the
+    /// faster on the device), recorded so that a resume computes the same sums. None = not
+    /// recorded ([`Fp32Layout::faster_on`] the device then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fp32_layout: Option<Fp32Layout>,
+}
+
+/// How fp32 training lays out its feature maps. Convolutional networks only: CMX (attention)
+/// keeps NCHW.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Fp32Layout {
+    Nchw,
+    ChannelsLast,
+}
+
+impl Fp32Layout {
+    /// The layout fp32 training measured faster in on `device`: channels-last on CUDA (cuDNN's
+    /// TF32 convolutions are laid out for NHWC; docs/src/gpu.md) and on CPUs with AVX-512
+    /// (`avx512f`: oneDNN's fp32 training kernels take channels-last operands without
+    /// reorders); NCHW on CPUs without (docs/src/benchmarks.md).
+    pub fn faster_on(device: tch::Device) -> Self {
+        let avx512 = || {
+            rtf_core::host::CpuInfo::read()
+                .flags
+                .iter()
+                .any(|f| f == "avx512f")
+        };
+        match device {
+            tch::Device::Cpu if !avx512() => Fp32Layout::Nchw,
+            _ => Fp32Layout::ChannelsLast,
+        }
+    }
+
+    /// A layout as users name it: `nchw`, or `nhwc` / `channels_last`; `auto` (or nothing)
+    /// leaves the choice open (None).
+    pub fn parse(text: &str) -> Result<Option<Self>, String> {
+        match text.trim() {
+            "" | "auto" => Ok(None),
+            "nchw" => Ok(Some(Fp32Layout::Nchw)),
+            "nhwc" | "channels_last" => Ok(Some(Fp32Layout::ChannelsLast)),
+            other => Err(format!(
+                "unknown training layout `{other}` (expected nchw, nhwc or auto)"
+            )),
+        }
+    }
 }
 
 /// The sections as they are read: every one required, no other key.
@@ -1020,6 +1067,7 @@ impl TrainConfig {
                 device: "cpu".into(),
                 world_size: None,
                 bf16_convolutions: None,
+                fp32_layout: None,
             },
         }
     }

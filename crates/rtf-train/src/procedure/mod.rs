@@ -19,7 +19,8 @@ pub use supervised::Supervised;
 pub use teacher_student::TeacherStudent;
 
 use crate::config::{
-    Modality, OptimizerConfig, Precision, Procedure as ProcedureConfig, StepAt, TrainConfig,
+    Fp32Layout, Modality, OptimizerConfig, Precision, Procedure as ProcedureConfig, StepAt,
+    TrainConfig,
 };
 use crate::error::TrainError;
 use crate::loss::PseudoTargets;
@@ -58,19 +59,10 @@ impl Trained {
         }
     }
 
-    /// Lays this network out channels-last in fp32 too, where `on` and the device trains
-    /// faster so: on the CPU where it has AVX-512 ([`fp32_channels_last_here`]): oneDNN's fp32
-    /// training kernels take channels-last operands without reorders, and libtorch's BatchNorm
-    /// and pointwise kernels keep that layout: on a Xeon family 6 model 167 (AVX-512), 640×480,
-    /// batch 4, 2 threads, MFNet 2.16 → 2.71 images/s, RTFNet-50 0.127 → 0.148
-    /// (docs/src/benchmarks.md, issue 41). On CUDA always ([`fp32_channels_last_on_cuda`]).
-    /// For convolutional networks ([`Student::build`]).
-    pub fn fp32_channels_last(self, on: bool) -> Self {
-        let here = match self.vs.device() {
-            Device::Cpu => fp32_channels_last_here(),
-            _ => fp32_channels_last_on_cuda(),
-        };
-        self.laid_out_fp32(on && here)
+    /// Lays this network out channels-last in fp32 too where `on` (convolutional networks,
+    /// [`Student::build`]) and the run's layout is channels-last ([`Fp32Layout`]).
+    pub fn fp32_layout(self, on: bool, layout: Fp32Layout) -> Self {
+        self.laid_out_fp32(on && layout == Fp32Layout::ChannelsLast)
     }
 
     /// fp32 channels-last (`true`) or NCHW, whatever the CPU.
@@ -157,32 +149,6 @@ impl Trained {
     }
 }
 
-/// Whether fp32 training on CUDA runs channels-last: yes unless `RTF_TRAIN_LAYOUT=nchw`.
-/// cuDNN's TF32 convolutions are laid out for NHWC: PyTorch's own fp32 training on an H100
-/// (libtorch 2.11, 640×480) ran channels_last 1.79× as fast as NCHW for MFNet (batch 8) and
-/// 1.59× for RTFNet-50 (batch 4) (docs/src/gpu-2026-11-27.md); rtf's own fp32 went from 155 to
-/// 268 images/s (MFNet) and from 47 to 68 (RTFNet-50) when it did the same (docs/src/gpu.md).
-pub fn fp32_channels_last_on_cuda() -> bool {
-    std::env::var("RTF_TRAIN_LAYOUT").as_deref() != Ok("nchw")
-}
-
-/// Whether this CPU trains faster channels-last in fp32: where it has AVX-512 (`avx512f`), on
-/// which PyTorch's own fp32 channels_last training was as fast or faster (Zen 4: MFNet 1.12
-/// against 0.88 images/s; model 167: 1.80 against 1.25); on the AVX2-only EPYC it was slower
-/// for MFNet, RTFNet-50 and PSPNet-50 (docs/src/benchmarks.md, round 3), so NCHW stays there.
-/// `RTF_TRAIN_LAYOUT=nchw` or `nhwc` decides instead (to compare the layouts). Read once.
-pub fn fp32_channels_last_here() -> bool {
-    static HERE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *HERE.get_or_init(|| match std::env::var("RTF_TRAIN_LAYOUT").as_deref() {
-        Ok("nchw") => false,
-        Ok("nhwc") => true,
-        _ => rtf_core::host::CpuInfo::read()
-            .flags
-            .iter()
-            .any(|f| f == "avx512f"),
-    })
-}
-
 /// The segmentation network a procedure trains, with the channels it sees.
 pub struct Student {
     pub trained: Trained,
@@ -195,8 +161,12 @@ impl Student {
         // Convolutional networks train channels-last in fp32 too; CMX (attention) was not
         // measured so and keeps NCHW.
         let convolutional = !matches!(cfg.network.model, ModelConfig::Cmx(_));
+        let layout = cfg
+            .compute
+            .fp32_layout
+            .unwrap_or_else(|| Fp32Layout::faster_on(device));
         let trained = Trained::new(STUDENT, device, &cfg.learning.optimizer)
-            .fp32_channels_last(convolutional)
+            .fp32_layout(convolutional, layout)
             .mixed(cfg.learning.precision)?;
         let inner = rtf_models::build(&trained.vs.root(), &cfg.network.model)?;
         trained.channels_last_weights();
