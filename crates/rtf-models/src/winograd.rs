@@ -17,7 +17,7 @@
 //! channels, whose larger maps need the transforms done in cache-sized chunks of tiles, in C++
 //! (csrc/ops.cpp `wino43_conv`; by libtorch ops over whole maps F(2×2, 3×3) lost: 512 channels
 //! at 60×80, 99 → 110 ms). From 64 channels since the transforms are vectorised (issue 41,
-//! `examples/winograd_layers.rs`: 64 channels at 120×160, 4.9 against oneDNN's direct 6.2 ms
+//! the lab's `winograd_layers`: 64 channels at 120×160, 4.9 against oneDNN's direct 6.2 ms
 //! on an AVX-512 EPYC; before, at 7.5 ms, the form began at 128).
 //!
 //! bf16 inference can take the same forms over bf16 maps ([`bf16_applies`]): the maps are read
@@ -339,7 +339,7 @@ pub const TRAIN_MIN_TILES: i64 = 256;
 /// Whether a training convolution of this shape, over an input [N, C, H, W], takes
 /// [`conv3x3_f43_train`]: a 3×3 convolution that keeps the size, undilated, of
 /// [`TRAIN_MIN_CHANNELS`]–[`TRAIN_MAX_CHANNELS`] channels and at least [`TRAIN_MIN_TILES`]
-/// tiles. Measured per shape with `examples/winograd_training_layers.rs` (docs/src/speed-by-
+/// tiles. Measured per shape with the lab's `winograd_training_layers` (docs/src/speed-by-
 /// kind.md). [`Forms::Off`] or [`Forms::F23`] in force ([`with_forms`]) turns it off.
 pub fn trains_in_f43(kernel: i64, geometry: Geometry, c_out: i64, input: &[i64]) -> bool {
     let [n, c_in, h, w] = input else {

@@ -6,7 +6,7 @@
 //! 240×320). Best of 3 passes, two rounds interleaved; the largest relative difference of the
 //! weight gradient from the direct one is printed beside.
 //!
-//! `cargo run --release -p rtf-models --example winograd_training_layers [-- THREADS]` (default 2
+//! `cargo run --release -p rtf-lab --bin winograd_training_layers [-- THREADS]` (default 2
 //! threads). Results and the machine they came from: docs/src/speed-by-kind.md (issue 41).
 use std::time::Instant;
 

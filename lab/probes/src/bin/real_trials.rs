@@ -1,5 +1,5 @@
 //! Real-imagery calibration trials (issue 12), run by `cargo xtask calib-check`:
-//! `cargo run --release -p rtf-calib --example real_trials -- [--trials 20] [--width 640]
+//! `cargo run --release -p rtf-lab --bin real_trials -- [--trials 20] [--width 640]
 //! [--frames 20] [--out target/calib-check/real] [--data ../shared/data] [--first-seed 1]
 //! [--only 2,5] [--rejudge]`.
 //!

@@ -4,7 +4,7 @@
 //! tests live beside the code in `rtf_calib`. One command per probe:
 //!
 //! ```sh
-//! [KNOBS=..] cargo run --release -p rtf-calib --example calib_probes -- NAME
+//! [KNOBS=..] cargo run --release -p rtf-lab --bin calib_probes -- NAME
 //! ```
 //!
 //! with NAME one of the functions below (`--list` prints them) and the knobs each probe's

@@ -2,7 +2,7 @@
 //! batch's statistics) as in evaluation mode (running statistics) on the frames it trained on?
 //! A large gap says the evaluation, not the learning, is what fails (docs/src/quick-budget.md).
 //!
-//! `cargo run --release -p rtf-train --example bn_mode_gap -- MODEL WEIGHTS DATA [SPLIT] [BATCH]`
+//! `cargo run --release -p rtf-lab --bin bn_mode_gap -- MODEL WEIGHTS DATA [SPLIT] [BATCH]`
 use std::sync::Arc;
 
 use rtf_data::{AugmentConfig, FrameSource, Loader, LoaderConfig, MfDataset};

@@ -3,7 +3,7 @@
 //! `InferenceNet::releasing_plain_weights`), and after each forward pass, with the process's
 //! peak (`VmHWM`). Random weights, a random input, batch 1.
 //!
-//! `cargo run --release -p rtf-models --example inference_memory -- MODEL [fp32|bf16]
+//! `cargo run --release -p rtf-lab --bin inference_memory -- MODEL [fp32|bf16]
 //! [WIDTHxHEIGHT] [THREADS] [keep]` (default fp32, 640x480, 2 threads; `keep` skips the
 //! release, for the same phases without it). Results: docs/src/speed-by-kind.md.
 use rtf_models::fast::{FoldOptions, InferenceNet, Layout, Precision};

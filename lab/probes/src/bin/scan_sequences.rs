@@ -6,7 +6,7 @@
 //! lists (every line resolved, day/night from the lists).
 //!
 //! ```sh
-//! cargo run --release -p rtf-data --example scan_sequences -- [FRAMES] [DIR]
+//! cargo run --release -p rtf-lab --bin scan_sequences -- [FRAMES] [DIR]
 //! ```
 
 use std::path::Path;

@@ -6,7 +6,7 @@
 //! 480×640 (64 channels at 120×160 down to 512 at 15×20). Best of 20 passes, three rounds
 //! interleaved; the largest difference from the direct convolution is printed beside.
 //!
-//! `cargo run --release -p rtf-models --example winograd_layers [-- THREADS] [bf16]` (default
+//! `cargo run --release -p rtf-lab --bin winograd_layers [-- THREADS] [bf16]` (default
 //! 2 threads; `bf16` adds each shape over bf16 maps: oneDNN's bf16 kernels against the form).
 //! Results and the machine they came from: docs/src/speed-by-kind.md (issue 41).
 use std::time::Instant;
