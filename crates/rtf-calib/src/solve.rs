@@ -57,6 +57,7 @@ pub fn calibrate(
             solution: &s.calibration,
             split_px: assessment.split_px,
             restart_spread_px: s.restarts.as_ref().map_or(0.0, |r| r.spread_px),
+            debug: settings.debug,
         },
     );
     let assessment = assessment.with_bound(bound_px, bound);

@@ -84,7 +84,7 @@ fn run_rig(cfg: &RigSynthConfig, settings: &Settings) -> (f64, f64, f64, Outcome
         outcome: out,
         ..
     } = &run;
-    if std::env::var_os("RTF_CALIB_DEBUG").is_some() {
+    if debug() {
         let used: Vec<&Frame> = frames.iter().collect();
         let scaling = Scaling::new(&rig.rgb, initial_params(rig), &used);
         let pt = model::from_calibration(&synth.truth);
@@ -123,7 +123,7 @@ fn run_rig(cfg: &RigSynthConfig, settings: &Settings) -> (f64, f64, f64, Outcome
 
 /// Development aid, run with RTF_CALIB_DEBUG=1 [WIDTH=.. SEED=.. N_FRAMES=..].
 fn explore() {
-    if std::env::var_os("RTF_CALIB_DEBUG").is_none() {
+    if !debug() {
         return;
     }
     tch::set_num_threads(1);
@@ -147,7 +147,7 @@ fn explore() {
         seed,
         ..Default::default()
     };
-    let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+    let settings = default_settings();
     let (err, _, _, out) = run_rig(&cfg, &settings);
     assert!(err.is_finite() && out.stopped.is_none());
 }
@@ -606,6 +606,20 @@ fn probe_residual_field() {
     );
 }
 
+/// `RTF_CALIB_DEBUG` set: per-iteration and per-walk output on stderr (the library's
+/// `Settings::debug`, and the probes' own extra lines).
+fn debug() -> bool {
+    std::env::var_os("RTF_CALIB_DEBUG").is_some()
+}
+
+/// The default recipe's settings (seed 0), with the library's development output when
+/// [`debug`].
+fn default_settings() -> Settings {
+    let mut settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+    settings.debug = debug();
+    settings
+}
+
 /// A development probe's set-up: the real data folder when `gate` is set and the data is
 /// there (else the probe does nothing), libtorch on one thread.
 fn probe_data(gate: &str) -> Option<std::path::PathBuf> {
@@ -674,10 +688,10 @@ fn probe_real() {
     let real = rtf_calib::real_rig::write_real_rig(dir.path(), &cfg).unwrap();
     let rig = &real.rig;
     let frames = load_frames(rig, &mut |w| eprintln!("{w}")).unwrap();
-    let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+    let settings = default_settings();
     let t0 = std::time::Instant::now();
     let out = calibrate(rig, &frames, &settings, &mut |p| {
-        if std::env::var_os("RTF_CALIB_DEBUG").is_some() {
+        if debug() {
             eprintln!(
                 "{:>7.2}s {} {}/{} loss {:.6}",
                 t0.elapsed().as_secs_f64(),
@@ -737,7 +751,7 @@ fn probe_trial() {
     }
     let (_dir, real, frames) = trial_rig(&cfg);
     let rig = &real.rig;
-    let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+    let settings = default_settings();
     let t0 = std::time::Instant::now();
     let out = calibrate(rig, &frames, &settings, &mut |_| {}).unwrap();
     let secs = t0.elapsed().as_secs_f64();
@@ -901,7 +915,7 @@ fn probe_calibrate_rig() {
         },
     };
     let frames = load_frames(&rig, &mut |w| eprintln!("{w}")).unwrap();
-    let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+    let settings = default_settings();
     let out = calibrate(&rig, &frames, &settings, &mut |_| {}).unwrap();
     let (a, b) = (out.calibration.extrinsic.rotation, truth.extrinsic.rotation);
     let trace: f64 = (0..3)
@@ -931,7 +945,7 @@ fn probe_stages() {
     let seed = env("SEED", 6) as u64;
     let (_dir, real, frames) = trial_rig(&trial_config(&data, seed, 640, 20));
     let rig = &real.rig;
-    let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+    let settings = default_settings();
     let used: Vec<&Frame> = frames.iter().collect();
     let pipe = Pipeline::new(rig, used, initial_params(rig), &settings);
     let sc = &pipe.scaling;
@@ -1006,7 +1020,7 @@ fn probe_restarts() {
     for seed in seeds {
         let (_dir, real, frames) = trial_rig(&trial_config(&data, seed, 160, 6));
         let rig = &real.rig;
-        let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0).unwrap();
+        let settings = default_settings();
         let used: Vec<&Frame> = frames.iter().collect();
         let pipe = Pipeline::new(rig, used.clone(), initial_params(rig), &settings);
         let sc = &pipe.scaling;
@@ -1271,6 +1285,7 @@ fn bound_of_file() {
             solution: &file.calibration(),
             split_px,
             restart_spread_px: spread,
+            debug: debug(),
         },
     );
     println!(

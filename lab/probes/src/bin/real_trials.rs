@@ -101,7 +101,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let _ = std::fs::remove_dir_all(&dir);
         let real = write_real_rig(&dir, &cfg)?;
         let loaded = load_frames(&real.rig, &mut |w| eprintln!("warning: {w}"))?;
-        let settings = Settings::resolve(Recipe::Default, Default::default(), None, 0)?;
+        let mut settings = Settings::resolve(Recipe::Default, Default::default(), None, 0)?;
+        // The bound's walks on stderr with RTF_CALIB_DEBUG set (the library's `Settings::debug`).
+        settings.debug = std::env::var_os("RTF_CALIB_DEBUG").is_some();
         let t0 = std::time::Instant::now();
         // `RTF_CALIB_PROFILE=1`: time per stage (pyramid level, restarts) and iterations.
         let profile = std::env::var_os("RTF_CALIB_PROFILE").is_some();
