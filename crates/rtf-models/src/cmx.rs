@@ -1207,7 +1207,7 @@ mod tests {
     use tch::Device;
 
     /// Trainable parameters of the official network for 9 classes, from
-    /// `scripts/cmx_reference.py --count` (its module tree has the official names and shapes;
+    /// `lab/parity/cmx_reference.py --count` (its module tree has the official names and shapes;
     /// B0, B2, B4, B5 also counted on the official `EncoderDecoder`, which cannot build B1 and
     /// B3, see the module doc).
     fn official_count(size: Size) -> i64 {
