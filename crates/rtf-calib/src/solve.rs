@@ -1,6 +1,6 @@
 //! `rtf calibrate`'s whole computation: the recipe's optimiser ([`crate::optimize`]) and the
 //! assessment of its solution ([`crate::quality`]). This module sits above both so that the
-//! optimiser does not depend on the assessment (they used to import each other).
+//! optimiser does not depend on the assessment.
 
 use crate::camera::Calibration;
 use crate::error::Result;
