@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 40 in one run on a lent GPU machine (docs/src/gpu.md): correctness on the GPU, the
-# inference and training tables against PyTorch (scripts/gpu_bench.py), scripts/gpu_smoke.sh,
+# inference and training tables against PyTorch (lab/gpu/gpu_bench.py), scripts/gpu_smoke.sh,
 # then extras while the time budget lasts. Every phase writes its file under OUT at once, so a
 # run cut off by its time limit keeps what it finished. On the H100 of 2026-11-27 the phases
 # took: correct 33 s, smoke 150 s, train 258 s (with two diagnostic runs, now left out), infer
@@ -61,16 +61,16 @@ phase_correct() {
             --batch-size 4 --no-shuffle --no-augment --seed 0 --device "${run%_fp32}" \
             --out "$work/step_$run" >"$work/step_$run.log" 2>&1 || { tail "$work/step_$run.log"; return 1; }
     done
-    python3 "$here/gpu_correctness.py" "$work" "$mf/mfnet_final.safetensors" | tee "$out/correct.txt"
+    python3 "$here/../lab/gpu/gpu_correctness.py" "$work" "$mf/mfnet_final.safetensors" | tee "$out/correct.txt"
 }
 
 phase_train() {
-    python3 "$here/gpu_bench.py" train --rtf "$rtf" --models mfnet:8,rtfnet50:4 --warmup 3 \
+    python3 "$here/../lab/gpu/gpu_bench.py" train --rtf "$rtf" --models mfnet:8,rtfnet50:4 --warmup 3 \
         --iterations 10 --json "$out/train.json"
 }
 
 phase_infer() {
-    python3 "$here/gpu_bench.py" infer --rtf "$rtf" --diagnose mfnet \
+    python3 "$here/../lab/gpu/gpu_bench.py" infer --rtf "$rtf" --diagnose mfnet \
         --models mfnet,rtfnet50,rtfnet152:1,heatnet:1,cmx-mit-b2:1 --batches 1/8 --warmup 5 \
         --iterations 15 --json "$out/infer.json"
 }
@@ -84,7 +84,7 @@ phase_smoke() {
 
 # Second priority: torch.compile for two networks, and the CMX sizes around B2.
 phase_extra() {
-    python3 "$here/gpu_bench.py" infer --rtf "$rtf" --models mfnet:1,rtfnet50:1,cmx-mit-b0,cmx-mit-b4 \
+    python3 "$here/../lab/gpu/gpu_bench.py" infer --rtf "$rtf" --models mfnet:1,rtfnet50:1,cmx-mit-b0,cmx-mit-b4 \
         --compile mfnet,rtfnet50 --warmup 5 --iterations 20 --json "$out/extra.json"
 }
 
@@ -99,7 +99,7 @@ for name in $phases; do
         status=1
     fi
     ls "$out"/*.json >/dev/null 2>&1 &&
-        python3 "$here/gpu_bench.py" table $(ls "$out"/{train,infer,extra}.json 2>/dev/null) >"$out/tables.md"
+        python3 "$here/../lab/gpu/gpu_bench.py" table $(ls "$out"/{train,infer,extra}.json 2>/dev/null) >"$out/tables.md"
 done
 say "done (status $status)"
 cat "$out/tables.md" 2>/dev/null | grep -E '^\*\*|^- ' || true

@@ -1,5 +1,5 @@
 """Arg-max agreement of two folders of `rtf predict --logits` files ([classes, H, W] .npy, same
-names): used by scripts/gpu_smoke.sh and scripts/gpu_correctness.py to compare a GPU's logits
+names): used by scripts/gpu_smoke.sh and lab/gpu/gpu_correctness.py to compare a GPU's logits
 with the CPU's."""
 import glob
 import os

@@ -91,7 +91,8 @@ pub fn calib_check(root: &Path, extra: &[String]) -> Result<()> {
 }
 
 /// Real-imagery rigs (MSRS frames through a known thermal camera): trials, table and the
-/// success-rate plot, from the rtf-calib example (it needs libtorch; xtask does not).
+/// success-rate plot, from the lab's `real_trials` program (`lab/probes`, package rtf-lab: it
+/// needs libtorch; xtask does not).
 fn real_trials(root: &Path, o: &Options) -> Result<()> {
     crate::run(
         root,
@@ -100,8 +101,8 @@ fn real_trials(root: &Path, o: &Options) -> Result<()> {
             "run",
             "--release",
             "-p",
-            "rtf-calib",
-            "--example",
+            "rtf-lab",
+            "--bin",
             "real_trials",
             "--",
             "--trials",

@@ -79,7 +79,7 @@ pub fn ensure_libtorch(root: &Path) -> Result<PathBuf> {
 }
 
 /// Python packages the scripts and tests use, as (import name, PyPI name): the benchmark peers
-/// (`scripts/bench_*.py`) need NumPy and Pillow; the TensorBoard test reads event files back
+/// (`lab/bench/bench_*.py`) need NumPy and Pillow; the TensorBoard test reads event files back
 /// with TensorBoard's reader; `rtf export --format onnx` and its test use PyTorch's ONNX
 /// exporter (`onnx`, `onnxscript`) and check the result with onnxruntime; `cargo xtask
 /// wheel` builds the Python package with maturin, and `cargo xtask test` runs its tests with

@@ -434,6 +434,8 @@ pub struct BoundInputs<'a> {
     pub solution: &'a Calibration,
     pub split_px: f64,
     pub restart_spread_px: f64,
+    /// Each walk's extents on stderr ([`crate::optimize::Settings::debug`]).
+    pub debug: bool,
 }
 
 /// The bound on the mean map error (px) of `inputs.solution` on the frames `chosen`, and the
@@ -467,7 +469,7 @@ pub fn bound(rig: &Rig, chosen: &[&Frame], inputs: &BoundInputs) -> (f64, Bound)
     );
     let objective_gap_px = map_distance(&profile.level, &scaling, &solution, &other);
     let disagreement = prior_disagreement(rig, profile, &solution, dirs, frames);
-    let ends = profile_endpoints(profile, &centre, &setup.total_h, dirs, frames);
+    let ends = profile_endpoints(profile, &centre, &setup.total_h, dirs, frames, inputs.debug);
     let (bound_px, mut b) = summarise(
         rig,
         profile,
@@ -652,13 +654,15 @@ fn eigen_directions(h: &[Vec<f64>], dirs: &[[f64; NUM_PARAMS]]) -> Vec<[f64; NUM
 /// `theta` (the assessment level's minimum): the straight-line ends, the profile's axis
 /// points (the centre moved along the direction by the profile's extent, the flat set's
 /// extent projected on that axis), and the profile's valley points (solutions the data
-/// cannot tell apart). The walks run on two threads (libtorch's own threads stay at one).
+/// cannot tell apart). The walks run on two threads (libtorch's own threads stay at one);
+/// `debug` prints each walk's extents on stderr.
 fn profile_endpoints(
     profile: &Profile,
     theta: &[f64; NUM_PARAMS],
     total_h: &[Vec<f64>],
     dirs: &[[f64; NUM_PARAMS]],
     frames: &[i64],
+    debug: bool,
 ) -> Endpoints {
     let eigen = eigen_directions(total_h, dirs);
     let jobs: Vec<(usize, [f64; NUM_PARAMS])> = eigen
@@ -670,7 +674,7 @@ fn profile_endpoints(
     let mut out = Endpoints::default();
     for ((_, unit), w) in jobs.iter().zip(walks) {
         let at = |t: f64| std::array::from_fn::<f64, NUM_PARAMS, _>(|i| theta[i] + t * unit[i]);
-        if std::env::var_os("RTF_CALIB_DEBUG").is_some() {
+        if debug {
             let d = |e: &[f64; NUM_PARAMS]| map_distance(&profile.level, profile.scaling, theta, e);
             eprintln!(
                 "bound walk: straight t {:.2} ({:.3} px), profile t {:.2} ({:.3} px), valley {:.3} px",

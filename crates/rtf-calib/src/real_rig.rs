@@ -110,7 +110,7 @@ impl RealRigConfig {
         }
     }
 
-    /// Trial `index` (0-based) of a set of `trials` as `examples/real_trials.rs` spans the range:
+    /// Trial `index` (0-based) of a set of `trials` as the lab's `real_trials` spans the range:
     /// thermal f / RGB f from 0.75 to 1.35 across the set, day, night and mixed frames in turn.
     pub fn in_trial_set(mut self, index: usize, trials: usize) -> Self {
         self.focal_ratio = Some(0.75 + 0.6 * (index as f64 + 0.5) / trials as f64);
@@ -127,8 +127,8 @@ impl RealRigConfig {
 /// centre and hardly at the border: a radial difference between MF's thermal and RGB imaging
 /// that a single scale cannot undo (the previous, scale-only registration found s = 1.000–1.025
 /// as a compromise). Measured with the `probe_registration` probe of
-/// `examples/calib_probes.rs`, once a development test of `optimize.rs` (`REG_K2=1 cargo run
-/// --release -p rtf-calib --example calib_probes -- probe_registration`: per scene, a
+/// the lab's `calib_probes`, once a development test of `optimize.rs` (`REG_K2=1 cargo run
+/// --release -p rtf-lab --bin calib_probes -- probe_registration`: per scene, a
 /// coordinate search at full 640×480 resolution maximising the correlation of the centred
 /// edge features over the image less an 8 px border, steps refined to 0.0001 in s, k, k₂,
 /// 0.003° and 0.03 px). A rig built on the raw pairs puts this difference into its "truth"
@@ -201,8 +201,8 @@ const PARALLAX_BAND_ROWS: f64 = 60.0;
 /// (8×6 blocks; `probe_residual_field` with `FIELD_GLOBAL_ONLY=1`), enough to pull a
 /// calibration from 20 such frames about a pixel off the rigs' truth at 640×480 (f +1.4 %,
 /// k1 more negative). Measured with the `probe_parallax_bands` probe of
-/// `examples/calib_probes.rs`, once a development test of `optimize.rs` (`cargo run --release
-/// -p rtf-calib --example calib_probes -- probe_parallax_bands`): normalised correlation of the
+/// the lab's `calib_probes`, once a development test of `optimize.rs` (`cargo run --release
+/// -p rtf-lab --bin calib_probes -- probe_parallax_bands`): normalised correlation of the
 /// edge features over the band less a 16 px border, ±8 px, parabolic sub-pixel peak; the top
 /// and bottom bands are measured 8 px inside the image. A band whose peak is weak (< 0.15: sky,
 /// dark night areas, often the lower half of a night scene) follows the scenes' common profile
@@ -332,7 +332,7 @@ pub fn warp_msrs_ir(scene: &str, ir: &Plane, parallax: bool) -> Plane {
 }
 
 // How `MSRS_PARALLAX` fills the bands it could not measure (round 7; measured by the
-// `probe_parallax_bands` probe in examples/calib_probes.rs).
+// `probe_parallax_bands` probe in lab/probes/src/bin/calib_probes.rs).
 
 /// Bands without a measurement take the linear interpolation of their measured
 /// neighbours (the nearest one past the first or last; 0 when none was measured).

@@ -1,6 +1,6 @@
 //! `rtf calibrate`'s whole computation: the recipe's optimiser ([`crate::optimize`]) and the
 //! assessment of its solution ([`crate::quality`]). This module sits above both so that the
-//! optimiser does not depend on the assessment (they used to import each other).
+//! optimiser does not depend on the assessment.
 
 use crate::camera::Calibration;
 use crate::error::Result;
@@ -57,6 +57,7 @@ pub fn calibrate(
             solution: &s.calibration,
             split_px: assessment.split_px,
             restart_spread_px: s.restarts.as_ref().map_or(0.0, |r| r.spread_px),
+            debug: settings.debug,
         },
     );
     let assessment = assessment.with_bound(bound_px, bound);

@@ -1,6 +1,6 @@
 //! A calibration of a synthetic rig scored against its known truth: what the calibrator's tests
-//! and the research probes (`examples/calib_probes.rs`) run. The rig is written twice into a
-//! folder the caller owns: as `cfg` asks (`rig/`, with the depth the calibrator is given) and
+//! and the lab's research probes (`calib_probes`) run. The rig is written twice into a folder
+//! the caller owns: as `cfg` asks (`rig/`, with the depth the calibrator is given) and
 //! with the rendered depth (`truth/`), on which the pixel map is scored.
 
 use std::path::Path;
@@ -28,7 +28,7 @@ pub struct SyntheticRun {
 
 /// Writes the rig `cfg` describes under `dir`, calibrates it with `settings` and scores the
 /// result; says the time, iterations and errors on stderr (each iteration with
-/// `RTF_CALIB_DEBUG` set).
+/// `settings.debug`).
 pub fn calibrate_synthetic(
     dir: &Path,
     cfg: &RigSynthConfig,
@@ -37,7 +37,7 @@ pub fn calibrate_synthetic(
     let synth = write_rig(&dir.join("rig"), cfg)?;
     let rig = Rig::load(&synth.rig_path)?;
     let frames = load_frames(&rig, &mut |w| eprintln!("{w}"))?;
-    let debug = std::env::var_os("RTF_CALIB_DEBUG").is_some();
+    let debug = settings.debug;
     let start = std::time::Instant::now();
     let outcome = calibrate(&rig, &frames, settings, &mut |p| {
         if debug {

@@ -19,7 +19,7 @@ fn models_lists_every_network_with_reference_counts() {
     assert_eq!(params("rtfnet50"), 185_238_501);
     assert_eq!(params("heatnet"), 54_361_040);
     assert_eq!(params("heatnet-critic"), 2_774_977);
-    // CMX (the official EncoderDecoder's count, scripts/cmx_reference.py --count).
+    // CMX (the official EncoderDecoder's count, lab/parity/cmx_reference.py --count).
     assert_eq!(params("cmx-mit-b2"), 66_565_521);
     for name in [
         "rtfnet152-fci",

@@ -1,4 +1,4 @@
-//! The soak script (`scripts/soak.py`, issue 30) in small: 640 training steps (80 epochs, each
+//! The soak script (`lab/reliability/soak.py`, issue 30) in small: 640 training steps (80 epochs, each
 //! validated and checkpointed), then eval and predict over 80 frames, sampled from `/proc`.
 //! What it keeps fixed at this size: no descriptor or thread growth in any phase, and the
 //! checkpoint's size not growing with the epochs (it carried every epoch's log record
@@ -42,7 +42,7 @@ fn a_short_soak_keeps_descriptors_threads_and_the_checkpoint_flat() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let out_dir = tempfile::tempdir().unwrap();
     let out = Command::new("python3")
-        .arg(root.join("scripts/soak.py"))
+        .arg(root.join("lab/reliability/soak.py"))
         .args([
             "--rtf",
             env!("CARGO_BIN_EXE_rtf"),
@@ -62,7 +62,7 @@ fn a_short_soak_keeps_descriptors_threads_and_the_checkpoint_flat() {
         ])
         .env("OMP_NUM_THREADS", "1")
         .output()
-        .expect("python3 runs scripts/soak.py");
+        .expect("python3 runs lab/reliability/soak.py");
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(out.status.success(), "{}", text(&out));
     let phases = summaries(&stdout);

@@ -1,5 +1,5 @@
 //! Trajectory parity on real frames (issue 27 §3): `rtf train` and the PyTorch reference trainer
-//! written from the official recipe (scripts/reference_train.py) start from the same weights
+//! written from the official recipe (lab/parity/reference_train.py) start from the same weights
 //! (`--init`), see the same batches (`--no-shuffle --no-augment`, fp32) and must end with the
 //! same weight updates, ‖Δrtf − Δref‖ / ‖Δref‖ < 1 %, and per-step losses within 0.5 %, for
 //! MFNet (from the published weights) and RTFNet-18 (from PyTorch's initialisation).
@@ -9,19 +9,19 @@
 //! each layout is compared in rtf-train (`fp32_channels_last_step_equals_the_nchw_step`).
 //!
 //! Small version: 4 MSRS scenes (../shared/data/msrs-samples) at 96×64 labelled by the published
-//! MFNet, 2 epochs of 2 batches of 2. scripts/parity_train.sh runs the full one (48 scenes);
-//! docs/src/training.md gives its numbers. The set-up and both runs are scripts/parity_train.py;
+//! MFNet, 2 epochs of 2 batches of 2. lab/parity/parity_train.sh runs the full one (48 scenes);
+//! docs/src/training.md gives its numbers. The set-up and both runs are lab/parity/parity_train.py;
 //! this test recomputes both measures from the files the runs wrote. Needs the project's .venv
 //! (PyTorch) and the shared data; says so and passes without them.
 //!
 //! One HeatNet adversarial stage likewise (`rtf train --recipe heatnet-v5 --critic-code`
-//! against scripts/reference_train_heatnet.py): MFNet as the segmentation network, HeatNet's
+//! against lab/parity/reference_train_heatnet.py): MFNet as the segmentation network, HeatNet's
 //! critic, both from the same weights (`--init`, `--critic-init`), the published MFNet as the
 //! day teacher; 4 day and 4 night scenes at 96×64, 2 epochs of 2 steps (critic, segmentation,
 //! critic, segmentation). Both networks' updates within 1 %, every step's loss within 0.5 %.
 //!
 //! CMX's official recipe likewise (`rtf train --recipe cmx-mf --model cmx-mit-b0` against
-//! scripts/reference_train_cmx.py): from the same officially initialised weights, 4 scenes at
+//! lab/parity/reference_train_cmx.py): from the same officially initialised weights, 4 scenes at
 //! 96×64, 2 epochs of 2 steps of batch 2 with a 1-epoch warm-up (so the poly decay is reached),
 //! training-mode stochastic depth and dropout drawn from the same per-step seeds, AdamW with
 //! decay on convolution and linear weights only. Updates within 1 %, losses within 0.5 %, the
@@ -88,7 +88,7 @@ fn losses_of_reference(path: &Path) -> Vec<f64> {
         .collect()
 }
 
-/// scripts/parity_train.py with `args` (and 96×64 frames, 2 epochs of batch 2, 1 thread) into
+/// lab/parity/parity_train.py with `args` (and 96×64 frames, 2 epochs of batch 2, 1 thread) into
 /// `work`; its summary. None (with a notice) without the .venv or the shared data.
 fn parity_run(work: &Path, args: &[&str]) -> Option<Value> {
     let python = repo().join(".venv/bin/python");
@@ -99,7 +99,7 @@ fn parity_run(work: &Path, args: &[&str]) -> Option<Value> {
         return None;
     }
     let out = Command::new(&python)
-        .arg(repo().join("scripts/parity_train.py"))
+        .arg(repo().join("lab/parity/parity_train.py"))
         .args(["--rtf", env!("CARGO_BIN_EXE_rtf"), "--work"])
         .arg(work)
         .arg("--shared")

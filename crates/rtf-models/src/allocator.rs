@@ -2,9 +2,8 @@
 //!
 //! libtorch's CPU tensors come from `malloc`. glibc serves large blocks with fresh `mmap`s
 //! and hands freed heap tops back to the kernel, so a network that allocates the same
-//! multi-megabyte activations every forward pass page-faults them in again every time:
-//! measured on MFNet at 480×640 (2 cores, fp32 fast path), 66 ms per frame with glibc's
-//! defaults against 45 ms with freed memory kept (docs/src/models.md). PyTorch's CPU
+//! multi-megabyte activations every forward pass page-faults them in again every time, a
+//! large share of a small network's pass (measured in docs/src/models.md). PyTorch's CPU
 //! performance guides reach for jemalloc/tcmalloc for the same reason.
 //!
 //! This is the policy for library users on glibc. The `rtf` binary goes further: it links

@@ -110,9 +110,9 @@ pub(crate) unsafe fn shim_result(
 /// the first step (`first_step`), else momentum·buf + g; param −= lr·buf (with momentum 0,
 /// param −= lr·g and `bufs` is not read). `grads[i]` and `bufs[i]` are shaped and laid out
 /// like `params[i]`; all on one device, of one type. Instead of the five passes and three
-/// temporaries of the same update in tensor ops (RTFNet-50's update: 0.37 s against
-/// PyTorch's 0.15 s, docs/src/benchmarks.md), and in one call for them all: on CUDA a few
-/// multi-tensor launches, not one per tensor (docs/src/gpu.md).
+/// temporaries of the same update in tensor ops (docs/src/benchmarks.md, "The SGD update"),
+/// and in one call for them all: on CUDA a few multi-tensor launches, not one per tensor
+/// (docs/src/gpu.md).
 pub fn fused_sgd_(
     params: &[Tensor],
     grads: &[Tensor],

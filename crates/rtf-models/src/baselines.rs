@@ -291,7 +291,7 @@ impl Fusenet {
 /// unpadded and crop the skips; padding keeps the output at the input size). No BatchNorm, so
 /// the paper's initialisation matters (§3: N(0, √(2/N)), N the incoming connections): with
 /// PyTorch's default U(±1/√N) the 23 ReLU layers shrink the signal and the network never
-/// leaves the all-background answer (measured: scripts/quick_budget_curves.sh, sweep).
+/// leaves the all-background answer (measured: lab/training/quick_budget_curves.sh, sweep).
 #[derive(Debug)]
 struct Unet {
     down: Vec<(ConvBnAct, ConvBnAct)>,

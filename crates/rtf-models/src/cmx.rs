@@ -856,8 +856,8 @@ impl Fusion {
     ///
     /// Not libtorch's fused attention: as q·softmax(kᵀ·v) this is attention over channels,
     /// whose "sequence" is the d channels and whose "head dimension" the N tokens, a shape
-    /// for which libtorch has no fused CPU kernel (it takes its unfused math path, measured
-    /// slower than these two small products: 0.79 against 1.49 ms at N = 19200, d = 32).
+    /// for which libtorch has no fused CPU kernel (its unfused math path is slower than these
+    /// two small products: docs/src/speed-by-kind.md).
     fn cross_attention(&self, u1: &Tensor, u2: &Tensor, train: bool) -> [Tensor; 2] {
         let size = u1.size();
         let (b, n, c) = (size[0], size[1], size[2]);
@@ -1207,7 +1207,7 @@ mod tests {
     use tch::Device;
 
     /// Trainable parameters of the official network for 9 classes, from
-    /// `scripts/cmx_reference.py --count` (its module tree has the official names and shapes;
+    /// `lab/parity/cmx_reference.py --count` (its module tree has the official names and shapes;
     /// B0, B2, B4, B5 also counted on the official `EncoderDecoder`, which cannot build B1 and
     /// B3, see the module doc).
     fn official_count(size: Size) -> i64 {

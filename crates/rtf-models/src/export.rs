@@ -71,6 +71,10 @@ pub struct Export<'a> {
     pub precision: Precision,
     pub inputs: crate::Modality,
     pub labels: &'a Labels,
+    /// The Python that runs PyTorch's ONNX exporter (ONNX only; `rtf export` passes
+    /// `$RTF_PYTHON`). `None`: `.venv/bin/python` in a folder above the running binary or
+    /// the current directory.
+    pub python: Option<&'a Path>,
 }
 
 /// Every segmentation network reads R, G, B, T.
@@ -165,11 +169,11 @@ fn add_extra_file(archive: &Path, name: &str, contents: &[u8]) -> Result<(), Exp
     Ok(())
 }
 
-/// The project's Python: `$RTF_PYTHON`, else `.venv/bin/python` in a folder above the `rtf`
+/// The project's Python: `given`, else `.venv/bin/python` in a folder above the running
 /// binary or the current directory.
-fn project_python() -> Result<PathBuf, ExportError> {
-    if let Some(p) = std::env::var_os("RTF_PYTHON") {
-        return Ok(PathBuf::from(p));
+fn project_python(given: Option<&Path>) -> Result<PathBuf, ExportError> {
+    if let Some(p) = given {
+        return Ok(p.to_path_buf());
     }
     let mut starts = Vec::new();
     if let Ok(exe) = std::env::current_exe() {
@@ -291,7 +295,7 @@ pub fn export(network: &dyn Network, spec: &Export) -> Result<(), ExportError> {
             rtf_core::write_atomic(spec.out, save_torchscript).map_err(|e| refused(e.to_string()))
         }
         Format::Onnx => {
-            let python = project_python()?;
+            let python = project_python(spec.python)?;
             let dir = tempfile::tempdir()?;
             let ts = dir.path().join("module.pt");
             save_torchscript(&ts)?;

@@ -360,9 +360,10 @@ pub fn with_emulated_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
 /// Whether a bf16 fold on the CPU computes its convolutions with float32 kernels over bf16
 /// maps: where rtf emulates bf16 convolutions ([`rtf_amp::emulates_bf16_convolutions_on`]:
 /// the CPU has no bf16 arithmetic, or `RTF_BF16_CONVOLUTIONS=emulated`). There oneDNN's bf16
-/// kernels convert every product in generic code (RTFNet-50 at 480×640 under AVX2 caps: 54 s
-/// against 1.5 s in fp32), and fp32 kernels with the casts around them take about 1.1× fp32's
-/// time (1.61 s), the numbers those of a bf16 kernel (bf16 operands, float sums, bf16 output).
+/// kernels convert every product in generic code, tens of times slower than fp32, while fp32
+/// kernels with the casts around them cost little more than fp32 and give the numbers of a
+/// bf16 kernel (bf16 operands, float sums, bf16 output); docs/src/benchmarks.md, "Where bf16
+/// is emulated".
 fn emulates_bf16(weight: &Tensor) -> bool {
     weight.device() == tch::Device::Cpu
         && FUSE_EMULATED_BF16
@@ -635,10 +636,10 @@ impl ConvBnAct {
     }
 
     /// The folded weights on the inference path, where the activation (and a residual add) is
-    /// fused into the convolution: oneDNN's kernels apply it as they write each output block
-    /// (bf16: MFNet 27.7 → 26.6 ms, RTFNet-50 489 → 474 ms), and they take the weights packed
-    /// once at fold time (fp32 and bf16; with dense weights, fp32's fused kernels measured no
-    /// faster than the separate in-place passes), or the Winograd form runs.
+    /// fused into the convolution: oneDNN's kernels apply it as they write each output block,
+    /// saving a pass over the map, and they take the weights packed once at fold time (fp32
+    /// and bf16; with dense weights fp32 gained nothing; docs/src/models.md), or the Winograd
+    /// form runs.
     fn fusing_post_ops(&self, train: bool) -> Option<&Fused> {
         self.fused.as_ref().filter(|_| !train)
     }
@@ -824,8 +825,8 @@ impl ConvBnAct {
     }
 
     /// This unit followed by `pool`, a max pooling. On the inference path with the activation
-    /// fused into the convolution, that is all (measured faster than the next option in bf16);
-    /// otherwise it pools before the activation, which is monotonic and so commutes with taking
+    /// fused into the convolution, that is all (the faster of the two in bf16); otherwise it
+    /// pools before the activation, which is monotonic and so commutes with taking
     /// maxima (same values), and activates a map a quarter the size.
     pub fn forward_then_max_pool(
         &self,

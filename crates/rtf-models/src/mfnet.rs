@@ -524,8 +524,8 @@ impl Fuse for Encoder {
 
 /// 2×2 max pooling with stride 2 for even H and W: the maximum of the even and odd rows
 /// (whole rows, contiguous in channels-last memory), then of the even and odd columns. The
-/// same values as `max_pool2d` without computing indices, about 2.5× faster on MFNet's large
-/// bf16/fp32 channels-last maps. Eval only (ties route gradients differently).
+/// same values as `max_pool2d` without computing indices, and faster on MFNet's large
+/// channels-last maps (docs/src/models.md). Eval only (ties route gradients differently).
 /// [B, C, H, W] -> [B, C, H/2, W] -> [B, C, H/2, W/2]
 fn max_pool_2x2(x: &Tensor) -> Tensor {
     let (h, w) = (x.size()[2], x.size()[3]);
@@ -540,9 +540,9 @@ fn upsample2(xs: &Tensor) -> Tensor {
 }
 
 /// `x + cat(a, b)` along channels, the decoder's skip merge. For fp32 inference the two
-/// parts are added in place into the channel ranges of `x` (no concatenation built, ~2.5×
-/// faster at 240×320); libtorch 2.13's bf16 adds on such strided channel slices are ~4×
-/// slower than the plain form, so bf16 and training use that.
+/// parts are added in place into the channel ranges of `x` (no concatenation built);
+/// libtorch 2.13's bf16 adds on such strided channel slices are slower than the plain form,
+/// so bf16 and training use that (docs/src/models.md, "Skip merges by precision").
 fn add_skips(mut x: Tensor, a: &Tensor, b: Option<&Tensor>, train: bool) -> Tensor {
     match b {
         Some(b) if train || x.kind() != Kind::Float => x + Tensor::cat(&[a, b], 1),

@@ -221,11 +221,12 @@ fn optional(tensor: Option<&Tensor>, slot: &mut Handle) -> *mut Handle {
 
 /// `weight` (a dense float or bf16 convolution weight [c_out, c_in/groups, k, k] on the CPU)
 /// reordered once into oneDNN's blocked layout, for [`conv_with_post_op`] and
-/// [`conv_add_with_post_op`]: given a dense weight, each of their calls reorders it first
-/// (RTFNet-50's fp32 pass: ≈ 190 ms of weight reorders, most for the decoder's 2048×2048×3×3
-/// kernels). `None` for transposed convolutions, 1×1 kernels (packed without the input's size,
-/// oneDNN picks a layout its 1×1 kernels then reorder again: 1024→1024 at 30×40, 13 → 41 ms),
-/// other devices, or where libtorch refuses (no oneDNN); callers then keep the dense weight.
+/// [`conv_add_with_post_op`]: given a dense weight, each of their calls reorders it first,
+/// most costly for the widest kernels. `None` for transposed convolutions, 1×1 kernels
+/// (packed without the input's size, oneDNN picks a layout its 1×1 kernels then reorder
+/// again, slower than the dense weight), other devices, or where libtorch refuses (no oneDNN);
+/// callers then keep the dense weight. Measurements: docs/src/models.md, "Weights packed
+/// once".
 /// The packed tensor is an MKLDNN tensor: only the fused entry points above take it
 /// ([`dense_weight`] gives the dense form back).
 pub fn pack_weight(weight: &Tensor, geometry: Geometry) -> Option<Tensor> {

@@ -15,23 +15,22 @@
 //! 480×640), where the matrix products dominate and whole-map transforms cost little; and
 //! F(4×4, 3×3) (36 products per 4×4 tile, 4× fewer multiply-adds than direct) for 64 to 1023
 //! channels, whose larger maps need the transforms done in cache-sized chunks of tiles, in C++
-//! (csrc/ops.cpp `wino43_conv`; by libtorch ops over whole maps F(2×2, 3×3) lost: 512 channels
-//! at 60×80, 99 → 110 ms). From 64 channels since the transforms are vectorised (issue 41,
-//! `examples/winograd_layers.rs`: 64 channels at 120×160, 4.9 against oneDNN's direct 6.2 ms
-//! on an AVX-512 EPYC; before, at 7.5 ms, the form began at 128).
+//! (csrc/ops.cpp `wino43_conv`: F(2×2, 3×3) by libtorch ops over whole maps made these layers
+//! slower; docs/src/models.md).
+//! [`MIN_CHANNELS_F43`] is where the vectorised form overtakes oneDNN's direct kernels (the
+//! lab's `winograd_layers` measures it per shape; docs/src/speed-by-kind.md).
 //!
 //! bf16 inference can take the same forms over bf16 maps ([`bf16_applies`]): the maps are read
 //! and written in bf16 (F(4×4, 3×3) converts them inside its transforms), the weights are the
 //! bf16-rounded folded weights, and the arithmetic is float32. Where a CPU's bf16 kernels do no
-//! more multiply-adds per cycle than its fp32 ones (Intel AVX-512 without AMX: oneDNN's bf16
-//! 3×3 kernels ran 1.7× slower than its fp32 direct ones on family 6 model 167 with AMX capped
-//! off, issue 41), Winograd's 4× fewer multiply-adds win; with AMX, oneDNN's bf16 kernels do.
+//! more multiply-adds per cycle than its fp32 ones (Intel AVX-512 without AMX, where oneDNN's
+//! bf16 3×3 kernels are slower than its fp32 direct ones: docs/src/benchmarks.md), Winograd's
+//! 4× fewer multiply-adds win; with AMX, oneDNN's bf16 kernels do.
 //! So the choice is measured per CPU (rtf-eval's `kernels` probe), never assumed, and passed in.
 //!
 //! fp32 training takes F(4×4, 3×3) too, in all three passes ([`conv3x3_f43_train`]: forward,
-//! input gradient, weight gradient), for the shapes where it measured faster
-//! ([`trains_in_f43`]; docs/src/speed-by-kind.md, RTFNet-50 training 1.20× → 1.49× PyTorch's
-//! best on an AVX-512 EPYC).
+//! input gradient, weight gradient), for the shapes where it is faster than oneDNN's direct
+//! kernels ([`trains_in_f43`]; measured in docs/src/speed-by-kind.md).
 
 use tch::{Kind, Tensor};
 
@@ -339,7 +338,7 @@ pub const TRAIN_MIN_TILES: i64 = 256;
 /// Whether a training convolution of this shape, over an input [N, C, H, W], takes
 /// [`conv3x3_f43_train`]: a 3×3 convolution that keeps the size, undilated, of
 /// [`TRAIN_MIN_CHANNELS`]–[`TRAIN_MAX_CHANNELS`] channels and at least [`TRAIN_MIN_TILES`]
-/// tiles. Measured per shape with `examples/winograd_training_layers.rs` (docs/src/speed-by-
+/// tiles. Measured per shape with the lab's `winograd_training_layers` (docs/src/speed-by-
 /// kind.md). [`Forms::Off`] or [`Forms::F23`] in force ([`with_forms`]) turns it off.
 pub fn trains_in_f43(kernel: i64, geometry: Geometry, c_out: i64, input: &[i64]) -> bool {
     let [n, c_in, h, w] = input else {

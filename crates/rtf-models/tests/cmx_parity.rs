@@ -1,4 +1,4 @@
-//! Parity of CMX with the official network: scripts/cmx_reference.py builds it in the project's
+//! Parity of CMX with the official network: lab/parity/cmx_reference.py builds it in the project's
 //! `.venv` PyTorch (the official module tree and state_dict names, seeded random weights,
 //! random BatchNorm statistics), runs it on a real MF frame through the official preprocessing
 //! and saves a checkpoint as the official trainer does; converted by scripts/convert_pth.py and
@@ -50,7 +50,7 @@ fn frame() -> Option<PathBuf> {
 
 fn run(python: &Path, script: &str, args: &[OsString]) {
     let out = Command::new(python)
-        .arg(repo_root().join("scripts").join(script))
+        .arg(repo_root().join(script))
         .args(args)
         .output()
         .expect("python runs");
@@ -78,12 +78,12 @@ fn check(size: &str, crop: Option<&str>) {
     if let Some(crop) = crop {
         args.extend(["--crop".into(), crop.into()]);
     }
-    run(&python, "cmx_reference.py", &args);
+    run(&python, "lab/parity/cmx_reference.py", &args);
     let pth = dir.path().join(format!("{model}.pth"));
     let converted = dir.path().join(format!("{model}.safetensors"));
     run(
         &python,
-        "convert_pth.py",
+        "scripts/convert_pth.py",
         &[pth.into(), converted.clone().into()],
     );
     let reference_s = start.elapsed().as_secs_f64();

@@ -1,5 +1,5 @@
 //! Parity with PyTorch: a network of the published layout, built and run by the project's
-//! `.venv` PyTorch (scripts/parity_reference.py), saved as a checkpoint the way published
+//! `.venv` PyTorch (lab/parity/parity_reference.py), saved as a checkpoint the way published
 //! weights come, converted by scripts/convert_pth.py, loaded strictly by rtf, must give the
 //! same outputs — on the plain path, and on the fused fast path within float tolerance.
 
@@ -28,7 +28,7 @@ fn python() -> Option<PathBuf> {
 
 fn run(python: &Path, script: &str, args: &[&Path]) {
     let out = Command::new(python)
-        .arg(repo_root().join("scripts").join(script))
+        .arg(repo_root().join(script))
         .args(args)
         .output()
         .expect("python runs");
@@ -43,7 +43,7 @@ fn check(model: &str) {
     let Some(python) = python() else { return };
     let dir = tempfile::tempdir().unwrap();
     let out = Command::new(&python)
-        .arg(repo_root().join("scripts/parity_reference.py"))
+        .arg(repo_root().join("lab/parity/parity_reference.py"))
         .arg(dir.path())
         .arg(model)
         .output()
@@ -55,7 +55,7 @@ fn check(model: &str) {
     );
     let pth = dir.path().join(format!("{model}.pth"));
     let converted = dir.path().join(format!("{model}.safetensors"));
-    run(&python, "convert_pth.py", &[&pth, &converted]);
+    run(&python, "scripts/convert_pth.py", &[&pth, &converted]);
 
     let cfg = ModelConfig::from_name(model, 9).unwrap();
     let mut vs = nn::VarStore::new(Device::Cpu);

@@ -209,7 +209,7 @@ impl Budget {
                 (Budget::Paper, RecipeFamily::Heatnet) => "HeatNet paper: RMSprop lr 1e-4 halved every 30 epochs, 100 epochs, batch 8 (the recipes' defaults)",
                 (Budget::Paper, RecipeFamily::Cmx) => "CMX official MF training, `rtf train --recipe cmx-mf`: AdamW lr 6e-5, weight decay 0.01, poly 0.9 after 10 warm-up epochs, batch 8, 500 epochs, 480×640 crops with random scale and mirror; the paper's encoders start from SegFormer's ImageNet MiT weights: give them with `--mit-weights DIR` (DIR/mit_b2.safetensors, mit_b4.safetensors; recorded in each cell's rtf_train)",
                 (Budget::Quick, RecipeFamily::Cmx) => QUICK_CMX_NOTE,
-                (Budget::Quick, _) => "quick: small frames (96×64, 640 training frames), RMSprop lr 1e-3 for every network instead of the papers' SGD, each network trained for the epochs it needs to leave the all-unlabelled answer on this data (scripts/quick_budget_curves.sh, docs/src/quick-budget.md); for trends on a CPU, not the papers' numbers",
+                (Budget::Quick, _) => "quick: small frames (96×64, 640 training frames), RMSprop lr 1e-3 for every network instead of the papers' SGD, each network trained for the epochs it needs to leave the all-unlabelled answer on this data (lab/training/quick_budget_curves.sh, docs/src/quick-budget.md); for trends on a CPU, not the papers' numbers",
                 (Budget::Smoke, _) => "smoke: checks the pipeline only; the numbers mean nothing",
             },
         })
@@ -220,7 +220,7 @@ impl Budget {
 /// HeatNet's recipe, at the CPU recipes' lr 1e-3).
 const QUICK_OPTIMIZER: &str = "--optimizer rmsprop --lr 1e-3";
 
-/// Quick-budget epochs, read off the validation curves of `scripts/quick_budget_curves.sh` mode
+/// Quick-budget epochs, read off the validation curves of `lab/training/quick_budget_curves.sh` mode
 /// `frames` (640 training frames, RMSprop 1e-3; measured on a lent H200, 2026-11-26; validation
 /// mIoU on 80 frames; twice the all-unlabelled answer is 20.2 %; docs/src/quick-budget.md):
 /// the first epoch after which the curve stays above that, with a margin. MFNet (above from

@@ -305,8 +305,8 @@ pub fn pyramid_factors(width: usize) -> Vec<usize> {
 }
 
 /// Pixels per frame of a level at most (half of 320×240; larger levels, from 320×240 up, use
-/// a random subset: at 640×480 one normal-equation evaluation of 20 frames took 28.5 s at
-/// full resolution and 3.0 s on a 76800-pixel subset, load ≈ 5 on 2 cores).
+/// a random subset, which makes a normal-equation evaluation about ten times cheaper at
+/// 640×480; docs/src/calibration.md).
 pub const MAX_LEVEL_PIXELS: usize = 160 * 240;
 
 /// Mean data cost (per support pixel and channel) of frames `idx` at pixel-scaled `theta`.

@@ -25,6 +25,11 @@ pub struct Settings {
     /// sensible value works, including a rig.yaml written for Adam).
     pub learning_rate: f64,
     pub seed: u64,
+    /// Development output on stderr: each iteration of a synthetic run
+    /// ([`crate::synth_run::calibrate_synthetic`]) and each walk of the bound
+    /// ([`crate::bound`]). Off from [`Settings::resolve`]; a binary may turn it on (`rtf
+    /// calibrate` and the lab's probes do with `RTF_CALIB_DEBUG` set).
+    pub debug: bool,
 }
 
 impl Settings {
@@ -58,6 +63,7 @@ impl Settings {
             batch_size: s.batch_size.unwrap_or(1),
             learning_rate: s.learning_rate.unwrap_or(1.0),
             seed,
+            debug: false,
         };
         if settings.iterations == 0 || settings.batch_size == 0 {
             return Err(CalibError::Setting(

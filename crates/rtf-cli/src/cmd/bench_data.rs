@@ -1,7 +1,7 @@
 //! `rtf bench data`: input-pipeline throughput (decode + flip + RTFNet crop + tensor) at
 //! batch 8 on MF frames or a described root (dataset.yaml, MSRS, PST900, FMB: RGB, thermal
 //! (8- or 16-bit, normalised by its rule) and labels in separate files), the work
-//! `scripts/bench_data.py` does with PIL + NumPy.
+//! `lab/bench/bench_data.py` does with PIL + NumPy.
 
 use anyhow::{bail, Context, Result};
 use rtf_data::{AugmentConfig, FrameSource, Loader, LoaderConfig};

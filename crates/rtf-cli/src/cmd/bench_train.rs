@@ -1,6 +1,6 @@
 //! `rtf bench train --model NAME --batch B --size WxH --precision P [--device D] [--json]`:
 //! steady-state images/s of full training steps (forward, loss, backward, SGD update) and peak
-//! resident memory; `scripts/bench_torch_train.py` runs the PyTorch peer side by side.
+//! resident memory; `lab/bench/bench_torch_train.py` runs the PyTorch peer side by side.
 
 use anyhow::Result;
 use rtf_train::bench::{bench_train, TrainBenchOptions};
@@ -42,7 +42,7 @@ pub struct Args {
     #[arg(long)]
     pub json: bool,
     /// After the timed steps, count the operators of one more step, part by part (libtorch's
-    /// profiler events: on a GPU, kernel launches); `scripts/profile_train_torch.py --counts`
+    /// profiler events: on a GPU, kernel launches); `lab/bench/profile_train_torch.py --counts`
     /// counts PyTorch's step alike.
     #[arg(long)]
     pub count_ops: bool,

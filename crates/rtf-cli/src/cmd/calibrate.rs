@@ -94,7 +94,9 @@ pub fn run(args: Args) -> Result<()> {
         outputs.push(("--format kalibr (camchain)", camchain.as_path()));
     }
     refuse_overwriting_inputs(&rig_path, &rig, &outputs)?;
-    let prepared = Prepared::new(&rig_path, rig, &options, &mut |w| eprintln!("warning: {w}"))?;
+    let mut prepared = Prepared::new(&rig_path, rig, &options, &mut |w| eprintln!("warning: {w}"))?;
+    // Development output of the bound's walks on stderr (rtf_calib's `Settings::debug`).
+    prepared.settings.debug = std::env::var_os("RTF_CALIB_DEBUG").is_some();
     let (settings, frames) = (&prepared.settings, &prepared.frames);
     let stereo = frames.iter().filter(|f| f.depth_from_stereo).count();
     eprintln!(

@@ -118,6 +118,8 @@ pub fn run(args: Args) -> Result<()> {
         Format::Torchscript => rtf_models::export::Format::Torchscript,
         Format::Onnx => rtf_models::export::Format::Onnx,
     };
+    // The Python of the ONNX exporter: `$RTF_PYTHON`, else the library's search for `.venv`.
+    let python = std::env::var_os("RTF_PYTHON").map(PathBuf::from);
     let spec = Export {
         format,
         out: &args.out,
@@ -125,6 +127,7 @@ pub fn run(args: Args) -> Result<()> {
         precision: args.precision,
         inputs,
         labels: &labels,
+        python: python.as_deref(),
     };
     rtf_models::export::export(network.as_ref(), &spec)?;
     println!(

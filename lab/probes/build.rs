@@ -1,0 +1,1 @@
+include!("../../crates/torch_rpath.rs");
