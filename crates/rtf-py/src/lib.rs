@@ -26,6 +26,15 @@ pub(crate) fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
         .unwrap_or_else(|| "panic without a message".into())
 }
 
+/// Keeps freed memory in the process for reuse (rtf_models::allocator: glibc serves no block
+/// by `mmap` and trims no heap), as the `rtf` binary keeps it with mimalloc: a network that
+/// allocates the same activations every pass then does not page-fault them in again. Called by
+/// `import rtf` unless `RTF_RETAIN_FREED_MEMORY=0`. Process-wide; returns whether it applied.
+#[pyfunction]
+fn retain_freed_memory() -> bool {
+    rtf_models::allocator::retain_freed_memory()
+}
+
 #[pymodule]
 fn _rtf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
@@ -44,5 +53,6 @@ fn _rtf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run::read_run, m)?)?;
     m.add_function(wrap_pyfunction!(train::train, m)?)?;
     m.add_function(wrap_pyfunction!(train::train_options, m)?)?;
+    m.add_function(wrap_pyfunction!(retain_freed_memory, m)?)?;
     Ok(())
 }

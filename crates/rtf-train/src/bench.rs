@@ -2,7 +2,7 @@
 //! backward, optimiser update) of a network on random frames, the step the trainer runs
 //! ([`crate::procedure::Student`], the configured loss, [`crate::procedure::Trained`]'s
 //! update), and the process's peak resident memory. The frames are made once, in memory, so
-//! no data pipeline is timed (`rtf bench data` times that). `scripts/bench_torch_train.py`
+//! no data pipeline is timed (`rtf bench data` times that). `lab/bench/bench_torch_train.py`
 //! runs the same step in PyTorch.
 
 use std::time::Instant;
@@ -37,7 +37,7 @@ pub struct TrainBenchOptions {
 
 /// The operators one step runs, part by part ([`rtf_models::aten::count_ops`]): the host's
 /// share of a step, which on a GPU is one or more kernel launches each.
-/// `scripts/profile_train_torch.py --counts` counts PyTorch's step the same way.
+/// `lab/bench/profile_train_torch.py --counts` counts PyTorch's step the same way.
 #[derive(Debug, Clone, Serialize)]
 pub struct StepOpCounts {
     /// Forward and loss.

@@ -56,6 +56,13 @@ from ._rtf import (  # noqa: E402  (torch first: it loads the libraries the exte
 )
 from . import _rtf  # noqa: E402
 
+# Freed memory stays in the process for reuse, as the `rtf` binary keeps it: a network's
+# activations are not page-faulted in again on every pass (MFNet fp32 at 640x480 here: 122 ->
+# 96 ms per frame, docs/src/python.md "Speed"). The resident size stays at its peak;
+# RTF_RETAIN_FREED_MEMORY=0 keeps the C library's own policy.
+if _os.environ.get("RTF_RETAIN_FREED_MEMORY") != "0":
+    _rtf.retain_freed_memory()
+
 
 def load_network(name, weights=None, classes=None, device="cpu", precision=None):
     """Loads network ``name`` (see ``rtf.models()``) with ``weights`` (a safetensors file,
