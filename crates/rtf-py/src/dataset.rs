@@ -98,6 +98,7 @@ impl PyDataset {
     ) -> PyResult<crate::loader::PyLoader> {
         let request = LoaderRequest {
             root: &self.root,
+            freiburg: matches!(self.dataset.layout(), rtf_data::dataset::Layout::Freiburg),
             split,
             model,
             recipe,

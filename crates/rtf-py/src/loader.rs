@@ -26,6 +26,8 @@ pub struct PyLoader {
 /// that decide its training batches.
 pub struct LoaderRequest<'a> {
     pub root: &'a Path,
+    /// Freiburg Thermal trains on its training tree (`train`), never a named split.
+    pub freiburg: bool,
     pub split: &'a str,
     pub model: Option<&'a str>,
     pub recipe: Option<&'a str>,
@@ -41,11 +43,21 @@ pub struct LoaderRequest<'a> {
 impl LoaderRequest<'_> {
     /// The run `rtf train --data ROOT --train-split SPLIT --val-split none` with these options
     /// would make (rtf_train::setup): its configuration decides the loader.
-    fn new_run(&self) -> NewRun {
-        NewRun {
+    fn new_run(&self) -> PyResult<NewRun> {
+        let train_split = match (self.freiburg, self.split) {
+            (false, split) => Some(split.to_owned()),
+            (true, "train") => None,
+            (true, other) => {
+                return Err(input(format!(
+                    "split {other:?}: a Freiburg Thermal root trains on its training tree only \
+                     (split \"train\"); read the {other:?} frames with Dataset.split"
+                )))
+            }
+        };
+        Ok(NewRun {
             recipe: self.recipe.map(str::to_owned),
             data: Some(self.root.to_path_buf()),
-            train_split: Some(self.split.to_owned()),
+            train_split,
             val_split: Some("none".into()),
             overrides: Overrides {
                 model: self.model.map(str::to_owned),
@@ -58,7 +70,7 @@ impl LoaderRequest<'_> {
                 ..Default::default()
             },
             ..Default::default()
-        }
+        })
     }
 
     /// The trainer's loader of that run (rtf_train::trainer::training_loader; of its last
@@ -67,7 +79,7 @@ impl LoaderRequest<'_> {
         if self.batch_size == 0 {
             return Err(input("batch_size: expected at least 1, got 0"));
         }
-        let asked = self.new_run();
+        let asked = self.new_run()?;
         let loader = py.allow_threads(|| -> PyResult<Loader> {
             let cfg = rtf_train::setup::new_run(&asked).py()?;
             let stages = cfg.stages();
