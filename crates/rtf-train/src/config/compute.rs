@@ -1,0 +1,112 @@
+//! The compute section: where a run computes ([`ComputeConfig`]), fp32's feature-map layout
+//! ([`Fp32Layout`]), devices as users name them, and cuDNN's autotuner switch.
+use serde::{Deserialize, Serialize};
+
+/// Where a run computes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ComputeConfig {
+    /// "cpu", "cuda" or "cuda:N".
+    pub device: String,
+    /// Processes of a data-parallel run (`torchrun`), recorded by rank 0 when the run starts; a
+    /// resume needs as many. None = a single-process run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world_size: Option<usize>,
+    /// bf16 on the CPU: which convolution kernels the run started with
+    /// ([`rtf_amp::Bf16Convolutions`], chosen by measurement where the CPU has bf16 arithmetic
+    /// and `RTF_BF16_CONVOLUTIONS` is unset), recorded so that a resume computes the same
+    /// numbers (a `--config` may set it). None = not recorded (fp32, another device, or a run
+    /// before the record).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
+    /// fp32 stages: the layout of the feature maps the run started with
+    /// ([`Fp32Layout`]; chosen by the caller, `RTF_TRAIN_LAYOUT` for rtf's binaries, else the
+    /// faster on the device), recorded so that a resume computes the same sums. None = not
+    /// recorded ([`Fp32Layout::faster_on`] the device then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fp32_layout: Option<Fp32Layout>,
+}
+
+/// How fp32 training lays out its feature maps. Convolutional networks only: CMX (attention)
+/// keeps NCHW.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Fp32Layout {
+    Nchw,
+    ChannelsLast,
+}
+
+impl Fp32Layout {
+    /// The layout fp32 training measured faster in on `device`: channels-last on CUDA (cuDNN's
+    /// TF32 convolutions are laid out for NHWC; docs/src/gpu.md) and on CPUs with AVX-512
+    /// (`avx512f`: oneDNN's fp32 training kernels take channels-last operands without
+    /// reorders); NCHW on CPUs without (docs/src/benchmarks.md).
+    pub fn faster_on(device: tch::Device) -> Self {
+        let avx512 = || {
+            rtf_core::host::CpuInfo::read()
+                .flags
+                .iter()
+                .any(|f| f == "avx512f")
+        };
+        match device {
+            tch::Device::Cpu if !avx512() => Fp32Layout::Nchw,
+            _ => Fp32Layout::ChannelsLast,
+        }
+    }
+
+    /// A layout as users name it: `nchw`, or `nhwc` / `channels_last`; `auto` (or nothing)
+    /// leaves the choice open (None).
+    pub fn parse(text: &str) -> Result<Option<Self>, String> {
+        match text.trim() {
+            "" | "auto" => Ok(None),
+            "nchw" => Ok(Some(Fp32Layout::Nchw)),
+            "nhwc" | "channels_last" => Ok(Some(Fp32Layout::ChannelsLast)),
+            other => Err(format!(
+                "unknown training layout `{other}` (expected nchw, nhwc or auto)"
+            )),
+        }
+    }
+}
+
+/// "cpu", "cuda" (first GPU) or "cuda:N".
+pub fn parse_device(name: &str) -> Result<tch::Device, String> {
+    match name {
+        "cpu" => Ok(tch::Device::Cpu),
+        "cuda" => Ok(tch::Device::Cuda(0)),
+        _ => name
+            .strip_prefix("cuda:")
+            .and_then(|i| i.parse().ok())
+            .map(tch::Device::Cuda)
+            .ok_or_else(|| format!("unknown device `{name}` (expected cpu, cuda or cuda:N)")),
+    }
+}
+
+/// [`parse_device`], then checks libtorch can use it here, so a missing GPU is a clear error
+/// rather than a libtorch panic at the first tensor. (cuDNN's autotuner is the caller's: `rtf`
+/// turns it on for every command, `RTF_CUDNN_BENCHMARK=0` off; see [`cudnn_benchmark`].)
+pub fn available_device(name: &str) -> Result<tch::Device, String> {
+    let device = parse_device(name)?;
+    if let tch::Device::Cuda(index) = device {
+        let count = tch::Cuda::device_count();
+        if index as i64 >= count {
+            return Err(format!(
+                "device `{name}` is not available: libtorch sees {count} CUDA device(s) here{}",
+                if tch::Cuda::is_available() {
+                    ""
+                } else {
+                    " (no usable NVIDIA driver, or a CPU-only libtorch)"
+                }
+            ));
+        }
+    }
+    Ok(device)
+}
+
+/// Whether cuDNN's autotuner runs (PyTorch's `torch.backends.cudnn.benchmark = True`): each
+/// convolution shape is timed once over cuDNN's algorithms and the fastest kept, which pays
+/// for rtf's fixed frame sizes. On unless the caller's `RTF_CUDNN_BENCHMARK` (read by `get`,
+/// the binary's environment) is `0`. A libtorch setting of the whole process: the binary sets
+/// it (`tch::Cuda::cudnn_set_benchmark`).
+pub fn cudnn_benchmark(get: impl Fn(&str) -> Option<String>) -> bool {
+    get("RTF_CUDNN_BENCHMARK").as_deref() != Some("0")
+}

@@ -1,0 +1,219 @@
+//! Phase 2's steps, restore or start: `config.json` recorded, the procedure's networks built
+//! and restored from the checkpoint or started, data-parallel started, label caches, and
+//! rank 0's TensorBoard writer.
+use std::sync::Arc;
+
+use rtf_models::Network;
+
+use super::run_folder::RunFolder;
+use super::streams::Sources;
+use crate::checkpoint::{self, TrainState};
+use crate::config::{NetworkConfig, Procedure as ProcedureConfig, TrainConfig};
+use crate::ddp::Ddp;
+use crate::error::TrainError;
+use crate::procedure::{self, Procedure};
+use crate::run::{self as rundir, run_error, CONFIG_FILE, LOG_FILE};
+
+/// Checks the data against the model and writes `config.json` with the data's fingerprint
+/// (which data the run used: a resume on changed data says so) and the number of processes.
+pub(super) fn record_config(
+    cfg: &TrainConfig,
+    folder: &RunFolder,
+    sources: &Sources,
+) -> Result<(), TrainError> {
+    let classes = sources.main.class_set().clone();
+    if classes.len() as i64 != cfg.network.model.num_classes() {
+        return Err(TrainError::Config(format!(
+            "the dataset has {} classes but the model is configured for {}",
+            classes.len(),
+            cfg.network.model.num_classes()
+        )));
+    }
+    procedure::check_teachers(&cfg.learning.procedure, &cfg.network.model)?;
+    let mut cfg_written = cfg.clone();
+    let root = sources.dataset.root();
+    let fingerprint = rtf_data::fingerprint::fingerprint_opened(&sources.dataset)?;
+    if let Some(before) = cfg
+        .data
+        .fingerprint
+        .as_ref()
+        .filter(|f| f.hash != fingerprint.hash)
+    {
+        eprintln!(
+            "warning: {} changed since this run started (data hash {} then, {} now)",
+            root.display(),
+            &before.hash[..12.min(before.hash.len())],
+            &fingerprint.hash[..12.min(fingerprint.hash.len())]
+        );
+    }
+    cfg_written.data.fingerprint = Some(fingerprint);
+    if folder.world.is_some() {
+        cfg_written.compute.world_size = folder.world;
+    }
+    if folder.is_root {
+        rundir::write_json_atomic(&folder.dir.join(CONFIG_FILE), &cfg_written)?;
+    }
+    Ok(())
+}
+
+/// A resumed run's networks, optimisers and progress from its checkpoint; its log restored to
+/// the checkpoint's epochs (a line lost to a kill comes back from the record it carries).
+fn restore(folder: &RunFolder, procedure: &mut dyn Procedure) -> Result<TrainState, TrainError> {
+    let mut trained = procedure.trained_mut();
+    let mut parts: Vec<(&str, &mut tch::nn::VarStore)> =
+        trained.iter_mut().map(|t| (t.role, &mut t.vs)).collect();
+    let (mut optimizers, saved) = checkpoint::load(&folder.checkpoint, &mut parts)?;
+    drop(parts);
+    for t in trained.iter_mut() {
+        t.optimizer
+            .set_state(optimizers.remove(t.role).unwrap_or_default());
+    }
+    if folder.is_root {
+        let lacking = rundir::restore_log(folder.dir, saved.epochs_done, &saved.records)?;
+        if !lacking.is_empty() {
+            eprintln!(
+                "warning: {} lacks the records of epochs {lacking:?} (edited or truncated?); \
+                 the checkpoint carries only the last one, so they stay missing",
+                folder.dir.join(LOG_FILE).display()
+            );
+        }
+    }
+    Ok(saved)
+}
+
+/// A new run's student from its backbone or starting weights, and no log.
+fn start(
+    network: &NetworkConfig,
+    folder: &RunFolder,
+    procedure: &mut dyn Procedure,
+) -> Result<TrainState, TrainError> {
+    if folder.is_root {
+        let _ = std::fs::remove_file(folder.dir.join(LOG_FILE));
+    }
+    let student = &mut procedure.trained_mut()[0].vs;
+    if let Some(path) = &network.backbone_weights {
+        let loaded = rtf_models::backbone::load_backbone_weights(student, &network.model, path)?;
+        if folder.is_root {
+            eprintln!("{loaded}");
+        }
+    }
+    if let Some(report) = crate::init::load_init(student, network)? {
+        if folder.is_root {
+            eprintln!("{report}");
+        }
+    }
+    Ok(TrainState {
+        epochs_done: 0,
+        steps_done: 0,
+        best_val_miou: None,
+        partial: None,
+        records: Vec::new(),
+    })
+}
+
+/// Teacher labels written once, if the procedure asks: the streams then carry them as labels.
+/// Ranks other than 0 never write the run folder: they label into a scratch folder of their
+/// own, removed when the run returns.
+pub(super) fn cache_labels(
+    procedure_cfg: &ProcedureConfig,
+    folder: &RunFolder,
+    procedure: &dyn Procedure,
+    sources: &mut Sources,
+    device: tch::Device,
+) -> Result<Option<crate::ddp::ScratchDir>, TrainError> {
+    let input = procedure.student().net.input_convention();
+    let threshold = match procedure_cfg {
+        ProcedureConfig::TeacherStudent { targets, .. }
+        | ProcedureConfig::Adversarial { targets, .. } => targets.threshold,
+        ProcedureConfig::Supervised => None,
+    };
+    let (day_labeller, night_labeller) = procedure.labellers();
+    let mut scratch: Option<crate::ddp::ScratchDir> = None;
+    let streams = [
+        (day_labeller, Some(&mut sources.main), "day"),
+        (night_labeller, sources.night.as_mut(), "night"),
+    ];
+    for (labeller, stream, name) in streams {
+        let (Some(labeller), Some(stream)) = (labeller.filter(|l| l.cached.is_some()), stream)
+        else {
+            continue;
+        };
+        let dir = match folder.is_root {
+            true => folder.dir.join("labels").join(name),
+            false => scratch
+                .get_or_insert_with(crate::ddp::ScratchDir::new)
+                .path()
+                .join(name),
+        };
+        crate::label_cache::write(
+            &labeller.teacher,
+            stream.clone(),
+            &dir,
+            threshold,
+            input,
+            device,
+        )?;
+        *stream = Arc::new(crate::label_cache::CachedLabels::new(stream.clone(), dir));
+    }
+    Ok(scratch)
+}
+
+/// Rank 0's TensorBoard writer (RUN/tb); the other ranks write none.
+pub(super) fn tensorboard_writer(
+    folder: &RunFolder,
+) -> Result<Option<crate::tensorboard::TbWriter>, TrainError> {
+    if !folder.is_root {
+        return Ok(None);
+    }
+    crate::tensorboard::TbWriter::create(folder.dir)
+        .map(Some)
+        .map_err(|e| run_error(&folder.dir.join("tb"), format!("TensorBoard: {e}")))
+}
+
+/// DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every trained
+/// network's gradients averaged from now on; with synchronised BatchNorm, the guard that makes
+/// this thread's training-mode forwards (every step runs here) use the whole data-parallel
+/// batch's statistics until the run returns.
+fn start_data_parallel(
+    sync_batch_norm: bool,
+    ddp: Option<&Arc<Ddp>>,
+    procedure: &mut dyn Procedure,
+) -> Result<Option<rtf_models::SyncBatchNorm>, TrainError> {
+    let Some(d) = ddp else {
+        return Ok(None);
+    };
+    for t in procedure.trained_mut() {
+        d.broadcast_all(&t.vs)?;
+        t.ddp = Some(d.clone());
+    }
+    Ok(sync_batch_norm.then(|| rtf_models::SyncBatchNorm::install(d.clone())))
+}
+
+/// The procedure, its progress, and the synchronised-BatchNorm guard ([`networks`]).
+pub(super) type Networks = (
+    Box<dyn Procedure>,
+    TrainState,
+    Option<rtf_models::SyncBatchNorm>,
+);
+
+/// The procedure's networks and progress: built from `network` and `learning` (libtorch
+/// seeded with the run's seed first), restored from the checkpoint or started, and
+/// data-parallel started (with `network.sync_batch_norm`, the guard that keeps it).
+pub(super) fn networks(
+    cfg: &TrainConfig,
+    folder: &RunFolder,
+    ignore_id: Option<u8>,
+    ddp: Option<&Arc<Ddp>>,
+    device: tch::Device,
+) -> Result<Networks, TrainError> {
+    tch::manual_seed(cfg.schedule.seed as i64);
+    let mut procedure = procedure::build(cfg, ignore_id, device)?;
+    let state = match folder.resume {
+        true => restore(folder, procedure.as_mut())?,
+        false => start(&cfg.network, folder, procedure.as_mut())?,
+    };
+    procedure.resume_at(state.steps_done);
+    let sync_batch_norm =
+        start_data_parallel(cfg.network.sync_batch_norm, ddp, procedure.as_mut())?;
+    Ok((procedure, state, sync_batch_norm))
+}

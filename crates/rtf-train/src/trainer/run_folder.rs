@@ -1,0 +1,119 @@
+//! Phase 1, open the run folder: what it checks the configuration for ([`FolderChecks`]),
+//! every check that can refuse the run before it writes, and the lock ([`RunFolder`]).
+use std::path::{Path, PathBuf};
+
+use rtf_models::ModelConfig;
+
+use crate::checkpoint;
+use crate::config::{Procedure as ProcedureConfig, TrainConfig};
+use crate::ddp::Ddp;
+use crate::error::TrainError;
+use crate::procedure;
+use crate::run::{self as rundir, run_error, CHECKPOINT_FILE};
+
+/// What opening the run folder checks the configuration for (phase 1): the number of
+/// processes the run was trained by, its epochs (a resume must not end before where it
+/// stands), and the teachers given as files against the student.
+pub(super) struct FolderChecks<'a> {
+    pub(super) world_size: Option<usize>,
+    pub(super) epochs: usize,
+    pub(super) procedure: &'a ProcedureConfig,
+    pub(super) student: &'a ModelConfig,
+}
+
+impl<'a> FolderChecks<'a> {
+    pub(super) fn of(cfg: &'a TrainConfig) -> Self {
+        Self {
+            world_size: cfg.compute.world_size,
+            epochs: cfg.schedule.epochs,
+            procedure: &cfg.learning.procedure,
+            student: &cfg.network.model,
+        }
+    }
+}
+
+/// The run folder, held for the run's life: rank 0 owns its lock; `resume` says whether the
+/// run continues its checkpoint.
+pub(super) struct RunFolder<'a> {
+    pub(super) dir: &'a Path,
+    pub(super) checkpoint: PathBuf,
+    pub(super) resume: bool,
+    pub(super) is_root: bool,
+    /// Data-parallel: the number of processes.
+    pub(super) world: Option<usize>,
+    pub(super) _lock: Option<rundir::RunLock>,
+}
+
+impl<'a> RunFolder<'a> {
+    /// Phase 1, open the run folder: every check that can refuse the run before it writes.
+    pub(super) fn open(
+        checks: FolderChecks,
+        dir: &'a Path,
+        resume: bool,
+        ddp: Option<&Ddp>,
+    ) -> Result<Self, TrainError> {
+        let checkpoint = dir.join(CHECKPOINT_FILE);
+        let is_root = ddp.is_none_or(|d| d.is_root());
+        let world = ddp.map(|d| d.world_size());
+        if checks.world_size.unwrap_or(1) != world.unwrap_or(1) && resume {
+            return Err(TrainError::Config(format!(
+                "{}: the run was trained by {} process(es), this is {}; resume it with as many \
+                 (torchrun --nproc-per-node ...) so that it continues exactly",
+                dir.display(),
+                checks.world_size.unwrap_or(1),
+                world.unwrap_or(1)
+            )));
+        }
+        if is_root && !resume && rundir::holds_run(dir) {
+            return Err(run_error(
+                dir,
+                "already holds a run; use --resume to continue it or choose another output folder",
+            ));
+        }
+        procedure::check_teachers(checks.procedure, checks.student)?;
+        let lock = match is_root {
+            true => {
+                std::fs::create_dir_all(dir)
+                    .map_err(|e| run_error(dir, format!("cannot create: {e}")))?;
+                let lock = rundir::RunLock::acquire(dir)?;
+                rundir::remove_orphan_temp_files(dir);
+                Some(lock)
+            }
+            false => None,
+        };
+        // A resume of a run killed before its first checkpoint starts it over.
+        let resume = resume && checkpoint.exists();
+        if resume {
+            check_resume_epochs(checks.epochs, dir, &checkpoint)?;
+        }
+        Ok(Self {
+            dir,
+            checkpoint,
+            resume,
+            is_root,
+            world,
+            _lock: lock,
+        })
+    }
+}
+
+/// Refuses `--epochs` that would end a resumed run before where it stands.
+fn check_resume_epochs(epochs: usize, dir: &Path, checkpoint: &Path) -> Result<(), TrainError> {
+    let saved = checkpoint::read_state(checkpoint)?;
+    // A checkpoint inside an epoch holds weights past the epochs done: ending the run
+    // there would call mid-epoch weights final.
+    let stands_at = saved.epochs_done + saved.partial.is_some() as usize;
+    if epochs < stands_at {
+        return Err(TrainError::Config(format!(
+            "{}: the run has done {} epochs{}; --epochs {} would end it before where it stands",
+            dir.display(),
+            saved.epochs_done,
+            match saved.partial.is_some() {
+                true => format!(" and part of epoch {stands_at}"),
+                false => String::new(),
+            },
+            epochs
+        )));
+    }
+    Ok(())
+}
