@@ -155,6 +155,7 @@ fn inference_s(bf16: bool) -> Result<f64> {
         bf16_winograd: policy
             .bf16_winograd
             .unwrap_or_else(rtf_models::winograd::bf16_default),
+        ..InferenceKernels::unmeasured()
     };
     let opts = rtf_eval::speed::BenchOptions {
         kernels,

@@ -6,10 +6,10 @@
 
 use serde::{Deserialize, Serialize};
 use tch::nn::{self, ModuleT};
-use tch::{Kind, Tensor};
+use tch::Tensor;
 
 use crate::error::ModelError;
-use crate::layers::{Act, BatchNorm, ConvBnAct, ConvSpec, Fuse, InitScheme, WeightInit};
+use crate::layers::{Act, BatchNorm, ConvBnAct, ConvSpec, Fold, Folder, InitScheme, WeightInit};
 use crate::resnet::{self, BlockGeometry, BlockKind, ResLayer};
 use crate::Network;
 
@@ -440,10 +440,12 @@ impl DilatedResNet {
     }
 }
 
-impl Fuse for DilatedResNet {
-    fn fuse(&mut self, kind: Kind) {
-        self.stem.fuse(kind);
-        self.layers.fuse(kind);
+impl Fold for DilatedResNet {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            stem: self.stem.folded(f),
+            layers: self.layers.folded(f),
+        }
     }
 }
 
@@ -815,63 +817,63 @@ impl ModuleT for Baseline {
     }
 }
 
-impl Fuse for VggEncoder {
-    fn fuse(&mut self, kind: Kind) {
-        self.stages.iter_mut().for_each(|s| s.fuse(kind));
+impl Fold for VggEncoder {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            stages: self.stages.folded(f),
+        }
     }
 }
 
-impl Fuse for SegnetDecoder {
-    fn fuse(&mut self, kind: Kind) {
-        self.stages.iter_mut().for_each(|s| s.fuse(kind));
+impl Fold for SegnetDecoder {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            stages: self.stages.folded(f),
+        }
     }
 }
 
 impl Baseline {
-    /// Folds BatchNorm etc. where the network is built from [`ConvBnAct`] units; ERFNet and
-    /// ENet (factorised kernels, PReLU) keep their plain forward.
-    fn fuse(&mut self, kind: Kind) -> bool {
-        match &mut self.body {
-            Body::Segnet(m) => {
-                m.encoder.fuse(kind);
-                m.decoder.fuse(kind);
-            }
-            Body::Fusenet(m) => {
-                m.rgb.fuse(kind);
-                m.thermal.fuse(kind);
-                m.decoder.fuse(kind);
-            }
-            Body::Unet(m) => {
-                for (a, b) in &mut m.down {
-                    a.fuse(kind);
-                    b.fuse(kind);
-                }
-                for (u, a, b) in &mut m.up {
-                    u.fuse(kind);
-                    a.fuse(kind);
-                    b.fuse(kind);
-                }
-                m.out.fuse(kind);
-            }
-            Body::Pspnet(m) => {
-                m.backbone.fuse(kind);
-                m.ppm.fuse(kind);
-                m.head.fuse(kind);
-                m.classifier.fuse(kind);
-            }
-            Body::Duchdc(m) => {
-                m.backbone.fuse(kind);
-                m.duc.fuse(kind);
-            }
-            Body::Erfnet(_) | Body::Enet(_) => return false,
-        }
-        true
+    /// The folded body where the network is built from [`ConvBnAct`] units; ERFNet and ENet
+    /// (factorised kernels, PReLU) keep their plain forward.
+    fn folded_body(&self, f: &Folder) -> Option<Body> {
+        Some(match &self.body {
+            Body::Segnet(m) => Body::Segnet(Segnet {
+                encoder: m.encoder.folded(f),
+                decoder: m.decoder.folded(f),
+            }),
+            Body::Fusenet(m) => Body::Fusenet(Fusenet {
+                rgb: m.rgb.folded(f),
+                thermal: m.thermal.folded(f),
+                decoder: m.decoder.folded(f),
+            }),
+            Body::Unet(m) => Body::Unet(Unet {
+                down: m.down.iter().map(|(a, b)| (a.folded(f), b.folded(f))).collect(),
+                up: m.up.iter().map(|(u, a, b)| (u.folded(f), a.folded(f), b.folded(f))).collect(),
+                out: m.out.folded(f),
+            }),
+            Body::Pspnet(m) => Body::Pspnet(Pspnet {
+                backbone: m.backbone.folded(f),
+                ppm: m.ppm.folded(f),
+                head: m.head.folded(f),
+                classifier: m.classifier.folded(f),
+            }),
+            Body::Duchdc(m) => Body::Duchdc(DucHdc {
+                backbone: m.backbone.folded(f),
+                duc: m.duc.folded(f),
+            }),
+            Body::Erfnet(_) | Body::Enet(_) => return None,
+        })
     }
 }
 
 impl Network for Baseline {
-    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
-        self.fuse(kind)
+    fn folded(&self, folder: &Folder) -> Option<Box<dyn Network>> {
+        let body = self.folded_body(folder)?;
+        Some(Box::new(Self {
+            config: self.config.clone(),
+            body,
+        }))
     }
     fn input_convention(&self) -> rtf_core::InputConvention {
         self.config.input

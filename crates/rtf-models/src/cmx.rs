@@ -43,13 +43,13 @@ use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
-use crate::layers::{new_var, Act, ConvBnAct, ConvSpec, Fuse, WeightInit};
+use crate::layers::{new_var, Act, ConvBnAct, ConvSpec, Fold, Folder, WeightInit};
 use crate::Network;
 
 mod decoder;
 mod fusion;
 
-use decoder::{decoder, Decoder};
+use decoder::{decoder, Head};
 use fusion::{fusion, rectify, Fusion, Rectify};
 
 /// Attention heads per stage (self-attention and the fusion's cross-attention).
@@ -292,13 +292,11 @@ fn drop_path(xs: Tensor, rate: f64, train: bool) -> Tensor {
 struct Linear {
     weight: Tensor,
     bias: Option<Tensor>,
-    /// The fast path's kind, its handle on the float32 weight and its bias in that kind
-    /// ([`Fuse`]); eval forwards use them, casting the weight per call (as autocast does)
-    /// rather than holding a second copy of it: bf16 CMX-B4 then peaks at 1281 instead of 1486
-    /// MiB for 2–7 % of its speed (batch 1, 480×640, 2 threads, Xeon family 6 model 167). A
-    /// float32 weight is used as it is. The handle is what tells
-    /// [`crate::fast::InferenceNet::releasing_plain_weights`] that the fast path reads it.
-    fast: Option<(Kind, Tensor, Option<Tensor>)>,
+    /// Folded for inference: the type the weight is cast to per call (as autocast does),
+    /// rather than holding a second copy of it (docs/src/models.md, "CMX's linear layers"); a
+    /// float32 weight is used as it is. The folded layer's handle on the float32 weight is what
+    /// tells [`crate::fast::InferenceNet::releasing_plain_weights`] that the fast path reads it.
+    cast: Option<Kind>,
 }
 
 /// How a fresh linear layer is drawn.
@@ -329,23 +327,29 @@ fn linear(p: nn::Path, c_in: i64, c_out: i64, bias: bool, init: LinearInit) -> L
     Linear {
         weight: new_var(&p, "weight", &[c_out, c_in], weight_init),
         bias: bias.then(|| new_var(&p, "bias", &[c_out], bias_init)),
-        fast: None,
+        cast: None,
     }
 }
 
 impl ModuleT for Linear {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
-        match (&self.fast, train) {
-            (Some((kind, weight, bias)), false) => xs.linear(&weight.to_kind(*kind), bias.as_ref()),
-            _ => xs.linear(&self.weight, self.bias.as_ref()),
+        match self.cast {
+            Some(kind) => {
+                assert!(!train, "a folded linear layer cannot train");
+                xs.linear(&self.weight.to_kind(kind), self.bias.as_ref())
+            }
+            None => xs.linear(&self.weight, self.bias.as_ref()),
         }
     }
 }
 
-impl Fuse for Linear {
-    fn fuse(&mut self, kind: Kind) {
-        let bias = self.bias.as_ref().map(|b| inference_copy(b, kind));
-        self.fast = Some((kind, self.weight.shallow_clone(), bias));
+impl Fold for Linear {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            weight: self.weight.shallow_clone(),
+            bias: self.bias.as_ref().map(|b| inference_copy(b, f.kind())),
+            cast: Some(f.kind()),
+        }
     }
 }
 
@@ -355,8 +359,6 @@ struct LayerNorm {
     weight: Tensor,
     bias: Tensor,
     eps: f64,
-    /// The fast path's affine, in its kind.
-    fast: Option<(Tensor, Tensor)>,
 }
 
 fn layer_norm(p: nn::Path, dim: i64, eps: f64) -> LayerNorm {
@@ -364,27 +366,24 @@ fn layer_norm(p: nn::Path, dim: i64, eps: f64) -> LayerNorm {
         weight: new_var(&p, "weight", &[dim], nn::Init::Const(1.0)),
         bias: new_var(&p, "bias", &[dim], nn::Init::Const(0.0)),
         eps,
-        fast: None,
     }
 }
 
 impl ModuleT for LayerNorm {
-    fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
-        let (weight, bias) = match (&self.fast, train) {
-            (Some((w, b)), false) => (w, b),
-            _ => (&self.weight, &self.bias),
-        };
+    fn forward_t(&self, xs: &Tensor, _train: bool) -> Tensor {
+        let (weight, bias) = (&self.weight, &self.bias);
         xs.layer_norm([weight.size()[0]], Some(weight), Some(bias), self.eps, true)
     }
 }
 
-impl Fuse for LayerNorm {
-    fn fuse(&mut self, kind: Kind) {
-        let affine = (
-            inference_copy(&self.weight, kind),
-            inference_copy(&self.bias, kind),
-        );
-        self.fast = Some(affine);
+impl Fold for LayerNorm {
+    /// The affine in the fold's type.
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            weight: inference_copy(&self.weight, f.kind()),
+            bias: inference_copy(&self.bias, f.kind()),
+            eps: self.eps,
+        }
     }
 }
 
@@ -441,10 +440,12 @@ impl PatchEmbed {
     }
 }
 
-impl Fuse for PatchEmbed {
-    fn fuse(&mut self, kind: Kind) {
-        self.proj.fuse(kind);
-        self.norm.fuse(kind);
+impl Fold for PatchEmbed {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            proj: self.proj.folded(f),
+            norm: self.norm.folded(f),
+        }
     }
 }
 
@@ -511,14 +512,14 @@ impl Attention {
     }
 }
 
-impl Fuse for Attention {
-    fn fuse(&mut self, kind: Kind) {
-        for linear in [&mut self.q, &mut self.kv, &mut self.proj] {
-            linear.fuse(kind);
-        }
-        if let Some((sr, norm)) = &mut self.reduce {
-            sr.fuse(kind);
-            norm.fuse(kind);
+impl Fold for Attention {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            heads: self.heads,
+            q: self.q.folded(f),
+            kv: self.kv.folded(f),
+            proj: self.proj.folded(f),
+            reduce: (self.reduce.as_ref()).map(|(sr, norm)| (sr.folded(f), norm.folded(f))),
         }
     }
 }
@@ -550,11 +551,13 @@ impl MixFfn {
     }
 }
 
-impl Fuse for MixFfn {
-    fn fuse(&mut self, kind: Kind) {
-        self.fc1.fuse(kind);
-        self.dwconv.fuse(kind);
-        self.fc2.fuse(kind);
+impl Fold for MixFfn {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            fc1: self.fc1.folded(f),
+            dwconv: self.dwconv.folded(f),
+            fc2: self.fc2.folded(f),
+        }
     }
 }
 
@@ -592,12 +595,15 @@ impl Block {
     }
 }
 
-impl Fuse for Block {
-    fn fuse(&mut self, kind: Kind) {
-        self.norm1.fuse(kind);
-        self.attn.fuse(kind);
-        self.norm2.fuse(kind);
-        self.mlp.fuse(kind);
+impl Fold for Block {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            norm1: self.norm1.folded(f),
+            attn: self.attn.folded(f),
+            norm2: self.norm2.folded(f),
+            mlp: self.mlp.folded(f),
+            drop_path: self.drop_path,
+        }
     }
 }
 
@@ -648,11 +654,13 @@ impl Stage {
     }
 }
 
-impl Fuse for Stage {
-    fn fuse(&mut self, kind: Kind) {
-        self.embed.fuse(kind);
-        self.blocks.fuse(kind);
-        self.norm.fuse(kind);
+impl Fold for Stage {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            embed: self.embed.folded(f),
+            blocks: self.blocks.folded(f),
+            norm: self.norm.folded(f),
+        }
     }
 }
 
@@ -695,12 +703,14 @@ impl Encoder {
     }
 }
 
-impl Fuse for Encoder {
-    fn fuse(&mut self, kind: Kind) {
-        self.rgb.fuse(kind);
-        self.thermal.fuse(kind);
-        self.rectify.fuse(kind);
-        self.fusion.fuse(kind);
+impl Fold for Encoder {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            rgb: self.rgb.folded(f),
+            thermal: self.thermal.folded(f),
+            rectify: self.rectify.folded(f),
+            fusion: self.fusion.folded(f),
+        }
     }
 }
 
@@ -708,14 +718,12 @@ impl Fuse for Encoder {
 pub struct Cmx {
     config: Config,
     encoder: Encoder,
-    decoder: Decoder,
+    decoder: Head,
     /// ImageNet's mean and std as [1, 3, 1, 1], made once: a tensor filled from host memory
     /// inside `forward` would reach a JIT trace as an uninitialised `aten::empty` (the copy
     /// into it is not an op), so exports would read garbage.
     mean: Tensor,
     std: Tensor,
-    /// Whether the fast path is prepared ([`Network::fuse_for_inference`]).
-    fused: bool,
 }
 
 impl Cmx {
@@ -725,10 +733,9 @@ impl Cmx {
         Ok(Self {
             config: cfg.clone(),
             encoder: encoder(&p / "backbone", &layout),
-            decoder: decoder(&p / "decode_head", &layout, cfg),
+            decoder: Head::Plain(decoder(&p / "decode_head", &layout, cfg)),
             mean: Tensor::from_slice(&IMAGENET_MEAN).view([1, 3, 1, 1]),
             std: Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]),
-            fused: false,
         })
     }
 
@@ -759,11 +766,14 @@ impl ModuleT for Cmx {
         let (h, w) = (xs.size()[2], xs.size()[3]);
         let (colour, thermal) = self.normalise(xs);
         let features = self.encoder.forward(&colour, &thermal, train);
-        let logits = self.decoder.forward(&features, train);
-        if self.fused && !train {
-            return bilinear(&logits.to_kind(Kind::Float).contiguous(), h, w);
+        match &self.decoder {
+            Head::Plain(decoder) => bilinear(&decoder.forward(&features, train), h, w),
+            Head::Folded(decoder) => {
+                assert!(!train, "a folded network cannot train");
+                let logits = decoder.forward(&features);
+                bilinear(&logits.to_kind(Kind::Float).contiguous(), h, w)
+            }
         }
-        bilinear(&logits, h, w)
     }
 }
 
@@ -782,13 +792,19 @@ impl Network for Cmx {
     }
     /// BatchNorm folded (decoder, fusion modules), the decoder in its folded form, oneDNN
     /// convolutions with their activations (GELU, ReLU) and residual adds fused in, in-place
-    /// residual sums; convolution weights folded in `kind`, linear weights cast to it per call;
-    /// maps channels-last, so tokens and maps are views of one another.
-    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
-        self.encoder.fuse(kind);
-        self.decoder.fuse(kind);
-        self.fused = true;
-        true
+    /// residual sums; convolution weights folded in the fold's type, linear weights cast to it
+    /// per call; maps channels-last, so tokens and maps are views of one another.
+    fn folded(&self, folder: &Folder) -> Option<Box<dyn Network>> {
+        let Head::Plain(decoder) = &self.decoder else {
+            return None;
+        };
+        Some(Box::new(Self {
+            config: self.config.clone(),
+            encoder: self.encoder.folded(folder),
+            decoder: Head::Folded(decoder.folded_for_inference(folder)),
+            mean: self.mean.shallow_clone(),
+            std: self.std.shallow_clone(),
+        }))
     }
 }
 

@@ -1,5 +1,12 @@
 //! The fast inference path: no autograd, BatchNorm folded into the convolutions, channels-last
 //! activations, in-place activations and residual adds, optional bfloat16.
+//!
+//! [`InferenceNet::fold`] builds it as a new network from a trained one
+//! ([`crate::Network::folded`], [`folder::Fold`]), its convolutions [`unit::FoldedConv`]s, as
+//! the [`FoldOptions`] passed in say; nothing is read from the process.
+
+pub mod folder;
+pub mod unit;
 
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
@@ -7,6 +14,7 @@ use tch::{Device, Kind, Tensor};
 use crate::error::ModelError;
 use crate::layers::to_channels_last;
 use crate::release::PlainWeights;
+use folder::Folder;
 pub use crate::release::Released;
 use crate::Network;
 
@@ -60,15 +68,25 @@ pub struct InferenceKernels {
     /// bf16's wide 3×3 convolutions in the Winograd forms (fp32 arithmetic over bf16 maps)
     /// rather than on oneDNN's bf16 kernels.
     pub bf16_winograd: bool,
+    /// How bf16 convolutions on the CPU are computed: [`rtf_amp::Bf16Convolutions::Emulated`]
+    /// folds them for float32 kernels over bf16 maps (CPUs without bf16 arithmetic).
+    #[serde(default = "native")]
+    pub bf16_convolutions: rtf_amp::Bf16Convolutions,
+}
+
+fn native() -> rtf_amp::Bf16Convolutions {
+    rtf_amp::Bf16Convolutions::Native
 }
 
 impl InferenceKernels {
     /// Without a measurement: every form, and bf16 in the Winograd forms only where the CPU
-    /// has no bf16 arithmetic ([`crate::winograd::bf16_default`]).
+    /// has no bf16 arithmetic ([`crate::winograd::bf16_default`]), its bf16 convolutions
+    /// emulated there.
     pub fn unmeasured() -> Self {
         Self {
             winograd: crate::winograd::Forms::All,
             bf16_winograd: crate::winograd::bf16_default(),
+            bf16_convolutions: rtf_amp::cpu_bf16_convolutions().unwrap_or(native()),
         }
     }
 }
@@ -124,47 +142,56 @@ impl InferenceNet {
         Self::fold(net, &FoldOptions::new(precision).layout(layout))
     }
 
-    /// Folds `net` as `options` say: the layout and kernels are the fold's for the duration of
-    /// the call only (the units read them while they fold), and recorded.
-    pub fn fold(mut net: Box<dyn Network>, options: &FoldOptions) -> Result<Self, ModelError> {
-        let (precision, kernels) = (options.precision, options.kernels);
-        let channels_last = options.layout == Layout::ChannelsLast;
-        let fused = crate::layers::with_fused_layout(channels_last, || {
-            crate::winograd::with_forms(kernels.winograd, || {
-                crate::winograd::with_bf16(kernels.bf16_winograd, || {
-                    net.fuse_for_inference(precision.kind())
-                })
-            })
-        });
-        if !fused && precision != Precision::Fp32 {
-            return Err(ModelError::InvalidConfig {
-                network: net.name(),
-                reason: format!("no fused inference path, so no {precision} inference"),
-            });
-        }
-        Ok(Self {
-            net,
-            options: *options,
-            fused,
-        })
+    /// The inference form of `net` as `options` say ([`crate::Network::folded`]), which takes
+    /// the place of the trained network. Networks without a folded path run their plain eval
+    /// forward (still without autograd), in fp32 only.
+    pub fn fold(net: Box<dyn Network>, options: &FoldOptions) -> Result<Self, ModelError> {
+        Self::fold_with(net, &Folder::new(options))
     }
 
-    /// [`fold`](Self::fold) over a network whose weights are `vs`'s, freeing
-    /// every plain variable the folded path does not hold ([`crate::release`]): each unit's as
-    /// it folds, the rest after. A network kept for inference alone, as rtf's commands load
-    /// one: afterwards only the folded path runs, and the plain network inside (and `vs`,
-    /// e.g. for saving) must not be used. A network without a folded path runs on its plain
-    /// weights, so nothing is released from it.
+    fn fold_with(net: Box<dyn Network>, folder: &Folder) -> Result<Self, ModelError> {
+        let options = *folder.options();
+        match net.folded(folder) {
+            Some(folded) => Ok(Self {
+                net: folded,
+                options,
+                fused: true,
+            }),
+            None if options.precision != Precision::Fp32 => Err(ModelError::InvalidConfig {
+                network: net.name(),
+                reason: format!("no fused inference path, so no {} inference", options.precision),
+            }),
+            None => Ok(Self {
+                net,
+                options,
+                fused: false,
+            }),
+        }
+    }
+
+    /// [`fold`](Self::fold) over a network whose weights are `vs`'s, freeing every plain
+    /// variable the folded network does not hold ([`crate::release`]): each unit's as it folds,
+    /// the rest after. A network kept for inference alone, as rtf's commands load one: `vs`
+    /// must not be used afterwards (e.g. for saving). A network without a folded path runs on
+    /// its plain weights, so nothing is released from it.
     pub fn releasing_plain_weights(
         net: Box<dyn Network>,
         options: &FoldOptions,
         vs: &tch::nn::VarStore,
     ) -> Result<(Self, Released), ModelError> {
         let plain = PlainWeights::record(vs);
-        let fast = plain.while_folding(|| Self::fold(net, options))?;
-        let released = match fast.fused {
-            true => plain.release_unheld(),
-            false => Released::default(),
+        let recorded = plain.recorded();
+        let folder = Folder::releasing(options, &recorded);
+        let Some(folded) = net.folded(&folder) else {
+            return Ok((Self::fold_with(net, &folder)?, Released::default()));
+        };
+        // Released while the trained network still holds its handles, as recorded.
+        let released = plain.release_unheld();
+        drop(net);
+        let fast = Self {
+            net: folded,
+            options: *options,
+            fused: true,
         };
         Ok((fast, released))
     }

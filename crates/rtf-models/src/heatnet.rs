@@ -12,7 +12,7 @@ use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
-use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, InitScheme};
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder, InitScheme};
 use crate::resnet::{self, BlockKind, LayerSpec, ResLayer};
 use crate::Network;
 
@@ -125,11 +125,13 @@ impl ModuleT for Front {
     }
 }
 
-impl Fuse for Front {
-    fn fuse(&mut self, kind: Kind) {
-        self.stem.fuse(kind);
-        self.layer1.fuse(kind);
-        self.layer2.fuse(kind);
+impl Fold for Front {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            stem: self.stem.folded(f),
+            layer1: self.layer1.folded(f),
+            layer2: self.layer2.folded(f),
+        }
     }
 }
 
@@ -160,11 +162,14 @@ fn back(p: &nn::Path, c_in: i64) -> (ResLayer, ResLayer) {
 /// Pyramid pooling: per bin adaptive average pool → 1×1 conv (no bias) → bilinear up;
 /// concat with the input → 1×1 conv → ReLU. [B, 2048, h, w] -> [B, 1024, h, w]
 #[derive(Debug)]
-struct PspModule {
-    stages: Vec<ConvBnAct>,
-    bottleneck: ConvBnAct,
-    /// The inference form, prepared by [`Fuse::fuse`].
-    folded: Option<PspFolded>,
+enum PspModule {
+    /// The trained stages and bottleneck.
+    Plain {
+        stages: Vec<ConvBnAct>,
+        bottleneck: ConvBnAct,
+    },
+    /// The inference form ([`Fold::folded`]).
+    Folded(PspFolded),
 }
 
 /// The PSP module's inference form, the same function with a fifth of the bottleneck's work.
@@ -202,11 +207,7 @@ fn psp_module(p: nn::Path, features: i64, out: i64) -> PspModule {
         spec.bias(true),
         Act::Relu,
     );
-    PspModule {
-        stages,
-        bottleneck,
-        folded: None,
-    }
+    PspModule::Plain { stages, bottleneck }
 }
 
 fn bilinear(xs: &Tensor, h: i64, w: i64) -> Tensor {
@@ -215,13 +216,17 @@ fn bilinear(xs: &Tensor, h: i64, w: i64) -> Tensor {
 
 impl ModuleT for PspModule {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
-        if let (Some(folded), false) = (&self.folded, train) {
-            return folded.forward(xs);
-        }
+        let (stages, bottleneck) = match self {
+            PspModule::Plain { stages, bottleneck } => (stages, bottleneck),
+            PspModule::Folded(folded) => {
+                assert!(!train, "a folded PSP module cannot train");
+                return folded.forward(xs);
+            }
+        };
         let (h, w) = (xs.size()[2], xs.size()[3]);
         let mut priors: Vec<Tensor> = BINS
             .iter()
-            .zip(&self.stages)
+            .zip(stages)
             .map(|(&bin, conv)| {
                 bilinear(
                     &xs.adaptive_avg_pool2d([bin, bin]).apply_t(conv, train),
@@ -231,14 +236,17 @@ impl ModuleT for PspModule {
             })
             .collect();
         priors.push(xs.shallow_clone());
-        Tensor::cat(&priors, 1).apply_t(&self.bottleneck, train)
+        Tensor::cat(&priors, 1).apply_t(bottleneck, train)
     }
 }
 
-impl Fuse for PspModule {
-    fn fuse(&mut self, kind: Kind) {
+impl Fold for PspModule {
+    fn folded(&self, f: &Folder) -> Self {
+        let PspModule::Plain { stages, bottleneck } = self else {
+            panic!("a folded PSP module cannot be folded again");
+        };
         let _guard = tch::no_grad_guard();
-        let (weight, bias) = self.bottleneck.folded_float();
+        let (weight, bias) = bottleneck.folded_float();
         let (out, features) = (weight.size()[0], weight.size()[1] / (BINS.len() as i64 + 1));
         // The reference concatenates [prior_1, …, prior_4, x]: B_i and B_x are column blocks.
         // -> [out, features]
@@ -249,7 +257,7 @@ impl Fuse for PspModule {
         };
         let mut bias = bias.unwrap_or_else(|| Tensor::zeros([out], (Kind::Float, weight.device())));
         let mut priors = Vec::with_capacity(BINS.len());
-        for (i, stage) in self.stages.iter().enumerate() {
+        for (i, stage) in stages.iter().enumerate() {
             let (stage_weight, stage_bias) = stage.folded_float();
             // A stage's bias is constant over pixels, which upsampling keeps: it joins the bias.
             if let Some(stage_bias) = stage_bias {
@@ -259,9 +267,8 @@ impl Fuse for PspModule {
             priors.push(composed.view([out, features, 1, 1]));
         }
         let main_weight = columns(BINS.len()).contiguous().view([out, features, 1, 1]);
-        let main =
-            ConvBnAct::folded_from(main_weight, Some(bias), ConvSpec::new(1), Act::Relu, kind);
-        self.folded = Some(PspFolded { main, priors });
+        let main = ConvBnAct::folded_from(main_weight, Some(bias), ConvSpec::new(1), Act::Relu, f);
+        PspModule::Folded(PspFolded { main, priors })
     }
 }
 
@@ -297,8 +304,8 @@ impl PspFolded {
 #[derive(Debug)]
 struct PspUpsample {
     conv: ConvBnAct,
+    /// The slope (the variable; folded, cast to the inference type).
     prelu: Tensor,
-    prelu_fused: Option<Tensor>,
 }
 
 fn psp_upsample(p: nn::Path, c_in: i64, c_out: i64) -> PspUpsample {
@@ -313,28 +320,23 @@ fn psp_upsample(p: nn::Path, c_in: i64, c_out: i64) -> PspUpsample {
     );
     // nn.PReLU(): one slope, 0.25.
     let prelu = crate::layers::new_var(&(&p / "conv" / 2), "weight", &[1], nn::Init::Const(0.25));
-    PspUpsample {
-        conv,
-        prelu,
-        prelu_fused: None,
-    }
+    PspUpsample { conv, prelu }
 }
 
 impl ModuleT for PspUpsample {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
         let (h, w) = (xs.size()[2], xs.size()[3]);
         let ys = bilinear(xs, 2 * h, 2 * w).apply_t(&self.conv, train);
-        match (&self.prelu_fused, train) {
-            (Some(slope), false) => ys.prelu(slope),
-            _ => ys.prelu(&self.prelu),
-        }
+        ys.prelu(&self.prelu)
     }
 }
 
-impl Fuse for PspUpsample {
-    fn fuse(&mut self, kind: Kind) {
-        self.conv.fuse(kind);
-        self.prelu_fused = Some(tch::no_grad(|| self.prelu.to_kind(kind)));
+impl Fold for PspUpsample {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            conv: self.conv.folded(f),
+            prelu: tch::no_grad(|| self.prelu.to_kind(f.kind())),
+        }
     }
 }
 
@@ -440,20 +442,24 @@ impl ModuleT for HeatNet {
     }
 }
 
-impl Fuse for HeatNet {
-    fn fuse(&mut self, kind: Kind) {
-        match &mut self.backbone {
-            Backbone::Late { rgb, ir } => {
-                rgb.fuse(kind);
-                ir.fuse(kind);
-            }
-            Backbone::Single(f) => f.fuse(kind),
+impl Fold for HeatNet {
+    fn folded(&self, f: &Folder) -> Self {
+        let backbone = match &self.backbone {
+            Backbone::Late { rgb, ir } => Backbone::Late {
+                rgb: rgb.folded(f),
+                ir: ir.folded(f),
+            },
+            Backbone::Single(front) => Backbone::Single(front.folded(f)),
+        };
+        Self {
+            config: self.config.clone(),
+            backbone,
+            layer3: self.layer3.folded(f),
+            layer4: self.layer4.folded(f),
+            psp: self.psp.folded(f),
+            up: self.up.folded(f),
+            last: self.last.folded(f),
         }
-        self.layer3.fuse(kind);
-        self.layer4.fuse(kind);
-        self.psp.fuse(kind);
-        self.up.fuse(kind);
-        self.last.fuse(kind);
     }
 }
 
@@ -470,9 +476,8 @@ impl Network for HeatNet {
     fn name(&self) -> String {
         self.config.name()
     }
-    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
-        self.fuse(kind);
-        true
+    fn folded(&self, folder: &Folder) -> Option<Box<dyn Network>> {
+        Some(Box::new(Fold::folded(self, folder)))
     }
 }
 
@@ -661,21 +666,25 @@ mod tests {
     /// HeatNet's PSP module on `features` channels, its stages with a bias if `stage_bias`
     /// (the reference's have none; the fold takes one into the bottleneck's bias).
     fn psp_for_test(p: nn::Path, features: i64, out: i64, stage_bias: bool) -> PspModule {
-        let mut psp = psp_module(&p / "psp", features, out);
-        if stage_bias {
-            psp.stages = psp_stages(&(&p / "biased"), features, ConvSpec::new(1).bias(true));
+        let psp = psp_module(&p / "psp", features, out);
+        match (stage_bias, psp) {
+            (true, PspModule::Plain { bottleneck, .. }) => PspModule::Plain {
+                stages: psp_stages(&(&p / "biased"), features, ConvSpec::new(1).bias(true)),
+                bottleneck,
+            },
+            (_, psp) => psp,
         }
-        psp
     }
 
     #[test]
     fn folded_psp_module_is_the_same_function() {
-        use crate::fast::{max_relative_difference, FUSED_FP32_TOLERANCE};
+        use crate::fast::{max_relative_difference, FoldOptions, Precision, FUSED_FP32_TOLERANCE};
         use crate::layers::to_channels_last;
         tch::manual_seed(11);
         for stage_bias in [false, true] {
             let vs = nn::VarStore::new(Device::Cpu);
-            let mut psp = psp_for_test(vs.root(), 16, 8, stage_bias);
+            let psp = psp_for_test(vs.root(), 16, 8, stage_bias);
+            let fold = |precision| psp.folded(&Folder::new(&FoldOptions::new(precision)));
             // Weights of unit gain and inputs with per-channel offsets, so that every bin's
             // prior weighs as much as the input's own columns (the reference init, std 0.02,
             // would leave the priors too small for a lost bin to show).
@@ -689,8 +698,8 @@ mod tests {
             let offsets = Tensor::randn([1, 16, 1, 1], (Kind::Float, Device::Cpu)) * 2.0;
             let x = Tensor::randn([2, 16, 13, 7], (Kind::Float, Device::Cpu)) + offsets;
             let plain = tch::no_grad(|| psp.forward_t(&x, false));
-            psp.fuse(Kind::Float);
-            let folded = tch::no_grad(|| psp.forward_t(&to_channels_last(&x), false));
+            let folded = fold(Precision::Fp32);
+            let folded = tch::no_grad(|| folded.forward_t(&to_channels_last(&x), false));
             let rel = max_relative_difference(&plain, &folded);
             assert!(
                 rel < FUSED_FP32_TOLERANCE,
@@ -710,8 +719,8 @@ mod tests {
             // rounding (2⁻⁹ relative each) stays far below what a lost or misplaced bin costs.
             let x16 = to_channels_last(&x.to_kind(Kind::BFloat16));
             let plain = tch::no_grad(|| psp.forward_t(&x16.to_kind(Kind::Float), true));
-            psp.fuse(Kind::BFloat16);
-            let folded = tch::no_grad(|| psp.forward_t(&x16, false));
+            let folded = fold(Precision::Bf16);
+            let folded = tch::no_grad(|| folded.forward_t(&x16, false));
             assert_eq!(folded.kind(), Kind::BFloat16);
             let rel = max_relative_difference(&plain, &folded.to_kind(Kind::Float));
             assert!(rel < 2e-2, "bf16, stage bias {stage_bias}: {rel}");

@@ -105,8 +105,12 @@ impl Network for Masked {
     fn name(&self) -> String {
         self.inner.name()
     }
-    fn fuse_for_inference(&mut self, kind: tch::Kind) -> bool {
-        self.inner.fuse_for_inference(kind)
+    fn folded(&self, folder: &crate::fast::folder::Folder) -> Option<Box<dyn Network>> {
+        let inner = self.inner.folded(folder)?;
+        Some(Box::new(Masked {
+            inner,
+            inputs: self.inputs,
+        }))
     }
     fn check_input(&self, shape: &[i64]) -> Result<(), crate::ModelError> {
         self.inner.check_input(shape)

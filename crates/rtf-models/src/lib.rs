@@ -48,13 +48,12 @@ pub trait Network: nn::ModuleT {
     /// Canonical model name (as accepted by [`ModelConfig::from_name`]).
     fn name(&self) -> String;
 
-    /// Prepares the fast inference path (see [`fast`]): folds BatchNorm into convolutions,
-    /// lays weights out channels-last and casts them to `kind`. Eval-mode forwards use them
-    /// from then on; training-mode forwards keep using the original variables. Returns false
-    /// for networks without a fused path (their eval forward is then the plain one).
-    fn fuse_for_inference(&mut self, kind: tch::Kind) -> bool {
-        let _ = kind;
-        false
+    /// The network's inference form, built anew as `folder` says ([`fast`]): BatchNorm folded
+    /// into the convolutions, weights laid out and cast for inference, eval forward only.
+    /// `None` for networks without a folded path (their eval forward is then the plain one).
+    fn folded(&self, folder: &fast::folder::Folder) -> Option<Box<dyn Network>> {
+        let _ = folder;
+        None
     }
 
     /// Checks an input shape before forward (which panics inside libtorch on bad shapes).

@@ -10,7 +10,7 @@ use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
-use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse};
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder};
 use crate::Network;
 
 /// LeakyReLU slope of every MFNet block.
@@ -398,21 +398,22 @@ impl ModuleT for InceptionStage {
     }
 }
 
-impl Fuse for InceptionStage {
-    fn fuse(&mut self, kind: Kind) {
-        for block in &mut self.blocks {
-            match block {
-                StageBlock::Mini {
-                    squeeze,
-                    left,
-                    right,
-                } => {
-                    squeeze.fuse(kind);
-                    left.fuse(kind);
-                    right.fuse(kind);
-                }
-                StageBlock::Single(unit) => unit.fuse(kind),
-            }
+impl Fold for InceptionStage {
+    fn folded(&self, f: &Folder) -> Self {
+        let blocks = self.blocks.iter().map(|block| match block {
+            StageBlock::Mini {
+                squeeze,
+                left,
+                right,
+            } => StageBlock::Mini {
+                squeeze: squeeze.folded(f),
+                left: left.folded(f),
+                right: right.folded(f),
+            },
+            StageBlock::Single(unit) => StageBlock::Single(unit.folded(f)),
+        });
+        Self {
+            blocks: blocks.collect(),
         }
     }
 }
@@ -506,19 +507,18 @@ impl Encoder {
     }
 }
 
-impl Fuse for Encoder {
-    fn fuse(&mut self, kind: Kind) {
-        for unit in [
-            &mut self.conv1,
-            &mut self.conv2_1,
-            &mut self.conv2_2,
-            &mut self.conv3_1,
-            &mut self.conv3_2,
-        ] {
-            unit.fuse(kind);
+impl Fold for Encoder {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            conv1: self.conv1.folded(f),
+            conv2_1: self.conv2_1.folded(f),
+            conv2_2: self.conv2_2.folded(f),
+            conv3_1: self.conv3_1.folded(f),
+            conv3_2: self.conv3_2.folded(f),
+            conv4: self.conv4.folded(f),
+            conv5: self.conv5.folded(f),
+            with_indices: self.with_indices,
         }
-        self.conv4.fuse(kind);
-        self.conv5.fuse(kind);
     }
 }
 
@@ -657,17 +657,16 @@ impl ModuleT for MfNet {
     }
 }
 
-impl Fuse for MfNet {
-    fn fuse(&mut self, kind: Kind) {
-        self.rgb.fuse(kind);
-        self.thermal.fuse(kind);
-        for unit in [
-            &mut self.decode4,
-            &mut self.decode3,
-            &mut self.decode2,
-            &mut self.decode1,
-        ] {
-            unit.fuse(kind);
+impl Fold for MfNet {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            config: self.config.clone(),
+            rgb: self.rgb.folded(f),
+            thermal: self.thermal.folded(f),
+            decode4: self.decode4.folded(f),
+            decode3: self.decode3.folded(f),
+            decode2: self.decode2.folded(f),
+            decode1: self.decode1.folded(f),
         }
     }
 }
@@ -685,9 +684,8 @@ impl Network for MfNet {
     fn name(&self) -> String {
         self.config.name()
     }
-    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
-        self.fuse(kind);
-        true
+    fn folded(&self, folder: &Folder) -> Option<Box<dyn Network>> {
+        Some(Box::new(Fold::folded(self, folder)))
     }
 }
 

@@ -9,28 +9,22 @@
 //! a variable that no fold took a handle on is dead weight.
 //!
 //! Two moments: while folding, each unit frees its own plain tensors as soon as it has folded
-//! them ([`release_folded`], called by [`crate::layers::ConvBnAct`]), so the fold never holds
+//! them ([`crate::fast::folder::Folder::release`], called by [`crate::layers::ConvBnAct`] on a
+//! folder made by [`crate::fast::folder::Folder::releasing`]), so the fold never holds
 //! two copies of the network; after folding, [`PlainWeights::release_unheld`] frees the rest
 //! (BatchNorms folded into a neighbour, parts folded by composition).
 //!
 //! This module sits below [`crate::layers`] and [`crate::fast`], which both use it.
 
-use std::cell::RefCell;
 use std::collections::HashMap;
 
 use tch::Tensor;
 
 use crate::aten::tensor_holders;
 
-thread_local! {
-    /// While [`PlainWeights::while_folding`] runs: each recorded variable's holders, by the
-    /// address of its data.
-    static RECORDED: RefCell<Option<HashMap<usize, (i64, i64)>>> = const { RefCell::new(None) };
-}
-
 /// The plain network's variables (weights, biases, BatchNorm statistics) and who held each one
-/// before folding: [`record`](Self::record) it before the fold, fold inside
-/// [`while_folding`](Self::while_folding), then [`release_unheld`](Self::release_unheld).
+/// before folding: [`record`](Self::record) it before the fold, fold with a folder releasing
+/// what it [`recorded`](Self::recorded), then [`release_unheld`](Self::release_unheld).
 pub(crate) struct PlainWeights {
     vars: Vec<RecordedVar>,
 }
@@ -79,17 +73,14 @@ impl PlainWeights {
         Self { vars }
     }
 
-    /// Runs `fold` with the units' release on: each unit that folds frees its own recorded,
-    /// unheld tensors at once ([`release_folded`]).
-    pub(crate) fn while_folding<T>(&self, fold: impl FnOnce() -> T) -> T {
-        let recorded = self
-            .vars
+    /// Each recorded variable's holders by the address of its data, for a releasing fold
+    /// ([`crate::fast::folder::Folder::releasing`]).
+    pub(crate) fn recorded(&self) -> HashMap<usize, (i64, i64)> {
+        self.vars
             .iter()
             .filter(|v| v.bytes > 0)
             .map(|v| (v.var.data_ptr() as usize, v.holders))
-            .collect();
-        let _restore = Restore(RECORDED.with(|r| r.replace(Some(recorded))));
-        fold()
+            .collect()
     }
 
     /// Empties each variable whose holders are those recorded; keeps the others. Counts what
@@ -116,35 +107,21 @@ impl PlainWeights {
     }
 }
 
-/// Puts back the recorded holders as they were before [`PlainWeights::while_folding`], also
-/// when the fold panics: a stale record on a thread that goes on (a caught panic) would free
-/// the tensors of a later fold that happen to reuse the recorded addresses.
-struct Restore(Option<HashMap<usize, (i64, i64)>>);
-
-impl Drop for Restore {
-    fn drop(&mut self) {
-        let previous = self.0.take();
-        RECORDED.with(|r| r.replace(previous));
-    }
-}
-
-/// Frees those of a folded unit's plain `tensors` that were recorded and are held as recorded,
-/// while [`PlainWeights::while_folding`] runs (a no-op otherwise). Call it once the unit's
-/// folded copies are made and nothing will read its plain tensors again.
-pub(crate) fn release_folded<'a>(tensors: impl IntoIterator<Item = &'a mut Tensor>) {
-    RECORDED.with(|r| {
-        let recorded = r.borrow();
-        let Some(recorded) = recorded.as_ref() else {
-            return;
-        };
-        for t in tensors {
-            let unheld =
-                t.numel() > 0 && recorded.get(&(t.data_ptr() as usize)) == Some(&tensor_holders(t));
-            if unheld {
-                empty(t);
-            }
+/// Frees those of `tensors` that `recorded` lists and that are held as recorded: nothing took
+/// a handle on them since. A unit's plain tensors, once its folded copies are made.
+pub(crate) fn release_unheld_of<'a>(
+    recorded: &HashMap<usize, (i64, i64)>,
+    tensors: impl IntoIterator<Item = &'a Tensor>,
+) {
+    for t in tensors {
+        let unheld =
+            t.numel() > 0 && recorded.get(&(t.data_ptr() as usize)) == Some(&tensor_holders(t));
+        if unheld {
+            // A handle of our own (after the check, which it would change): `set_data` empties
+            // the TensorImpl every handle shares.
+            empty(&mut t.shallow_clone());
         }
-    });
+    }
 }
 
 /// Replaces `t`'s data (in every handle on its TensorImpl) by an empty tensor: its memory goes.
@@ -186,21 +163,23 @@ mod tests {
         assert_eq!(fold_view.sum(Kind::Float).double_value(&[]), 16.0);
     }
 
-    /// While folding, a unit frees its own recorded tensors that nothing else took; outside a
-    /// fold, or for a tensor something holds, it frees nothing.
+    /// A releasing fold frees a unit's recorded tensors that nothing else took, in every
+    /// handle; a tensor something holds, or one not recorded, it keeps.
     #[test]
-    fn a_unit_frees_its_own_tensors_only_while_folding_and_only_unheld() {
+    fn a_unit_frees_its_own_tensors_only_when_recorded_and_unheld() {
         let vs = tch::nn::VarStore::new(Device::Cpu);
         let root = vs.root();
-        let mut weight = root.ones("weight", &[16, 8]);
-        let mut held = root.ones("held", &[4]);
+        let weight = root.ones("weight", &[16, 8]);
+        let held = root.ones("held", &[4]);
         let plain = PlainWeights::record(&vs);
-        release_folded([&mut weight]);
-        assert_eq!(weight.size(), [16, 8], "released outside a fold");
+        let unrecorded = Tensor::ones([8], (Kind::Float, Device::Cpu));
         let fold_alias = held.shallow_clone();
-        plain.while_folding(|| release_folded([&mut weight, &mut held]));
+        let recorded = plain.recorded();
+        release_unheld_of(&recorded, [&weight, &held, &unrecorded]);
         assert_eq!(weight.size(), [0]);
+        assert_eq!(vs.variables()["weight"].size(), [0]);
         assert_eq!(held.size(), [4]);
+        assert_eq!(unrecorded.size(), [8]);
         drop(fold_alias);
         let released = plain.release_unheld();
         assert_eq!(
@@ -212,20 +191,5 @@ mod tests {
             }
         );
         assert_eq!(held.size(), [0]);
-    }
-
-    /// A fold that panics leaves no record behind: a unit folded later on the same thread
-    /// frees nothing.
-    #[test]
-    fn a_panicking_fold_leaves_no_record() {
-        let vs = tch::nn::VarStore::new(Device::Cpu);
-        let mut weight = vs.root().ones("weight", &[8]);
-        let plain = PlainWeights::record(&vs);
-        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            plain.while_folding(|| panic!("a fold that fails"))
-        }));
-        assert!(caught.is_err());
-        release_folded([&mut weight]);
-        assert_eq!(weight.size(), [8]);
     }
 }

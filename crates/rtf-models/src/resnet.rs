@@ -3,9 +3,9 @@
 //! (`conv1`, `bn1`, `layerN.i.conv1`, `layerN.i.downsample.0`, …) under a caller's prefix.
 
 use tch::nn::{self, ModuleT};
-use tch::{Kind, Tensor};
+use tch::Tensor;
 
-use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, InitScheme};
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder, InitScheme};
 
 /// Residual block type of a ResNet depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -157,12 +157,14 @@ impl ModuleT for ResBlock {
     }
 }
 
-impl Fuse for ResBlock {
-    fn fuse(&mut self, kind: Kind) {
-        self.conv1.fuse(kind);
-        self.conv2.fuse(kind);
-        self.conv3.fuse(kind);
-        self.downsample.fuse(kind);
+impl Fold for ResBlock {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            conv1: self.conv1.folded(f),
+            conv2: self.conv2.folded(f),
+            conv3: self.conv3.folded(f),
+            downsample: self.downsample.folded(f),
+        }
     }
 }
 
@@ -246,9 +248,12 @@ impl ModuleT for ResLayer {
     }
 }
 
-impl Fuse for ResLayer {
-    fn fuse(&mut self, kind: Kind) {
-        self.blocks.fuse(kind)
+impl Fold for ResLayer {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            blocks: self.blocks.folded(f),
+            out_channels: self.out_channels,
+        }
     }
 }
 
@@ -312,9 +317,11 @@ impl ResNetEncoder {
     }
 }
 
-impl Fuse for ResNetEncoder {
-    fn fuse(&mut self, kind: Kind) {
-        self.stem.fuse(kind);
-        self.layers.fuse(kind);
+impl Fold for ResNetEncoder {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            stem: self.stem.folded(f),
+            layers: self.layers.folded(f),
+        }
     }
 }

@@ -8,10 +8,10 @@
 
 use serde::{Deserialize, Serialize};
 use tch::nn::{self, ModuleT};
-use tch::{Kind, Tensor};
+use tch::Tensor;
 
 use crate::error::ModelError;
-use crate::layers::{Act, ConvBnAct, ConvSpec, Fuse, InitScheme, WeightInit};
+use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder, InitScheme, WeightInit};
 use crate::resnet::{self, ResNetEncoder};
 use crate::Network;
 
@@ -223,18 +223,23 @@ impl ModuleT for DecoderStage {
     }
 }
 
-impl Fuse for DecoderStage {
-    fn fuse(&mut self, kind: Kind) {
+impl Fold for DecoderStage {
+    fn folded(&self, f: &Folder) -> Self {
         match self {
-            DecoderStage::Upception(a, b) => {
-                for u in [&mut a.conv1, &mut a.conv2, &mut a.conv3] {
-                    u.fuse(kind);
-                }
-                for u in [&mut b.conv1, &mut b.conv2, &mut b.conv3, &mut b.upsample] {
-                    u.fuse(kind);
-                }
-            }
-            DecoderStage::Plain(unit) => unit.fuse(kind),
+            DecoderStage::Upception(a, b) => DecoderStage::Upception(
+                UpceptionA {
+                    conv1: a.conv1.folded(f),
+                    conv2: a.conv2.folded(f),
+                    conv3: a.conv3.folded(f),
+                },
+                UpceptionB {
+                    conv1: b.conv1.folded(f),
+                    conv2: b.conv2.folded(f),
+                    conv3: b.conv3.folded(f),
+                    upsample: b.upsample.folded(f),
+                },
+            ),
+            DecoderStage::Plain(unit) => DecoderStage::Plain(unit.folded(f)),
         }
     }
 }
@@ -354,12 +359,15 @@ impl ModuleT for RtfNet {
     }
 }
 
-impl Fuse for RtfNet {
-    fn fuse(&mut self, kind: Kind) {
-        self.rgb.fuse(kind);
-        self.thermal.fuse(kind);
-        self.joint.fuse(kind);
-        self.decoder.fuse(kind);
+impl Fold for RtfNet {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            config: self.config.clone(),
+            rgb: self.rgb.folded(f),
+            thermal: self.thermal.folded(f),
+            joint: self.joint.folded(f),
+            decoder: self.decoder.folded(f),
+        }
     }
 }
 
@@ -376,9 +384,8 @@ impl Network for RtfNet {
     fn name(&self) -> String {
         self.config.name()
     }
-    fn fuse_for_inference(&mut self, kind: Kind) -> bool {
-        self.fuse(kind);
-        true
+    fn folded(&self, folder: &Folder) -> Option<Box<dyn Network>> {
+        Some(Box::new(Fold::folded(self, folder)))
     }
 }
 
@@ -387,7 +394,7 @@ mod tests {
     use super::*;
     use crate::test_util::{assert_matches_reference_keys, forward_shape};
     use crate::weights;
-    use tch::Device;
+    use tch::{Device, Kind};
 
     /// Spec §4 parameter counts for 9 classes.
     fn reference_count(depth: i64) -> i64 {

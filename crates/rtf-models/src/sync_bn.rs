@@ -79,11 +79,11 @@ impl BatchNorm {
 
     /// Its tensors (running statistics, affine), for the fast path's release of what a fold
     /// has taken in ([`crate::release`]).
-    pub(crate) fn tensors_mut(&mut self) -> Vec<&mut Tensor> {
-        let bn = &mut self.inner;
-        let mut tensors = vec![&mut bn.running_mean, &mut bn.running_var];
-        tensors.extend(bn.ws.as_mut());
-        tensors.extend(bn.bs.as_mut());
+    pub(crate) fn tensors(&self) -> Vec<&Tensor> {
+        let bn = &self.inner;
+        let mut tensors = vec![&bn.running_mean, &bn.running_var];
+        tensors.extend(bn.ws.as_ref());
+        tensors.extend(bn.bs.as_ref());
         tensors
     }
 }

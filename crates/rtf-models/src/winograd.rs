@@ -63,11 +63,22 @@ pub enum Form {
 /// and output channels, F(4×4, 3×3) from [`MIN_CHANNELS_F43`], as far as the [`Forms`] in
 /// force ([`with_forms`]) allow.
 pub fn form(kernel: i64, geometry: Geometry, c_in: i64, c_out: i64) -> Option<Form> {
+    form_within(FORMS.with(|c| c.get()), kernel, geometry, c_in, c_out)
+}
+
+/// [`form`] as far as `forms` allow (a fold's [`crate::fast::InferenceKernels::winograd`]).
+pub fn form_within(
+    forms: Forms,
+    kernel: i64,
+    geometry: Geometry,
+    c_in: i64,
+    c_out: i64,
+) -> Option<Form> {
     let g = geometry;
     let plain =
         kernel == 3 && (g.stride, g.groups) == (1, 1) && g.dilation >= 1 && g.padding == g.dilation;
     let channels = c_in.min(c_out);
-    let (f23, f43) = FORMS.with(|c| c.get()).enabled();
+    let (f23, f43) = forms.enabled();
     if !plain || g.transposed || channels < MIN_CHANNELS_F43 {
         None
     } else if channels >= MIN_CHANNELS {

@@ -236,11 +236,12 @@ pub fn measure_conv3x3(forms: rtf_models::winograd::Forms) -> Result<Measured, S
 }
 
 fn conv3x3_s(winograd: bool, forms: rtf_models::winograd::Forms) -> Result<f64, String> {
-    use rtf_models::layers::{Act, ConvBnAct, ConvSpec, Fuse};
+    use rtf_models::fast::{FoldOptions, InferenceKernels, Precision};
+    use rtf_models::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder};
     use tch::{Device, Kind, Tensor};
     let _guard = tch::no_grad_guard();
     let vs = tch::nn::VarStore::new(Device::Cpu);
-    let mut unit = rtf_models::layers::with_zero_init(|| {
+    let unit = rtf_models::layers::with_zero_init(|| {
         ConvBnAct::new(
             vs.root() / "conv",
             None,
@@ -253,11 +254,12 @@ fn conv3x3_s(winograd: bool, forms: rtf_models::winograd::Forms) -> Result<f64, 
     for (_, mut var) in vs.variables() {
         let _ = var.fill_(0.01);
     }
-    rtf_models::winograd::with_forms(forms, || {
-        rtf_models::winograd::with_bf16(winograd, || {
-            rtf_models::layers::with_fused_layout(true, || unit.fuse(Kind::BFloat16))
-        })
-    });
+    let kernels = InferenceKernels {
+        winograd: forms,
+        bf16_winograd: winograd,
+        ..InferenceKernels::unmeasured()
+    };
+    let unit = unit.folded(&Folder::new(&FoldOptions::new(Precision::Bf16).kernels(kernels)));
     let n = 256 * 60 * 80;
     let xs = Tensor::arange(n, (Kind::Float, Device::Cpu))
         .remainder(17)

@@ -3,7 +3,7 @@
 use super::*;
 use crate::test_util::forward_shape;
 use crate::weights;
-use tch::Device;
+use tch::{Device, Kind};
 
 #[test]
 fn every_baseline_builds_and_keeps_the_input_size() {

@@ -7,7 +7,8 @@ use super::{
     DECODER_DIM, DECODER_DROPOUT,
 };
 use crate::layers::{
-    batch_norm_affine, bn2d_with, new_var, Act, BatchNorm, ConvBnAct, ConvSpec, Fuse, WeightInit,
+    batch_norm_affine, bn2d_with, new_var, Act, BatchNorm, ConvBnAct, ConvSpec, Fold, Folder,
+    WeightInit,
 };
 
 /// The MLP decoder (`decode_head`): per stage a linear projection to [`DECODER_DIM`]
@@ -30,8 +31,22 @@ pub(super) struct Decoder {
     fuse_bias: Tensor,
     pub(super) fuse_bn: BatchNorm,
     pred: ConvBnAct,
-    /// The fast path's folded Aᵢ (BatchNorm's scale in) and bias, in its kind.
-    fast: Option<(Vec<Tensor>, Tensor)>,
+}
+
+/// The decoder, trained or folded.
+#[derive(Debug)]
+pub(super) enum Head {
+    Plain(Decoder),
+    Folded(FoldedDecoder),
+}
+
+/// The decoder's inference form ([`Decoder::folded_for_inference`]): the folded Aᵢ (with
+/// BatchNorm's scale in) and bias, in the fold's type, then ReLU and `pred`.
+#[derive(Debug)]
+pub(super) struct FoldedDecoder {
+    proj: Vec<Tensor>,
+    bias: Tensor,
+    pred: ConvBnAct,
 }
 
 pub(super) fn decoder(p: nn::Path, layout: &Layout, cfg: &Config) -> Decoder {
@@ -83,18 +98,20 @@ pub(super) fn decoder(p: nn::Path, layout: &Layout, cfg: &Config) -> Decoder {
             spec,
             Act::Identity,
         ),
-        fast: None,
+    }
+}
+
+impl FoldedDecoder {
+    pub(super) fn forward(&self, features: &[Tensor]) -> Tensor {
+        let mut fused = folded_sum(features, &self.proj, &self.bias, false);
+        let _ = fused.relu_();
+        fused.apply_t(&self.pred, false)
     }
 }
 
 impl Decoder {
     /// 4 stage outputs -> [B, classes, H/4, W/4]
     pub(super) fn forward(&self, features: &[Tensor], train: bool) -> Tensor {
-        if let (Some((proj, bias)), false) = (&self.fast, train) {
-            let mut fused = folded_sum(features, proj, bias, false);
-            let _ = fused.relu_();
-            return fused.apply_t(&self.pred, false);
-        }
         let fused = if train {
             let (proj, bias) = self.folded();
             folded_sum(features, &proj, &bias, true)
@@ -172,9 +189,11 @@ pub(super) fn folded_sum(
     sum
 }
 
-impl Fuse for Decoder {
-    fn fuse(&mut self, kind: Kind) {
+impl Decoder {
+    /// The inference form, as `f` says: BatchNorm folded into the composed projections.
+    pub(super) fn folded_for_inference(&self, f: &Folder) -> FoldedDecoder {
         let _guard = tch::no_grad_guard();
+        let kind = f.kind();
         let (scale, shift) = batch_norm_affine(&self.fuse_bn);
         let (proj, bias) = self.folded();
         let proj = proj
@@ -182,7 +201,10 @@ impl Fuse for Decoder {
             .map(|a| inference_copy(&(a.to_kind(Kind::Float) * scale.view([-1, 1])), kind))
             .collect();
         let bias = inference_copy(&(bias.to_kind(Kind::Float) * &scale + shift), kind);
-        self.fast = Some((proj, bias));
-        self.pred.fuse(kind);
+        FoldedDecoder {
+            proj,
+            bias,
+            pred: self.pred.folded(f),
+        }
     }
 }

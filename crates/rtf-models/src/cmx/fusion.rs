@@ -8,7 +8,7 @@ use super::{
     add_residual, depthwise3x3, encoder_conv, feature_map, layer_norm, linear, tokens, LayerNorm,
     Linear, LinearInit, LN_EPS, RECTIFY_LAMBDA,
 };
-use crate::layers::{batch_norm_affine, bn2d, Act, BatchNorm, ConvBnAct, ConvSpec, Fuse};
+use crate::layers::{batch_norm_affine, bn2d, Act, BatchNorm, ConvBnAct, ConvSpec, Fold, Folder};
 
 /// Feature Rectify Module (`FRMs.i`): channel weights from the average- and max-pooled
 /// concatenation (`channel_weights.mlp.{0,2}`: 4C -> 4C -> 2C, sigmoid) and spatial weights
@@ -74,12 +74,14 @@ impl Rectify {
     }
 }
 
-impl Fuse for Rectify {
-    fn fuse(&mut self, kind: Kind) {
-        self.channel1.fuse(kind);
-        self.channel2.fuse(kind);
-        self.spatial1.fuse(kind);
-        self.spatial2.fuse(kind);
+impl Fold for Rectify {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            channel1: self.channel1.folded(f),
+            channel2: self.channel2.folded(f),
+            spatial1: self.spatial1.folded(f),
+            spatial2: self.spatial2.folded(f),
+        }
     }
 }
 
@@ -95,8 +97,8 @@ pub(super) struct ChannelEmbed {
     reduce: ConvBnAct,
     depthwise: ConvBnAct,
     expand: ConvBnAct,
-    pub(super) norm: BatchNorm,
-    fused: bool,
+    /// The BatchNorm after the sum; none once folded (into `residual` and `expand`).
+    pub(super) norm: Option<BatchNorm>,
 }
 
 fn channel_embed(p: nn::Path, c_in: i64, c: i64) -> ChannelEmbed {
@@ -114,8 +116,7 @@ fn channel_embed(p: nn::Path, c_in: i64, c: i64) -> ChannelEmbed {
         reduce: encoder_conv(&e / 0, None, c_in, c, one, Act::Identity),
         depthwise: encoder_conv(&e / 1, None, c, c, depthwise3x3(c), Act::Relu),
         expand: encoder_conv(&e / 3, Some(&e / 4), c, c, one, Act::Identity),
-        norm: bn2d(&p / "norm", c),
-        fused: false,
+        norm: Some(bn2d(&p / "norm", c)),
     }
 }
 
@@ -125,23 +126,25 @@ impl ModuleT for ChannelEmbed {
             .apply_t(&self.reduce, train)
             .apply_t(&self.depthwise, train);
         let residual = xs.apply_t(&self.residual, train);
-        if self.fused && !train {
+        match &self.norm {
+            Some(norm) => (residual + reduced.apply_t(&self.expand, train)).apply_t(norm, train),
             // norm(residual + expand(reduced)) with norm folded into both convolutions.
-            return self.expand.forward_add(&reduced, &residual, false);
+            None => self.expand.forward_add(&reduced, &residual, train),
         }
-        (residual + reduced.apply_t(&self.expand, train)).apply_t(&self.norm, train)
     }
 }
 
-impl Fuse for ChannelEmbed {
-    fn fuse(&mut self, kind: Kind) {
-        let (scale, shift) = batch_norm_affine(&self.norm);
-        self.residual
-            .fuse_with_affine(kind, Some((&scale, &shift.zeros_like())));
-        self.reduce.fuse(kind);
-        self.depthwise.fuse(kind);
-        self.expand.fuse_with_affine(kind, Some((&scale, &shift)));
-        self.fused = true;
+impl Fold for ChannelEmbed {
+    fn folded(&self, f: &Folder) -> Self {
+        let norm = self.norm.as_ref().expect("a folded channel embedding cannot fold again");
+        let (scale, shift) = batch_norm_affine(norm);
+        Self {
+            residual: (self.residual).folded_with_affine(f, Some((&scale, &shift.zeros_like()))),
+            reduce: self.reduce.folded(f),
+            depthwise: self.depthwise.folded(f),
+            expand: self.expand.folded_with_affine(f, Some((&scale, &shift))),
+            norm: None,
+        }
     }
 }
 
@@ -237,12 +240,15 @@ impl Fusion {
     }
 }
 
-impl Fuse for Fusion {
-    fn fuse(&mut self, kind: Kind) {
-        let linears = self.channel_proj.iter_mut();
-        let linears = linears.chain(&mut self.kv).chain(&mut self.end_proj);
-        linears.for_each(|l| l.fuse(kind));
-        self.norm.iter_mut().for_each(|n| n.fuse(kind));
-        self.embed.fuse(kind);
+impl Fold for Fusion {
+    fn folded(&self, f: &Folder) -> Self {
+        Self {
+            heads: self.heads,
+            channel_proj: self.channel_proj.each_ref().map(|l| l.folded(f)),
+            kv: self.kv.each_ref().map(|l| l.folded(f)),
+            end_proj: self.end_proj.each_ref().map(|l| l.folded(f)),
+            norm: self.norm.each_ref().map(|n| n.folded(f)),
+            embed: self.embed.folded(f),
+        }
     }
 }

@@ -1,8 +1,32 @@
 //! Tests of the units and layers of [`super`].
 
 use super::*;
+use crate::fast::unit::WeightForm;
+use crate::fast::{FoldOptions, InferenceKernels, Layout, Precision};
 use nn::ModuleT;
 use tch::Device;
+
+/// `unit` folded as `options` say.
+fn fold_as(unit: &ConvBnAct, options: FoldOptions) -> ConvBnAct {
+    unit.folded(&Folder::new(&options))
+}
+
+/// `unit` folded for `precision`, channels-last, the unmeasured kernels.
+fn fold(unit: &ConvBnAct, precision: Precision) -> ConvBnAct {
+    fold_as(unit, FoldOptions::new(precision))
+}
+
+/// bf16 options with bf16's convolutions emulated (`true`) or native.
+fn bf16_emulated(emulated: bool) -> FoldOptions {
+    let bf16_convolutions = match emulated {
+        true => rtf_amp::Bf16Convolutions::Emulated,
+        false => rtf_amp::Bf16Convolutions::Native,
+    };
+    FoldOptions::new(Precision::Bf16).kernels(InferenceKernels {
+        bf16_convolutions,
+        ..InferenceKernels::unmeasured()
+    })
+}
 
 /// (output, input gradient, weight gradient, bias gradient) of `conv` on fresh leaves
 /// copied from `x`, `w`, `b`, with a fixed upstream gradient.
@@ -117,15 +141,20 @@ fn folding_a_following_affine_equals_applying_it() {
     for act in [Act::Identity, Act::Gelu] {
         let vs = nn::VarStore::new(Device::Cpu);
         let spec = ConvSpec::new(3).bias(true);
-        let mut unit = ConvBnAct::new(vs.root() / "c", Some(vs.root() / "bn"), 4, 5, spec, act);
+        let unit = ConvBnAct::new(vs.root() / "c", Some(vs.root() / "bn"), 4, 5, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([2, 4, 10, 12], (Kind::Float, Device::Cpu));
         let scale = Tensor::rand([5], (Kind::Float, Device::Cpu)) + 0.5;
         let shift = Tensor::randn([5], (Kind::Float, Device::Cpu));
-        let bn = tch::no_grad(|| unit.conv_bn(&x, false));
+        let (weight, bias) = unit.plain_vars();
+        let bn = tch::no_grad(|| {
+            x.conv2d(weight, bias, [1], [1], [1], 1)
+                .apply_t(unit.bn().unwrap(), false)
+        });
         let expected = act.apply(bn * scale.view([1, -1, 1, 1]) + shift.view([1, -1, 1, 1]));
-        unit.fuse_with_affine(Kind::Float, Some((&scale, &shift)));
-        let fused = tch::no_grad(|| unit.forward_t(&to_channels_last(&x), false));
+        let folder = Folder::new(&FoldOptions::new(Precision::Fp32));
+        let folded = unit.folded_with_affine(&folder, Some((&scale, &shift)));
+        let fused = tch::no_grad(|| folded.forward_t(&to_channels_last(&x), false));
         assert!(expected.allclose(&fused, 1e-4, 1e-5, false), "{act:?}");
     }
 }
@@ -139,21 +168,21 @@ fn folding_matches_conv_bn_for_plain_and_transposed() {
         (ConvSpec::new(2).stride(2).transposed(), Act::Relu),
     ] {
         let vs = nn::VarStore::new(Device::Cpu);
-        let mut unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
+        let unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([2, 6, 12, 16], (Kind::Float, Device::Cpu));
         let plain = tch::no_grad(|| unit.forward_t(&x, false));
         let residual = Tensor::randn(plain.size(), (Kind::Float, Device::Cpu));
         let plain_add = tch::no_grad(|| unit.forward_add(&x, &residual, false));
-        unit.fuse(Kind::Float);
-        let fused = tch::no_grad(|| unit.forward_t(&to_channels_last(&x), false));
+        let folded = fold(&unit, Precision::Fp32);
+        let fused = tch::no_grad(|| folded.forward_t(&to_channels_last(&x), false));
         assert_eq!(plain.size(), fused.size());
         assert!(plain.allclose(&fused, 1e-4, 1e-5, false), "{spec:?}");
-        // Training forwards never use the folded weights.
+        // The trained unit is untouched by its fold and still trains.
         let train = unit.forward_t(&x, true);
         assert!(train.requires_grad());
         // bfloat16: the activation (and the residual add) run inside the convolution.
-        unit.fuse(Kind::BFloat16);
+        let unit = fold(&unit, Precision::Bf16);
         let bf16 = |t: &Tensor| to_channels_last(&t.to_kind(Kind::BFloat16));
         let fused = tch::no_grad(|| unit.forward_t(&bf16(&x), false));
         assert_eq!(fused.kind(), Kind::BFloat16);
@@ -183,7 +212,7 @@ fn wide_units_fold_into_winograd_forms_with_the_same_values() {
     ] {
         let vs = nn::VarStore::new(Device::Cpu);
         let spec = ConvSpec::new(3).dilation(dilation);
-        let mut unit = ConvBnAct::new(
+        let unit = ConvBnAct::new(
             vs.root() / "conv",
             Some(vs.root() / "bn"),
             c,
@@ -196,10 +225,10 @@ fn wide_units_fold_into_winograd_forms_with_the_same_values() {
         let residual = Tensor::randn([1, c, h, w], (Kind::Float, Device::Cpu));
         let plain = tch::no_grad(|| unit.forward_t(&x, false));
         let plain_add = tch::no_grad(|| unit.forward_add(&x, &residual, false));
-        unit.fuse(Kind::Float);
-        match (&unit.fused.as_ref().unwrap().weight, form) {
-            (FoldedWeight::Winograd(u), Some(positions)) => assert_eq!(u.size()[0], positions),
-            (FoldedWeight::Packed(_), None) => {}
+        let unit = fold(&unit, Precision::Fp32);
+        match (unit.folded_unit().weight_form(), form) {
+            (WeightForm::Winograd { positions, .. }, Some(p)) => assert_eq!(positions, p),
+            (WeightForm::Packed(_), None) => {}
             (other, _) => panic!("{c} channels folded into {other:?}"),
         }
         let x = to_channels_last(&x);
@@ -230,7 +259,7 @@ fn bf16_wide_units_fold_into_winograd_forms_where_chosen() {
     for (c, h, w, positions) in [(128, 9, 11, 36), (1024, 3, 5, 16)] {
         let vs = nn::VarStore::new(Device::Cpu);
         let conv = vs.root() / "conv";
-        let mut unit = ConvBnAct::new(
+        let unit = ConvBnAct::new(
             conv,
             Some(vs.root() / "bn"),
             c,
@@ -244,18 +273,22 @@ fn bf16_wide_units_fold_into_winograd_forms_where_chosen() {
         let plain_add = tch::no_grad(|| unit.forward_add(&x, &residual, false));
         let mut outputs = Vec::new();
         for winograd in [true, false] {
-            crate::winograd::with_bf16(winograd, || unit.fuse(Kind::BFloat16));
-            let f = unit.fused.as_ref().unwrap();
-            match (&f.weight, winograd) {
-                (FoldedWeight::Winograd(u), true) => {
-                    assert_eq!((u.size()[0], u.kind()), (positions, Kind::Float));
-                    assert_eq!(f.bias.as_ref().unwrap().kind(), Kind::Float);
+            let kernels = InferenceKernels {
+                bf16_winograd: winograd,
+                ..InferenceKernels::unmeasured()
+            };
+            let folded = fold_as(&unit, FoldOptions::new(Precision::Bf16).kernels(kernels));
+            let f = folded.folded_unit();
+            match (f.weight_form(), winograd) {
+                (WeightForm::Winograd { positions: p, kind }, true) => {
+                    assert_eq!((p, kind), (positions, Kind::Float));
+                    assert_eq!(f.bias_kind(), Some(Kind::Float));
                 }
                 // Packed where oneDNN has bf16 kernels to pack for (not under an AVX2 cap).
-                (FoldedWeight::Packed(_) | FoldedWeight::Dense(_), false) => {}
+                (WeightForm::Packed(_) | WeightForm::Dense(_), false) => {}
                 (other, _) => panic!("{c} channels, winograd {winograd}: {other:?}"),
             }
-            let y = tch::no_grad(|| unit.forward_add(&bf16(&x), &bf16(&residual), false));
+            let y = tch::no_grad(|| folded.forward_add(&bf16(&x), &bf16(&residual), false));
             assert_eq!(
                 y.kind(),
                 Kind::BFloat16,
@@ -306,11 +339,12 @@ fn training_on_an_upsampled_input_takes_the_phase_form_with_the_same_values_and_
             }
         };
         (&y * &upstream).sum(Kind::Float).backward();
-        let bias = unit.bias.as_ref().expect("built with a bias");
+        let (weight, bias) = unit.plain_vars();
+        let bias = bias.expect("built with a bias");
         [
             y.detach(),
             x.grad(),
-            unit.weight.grad().copy(),
+            weight.grad().copy(),
             bias.grad().copy(),
         ]
     };
@@ -377,7 +411,7 @@ fn training_over_channels_last_maps_takes_the_winograd_form_with_the_same_gradie
         .set_requires_grad(true);
         let y = nn::ModuleT::forward_t(&unit, &x, true);
         (&y * &upstream).sum(Kind::Float).backward();
-        [y.detach(), x.grad(), unit.weight.grad().copy()]
+        [y.detach(), x.grad(), unit.plain_vars().0.grad().copy()]
     };
     let (winograd, direct) = (run(true), run(false));
     let names = ["output", "input gradient", "weight gradient"];
@@ -393,20 +427,24 @@ fn upsampled_input_folds_into_one_phase_convolution() {
     for (act, h, w) in [(Act::LeakyRelu(0.2), 6, 8), (Act::Relu, 5, 7)] {
         let vs = nn::VarStore::new(Device::Cpu);
         let spec = ConvSpec::new(3).bias(true).nearest_upsampled_input();
-        let mut unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
+        let unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([2, 6, h, w], (Kind::Float, Device::Cpu));
         let upsampled = x.upsample_nearest2d([2 * h, 2 * w], 2.0, 2.0);
         let plain = tch::no_grad(|| unit.forward_t(&upsampled, false));
         assert!(tch::no_grad(|| unit.forward_upsampled(&x, false)).equal(&plain));
         for channels_last in [true, false] {
-            with_fused_layout(channels_last, || unit.fuse(Kind::Float));
+            let layout = match channels_last {
+                true => Layout::ChannelsLast,
+                false => Layout::Nchw,
+            };
+            let folded = fold_as(&unit, FoldOptions::new(Precision::Fp32).layout(layout));
             let input = if channels_last {
                 to_channels_last(&x)
             } else {
                 x.shallow_clone()
             };
-            let fused = tch::no_grad(|| unit.forward_upsampled(&input, false));
+            let fused = tch::no_grad(|| folded.forward_upsampled(&input, false));
             assert_eq!(fused.size(), [2, 5, 2 * h, 2 * w]);
             assert!(fused.is_contiguous());
             assert!(
@@ -414,13 +452,13 @@ fn upsampled_input_folds_into_one_phase_convolution() {
                 "{act:?} {h}x{w} channels-last {channels_last}"
             );
             // The folded unit still takes full-size maps through forward_t.
-            let direct = tch::no_grad(|| unit.forward_t(&upsampled, false));
+            let direct = tch::no_grad(|| folded.forward_t(&upsampled, false));
             assert!(plain.allclose(&direct, 1e-4, 1e-5, false));
         }
         // bfloat16 weights and maps: float logits close to the float ones.
-        unit.fuse(Kind::BFloat16);
+        let folded = fold(&unit, Precision::Bf16);
         let input = to_channels_last(&x.to_kind(Kind::BFloat16));
-        let fused = tch::no_grad(|| unit.forward_upsampled(&input, false));
+        let fused = tch::no_grad(|| folded.forward_upsampled(&input, false));
         assert_eq!(fused.kind(), Kind::Float);
         assert!(plain.allclose(&fused, 0.05, 0.05, false), "{act:?} bf16");
     }
@@ -442,17 +480,21 @@ fn emulated_bf16_folds_compute_in_float_over_bf16_maps() {
         (ConvSpec::new(2).stride(2).transposed(), Act::Relu),
     ] {
         let vs = nn::VarStore::new(Device::Cpu);
-        let mut unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
+        let unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([2, 6, 12, 16], opts);
         let plain = tch::no_grad(|| unit.forward_t(&x, false));
         let residual = Tensor::randn(plain.size(), opts);
         let plain_add = tch::no_grad(|| unit.forward_add(&x, &residual, false));
         let pool = |t: &Tensor| t.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
-        with_emulated_bf16(true, || unit.fuse(Kind::BFloat16));
-        let f = unit.fused.as_ref().unwrap();
-        assert!(f.float_arith, "{spec:?}");
-        assert_eq!(f.weight.for_onednn().unwrap().kind(), Kind::Float);
+        let unit = fold_as(&unit, bf16_emulated(true));
+        let f = unit.folded_unit();
+        assert!(f.float_arith(), "{spec:?}");
+        assert!(
+            matches!(f.weight_form(), WeightForm::Packed(Kind::Float) | WeightForm::Dense(Kind::Float)),
+            "{spec:?}: {:?}",
+            f.weight_form()
+        );
         let ys = tch::no_grad(|| unit.forward_t(&bf16(&x), false));
         assert_eq!(ys.kind(), Kind::BFloat16);
         assert!(close(&plain, &ys), "{spec:?}");
@@ -461,15 +503,16 @@ fn emulated_bf16_folds_compute_in_float_over_bf16_maps() {
         assert!(close(&plain_add, &ys), "{spec:?} + residual");
         let ys = tch::no_grad(|| unit.forward_then_max_pool(&bf16(&x), false, pool));
         assert!(close(&pool(&plain), &ys), "{spec:?} then max pool");
-        with_emulated_bf16(false, || unit.fuse(Kind::BFloat16));
-        assert!(!unit.fused.as_ref().unwrap().float_arith);
     }
     let vs = nn::VarStore::new(Device::Cpu);
+    let unit = ConvBnAct::new(vs.root() / "c", None, 6, 5, ConvSpec::new(1), Act::Relu);
+    assert!(!fold_as(&unit, bf16_emulated(false)).folded_unit().float_arith());
+    let vs = nn::VarStore::new(Device::Cpu);
     let spec = ConvSpec::new(3).bias(true).nearest_upsampled_input();
-    let mut unit = ConvBnAct::new(vs.root() / "conv", None, 6, 5, spec, Act::Relu);
+    let unit = ConvBnAct::new(vs.root() / "conv", None, 6, 5, spec, Act::Relu);
     let x = Tensor::randn([1, 6, 5, 7], opts);
     let plain = tch::no_grad(|| unit.forward_upsampled(&x, false));
-    with_emulated_bf16(true, || unit.fuse(Kind::BFloat16));
+    let unit = fold_as(&unit, bf16_emulated(true));
     let logits = tch::no_grad(|| unit.forward_upsampled(&bf16(&x), false));
     assert_eq!(logits.kind(), Kind::Float);
     assert!(close(&plain, &logits), "phase form");
@@ -486,12 +529,12 @@ fn pooling_before_the_activation_gives_the_same_values() {
     for act in [Act::LeakyRelu(0.2), Act::Relu] {
         let vs = nn::VarStore::new(Device::Cpu);
         let spec = ConvSpec::new(3).bias(true);
-        let mut unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 4, 6, spec, act);
+        let unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 4, 6, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([1, 4, 10, 12], (Kind::Float, Device::Cpu));
         let pool = |t: &Tensor| t.max_pool2d_default(2);
         let plain = tch::no_grad(|| pool(&unit.forward_t(&x, false)));
-        unit.fuse(Kind::Float);
+        let unit = fold(&unit, Precision::Fp32);
         let fused = tch::no_grad(|| unit.forward_then_max_pool(&x, false, pool));
         assert!(plain.allclose(&fused, 1e-4, 1e-5, false), "{act:?}");
     }
