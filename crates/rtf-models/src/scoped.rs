@@ -1,5 +1,5 @@
-//! Per-thread settings that a call sets for the work inside it (how `Fuse::fuse` folds:
-//! layout, bf16 kernels; lazy initialisation), below every module that reads them.
+//! Per-thread settings that a call sets for the work inside it (the Winograd forms training
+//! steps may take; lazy initialisation), below every module that reads them.
 
 use std::cell::Cell;
 use std::thread::LocalKey;

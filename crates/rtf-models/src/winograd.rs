@@ -123,27 +123,14 @@ impl std::str::FromStr for Forms {
 }
 
 thread_local! {
-    /// Set inside [`with_forms`] (a fold, a training step): the forms its convolutions may take.
+    /// Set inside [`with_forms`] (training steps): the forms training convolutions may take.
+    /// Folds take theirs from [`crate::fast::InferenceKernels::winograd`] instead.
     static FORMS: std::cell::Cell<Forms> = const { std::cell::Cell::new(Forms::All) };
-    /// Set inside [`with_bf16`]: this thread's folds take (or not) the bf16 forms.
-    static BF16_SCOPE: std::cell::Cell<Option<bool>> = const { std::cell::Cell::new(None) };
 }
 
-/// Runs `f` (a fold, or training steps) with the Winograd forms limited to `forms`.
+/// Runs `f` (training steps) with the Winograd forms limited to `forms`.
 pub fn with_forms<T>(forms: Forms, f: impl FnOnce() -> T) -> T {
     crate::scoped::with(&FORMS, forms, f)
-}
-
-/// Runs `f` (a fold) with the bf16 Winograd forms on or off.
-pub fn with_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
-    crate::scoped::with(&BF16_SCOPE, Some(on), f)
-}
-
-/// Whether a bf16 fold on the CPU takes the Winograd forms (over bf16 maps) where [`form`] has
-/// one: inside [`with_bf16`] (the fold's [`crate::fast::InferenceKernels`]), its setting; else
-/// [`bf16_default`].
-pub fn bf16_applies() -> bool {
-    BF16_SCOPE.with(|c| c.get()).unwrap_or_else(bf16_default)
 }
 
 /// Without a measurement, the bf16 forms only where the CPU has no bf16 arithmetic: there
@@ -661,23 +648,18 @@ mod tests {
     }
 
     #[test]
-    fn the_bf16_choice_is_scoped_and_defaults_to_where_bf16_is_emulated() {
-        assert!(with_bf16(true, bf16_applies));
-        assert!(with_bf16(false, || with_bf16(true, bf16_applies)));
-        assert!(!with_bf16(false, bf16_applies));
-        assert_eq!(
-            bf16_applies(),
-            rtf_amp::cpu_has_native_bf16() == Some(false)
-        );
-    }
-
-    #[test]
     fn forms_in_force_limit_the_forms_taken() {
         let plain = geometry(1, 1, 1, false);
         let both = |forms| {
-            with_forms(forms, || {
+            let within = (
+                form_within(forms, 3, plain, 1024, 2048),
+                form_within(forms, 3, plain, 512, 512),
+            );
+            let in_force = with_forms(forms, || {
                 (form(3, plain, 1024, 2048), form(3, plain, 512, 512))
-            })
+            });
+            assert_eq!(within, in_force, "{forms:?}");
+            within
         };
         assert_eq!(both(Forms::All), (Some(Form::F23), Some(Form::F43)));
         assert_eq!(both(Forms::F23), (Some(Form::F23), None));
