@@ -1,7 +1,7 @@
 //! Where the fast path's memory goes, phase by phase: resident memory (Linux `VmRSS`) after
 //! building the network, after folding it (releasing its plain weights as rtf's commands do,
-//! `InferenceNet::releasing_plain_weights`), and after each forward pass, with the process's
-//! peak (`VmHWM`). Random weights, a random input, batch 1.
+//! `InferenceNet::releasing_plain_weights`), and after each forward pass (with its time), with
+//! the process's peak (`VmHWM`). Random weights, a random input, batch 1.
 //!
 //! `cargo run --release -p rtf-lab --bin inference_memory -- MODEL [fp32|bf16]
 //! [WIDTHxHEIGHT] [THREADS] [keep]` (default fp32, 640x480, 2 threads; `keep` skips the
@@ -64,9 +64,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         fast
     };
     let input = Tensor::rand([1, 4, height, width], (Kind::Float, Device::Cpu));
-    for pass in 1..=3 {
+    for pass in 1..=5 {
+        let start = std::time::Instant::now();
         let _ = fast.forward(&input)?;
-        report(&format!("after pass {pass}"));
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        report(&format!("after pass {pass} ({ms:.1} ms)"));
     }
     Ok(())
 }
