@@ -848,8 +848,16 @@ impl Baseline {
                 decoder: m.decoder.folded(f),
             }),
             Body::Unet(m) => Body::Unet(Unet {
-                down: m.down.iter().map(|(a, b)| (a.folded(f), b.folded(f))).collect(),
-                up: m.up.iter().map(|(u, a, b)| (u.folded(f), a.folded(f), b.folded(f))).collect(),
+                down: m
+                    .down
+                    .iter()
+                    .map(|(a, b)| (a.folded(f), b.folded(f)))
+                    .collect(),
+                up: m
+                    .up
+                    .iter()
+                    .map(|(u, a, b)| (u.folded(f), a.folded(f), b.folded(f)))
+                    .collect(),
                 out: m.out.folded(f),
             }),
             Body::Pspnet(m) => Body::Pspnet(Pspnet {

@@ -14,9 +14,9 @@ use tch::{Device, Kind, Tensor};
 use crate::error::ModelError;
 use crate::layers::to_channels_last;
 use crate::release::PlainWeights;
-use folder::Folder;
 pub use crate::release::Released;
 use crate::Network;
+use folder::Folder;
 
 /// Arithmetic precision of inference: fp32, bf16, or fp16 on CUDA (one type with training's;
 /// the CLI parses inference precisions with [`Precision::parse_inference`]).
@@ -159,7 +159,10 @@ impl InferenceNet {
             }),
             None if options.precision != Precision::Fp32 => Err(ModelError::InvalidConfig {
                 network: net.name(),
-                reason: format!("no fused inference path, so no {} inference", options.precision),
+                reason: format!(
+                    "no fused inference path, so no {} inference",
+                    options.precision
+                ),
             }),
             None => Ok(Self {
                 net,

@@ -18,10 +18,10 @@ use crate::onednn::Geometry;
 
 mod fold;
 pub mod ops;
-pub use fold::batch_norm_affine;
 pub use crate::fast::folder::{Fold, Folder};
-pub use ops::{is_channels_last, leaky_relu, leaky_relu_inference, to_channels_last, Act};
+pub use fold::batch_norm_affine;
 use ops::nearest_up2_conv3x3_as_phases;
+pub use ops::{is_channels_last, leaky_relu, leaky_relu_inference, to_channels_last, Act};
 
 /// BatchNorm2d initialised as PyTorch's (weight 1, bias 0; tch's default weight is U(0, 1)).
 pub fn bn2d(p: nn::Path, c: i64) -> BatchNorm {
@@ -517,7 +517,10 @@ impl ConvBnAct {
 
 /// The folded unit; a folded unit asked to train is a caller's bug.
 fn inference_only(f: &FoldedConv, train: bool) -> &FoldedConv {
-    assert!(!train, "a folded convolution cannot train (fold a copy for inference)");
+    assert!(
+        !train,
+        "a folded convolution cannot train (fold a copy for inference)"
+    );
     f
 }
 

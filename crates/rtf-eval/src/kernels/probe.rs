@@ -259,7 +259,9 @@ fn conv3x3_s(winograd: bool, forms: rtf_models::winograd::Forms) -> Result<f64, 
         bf16_winograd: winograd,
         ..InferenceKernels::unmeasured()
     };
-    let unit = unit.folded(&Folder::new(&FoldOptions::new(Precision::Bf16).kernels(kernels)));
+    let unit = unit.folded(&Folder::new(
+        &FoldOptions::new(Precision::Bf16).kernels(kernels),
+    ));
     let n = 256 * 60 * 80;
     let xs = Tensor::arange(n, (Kind::Float, Device::Cpu))
         .remainder(17)

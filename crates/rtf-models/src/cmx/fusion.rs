@@ -136,7 +136,10 @@ impl ModuleT for ChannelEmbed {
 
 impl Fold for ChannelEmbed {
     fn folded(&self, f: &Folder) -> Self {
-        let norm = self.norm.as_ref().expect("a folded channel embedding cannot fold again");
+        let norm = self
+            .norm
+            .as_ref()
+            .expect("a folded channel embedding cannot fold again");
         let (scale, shift) = batch_norm_affine(norm);
         Self {
             residual: (self.residual).folded_with_affine(f, Some((&scale, &shift.zeros_like()))),

@@ -52,7 +52,10 @@ impl<'a> Folder<'a> {
 
     /// A fold that frees each unit's plain tensors once it has folded, where `recorded` lists
     /// them as held before the fold (so nothing that took a handle since is freed).
-    pub(crate) fn releasing(options: &FoldOptions, recorded: &'a HashMap<usize, (i64, i64)>) -> Self {
+    pub(crate) fn releasing(
+        options: &FoldOptions,
+        recorded: &'a HashMap<usize, (i64, i64)>,
+    ) -> Self {
         Self {
             options: *options,
             release: Some(recorded),

@@ -121,7 +121,11 @@ impl FoldedConv {
     /// `pool` (a max pooling) of this unit's output. Where the activation cannot be fused into
     /// the convolution it pools before activating: the activation is monotonic, so it commutes
     /// with taking maxima (same values), and it then runs over a map a quarter the size.
-    pub fn forward_then_max_pool(&self, xs: &Tensor, pool: impl FnOnce(&Tensor) -> Tensor) -> Tensor {
+    pub fn forward_then_max_pool(
+        &self,
+        xs: &Tensor,
+        pool: impl FnOnce(&Tensor) -> Tensor,
+    ) -> Tensor {
         match self.fused_conv_act(xs) {
             Some(ys) => pool(&ys),
             None => self.act.apply_inference(pool(&self.conv(xs))),
@@ -199,7 +203,12 @@ impl FoldedConv {
                 crate::winograd::conv3x3_dilated(xs, u, self.bias.as_ref(), None, false, d)
             }
             weight => {
-                let ys = plain_conv(&self.kernel_input(xs), &weight.dense(), self.bias.as_ref(), self.geometry);
+                let ys = plain_conv(
+                    &self.kernel_input(xs),
+                    &weight.dense(),
+                    self.bias.as_ref(),
+                    self.geometry,
+                );
                 self.map_output(ys)
             }
         }
@@ -271,9 +280,24 @@ impl FoldedConv {
 /// libtorch's convolution (or transposed convolution) of `geometry`.
 fn plain_conv(xs: &Tensor, weight: &Tensor, bias: Option<&Tensor>, g: Geometry) -> Tensor {
     if g.transposed {
-        xs.conv_transpose2d(weight, bias, [g.stride], [g.padding], [0], g.groups, [g.dilation])
+        xs.conv_transpose2d(
+            weight,
+            bias,
+            [g.stride],
+            [g.padding],
+            [0],
+            g.groups,
+            [g.dilation],
+        )
     } else {
-        xs.conv2d(weight, bias, [g.stride], [g.padding], [g.dilation], g.groups)
+        xs.conv2d(
+            weight,
+            bias,
+            [g.stride],
+            [g.padding],
+            [g.dilation],
+            g.groups,
+        )
     }
 }
 

@@ -70,7 +70,14 @@ impl ConvBnAct {
         let spec = spec.bias(bias.is_some());
         let out_channels = weight.size()[0];
         let geometry = Self::plain_geometry(&spec);
-        let unit = FoldedConv::new(weight, bias, geometry, spec.nearest_upsampled_input, act, folder);
+        let unit = FoldedConv::new(
+            weight,
+            bias,
+            geometry,
+            spec.nearest_upsampled_input,
+            act,
+            folder,
+        );
         Self {
             spec,
             act,

@@ -140,4 +140,3 @@ pub(crate) fn nearest_up2_conv3x3_as_phases(weight: &Tensor) -> Tensor {
     )
     .reshape([4 * c_out, c_in, 2, 2])
 }
-

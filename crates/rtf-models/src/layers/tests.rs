@@ -491,7 +491,10 @@ fn emulated_bf16_folds_compute_in_float_over_bf16_maps() {
         let f = unit.folded_unit();
         assert!(f.float_arith(), "{spec:?}");
         assert!(
-            matches!(f.weight_form(), WeightForm::Packed(Kind::Float) | WeightForm::Dense(Kind::Float)),
+            matches!(
+                f.weight_form(),
+                WeightForm::Packed(Kind::Float) | WeightForm::Dense(Kind::Float)
+            ),
             "{spec:?}: {:?}",
             f.weight_form()
         );
@@ -506,7 +509,9 @@ fn emulated_bf16_folds_compute_in_float_over_bf16_maps() {
     }
     let vs = nn::VarStore::new(Device::Cpu);
     let unit = ConvBnAct::new(vs.root() / "c", None, 6, 5, ConvSpec::new(1), Act::Relu);
-    assert!(!fold_as(&unit, bf16_emulated(false)).folded_unit().float_arith());
+    assert!(!fold_as(&unit, bf16_emulated(false))
+        .folded_unit()
+        .float_arith());
     let vs = nn::VarStore::new(Device::Cpu);
     let spec = ConvSpec::new(3).bias(true).nearest_upsampled_input();
     let unit = ConvBnAct::new(vs.root() / "conv", None, 6, 5, spec, Act::Relu);

@@ -68,17 +68,52 @@ fn cases() -> Vec<(String, FoldOptions, bool)> {
             push(Precision::Fp32, layout, winograd, false, false, false);
         }
     }
-    push(Precision::Fp32, Layout::ChannelsLast, Forms::All, false, false, true);
+    push(
+        Precision::Fp32,
+        Layout::ChannelsLast,
+        Forms::All,
+        false,
+        false,
+        true,
+    );
     for winograd in [Forms::All, Forms::Off] {
         for bf16_winograd in [false, true] {
             for emulated in [false, true] {
-                push(Precision::Bf16, Layout::ChannelsLast, winograd, bf16_winograd, emulated, false);
+                push(
+                    Precision::Bf16,
+                    Layout::ChannelsLast,
+                    winograd,
+                    bf16_winograd,
+                    emulated,
+                    false,
+                );
             }
         }
     }
-    push(Precision::Bf16, Layout::Nchw, Forms::All, false, false, false);
-    push(Precision::Bf16, Layout::ChannelsLast, Forms::All, false, false, true);
-    push(Precision::Bf16, Layout::ChannelsLast, Forms::All, true, true, true);
+    push(
+        Precision::Bf16,
+        Layout::Nchw,
+        Forms::All,
+        false,
+        false,
+        false,
+    );
+    push(
+        Precision::Bf16,
+        Layout::ChannelsLast,
+        Forms::All,
+        false,
+        false,
+        true,
+    );
+    push(
+        Precision::Bf16,
+        Layout::ChannelsLast,
+        Forms::All,
+        true,
+        true,
+        true,
+    );
     out
 }
 
@@ -91,7 +126,9 @@ fn logits(name: &str, options: &FoldOptions, release: bool) -> Tensor {
     let m = net.size_multiple().max(16);
     let x = Tensor::rand([1, 4, 2 * m, 3 * m], (Kind::Float, Device::Cpu));
     let fast = if release {
-        InferenceNet::releasing_plain_weights(net, options, &vs).expect("folds").0
+        InferenceNet::releasing_plain_weights(net, options, &vs)
+            .expect("folds")
+            .0
     } else {
         InferenceNet::fold(net, options).expect("folds")
     };
@@ -133,5 +170,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!("DIFFERS {case}: {fp} -> {:?}", now.get(*case));
     }
     println!("{} of {} cases differ", differ.len(), before.len());
-    if differ.is_empty() { Ok(()) } else { Err("logits changed".into()) }
+    if differ.is_empty() {
+        Ok(())
+    } else {
+        Err("logits changed".into())
+    }
 }
