@@ -32,8 +32,8 @@ extern "C" {
     fn rtf_amp_exit() -> c_int;
 }
 
-/// Errors of the autocast shim.
-#[derive(Debug, thiserror::Error)]
+/// Errors of the autocast shim and of a bad bf16 convolution choice.
+#[derive(Debug, PartialEq, thiserror::Error)]
 pub enum AmpError {
     #[error("libtorch refused to {0} autocast")]
     Refused(&'static str),

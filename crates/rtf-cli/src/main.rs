@@ -2,7 +2,6 @@
 
 mod allocator;
 mod bf16_probe;
-mod bf16_warning;
 mod cmd;
 mod output_guard;
 
@@ -67,9 +66,14 @@ fn main() {
         std::env::var(v).ok()
     }));
     // The kernel policy is read here, once, and passed in: the Winograd forms in force for
-    // the command (training's as well as the folds', which also record them).
-    let result = bf16_probe::policy()
-        .and_then(|policy| rtf_models::winograd::with_forms(policy.winograd, || run(cli.command)));
+    // the command (training's as well as the folds', which also record them) and how bf16
+    // folds compute their convolutions.
+    let result = bf16_probe::policy().and_then(|policy| {
+        let emulated = policy.inference_convolutions() == rtf_amp::Bf16Convolutions::Emulated;
+        rtf_models::winograd::with_forms(policy.winograd, || {
+            rtf_models::layers::with_emulated_bf16(emulated, || run(cli.command))
+        })
+    });
     if let Err(err) = result {
         eprintln!("error: {err:#}");
         std::process::exit(1);

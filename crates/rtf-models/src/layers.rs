@@ -361,17 +361,18 @@ pub fn with_emulated_bf16<T>(on: bool, f: impl FnOnce() -> T) -> T {
 }
 
 /// Whether a bf16 fold on the CPU computes its convolutions with float32 kernels over bf16
-/// maps: where rtf emulates bf16 convolutions ([`rtf_amp::emulates_bf16_convolutions_on`]:
-/// the CPU has no bf16 arithmetic, or `RTF_BF16_CONVOLUTIONS=emulated`). There oneDNN's bf16
+/// maps: inside [`with_emulated_bf16`], its setting (the caller's choice: rtf's binaries pass
+/// `RTF_BF16_CONVOLUTIONS` and the ISA cap), else where the CPU has no bf16 arithmetic
+/// ([`rtf_amp::Bf16Policy::default`]). There oneDNN's bf16
 /// kernels convert every product in generic code, tens of times slower than fp32, while fp32
 /// kernels with the casts around them cost little more than fp32 and give the numbers of a
 /// bf16 kernel (bf16 operands, float sums, bf16 output); docs/src/benchmarks.md, "Where bf16
 /// is emulated".
 fn emulates_bf16(weight: &Tensor) -> bool {
     weight.device() == tch::Device::Cpu
-        && FUSE_EMULATED_BF16
-            .with(|c| c.get())
-            .unwrap_or_else(|| rtf_amp::emulates_bf16_convolutions_on(tch::Device::Cpu))
+        && FUSE_EMULATED_BF16.with(|c| c.get()).unwrap_or_else(|| {
+            rtf_amp::Bf16Policy::default().in_force(None) == rtf_amp::Bf16Convolutions::Emulated
+        })
 }
 
 thread_local! {
