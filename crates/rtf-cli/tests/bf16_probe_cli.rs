@@ -75,7 +75,7 @@ fn first_bf16_run(tmp: &Path) -> (std::path::PathBuf, std::path::PathBuf, Output
 fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
     let tmp = tempfile::tempdir().unwrap();
     let (cache, file, first) = first_bf16_run(tmp.path());
-    if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
+    if bf16_arithmetic().is_native() != Some(true) {
         assert!(
             stderr(&first).contains("bf16 is emulated"),
             "{}",
@@ -132,7 +132,7 @@ fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
 fn the_bf16_3x3_kernels_follow_the_measurement_and_the_variable() {
     let tmp = tempfile::tempdir().unwrap();
     let (cache, file, first) = first_bf16_run(tmp.path());
-    if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
+    if bf16_arithmetic().is_native() != Some(true) {
         assert_eq!(kernels(&first), "winograd", "{}", text(&first));
         assert!(!file.exists(), "no probe where bf16 is emulated");
     } else {
@@ -215,7 +215,7 @@ fn bf16_training_records_the_measured_kernels_and_a_resume_keeps_them() {
             .to_string()
     };
     let (first, _) = new_run("first");
-    if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
+    if bf16_arithmetic().is_native() != Some(true) {
         assert_eq!(recorded(&first), "emulated");
         assert!(!file.exists(), "no probe where bf16 is emulated");
         return;
