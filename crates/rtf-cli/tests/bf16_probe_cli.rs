@@ -158,6 +158,26 @@ fn the_bf16_3x3_kernels_follow_the_measurement_and_the_variable() {
     );
 }
 
+/// `rtf bench model --json` records how its bf16 folds computed their convolutions: emulated
+/// where the CPU has no bf16 arithmetic or `RTF_BF16_CONVOLUTIONS=emulated` says so, else on
+/// oneDNN's kernels; with the kernels it took.
+#[test]
+fn the_bench_report_records_its_bf16_convolutions() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let report = |vars: &[(&str, &str)]| -> serde_json::Value {
+        let out = bench_bf16_with(&cache, vars);
+        assert!(out.status.success(), "{}", text(&out));
+        serde_json::from_slice(&out.stdout).expect("JSON report")
+    };
+    let asked = [("RTF_BF16_CONVOLUTIONS", "emulated"), (WINOGRAD_VAR, "off")];
+    let emulated = report(&asked);
+    assert_eq!(emulated["bf16_convolutions"], "emulated", "{emulated}");
+    assert_eq!(emulated["kernels"]["bf16_winograd"], false, "{emulated}");
+    let native = report(&[("RTF_BF16_CONVOLUTIONS", "native"), (WINOGRAD_VAR, "off")]);
+    assert_eq!(native["bf16_convolutions"], "native", "{native}");
+}
+
 #[test]
 fn fp32_never_probes() {
     let tmp = tempfile::tempdir().unwrap();

@@ -148,31 +148,35 @@ pub fn load_network(
     let n = classes.len() as i64;
     let cfg = ModelConfig::from_name(name, n).py()?;
     let (held, inputs) = py
-        .allow_threads(|| rtf_models::layers::with_emulated_bf16(emulated, || match &weights {
-            Some(weights) => {
-                let request = rtf_models::loaded::NetworkRequest {
-                    name,
-                    num_classes: n,
-                    weights,
-                    device,
-                    precision,
-                    kernels,
-                    foreign_weights: false,
-                    inputs: None,
-                };
-                rtf_models::loaded::load_network(&request).map(|loaded| {
-                    for warning in &loaded.warnings {
-                        eprintln!("warning: {warning}");
-                    }
-                    let held = Held {
-                        vs: loaded.vs,
-                        net: loaded.net,
+        .allow_threads(|| {
+            rtf_models::layers::with_emulated_bf16(emulated, || match &weights {
+                Some(weights) => {
+                    let request = rtf_models::loaded::NetworkRequest {
+                        name,
+                        num_classes: n,
+                        weights,
+                        device,
+                        precision,
+                        kernels,
+                        foreign_weights: false,
+                        inputs: None,
                     };
-                    (held, loaded.inputs)
-                })
-            }
-            None => random_network(&cfg, device, precision, kernels).map(|h| (h, Modality::RgbT)),
-        }))
+                    rtf_models::loaded::load_network(&request).map(|loaded| {
+                        for warning in &loaded.warnings {
+                            eprintln!("warning: {warning}");
+                        }
+                        let held = Held {
+                            vs: loaded.vs,
+                            net: loaded.net,
+                        };
+                        (held, loaded.inputs)
+                    })
+                }
+                None => {
+                    random_network(&cfg, device, precision, kernels).map(|h| (h, Modality::RgbT))
+                }
+            })
+        })
         .py()?;
     let built = Built {
         cfg,
