@@ -85,7 +85,8 @@ pub fn train(
         return Ok((run_dir, finished.weights.display().to_string()));
     }
     let probe = Probe::from_vars(|var| env.get(var).map(Into::into));
-    let policy = rtf_amp::Bf16Policy::from_vars(|var| env.get(var).cloned()).py()?;
+    let policy = rtf_amp::Bf16Policy::from_vars(|var| env.get(var).cloned())
+        .map_err(|e| input(e.to_string()))?;
     let (cfg, resume) = (&mut plan.cfg, plan.resume);
     let lines = py.allow_threads(|| {
         rtf_train::kernels::settle_for_run(cfg, resume, false, &policy, || {
