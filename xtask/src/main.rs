@@ -108,9 +108,10 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
     }
     run(root, "cargo", &args)?;
     // Skipped when the suite is filtered: the mixed-precision tests (synthetic and real
-    // frames) once more with each CPU bf16 convolution choice (rtf-amp picks emulated where
-    // the CPU lacks bf16 arithmetic, else native or, for training where measured faster,
-    // mixed; the main run covered one), so all three are trained, stopped, resumed and checked
+    // frames) once more with each CPU bf16 convolution choice (emulated where the CPU lacks
+    // bf16 arithmetic, else native or, for training where measured faster, mixed; the main
+    // run covered one; the tests read the variable, as rtf's binaries do, and pass the choice
+    // into the run), so all three are trained, stopped, resumed and checked
     // on real imagery wherever the suite runs; and issue 11's smoke reproduction: every table's
     // pipeline end to end on a tiny budget (files and JSON schema are checked; no number is
     // asserted).

@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind};
 
-use crate::{cpu_bf16_convolutions, cpu_has_native_bf16, Bf16Convolutions};
+use crate::{Bf16Convolutions, Bf16Policy};
 
 /// The arithmetic of a training step (PyTorch's automatic mixed precision) or of inference.
 ///
@@ -74,30 +74,30 @@ impl Precision {
     }
 
     /// A warning when this precision will train far slower than fp32 on `device`: bf16 on a CPU
-    /// without native bf16 arithmetic ([`cpu_has_native_bf16`]) where libtorch's own bf16
-    /// convolutions were chosen (`RTF_BF16_CONVOLUTIONS=native`) over rtf's emulated ones.
-    pub fn slow_on(self, device: Device) -> Option<String> {
+    /// without native bf16 arithmetic (`policy.arithmetic`) where libtorch's own bf16
+    /// convolutions were asked for (`RTF_BF16_CONVOLUTIONS=native`) over rtf's emulated ones.
+    pub fn slow_on(self, device: Device, policy: &Bf16Policy) -> Option<String> {
         (self == Precision::Bf16
             && device == Device::Cpu
-            && cpu_has_native_bf16() == Some(false)
-            && matches!(cpu_bf16_convolutions(), Ok(Bf16Convolutions::Native)))
-        .then(|| {
-            "this CPU has no native bf16 arithmetic (no avx512_bf16, amx_bf16 or bf16 in \
-             /proc/cpuinfo) and RTF_BF16_CONVOLUTIONS=native picks libtorch's generic bf16 \
-             convolutions: several times slower than fp32 (MFNet at 640x480: about 10x, \
-             docs/src/benchmarks.md); unset it for rtf's emulated bf16 convolutions"
-                .to_owned()
-        })
+            && policy.arithmetic.is_native() == Some(false)
+            && policy.in_force(None) == Bf16Convolutions::Native)
+            .then(|| {
+                format!(
+                    "this CPU has no native bf16 arithmetic ({}) and RTF_BF16_CONVOLUTIONS=native \
+                     picks libtorch's generic bf16 convolutions: several times slower than fp32 \
+                     (MFNet at 640x480: about 10x, docs/src/benchmarks.md); unset it for rtf's \
+                     emulated bf16 convolutions",
+                    policy.arithmetic.reason()
+                )
+            })
     }
 
-    /// The convolution arithmetic of this precision on `device`, for reports: "fp32", "bf16
-    /// emulated" / "bf16 native" on a CPU ([`cpu_bf16_convolutions`]), else the type.
-    pub fn convolutions_on(self, device: Device) -> String {
+    /// The convolution arithmetic of this precision on `device` with `convolutions` (a CPU bf16
+    /// region's choice), for reports: "fp32", "bf16 emulated" / "bf16 native" on a CPU, else
+    /// the type.
+    pub fn convolutions_on(self, device: Device, convolutions: Bf16Convolutions) -> String {
         match (self, device) {
-            (Precision::Bf16, Device::Cpu) => match cpu_bf16_convolutions() {
-                Ok(choice) => format!("bf16 {}", choice.name()),
-                Err(_) => "bf16 (bad RTF_BF16_CONVOLUTIONS)".to_owned(),
-            },
+            (Precision::Bf16, Device::Cpu) => format!("bf16 {}", convolutions.name()),
             _ => self.name().to_owned(),
         }
     }
@@ -164,5 +164,38 @@ mod tests {
         assert_eq!(Precision::Bf16.autocast_kind(), Some(Kind::BFloat16));
         assert_eq!(Precision::Fp16.kind(), Kind::Half);
         assert!(Precision::Fp16.scales_loss() && !Precision::Bf16.scales_loss());
+    }
+
+    #[test]
+    fn only_generic_bf16_kernels_asked_for_without_bf16_arithmetic_are_slow() {
+        use crate::{Bf16Arithmetic, IsaCap};
+        let policy = |asked, native| Bf16Policy {
+            asked,
+            arithmetic: Bf16Arithmetic::from_flags(Some(native), IsaCap::NONE),
+        };
+        let native = Some(Bf16Convolutions::Native);
+        let line = Precision::Bf16
+            .slow_on(Device::Cpu, &policy(native, false))
+            .unwrap();
+        assert!(
+            line.contains("(no avx512_bf16") && line.contains("=native"),
+            "{line}"
+        );
+        assert_eq!(
+            Precision::Bf16.slow_on(Device::Cpu, &policy(None, false)),
+            None
+        );
+        assert_eq!(
+            Precision::Bf16.slow_on(Device::Cpu, &policy(native, true)),
+            None
+        );
+        assert_eq!(
+            Precision::Fp32.slow_on(Device::Cpu, &policy(native, false)),
+            None
+        );
+        let mixed = Precision::Bf16.convolutions_on(Device::Cpu, Bf16Convolutions::Mixed);
+        assert_eq!(mixed, "bf16 mixed");
+        let cuda = Precision::Bf16.convolutions_on(Device::Cuda(0), Bf16Convolutions::Mixed);
+        assert_eq!(cuda, "bf16");
     }
 }

@@ -2,7 +2,6 @@
 
 mod allocator;
 mod bf16_probe;
-mod bf16_warning;
 mod cmd;
 mod output_guard;
 
@@ -66,8 +65,9 @@ fn main() {
     tch::Cuda::cudnn_set_benchmark(rtf_train::config::cudnn_benchmark(|v| {
         std::env::var(v).ok()
     }));
-    // The kernel policy is read here, once, and passed in: the Winograd forms in force for
-    // the command (training's as well as the folds', which also record them).
+    // The kernel policy is read here, once: the Winograd forms in force for the command's
+    // training steps (folds take theirs, and how bf16 folds compute their convolutions, from
+    // the kernels the commands pass in and record).
     let result = bf16_probe::policy()
         .and_then(|policy| rtf_models::winograd::with_forms(policy.winograd, || run(cli.command)));
     if let Err(err) = result {

@@ -79,14 +79,14 @@ fn bench_train_reports_the_issue_fields() {
         let convolutions = report["convolutions"].as_str().unwrap();
         let expected = match precision {
             "fp32" => "fp32".to_string(),
-            _ if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) => "bf16 emulated".into(),
+            _ if bf16_arithmetic().is_native() != Some(true) => "bf16 emulated".into(),
             _ => format!("bf16 {}", probed_choice(&cache)),
         };
         assert_eq!(convolutions, expected, "{report}");
         assert!(report["images_per_s"].as_f64().unwrap() > 0.0, "{report}");
         assert!(report["peak_rss_mb"].as_f64().unwrap() > 0.0, "{report}");
     }
-    if rtf_amp::cpu_bf16_arithmetic().is_native() == Some(true) {
+    if bf16_arithmetic().is_native() == Some(true) {
         for (factor, choice) in [(2.0, "bf16 mixed"), (0.5, "bf16 native")] {
             edit_probe(&cache, factor);
             assert_eq!(bench_with("bf16", &cache, &[])["convolutions"], choice);

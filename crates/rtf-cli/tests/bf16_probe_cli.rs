@@ -75,7 +75,7 @@ fn first_bf16_run(tmp: &Path) -> (std::path::PathBuf, std::path::PathBuf, Output
 fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
     let tmp = tempfile::tempdir().unwrap();
     let (cache, file, first) = first_bf16_run(tmp.path());
-    if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
+    if bf16_arithmetic().is_native() != Some(true) {
         assert!(
             stderr(&first).contains("bf16 is emulated"),
             "{}",
@@ -132,7 +132,7 @@ fn bf16_is_measured_once_cached_and_a_slower_bf16_is_said_with_its_times() {
 fn the_bf16_3x3_kernels_follow_the_measurement_and_the_variable() {
     let tmp = tempfile::tempdir().unwrap();
     let (cache, file, first) = first_bf16_run(tmp.path());
-    if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
+    if bf16_arithmetic().is_native() != Some(true) {
         assert_eq!(kernels(&first), "winograd", "{}", text(&first));
         assert!(!file.exists(), "no probe where bf16 is emulated");
     } else {
@@ -156,6 +156,26 @@ fn the_bf16_3x3_kernels_follow_the_measurement_and_the_variable() {
         said.contains("RTF_BF16_WINOGRAD=\"maybe\": expected on or off"),
         "{said}"
     );
+}
+
+/// `rtf bench model --json` records how its bf16 folds computed their convolutions: emulated
+/// where the CPU has no bf16 arithmetic or `RTF_BF16_CONVOLUTIONS=emulated` says so, else on
+/// oneDNN's kernels; with the kernels it took.
+#[test]
+fn the_bench_report_records_its_bf16_convolutions() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let report = |vars: &[(&str, &str)]| -> serde_json::Value {
+        let out = bench_bf16_with(&cache, vars);
+        assert!(out.status.success(), "{}", text(&out));
+        serde_json::from_slice(&out.stdout).expect("JSON report")
+    };
+    let asked = [("RTF_BF16_CONVOLUTIONS", "emulated"), (WINOGRAD_VAR, "off")];
+    let emulated = report(&asked);
+    assert_eq!(emulated["bf16_convolutions"], "emulated", "{emulated}");
+    assert_eq!(emulated["kernels"]["bf16_winograd"], false, "{emulated}");
+    let native = report(&[("RTF_BF16_CONVOLUTIONS", "native"), (WINOGRAD_VAR, "off")]);
+    assert_eq!(native["bf16_convolutions"], "native", "{native}");
 }
 
 #[test]
@@ -215,7 +235,7 @@ fn bf16_training_records_the_measured_kernels_and_a_resume_keeps_them() {
             .to_string()
     };
     let (first, _) = new_run("first");
-    if rtf_amp::cpu_bf16_arithmetic().is_native() != Some(true) {
+    if bf16_arithmetic().is_native() != Some(true) {
         assert_eq!(recorded(&first), "emulated");
         assert!(!file.exists(), "no probe where bf16 is emulated");
         return;

@@ -3,15 +3,20 @@
 //! ([`rtf_models::fast::FoldOptions`]), so that `rtf predict`, `rtf eval`, `rtf bench model`
 //! and a library caller (the Python package) fold the same network the same way.
 //!
-//! A [`KernelPolicy`] holds what the user decided (rtf's binaries read it from their
-//! environment, [`KernelPolicy::from_vars`]; the library never does); [`inference_kernels`]
+//! A [`KernelPolicy`] holds what the user decided and what the process's CPU arithmetic is
+//! (rtf's binaries read both from their environment, [`KernelPolicy::from_vars`]: oneDNN's ISA
+//! cap is one of its variables; the library never reads one); [`inference_kernels`]
 //! resolves what it leaves open for a precision and device: bf16's wide 3×3 convolutions in the
 //! Winograd forms or on oneDNN's bf16 kernels, by a measurement of both on this CPU, cached
 //! ([`probe`]). Every way computes the same function (bf16 maps, float sums); only the speed
 //! differs, and the rounding inside the kernels.
 
 pub mod probe;
+pub mod warning;
 
+pub use warning::inference_warning;
+
+use rtf_amp::{AmpError, Bf16Convolutions, Bf16Policy};
 use rtf_models::fast::{InferenceKernels, Precision};
 use rtf_models::winograd::Forms;
 use tch::Device;
@@ -29,22 +34,30 @@ pub enum KernelError {
         value: String,
         expected: &'static str,
     },
+    #[error(transparent)]
+    Bf16(#[from] AmpError),
 }
 
-/// The kernel choices a user made; `None` leaves a choice to [`inference_kernels`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+/// The kernel choices a user made, and the CPU arithmetic they are made on; `None` leaves a
+/// choice to [`inference_kernels`]. `Default`: nothing chosen, this CPU's flags without an ISA
+/// cap.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub struct KernelPolicy {
     /// The Winograd forms allowed (fp32 inference and training, bf16 inference).
     pub winograd: Forms,
     /// bf16 inference's wide 3×3 convolutions in the Winograd forms (`true`) or on oneDNN's
     /// bf16 kernels; `None`: measured on this CPU where it has bf16 arithmetic.
     pub bf16_winograd: Option<bool>,
+    /// bf16 convolutions on the CPU: the user's choice (`RTF_BF16_CONVOLUTIONS`) and the CPU's
+    /// bf16 arithmetic under oneDNN's ISA cap ([`Bf16Policy`]).
+    pub bf16: Bf16Policy,
 }
 
 impl KernelPolicy {
     /// The policy from variables (`get(name)`, e.g. a process's environment):
-    /// `RTF_WINOGRAD=on|f23|off`, `RTF_BF16_WINOGRAD=on|off`; a bad value is an error naming
-    /// the variable.
+    /// `RTF_WINOGRAD=on|f23|off`, `RTF_BF16_WINOGRAD=on|off`, `RTF_BF16_CONVOLUTIONS`
+    /// and oneDNN's ISA cap ([`Bf16Policy::from_vars`]); a bad value is an error naming the
+    /// variable.
     pub fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Self, KernelError> {
         let bad = |var, value: &str, expected| KernelError::BadValue {
             var,
@@ -66,28 +79,42 @@ impl KernelPolicy {
         Ok(Self {
             winograd,
             bf16_winograd,
+            bf16: Bf16Policy::from_vars(&get)?,
         })
+    }
+
+    /// How bf16 folds on the CPU compute their convolutions: on fp32 kernels over bf16 maps
+    /// where [`Bf16Convolutions::Emulated`] (the CPU has no bf16 arithmetic, or the user chose
+    /// it), else on oneDNN's bf16 kernels. Inference measures nothing here: the measured
+    /// mixed choice is training's (rtf-train `kernels`).
+    pub fn inference_convolutions(&self) -> Bf16Convolutions {
+        match self.bf16.in_force(None) {
+            Bf16Convolutions::Emulated => Bf16Convolutions::Emulated,
+            _ => Bf16Convolutions::Native,
+        }
     }
 }
 
 /// The kernels a fold for `precision` on `device` takes under `policy`, with the warnings to
 /// give (a failed measurement). bf16 on a CPU with bf16 arithmetic and no choice made: the
 /// faster of the two ways for a wide 3×3 layer as measured here ([`probe::Work::Conv3x3`],
-/// cached in `probe`'s file); elsewhere [`InferenceKernels::unmeasured`]'s choice.
+/// cached in `probe`'s file); elsewhere the Winograd forms only where the CPU has no bf16
+/// arithmetic (under the policy's ISA cap).
 pub fn inference_kernels(
     policy: &KernelPolicy,
     precision: Precision,
     device: Device,
     probe: &probe::Probe,
 ) -> (InferenceKernels, Vec<String>) {
+    let native = policy.bf16.arithmetic.is_native();
     let mut kernels = InferenceKernels {
         winograd: policy.winograd,
-        ..InferenceKernels::unmeasured()
+        bf16_winograd: native == Some(false),
+        bf16_convolutions: policy.inference_convolutions(),
     };
     let mut warnings = Vec::new();
-    let measured_here = precision == Precision::Bf16
-        && device == Device::Cpu
-        && rtf_amp::cpu_has_native_bf16() == Some(true);
+    let measured_here =
+        precision == Precision::Bf16 && device == Device::Cpu && native == Some(true);
     match policy.bf16_winograd {
         Some(on) => kernels.bf16_winograd = on,
         None if measured_here => match probe
@@ -124,13 +151,30 @@ mod tests {
             KernelPolicy::from_vars(vars(&[])),
             Ok(KernelPolicy::default())
         );
-        let p = KernelPolicy::from_vars(vars(&[(WINOGRAD_VAR, "f23"), (BF16_WINOGRAD_VAR, "on")]));
+        let p = KernelPolicy::from_vars(vars(&[
+            (WINOGRAD_VAR, "f23"),
+            (BF16_WINOGRAD_VAR, "on"),
+            ("RTF_BF16_CONVOLUTIONS", "emulated"),
+        ]));
         assert_eq!(
             p,
             Ok(KernelPolicy {
                 winograd: Forms::F23,
-                bf16_winograd: Some(true)
+                bf16_winograd: Some(true),
+                bf16: Bf16Policy {
+                    asked: Some(Bf16Convolutions::Emulated),
+                    ..Bf16Policy::default()
+                },
             })
+        );
+        assert_eq!(
+            p.unwrap().inference_convolutions(),
+            Bf16Convolutions::Emulated
+        );
+        let e = KernelPolicy::from_vars(vars(&[("RTF_BF16_CONVOLUTIONS", "fast")])).unwrap_err();
+        assert!(
+            e.to_string().contains("RTF_BF16_CONVOLUTIONS=`fast`"),
+            "{e}"
         );
         let e = KernelPolicy::from_vars(vars(&[(BF16_WINOGRAD_VAR, "maybe")])).unwrap_err();
         assert_eq!(
@@ -162,5 +206,24 @@ mod tests {
         let (k, _) = inference_kernels(&policy, Precision::Fp32, Device::Cpu, &probe);
         assert_eq!(k.winograd, Forms::Off);
         assert!(!dir.path().join("p.json").exists());
+    }
+
+    /// Where the policy's ISA cap takes bf16 arithmetic away, bf16 takes the Winograd forms and
+    /// emulated folds without a measurement, whatever the CPU's own flags.
+    #[test]
+    fn a_cap_below_bf16_takes_the_winograd_forms_and_emulated_folds() {
+        let policy = KernelPolicy::from_vars(vars(&[("ONEDNN_MAX_CPU_ISA", "AVX2")])).unwrap();
+        let probe = probe::Probe::uncached(Vec::new());
+        let (k, w) = inference_kernels(&policy, Precision::Bf16, Device::Cpu, &probe);
+        assert!(k.bf16_winograd && w.is_empty());
+        assert_eq!(policy.inference_convolutions(), Bf16Convolutions::Emulated);
+        let mixed = KernelPolicy {
+            bf16: Bf16Policy {
+                asked: Some(Bf16Convolutions::Mixed),
+                ..policy.bf16
+            },
+            ..policy
+        };
+        assert_eq!(mixed.inference_convolutions(), Bf16Convolutions::Native);
     }
 }

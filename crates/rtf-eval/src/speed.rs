@@ -56,6 +56,10 @@ pub struct BenchOptions {
     /// Compare the fast path's labels with the plain path's after the timing (a second
     /// network and a plain fp32 pass, which count in the process's memory, not in the times).
     pub agreement: bool,
+    /// bf16 on the CPU's fast path: the folds' convolutions on fp32 kernels over bf16 maps
+    /// (`Emulated`) or on oneDNN's bf16 kernels (any other choice;
+    /// [`crate::kernels::KernelPolicy::inference_convolutions`]).
+    pub bf16_convolutions: rtf_amp::Bf16Convolutions,
 }
 
 impl Default for BenchOptions {
@@ -75,6 +79,7 @@ impl Default for BenchOptions {
             weights: None,
             device: Device::Cpu,
             agreement: true,
+            bf16_convolutions: rtf_amp::Bf16Policy::default().in_force(None),
         }
     }
 }
@@ -128,6 +133,10 @@ pub struct BenchReport {
     /// Fast path: the kernels the fold took where there is a choice. None on the plain path.
     #[serde(default)]
     pub kernels: Option<InferenceKernels>,
+    /// bf16 on the CPU's fast path: how the folds' convolutions ran, `emulated` (fp32 kernels
+    /// over bf16 maps) or `native` (oneDNN's bf16 kernels). None otherwise.
+    #[serde(default)]
+    pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
     /// Fast path: MiB of the plain network's weights freed once folded (those the folded path
     /// does not read; `InferenceNet::releasing_plain_weights`). None on the plain path.
     #[serde(default)]
@@ -242,9 +251,17 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     let input = Tensor::rand(shape, (Kind::Float, opts.device));
     let timed = match opts.path {
         ForwardPath::Fast => {
+            let bf16_convolutions = match folds_emulated(opts) {
+                true => rtf_amp::Bf16Convolutions::Emulated,
+                false => rtf_amp::Bf16Convolutions::Native,
+            };
+            let kernels = InferenceKernels {
+                bf16_convolutions,
+                ..opts.kernels
+            };
             let fold = FoldOptions::new(opts.precision)
                 .layout(opts.layout)
-                .kernels(opts.kernels);
+                .kernels(kernels);
             let (fast, released) = InferenceNet::releasing_plain_weights(net, &fold, &vs)?;
             released_mb = Some(released.mib());
             Timed::Fast(fast)
@@ -287,16 +304,29 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
         cpu: CpuInfo::read(),
         bf16_3x3: bf16_3x3_kernels(opts),
         kernels: (opts.path == ForwardPath::Fast).then_some(opts.kernels),
+        bf16_convolutions: fast_bf16_cpu(opts).then_some(match folds_emulated(opts) {
+            true => rtf_amp::Bf16Convolutions::Emulated,
+            false => rtf_amp::Bf16Convolutions::Native,
+        }),
         plain_weights_released_mb: released_mb,
     })
 }
 
+/// Whether these options time bf16 on the CPU's fast path.
+fn fast_bf16_cpu(opts: &BenchOptions) -> bool {
+    opts.precision == Precision::Bf16
+        && opts.path == ForwardPath::Fast
+        && opts.device == Device::Cpu
+}
+
+/// Whether the fold computes its bf16 convolutions on fp32 kernels ([`BenchOptions::bf16_convolutions`]).
+fn folds_emulated(opts: &BenchOptions) -> bool {
+    opts.bf16_convolutions == rtf_amp::Bf16Convolutions::Emulated
+}
+
 /// [`BenchReport::bf16_3x3`] for these options.
 fn bf16_3x3_kernels(opts: &BenchOptions) -> Option<String> {
-    let fast_bf16_cpu = opts.precision == Precision::Bf16
-        && opts.path == ForwardPath::Fast
-        && opts.device == Device::Cpu;
-    fast_bf16_cpu.then(|| {
+    fast_bf16_cpu(opts).then(|| {
         (if opts.kernels.bf16_winograd {
             "winograd"
         } else {

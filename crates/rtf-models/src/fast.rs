@@ -86,7 +86,7 @@ impl InferenceKernels {
         Self {
             winograd: crate::winograd::Forms::All,
             bf16_winograd: crate::winograd::bf16_default(),
-            bf16_convolutions: rtf_amp::cpu_bf16_convolutions().unwrap_or(native()),
+            bf16_convolutions: rtf_amp::Bf16Policy::default().in_force(None),
         }
     }
 }

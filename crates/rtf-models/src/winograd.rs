@@ -134,9 +134,11 @@ pub fn with_forms<T>(forms: Forms, f: impl FnOnce() -> T) -> T {
 }
 
 /// Without a measurement, the bf16 forms only where the CPU has no bf16 arithmetic: there
-/// oneDNN's bf16 kernels convert every product, and the fp32 Winograd form beats them.
+/// oneDNN's bf16 kernels convert every product, and the fp32 Winograd form beats them. The
+/// CPU's flags without an ISA cap: a caller that knows its process's cap chooses instead
+/// (rtf_eval::kernels).
 pub fn bf16_default() -> bool {
-    rtf_amp::cpu_has_native_bf16() == Some(false)
+    rtf_amp::Bf16Arithmetic::of_cpu(rtf_amp::IsaCap::NONE).is_native() == Some(false)
 }
 
 /// Bᵀ (input transform), row-major 4×4.

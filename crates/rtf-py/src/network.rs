@@ -57,27 +57,33 @@ pub struct PyNetwork {
 /// The kernels a fold for `precision` takes: the library's choice for any caller
 /// (`rtf_eval::kernels`), under the policy and probe cache that `environ` (the Python layer
 /// passes `os.environ`: it is this process's edge) gives, as `rtf predict` makes it
-/// (`RTF_WINOGRAD`, `RTF_BF16_WINOGRAD`, `RTF_CACHE_DIR`). A bad variable is refused naming it.
+/// (`RTF_WINOGRAD`, `RTF_BF16_WINOGRAD`, `RTF_BF16_CONVOLUTIONS`, oneDNN's ISA cap,
+/// `RTF_CACHE_DIR`), with the policy; the library's warning where bf16 is slow or emulated
+/// here (measured in this process where bf16 is native). A bad variable is refused naming it.
 fn inference_kernels(
     precision: Option<Precision>,
     device: tch::Device,
     environ: &HashMap<String, String>,
-) -> PyResult<InferenceKernels> {
+) -> PyResult<(InferenceKernels, KernelPolicy)> {
     let policy = KernelPolicy::from_vars(|var| environ.get(var).cloned())
         .map_err(|e| input(e.to_string()))?;
     let Some(precision) = precision else {
-        return Ok(InferenceKernels {
+        let kernels = InferenceKernels {
             winograd: policy.winograd,
+            bf16_convolutions: policy.inference_convolutions(),
             ..InferenceKernels::unmeasured()
-        });
+        };
+        return Ok((kernels, policy));
     };
     let probe = Probe::from_vars(|var| environ.get(var).map(std::ffi::OsString::from));
     let (kernels, warnings) =
         rtf_eval::kernels::inference_kernels(&policy, precision, device, &probe);
-    for warning in warnings {
+    let measured = || rtf_eval::kernels::probe::measured_inference(&probe, kernels);
+    let slow = rtf_eval::kernels::inference_warning(&policy, precision, device, measured);
+    for warning in warnings.into_iter().chain(slow) {
         eprintln!("warning: {warning}");
     }
-    Ok(kernels)
+    Ok((kernels, policy))
 }
 
 /// The network `name` with random weights (libtorch's generator: `torch.manual_seed` seeds
@@ -137,7 +143,8 @@ pub fn load_network(
     let trained = weights.as_deref().map(trained_on).transpose()?.flatten();
     let path = weights.as_deref().unwrap_or(Path::new(""));
     let classes = predict::class_set(classes.as_deref(), name, path, trained.as_ref()).py()?;
-    let kernels = inference_kernels(precision, device, &environ.unwrap_or_default())?;
+    // The kernels carry how bf16 folds compute their convolutions, as `rtf`'s commands do.
+    let (kernels, _policy) = inference_kernels(precision, device, &environ.unwrap_or_default())?;
     let n = classes.len() as i64;
     let cfg = ModelConfig::from_name(name, n).py()?;
     let (held, inputs) = py

@@ -40,6 +40,29 @@ pub fn train_options() -> Vec<(String, bool)> {
         .collect()
 }
 
+/// The library's warning where a stage's bf16 will train slowly on its device (as `rtf train`
+/// says it; measured in this process where bf16 is native), on stderr.
+fn warn_if_slow(
+    cfg: &rtf_train::RunConfig,
+    policy: &rtf_amp::Bf16Policy,
+    probe: &Probe,
+) -> PyResult<()> {
+    for (_, stage) in cfg.stages() {
+        let device = rtf_train::config::available_device(&stage.compute.device)
+            .map_err(|e| input(format!("device: {e}")))?;
+        let convolutions = stage.compute.bf16_convolutions_in_force();
+        let measured = || rtf_train::kernels::measured_training(probe, convolutions);
+        let precision = stage.learning.precision;
+        let warning =
+            rtf_train::kernels::training_warning(policy, convolutions, precision, device, measured);
+        if let Some(warning) = warning {
+            eprintln!("warning: {warning}");
+            break;
+        }
+    }
+    Ok(())
+}
+
 /// Trains as `rtf train ARGV` does; `env`: the process's variables (the kernel measurement
 /// cache, as the command reads it); `progress(kind, stage, json)` is called after every step
 /// ("step") and epoch ("epoch"). Returns (run folder, final weights).
@@ -62,19 +85,20 @@ pub fn train(
         return Ok((run_dir, finished.weights.display().to_string()));
     }
     let probe = Probe::from_vars(|var| env.get(var).map(Into::into));
+    let policy = rtf_amp::Bf16Policy::from_vars(|var| env.get(var).cloned())
+        .map_err(|e| input(e.to_string()))?;
     let (cfg, resume) = (&mut plan.cfg, plan.resume);
-    let lines = py
-        .allow_threads(|| {
-            rtf_train::kernels::settle_for_run(cfg, resume, false, || {
-                rtf_train::kernels::choose_training_convolutions(|| {
-                    rtf_train::kernels::measured_here(&probe)
-                })
+    let lines = py.allow_threads(|| {
+        rtf_train::kernels::settle_for_run(cfg, resume, false, &policy, || {
+            rtf_train::kernels::choose_training_convolutions(&policy, || {
+                rtf_train::kernels::measured_here(&probe)
             })
         })
-        .py()?;
+    });
     for line in lines {
         eprintln!("{line}");
     }
+    py.allow_threads(|| warn_if_slow(&plan.cfg, &policy, &probe))?;
     let layout = env.get("RTF_TRAIN_LAYOUT").map_or("", String::as_str);
     let layout = Fp32Layout::parse(layout).map_err(|e| input(format!("RTF_TRAIN_LAYOUT: {e}")))?;
     rtf_train::kernels::settle_fp32_layout(&mut plan.cfg, plan.resume, layout);

@@ -33,6 +33,9 @@ pub struct TrainBenchOptions {
     pub count_ops: bool,
     /// fp32: the layout of the feature maps (None: the faster on the device).
     pub fp32_layout: Option<crate::config::Fp32Layout>,
+    /// bf16 on the CPU: the convolutions (None: [`crate::config::ComputeConfig::bf16_convolutions_in_force`]'s
+    /// default; `rtf bench train` passes the choice `rtf train` would make).
+    pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
 }
 
 /// The operators one step runs, part by part ([`rtf_models::aten::count_ops`]): the host's
@@ -129,7 +132,9 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         batch: opts.batch,
         size: format!("{}x{}", opts.size.0, opts.size.1),
         precision: opts.precision.name().into(),
-        convolutions: opts.precision.convolutions_on(opts.device),
+        convolutions: opts
+            .precision
+            .convolutions_on(opts.device, cfg.compute.bf16_convolutions_in_force()),
         device: cfg.compute.device.clone(),
         threads: tch::get_num_threads(),
         images_per_s: (opts.steps * opts.batch) as f64 / total,
@@ -189,6 +194,7 @@ fn bench_config(opts: &TrainBenchOptions) -> Result<TrainConfig, TrainError> {
     cfg.learning.precision = opts.precision;
     cfg.schedule.batch_size = opts.batch;
     cfg.compute.fp32_layout = opts.fp32_layout;
+    cfg.compute.bf16_convolutions = opts.bf16_convolutions;
     cfg.compute.device = match opts.device {
         Device::Cpu => "cpu".into(),
         Device::Cuda(i) => format!("cuda:{i}"),
@@ -282,6 +288,7 @@ mod tests {
             optimizer: OptimizerConfig::mfnet_paper(),
             count_ops: false,
             fp32_layout: None,
+            bf16_convolutions: None,
         }
     }
 

@@ -7,6 +7,12 @@
 //! kernels win. Every way computes bf16 training (bf16 operands, float sums, bf16 outputs);
 //! only the speed differs, and the summation order inside the kernels.
 //!
+//! What decides is a [`Bf16Policy`] the caller resolves at its edge (rtf's binaries and the
+//! Python package from `RTF_BF16_CONVOLUTIONS` and oneDNN's ISA cap): the library reads no
+//! variable and keeps no process-wide choice; the choice is recorded in the run's
+//! configuration and each autocast region of its steps computes with it
+//! ([`crate::procedure::Trained::autocast`]).
+//!
 //! So where the CPU has bf16 arithmetic and the caller leaves the choice open, a new run takes
 //! [`Bf16Convolutions::Mixed`] where one wide 3×3 layer's forward and backward measured faster
 //! on fp32 kernels ([`choose_training_convolutions`] over a measurement the caller makes and
@@ -14,13 +20,17 @@
 //! in its configuration (`compute.bf16_convolutions`) before the first step: a resume
 //! computes with the kernels the run started with.
 //!
-//! Not measured: data-parallel runs (each rank would measure on its own; they keep the choice
-//! in force, recorded the same way) and resumes of runs from before the record (they keep the
-//! choice in force without one, which is what they started with).
+//! Not measured: data-parallel runs (each rank would measure on its own; they record the
+//! choice in force) and resumes of runs from before the record (they record the choice in
+//! force, which is what they started with).
+
+mod warning;
+
+pub use warning::{measure_training, measured_training, training_key, training_warning};
 
 use std::path::{Path, PathBuf};
 
-use rtf_amp::{AmpError, Bf16Convolutions};
+use rtf_amp::{Bf16Convolutions, Bf16Policy};
 use rtf_eval::kernels::probe::{Measured, Probe, Work};
 use tch::Device;
 
@@ -30,37 +40,37 @@ use crate::RunConfig;
 /// A choice of bf16 convolutions with the line that says it, if any.
 pub type Choice = (Bf16Convolutions, Option<String>);
 
-/// Makes this process's choice for `cfg`'s bf16 CPU stages and records it in them; returns the
-/// lines to print (a measured mixed choice, a record that stands or is overridden, a failed
+/// Makes the choice for `cfg`'s bf16 CPU stages under `policy` and records it in them; returns
+/// the lines to print (a measured mixed choice, a record that stands or is overridden, a failed
 /// probe). `choose` is called only for a new single-process run: the measured choice
 /// ([`choose_training_convolutions`]), or None to keep the choice in force.
 pub fn settle_for_run(
     cfg: &mut RunConfig,
     resume: bool,
     data_parallel: bool,
+    policy: &Bf16Policy,
     choose: impl FnOnce() -> Option<Choice>,
-) -> Result<Vec<String>, AmpError> {
+) -> Vec<String> {
     let mut stages: Vec<&mut TrainConfig> = cfg
         .stages_mut()
         .into_iter()
         .filter(|s| trains_bf16_on_cpu(s))
         .collect();
     if stages.is_empty() {
-        return Ok(Vec::new());
+        return Vec::new();
     }
     let recorded = stages.iter().find_map(|s| s.compute.bf16_convolutions);
     let mut lines = Vec::new();
     let choice = match recorded {
         Some(recorded) => {
-            let in_force = rtf_amp::choose_process_bf16_convolutions(recorded)?;
-            lines.extend(record_message(recorded, in_force));
+            let in_force = policy.in_force(Some(recorded));
+            lines.extend(record_message(recorded, in_force, policy));
             in_force
         }
         // A run from before the record started with the choice in force without one.
-        None if resume => return Ok(Vec::new()),
-        None if data_parallel => rtf_amp::cpu_bf16_convolutions()?,
+        None if resume || data_parallel => policy.in_force(None),
         None => {
-            let (choice, line) = measured_or_in_force(choose)?;
+            let (choice, line) = measured_or_in_force(policy, choose);
             lines.extend(line);
             choice
         }
@@ -68,7 +78,7 @@ pub fn settle_for_run(
     for stage in &mut stages {
         stage.compute.bf16_convolutions = Some(choice);
     }
-    Ok(lines)
+    lines
 }
 
 /// Records the fp32 stages' layout: `asked` (the caller's choice: `RTF_TRAIN_LAYOUT` for rtf's
@@ -96,23 +106,27 @@ fn trains_bf16_on_cpu(stage: &TrainConfig) -> bool {
         && available_device(&stage.compute.device).is_ok_and(|d| d == Device::Cpu)
 }
 
-/// `choose`'s choice, made for this process, where it makes one; else the choice in force.
-pub fn measured_or_in_force(choose: impl FnOnce() -> Option<Choice>) -> Result<Choice, AmpError> {
+/// The choice in force under `policy` with `choose`'s choice, where it makes one.
+pub fn measured_or_in_force(
+    policy: &Bf16Policy,
+    choose: impl FnOnce() -> Option<Choice>,
+) -> Choice {
     match choose() {
-        Some((choice, line)) => Ok((rtf_amp::choose_process_bf16_convolutions(choice)?, line)),
-        None => Ok((rtf_amp::cpu_bf16_convolutions()?, None)),
+        Some((choice, line)) => (policy.in_force(Some(choice)), line),
+        None => (policy.in_force(None), None),
     }
 }
 
-/// Where bf16 is native and `RTF_BF16_CONVOLUTIONS` leaves the choice open:
+/// Where `policy` leaves the choice open and bf16 is native ([`Bf16Policy::open_to_measure`]):
 /// [`Bf16Convolutions::Mixed`] if `measured` ([`Work::Conv3x3Training`], cached) found fp32
 /// kernels faster for a wide 3×3 layer, else native; with the line that says a mixed choice.
 /// `None` where nothing is measured (the choice in force stands); a failed measurement is a
 /// warning, and the bf16 kernels run.
 pub fn choose_training_convolutions(
+    policy: &Bf16Policy,
     measured: impl FnOnce() -> Result<(Measured, Option<PathBuf>), String>,
 ) -> Option<Choice> {
-    if rtf_amp::bf16_convolutions_set_by_env() || rtf_amp::cpu_has_native_bf16() != Some(true) {
+    if !policy.open_to_measure() {
         return None;
     }
     match measured() {
@@ -157,21 +171,25 @@ fn mixed_choice_message(m: &Measured, cache: Option<&Path>) -> String {
 }
 
 /// What to say of a resumed run's recorded choice: that it stands where it differs from the
-/// default, or that the variable (or a CPU without bf16 arithmetic) overrides it.
-fn record_message(recorded: Bf16Convolutions, in_force: Bf16Convolutions) -> Option<String> {
+/// default, or that the user's choice (or a CPU without bf16 arithmetic) overrides it.
+fn record_message(
+    recorded: Bf16Convolutions,
+    in_force: Bf16Convolutions,
+    policy: &Bf16Policy,
+) -> Option<String> {
     if in_force != recorded {
         return Some(format!(
             "warning: the run started with {} bf16 convolutions (compute.bf16_convolutions in its \
              config.json); {} run now ({}), so the resumed steps do not compute the same sums",
             recorded.name(),
             in_force.name(),
-            match rtf_amp::bf16_convolutions_set_by_env() {
+            match policy.asked.is_some() {
                 true => format!("{} is set", rtf_amp::BF16_CONVOLUTIONS_VAR),
                 false => "this CPU has no bf16 arithmetic".into(),
             }
         ));
     }
-    (recorded != Bf16Convolutions::Native && rtf_amp::cpu_has_native_bf16() == Some(true)).then(
+    (recorded != Bf16Convolutions::Native && policy.arithmetic.is_native() == Some(true)).then(
         || {
             format!(
                 "bf16 training runs {} convolutions on fp32 kernels over bf16 operands, as the \
@@ -205,25 +223,59 @@ mod tests {
         panic!("measured where nothing is chosen")
     }
 
+    fn policy(asked: Option<Bf16Convolutions>, native: bool) -> Bf16Policy {
+        Bf16Policy {
+            asked,
+            arithmetic: rtf_amp::Bf16Arithmetic::from_flags(Some(native), rtf_amp::IsaCap::NONE),
+        }
+    }
+
     #[test]
-    fn only_bf16_on_the_cpu_is_settled_and_nothing_for_an_old_run_resumed() {
+    fn only_bf16_on_the_cpu_is_settled_and_an_old_run_resumed_records_the_choice_in_force() {
+        let open = policy(None, true);
         let mut fp32 = run(Precision::Fp32, "cpu");
-        assert!(settle_for_run(&mut fp32, false, false, never)
-            .unwrap()
-            .is_empty());
+        assert!(settle_for_run(&mut fp32, false, false, &open, never).is_empty());
         assert_eq!(recorded(&fp32), None);
         let mut resumed = run(Precision::Bf16, "cpu");
-        assert!(settle_for_run(&mut resumed, true, false, never)
-            .unwrap()
-            .is_empty());
-        assert_eq!(recorded(&resumed), None, "a run from before the record");
+        assert!(settle_for_run(&mut resumed, true, false, &policy(None, false), never).is_empty());
+        assert_eq!(
+            recorded(&resumed),
+            Some(Bf16Convolutions::Emulated),
+            "what it started with"
+        );
         // Data-parallel: the choice in force, recorded, nothing measured.
         let mut ddp = run(Precision::Bf16, "cpu");
-        settle_for_run(&mut ddp, false, true, never).unwrap();
+        let asked = policy(Some(Bf16Convolutions::Mixed), true);
+        settle_for_run(&mut ddp, false, true, &asked, never);
+        assert_eq!(recorded(&ddp), Some(Bf16Convolutions::Mixed));
+    }
+
+    /// A new run measures only where the policy leaves the choice open; the user's choice
+    /// overrides a record, and says so.
+    #[test]
+    fn a_new_run_measures_only_where_left_open_and_the_users_choice_wins() {
+        let mut new = run(Precision::Bf16, "cpu");
+        let mixed = || Some((Bf16Convolutions::Mixed, Some("mixed".to_owned())));
+        let lines = settle_for_run(&mut new, false, false, &policy(None, true), mixed);
         assert_eq!(
-            recorded(&ddp),
-            Some(rtf_amp::cpu_bf16_convolutions().unwrap())
+            (recorded(&new), lines),
+            (Some(Bf16Convolutions::Mixed), vec!["mixed".into()])
         );
+        let native = policy(Some(Bf16Convolutions::Native), true);
+        let lines = settle_for_run(&mut new, true, false, &native, never);
+        assert_eq!(recorded(&new), Some(Bf16Convolutions::Native));
+        assert!(
+            lines[0].contains("RTF_BF16_CONVOLUTIONS is set"),
+            "{lines:?}"
+        );
+        let measure = || -> Result<(Measured, Option<PathBuf>), String> { panic!("measured") };
+        assert_eq!(choose_training_convolutions(&native, measure), None);
+        assert_eq!(
+            choose_training_convolutions(&policy(None, false), measure),
+            None
+        );
+        let failed = choose_training_convolutions(&policy(None, true), || Err("x".into()));
+        assert_eq!(failed.unwrap().0, Bf16Convolutions::Native);
     }
 
     #[test]
@@ -247,17 +299,22 @@ mod tests {
     #[test]
     fn a_record_that_stands_is_said_only_where_it_is_emulation_by_choice() {
         use Bf16Convolutions::*;
-        assert_eq!(record_message(Native, Native), None);
-        let overridden = record_message(Emulated, Native).unwrap();
+        let open = policy(None, true);
+        assert_eq!(record_message(Native, Native, &open), None);
+        let overridden = record_message(Emulated, Native, &policy(None, false)).unwrap();
         assert!(
             overridden.starts_with("warning: the run started with emulated")
                 && overridden.contains("native run now"),
             "{overridden}"
         );
-        let stands = record_message(Emulated, Emulated);
+        assert!(
+            overridden.contains("this CPU has no bf16 arithmetic"),
+            "{overridden}"
+        );
+        assert!(record_message(Emulated, Emulated, &open).is_some());
         assert_eq!(
-            stands.is_some(),
-            rtf_amp::cpu_has_native_bf16() == Some(true)
+            record_message(Emulated, Emulated, &policy(None, false)),
+            None
         );
     }
 

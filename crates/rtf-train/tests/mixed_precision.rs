@@ -28,6 +28,10 @@ fn config(root: &Path, epochs: usize, precision: Precision) -> TrainConfig {
     cfg.data.workers = 1;
     cfg.schedule.max_steps_per_epoch = Some(2);
     cfg.learning.precision = precision;
+    // The choice this process is asked for (xtask's passes), as `rtf train` records it.
+    if precision == Precision::Bf16 {
+        cfg.compute.bf16_convolutions = Some(common::bf16_convolutions());
+    }
     cfg
 }
 
@@ -66,6 +70,15 @@ fn assert_resumes_exactly(cfg: &TrainConfig, dir: &Path) -> rtf_train::TrainOutc
         cfg.learning.precision.name(),
         "recorded in config.json"
     );
+    if cfg.learning.precision == Precision::Bf16 {
+        let asked = common::bf16_convolutions();
+        eprintln!("bf16 convolutions: {}", asked.name());
+        assert_eq!(
+            written["compute"]["bf16_convolutions"],
+            asked.name(),
+            "the choice asked for is the run's, recorded"
+        );
+    }
 
     let split = dir.join("split");
     let first = cfg.clone().with(|c| {

@@ -36,6 +36,14 @@ fn real_batch() -> Tensor {
     Tensor::stack(&frames, 0)
 }
 
+/// The bf16 convolutions this test process is asked for: `RTF_BF16_CONVOLUTIONS` and oneDNN's
+/// ISA cap (`cargo xtask test` runs each choice), resolved as rtf's binaries resolve them.
+fn convolutions() -> rtf_amp::Bf16Convolutions {
+    rtf_amp::Bf16Policy::from_vars(|var| std::env::var(var).ok())
+        .expect("RTF_BF16_CONVOLUTIONS")
+        .in_force(None)
+}
+
 /// (logits, loss, gradient of every trainable variable, flattened) of one training-mode
 /// step of the published MFNet, in bf16 autocast or fp32.
 fn step(input: &Tensor, labels: Option<&Tensor>, bf16: bool) -> (Tensor, f64, Tensor) {
@@ -45,9 +53,14 @@ fn step(input: &Tensor, labels: Option<&Tensor>, bf16: bool) -> (Tensor, f64, Te
     rtf_models::weights::load_safetensors(&mut vs, &samples().join("mfnet_final.safetensors"))
         .unwrap();
     let kind = bf16.then_some(Kind::BFloat16);
-    let logits = rtf_amp::autocast(Device::Cpu, kind, || net.forward_t(input, true))
-        .unwrap()
-        .to_kind(Kind::Float);
+    let logits = rtf_amp::autocast_with(Device::Cpu, kind, convolutions(), || {
+        // The region computes with the choice asked for (3×3 convolutions emulated or not).
+        let emulated = rtf_amp::emulates_bf16_convolution(Device::Cpu, true);
+        assert_eq!(emulated, bf16 && convolutions().emulates(true));
+        net.forward_t(input, true)
+    })
+    .unwrap()
+    .to_kind(Kind::Float);
     let labels = labels.map_or_else(|| logits.argmax(1, false), Tensor::shallow_clone);
     let loss = logits.cross_entropy_loss::<Tensor>(&labels, None, tch::Reduction::Mean, -100, 0.0);
     loss.backward();
@@ -94,7 +107,7 @@ fn bf16_training_step_on_real_frames_follows_fp32() {
     eprintln!(
         "real frames, {:?}: agreement {agree:.4}, loss {bf16_loss:.4} against {fp32_loss:.4}, \
          gradient cosine {cosine:.4}",
-        rtf_amp::cpu_bf16_convolutions()
+        convolutions()
     );
     assert!(cosine > 0.95, "gradient cosine {cosine}");
 }

@@ -63,6 +63,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
     let kernels = super::prepare_inference(Some(args.precision), device)?;
+    let bf16_convolutions = crate::bf16_probe::policy()?.inference_convolutions();
     let num_classes = match (args.classes, &args.weights) {
         (Some(n), _) => Some(n),
         (None, Some(weights)) => super::weights_config(weights)?.map(|c| c.num_classes()),
@@ -87,6 +88,7 @@ pub fn run(args: Args) -> Result<()> {
         weights: args.weights,
         device,
         agreement: !args.no_agreement,
+        bf16_convolutions,
     };
     let report = bench_model(&opts)?;
     if args.json {
@@ -120,6 +122,13 @@ fn print_report(report: &rtf_eval::speed::BenchReport) {
             .map_or("unknown".to_string(), |m| format!("{m:.0} MiB"))
     );
     println!("CPU: {}", report.cpu.label());
+    if let Some(convolutions) = report.bf16_convolutions {
+        let how = match convolutions {
+            rtf_amp::Bf16Convolutions::Emulated => "emulated (fp32 kernels over bf16 maps)",
+            _ => "native (oneDNN's bf16 kernels)",
+        };
+        println!("bf16 convolutions: {how}");
+    }
     if let Some(kernels) = &report.bf16_3x3 {
         let how = match kernels.as_str() {
             "winograd" => "Winograd forms, fp32 arithmetic over bf16 maps",

@@ -55,15 +55,27 @@ pub fn run(args: Args) -> Result<()> {
     }
     let optimizer = OptimizerConfig::paper_default(args.optimizer);
     let device = rtf_train::config::available_device(&args.device).map_err(anyhow::Error::msg)?;
-    // The choice `rtf train` would make for a new run, made for this process.
+    // The choice `rtf train` would make for a new run.
+    let policy = crate::bf16_probe::policy()?;
+    let mut convolutions = policy.bf16.in_force(None);
     if args.precision == Precision::Bf16 && device == tch::Device::Cpu {
-        let (_, line) =
-            rtf_train::kernels::measured_or_in_force(crate::bf16_probe::training_choice)?;
+        let (choice, line) = rtf_train::kernels::measured_or_in_force(&policy.bf16, || {
+            crate::bf16_probe::training_choice(&policy)
+        });
+        convolutions = choice;
         if let Some(line) = line {
             eprintln!("{line}");
         }
     }
-    if let Some(warning) = crate::bf16_warning::training(args.precision, device) {
+    let measured = || crate::bf16_probe::measured_training(convolutions);
+    let warning = rtf_train::kernels::training_warning(
+        &policy.bf16,
+        convolutions,
+        args.precision,
+        device,
+        measured,
+    );
+    if let Some(warning) = warning {
         eprintln!("warning: {warning}");
     }
     let layout = super::train::layout_asked()?;
@@ -80,6 +92,7 @@ pub fn run(args: Args) -> Result<()> {
         optimizer,
         count_ops: args.count_ops,
         fp32_layout: layout,
+        bf16_convolutions: Some(convolutions),
     })?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);

@@ -80,7 +80,8 @@ impl RunFlags {
 /// Before folding a network for inference in `precision` (None: the plain path): the kernels
 /// the fold takes, chosen by the library as for any caller ([`rtf_eval::kernels`]) under this
 /// process's policy ([`crate::bf16_probe::policy`]: a bad `RTF_BF16_WINOGRAD` is refused here);
-/// then the warning where bf16 is slow or emulated here ([`crate::bf16_warning`]), on stderr.
+/// then the library's warning where bf16 is slow or emulated here
+/// ([`rtf_eval::kernels::inference_warning`], measured in a child process), on stderr.
 pub fn prepare_inference(
     precision: Option<rtf_models::fast::Precision>,
     device: tch::Device,
@@ -95,8 +96,10 @@ pub fn prepare_inference(
     for warning in warnings {
         eprintln!("warning: {warning}");
     }
-    let bf16 = precision == Some(rtf_models::fast::Precision::Bf16);
-    if let Some(warning) = crate::bf16_warning::inference(bf16, device, &kernels) {
+    let measured = || crate::bf16_probe::measured_inference(&kernels);
+    let warning =
+        precision.and_then(|p| rtf_eval::kernels::inference_warning(&policy, p, device, measured));
+    if let Some(warning) = warning {
         eprintln!("warning: {warning}");
     }
     Ok(kernels)

@@ -22,18 +22,17 @@ pub fn run(args: Args) -> Result<()> {
         return Ok(());
     }
     // Before the trainer records the configuration: bf16 CPU stages record their kernels.
+    let policy = crate::bf16_probe::policy()?;
     let (cfg, resume) = (&mut plan.cfg, plan.resume);
-    let lines = rtf_train::kernels::settle_for_run(
-        cfg,
-        resume,
-        ddp.is_some(),
-        crate::bf16_probe::training_choice,
-    )?;
+    let lines =
+        rtf_train::kernels::settle_for_run(cfg, resume, ddp.is_some(), &policy.bf16, || {
+            crate::bf16_probe::training_choice(&policy)
+        });
     for line in lines.iter().filter(|_| root) {
         eprintln!("{line}");
     }
     rtf_train::kernels::settle_fp32_layout(&mut plan.cfg, plan.resume, layout_asked()?);
-    prepare_arithmetic(&plan.cfg, root)?;
+    prepare_arithmetic(&plan.cfg, &policy.bf16, root)?;
     let stop = stop_on_signals();
     if root {
         eprintln!("{}", announcement(&plan));
@@ -77,13 +76,24 @@ fn announcement(plan: &Plan) -> String {
 
 /// Warns (on the root process) when a stage's precision will train slowly on its device, and
 /// sets the allocator's policy for the first stage's arithmetic (process-wide).
-fn prepare_arithmetic(cfg: &RunConfig, root: bool) -> Result<()> {
+fn prepare_arithmetic(cfg: &RunConfig, policy: &rtf_amp::Bf16Policy, root: bool) -> Result<()> {
     let mut slow = None;
     for (i, (_, stage)) in cfg.stages().into_iter().enumerate() {
         let device = available_device(&stage.compute.device).map_err(anyhow::Error::msg)?;
         // Only the root process warns, so only it may run the bf16 probe (issue 41).
         if root {
-            slow = slow.or_else(|| crate::bf16_warning::training(stage.learning.precision, device));
+            let convolutions = stage.compute.bf16_convolutions_in_force();
+            let measured = || crate::bf16_probe::measured_training(convolutions);
+            let precision = stage.learning.precision;
+            slow = slow.or_else(|| {
+                rtf_train::kernels::training_warning(
+                    policy,
+                    convolutions,
+                    precision,
+                    device,
+                    measured,
+                )
+            });
         }
         if i == 0 {
             let layout = stage.compute.fp32_layout;

@@ -141,3 +141,9 @@ pub fn files_of(root: &Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
     out.sort();
     out
 }
+
+/// The bf16 arithmetic the `rtf` these tests start gets: this CPU's flags under the oneDNN ISA
+/// cap of the test's environment (which the binary inherits and reads alike).
+pub fn bf16_arithmetic() -> rtf_amp::Bf16Arithmetic {
+    rtf_amp::Bf16Arithmetic::from_vars(|var| std::env::var(var).ok())
+}

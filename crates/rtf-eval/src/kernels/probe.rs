@@ -50,9 +50,14 @@ struct Cache {
     measurements: BTreeMap<String, Measured>,
 }
 
-/// The work the library measures itself.
+/// The work the library measures.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Work {
+    /// MFNet's fast-path forward at 320×240, batch 1, in fp32 (`fp32_s`) and bf16 (`bf16_s`):
+    /// whether bf16 inference pays on a CPU with bf16 arithmetic ([`crate::kernels::inference_warning`]).
+    Inference,
+    /// An MFNet training step at 320×240, batch 2, in fp32 and bf16 (rtf-train `kernels`).
+    Training,
     /// One wide 3×3 convolution over bf16 maps: the Winograd form (fp32 arithmetic) against
     /// oneDNN's bf16 kernels. Decides [`rtf_models::fast::InferenceKernels::bf16_winograd`].
     Conv3x3,
@@ -65,6 +70,8 @@ pub enum Work {
 impl Work {
     pub fn name(self) -> &'static str {
         match self {
+            Work::Inference => "inference",
+            Work::Training => "training",
             Work::Conv3x3 => "conv3x3",
             Work::Conv3x3Training => "conv3x3-training",
         }
@@ -73,6 +80,8 @@ impl Work {
     /// What is timed, for messages.
     pub fn workload(self) -> &'static str {
         match self {
+            Work::Inference => "MFNet's fast-path forward at 320x240, batch 1",
+            Work::Training => "an MFNet training step at 320x240, batch 2",
             Work::Conv3x3 => "a 3x3 convolution of 256 channels at 80x60, batch 1, folded",
             Work::Conv3x3Training => {
                 "a 3x3 convolution of 256 channels at 80x60, batch 2, forward and backward"
@@ -224,6 +233,50 @@ pub fn libtorch_identity() -> String {
     std::fs::read_to_string(root.join("build-version"))
         .map(|v| v.trim().to_string())
         .unwrap_or_else(|_| lib.display().to_string())
+}
+
+/// The key of [`Work::Inference`] with `kernels` ([`Probe::key`]): what besides the machine
+/// decides which kernels it runs, the kernels of its wide 3×3 convolutions.
+pub fn inference_key(probe: &Probe, kernels: &rtf_models::fast::InferenceKernels) -> String {
+    match kernels.bf16_winograd {
+        true => probe.key("inference | winograd 3x3"),
+        false => probe.key(Work::Inference.name()),
+    }
+}
+
+/// [`Work::Inference`] timed in this process with `kernels` (bf16 on oneDNN's kernels, not
+/// emulated: the work is measured where bf16 is native): MFNet's fast path at 320×240, batch
+/// 1, median of 5 after 2, fp32 then bf16.
+pub fn measure_inference(kernels: rtf_models::fast::InferenceKernels) -> Result<Measured, String> {
+    use rtf_models::fast::Precision;
+    let seconds = |precision| -> Result<f64, String> {
+        let opts = crate::speed::BenchOptions {
+            kernels,
+            precision,
+            width: 320,
+            height: 240,
+            warmup: 2,
+            iterations: 5,
+            agreement: false,
+            bf16_convolutions: rtf_amp::Bf16Convolutions::Native,
+            ..Default::default()
+        };
+        let report = crate::speed::bench_model(&opts).map_err(|e| e.to_string())?;
+        Ok(report.median_ms / 1000.0)
+    };
+    let fp32 = seconds(Precision::Fp32)?;
+    Ok(Measured::now(fp32, seconds(Precision::Bf16)?))
+}
+
+/// [`Work::Inference`] with `kernels`, cached by `probe` under [`inference_key`] (the key `rtf`
+/// uses, so both share the measurement), measured in this process where there is none.
+pub fn measured_inference(
+    probe: &Probe,
+    kernels: rtf_models::fast::InferenceKernels,
+) -> Result<(Measured, Option<PathBuf>), String> {
+    probe.measured(&inference_key(probe, &kernels), || {
+        measure_inference(kernels)
+    })
 }
 
 /// [`Work::Conv3x3`] timed in this process: a 3×3 convolution of 256 channels at 80×60 (+

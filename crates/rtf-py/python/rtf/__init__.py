@@ -70,7 +70,9 @@ def load_network(name, weights=None, classes=None, device="cpu", precision=None)
     loads it: ``classes`` (a class set's name, else the weights' record), ``device``,
     ``precision`` (None: the plain path; "fp32", "bf16", "fp16" on CUDA: the fast path, its
     kernels chosen as ``rtf predict`` chooses them under ``RTF_WINOGRAD``,
-    ``RTF_BF16_WINOGRAD`` and the measurement cache ``RTF_CACHE_DIR``, read here)."""
+    ``RTF_BF16_WINOGRAD``, ``RTF_BF16_CONVOLUTIONS``, oneDNN's ``ONEDNN_MAX_CPU_ISA`` and the
+    measurement cache ``RTF_CACHE_DIR``, read here, with ``rtf predict``'s warning where bf16
+    is slow or emulated on this CPU)."""
     return _rtf.load_network(name, weights, classes, device, precision, dict(_os.environ))
 
 

@@ -14,9 +14,10 @@ pub struct ComputeConfig {
     pub world_size: Option<usize>,
     /// bf16 on the CPU: which convolution kernels the run started with
     /// ([`rtf_amp::Bf16Convolutions`], chosen by measurement where the CPU has bf16 arithmetic
-    /// and `RTF_BF16_CONVOLUTIONS` is unset), recorded so that a resume computes the same
-    /// numbers (a `--config` may set it). None = not recorded (fp32, another device, or a run
-    /// before the record).
+    /// and the caller's policy leaves it open: `RTF_BF16_CONVOLUTIONS` unset for rtf's
+    /// binaries; [`crate::kernels::settle_for_run`]), recorded so that a resume computes the
+    /// same numbers (a `--config` may set it). None = not recorded (fp32, another device, or a
+    /// configuration not settled).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
     /// fp32 stages: the layout of the feature maps the run started with
@@ -25,6 +26,16 @@ pub struct ComputeConfig {
     /// recorded ([`Fp32Layout::faster_on`] the device then).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fp32_layout: Option<Fp32Layout>,
+}
+
+impl ComputeConfig {
+    /// The bf16 convolutions the run's CPU autocast regions compute with: the recorded choice,
+    /// else (a configuration not settled by [`crate::kernels::settle_for_run`]) the default of
+    /// this CPU's flags without a user's choice or an ISA cap ([`rtf_amp::Bf16Policy::default`]).
+    pub fn bf16_convolutions_in_force(&self) -> rtf_amp::Bf16Convolutions {
+        self.bf16_convolutions
+            .unwrap_or_else(|| rtf_amp::Bf16Policy::default().in_force(None))
+    }
 }
 
 /// How fp32 training lays out its feature maps. Convolutional networks only: CMX (attention)

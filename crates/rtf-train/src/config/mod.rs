@@ -808,11 +808,6 @@ impl LearningConfig {
                 "fp16 needs a CUDA device (libtorch's CPU autocast is bf16 only); use bf16 on the CPU",
             ));
         }
-        if self.precision == Precision::Bf16 && device == tch::Device::Cpu {
-            // A bad RTF_BF16_CONVOLUTIONS is refused here, before a run folder is written.
-            rtf_amp::cpu_bf16_convolutions()
-                .map_err(|e| ConfigError::field("learning.precision", &e.to_string()))?;
-        }
         self.optimizer.validate("learning.optimizer")?;
         let LossConfig::CrossEntropy { class_weights } = &self.loss;
         if let Some(w) = class_weights {

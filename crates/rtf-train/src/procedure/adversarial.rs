@@ -51,8 +51,9 @@ impl Adversarial {
         device: Device,
     ) -> Result<Self, TrainError> {
         // The critic trains in the student's arithmetic.
-        let critic =
-            Trained::new(CRITIC, device, &options.optimizer).mixed(student.trained.precision)?;
+        let critic = Trained::new(CRITIC, device, &options.optimizer)
+            .convolving(student.trained.bf16_convolutions)
+            .mixed(student.trained.precision)?;
         let mut critic = critic;
         let critic_net = Critic::new(
             critic.vs.root(),

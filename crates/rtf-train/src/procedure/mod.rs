@@ -43,6 +43,9 @@ pub struct Trained {
     pub ddp: Option<std::sync::Arc<crate::ddp::Ddp>>,
     /// Whether fp32 training runs channels-last ([`fp32_channels_last`](Self::fp32_channels_last)).
     fp32_channels_last: bool,
+    /// bf16 on the CPU: how the convolutions of this network's autocast regions are computed
+    /// (the run's recorded choice, [`crate::config::ComputeConfig::bf16_convolutions_in_force`]).
+    pub bf16_convolutions: rtf_amp::Bf16Convolutions,
 }
 
 impl Trained {
@@ -56,7 +59,15 @@ impl Trained {
             precision: Precision::Fp32,
             ddp: None,
             fp32_channels_last: false,
+            bf16_convolutions: rtf_amp::Bf16Convolutions::Native,
         }
+    }
+
+    /// The same network with its CPU bf16 regions' convolutions computed as `convolutions`
+    /// says ([`rtf_amp::AutocastGuard::enter_with`]).
+    pub fn convolving(mut self, convolutions: rtf_amp::Bf16Convolutions) -> Self {
+        self.bf16_convolutions = convolutions;
+        self
     }
 
     /// Lays this network out channels-last in fp32 too where `on` (convolutional networks,
@@ -80,7 +91,6 @@ impl Trained {
                 |e: rtf_amp::AmpError| TrainError::Config(format!("--precision {precision}: {e}"));
             // Entered once here, so the regions of the steps cannot fail later.
             drop(rtf_amp::AutocastGuard::enter(self.vs.device(), kind).map_err(refused)?);
-            rtf_amp::cpu_bf16_convolutions().map_err(refused)?;
         }
         self.precision = precision;
         self.optimizer.set_loss_scaling(precision.scales_loss());
@@ -94,7 +104,8 @@ impl Trained {
     /// bf16 convolutions (NCHW measured faster for them).
     pub fn channels_last(&self) -> bool {
         let emulated = self.precision == Precision::Bf16
-            && rtf_amp::emulates_bf16_convolutions_on(self.vs.device());
+            && self.vs.device() == Device::Cpu
+            && self.bf16_convolutions == rtf_amp::Bf16Convolutions::Emulated;
         match self.precision {
             Precision::Fp32 => self.fp32_channels_last,
             _ => !emulated,
@@ -118,13 +129,16 @@ impl Trained {
     }
 
     /// `f` (forward passes) in this network's arithmetic: as is in fp32, else inside an
-    /// autocast region to bf16 / fp16 on the network's device.
+    /// autocast region to bf16 / fp16 on the network's device (on the CPU, with this network's
+    /// [`bf16_convolutions`](Self::bf16_convolutions)).
     pub fn autocast<T>(&self, f: impl FnOnce() -> T) -> T {
         match self.precision.autocast_kind() {
             None => f(),
             Some(kind) => {
-                let _region = rtf_amp::AutocastGuard::enter(self.vs.device(), kind)
-                    .expect("autocast on this device was entered once in Trained::mixed");
+                let convolutions = self.bf16_convolutions;
+                let _region =
+                    rtf_amp::AutocastGuard::enter_with(self.vs.device(), kind, convolutions)
+                        .expect("autocast on this device was entered once in Trained::mixed");
                 f()
             }
         }
@@ -167,6 +181,7 @@ impl Student {
             .unwrap_or_else(|| Fp32Layout::faster_on(device));
         let trained = Trained::new(STUDENT, device, &cfg.learning.optimizer)
             .fp32_layout(convolutional, layout)
+            .convolving(cfg.compute.bf16_convolutions_in_force())
             .mixed(cfg.learning.precision)?;
         let inner = rtf_models::build(&trained.vs.root(), &cfg.network.model)?;
         trained.channels_last_weights();
@@ -526,17 +541,59 @@ mod tests {
     }
 
     fn student(precision: Precision) -> Student {
+        student_convolving(precision, None)
+    }
+
+    fn student_convolving(
+        precision: Precision,
+        convolutions: Option<rtf_amp::Bf16Convolutions>,
+    ) -> Student {
         let mut cfg = TrainConfig::mfnet_paper("unused".into());
         cfg.learning.precision = precision;
+        cfg.compute.bf16_convolutions = convolutions;
         Student::build(&cfg, Device::Cpu).unwrap()
+    }
+
+    /// The run's recorded choice of bf16 convolutions is the one its autocast regions compute
+    /// with (rtf-models' convolutions ask [`rtf_amp::emulates_bf16_convolution`]), and the
+    /// critic of an adversarial run takes its student's.
+    #[test]
+    fn the_recorded_bf16_convolutions_reach_the_steps_regions() {
+        use rtf_amp::Bf16Convolutions::*;
+        for choice in [Native, Emulated, Mixed] {
+            let s = student_convolving(Precision::Bf16, Some(choice));
+            assert_eq!(s.trained.bf16_convolutions, choice);
+            let inside = s.trained.autocast(|| {
+                [true, false]
+                    .map(|spatial| rtf_amp::emulates_bf16_convolution(Device::Cpu, spatial))
+            });
+            assert_eq!(
+                inside,
+                [choice.emulates(true), choice.emulates(false)],
+                "{choice:?}"
+            );
+            assert!(
+                !rtf_amp::emulates_bf16_convolution(Device::Cpu, true),
+                "region closed"
+            );
+            assert_eq!(s.trained.channels_last(), choice != Emulated);
+        }
     }
 
     /// Under bf16 the forward pass runs in bf16 (its logits differ from fp32's by bf16's
     /// rounding, not more), the logits come back fp32, and the BatchNorm statistics it updates
-    /// stay fp32.
+    /// stay fp32; with each choice of convolutions.
     #[test]
     fn bf16_logits_are_fp32_and_close_to_fp32_logits() {
-        let (fp32, mut bf16) = (student(Precision::Fp32), student(Precision::Bf16));
+        use rtf_amp::Bf16Convolutions::*;
+        for choice in [Native, Emulated, Mixed] {
+            bf16_logits_are_close_with(choice);
+        }
+    }
+
+    fn bf16_logits_are_close_with(choice: rtf_amp::Bf16Convolutions) {
+        let fp32 = student(Precision::Fp32);
+        let mut bf16 = student_convolving(Precision::Bf16, Some(choice));
         // The seed is process-wide and other tests train beside this one: the same seed does
         // not promise the same weights, so the bf16 student gets the fp32 one's (the CI run of
         // stop 36 compared two different networks).

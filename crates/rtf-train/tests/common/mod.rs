@@ -81,3 +81,13 @@ pub fn weights(path: &Path) -> Vec<(String, Vec<u8>)> {
     named.sort_by(|a, b| a.0.cmp(&b.0));
     named
 }
+
+/// The bf16 convolutions this test process is asked to train with: `RTF_BF16_CONVOLUTIONS` and
+/// oneDNN's ISA cap (`cargo xtask test` sets them for its passes), resolved as rtf's binaries
+/// resolve them at their edge. The test reads its environment; the library does not.
+#[allow(dead_code)] // not every test binary trains bf16
+pub fn bf16_convolutions() -> rtf_amp::Bf16Convolutions {
+    rtf_amp::Bf16Policy::from_vars(|var| std::env::var(var).ok())
+        .expect("RTF_BF16_CONVOLUTIONS")
+        .in_force(None)
+}
