@@ -15,7 +15,8 @@ pub mod teachers;
 mod tests;
 
 use crate::config::{
-    ComputeConfig, DataConfig, LearningConfig, NetworkConfig, ScheduleConfig, TrainConfig,
+    available_device, ComputeConfig, DataConfig, LearningConfig, NetworkConfig, ScheduleConfig,
+    TrainConfig,
 };
 use crate::error::TrainError;
 
@@ -60,7 +61,7 @@ impl<'a> RunPlan<'a> {
         opened: Option<rtf_data::Dataset>,
     ) -> Result<Self, TrainError> {
         cfg.validate()?;
-        let device = cfg.device().map_err(TrainError::Config)?;
+        let device = available_device(&cfg.compute.device).map_err(TrainError::Config)?;
         let teachers = Teachers::check(&cfg.learning.procedure, &cfg.network.model)?;
         let sources = open_sources_in(&cfg.data.dataset, &cfg.learning.procedure, opened)?;
         let classes = sources.main.class_set().len() as i64;
