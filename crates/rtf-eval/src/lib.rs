@@ -2,6 +2,7 @@
 //! evaluation of any network on a split, figures.
 
 pub mod class_map;
+pub mod device;
 pub mod evaluate;
 pub mod figure;
 pub mod kernels;

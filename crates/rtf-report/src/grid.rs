@@ -67,19 +67,15 @@ fn grid_dataset(options: &ReportOptions, run: &Run) -> Result<(PathBuf, String),
     if let Some(root) = &options.data {
         return Ok((root.clone(), options.split.clone()));
     }
-    let dataset = &run
+    let training = run
         .config
         .as_ref()
-        .ok_or("no --data and the run's config names no dataset root")?
-        .data
-        .dataset;
-    let split = match dataset {
-        rtf_train::DatasetConfig::Mf { val_split, .. }
-        | rtf_train::DatasetConfig::Described { val_split, .. } => val_split.clone(),
-        rtf_train::DatasetConfig::Freiburg { .. } => None,
-    };
-    let split = split.unwrap_or_else(|| options.split.clone());
-    Ok((dataset.root().to_path_buf(), split))
+        .ok_or("no --data and the run's config names no dataset root")?;
+    let split = training
+        .val_split
+        .clone()
+        .unwrap_or_else(|| options.split.clone());
+    Ok((training.dataset_root.clone(), split))
 }
 
 /// The labelled frames of `split` under `root` (its layout recognised once).
@@ -103,7 +99,7 @@ fn draw_prediction_grid(
     split: &str,
     notes: &mut Vec<String>,
 ) -> Result<Vec<u8>, GridError> {
-    let device = rtf_train::config::available_device(&options.device)?;
+    let device = rtf_eval::device::available_device(&options.device)?;
     let source = open_split(root, split, notes)?;
     let mut rows: Option<Vec<GridRow>> = None;
     let mut columns = Vec::new();
@@ -145,7 +141,7 @@ fn run_network(run: &Run, weights: &Path, device: tch::Device) -> Result<RunNetw
         )
     })?;
     let mut vs = tch::nn::VarStore::new(device);
-    let net = rtf_models::build(&vs.root(), &cfg.network.model)?;
+    let net = rtf_models::build(&vs.root(), &cfg.model)?;
     rtf_models::weights::load_safetensors(&mut vs, weights)?;
-    Ok((rtf_models::masked(net, cfg.network.inputs), cfg.data.resize))
+    Ok((rtf_models::masked(net, cfg.inputs), cfg.resize))
 }

@@ -14,10 +14,11 @@
 //! RGB | thermal | truth | each run's prediction, column titles and class legend
 //! ([`rtf_eval::figure::annotated_grid`]).
 //!
-//! Run folders are read through the one reader of run folders (rtf-run's `RunFolder`, with
-//! rtf-train's typed configuration): their epochs as typed records of either log schema, their
-//! configuration typed where the page uses it (network, dataset, inputs, resize) and shown as
-//! the settings `config.json` records. Charts are drawn with `plotters` (SVG backend: text is
+//! Run folders are read through the one run-folder type (rtf-run's `RunFolder`, and its view
+//! of a training's configuration): their epochs as typed records of either log schema, their
+//! configuration read where the page uses it (network, dataset, inputs, resize) and shown as
+//! the settings `config.json` records. rtf-train is not a dependency: a report needs no
+//! training code. Charts are drawn with `plotters` (SVG backend: text is
 //! laid out by the browser, no font files needed); the grid is a PNG.
 //!
 //! Layers: `lib` (the page) → `runs`, `evals`, `sections`, `compare`, `grid` → `charts`,

@@ -1,22 +1,33 @@
-//! The runs a report shows, read through the one run-folder reader (rtf-run's `RunFolder`,
-//! rtf-train's typed configuration): a run folder, or each stage of a multi-stage run
-//! (`RUN/<stage>/`), with its epochs, its configuration and the settings it records.
+//! The runs a report shows, read through the one run-folder type (rtf-run's `RunFolder`, and
+//! its view of a training's configuration, [`rtf_run::TrainingView`]): a run folder, or each
+//! stage of a multi-stage run (`RUN/<stage>/`), with its epochs, what the page uses of its
+//! configuration and the settings it records.
 
 use std::path::{Path, PathBuf};
 
-use rtf_models::ModelConfig;
+use rtf_models::{Modality, ModelConfig};
 use rtf_run::{EpochRecord, RunFolder, Weights, LOG_FILE};
-use rtf_train::config::{RunConfig, TrainConfig};
 
 use crate::error::ReportError;
+
+/// What the page uses of a run's configuration: the network (built for the prediction grid),
+/// its inputs, the frame size it trained at, and its dataset with the validation split.
+pub(crate) struct Training {
+    pub model: ModelConfig,
+    pub inputs: Modality,
+    pub resize: Option<(usize, usize)>,
+    pub dataset_root: PathBuf,
+    /// None: Freiburg Thermal's validation (its test layout), or no validation.
+    pub val_split: Option<String>,
+}
 
 /// A run folder or one stage of it.
 pub(crate) struct Run {
     pub label: String,
     pub folder: RunFolder,
-    /// Its training configuration; None without a `config.json`, or one this build does not
-    /// read (a note says why; its recorded settings are still shown).
-    pub config: Option<TrainConfig>,
+    /// What the page uses of its configuration; None without a `config.json`, or one this
+    /// build does not read (a note says why; its recorded settings are still shown).
+    pub config: Option<Training>,
     /// The settings its `config.json` records, as (`a.b.c`, value) rows.
     pub settings: Vec<(String, String)>,
     pub log: Vec<EpochRecord>,
@@ -36,7 +47,7 @@ impl Run {
     pub fn network(&self) -> &'static str {
         self.config
             .as_ref()
-            .map_or("?", |c| network_family(&c.network.model))
+            .map_or("?", |c| network_family(&c.model))
     }
 }
 
@@ -50,19 +61,38 @@ fn network_family(model: &ModelConfig) -> &'static str {
     }
 }
 
-/// The training configuration of `folder`, or None with a note saying why.
-fn training(folder: &RunFolder, notes: &mut Vec<String>) -> Option<TrainConfig> {
-    if !folder.has_config() {
+/// What the page uses of the training configuration of `folder` (none for a multi-stage
+/// run's own folder), or None with a note saying why.
+fn training(folder: &RunFolder, notes: &mut Vec<String>) -> Option<Training> {
+    if !folder.has_config() || !folder.stage_names().is_empty() {
         return None;
     }
-    match rtf_train::folder::run_config(folder) {
-        Ok(RunConfig::Single(cfg)) => Some(*cfg),
-        Ok(RunConfig::Pipeline(_)) => None,
+    match typed(folder) {
+        Ok(training) => Some(training),
         Err(e) => {
             notes.push(format!("report: {e}; its settings are shown as recorded"));
             None
         }
     }
+}
+
+/// rtf-run's view of the configuration of `folder`, its network and inputs typed.
+fn typed(folder: &RunFolder) -> Result<Training, String> {
+    let view = folder.training().map_err(|e| e.to_string())?;
+    let path = folder.config_path();
+    let field = |name: &str, e: serde_json::Error| format!("{}: `{name}`: {e}", path.display());
+    let model = serde_json::from_value(view.model.clone()).map_err(|e| field("model", e))?;
+    let inputs = match &view.inputs {
+        Some(inputs) => serde_json::from_value(inputs.clone()).map_err(|e| field("inputs", e))?,
+        None => Modality::default(),
+    };
+    Ok(Training {
+        model,
+        inputs,
+        resize: view.resize,
+        val_split: view.val_split().map(str::to_string),
+        dataset_root: view.dataset.root,
+    })
 }
 
 fn part(label: String, folder: RunFolder, log: Vec<EpochRecord>, notes: &mut Vec<String>) -> Run {

@@ -156,6 +156,20 @@ impl RunFolder {
         })
     }
 
+    /// The training's configuration as a reader sees it without its types (the network, the
+    /// dataset, the frame size: [`crate::TrainingView`]). Errors name `config.json`.
+    pub fn training(&self) -> Result<crate::TrainingView, RunError> {
+        let path = self.config_path();
+        let document = self.document.as_ref().ok_or_else(|| RunError::Config {
+            path: path.clone(),
+            message: "missing (written by `rtf train`)".into(),
+        })?;
+        crate::TrainingView::of(document).map_err(|message| RunError::Config {
+            path,
+            message: format!("not a training configuration rtf reads: {message}"),
+        })
+    }
+
     /// Every setting `config.json` records, as (`a.b.c`, JSON text) rows in key order (what
     /// the file says, in its own layout; `null`s left out, lists of more than 8 items
     /// summarised); none without a `config.json`.

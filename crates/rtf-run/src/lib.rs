@@ -1,4 +1,5 @@
-//! rtf-run: a run folder as `rtf train` writes it, read back in one place, typed.
+//! rtf-run: a run folder as `rtf train` writes it ([`write`]: its lock, `config.json`, the
+//! log), read back in one place, typed.
 //!
 //! A run folder holds `config.json` (written before the first step), `log.jsonl` (one
 //! [`EpochRecord`] per finished epoch), `checkpoint.safetensors`, `best.safetensors` and
@@ -8,7 +9,8 @@
 //!
 //! [`RunFolder::open`] reads a folder once: its configuration document (the flat layout of
 //! older builds and today's sections alike; the typed configuration is rtf-train's, parsed
-//! through [`RunFolder::config`]), its stages, its epochs and its weights. Every reader of a
+//! through [`RunFolder::config`]; what a reader needs of it without those types, through
+//! [`RunFolder::training`]), its stages, its epochs and its weights. Every reader of a
 //! run folder (`rtf report`, `export`, `train --resume`, `cargo xtask reproduce`) goes through
 //! it, so a renamed field is an error naming the file, not a silently empty chart.
 //!
@@ -22,6 +24,8 @@ mod folder;
 pub mod log;
 pub mod record;
 mod settings;
+pub mod view;
+pub mod write;
 
 pub use error::RunError;
 pub use files::{
@@ -29,3 +33,5 @@ pub use files::{
 };
 pub use folder::{RunFolder, Weights};
 pub use record::{EpochRecord, ValRecord};
+pub use view::{DatasetView, TrainingView};
+pub use write::RunLock;

@@ -15,6 +15,7 @@ use rtf_core::{refused, Refusal};
 
 use crate::checkpoint::TrainState;
 use crate::ddp::Ddp;
+use crate::plan::RunPlan;
 use crate::progress::Progress;
 use crate::resume::Finished;
 use crate::setup::{NewRun, SetupError};
@@ -34,6 +35,9 @@ pub struct Plan {
     pub cfg: RunConfig,
     pub run_dir: PathBuf,
     pub resume: bool,
+    /// A new run's dataset root as its setup opened it: a single training's run plan takes it
+    /// rather than opening the root again ([`RunPlan::resolve_opened`]).
+    opened: Option<rtf_data::Dataset>,
 }
 
 /// How a call to [`Plan::train`] ended.
@@ -63,16 +67,19 @@ impl Plan {
                     cfg,
                     run_dir: dir.clone(),
                     resume: true,
+                    opened: None,
                 })
             }
             Request::New { run, out } => {
                 if let Some(data) = &run.data {
                     check_run_folder(out, data)?;
                 }
+                let (cfg, opened) = crate::setup::new_run_opened(run)?;
                 Ok(Self {
-                    cfg: crate::setup::new_run(run)?,
+                    cfg,
                     run_dir: out.clone(),
                     resume: false,
+                    opened,
                 })
             }
         }
@@ -95,8 +102,9 @@ impl Plan {
     ) -> Result<Ended, TrainError> {
         match &self.cfg {
             RunConfig::Single(single) => {
-                let outcome = crate::trainer::train_observed(
-                    single,
+                let plan = RunPlan::resolve_opened(single, self.opened.clone())?;
+                let outcome = crate::trainer::train_planned(
+                    plan,
                     &self.run_dir,
                     self.resume,
                     progress,

@@ -20,6 +20,7 @@ pub mod launch;
 pub mod loss;
 pub mod optim;
 pub mod pipeline;
+pub mod plan;
 pub mod procedure;
 pub mod progress;
 pub mod recipe;

@@ -117,17 +117,26 @@ pub struct Overrides {
 
 /// The configuration of a new run, checked ([`RunConfig::validate`]).
 pub fn new_run(asked: &NewRun) -> Result<RunConfig, SetupError> {
-    let mut cfg = match (&asked.recipe, &asked.config) {
-        (_, Some(path)) => config_file_run(path)?,
-        (Some(name), None) => recipe_run(name, asked)?,
-        (None, None) => plain_run(asked)?,
+    Ok(new_run_opened(asked)?.0)
+}
+
+/// [`new_run`], and the `--data` root it opened (None without `--data`): the trainer's run
+/// plan takes it instead of opening the root again ([`crate::plan::RunPlan::resolve_opened`]).
+pub fn new_run_opened(
+    asked: &NewRun,
+) -> Result<(RunConfig, Option<rtf_data::Dataset>), SetupError> {
+    let (mut cfg, mut opened) = match (&asked.recipe, &asked.config) {
+        (_, Some(path)) => (config_file_run(path)?, None),
+        (Some(name), None) => recipe_run(name, asked).map(|(c, d)| (c, Some(d)))?,
+        (None, None) => plain_run(asked).map(|(c, d)| (c, Some(d)))?,
     };
     if asked.config.is_some() {
         if let Some(data) = &asked.data {
-            let (dataset, _) = dataset_of(data, asked)?;
+            let (dataset, _, root) = dataset_of(data, asked)?;
             cfg.stages_mut()
                 .into_iter()
                 .for_each(|c| c.data.dataset = dataset.clone());
+            opened = Some(root);
         }
         ensure(
             asked.teacher.path.is_none() && asked.night_teacher.path.is_none(),
@@ -146,7 +155,7 @@ pub fn new_run(asked: &NewRun) -> Result<RunConfig, SetupError> {
         apply_init(&mut cfg, path, asked.reset_head)?;
     }
     cfg.validate()?;
-    Ok(cfg)
+    Ok((cfg, opened))
 }
 
 /// A dataset root that `rtf train` reads, opened once (rtf_data::dataset), a described
@@ -160,8 +169,8 @@ fn open_dataset(root: &Path) -> Result<rtf_data::Dataset, SetupError> {
 }
 
 /// The dataset a `--data` root holds, its class set, resolved to an absolute path (a resume
-/// from another directory finds it).
-fn dataset_of(data: &Path, asked: &NewRun) -> Result<(DatasetConfig, ClassSet), SetupError> {
+/// from another directory finds it), and the root opened.
+fn dataset_of(data: &Path, asked: &NewRun) -> Result<DataOf, SetupError> {
     let root = std::fs::canonicalize(data).map_err(|e| {
         Refusal::because(
             format!("{}: cannot open the dataset root", data.display()),
@@ -169,11 +178,16 @@ fn dataset_of(data: &Path, asked: &NewRun) -> Result<(DatasetConfig, ClassSet), 
         )
     })?;
     let dataset = open_dataset(&root)?;
-    let Some(description) = dataset.description() else {
-        return built_in_dataset(root, &dataset, asked, data);
+    let (config, classes) = match dataset.description() {
+        None => built_in_dataset(root, &dataset, asked, data)?,
+        Some(description) => described_dataset(root, description, asked)?,
     };
-    described_dataset(root, description, asked)
+    Ok((config, classes, dataset))
 }
+
+/// What a `--data` root gives a new run: its dataset configuration, its class set, and the
+/// root opened.
+type DataOf = (DatasetConfig, ClassSet, rtf_data::Dataset);
 
 /// An MF or Freiburg Thermal root: the layout fixes the class set and the splits (Freiburg:
 /// none to name).
@@ -348,12 +362,13 @@ fn given_teacher(
         .transpose()
 }
 
-/// A recipe's stages on the `--data` root, with the teachers given on the command line.
-fn recipe_run(name: &str, asked: &NewRun) -> Result<RunConfig, SetupError> {
+/// A recipe's stages on the `--data` root, with the teachers given on the command line, and
+/// the root opened.
+fn recipe_run(name: &str, asked: &NewRun) -> Result<(RunConfig, rtf_data::Dataset), SetupError> {
     let recipe = recipe::recipe(name)?;
-    let (dataset, classes) = dataset_of(required_data(asked)?, asked)?;
+    let (dataset, classes, opened) = dataset_of(required_data(asked)?, asked)?;
     let n = classes.len() as i64;
-    Ok(recipe::instantiate(
+    let cfg = recipe::instantiate(
         recipe,
         &RecipeInputs {
             dataset,
@@ -362,7 +377,8 @@ fn recipe_run(name: &str, asked: &NewRun) -> Result<RunConfig, SetupError> {
             teacher: given_teacher(&asked.teacher, n, "--teacher")?,
             night_teacher: given_teacher(&asked.night_teacher, n, "--night-teacher")?,
         },
-    )?)
+    )?;
+    Ok((cfg, opened))
 }
 
 fn required_data(asked: &NewRun) -> Result<&Path, SetupError> {
@@ -372,9 +388,10 @@ fn required_data(asked: &NewRun) -> Result<&Path, SetupError> {
         .ok_or_else(|| refused("--data is required"))
 }
 
-/// One supervised (or, with `--teacher`, teacher-student) training on the `--data` root.
-fn plain_run(asked: &NewRun) -> Result<RunConfig, SetupError> {
-    let (dataset, classes) = dataset_of(required_data(asked)?, asked)?;
+/// One supervised (or, with `--teacher`, teacher-student) training on the `--data` root, and
+/// the root opened.
+fn plain_run(asked: &NewRun) -> Result<(RunConfig, rtf_data::Dataset), SetupError> {
+    let (dataset, classes, opened) = dataset_of(required_data(asked)?, asked)?;
     let mut single = TrainConfig::mfnet_paper(PathBuf::new());
     let model = asked.overrides.model.as_deref().unwrap_or("mfnet");
     single.network.model = ModelConfig::from_name(model, classes.len() as i64)?;
@@ -391,7 +408,7 @@ fn plain_run(asked: &NewRun) -> Result<RunConfig, SetupError> {
             targets: Default::default(),
         };
     }
-    Ok(RunConfig::Single(Box::new(single)))
+    Ok((RunConfig::Single(Box::new(single)), opened))
 }
 
 /// `--no-augment` and `--no-shuffle` (issue 27's controls for parity runs).

@@ -3,24 +3,25 @@
 //! step does is the procedure's ([`crate::procedure`]). The run folder is described in
 //! [`crate::run`].
 //!
-//! A run's life, in [`train_distributed`]'s phases, each with the part of the configuration
-//! it needs (read once, where the phase starts, so that what a phase depends on is visible in
-//! its signature):
+//! A run's life, in [`train_planned`]'s phases. The configuration is resolved once first
+//! ([`RunPlan::resolve`]: its dataset opened and fingerprinted, its teachers checked, its
+//! device found); each phase then takes the plan's parts it needs, so that what a phase
+//! depends on is visible in its signature:
 //!
-//! 1. **Open the run folder** (`RunFolder::open`): every check that can refuse the run before
-//!    it writes, then the lock. Takes `FolderChecks`: the recorded number of processes
-//!    (`compute.world_size`), `schedule.epochs` (a resume must not end before where it
-//!    stands), and `learning.procedure`'s teachers with the student's `network.model`.
-//! 2. **Restore or start** (`Run::restore_or_start`): takes the whole configuration, because
-//!    it records it (`config.json`, with the data's fingerprint and the number of processes),
-//!    and hands each step its section: the frames from `data.dataset` split by
-//!    `learning.procedure` (`open_sources`), the procedure's networks from `network` and
-//!    `learning` (`procedure::build`), a new student's starting weights from `network`
-//!    (`start`) or everything from the checkpoint (`restore`), data-parallel with
-//!    `network.sync_batch_norm`, label caches with `learning.procedure`'s threshold
-//!    (`cache_labels`), and the streams from `data` and `schedule` (`Streams::open`,
-//!    `val_loader`). What the later phases read is kept in `Run`'s fields: `schedule`,
-//!    `network`, `learning.optimizer` and `data.resize`.
+//! 1. **Open the run folder** (`RunFolder::open`): every check of the folder that can refuse
+//!    the run before it writes, then the lock. Takes `FolderChecks`: the recorded number of
+//!    processes (`compute.world_size`) and `schedule.epochs` (a resume must not end before
+//!    where it stands).
+//! 2. **Restore or start** (`Run::restore_or_start`): takes the plan. It writes the recorded
+//!    configuration (`record_config`: `config.json`, with the data's fingerprint and the
+//!    number of processes), and hands each step its part: the procedure's networks from
+//!    `network`, `learning` and the checked teachers (`procedure::build_from`), a new
+//!    student's starting weights from `network` (`start`) or everything from the checkpoint
+//!    (`restore`), data-parallel with `network.sync_batch_norm`, label caches with
+//!    `learning.procedure`'s threshold (`cache_labels`), and the streams over the plan's
+//!    frames from `data` and `schedule` (`Streams::open`, `val_loader`). What the later phases
+//!    read is kept in `Run`'s fields: `schedule`, `network`, `learning.optimizer` and
+//!    `data.resize`.
 //! 3. **An epoch** (`Run::epoch`: `train_steps` → `step`, then `validate`, `keep_best`):
 //!    `schedule` (epochs, seed, `checkpoint_every`, `max_steps_per_epoch`), and the
 //!    optimiser's learning rate for the epoch's record.
@@ -56,6 +57,7 @@ use crate::config::{
 };
 use crate::ddp::Ddp;
 pub use crate::error::TrainError;
+use crate::plan::RunPlan;
 use crate::procedure::{self, Procedure, StepBatches};
 use crate::progress::{Epochs, Progress};
 use crate::run::{self as rundir, run_error};
@@ -65,7 +67,7 @@ use epoch::{progress_bar, EpochProgress};
 use restore_or_start::{cache_labels, networks, record_config, tensorboard_writer};
 use run_folder::{FolderChecks, RunFolder};
 pub use streams::training_loader;
-use streams::{open_sources, val_loader, Streams};
+use streams::{val_loader, Streams};
 pub use validation::{default_select_metric, val_record};
 use weights::{check_finite, prediction_grid_png, save_checkpoint};
 
@@ -148,11 +150,24 @@ pub fn train_observed(
     stop: &AtomicBool,
     ddp: Option<Arc<Ddp>>,
 ) -> Result<TrainOutcome, TrainError> {
-    cfg.validate()?;
-    let device = cfg.device().map_err(TrainError::Config)?;
-    let folder = RunFolder::open(FolderChecks::of(cfg), run_dir, resume, ddp.as_deref())?;
-    let (mut run, streams) = Run::restore_or_start(cfg, folder, ddp, device)?;
-    for epoch in run.state.epochs_done..cfg.schedule.epochs {
+    let plan = RunPlan::resolve(cfg)?;
+    train_planned(plan, run_dir, resume, progress, stop, ddp)
+}
+
+/// Trains a resolved run `plan` into `run_dir` ([`train_distributed`] once the configuration
+/// is resolved: nothing of it is opened or checked again).
+pub fn train_planned(
+    plan: RunPlan,
+    run_dir: &Path,
+    resume: bool,
+    progress: &mut dyn Progress,
+    stop: &AtomicBool,
+    ddp: Option<Arc<Ddp>>,
+) -> Result<TrainOutcome, TrainError> {
+    let folder = RunFolder::open(FolderChecks::of(&plan), run_dir, resume, ddp.as_deref())?;
+    let epochs = plan.schedule.epochs;
+    let (mut run, streams) = Run::restore_or_start(plan, folder, ddp)?;
+    for epoch in run.state.epochs_done..epochs {
         if let EpochEnd::Stopped = run.epoch(&streams, epoch, progress, stop)? {
             return run.stopped();
         }
@@ -208,17 +223,23 @@ impl<'a> Run<'a> {
     /// Phase 2, restore or start: the config recorded, the networks built and restored from
     /// the checkpoint or initialised, data-parallel started, label caches and the streams.
     fn restore_or_start(
-        cfg: &'a TrainConfig,
+        plan: RunPlan<'a>,
         folder: RunFolder<'a>,
         ddp: Option<Arc<Ddp>>,
-        device: tch::Device,
     ) -> Result<(Self, Streams), TrainError> {
-        let mut sources = open_sources(&cfg.data.dataset, &cfg.learning.procedure)?;
-        record_config(cfg, &folder, &sources)?;
-        let (procedure, state, sync_batch_norm) =
-            networks(cfg, &folder, sources.ignore_id, ddp.as_ref(), device)?;
+        record_config(&plan, &folder)?;
+        let (procedure, state, sync_batch_norm) = networks(&plan, &folder, ddp.as_ref())?;
+        let RunPlan {
+            network,
+            data,
+            learning,
+            schedule,
+            device,
+            mut sources,
+            ..
+        } = plan;
         let scratch = cache_labels(
-            &cfg.learning.procedure,
+            &learning.procedure,
             &folder,
             procedure.as_ref(),
             &mut sources,
@@ -226,24 +247,23 @@ impl<'a> Run<'a> {
         )?;
         let tb = tensorboard_writer(&folder)?;
         let input = procedure.student().net.input_convention();
-        let streams = Streams::open(&cfg.data, &cfg.schedule, &sources, input, ddp.as_deref())?;
+        let streams = Streams::open(data, schedule, &sources, input, ddp.as_deref())?;
         let val = sources
             .val
             .clone()
-            .map(|val| val_loader(&cfg.data, cfg.schedule.batch_size, val, input));
+            .map(|val| val_loader(data, schedule.batch_size, val, input));
         let step_log = crate::step_log::StepLog::open(folder.dir, folder.is_root, state.steps_done)
             .map_err(|e| step_log_error(folder.dir, e))?;
         let batches = streams.main.num_batches();
-        let steps_per_epoch = cfg
-            .schedule
+        let steps_per_epoch = schedule
             .max_steps_per_epoch
             .map_or(batches, |m| m.min(batches));
         let first_epoch = state.epochs_done;
         let run = Self {
-            schedule: &cfg.schedule,
-            network: &cfg.network,
-            optimizer: &cfg.learning.optimizer,
-            resize: cfg.data.resize,
+            schedule,
+            network,
+            optimizer: &learning.optimizer,
+            resize: data.resize,
             ddp,
             device,
             procedure,
@@ -252,8 +272,7 @@ impl<'a> Run<'a> {
             step_log,
             freiburg: sources.dataset.scores_heatnet(),
             trained_on: sources.trained_on.clone(),
-            select: cfg
-                .schedule
+            select: schedule
                 .select_by
                 .unwrap_or_else(|| default_select_metric(&sources.dataset)),
             steps_per_epoch,

@@ -79,39 +79,9 @@ impl Fp32Layout {
     }
 }
 
-/// "cpu", "cuda" (first GPU) or "cuda:N".
-pub fn parse_device(name: &str) -> Result<tch::Device, String> {
-    match name {
-        "cpu" => Ok(tch::Device::Cpu),
-        "cuda" => Ok(tch::Device::Cuda(0)),
-        _ => name
-            .strip_prefix("cuda:")
-            .and_then(|i| i.parse().ok())
-            .map(tch::Device::Cuda)
-            .ok_or_else(|| format!("unknown device `{name}` (expected cpu, cuda or cuda:N)")),
-    }
-}
-
-/// [`parse_device`], then checks libtorch can use it here, so a missing GPU is a clear error
-/// rather than a libtorch panic at the first tensor. (cuDNN's autotuner is the caller's: `rtf`
-/// turns it on for every command, `RTF_CUDNN_BENCHMARK=0` off; see [`cudnn_benchmark`].)
-pub fn available_device(name: &str) -> Result<tch::Device, String> {
-    let device = parse_device(name)?;
-    if let tch::Device::Cuda(index) = device {
-        let count = tch::Cuda::device_count();
-        if index as i64 >= count {
-            return Err(format!(
-                "device `{name}` is not available: libtorch sees {count} CUDA device(s) here{}",
-                if tch::Cuda::is_available() {
-                    ""
-                } else {
-                    " (no usable NVIDIA driver, or a CPU-only libtorch)"
-                }
-            ));
-        }
-    }
-    Ok(device)
-}
+/// Devices as users name them ("cpu", "cuda", "cuda:N"), found on this machine: rtf-eval's,
+/// where every command that runs a network (and `rtf report`) finds them.
+pub use rtf_eval::device::{available_device, parse_device};
 
 /// Whether cuDNN's autotuner runs (PyTorch's `torch.backends.cudnn.benchmark = True`): each
 /// convolution shape is timed once over cuDNN's algorithms and the fastest kept, which pays

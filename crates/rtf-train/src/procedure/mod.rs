@@ -4,27 +4,27 @@
 //! schedule) saved under its role; teachers are [`Frozen`]: eval mode, no gradient, never saved.
 
 mod adversarial;
+mod build;
 mod supervised;
 mod teacher_student;
 
 use std::collections::BTreeMap;
-use std::path::Path;
 
 use rtf_data::Batch;
-use rtf_models::{Masked, ModelConfig, Network};
+use rtf_models::{Masked, Network};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
+pub use crate::plan::teachers::check_teachers;
 pub use adversarial::Adversarial;
+pub use build::{adversarial_from, build_from, Spec};
 pub use supervised::Supervised;
 pub use teacher_student::TeacherStudent;
 
-use crate::config::{
-    Fp32Layout, Modality, OptimizerConfig, Precision, Procedure as ProcedureConfig, StepAt,
-    TrainConfig,
-};
+use crate::config::{Fp32Layout, OptimizerConfig, Precision, StepAt, TrainConfig};
 use crate::error::TrainError;
 use crate::loss::PseudoTargets;
 use crate::optim::Optimizer;
+use crate::plan::{CheckedTeacher, Teachers};
 
 /// Role of the segmentation network every procedure trains (and validation scores).
 pub const STUDENT: &str = "student";
@@ -172,26 +172,7 @@ pub struct Student {
 impl Student {
     /// Built under `seed` as the supervised loop always did (same initial weights).
     pub fn build(cfg: &TrainConfig, device: Device) -> Result<Self, TrainError> {
-        // Convolutional networks train channels-last in fp32 too; CMX (attention) was not
-        // measured so and keeps NCHW.
-        let convolutional = !matches!(cfg.network.model, ModelConfig::Cmx(_));
-        let layout = cfg
-            .compute
-            .fp32_layout
-            .unwrap_or_else(|| Fp32Layout::faster_on(device));
-        let trained = Trained::new(STUDENT, device, &cfg.learning.optimizer)
-            .fp32_layout(convolutional, layout)
-            .convolving(cfg.compute.bf16_convolutions_in_force())
-            .mixed(cfg.learning.precision)?;
-        let inner = rtf_models::build(&trained.vs.root(), &cfg.network.model)?;
-        trained.channels_last_weights();
-        Ok(Self {
-            trained,
-            net: Masked {
-                inner,
-                inputs: cfg.network.inputs,
-            },
-        })
+        Self::of(&cfg.network, &cfg.learning, &cfg.compute, device)
     }
 
     /// Training-mode logits for `input` [B, 4, H, W]; sizes that are not a multiple of the
@@ -237,23 +218,19 @@ pub struct Frozen {
 }
 
 impl Frozen {
-    /// Loads `weights` into a `model` network, checking it can teach `student`: same class
-    /// count and input convention (the batch is scaled once, for the student).
-    pub fn load(
-        model: &ModelConfig,
-        weights: &Path,
-        inputs: Modality,
-        student: &ModelConfig,
-        device: Device,
-    ) -> Result<Self, TrainError> {
-        check_teacher(model, weights, inputs, student)?;
+    /// Loads a teacher checked to teach the student ([`crate::plan::Teachers`]): its
+    /// weights into its network, behind its input mask.
+    pub fn load(teacher: &CheckedTeacher, device: Device) -> Result<Self, TrainError> {
         let mut vs = VarStore::new(device);
-        let inner = rtf_models::build(&vs.root(), model)?;
-        rtf_models::weights::load_checked(&mut vs, model, weights, false)?;
+        let inner = rtf_models::build(&vs.root(), &teacher.model)?;
+        rtf_models::weights::load_checked(&mut vs, &teacher.model, &teacher.path, false)?;
         vs.freeze();
         Ok(Self {
             _vs: vs,
-            net: Masked { inner, inputs },
+            net: Masked {
+                inner,
+                inputs: teacher.inputs,
+            },
         })
     }
 
@@ -261,78 +238,6 @@ impl Frozen {
     pub fn targets(&self, input: &Tensor, threshold: Option<f64>) -> PseudoTargets {
         let logits = tch::no_grad(|| forward_padded(&self.net, input, false).to_kind(Kind::Float));
         PseudoTargets::from_logits(&logits, threshold)
-    }
-}
-
-/// Checks, before anything is written, that the teachers of `procedure` given as files can
-/// teach its `student` (stage teachers are checked by their stage).
-pub fn check_teachers(
-    procedure: &ProcedureConfig,
-    student: &ModelConfig,
-) -> Result<(), TrainError> {
-    for teacher in procedure.teachers() {
-        if let crate::config::TeacherRef::Weights {
-            path,
-            model,
-            inputs,
-        } = teacher
-        {
-            check_teacher(model, path, *inputs, student)?;
-        }
-    }
-    Ok(())
-}
-
-fn check_teacher(
-    model: &ModelConfig,
-    weights: &Path,
-    inputs: Modality,
-    student: &ModelConfig,
-) -> Result<(), TrainError> {
-    {
-        let bad = |message: String| TrainError::Run {
-            path: weights.to_path_buf(),
-            message,
-        };
-        if model.num_classes() != student.num_classes() {
-            return Err(bad(format!(
-                "the teacher ({}) predicts {} classes, the student ({}) {}",
-                model.name(),
-                model.num_classes(),
-                student.name(),
-                student.num_classes()
-            )));
-        }
-        if model.input_convention() != student.input_convention() {
-            return Err(bad(format!(
-                "the teacher ({}) takes inputs scaled as {:?}, the student ({}) as {:?}; \
-                 pick a teacher and student of the same input convention",
-                model.name(),
-                model.input_convention(),
-                student.name(),
-                student.input_convention()
-            )));
-        }
-        if !weights.is_file() {
-            return Err(bad("teacher weights not found".into()));
-        }
-        // The file's own record of its network and inputs (absent in converted weights): a
-        // teacher behind another mask than it was trained with labels garbage, silently.
-        let meta = rtf_models::weights::read_weights_metadata(weights)?;
-        if let Some(saved) = meta.saved_config(weights)?.filter(|saved| saved != model) {
-            return Err(bad(format!(
-                "the file holds a {} network, the teacher is declared as {}",
-                saved.name(),
-                model.name()
-            )));
-        }
-        if let Some(saved) = meta.saved_inputs(weights)?.filter(|saved| *saved != inputs) {
-            return Err(bad(format!(
-                "the teacher was trained on `{saved}` inputs and would label frames seeing \
-                 `{inputs}`; give it its own inputs (`inputs: {saved}`, --teacher-inputs {saved})"
-            )));
-        }
-        Ok(())
     }
 }
 
@@ -387,37 +292,15 @@ pub trait Procedure {
     fn resume_at(&mut self, _steps_done: u64) {}
 }
 
-/// Builds the procedure `cfg` names, teachers resolved to weights files. The student is built
-/// first, right after the caller seeded libtorch, so supervised runs start from the weights
-/// they always did.
+/// Builds the procedure `cfg` names, its teachers (weights files) checked first
+/// ([`build_from`], which the trainer calls with its run plan's parts).
 pub fn build(
     cfg: &TrainConfig,
     ignore_id: Option<u8>,
     device: Device,
 ) -> Result<Box<dyn Procedure>, TrainError> {
-    Ok(match &cfg.learning.procedure {
-        ProcedureConfig::Supervised => Box::new(Supervised {
-            student: Student::build(cfg, device)?,
-            loss: cfg.learning.loss.build(ignore_id),
-        }),
-        ProcedureConfig::TeacherStudent {
-            day_teacher,
-            night_teacher,
-            targets,
-        } => {
-            let student = Student::build(cfg, device)?;
-            Box::new(TeacherStudent {
-                student,
-                day_teacher: labeller(cfg, day_teacher, ignore_id, device)?,
-                night_teacher: night_teacher
-                    .as_ref()
-                    .map(|t| labeller(cfg, t, ignore_id, device))
-                    .transpose()?,
-                targets: targets.clone(),
-            })
-        }
-        ProcedureConfig::Adversarial { .. } => Box::new(build_adversarial(cfg, ignore_id, device)?),
-    })
+    let teachers = Teachers::check(&cfg.learning.procedure, &cfg.network.model)?;
+    build_from(&Spec::of(cfg, &teachers), ignore_id, device)
 }
 
 /// [`build`] of an adversarial `cfg`, as its own type (whose two step halves can be driven
@@ -427,62 +310,14 @@ pub fn build_adversarial(
     ignore_id: Option<u8>,
     device: Device,
 ) -> Result<Adversarial, TrainError> {
-    let ProcedureConfig::Adversarial {
-        day_teacher,
-        night_teacher,
-        targets,
-        critic,
-    } = &cfg.learning.procedure
-    else {
-        return Err(TrainError::Config(
-            "not an adversarial configuration".into(),
-        ));
-    };
-    let student = Student::build(cfg, device)?;
-    Adversarial::new(
-        student,
-        labeller(cfg, day_teacher, ignore_id, device)?,
-        night_teacher
-            .as_ref()
-            .map(|t| labeller(cfg, t, ignore_id, device))
-            .transpose()?,
-        targets.clone(),
-        critic.clone(),
-        device,
-    )
-}
-
-/// A teacher of `cfg` loaded to label its frames (live, or into the label cache).
-fn labeller(
-    cfg: &TrainConfig,
-    teacher: &crate::config::TeacherRef,
-    ignore_id: Option<u8>,
-    device: Device,
-) -> Result<Labeller, TrainError> {
-    let cached = match &cfg.learning.procedure {
-        ProcedureConfig::TeacherStudent { targets, .. }
-        | ProcedureConfig::Adversarial { targets, .. } => targets.cache,
-        ProcedureConfig::Supervised => false,
-    };
-    match teacher {
-        crate::config::TeacherRef::Weights {
-            path,
-            model,
-            inputs,
-        } => Ok(Labeller {
-            teacher: Frozen::load(model, path, *inputs, &cfg.network.model, device)?,
-            cached: cached.then(|| ignore_id.map_or(crate::loss::PSEUDO_IGNORE, i64::from)),
-        }),
-        crate::config::TeacherRef::Stage(name) => Err(TrainError::Config(format!(
-            "teacher stage `{name}` was not resolved to its weights (a stage teacher only \
-             works inside a multi-stage run)"
-        ))),
-    }
+    let teachers = Teachers::check(&cfg.learning.procedure, &cfg.network.model)?;
+    adversarial_from(&Spec::of(cfg, &teachers), ignore_id, device)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rtf_models::ModelConfig;
 
     /// One fp32 SGD step of a randomly initialised RTFNet-18, channels-last and NCHW, from the
     /// same weights on the same batch: every variable's update the same up to rounding (the

@@ -6,52 +6,20 @@ use std::sync::Arc;
 use rtf_models::Network;
 
 use super::run_folder::RunFolder;
-use super::streams::Sources;
 use crate::checkpoint::{self, TrainState};
-use crate::config::{NetworkConfig, Procedure as ProcedureConfig, TrainConfig};
+use crate::config::{NetworkConfig, Procedure as ProcedureConfig};
 use crate::ddp::Ddp;
 use crate::error::TrainError;
+use crate::plan::{RunPlan, Sources};
 use crate::procedure::{self, Procedure};
 use crate::run::{self as rundir, run_error, CONFIG_FILE, LOG_FILE};
 
-/// Checks the data against the model and writes `config.json` with the data's fingerprint
-/// (which data the run used: a resume on changed data says so) and the number of processes.
-pub(super) fn record_config(
-    cfg: &TrainConfig,
-    folder: &RunFolder,
-    sources: &Sources,
-) -> Result<(), TrainError> {
-    let classes = sources.main.class_set().clone();
-    if classes.len() as i64 != cfg.network.model.num_classes() {
-        return Err(TrainError::Config(format!(
-            "the dataset has {} classes but the model is configured for {}",
-            classes.len(),
-            cfg.network.model.num_classes()
-        )));
-    }
-    procedure::check_teachers(&cfg.learning.procedure, &cfg.network.model)?;
-    let mut cfg_written = cfg.clone();
-    let root = sources.dataset.root();
-    let fingerprint = rtf_data::fingerprint::fingerprint_opened(&sources.dataset)?;
-    if let Some(before) = cfg
-        .data
-        .fingerprint
-        .as_ref()
-        .filter(|f| f.hash != fingerprint.hash)
-    {
-        eprintln!(
-            "warning: {} changed since this run started (data hash {} then, {} now)",
-            root.display(),
-            &before.hash[..12.min(before.hash.len())],
-            &fingerprint.hash[..12.min(fingerprint.hash.len())]
-        );
-    }
-    cfg_written.data.fingerprint = Some(fingerprint);
-    if folder.world.is_some() {
-        cfg_written.compute.world_size = folder.world;
-    }
+/// Writes `config.json` (rank 0): the configuration the plan records, with the data's
+/// fingerprint (which data the run used: a resume on changed data says so) and the number of
+/// processes. Everything in it was resolved and checked by the plan.
+pub(super) fn record_config(plan: &RunPlan, folder: &RunFolder) -> Result<(), TrainError> {
     if folder.is_root {
-        rundir::write_json_atomic(&folder.dir.join(CONFIG_FILE), &cfg_written)?;
+        rundir::write_json_atomic(&folder.dir.join(CONFIG_FILE), &plan.record(folder.world))?;
     }
     Ok(())
 }
@@ -196,24 +164,29 @@ pub(super) type Networks = (
     Option<rtf_models::SyncBatchNorm>,
 );
 
-/// The procedure's networks and progress: built from `network` and `learning` (libtorch
-/// seeded with the run's seed first), restored from the checkpoint or started, and
-/// data-parallel started (with `network.sync_batch_norm`, the guard that keeps it).
+/// The procedure's networks and progress: built from the plan's `network`, `learning` and
+/// checked teachers (libtorch seeded with the run's seed first), restored from the checkpoint
+/// or started, and data-parallel started (with `network.sync_batch_norm`, the guard that keeps
+/// it).
 pub(super) fn networks(
-    cfg: &TrainConfig,
+    plan: &RunPlan,
     folder: &RunFolder,
-    ignore_id: Option<u8>,
     ddp: Option<&Arc<Ddp>>,
-    device: tch::Device,
 ) -> Result<Networks, TrainError> {
-    tch::manual_seed(cfg.schedule.seed as i64);
-    let mut procedure = procedure::build(cfg, ignore_id, device)?;
+    tch::manual_seed(plan.schedule.seed as i64);
+    let spec = procedure::Spec {
+        network: plan.network,
+        learning: plan.learning,
+        compute: plan.compute,
+        teachers: &plan.teachers,
+    };
+    let mut procedure = procedure::build_from(&spec, plan.sources.ignore_id, plan.device)?;
     let state = match folder.resume {
         true => restore(folder, procedure.as_mut())?,
-        false => start(&cfg.network, folder, procedure.as_mut())?,
+        false => start(plan.network, folder, procedure.as_mut())?,
     };
     procedure.resume_at(state.steps_done);
     let sync_batch_norm =
-        start_data_parallel(cfg.network.sync_batch_norm, ddp, procedure.as_mut())?;
+        start_data_parallel(plan.network.sync_batch_norm, ddp, procedure.as_mut())?;
     Ok((procedure, state, sync_batch_norm))
 }

@@ -2,32 +2,25 @@
 //! every check that can refuse the run before it writes, and the lock ([`RunFolder`]).
 use std::path::{Path, PathBuf};
 
-use rtf_models::ModelConfig;
-
 use crate::checkpoint;
-use crate::config::{Procedure as ProcedureConfig, TrainConfig};
 use crate::ddp::Ddp;
 use crate::error::TrainError;
-use crate::procedure;
+use crate::plan::RunPlan;
 use crate::run::{self as rundir, run_error, CHECKPOINT_FILE};
 
 /// What opening the run folder checks the configuration for (phase 1): the number of
-/// processes the run was trained by, its epochs (a resume must not end before where it
-/// stands), and the teachers given as files against the student.
-pub(super) struct FolderChecks<'a> {
+/// processes the run was trained by, and its epochs (a resume must not end before where it
+/// stands). The teachers were checked by the plan.
+pub(super) struct FolderChecks {
     pub(super) world_size: Option<usize>,
     pub(super) epochs: usize,
-    pub(super) procedure: &'a ProcedureConfig,
-    pub(super) student: &'a ModelConfig,
 }
 
-impl<'a> FolderChecks<'a> {
-    pub(super) fn of(cfg: &'a TrainConfig) -> Self {
+impl FolderChecks {
+    pub(super) fn of(plan: &RunPlan) -> Self {
         Self {
-            world_size: cfg.compute.world_size,
-            epochs: cfg.schedule.epochs,
-            procedure: &cfg.learning.procedure,
-            student: &cfg.network.model,
+            world_size: plan.compute.world_size,
+            epochs: plan.schedule.epochs,
         }
     }
 }
@@ -70,7 +63,6 @@ impl<'a> RunFolder<'a> {
                 "already holds a run; use --resume to continue it or choose another output folder",
             ));
         }
-        procedure::check_teachers(checks.procedure, checks.student)?;
         let lock = match is_root {
             true => {
                 std::fs::create_dir_all(dir)

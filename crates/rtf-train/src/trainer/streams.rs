@@ -1,110 +1,14 @@
-//! Where a run's frames come from and the loaders over them: the dataset opened and split by
-//! what the procedure reads ([`Sources`]), the training and validation loaders, and the
-//! batches a run trains on ([`Streams`]).
-use std::path::Path;
+//! The loaders over a run's frames (the plan's [`Sources`]): the training and validation
+//! loaders, and the batches a run trains on ([`Streams`]).
 use std::sync::Arc;
 
-use rtf_core::Daytime;
-use rtf_data::frame::Subset;
-use rtf_data::{FrameSource, Loader, LoaderConfig, TrainedOn};
+use rtf_data::{Loader, LoaderConfig};
 use rtf_eval::EvalOptions;
 
-use crate::config::{
-    DataConfig, DatasetConfig, Procedure as ProcedureConfig, ScheduleConfig, TrainConfig,
-};
+use crate::config::{DataConfig, ScheduleConfig, TrainConfig};
 use crate::ddp::Ddp;
 use crate::error::TrainError;
-use crate::run as rundir;
-
-pub(super) type Source = Arc<dyn FrameSource>;
-
-/// Where a run's frames come from: the main stream (labelled frames for supervised training,
-/// day frames for the label-free procedures), the night stream if the procedure uses one, and
-/// validation (never the test split).
-pub(super) struct Sources {
-    pub(super) main: Source,
-    pub(super) night: Option<Source>,
-    pub(super) val: Option<Source>,
-    pub(super) ignore_id: Option<u8>,
-    /// The dataset, opened once.
-    pub(super) dataset: rtf_data::Dataset,
-    /// The class set and thermal rule the weights record (rtf_data::trained_on).
-    pub(super) trained_on: TrainedOn,
-}
-
-/// A dataset's training frames, validation frames, the opened dataset (its layout says
-/// whether validation scores HeatNet's convention; its fingerprint goes in config.json), and
-/// what the weights trained on it record.
-type Opened = (Source, Option<Source>, rtf_data::Dataset, TrainedOn);
-
-/// A dataset's training frames (labelled ones when `labels`) and the rest of [`Opened`]: the
-/// root opened once by rtf-data as the kind the run recorded. A root whose classes differ from
-/// those recorded when the run started is refused.
-fn open_dataset(dataset: &DatasetConfig, labels: bool) -> Result<Opened, TrainError> {
-    let choice = dataset.choice();
-    let opened = rtf_data::Dataset::open_recorded(dataset.root(), choice.kind)?;
-    let trained_on = opened.trained_on();
-    if let Some(recorded) = dataset.recorded() {
-        let hint = "the dataset's classes changed since the run started (its config.json \
-                    records them): restore them, or start a new run";
-        recorded.check_data(
-            Path::new(rundir::CONFIG_FILE),
-            opened.origin(),
-            &trained_on.classes,
-            hint,
-        )?;
-    }
-    let frames = opened.training(&choice, labels)?;
-    Ok((frames.train, frames.val, opened, trained_on))
-}
-
-/// The run's frame streams: `dataset` opened, split by what `procedure` reads.
-pub(super) fn open_sources(
-    dataset: &DatasetConfig,
-    procedure: &ProcedureConfig,
-) -> Result<Sources, TrainError> {
-    let labels = procedure.reads_labels();
-    let (train, val, dataset, trained_on) = open_dataset(dataset, labels)?;
-    let ignore_id = train.class_set().ignore_id;
-    if labels {
-        return Ok(Sources {
-            main: train,
-            night: None,
-            val,
-            ignore_id,
-            dataset,
-            trained_on,
-        });
-    }
-    let day: Source = Arc::new(Subset::of_daytime(train.clone(), Daytime::Day, false));
-    if day.is_empty() {
-        return Err(TrainError::Config(
-            "the training frames hold no day frame (MF: names ending in D; Freiburg: paths without `night`)".into(),
-        ));
-    }
-    let night = match procedure.uses_night() {
-        true => {
-            let night: Source = Arc::new(Subset::of_daytime(train, Daytime::Night, false));
-            if night.is_empty() {
-                return Err(TrainError::Config(format!(
-                    "the {} procedure needs night frames; the training frames hold none",
-                    procedure.name()
-                )));
-            }
-            Some(night)
-        }
-        false => None,
-    };
-    Ok(Sources {
-        // Unlabelled subsets of MF gain an ignore id: label caches mark low confidence with it.
-        ignore_id: day.class_set().ignore_id,
-        main: day,
-        night,
-        val,
-        dataset,
-        trained_on,
-    })
-}
+use crate::plan::{open_sources, Source, Sources};
 
 fn loader(
     data: &DataConfig,
