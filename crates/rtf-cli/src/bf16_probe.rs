@@ -115,7 +115,9 @@ pub fn measure(work: Work) -> Result<Measured> {
             };
             probe::measure_inference(kernels)
         }
-        Work::Training => rtf_train::kernels::measure_training(policy.bf16.in_force(None)),
+        Work::Training => {
+            rtf_train::kernels::measure_training(policy.bf16.in_force(None), policy.winograd)
+        }
         Work::Conv3x3Training => probe::measure_conv3x3_training(),
     };
     measured.map_err(anyhow::Error::msg)

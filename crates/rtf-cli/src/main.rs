@@ -65,11 +65,9 @@ fn main() {
     tch::Cuda::cudnn_set_benchmark(rtf_train::config::cudnn_benchmark(|v| {
         std::env::var(v).ok()
     }));
-    // The kernel policy is read here, once: the Winograd forms in force for the command's
-    // training steps (folds take theirs, and how bf16 folds compute their convolutions, from
-    // the kernels the commands pass in and record).
-    let result = bf16_probe::policy()
-        .and_then(|policy| rtf_models::winograd::with_forms(policy.winograd, || run(cli.command)));
+    // The kernel policy is read where each command needs it (its folds' kernels, a run's
+    // recorded choices), once per command; a bad variable stops here, naming it.
+    let result = bf16_probe::policy().and_then(|_| run(cli.command));
     if let Err(err) = result {
         eprintln!("error: {err:#}");
         std::process::exit(1);

@@ -322,7 +322,8 @@ mod tests {
         let net = crate::build(&kept_vs.root(), &cfg).unwrap();
         let side = 2 * net.size_multiple().max(16);
         let x = Tensor::rand([1, 4, side, side + net.size_multiple()], FLOAT_CPU);
-        let kept = InferenceNet::new(net, precision)
+        let options = crate::test_util::fold_options(precision);
+        let kept = InferenceNet::fold(net, &options)
             .unwrap()
             .forward(&x)
             .unwrap();
@@ -331,7 +332,7 @@ mod tests {
         vs.copy(&kept_vs).unwrap();
         let total = vs.variables().values().map(|t| t.numel() as i64 * 4).sum();
         let (fast, released) =
-            InferenceNet::releasing_plain_weights(net, &FoldOptions::new(precision), &vs).unwrap();
+            InferenceNet::releasing_plain_weights(net, &options, &vs).unwrap();
         (kept, fast.forward(&x).unwrap(), released, total)
     }
 

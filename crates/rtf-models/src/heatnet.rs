@@ -678,13 +678,13 @@ mod tests {
 
     #[test]
     fn folded_psp_module_is_the_same_function() {
-        use crate::fast::{max_relative_difference, FoldOptions, Precision, FUSED_FP32_TOLERANCE};
+        use crate::fast::{max_relative_difference, Precision, FUSED_FP32_TOLERANCE};
         use crate::layers::to_channels_last;
         tch::manual_seed(11);
         for stage_bias in [false, true] {
             let vs = nn::VarStore::new(Device::Cpu);
             let psp = psp_for_test(vs.root(), 16, 8, stage_bias);
-            let fold = |precision| psp.folded(&Folder::new(&FoldOptions::new(precision)));
+            let fold = |p| psp.folded(&Folder::new(&crate::test_util::fold_options(p)));
             // Weights of unit gain and inputs with per-channel offsets, so that every bin's
             // prior weighs as much as the input's own columns (the reference init, std 0.02,
             // would leave the priors too small for a lost bin to show).

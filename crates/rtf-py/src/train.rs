@@ -102,6 +102,12 @@ pub fn train(
     let layout = env.get("RTF_TRAIN_LAYOUT").map_or("", String::as_str);
     let layout = Fp32Layout::parse(layout).map_err(|e| input(format!("RTF_TRAIN_LAYOUT: {e}")))?;
     rtf_train::kernels::settle_fp32_layout(&mut plan.cfg, plan.resume, layout);
+    let kernels = rtf_eval::kernels::KernelPolicy::from_vars(|var| env.get(var).cloned())
+        .map_err(|e| input(e.to_string()))?;
+    let winograd_asked = env
+        .contains_key(rtf_eval::kernels::WINOGRAD_VAR)
+        .then_some(kernels.winograd);
+    rtf_train::kernels::settle_winograd(&mut plan.cfg, winograd_asked);
     // cuDNN's autotuner for a run on CUDA, as `rtf` sets it (RTF_CUDNN_BENCHMARK=0: off).
     if plan
         .cfg

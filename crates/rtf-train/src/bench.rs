@@ -36,6 +36,9 @@ pub struct TrainBenchOptions {
     /// bf16 on the CPU: the convolutions (None: [`crate::config::ComputeConfig::bf16_convolutions_in_force`]'s
     /// default; `rtf bench train` passes the choice `rtf train` would make).
     pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
+    /// The Winograd forms the training convolutions may take (`rtf bench train` passes the
+    /// policy's, as `rtf train` records it).
+    pub winograd: rtf_models::winograd::Forms,
 }
 
 /// The operators one step runs, part by part ([`rtf_models::aten::count_ops`]): the host's
@@ -195,6 +198,7 @@ fn bench_config(opts: &TrainBenchOptions) -> Result<TrainConfig, TrainError> {
     cfg.schedule.batch_size = opts.batch;
     cfg.compute.fp32_layout = opts.fp32_layout;
     cfg.compute.bf16_convolutions = opts.bf16_convolutions;
+    cfg.compute.winograd = opts.winograd;
     cfg.compute.device = match opts.device {
         Device::Cpu => "cpu".into(),
         Device::Cuda(i) => format!("cuda:{i}"),
@@ -289,6 +293,7 @@ mod tests {
             count_ops: false,
             fp32_layout: None,
             bf16_convolutions: None,
+            winograd: rtf_models::winograd::Forms::All,
         }
     }
 

@@ -101,6 +101,17 @@ pub fn settle_fp32_layout(cfg: &mut RunConfig, resume: bool, asked: Option<Fp32L
     }
 }
 
+/// Records the Winograd forms every stage's training convolutions may take: `asked` (the
+/// caller's choice: `RTF_WINOGRAD` for rtf's binaries, where set) where given, else what the
+/// stage recorded (all forms for a new run or one recorded before the choice was).
+pub fn settle_winograd(cfg: &mut RunConfig, asked: Option<rtf_models::winograd::Forms>) {
+    if let Some(forms) = asked {
+        for stage in cfg.stages_mut() {
+            stage.compute.winograd = forms;
+        }
+    }
+}
+
 fn trains_bf16_on_cpu(stage: &TrainConfig) -> bool {
     stage.learning.precision == Precision::Bf16
         && available_device(&stage.compute.device).is_ok_and(|d| d == Device::Cpu)
@@ -276,6 +287,21 @@ mod tests {
         );
         let failed = choose_training_convolutions(&policy(None, true), || Err("x".into()));
         assert_eq!(failed.unwrap().0, Bf16Convolutions::Native);
+    }
+
+    #[test]
+    fn the_winograd_forms_asked_are_recorded_and_a_record_stands_otherwise() {
+        use rtf_models::winograd::Forms;
+        let forms = |cfg: &RunConfig| cfg.stages()[0].1.compute.winograd;
+        let mut new = run(Precision::Fp32, "cpu");
+        settle_winograd(&mut new, None);
+        assert_eq!(forms(&new), Forms::All, "a new run: every form");
+        settle_winograd(&mut new, Some(Forms::Off));
+        assert_eq!(forms(&new), Forms::Off, "asked");
+        settle_winograd(&mut new, None);
+        assert_eq!(forms(&new), Forms::Off, "recorded, kept on resume");
+        let json = serde_json::to_string(&new).unwrap();
+        assert!(json.contains(r#""winograd":"off""#), "{json}");
     }
 
     #[test]

@@ -93,6 +93,7 @@ pub fn run(args: Args) -> Result<()> {
         count_ops: args.count_ops,
         fp32_layout: layout,
         bf16_convolutions: Some(convolutions),
+        winograd: policy.winograd,
     })?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);

@@ -32,6 +32,8 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("{line}");
     }
     rtf_train::kernels::settle_fp32_layout(&mut plan.cfg, plan.resume, layout_asked()?);
+    let winograd_asked = std::env::var_os(rtf_eval::kernels::WINOGRAD_VAR).map(|_| policy.winograd);
+    rtf_train::kernels::settle_winograd(&mut plan.cfg, winograd_asked);
     prepare_arithmetic(&plan.cfg, &policy.bf16, root)?;
     let stop = stop_on_signals();
     if root {

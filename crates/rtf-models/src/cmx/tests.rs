@@ -274,7 +274,8 @@ fn the_fast_path_computes_the_plain_logits() {
         let vs = nn::VarStore::new(Device::Cpu);
         let net = b0_with_random_norms(&vs, 9);
         let plain = tch::no_grad(|| net.forward_t(&x, false));
-        let fast = InferenceNet::new(Box::new(net), precision).unwrap();
+        let options = crate::test_util::fold_options(precision);
+        let fast = InferenceNet::fold(Box::new(net), &options).unwrap();
         assert!(fast.is_fused());
         let logits = fast.forward(&x).unwrap();
         assert_eq!(logits.kind(), Kind::Float);

@@ -26,6 +26,12 @@ pub struct ComputeConfig {
     /// recorded ([`Fp32Layout::faster_on`] the device then).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fp32_layout: Option<Fp32Layout>,
+    /// The Winograd forms the run's training convolutions may take (rtf-models `winograd`:
+    /// F(4×4, 3×3) for wide fp32 channels-last 3×3 layers): the caller's choice
+    /// (`RTF_WINOGRAD` for rtf's binaries, [`crate::kernels::settle_winograd`]), recorded so
+    /// that a resume computes the same sums. Absent from runs recorded before it: all forms.
+    #[serde(default)]
+    pub winograd: rtf_models::winograd::Forms,
 }
 
 impl ComputeConfig {

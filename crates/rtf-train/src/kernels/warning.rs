@@ -64,8 +64,12 @@ pub fn training_key(probe: &Probe, convolutions: Bf16Convolutions) -> String {
 }
 
 /// [`Work::Training`] timed in this process: an MFNet training step at 320×240, batch 2
-/// ([`crate::bench::bench_train`]), fp32 then bf16 with `convolutions`.
-pub fn measure_training(convolutions: Bf16Convolutions) -> Result<Measured, String> {
+/// ([`crate::bench::bench_train`]), fp32 then bf16 with `convolutions`, the training
+/// convolutions within the Winograd `forms`.
+pub fn measure_training(
+    convolutions: Bf16Convolutions,
+    forms: rtf_models::winograd::Forms,
+) -> Result<Measured, String> {
     let seconds = |precision| -> Result<f64, String> {
         let opts = crate::bench::TrainBenchOptions {
             model: "mfnet".into(),
@@ -79,6 +83,7 @@ pub fn measure_training(convolutions: Bf16Convolutions) -> Result<Measured, Stri
             count_ops: false,
             fp32_layout: None,
             bf16_convolutions: Some(convolutions),
+            winograd: forms,
         };
         let report = crate::bench::bench_train(&opts).map_err(|e| e.to_string())?;
         Ok(report.step_s)
@@ -87,11 +92,12 @@ pub fn measure_training(convolutions: Bf16Convolutions) -> Result<Measured, Stri
     Ok(Measured::now(fp32, seconds(Precision::Bf16)?))
 }
 
-/// [`Work::Training`] with `convolutions`, cached by `probe` under [`training_key`] (the key
-/// `rtf` uses), measured in this process where there is none.
+/// [`Work::Training`] with `convolutions` and every Winograd form (a run's default), cached by
+/// `probe` under [`training_key`] (the key `rtf` uses), measured in this process where there is
+/// none.
 pub fn measured_training(probe: &Probe, convolutions: Bf16Convolutions) -> Probed {
     probe.measured(&training_key(probe, convolutions), || {
-        measure_training(convolutions)
+        measure_training(convolutions, rtf_models::winograd::Forms::All)
     })
 }
 

@@ -53,6 +53,7 @@ impl Adversarial {
         // The critic trains in the student's arithmetic.
         let critic = Trained::new(CRITIC, device, &options.optimizer)
             .convolving(student.trained.bf16_convolutions)
+            .winograd_forms(student.trained.winograd)
             .mixed(student.trained.precision)?;
         let mut critic = critic;
         let critic_net = Critic::new(

@@ -52,6 +52,7 @@ impl Student {
         let trained = super::Trained::new(super::STUDENT, device, &learning.optimizer)
             .fp32_layout(convolutional, layout)
             .convolving(compute.bf16_convolutions_in_force())
+            .winograd_forms(compute.winograd)
             .mixed(learning.precision)?;
         let inner = rtf_models::build(&trained.vs.root(), &network.model)?;
         trained.channels_last_weights();

@@ -46,6 +46,9 @@ pub struct Trained {
     /// bf16 on the CPU: how the convolutions of this network's autocast regions are computed
     /// (the run's recorded choice, [`crate::config::ComputeConfig::bf16_convolutions_in_force`]).
     pub bf16_convolutions: rtf_amp::Bf16Convolutions,
+    /// The Winograd forms this network's training convolutions may take (the run's recorded
+    /// [`crate::config::ComputeConfig::winograd`]).
+    pub winograd: rtf_models::winograd::Forms,
 }
 
 impl Trained {
@@ -60,7 +63,14 @@ impl Trained {
             ddp: None,
             fp32_channels_last: false,
             bf16_convolutions: rtf_amp::Bf16Convolutions::Native,
+            winograd: rtf_models::winograd::Forms::All,
         }
+    }
+
+    /// The same network with its training convolutions limited to the Winograd `forms`.
+    pub fn winograd_forms(mut self, forms: rtf_models::winograd::Forms) -> Self {
+        self.winograd = forms;
+        self
     }
 
     /// The same network with its CPU bf16 regions' convolutions computed as `convolutions`
@@ -132,6 +142,11 @@ impl Trained {
     /// autocast region to bf16 / fp16 on the network's device (on the CPU, with this network's
     /// [`bf16_convolutions`](Self::bf16_convolutions)).
     pub fn autocast<T>(&self, f: impl FnOnce() -> T) -> T {
+        // The run's Winograd forms for the convolutions built inside (rtf-models `winograd`).
+        rtf_models::winograd::with_forms(self.winograd, || self.in_arithmetic(f))
+    }
+
+    fn in_arithmetic<T>(&self, f: impl FnOnce() -> T) -> T {
         match self.precision.autocast_kind() {
             None => f(),
             Some(kind) => {
@@ -387,6 +402,22 @@ mod tests {
         cfg.learning.precision = precision;
         cfg.compute.bf16_convolutions = convolutions;
         Student::build(&cfg, Device::Cpu).unwrap()
+    }
+
+    /// The run's recorded Winograd forms are those its training convolutions may take: inside
+    /// the network's forward region, not outside it.
+    #[test]
+    fn the_recorded_winograd_forms_reach_the_steps_regions() {
+        use rtf_models::onednn::Geometry;
+        use rtf_models::winograd::{form, Form, Forms};
+        for (forms, expected) in [(Forms::All, Some(Form::F43)), (Forms::Off, None)] {
+            let mut cfg = TrainConfig::mfnet_paper("unused".into());
+            cfg.compute.winograd = forms;
+            let s = Student::build(&cfg, Device::Cpu).unwrap();
+            let inside = s.trained.autocast(|| form(3, Geometry::SAME_3X3, 512, 512));
+            assert_eq!(inside, expected, "{forms:?}");
+        }
+        assert_eq!(form(3, Geometry::SAME_3X3, 512, 512), Some(Form::F43), "outside");
     }
 
     /// The run's recorded choice of bf16 convolutions is the one its autocast regions compute
