@@ -331,8 +331,7 @@ mod tests {
         let net = crate::build(&vs.root(), &cfg).unwrap();
         vs.copy(&kept_vs).unwrap();
         let total = vs.variables().values().map(|t| t.numel() as i64 * 4).sum();
-        let (fast, released) =
-            InferenceNet::releasing_plain_weights(net, &options, &vs).unwrap();
+        let (fast, released) = InferenceNet::releasing_plain_weights(net, &options, &vs).unwrap();
         (kept, fast.forward(&x).unwrap(), released, total)
     }
 

@@ -20,7 +20,8 @@
 //! [`MIN_CHANNELS_F43`] is where the vectorised form overtakes oneDNN's direct kernels (the
 //! lab's `winograd_layers` measures it per shape; docs/src/speed-by-kind.md).
 //!
-//! bf16 inference can take the same forms over bf16 maps ([`bf16_applies`]): the maps are read
+//! bf16 inference can take the same forms over bf16 maps (where the fold's
+//! [`crate::fast::InferenceKernels::bf16_winograd`] says so): the maps are read
 //! and written in bf16 (F(4×4, 3×3) converts them inside its transforms), the weights are the
 //! bf16-rounded folded weights, and the arithmetic is float32. Where a CPU's bf16 kernels do no
 //! more multiply-adds per cycle than its fp32 ones (Intel AVX-512 without AMX, where oneDNN's

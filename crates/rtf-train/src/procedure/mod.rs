@@ -417,7 +417,11 @@ mod tests {
             let inside = s.trained.autocast(|| form(3, Geometry::SAME_3X3, 512, 512));
             assert_eq!(inside, expected, "{forms:?}");
         }
-        assert_eq!(form(3, Geometry::SAME_3X3, 512, 512), Some(Form::F43), "outside");
+        assert_eq!(
+            form(3, Geometry::SAME_3X3, 512, 512),
+            Some(Form::F43),
+            "outside"
+        );
     }
 
     /// The run's recorded choice of bf16 convolutions is the one its autocast regions compute
