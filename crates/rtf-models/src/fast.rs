@@ -146,30 +146,35 @@ impl InferenceNet {
     /// the place of the trained network. Networks without a folded path run their plain eval
     /// forward (still without autograd), in fp32 only.
     pub fn fold(net: Box<dyn Network>, options: &FoldOptions) -> Result<Self, ModelError> {
-        Self::fold_with(net, &Folder::new(options))
+        let folded = net.folded(&Folder::new(options));
+        Self::of(net, folded, options)
     }
 
-    fn fold_with(net: Box<dyn Network>, folder: &Folder) -> Result<Self, ModelError> {
-        let options = *folder.options();
-        match net.folded(folder) {
-            Some(folded) => Ok(Self {
-                net: folded,
-                options,
-                fused: true,
-            }),
-            None if options.precision != Precision::Fp32 => Err(ModelError::InvalidConfig {
-                network: net.name(),
-                reason: format!(
-                    "no fused inference path, so no {} inference",
-                    options.precision
-                ),
-            }),
-            None => Ok(Self {
-                net,
-                options,
-                fused: false,
-            }),
-        }
+    /// The inference net of a trained `net` and its `folded` form, if it has one (else `net`
+    /// itself, in fp32 only).
+    fn of(
+        net: Box<dyn Network>,
+        folded: Option<Box<dyn Network>>,
+        options: &FoldOptions,
+    ) -> Result<Self, ModelError> {
+        let (net, fused) = match folded {
+            Some(folded) => (folded, true),
+            None if options.precision != Precision::Fp32 => {
+                return Err(ModelError::InvalidConfig {
+                    network: net.name(),
+                    reason: format!(
+                        "no fused inference path, so no {} inference",
+                        options.precision
+                    ),
+                })
+            }
+            None => (net, false),
+        };
+        Ok(Self {
+            net,
+            options: *options,
+            fused,
+        })
     }
 
     /// [`fold`](Self::fold) over a network whose weights are `vs`'s, freeing every plain
@@ -184,18 +189,14 @@ impl InferenceNet {
     ) -> Result<(Self, Released), ModelError> {
         let plain = PlainWeights::record(vs);
         let recorded = plain.recorded();
-        let folder = Folder::releasing(options, &recorded);
-        let Some(folded) = net.folded(&folder) else {
-            return Ok((Self::fold_with(net, &folder)?, Released::default()));
+        let folded = net.folded(&Folder::releasing(options, &recorded));
+        // Released while the trained network still holds its handles, as recorded; a network
+        // without a folded form runs on its plain weights, so nothing is released from it.
+        let released = match folded.is_some() {
+            true => plain.release_unheld(),
+            false => Released::default(),
         };
-        // Released while the trained network still holds its handles, as recorded.
-        let released = plain.release_unheld();
-        drop(net);
-        let fast = Self {
-            net: folded,
-            options: *options,
-            fused: true,
-        };
+        let fast = Self::of(net, folded, options)?;
         Ok((fast, released))
     }
 
