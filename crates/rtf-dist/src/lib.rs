@@ -91,8 +91,8 @@ pub struct DistEnv {
 }
 
 impl DistEnv {
-    /// The launcher's variables through `var` (a binary passes its environment:
-    /// `|name| std::env::var(name).ok()`). `Ok(None)` when `WORLD_SIZE` is unset (a plain
+    /// The launcher's variables through `var` (a binary passes a lookup of its own
+    /// environment; this crate reads none). `Ok(None)` when `WORLD_SIZE` is unset (a plain
     /// run); an error naming the variable when one is missing or malformed.
     pub fn from_vars(var: impl Fn(&str) -> Option<String>) -> Result<Option<Self>, DistError> {
         let Some(world) = var("WORLD_SIZE") else {

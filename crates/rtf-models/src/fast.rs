@@ -317,14 +317,13 @@ mod tests {
     /// generator meanwhile): folded for `precision` as it is, and folded while releasing (as
     /// rtf's commands load a network). Their logits on one input, what the release freed, and
     /// the plain weights' bytes.
-    fn fold_and_release(name: &str, precision: Precision) -> (Tensor, Tensor, Released, i64) {
+    fn fold_and_release(name: &str, options: &FoldOptions) -> (Tensor, Tensor, Released, i64) {
         let cfg = crate::ModelConfig::from_name(name, 5).unwrap();
         let kept_vs = tch::nn::VarStore::new(Device::Cpu);
         let net = crate::build(&kept_vs.root(), &cfg).unwrap();
         let side = 2 * net.size_multiple().max(16);
         let x = Tensor::rand([1, 4, side, side + net.size_multiple()], FLOAT_CPU);
-        let options = crate::test_util::fold_options(precision);
-        let kept = InferenceNet::fold(net, &options)
+        let kept = InferenceNet::fold(net, options)
             .unwrap()
             .forward(&x)
             .unwrap();
@@ -332,7 +331,7 @@ mod tests {
         let net = crate::build(&vs.root(), &cfg).unwrap();
         vs.copy(&kept_vs).unwrap();
         let total = vs.variables().values().map(|t| t.numel() as i64 * 4).sum();
-        let (fast, released) = InferenceNet::releasing_plain_weights(net, &options, &vs).unwrap();
+        let (fast, released) = InferenceNet::releasing_plain_weights(net, options, &vs).unwrap();
         (kept, fast.forward(&x).unwrap(), released, total)
     }
 
@@ -358,8 +357,13 @@ mod tests {
             "cmx-mit-b0",
         ];
         for name in folded {
-            for precision in [Precision::Fp32, Precision::Bf16] {
-                let (kept, released_logits, released, total) = fold_and_release(name, precision);
+            let each = [Precision::Fp32, Precision::Bf16].map(crate::test_util::fold_options_each);
+            for options in each.iter().flatten() {
+                let (kept, released_logits, released, total) = fold_and_release(name, options);
+                let precision = format!(
+                    "{} {:?}",
+                    options.precision, options.kernels.bf16_convolutions
+                );
                 eprintln!("{name} {precision}: {released:?} of {total} bytes");
                 assert!(
                     kept.equal(&released_logits),
@@ -379,7 +383,8 @@ mod tests {
             }
         }
         for name in ["erfnet-4c", "enet-4c"] {
-            let (kept, released_logits, released, _) = fold_and_release(name, Precision::Fp32);
+            let fp32 = FoldOptions::new(Precision::Fp32);
+            let (kept, released_logits, released, _) = fold_and_release(name, &fp32);
             assert_eq!(released, Released::default(), "{name}");
             assert!(kept.equal(&released_logits), "{name}");
         }

@@ -684,7 +684,7 @@ mod tests {
         for stage_bias in [false, true] {
             let vs = nn::VarStore::new(Device::Cpu);
             let psp = psp_for_test(vs.root(), 16, 8, stage_bias);
-            let fold = |p| psp.folded(&Folder::new(&crate::test_util::fold_options(p)));
+            let fold = |p| psp.folded(&Folder::new(&crate::fast::FoldOptions::new(p)));
             // Weights of unit gain and inputs with per-channel offsets, so that every bin's
             // prior weighs as much as the input's own columns (the reference init, std 0.02,
             // would leave the priors too small for a lost bin to show).

@@ -825,8 +825,7 @@ mod tests {
         // logits that still pick the plain path's class almost everywhere.
         let (mut vs3, net3) = build(&Config::reference(9));
         weights::load_safetensors(&mut vs3, &file).unwrap();
-        let options = crate::test_util::fold_options(Precision::Bf16);
-        let bf16 = InferenceNet::fold(Box::new(net3), &options).unwrap();
+        let bf16 = InferenceNet::new(Box::new(net3), Precision::Bf16).unwrap();
         let out = bf16.forward(&x).unwrap();
         assert_eq!(out.kind(), Kind::Float);
         assert!(out.is_contiguous());

@@ -68,28 +68,23 @@ pub fn forward_shape(net: &dyn ModuleT, shape: [i64; 4]) -> Vec<i64> {
     net.forward_t(&x, false).size()
 }
 
-/// The fold options of `precision` as this test process's variables ask (what rtf's binaries
-/// pass): `RTF_BF16_CONVOLUTIONS` and oneDNN's cap decide whether bf16 folds emulate their
-/// convolutions, `RTF_BF16_WINOGRAD` whether bf16's wide 3×3 layers take the Winograd forms
-/// (else where the CPU has no bf16 arithmetic under the cap), `RTF_WINOGRAD` the forms. xtask's
-/// passes as other CPU kinds set them, so the models' tests fold as such a CPU would.
-pub fn fold_options(precision: crate::fast::Precision) -> crate::fast::FoldOptions {
-    use crate::fast::{FoldOptions, InferenceKernels};
-    let get = |var: &str| std::env::var(var).ok();
-    let policy = rtf_amp::Bf16Policy::from_vars(get).expect("valid bf16 variables");
-    let bf16_convolutions = match policy.in_force(None) {
-        rtf_amp::Bf16Convolutions::Emulated => rtf_amp::Bf16Convolutions::Emulated,
-        _ => rtf_amp::Bf16Convolutions::Native,
+/// Every way a fold for `precision` computes: fp32 one; bf16 with oneDNN's bf16 convolutions
+/// and emulated (float32 kernels over bf16 maps), so that each machine tests both forms
+/// whatever its CPU (the choice is a fold option, passed in; nothing is read from the process).
+pub fn fold_options_each(precision: crate::fast::Precision) -> Vec<crate::fast::FoldOptions> {
+    use crate::fast::{FoldOptions, InferenceKernels, Precision};
+    use rtf_amp::Bf16Convolutions;
+    let with = |bf16_convolutions| {
+        FoldOptions::new(precision).kernels(InferenceKernels {
+            bf16_convolutions,
+            ..InferenceKernels::unmeasured()
+        })
     };
-    let bf16_winograd = match get("RTF_BF16_WINOGRAD").as_deref() {
-        Some("on") => true,
-        Some("off") => false,
-        _ => policy.arithmetic.is_native() == Some(false),
-    };
-    let winograd = get("RTF_WINOGRAD").map_or(Default::default(), |v| v.parse().expect("forms"));
-    FoldOptions::new(precision).kernels(InferenceKernels {
-        winograd,
-        bf16_winograd,
-        bf16_convolutions,
-    })
+    match precision {
+        Precision::Bf16 => vec![
+            with(Bf16Convolutions::Native),
+            with(Bf16Convolutions::Emulated),
+        ],
+        _ => vec![FoldOptions::new(precision)],
+    }
 }

@@ -271,17 +271,19 @@ fn the_fast_path_computes_the_plain_logits() {
         (Precision::Fp32, FUSED_FP32_TOLERANCE),
         (Precision::Bf16, 0.05),
     ] {
-        let vs = nn::VarStore::new(Device::Cpu);
-        let net = b0_with_random_norms(&vs, 9);
-        let plain = tch::no_grad(|| net.forward_t(&x, false));
-        let options = crate::test_util::fold_options(precision);
-        let fast = InferenceNet::fold(Box::new(net), &options).unwrap();
-        assert!(fast.is_fused());
-        let logits = fast.forward(&x).unwrap();
-        assert_eq!(logits.kind(), Kind::Float);
-        let rel = max_relative_difference(&plain, &logits);
-        eprintln!("{precision}: max relative difference {rel:.2e}");
-        assert!(rel < bound, "{precision}: max relative difference {rel}");
+        for options in crate::test_util::fold_options_each(precision) {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let net = b0_with_random_norms(&vs, 9);
+            let plain = tch::no_grad(|| net.forward_t(&x, false));
+            let fast = InferenceNet::fold(Box::new(net), &options).unwrap();
+            assert!(fast.is_fused());
+            let logits = fast.forward(&x).unwrap();
+            assert_eq!(logits.kind(), Kind::Float);
+            let rel = max_relative_difference(&plain, &logits);
+            let case = format!("{precision} {:?}", options.kernels.bf16_convolutions);
+            eprintln!("{case}: max relative difference {rel:.2e}");
+            assert!(rel < bound, "{case}: max relative difference {rel}");
+        }
     }
 }
 

@@ -13,7 +13,7 @@ fn fold_as(unit: &ConvBnAct, options: FoldOptions) -> ConvBnAct {
 
 /// `unit` folded for `precision`, channels-last, the unmeasured kernels.
 fn fold(unit: &ConvBnAct, precision: Precision) -> ConvBnAct {
-    fold_as(unit, crate::test_util::fold_options(precision))
+    fold_as(unit, FoldOptions::new(precision))
 }
 
 /// bf16 options with bf16's convolutions emulated (`true`) or native.
