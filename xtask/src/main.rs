@@ -242,6 +242,8 @@ const DECISION_DEPENDENT: [&[&str]; 2] = [
 const KERNEL_DEPENDENT: [&[&str]; 4] = [
     &[
         "-p",
+        "rtf-kernels",
+        "-p",
         "rtf-models",
         "-p",
         "rtf-amp",

@@ -2,8 +2,9 @@
 //! what decides it ([`Bf16Policy`]): the user's choice where one was made (rtf's binaries:
 //! `RTF_BF16_CONVOLUTIONS`, read at their edge), else emulated where the CPU has no bf16
 //! arithmetic, else the choice a run made (measured or recorded), else native. The choice
-//! travels as a value: into a run's configuration, and from there into the autocast region
-//! its steps open ([`crate::AutocastGuard::enter_with`]).
+//! travels as a value: into a run's configuration, and from there into the network built for
+//! the run (rtf-models' `UnitKernels`), whose convolutions ask
+//! [`crate::emulates_bf16_convolution`] with it.
 
 use crate::cpu::{Bf16Arithmetic, IsaCap};
 use crate::AmpError;
@@ -20,8 +21,9 @@ pub enum Bf16Convolutions {
     /// Operands rounded to bf16, multiply-accumulated by fp32 kernels, outputs and operand
     /// gradients rounded to bf16: a native kernel's numbers (bf16 products are exact in fp32,
     /// native kernels accumulate in fp32) at fp32 kernels' speed, on CPUs whose libtorch bf16
-    /// kernels are generic (no avx512_bf16 / AMX: ~10× slower than fp32). rtf's networks route
-    /// their convolutions through it (rtf-models `layers`).
+    /// kernels are generic (no avx512_bf16 / AMX: many times slower than fp32; measured:
+    /// docs/src/benchmarks.md, section "What bf16 costs on a CPU without bf16 arithmetic"). rtf's
+    /// networks route their convolutions through it (rtf-models `layers`).
     Emulated,
     /// Spatial convolutions (3×3 and larger, not transposed) emulated, the others (1×1,
     /// transposed) on libtorch's bf16 kernels: on Intel AVX-512 without AMX, oneDNN's bf16 3×3

@@ -75,9 +75,9 @@ pub enum Bf16Arithmetic {
 impl Bf16Arithmetic {
     /// This CPU's: the flags of `/proc/cpuinfo` under `cap` (the process's oneDNN cap, read by
     /// the caller: [`IsaCap::from_vars`]). Without bf16 arithmetic, oneDNN emulates bf16
-    /// convolutions and CPU mixed precision is far slower than fp32 (MFNet training at 640×480
-    /// on an AVX2 EPYC: 0.14 against 1.42 images/s, docs/src/benchmarks.md), in PyTorch and
-    /// rtf alike.
+    /// convolutions and CPU mixed precision is far slower than fp32, in PyTorch and rtf alike
+    /// (measured: docs/src/benchmarks.md, section "Round 3: the issue's size on a quiet
+    /// machine").
     pub fn of_cpu(cap: IsaCap) -> Self {
         let flags = std::fs::read_to_string("/proc/cpuinfo")
             .ok()

@@ -9,10 +9,10 @@
 //! (`csrc/amp_shim.cpp`) over `at::autocast::{set_autocast_enabled, set_autocast_dtype}`.
 //!
 //! [`autocast`] enters a region for one closure; [`AutocastGuard`] restores the previous state
-//! when dropped, also when the closure panics. A CPU region carries the run's choice of bf16
-//! convolutions ([`Bf16Convolutions`], decided by a [`Bf16Policy`] the caller resolves) for
-//! the ops inside it, as libtorch carries its own autocast state: a value of the region, not
-//! a switch of the process.
+//! when dropped, also when the closure panics. How a network's convolutions compute in bf16
+//! inside a CPU region ([`Bf16Convolutions`], decided by a [`Bf16Policy`] the caller
+//! resolves) is the network's own value (rtf-models' `UnitKernels`), which it asks
+//! [`emulates_bf16_convolution`] with: a value passed in, not a switch of the thread.
 
 use std::ffi::c_int;
 
@@ -121,21 +121,17 @@ pub fn supported(device: Device, kind: Kind) -> bool {
     }
 }
 
-thread_local! {
-    /// The convolutions of the innermost CPU autocast region open on this thread (None: none
-    /// open, or one entered without a choice: native), kept beside libtorch's own per-thread
-    /// autocast state and restored with it ([`AutocastGuard`]).
-    static REGION_CONVOLUTIONS: std::cell::Cell<Option<Bf16Convolutions>> =
-        const { std::cell::Cell::new(None) };
-}
-
-/// Whether a convolution of an input on `device` made now, on this thread, should be the
-/// emulated bf16 one: inside a CPU bf16 autocast region whose choice
-/// ([`AutocastGuard::enter_with`]) emulates such a convolution (`spatial`: a kernel larger than
-/// 1×1, not transposed; [`Bf16Convolutions::emulates`]). Outside any region, nothing is.
-pub fn emulates_bf16_convolution(device: Device, spatial: bool) -> bool {
+/// Whether a convolution of an input on `device` made now, on this thread, computes as the
+/// emulated bf16 one: inside a CPU bf16 autocast region, where `convolutions` (the network's
+/// choice) emulates such a convolution (`spatial`: a kernel larger than 1×1, not transposed;
+/// [`Bf16Convolutions::emulates`]). Outside any region, nothing is.
+pub fn emulates_bf16_convolution(
+    device: Device,
+    spatial: bool,
+    convolutions: Bf16Convolutions,
+) -> bool {
     device == Device::Cpu
-        && REGION_CONVOLUTIONS.with(|c| c.get().is_some_and(|c| c.emulates(spatial)))
+        && convolutions.emulates(spatial)
         && state(Device::Cpu).is_ok_and(|s| s.enabled && s.dtype == Kind::BFloat16)
 }
 
@@ -145,34 +141,11 @@ pub fn emulates_bf16_convolution(device: Device, spatial: bool) -> bool {
 pub struct AutocastGuard {
     device: Device,
     previous: State,
-    /// The enclosing region's convolutions, restored on drop (CPU regions).
-    previous_convolutions: Option<Bf16Convolutions>,
 }
 
 impl AutocastGuard {
-    /// Enters an autocast region to `kind` on `device`'s type for this thread, its bf16
-    /// convolutions on libtorch's kernels.
+    /// Enters an autocast region to `kind` on `device`'s type for this thread.
     pub fn enter(device: Device, kind: Kind) -> Result<Self, AmpError> {
-        Self::enter_with(device, kind, Bf16Convolutions::Native)
-    }
-
-    /// [`enter`](Self::enter), with a CPU region's bf16 convolutions computed as `convolutions`
-    /// says for the region ([`emulates_bf16_convolution`]; a training step's choice, recorded
-    /// in its run's configuration). Other devices ignore it.
-    pub fn enter_with(
-        device: Device,
-        kind: Kind,
-        convolutions: Bf16Convolutions,
-    ) -> Result<Self, AmpError> {
-        let mut guard = Self::enter_state(device, kind)?;
-        if device == Device::Cpu {
-            guard.previous_convolutions =
-                REGION_CONVOLUTIONS.with(|c| c.replace(Some(convolutions)));
-        }
-        Ok(guard)
-    }
-
-    fn enter_state(device: Device, kind: Kind) -> Result<Self, AmpError> {
         if !supported(device, kind) {
             return Err(AmpError::Unsupported { device, kind });
         }
@@ -189,11 +162,7 @@ impl AutocastGuard {
             let _ = set_state(device, previous);
             return Err(AmpError::Refused("enter"));
         }
-        Ok(Self {
-            device,
-            previous,
-            previous_convolutions: None,
-        })
+        Ok(Self { device, previous })
     }
 }
 
@@ -203,9 +172,6 @@ impl Drop for AutocastGuard {
         // reported from drop; the state setter below is the part that matters.
         let _ = unsafe { rtf_amp_exit() };
         let _ = set_state(self.device, self.previous);
-        if self.device == Device::Cpu {
-            REGION_CONVOLUTIONS.with(|c| c.set(self.previous_convolutions));
-        }
     }
 }
 
@@ -222,87 +188,42 @@ pub fn autocast<T>(
     Ok(f())
 }
 
-/// [`autocast`] with a CPU region's bf16 convolutions computed as `convolutions` says
-/// ([`AutocastGuard::enter_with`]).
-pub fn autocast_with<T>(
-    device: Device,
-    kind: Option<Kind>,
-    convolutions: Bf16Convolutions,
-    f: impl FnOnce() -> T,
-) -> Result<T, AmpError> {
-    let _guard = match kind {
-        Some(kind) => Some(AutocastGuard::enter_with(device, kind, convolutions)?),
-        None => None,
-    };
-    Ok(f())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use tch::Tensor;
 
     #[test]
-    fn only_cpu_bf16_regions_emulate_and_only_as_chosen() {
+    fn only_cpu_bf16_regions_emulate_and_only_as_the_network_chose() {
         use Bf16Convolutions::*;
-        assert!(
-            !emulates_bf16_convolution(Device::Cpu, true),
-            "no region open"
-        );
         for choice in [Native, Emulated, Mixed] {
-            autocast_with(Device::Cpu, Some(Kind::BFloat16), choice, || {
+            assert!(
+                !emulates_bf16_convolution(Device::Cpu, true, choice),
+                "no region open"
+            );
+            autocast(Device::Cpu, Some(Kind::BFloat16), || {
                 for spatial in [true, false] {
                     assert_eq!(
-                        emulates_bf16_convolution(Device::Cpu, spatial),
+                        emulates_bf16_convolution(Device::Cpu, spatial, choice),
                         choice.emulates(spatial)
                     );
-                    assert!(!emulates_bf16_convolution(Device::Cuda(0), spatial));
+                    assert!(!emulates_bf16_convolution(Device::Cuda(0), spatial, choice));
                 }
             })
             .unwrap();
             assert!(
-                !emulates_bf16_convolution(Device::Cpu, true),
-                "restored on drop"
+                !emulates_bf16_convolution(Device::Cpu, true, choice),
+                "region left"
             );
         }
-        // A region entered without a choice runs libtorch's kernels.
-        autocast(Device::Cpu, Some(Kind::BFloat16), || {
-            assert!(!emulates_bf16_convolution(Device::Cpu, true));
-        })
-        .unwrap();
-    }
-
-    #[test]
-    fn nested_regions_keep_their_own_choice_and_restore_the_outer_one() {
-        use Bf16Convolutions::*;
-        let outer = AutocastGuard::enter_with(Device::Cpu, Kind::BFloat16, Emulated).unwrap();
-        {
-            let _inner = AutocastGuard::enter_with(Device::Cpu, Kind::BFloat16, Mixed).unwrap();
-            assert!(
-                !emulates_bf16_convolution(Device::Cpu, false),
-                "mixed: 1x1 native"
-            );
-            assert!(emulates_bf16_convolution(Device::Cpu, true));
-        }
-        assert!(
-            emulates_bf16_convolution(Device::Cpu, false),
-            "the outer choice again"
-        );
-        drop(outer);
-        assert!(!emulates_bf16_convolution(Device::Cpu, false));
         let result = std::panic::catch_unwind(|| {
-            autocast_with(Device::Cpu, Some(Kind::BFloat16), Emulated, || {
-                panic!("inside")
-            })
+            autocast(Device::Cpu, Some(Kind::BFloat16), || panic!("inside"))
         });
         assert!(result.is_err());
-        autocast(Device::Cpu, Some(Kind::BFloat16), || {
-            assert!(
-                !emulates_bf16_convolution(Device::Cpu, true),
-                "restored after a panic"
-            );
-        })
-        .unwrap();
+        assert!(
+            !emulates_bf16_convolution(Device::Cpu, true, Emulated),
+            "region left after a panic"
+        );
     }
 
     fn conv_output_kind() -> Kind {

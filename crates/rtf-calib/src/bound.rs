@@ -1,12 +1,13 @@
 //! The stated error bound (issue 28): how far the RGB→thermal map can be from the solution
 //! among solutions the data cannot tell apart.
 //!
-//! Local curvature alone (the formal σ of [`crate::quality`]) said ±0.4 px on a real-imagery
-//! rig whose answer was 4.1 px off: the objective is nearly flat along focal length against
-//! forward offset and principal point against rotation. So the bound measures the *flat set*
-//! of the objective (the recipe's own cost plus the user's priors, at the assessment level
-//! ≤ 320 px wide): the solutions whose cost rise is not significant against the
-//! frame-resampling noise of that rise. Frames are the independent samples (pixels of one
+//! Local curvature alone (the formal σ of [`crate::quality`]) can state a small error on a
+//! real-imagery rig whose answer is pixels off (measured: docs/src/calibration.md, section
+//! "calib.yaml", paragraph "The stated bound"): the objective is nearly flat along focal length
+//! against forward offset and principal point against rotation. So the bound measures the
+//! *flat set* of the objective (the recipe's own cost plus the user's priors, at the
+//! assessment level ≤ 320 px wide): the solutions whose cost rise is not significant against
+//! the frame-resampling noise of that rise. Frames are the independent samples (pixels of one
 //! frame are correlated, so a per-pixel count over-states the information, which is what made
 //! the formal σ too small); the rise's mean over the frames must exceed [`critical_value`]
 //! standard errors of that mean — the Student-t quantile with n − 1 degrees of freedom at the

@@ -125,16 +125,15 @@ impl RealRigConfig {
 /// −0.041…−0.017), k₂ ≈ 0 (median 0.0006, −0.016…0.012), α within ±0.6° and shifts of a few
 /// pixels at 640×480 (median (−0.1, +2.3) px). So the thermal image is ~3 % magnified at the
 /// centre and hardly at the border: a radial difference between MF's thermal and RGB imaging
-/// that a single scale cannot undo (the previous, scale-only registration found s = 1.000–1.025
-/// as a compromise). Measured with the `probe_registration` probe of
-/// the lab's `calib_probes`, once a development test of `optimize.rs` (`REG_K2=1 cargo run
-/// --release -p rtf-lab --bin calib_probes -- probe_registration`: per scene, a
-/// coordinate search at full 640×480 resolution maximising the correlation of the centred
-/// edge features over the image less an 8 px border, steps refined to 0.0001 in s, k, k₂,
-/// 0.003° and 0.03 px). A rig built on the raw pairs puts this difference into its "truth"
-/// (the calibrator then finds f 2–4 % above it and k1 more negative: the real image
-/// geometry); [`write_real_rig`] re-registers each pair first, with this model and then the
-/// per-band parallax correction of [`MSRS_PARALLAX`].
+/// that a single scale cannot undo. Measured with the `probe_registration` probe of the lab's
+/// `calib_probes` (`REG_K2=1 cargo run --release -p rtf-lab --bin calib_probes --
+/// probe_registration`: per scene, a coordinate search at full 640×480 resolution maximising
+/// the correlation of the centred edge features over the image less an 8 px border, steps
+/// refined to 0.0001 in s, k, k₂, 0.003° and 0.03 px). A rig built on the raw pairs puts this
+/// difference into its "truth" (the calibrator then finds f above it and k1 more negative: the
+/// real image geometry; measured: docs/src/calibration.md, section "Real-imagery rigs (issue
+/// 12)" and its round 2 subsection); [`write_real_rig`] re-registers each pair first, with
+/// this model and then the per-band parallax correction of [`MSRS_PARALLAX`].
 /// The registration uses the same edge features as the calibrator, so a cross-modal bias
 /// common to both would not show.
 /// (scene, s, k, k₂, α degrees, shift u, shift v at 640×480).
@@ -197,11 +196,12 @@ const PARALLAX_BAND_ROWS: f64 = 60.0;
 /// after it. MF's two cameras sit one above the other, so a pair's parallax is vertical and
 /// grows with nearness: in day scenes the far middle of the image (bands 2–4) needs +1…+3 px,
 /// the near ground (band 6) −2…−5 px and the top −1…−5 px against the scene's mean shift,
-/// the same pattern in scene after scene. Over the 48 scenes that pattern averaged ±1–1.5 px
-/// (8×6 blocks; `probe_residual_field` with `FIELD_GLOBAL_ONLY=1`), enough to pull a
-/// calibration from 20 such frames about a pixel off the rigs' truth at 640×480 (f +1.4 %,
-/// k1 more negative). Measured with the `probe_parallax_bands` probe of
-/// the lab's `calib_probes`, once a development test of `optimize.rs` (`cargo run --release
+/// the same pattern in scene after scene. Over the 48 scenes that pattern does not average
+/// out (8×6 blocks; `probe_residual_field` with `FIELD_GLOBAL_ONLY=1`), and it pulls a
+/// calibration from 20 such frames off the rigs' truth, f too large and k1 more negative
+/// (measured: docs/src/calibration.md, sections "640×480, 20 views: 20 trials (round 4)" and
+/// "Round 5: the pairs' vertical parallax, measured and removed"). Measured with the
+/// `probe_parallax_bands` probe of the lab's `calib_probes` (`cargo run --release
 /// -p rtf-lab --bin calib_probes -- probe_parallax_bands`): normalised correlation of the
 /// edge features over the band less a 16 px border, ±8 px, parabolic sub-pixel peak; the top
 /// and bottom bands are measured 8 px inside the image. A band whose peak is weak (< 0.15: sky,
@@ -331,8 +331,10 @@ pub fn warp_msrs_ir(scene: &str, ir: &Plane, parallax: bool) -> Plane {
     Plane::new(ir.width, ir.height, data)
 }
 
-// How `MSRS_PARALLAX` fills the bands it could not measure (round 7; measured by the
-// `probe_parallax_bands` probe in lab/probes/src/bin/calib_probes.rs).
+// How `MSRS_PARALLAX` fills the bands it could not measure (the shifts come from the
+// `probe_parallax_bands` probe in lab/probes/src/bin/calib_probes.rs; why weak bands follow
+// the scenes' common profile: docs/src/calibration.md, section "Round 7: the night scenes'
+// parallax, and the principal point left free near the centre").
 
 /// Bands without a measurement take the linear interpolation of their measured
 /// neighbours (the nearest one past the first or last; 0 when none was measured).

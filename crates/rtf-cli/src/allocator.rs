@@ -2,21 +2,22 @@
 //! tensors too, with freed memory returned to the system only after 5 s unused.
 //!
 //! libtorch's CPU tensors come from `malloc`. With glibc's defaults every multi-megabyte
-//! activation is a fresh `mmap`, page-faulted in again on every pass (MFNet fp32 inference 66
-//! against 45 ms per frame with memory kept: docs/src/models.md). Keeping glibc's freed memory
-//! instead (`rtf_models::allocator::retain_freed_memory`) fixed the speed but not training's
-//! memory: a training step's many differently sized activations fragment glibc's one heap, and
-//! MFNet at 640×480, batch 4 peaked at 3.0–4.1 GB against PyTorch's 2.9–3.1 GB. mimalloc serves
-//! large blocks from size-segregated segments that it reuses without fragmenting.
+//! activation is a fresh `mmap`, page-faulted in again on every pass, which slows inference
+//! against keeping the memory (measured: docs/src/models.md, section "Fast inference").
+//! Keeping glibc's freed memory instead (`rtf_kernels::allocator::retain_freed_memory`) fixed
+//! the speed but not training's memory: a training step's many differently sized activations
+//! fragment glibc's one heap, and MFNet's training peak rose above PyTorch's (measured:
+//! docs/src/benchmarks.md, section "Allocator (commit 7647062)"). mimalloc serves large blocks
+//! from size-segregated segments that it reuses without fragmenting.
 //!
-//! How long freed memory stays mapped decides speed against peak memory (docs/src/benchmarks.md,
-//! 640×480, batch 4, 2 threads, quiet machine): MFNet (a 3 s step) 0.90 images/s with mimalloc's
-//! default 1 s purge delay, 1.28–1.52 with purging off or a 5 s delay, at 2.5–2.6 GB; RTFNet-50
-//! (a 45 s step) 0.101 images/s at 12.5 GB with purging off (above PyTorch's 11.5 GB), 0.084 at
-//! 10.8 GB with 1 s, **0.088 at 10.9 GB with 5 s**; PSPNet-50 0.075 at 13.2 GB off, 0.081 at
-//! 11.2 GB with 5 s. A delay longer than a small network's whole step keeps its buffers for the
-//! next step; shorter than a big network's forward or backward pass, it returns the blocks that
-//! pass freed and will not reuse, which is what fragmented the peak.
+//! How long freed memory stays mapped decides speed against peak memory: mimalloc's default
+//! 1 s purge delay slowed training, purging off raised the ResNet-50 networks' peaks above
+//! PyTorch's, and a 5 s delay kept a small network's speed and brought the big ones' peaks
+//! under PyTorch's (measured: docs/src/benchmarks.md, sections "Round 3: the issue's size on a
+//! quiet machine" and "Round 4: a 5 s purge delay"). A delay longer than a small network's
+//! whole step keeps its buffers for the next step; shorter than a big network's forward or
+//! backward pass, it returns the blocks that pass freed and will not reuse, which is what
+//! fragmented the peak.
 //!
 //! The `override` feature of `libmimalloc-sys` links mimalloc's `malloc`, `free`,
 //! `posix_memalign`, … into this executable, so the dynamic linker resolves libtorch's calls to
@@ -35,16 +36,15 @@ pub const PURGE_DELAY_MS: i64 = 5000;
 
 /// The delay for training on a CPU (`rtf train`, `rtf bench train`) in bf16, and in fp32 where
 /// it runs channels-last (`rtf_train::config::Fp32Layout`: AVX-512 CPUs by default). A
-/// ResNet-50 network's pass is 6–13 s (bf16) or 10–20 s (fp32) on 2 cores, and with 5 s the
-/// memory a backward pass freed was returned and faulted back in by the next forward (page
-/// zeroing: PSPNet-50 bf16 20–45 % of the samples at each step's start; RTFNet-50 fp32 16 %
-/// of a steady step). 640×480, batch 4, 2 threads (docs/src/benchmarks.md): bf16 on an
-/// avx512_bf16 EPYC (round 5), RTFNet-50 0.22 images/s at 7260 MiB with 5 s, 0.24 at 7453 with
-/// 20 s, 0.26 at 7851 (above PyTorch's 7830) with purging off; PSPNet-50 0.15 at 6431, 0.21 at
-/// 6504, 0.20 at 7278. fp32 channels-last on a Xeon model 167 (issue 41): RTFNet-50 0.150 →
-/// 0.163 at 10554 → 11227 MiB (PyTorch's best 11288), PSPNet-50 0.110 → 0.124 at 11191 →
-/// 12017 (PyTorch's best 12026). fp32 NCHW (AVX2 CPUs) keeps 5 s: longer delays raised
-/// RTFNet-50's and PSPNet-50's peaks above PyTorch's there (round 3).
+/// ResNet-50 network's forward or backward pass on 2 cores lasts longer than 5 s in either
+/// precision, so with 5 s the memory a backward pass freed was returned and faulted back in
+/// (zeroed) by the next forward, a large share of the step. 20 s keeps it for the next pass,
+/// faster, at a peak still below PyTorch's best configuration, where purging off goes above
+/// it (measured: docs/src/benchmarks.md, the purge-delay sweep under "Round 5: a CPU with bf16
+/// arithmetic" for bf16, and section "Before and after (interleaved A/B)" for fp32
+/// channels-last). fp32 NCHW (AVX2 CPUs) keeps 5 s: longer delays raised RTFNet-50's and
+/// PSPNet-50's peaks above PyTorch's there (same page, sections "Round 3: the issue's size on
+/// a quiet machine" and "Round 4: a 5 s purge delay").
 pub const TRAINING_PURGE_DELAY_MS: i64 = 20_000;
 
 /// Sets mimalloc's purge delay to [`PURGE_DELAY_MS`] unless the user set

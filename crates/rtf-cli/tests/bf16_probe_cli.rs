@@ -143,6 +143,9 @@ fn the_bf16_3x3_kernels_follow_the_measurement_and_the_variable() {
         assert_eq!(kernels(&bench_bf16(&cache)), "winograd");
         edit_cache(&file, "conv3x3 | ", 0.5);
         assert_eq!(kernels(&bench_bf16(&cache)), "onednn");
+        // A narrow win of the Winograd form on the probe's layer is not enough.
+        edit_cache(&file, "conv3x3 | ", 1.1);
+        assert_eq!(kernels(&bench_bf16(&cache)), "onednn");
     }
     for (value, expected) in [("on", "winograd"), ("off", "onednn")] {
         let out = bench_bf16_with(&cache, &[(WINOGRAD_VAR, value)]);

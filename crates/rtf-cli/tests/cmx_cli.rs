@@ -14,7 +14,7 @@ fn segformer_b0(file: &Path) {
     let vs = nn::VarStore::new(Device::Cpu);
     let cfg = rtf_models::ModelConfig::from_name("cmx-mit-b0", 9).unwrap();
     rtf_models::build(&vs.root(), &cfg).unwrap();
-    let mut named = rtf_models::mit_pretrained::segformer_state_dict(&vs);
+    let mut named = rtf_models::io::mit_pretrained::segformer_state_dict(&vs);
     named.push((
         "head.weight".into(),
         Tensor::zeros([1000, 256], (Kind::Float, Device::Cpu)),
@@ -23,7 +23,7 @@ fn segformer_b0(file: &Path) {
         "head.bias".into(),
         Tensor::zeros([1000], (Kind::Float, Device::Cpu)),
     ));
-    rtf_models::weights::save_named(&named, file).unwrap();
+    rtf_models::io::weights::save_named(&named, file).unwrap();
 }
 
 #[test]

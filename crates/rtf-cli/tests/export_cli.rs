@@ -39,7 +39,8 @@ fn random_weights(dir: &Path, model: &str, classes: i64) -> PathBuf {
         }
     });
     let path = dir.join(format!("{model}.safetensors"));
-    rtf_models::weights::save_safetensors(&vs, &cfg, rtf_models::Modality::RgbT, &path).unwrap();
+    rtf_models::io::weights::save_safetensors(&vs, &cfg, rtf_models::Modality::RgbT, &path)
+        .unwrap();
     path
 }
 
@@ -48,7 +49,7 @@ fn eager(model: &str, classes: i64, weights: &Path, input: &Tensor) -> Tensor {
     let cfg = ModelConfig::from_name(model, classes).unwrap();
     let mut vs = nn::VarStore::new(Device::Cpu);
     let net = rtf_models::build(&vs.root(), &cfg).unwrap();
-    rtf_models::weights::load_safetensors(&mut vs, weights).unwrap();
+    rtf_models::io::weights::load_safetensors(&mut vs, weights).unwrap();
     tch::no_grad(|| net.forward_t(input, false))
 }
 

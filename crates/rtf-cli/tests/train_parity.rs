@@ -42,7 +42,7 @@ fn shared_data() -> PathBuf {
 }
 
 fn weights(path: &Path) -> std::collections::BTreeMap<String, Tensor> {
-    rtf_models::weights::read_safetensors(path)
+    rtf_models::io::weights::read_safetensors(path)
         .unwrap_or_else(|e| panic!("{e}"))
         .into_iter()
         .filter(|(name, _)| !name.ends_with("num_batches_tracked"))
@@ -165,13 +165,13 @@ fn rtf_trains_step_for_step_like_the_reference_on_real_frames() {
 
 /// The critic's weights of an rtf run's checkpoint (`critic/w/NAME`), as a weights file.
 fn critic_of_checkpoint(checkpoint: &Path, out: &Path) -> PathBuf {
-    let critic: Vec<(String, Tensor)> = rtf_models::weights::read_safetensors(checkpoint)
+    let critic: Vec<(String, Tensor)> = rtf_models::io::weights::read_safetensors(checkpoint)
         .unwrap_or_else(|e| panic!("{e}"))
         .into_iter()
         .filter_map(|(name, t)| Some((name.strip_prefix("critic/w/")?.to_string(), t)))
         .collect();
     assert_eq!(critic.len(), 10, "five convolutions with biases");
-    rtf_models::weights::save_named(&critic, out).unwrap();
+    rtf_models::io::weights::save_named(&critic, out).unwrap();
     out.to_path_buf()
 }
 

@@ -1,6 +1,6 @@
 //! Why a command's library layer did not do what was asked, said as the command says it.
 //!
-//! `rtf_train::setup`, `rtf_eval::predict` and `rtf_models::export` each do a command's work
+//! `rtf_train::setup`, `rtf_eval::predict` and `rtf_models::io::export` each do a command's work
 //! for a thin CLI; their error enums wrap a [`Refusal`] (`#[from]`) beside the typed errors
 //! of the crates below them, so the message a user reads is written once, where the check is.
 

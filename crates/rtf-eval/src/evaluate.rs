@@ -207,9 +207,9 @@ fn check_mapping(
 /// The loader that [`evaluate_loader`] reads a split through (in order, every frame, no
 /// augmentation). A caller that evaluates the same split again and again (training's
 /// validation after every epoch) builds it once: each loader starts its own decoding threads,
-/// and every thread that ends leaves its allocator heap behind in the `rtf` binary
-/// (docs/src/reliability.md, "Memory across epochs"), ~15 MB per validation at 64×48 before
-/// the trainer kept one loader for the run.
+/// and every thread that ends leaves its allocator heap behind in the `rtf` binary, so a new
+/// loader per validation grows resident memory epoch by epoch (measured:
+/// docs/src/reliability.md, section "Memory across epochs").
 pub fn split_loader(
     source: Arc<dyn FrameSource>,
     options: &EvalOptions,
@@ -509,9 +509,9 @@ pub fn check_memory(
 /// linearly in pixels from the peak resident size of two probe passes (128×128 and 256×256,
 /// after a warm-up pass that pays libtorch's one-time allocations; Linux: the kernel's
 /// `VmHWM`, reset through `/proc/self/clear_refs`). Activations of these fully
-/// convolutional networks grow with the pixel count, so this is an estimate, not a bound:
-/// for MFNet it gives 770 B/pixel, against 730 B/pixel between real 1024² and 2048² runs
-/// (docs/src/reliability.md). None where it cannot be measured.
+/// convolutional networks grow with the pixel count, so this is an estimate, not a bound
+/// (compared with real runs for MFNet: docs/src/reliability.md, section "Frames larger than
+/// memory"). None where it cannot be measured.
 pub fn estimate_forward_bytes(
     network: &dyn Network,
     batch: usize,
@@ -565,7 +565,7 @@ fn libc_rlimit_as() -> Option<u64> {
 }
 
 /// Hands free heap pages back to the kernel, so that a probe's allocations show in the peak
-/// resident size (the CLI keeps freed memory, `rtf_models::allocator`).
+/// resident size (the CLI keeps freed memory, `rtf_kernels::allocator`).
 fn release_free_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: malloc_trim only returns unused heap memory to the kernel.

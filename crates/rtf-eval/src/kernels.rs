@@ -17,8 +17,8 @@ pub mod warning;
 pub use warning::inference_warning;
 
 use rtf_amp::{AmpError, Bf16Convolutions, Bf16Policy};
+use rtf_kernels::winograd::Forms;
 use rtf_models::fast::{InferenceKernels, Precision};
-use rtf_models::winograd::Forms;
 use tch::Device;
 
 /// The variable that decides [`KernelPolicy::winograd`] in rtf's binaries.
@@ -95,11 +95,27 @@ impl KernelPolicy {
     }
 }
 
+/// How many times as long oneDNN's bf16 kernels must take as the Winograd form on the probe's
+/// layer ([`probe::measure_conv3x3`]) for bf16 inference to take the Winograd forms. The probe
+/// times one wide layer at a shape that suits Winograd, and the bf16 forms keep float32
+/// transformed weights (more memory), so a narrow win on that layer is a loss on whole
+/// networks: on AMD Zen 4 the layer was 7 % faster in the Winograd form and RTFNet-18 1.4×
+/// slower. Without AMX on Intel, where oneDNN's bf16 3×3 kernels lose to fp32 ones, the layer
+/// is 3× faster in the Winograd form (docs/src/benchmarks.md, "Who decides").
+pub const BF16_WINOGRAD_MARGIN: f64 = 1.5;
+
+/// Whether the probe's measurement `m` of the wide 3×3 layer says the Winograd forms win
+/// clearly ([`BF16_WINOGRAD_MARGIN`]).
+pub fn winograd_wins(m: &probe::Measured) -> bool {
+    m.speedup() * BF16_WINOGRAD_MARGIN < 1.0
+}
+
 /// The kernels a fold for `precision` on `device` takes under `policy`, with the warnings to
 /// give (a failed measurement). bf16 on a CPU with bf16 arithmetic and no choice made: the
-/// faster of the two ways for a wide 3×3 layer as measured here ([`probe::Work::Conv3x3`],
-/// cached in `probe`'s file); elsewhere the Winograd forms only where the CPU has no bf16
-/// arithmetic (under the policy's ISA cap).
+/// Winograd forms where they are clearly faster on a wide 3×3 layer as measured here
+/// ([`winograd_wins`]; [`probe::Work::Conv3x3`], cached in `probe`'s file), else oneDNN's
+/// kernels; elsewhere the Winograd forms only where the CPU has no bf16 arithmetic (under the
+/// policy's ISA cap).
 pub fn inference_kernels(
     policy: &KernelPolicy,
     precision: Precision,
@@ -121,7 +137,7 @@ pub fn inference_kernels(
             .measured(&probe.key(probe::Work::Conv3x3.name()), || {
                 probe::measure_conv3x3(policy.winograd)
             }) {
-            Ok((m, _)) => kernels.bf16_winograd = m.speedup() < 1.0,
+            Ok((m, _)) => kernels.bf16_winograd = winograd_wins(&m),
             Err(e) => warnings.push(format!(
                 "could not measure which bf16 3x3 convolutions are faster on this CPU ({e}); \
                  oneDNN's bf16 kernels run"
@@ -135,6 +151,18 @@ pub fn inference_kernels(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_winograd_forms_run_only_where_they_win_clearly() {
+        let wins =
+            |winograd_s, onednn_s| winograd_wins(&probe::Measured::now(winograd_s, onednn_s));
+        // Intel without AMX (8.2 against 24.6 ms), AMX (8.6 against 1.7 ms), AMD Zen 4 (11.5
+        // against 12.3 ms: a narrow win on the layer, a loss on networks).
+        assert!(wins(8.2, 24.6));
+        assert!(!wins(8.6, 1.7));
+        assert!(!wins(11.5, 12.3));
+        assert!(!wins(1.0, BF16_WINOGRAD_MARGIN) && wins(1.0, BF16_WINOGRAD_MARGIN * 1.01));
+    }
 
     fn vars<'a>(pairs: &'a [(&'a str, &'a str)]) -> impl Fn(&str) -> Option<String> + 'a {
         move |name| {

@@ -190,7 +190,7 @@ fn seeded_network(
     let net = rtf_models::build(&vs.root(), cfg)?;
     if let Some(path) = &opts.weights {
         // Checked against the file's model metadata: timing mfnet-f with mfnet's file is refused.
-        rtf_models::weights::load_checked(&mut vs, cfg, path, false)?;
+        rtf_models::io::weights::load_checked(&mut vs, cfg, path, false)?;
     }
     Ok((vs, net))
 }

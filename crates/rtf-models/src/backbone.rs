@@ -14,8 +14,8 @@ use tch::nn::VarStore;
 use tch::{Kind, Tensor};
 
 use crate::error::{ModelError, ShapeMismatch};
+use crate::io::weights::{is_ignored_name, read_safetensors};
 use crate::rtfnet::ThermalInit;
-use crate::weights::{is_ignored_name, read_safetensors};
 use crate::ModelConfig;
 
 /// One encoder of a network: its parameter prefix and input channels.
@@ -90,14 +90,14 @@ fn xavier_(weight: &mut Tensor) {
 
 /// Loads ImageNet encoder weights from `path` into every encoder of `cfg` built in `vs`:
 /// torchvision ResNet weights for the ResNet encoders, SegFormer MiT weights for CMX
-/// ([`crate::mit_pretrained`]). Returns what loaded, for the run's log.
+/// ([`crate::io::mit_pretrained`]). Returns what loaded, for the run's log.
 pub fn load_backbone_weights(
     vs: &mut VarStore,
     cfg: &ModelConfig,
     path: &Path,
 ) -> Result<String, ModelError> {
     if matches!(cfg, ModelConfig::Cmx(_)) {
-        return crate::mit_pretrained::load_mit_weights(vs, path);
+        return crate::io::mit_pretrained::load_mit_weights(vs, path);
     }
     let slots = load_resnet_weights(vs, cfg, path)?;
     let prefixes: Vec<&str> = slots.iter().map(|s| s.prefix.as_str()).collect();
@@ -109,7 +109,7 @@ pub fn load_backbone_weights(
 }
 
 /// Loads torchvision ResNet weights from `path` into every ResNet encoder of `cfg` built in
-/// `vs`; returns the encoders. Strict like [`crate::weights::load_safetensors`]: every
+/// `vs`; returns the encoders. Strict like [`crate::io::weights::load_safetensors`]: every
 /// encoder parameter must be in the file with its shape and every file tensor (but `fc.*`)
 /// must be used; errors list them all.
 fn load_resnet_weights(
@@ -191,16 +191,17 @@ fn load_resnet_weights(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::weights;
     use crate::resnet::ResNetEncoder;
     use crate::rtfnet::{Config, Variant};
-    use crate::{build, layers::InitScheme, weights};
+    use crate::{build, layers::InitScheme};
     use tch::{nn, Device};
 
     /// A torchvision-named resnet18 state_dict (with fc) written to `file`.
     fn torchvision_resnet18(file: &Path) -> BTreeMap<String, Tensor> {
         tch::manual_seed(11);
         let vs = nn::VarStore::new(Device::Cpu);
-        let _ = ResNetEncoder::new(&vs.root(), "", 3, 18, InitScheme::TORCHVISION).unwrap();
+        let _ = ResNetEncoder::new(&vs.root().into(), "", 3, 18, InitScheme::TORCHVISION).unwrap();
         let mut named = weights::state_dict(&vs);
         named.push((
             "fc.weight".into(),

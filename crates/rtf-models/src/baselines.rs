@@ -9,6 +9,7 @@ use tch::nn::{self, ModuleT};
 use tch::Tensor;
 
 use crate::error::ModelError;
+use crate::layers::Path;
 use crate::layers::{Act, BatchNorm, ConvBnAct, ConvSpec, Fold, Folder, InitScheme, WeightInit};
 use crate::resnet::{self, BlockGeometry, BlockKind, ResLayer};
 use crate::Network;
@@ -121,7 +122,7 @@ impl Config {
 }
 
 /// Conv 3×3 → BN → ReLU at `p.conv` / `p.bn`.
-fn cbr(p: nn::Path, c_in: i64, c_out: i64) -> ConvBnAct {
+fn cbr(p: Path, c_in: i64, c_out: i64) -> ConvBnAct {
     ConvBnAct::new(
         &p / "conv",
         Some(&p / "bn"),
@@ -147,7 +148,7 @@ struct VggEncoder {
     stages: Vec<Vec<ConvBnAct>>,
 }
 
-fn vgg_encoder(p: nn::Path, c_in: i64) -> VggEncoder {
+fn vgg_encoder(p: Path, c_in: i64) -> VggEncoder {
     let mut c = c_in;
     let stages = VGG16
         .iter()
@@ -172,7 +173,7 @@ struct SegnetDecoder {
     stages: Vec<Vec<ConvBnAct>>,
 }
 
-fn segnet_decoder(p: nn::Path, num_classes: i64) -> SegnetDecoder {
+fn segnet_decoder(p: Path, num_classes: i64) -> SegnetDecoder {
     // From the deepest stage up: (input width, output widths of its convs).
     let plan: [(i64, Vec<i64>); 5] = [
         (512, vec![512, 512, 512]),
@@ -306,7 +307,7 @@ struct Unet {
 /// U-Net's initialisation (paper §3).
 const UNET_INIT: WeightInit = WeightInit::KaimingNormalFanIn;
 
-fn double_conv(p: &nn::Path, c_in: i64, c_out: i64) -> (ConvBnAct, ConvBnAct) {
+fn double_conv(p: &Path, c_in: i64, c_out: i64) -> (ConvBnAct, ConvBnAct) {
     let spec = ConvSpec::new(3).bias(true).init(UNET_INIT);
     (
         ConvBnAct::new(p / "conv1", None, c_in, c_out, spec, Act::Relu),
@@ -314,7 +315,7 @@ fn double_conv(p: &nn::Path, c_in: i64, c_out: i64) -> (ConvBnAct, ConvBnAct) {
     )
 }
 
-fn unet(p: nn::Path, c_in: i64, num_classes: i64) -> Unet {
+fn unet(p: Path, c_in: i64, num_classes: i64) -> Unet {
     let widths = [64, 128, 256, 512, 1024];
     let down = (0..5)
         .map(|i| {
@@ -381,13 +382,7 @@ struct DilatedResNet {
 }
 
 /// layer3/layer4 dilations per block; layer1/2 are plain (stride 1, 2).
-fn dilated_resnet(
-    p: nn::Path,
-    c_in: i64,
-    blocks: [i64; 4],
-    l3: &[i64],
-    l4: &[i64],
-) -> DilatedResNet {
+fn dilated_resnet(p: Path, c_in: i64, blocks: [i64; 4], l3: &[i64], l4: &[i64]) -> DilatedResNet {
     let init = InitScheme::TORCHVISION;
     let stem = resnet::stem(&p / "conv1", &p / "bn1", c_in, init);
     let plain = |n: i64, stride: i64| -> Vec<BlockGeometry> {
@@ -462,7 +457,7 @@ struct Pspnet {
 
 const PSP_BINS: [i64; 4] = [1, 2, 3, 6];
 
-fn pspnet(p: nn::Path, c_in: i64, num_classes: i64) -> Pspnet {
+fn pspnet(p: Path, c_in: i64, num_classes: i64) -> Pspnet {
     // torchvision's replace_stride_with_dilation: first block keeps the previous dilation.
     let backbone = dilated_resnet(
         &p / "backbone",
@@ -539,7 +534,7 @@ struct DucHdc {
 
 const DUC_FACTOR: i64 = 8;
 
-fn duchdc(p: nn::Path, c_in: i64, num_classes: i64) -> DucHdc {
+fn duchdc(p: Path, c_in: i64, num_classes: i64) -> DucHdc {
     let l3: Vec<i64> = (0..23).map(|i| [1, 2, 3][i % 3]).collect();
     let backbone = dilated_resnet(&p / "backbone", c_in, [3, 4, 23, 3], &l3, &[3, 4, 5]);
     let c = num_classes * DUC_FACTOR * DUC_FACTOR;
@@ -573,7 +568,7 @@ struct RectConv {
 }
 
 fn rect_conv(
-    p: nn::Path,
+    p: Path,
     c_in: i64,
     c_out: i64,
     k: [i64; 2],
@@ -598,7 +593,7 @@ impl nn::Module for RectConv {
     }
 }
 
-fn bn(p: nn::Path, c: i64) -> BatchNorm {
+fn bn(p: Path, c: i64) -> BatchNorm {
     crate::layers::bn2d_init(p, c, nn::Init::Const(1.0))
 }
 
@@ -610,7 +605,7 @@ struct Downsampler {
     bn: BatchNorm,
 }
 
-fn downsampler(p: nn::Path, c_in: i64, c_out: i64) -> Downsampler {
+fn downsampler(p: Path, c_in: i64, c_out: i64) -> Downsampler {
     let spec = ConvSpec::new(3).stride(2).bias(true);
     Downsampler {
         conv: ConvBnAct::new(&p / "conv", None, c_in, c_out - c_in, spec, Act::Identity),
@@ -638,7 +633,7 @@ struct NonBottleneck1d {
     dropout: f64,
 }
 
-fn non_bottleneck_1d(p: nn::Path, c: i64, dropout: f64, d: i64) -> NonBottleneck1d {
+fn non_bottleneck_1d(p: Path, c: i64, dropout: f64, d: i64) -> NonBottleneck1d {
     NonBottleneck1d {
         convs: [
             rect_conv(&p / "conv3x1_1", c, c, [3, 1], [1, 1], true),
@@ -673,7 +668,7 @@ struct Upsampler {
     bn: BatchNorm,
 }
 
-fn upsampler(p: nn::Path, c_in: i64, c_out: i64) -> Upsampler {
+fn upsampler(p: Path, c_in: i64, c_out: i64) -> Upsampler {
     let cfg = nn::ConvTransposeConfig {
         stride: 2,
         padding: 1,
@@ -701,7 +696,7 @@ struct Erfnet {
     output: nn::ConvTranspose2D,
 }
 
-fn erfnet(p: nn::Path, c_in: i64, num_classes: i64) -> Erfnet {
+fn erfnet(p: Path, c_in: i64, num_classes: i64) -> Erfnet {
     let e = &p / "encoder";
     let mut encoder: Vec<Box<dyn ModuleT>> = vec![
         Box::new(downsampler(&e / 0, c_in, 16)),
@@ -771,7 +766,7 @@ pub struct Baseline {
 }
 
 impl Baseline {
-    pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
+    pub fn new(p: Path, cfg: &Config) -> Result<Self, ModelError> {
         cfg.validate()?;
         let (c, n) = (cfg.in_channels, cfg.num_classes);
         let body = match cfg.arch {

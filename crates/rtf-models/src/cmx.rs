@@ -43,6 +43,7 @@ use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
+use crate::layers::Path;
 use crate::layers::{new_var, Act, ConvBnAct, ConvSpec, Fold, Folder, WeightInit};
 use crate::Network;
 
@@ -308,7 +309,7 @@ enum LinearInit {
     TorchDefault,
 }
 
-fn linear(p: nn::Path, c_in: i64, c_out: i64, bias: bool, init: LinearInit) -> Linear {
+fn linear(p: Path, c_in: i64, c_out: i64, bias: bool, init: LinearInit) -> Linear {
     let bound = 1.0 / (c_in as f64).sqrt();
     let uniform = nn::Init::Uniform {
         lo: -bound,
@@ -361,7 +362,7 @@ struct LayerNorm {
     eps: f64,
 }
 
-fn layer_norm(p: nn::Path, dim: i64, eps: f64) -> LayerNorm {
+fn layer_norm(p: Path, dim: i64, eps: f64) -> LayerNorm {
     LayerNorm {
         weight: new_var(&p, "weight", &[dim], nn::Init::Const(1.0)),
         bias: new_var(&p, "bias", &[dim], nn::Init::Const(0.0)),
@@ -390,8 +391,8 @@ impl Fold for LayerNorm {
 /// A convolution with bias (+ BatchNorm under `bn`) drawn as the official encoder and fusion
 /// modules draw it: N(0, √(2 / fan_out)), fan_out = k²·c_out / groups, bias 0.
 fn encoder_conv(
-    p: nn::Path,
-    bn: Option<nn::Path>,
+    p: Path,
+    bn: Option<Path>,
     c_in: i64,
     c_out: i64,
     spec: ConvSpec,
@@ -423,7 +424,7 @@ struct PatchEmbed {
     norm: LayerNorm,
 }
 
-fn patch_embed(p: nn::Path, c_in: i64, dim: i64, kernel: i64, stride: i64) -> PatchEmbed {
+fn patch_embed(p: Path, c_in: i64, dim: i64, kernel: i64, stride: i64) -> PatchEmbed {
     let spec = ConvSpec::new(kernel).stride(stride).bias(true);
     PatchEmbed {
         proj: encoder_conv(&p / "proj", None, c_in, dim, spec, Act::Identity),
@@ -460,7 +461,7 @@ struct Attention {
     reduce: Option<(ConvBnAct, LayerNorm)>,
 }
 
-fn attention(p: nn::Path, dim: i64, heads: i64, sr: i64) -> Attention {
+fn attention(p: Path, dim: i64, heads: i64, sr: i64) -> Attention {
     let lin = |name: &str, c_out| linear(&p / name, dim, c_out, true, LinearInit::Normal002);
     let reduce = (sr > 1).then(|| {
         let spec = ConvSpec::new(sr).stride(sr).padding(0).bias(true);
@@ -533,7 +534,7 @@ struct MixFfn {
     fc2: Linear,
 }
 
-fn mix_ffn(p: nn::Path, dim: i64) -> MixFfn {
+fn mix_ffn(p: Path, dim: i64) -> MixFfn {
     let hidden = dim * MLP_RATIO;
     let dw = &p / "dwconv" / "dwconv";
     MixFfn {
@@ -571,7 +572,7 @@ struct Block {
     drop_path: f64,
 }
 
-fn block(p: nn::Path, stage: usize, dim: i64, drop_path: f64) -> Block {
+fn block(p: Path, stage: usize, dim: i64, drop_path: f64) -> Block {
     Block {
         norm1: layer_norm(&p / "norm1", dim, BLOCK_LN_EPS),
         attn: attention(&p / "attn", dim, HEADS[stage], SR_RATIOS[stage]),
@@ -616,7 +617,7 @@ struct Stage {
 }
 
 /// Stage `stage` (0-based) of the RGB (`prefix` "") or thermal (`prefix` "extra_") stream.
-fn stage(p: &nn::Path, layout: &Layout, stage: usize, thermal: bool) -> Stage {
+fn stage(p: &Path, layout: &Layout, stage: usize, thermal: bool) -> Stage {
     let prefix = if thermal { "extra_" } else { "" };
     let n = stage + 1;
     let dim = layout.dims[stage];
@@ -673,7 +674,7 @@ struct Encoder {
     fusion: Vec<Fusion>,
 }
 
-fn encoder(p: nn::Path, layout: &Layout) -> Encoder {
+fn encoder(p: Path, layout: &Layout) -> Encoder {
     Encoder {
         rgb: (0..4).map(|i| stage(&p, layout, i, false)).collect(),
         thermal: (0..4).map(|i| stage(&p, layout, i, true)).collect(),
@@ -727,7 +728,7 @@ pub struct Cmx {
 }
 
 impl Cmx {
-    pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
+    pub fn new(p: Path, cfg: &Config) -> Result<Self, ModelError> {
         cfg.validate()?;
         let layout = cfg.size.layout();
         Ok(Self {

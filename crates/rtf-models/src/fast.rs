@@ -64,7 +64,7 @@ impl std::str::FromStr for Layout {
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct InferenceKernels {
     /// The Winograd forms the fp32 (and, with `bf16_winograd`, bf16) 3×3 convolutions may take.
-    pub winograd: crate::winograd::Forms,
+    pub winograd: rtf_kernels::winograd::Forms,
     /// bf16's wide 3×3 convolutions in the Winograd forms (fp32 arithmetic over bf16 maps)
     /// rather than on oneDNN's bf16 kernels.
     pub bf16_winograd: bool,
@@ -80,12 +80,12 @@ fn native() -> rtf_amp::Bf16Convolutions {
 
 impl InferenceKernels {
     /// Without a measurement: every form, and bf16 in the Winograd forms only where the CPU
-    /// has no bf16 arithmetic ([`crate::winograd::bf16_default`]), its bf16 convolutions
+    /// has no bf16 arithmetic ([`rtf_kernels::winograd::bf16_default`]), its bf16 convolutions
     /// emulated there.
     pub fn unmeasured() -> Self {
         Self {
-            winograd: crate::winograd::Forms::All,
-            bf16_winograd: crate::winograd::bf16_default(),
+            winograd: rtf_kernels::winograd::Forms::All,
+            bf16_winograd: rtf_kernels::winograd::bf16_default(),
             bf16_convolutions: rtf_amp::Bf16Policy::default().in_force(None),
         }
     }

@@ -12,6 +12,7 @@ use tch::nn::{self, ModuleT};
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
+use crate::layers::Path;
 use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder, InitScheme};
 use crate::resnet::{self, BlockKind, LayerSpec, ResLayer};
 use crate::Network;
@@ -89,7 +90,7 @@ struct Front {
     layer2: ResLayer,
 }
 
-fn front(p: nn::Path, c_in: i64) -> Front {
+fn front(p: Path, c_in: i64) -> Front {
     let init = InitScheme::NORMAL_002;
     let spec = |planes, blocks, stride| LayerSpec {
         planes,
@@ -137,7 +138,7 @@ impl Fold for Front {
 
 /// Dilated layer3 (dilation 2) and layer4 (dilation 4), no striding; the first block of each
 /// keeps dilation 1. [B, c_in, H/8, W/8] -> [B, 2048, H/8, W/8]
-fn back(p: &nn::Path, c_in: i64) -> (ResLayer, ResLayer) {
+fn back(p: &Path, c_in: i64) -> (ResLayer, ResLayer) {
     let init = InitScheme::NORMAL_002;
     let l3 = LayerSpec {
         planes: 256,
@@ -189,13 +190,13 @@ struct PspFolded {
 }
 
 /// One 1×1 convolution `features → features` per bin, under `p / i / 1` (`psp.stages.i.1`).
-fn psp_stages(p: &nn::Path, features: i64, spec: ConvSpec) -> Vec<ConvBnAct> {
+fn psp_stages(p: &Path, features: i64, spec: ConvSpec) -> Vec<ConvBnAct> {
     (0..BINS.len())
         .map(|i| ConvBnAct::new(p / i / 1, None, features, features, spec, Act::Identity))
         .collect()
 }
 
-fn psp_module(p: nn::Path, features: i64, out: i64) -> PspModule {
+fn psp_module(p: Path, features: i64, out: i64) -> PspModule {
     let spec = ConvSpec::new(1).scheme(InitScheme::NORMAL_002);
     let stages = psp_stages(&(&p / "stages"), features, spec);
     let c_cat = features * (BINS.len() as i64 + 1);
@@ -308,7 +309,7 @@ struct PspUpsample {
     prelu: Tensor,
 }
 
-fn psp_upsample(p: nn::Path, c_in: i64, c_out: i64) -> PspUpsample {
+fn psp_upsample(p: Path, c_in: i64, c_out: i64) -> PspUpsample {
     let spec = ConvSpec::new(3).bias(true).scheme(InitScheme::NORMAL_002);
     let conv = ConvBnAct::new(
         &p / "conv" / 0,
@@ -360,7 +361,7 @@ pub struct HeatNet {
 }
 
 impl HeatNet {
-    pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
+    pub fn new(p: Path, cfg: &Config) -> Result<Self, ModelError> {
         if cfg.num_classes < 1 {
             return Err(ModelError::InvalidConfig {
                 network: cfg.name(),
@@ -501,7 +502,7 @@ pub struct Critic {
 const CRITIC_SLOPE: f64 = 0.2;
 
 impl Critic {
-    pub fn new(p: nn::Path, cfg: &CriticConfig) -> Result<Self, ModelError> {
+    pub fn new(p: Path, cfg: &CriticConfig) -> Result<Self, ModelError> {
         if cfg.in_channels < 1 {
             return Err(ModelError::InvalidConfig {
                 network: "heatnet-critic".into(),
@@ -576,13 +577,13 @@ impl Critic {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::weights;
     use crate::test_util::forward_shape;
-    use crate::weights;
     use tch::Device;
 
     fn count(inputs: Inputs) -> (nn::VarStore, HeatNet) {
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = HeatNet::new(vs.root(), &Config::new(inputs, 13)).unwrap();
+        let net = HeatNet::new(vs.root().into(), &Config::new(inputs, 13)).unwrap();
         (vs, net)
     }
 
@@ -651,7 +652,7 @@ mod tests {
     #[test]
     fn critic_count_and_shape() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let critic = Critic::new(vs.root(), &CriticConfig { in_channels: 13 }).unwrap();
+        let critic = Critic::new(vs.root().into(), &CriticConfig { in_channels: 13 }).unwrap();
         assert_eq!(weights::count_trainable(&vs), 2_774_977);
         let _guard = tch::no_grad_guard();
         let out = critic.forward_t(
@@ -665,7 +666,7 @@ mod tests {
 
     /// HeatNet's PSP module on `features` channels, its stages with a bias if `stage_bias`
     /// (the reference's have none; the fold takes one into the bottleneck's bias).
-    fn psp_for_test(p: nn::Path, features: i64, out: i64, stage_bias: bool) -> PspModule {
+    fn psp_for_test(p: Path, features: i64, out: i64, stage_bias: bool) -> PspModule {
         let psp = psp_module(&p / "psp", features, out);
         match (stage_bias, psp) {
             (true, PspModule::Plain { bottleneck, .. }) => PspModule::Plain {
@@ -683,7 +684,7 @@ mod tests {
         tch::manual_seed(11);
         for stage_bias in [false, true] {
             let vs = nn::VarStore::new(Device::Cpu);
-            let psp = psp_for_test(vs.root(), 16, 8, stage_bias);
+            let psp = psp_for_test(vs.root().into(), 16, 8, stage_bias);
             let fold = |p| psp.folded(&Folder::new(&crate::fast::FoldOptions::new(p)));
             // Weights of unit gain and inputs with per-channel offsets, so that every bin's
             // prior weighs as much as the input's own columns (the reference init, std 0.02,

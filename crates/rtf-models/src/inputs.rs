@@ -4,7 +4,7 @@
 //! see are set to 0 in the network's input space (after its input convention), so any
 //! network plays any role. A network trained behind a mask must be scored behind the same
 //! mask, so the mask travels with the weights (`rtf.inputs` in their metadata, see
-//! [`crate::weights`]).
+//! [`crate::io::weights`]).
 
 use serde::{Deserialize, Serialize};
 use tch::Tensor;

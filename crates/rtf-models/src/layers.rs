@@ -12,76 +12,44 @@ use tch::{nn, Kind, Tensor};
 pub use crate::bn_defaults::{BN_EPS, BN_MOMENTUM};
 pub use crate::sync_bn::BatchNorm;
 
-use crate::aten::{ffi, shim_result};
 use crate::fast::unit::FoldedConv;
-use crate::onednn::Geometry;
+use rtf_amp::Bf16Convolutions;
+pub use rtf_kernels::aten::bf16_emulated_convolution;
+use rtf_kernels::onednn::Geometry;
+use rtf_kernels::winograd::Forms;
 
 mod fold;
 pub mod ops;
+mod path;
 pub use crate::fast::folder::{Fold, Folder};
 pub use fold::batch_norm_affine;
 use ops::nearest_up2_conv3x3_as_phases;
 pub use ops::{is_channels_last, leaky_relu, leaky_relu_inference, to_channels_last, Act};
+pub use path::{BuildOptions, Path, UnitKernels};
 
 /// BatchNorm2d initialised as PyTorch's (weight 1, bias 0; tch's default weight is U(0, 1)).
-pub fn bn2d(p: nn::Path, c: i64) -> BatchNorm {
+pub fn bn2d(p: Path, c: i64) -> BatchNorm {
     bn2d_init(p, c, nn::Init::Const(1.0))
 }
 
 /// BatchNorm2d with a given weight initialisation and bias 0.
-pub fn bn2d_init(p: nn::Path, c: i64, weight: nn::Init) -> BatchNorm {
+pub fn bn2d_init(p: Path, c: i64, weight: nn::Init) -> BatchNorm {
     bn2d_with(p, c, weight, BN_EPS)
 }
 
-/// BatchNorm2d with a given weight initialisation, bias 0 and eps (momentum [`BN_MOMENTUM`]).
-pub fn bn2d_with(p: nn::Path, c: i64, weight: nn::Init, eps: f64) -> BatchNorm {
+/// BatchNorm2d with a given weight initialisation, bias 0 and eps (momentum [`BN_MOMENTUM`]),
+/// its training-mode statistics synchronised where the build's kernels say
+/// ([`UnitKernels::sync`]).
+pub fn bn2d_with(p: Path, c: i64, weight: nn::Init, eps: f64) -> BatchNorm {
     let cfg = nn::BatchNormConfig {
         eps,
         momentum: BN_MOMENTUM,
-        ws_init: effective_init(weight),
+        ws_init: effective_init(&p, weight),
         bs_init: nn::Init::Const(0.0),
         ..Default::default()
     };
-    BatchNorm::new(nn::batch_norm2d(p, c, cfg), eps)
-}
-
-/// The bf16 convolution of `xs` with `weight` (+ `bias`), computed by fp32 kernels over
-/// bf16-rounded operands, its output and operand gradients rounded to bf16: a native bf16
-/// kernel's numbers at fp32 kernels' speed (csrc/ops.cpp `Bf16EmulatedConvolution`;
-/// [`rtf_amp::Bf16Convolutions::Emulated`]). Differentiable; output bf16, operand gradients in
-/// the operands' own types. Units call it inside a CPU bf16 autocast region where
-/// [`rtf_amp::emulates_bf16_convolution`] says so.
-pub fn bf16_emulated_convolution(
-    xs: &Tensor,
-    weight: &Tensor,
-    bias: Option<&Tensor>,
-    geometry: Geometry,
-) -> Tensor {
-    let g = geometry;
-    let pair = |v: i64| [v, v];
-    let (stride, padding, dilation) = (pair(g.stride), pair(g.padding), pair(g.dilation));
-    let output_padding = [0i64, 0];
-    let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
-    let bias_ptr = bias.map_or(std::ptr::null_mut(), |b| {
-        b.as_ptr() as *mut torch_sys::C_tensor
-    });
-    // SAFETY: the tensors' `as_ptr` are live `at::Tensor*` for the call (bias may be null, which
-    // the shim reads as no bias); the geometry arrays hold two values each, as the shim reads.
-    unsafe {
-        let error = ffi::rtf_bf16_emulated_convolution(
-            xs.as_ptr() as *mut torch_sys::C_tensor,
-            weight.as_ptr() as *mut torch_sys::C_tensor,
-            bias_ptr,
-            stride.as_ptr(),
-            padding.as_ptr(),
-            dilation.as_ptr(),
-            std::ffi::c_int::from(g.transposed),
-            output_padding.as_ptr(),
-            g.groups,
-            &mut out,
-        );
-        shim_result("bf16 emulated convolution", error, out)
-    }
+    let sync = p.kernels().sync.clone();
+    BatchNorm::new(nn::batch_norm2d(p.nn(), c, cfg), eps, sync)
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -232,30 +200,19 @@ impl ConvSpec {
     }
 }
 
-thread_local! {
-    /// Set while counting parameters: every variable starts as zeros (lazily allocated), so
-    /// building even RTFNet-152 costs next to nothing.
-    static ZERO_INIT: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-}
-
-/// Runs `f` with variable initialisation skipped (for counting parameters).
-pub fn with_zero_init<T>(f: impl FnOnce() -> T) -> T {
-    crate::scoped::with(&ZERO_INIT, true, f)
-}
-
-/// A trainable variable; inside [`with_zero_init`] an uninitialised one (never touched, so
-/// the operating system does not even commit its memory).
-pub fn new_var(p: &nn::Path, name: &str, dims: &[i64], init: nn::Init) -> Tensor {
-    if ZERO_INIT.with(|z| z.get()) {
+/// A trainable variable; in an uninitialised build ([`BuildOptions::uninitialised`]) an
+/// uninitialised one (never touched, so the operating system does not even commit its memory).
+pub fn new_var(p: &Path, name: &str, dims: &[i64], init: nn::Init) -> Tensor {
+    if p.options().uninitialised {
         p.add(name, Tensor::empty(dims, (p.kind(), p.device())), true)
     } else {
         p.var(name, dims, init)
     }
 }
 
-/// `init`, or zeros inside [`with_zero_init`].
-pub fn effective_init(init: nn::Init) -> nn::Init {
-    if ZERO_INIT.with(|z| z.get()) {
+/// `init`, or zeros in an uninitialised build.
+pub fn effective_init(p: &Path, init: nn::Init) -> nn::Init {
+    if p.options().uninitialised {
         nn::Init::Const(0.0)
     } else {
         init
@@ -294,7 +251,7 @@ fn weight_init(init: WeightInit, dims: &[i64]) -> nn::Init {
     }
 }
 
-/// [`crate::kernels::interleave_phases`] in libtorch ops, differentiable, in the phases' kind:
+/// [`rtf_kernels::phases::interleave_phases`] in libtorch ops, differentiable, in the phases' kind:
 /// `out[n, c, 2i + a, 2j + b] = phases[n, (2a + b)·C + c, i + a, j + b]`.
 /// [B, 4C, H + 1, W + 1] -> [B, C, 2H, 2W]
 fn interleave_phases_differentiably(phases: &Tensor) -> Tensor {
@@ -336,6 +293,10 @@ struct Plain {
     weight: Tensor,
     bias: Option<Tensor>,
     bn: Option<BatchNorm>,
+    /// The Winograd forms its training convolution may take (its build's [`UnitKernels`]).
+    winograd: Forms,
+    /// How it convolves in bf16 inside a CPU bf16 autocast region (its build's kernels).
+    bf16_convolutions: Bf16Convolutions,
 }
 
 impl Plain {
@@ -352,8 +313,8 @@ impl ConvBnAct {
     /// Convolution variables under `conv` (`weight`, `bias`), BatchNorm under `bn` if given.
     /// [B, c_in, H, W] -> [B, c_out, H', W']
     pub fn new(
-        conv: nn::Path,
-        bn: Option<nn::Path>,
+        conv: Path,
+        bn: Option<Path>,
         c_in: i64,
         c_out: i64,
         spec: ConvSpec,
@@ -374,11 +335,19 @@ impl ConvBnAct {
             )
         });
         let bn = bn.map(|p| bn2d_with(p, c_out, spec.bn_weight_init, spec.bn_eps));
+        let kernels = conv.kernels();
+        let plain = Plain {
+            weight,
+            bias,
+            bn,
+            winograd: kernels.winograd,
+            bf16_convolutions: kernels.bf16_convolutions,
+        };
         Self {
             spec,
             act,
             out_channels: c_out,
-            form: Form::Plain(Plain { weight, bias, bn }),
+            form: Form::Plain(plain),
         }
     }
 
@@ -423,7 +392,7 @@ impl ConvBnAct {
             let weight = nearest_up2_conv3x3_as_phases(&p.weight);
             let bias = p.bias.as_ref().map(|b| b.repeat([4]));
             // [B, c_in, H, W] -> [B, 4·c_out, H + 1, W + 1] -> [B, c_out, 2H, 2W]
-            let phases = self.conv(xs, &weight, bias.as_ref());
+            let phases = self.conv(p, xs, &weight, bias.as_ref());
             let ys = interleave_phases_differentiably(&phases);
             return self.act.apply_fresh(batch_norm(p, ys, train));
         }
@@ -457,15 +426,17 @@ impl ConvBnAct {
     fn conv_bn(&self, p: &Plain, xs: &Tensor, train: bool) -> Tensor {
         let ys = match self.winograd_training_conv(p, xs, train) {
             Some(ys) => ys,
-            None => self.conv(xs, &p.weight, p.bias.as_ref()),
+            None => self.conv(p, xs, &p.weight, p.bias.as_ref()),
         };
         batch_norm(p, ys, train)
     }
 
-    fn conv(&self, xs: &Tensor, weight: &Tensor, bias: Option<&Tensor>) -> Tensor {
+    /// The plain convolution of `xs` with `weight` (+ `bias`): emulated bf16 where `p`'s
+    /// kernels say so inside a CPU bf16 autocast region, else libtorch's.
+    fn conv(&self, p: &Plain, xs: &Tensor, weight: &Tensor, bias: Option<&Tensor>) -> Tensor {
         let s = &self.spec;
         let spatial = s.kernel > 1 && !s.transposed;
-        if rtf_amp::emulates_bf16_convolution(xs.device(), spatial) {
+        if rtf_amp::emulates_bf16_convolution(xs.device(), spatial, p.bf16_convolutions) {
             return bf16_emulated_convolution(xs, weight, bias, self.geometry());
         }
         if s.transposed {
@@ -491,13 +462,19 @@ impl ConvBnAct {
     }
 
     /// The training convolution in F(4×4, 3×3) (forward and input gradient; [4× fewer
-    /// multiply-adds](crate::winograd)), where it applies: training, float32 channels-last maps
-    /// on the CPU (rtf's fp32 training layout on AVX-512 CPUs) outside any autocast region, a
-    /// 3×3 stride-1 convolution without bias whose shape gains ([`crate::winograd::trains_in_f43`]).
-    /// Never on the plain eval path, which stays the reference's arithmetic.
+    /// multiply-adds](rtf_kernels::winograd)), where it applies: training, float32
+    /// channels-last maps on the CPU (rtf's fp32 training layout on AVX-512 CPUs) outside any
+    /// autocast region, a 3×3 stride-1 convolution without bias whose shape gains within the
+    /// unit's forms ([`rtf_kernels::winograd::trains_in_f43`]). Never on the plain eval path,
+    /// which stays the reference's arithmetic.
     fn winograd_training_conv(&self, p: &Plain, xs: &Tensor, train: bool) -> Option<Tensor> {
-        let dims = p.weight.size();
-        let applies = train
+        self.trains_in_winograd(p, xs, train)
+            .then(|| rtf_kernels::winograd::conv3x3_f43_train(xs, &p.weight))
+    }
+
+    /// Whether [`winograd_training_conv`](Self::winograd_training_conv) applies to `xs`.
+    fn trains_in_winograd(&self, p: &Plain, xs: &Tensor, train: bool) -> bool {
+        train
             && p.bias.is_none()
             && !self.spec.transposed
             && xs.device() == tch::Device::Cpu
@@ -505,13 +482,13 @@ impl ConvBnAct {
             && p.weight.kind() == Kind::Float
             && is_channels_last(xs)
             && rtf_amp::state(tch::Device::Cpu).is_ok_and(|s| !s.enabled)
-            && crate::winograd::trains_in_f43(
+            && rtf_kernels::winograd::trains_in_f43(
+                p.winograd,
                 self.spec.kernel,
                 self.geometry(),
-                dims[0],
+                p.weight.size()[0],
                 &xs.size(),
-            );
-        applies.then(|| crate::winograd::conv3x3_f43_train(xs, &p.weight))
+            )
     }
 }
 

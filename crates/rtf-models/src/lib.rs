@@ -1,42 +1,36 @@
 //! rtf-models: the networks of MFNet, RTFNet, HeatNet and CMX on tch, with the reference
-//! implementations' parameter names, and their weights in and out as safetensors.
+//! implementations' parameter names, and their weights in and out as safetensors ([`io`]).
+//! The kernels they run on (oneDNN's fused convolutions, Winograd, the C++ op shim) are
+//! rtf-kernels'.
 //!
 //! Every network takes `[B, 4, H, W]` = R, G, B, T already scaled by its
 //! [`Network::input_convention`]; networks that use fewer channels select them inside forward.
 //! Output: logits `[B, num_classes, H, W]`.
 
-pub mod allocator;
-pub mod aten;
 pub mod backbone;
 pub mod baselines;
 pub mod bn_defaults;
 pub mod cmx;
 pub mod error;
-pub mod export;
 pub mod fast;
 pub mod heatnet;
 pub mod inputs;
-pub mod kernels;
+pub mod io;
 pub mod layers;
-pub mod loaded;
 pub mod mfnet;
-pub mod mit_pretrained;
-pub mod onednn;
 pub mod release;
 pub mod resnet;
 pub mod rtfnet;
-mod scoped;
 pub mod sync_bn;
 pub mod tolerance;
-pub mod weights;
-pub mod winograd;
 
 use serde::{Deserialize, Serialize};
 use tch::nn;
 
 pub use error::{ModelError, ShapeMismatch};
 pub use inputs::{masked, Masked, Modality};
-pub use sync_bn::{StatsAllReduce, SyncBatchNorm};
+pub use layers::{BuildOptions, UnitKernels};
+pub use sync_bn::StatsAllReduce;
 
 /// What every segmentation network offers beyond its forward pass.
 pub trait Network: nn::ModuleT {
@@ -194,24 +188,35 @@ impl ModelConfig {
     }
 }
 
-/// Builds the network described by `cfg` under `p` (parameter paths = reference names).
+/// Builds the network described by `cfg` under `p` (parameter paths = reference names), with
+/// the default [`BuildOptions`]: initialised variables, every Winograd form, libtorch's bf16
+/// kernels, per-process BatchNorm statistics.
 pub fn build(p: &nn::Path, cfg: &ModelConfig) -> Result<Box<dyn Network>, ModelError> {
+    build_with(p, cfg, &BuildOptions::default())
+}
+
+/// [`build`] with `options`: how the network's plain units compute (a training run's recorded
+/// kernels) and whether its variables are initialised.
+pub fn build_with(
+    p: &nn::Path,
+    cfg: &ModelConfig,
+    options: &BuildOptions,
+) -> Result<Box<dyn Network>, ModelError> {
+    let p = layers::Path::new(p.clone(), options);
     Ok(match cfg {
-        ModelConfig::Mfnet(c) => Box::new(mfnet::MfNet::new(p.clone(), c)?) as Box<dyn Network>,
-        ModelConfig::Rtfnet(c) => Box::new(rtfnet::RtfNet::new(p.clone(), c)?),
-        ModelConfig::Heatnet(c) => Box::new(heatnet::HeatNet::new(p.clone(), c)?),
-        ModelConfig::Baseline(c) => Box::new(baselines::Baseline::new(p.clone(), c)?),
-        ModelConfig::Cmx(c) => Box::new(cmx::Cmx::new(p.clone(), c)?),
+        ModelConfig::Mfnet(c) => Box::new(mfnet::MfNet::new(p, c)?) as Box<dyn Network>,
+        ModelConfig::Rtfnet(c) => Box::new(rtfnet::RtfNet::new(p, c)?),
+        ModelConfig::Heatnet(c) => Box::new(heatnet::HeatNet::new(p, c)?),
+        ModelConfig::Baseline(c) => Box::new(baselines::Baseline::new(p, c)?),
+        ModelConfig::Cmx(c) => Box::new(cmx::Cmx::new(p, c)?),
     })
 }
 
 /// Trainable parameter count of a configuration, without initialising any weights.
 pub fn count_parameters(cfg: &ModelConfig) -> Result<i64, ModelError> {
-    layers::with_zero_init(|| {
-        let vs = nn::VarStore::new(tch::Device::Cpu);
-        build(&vs.root(), cfg)?;
-        Ok(weights::count_trainable(&vs))
-    })
+    let vs = nn::VarStore::new(tch::Device::Cpu);
+    build_with(&vs.root(), cfg, &BuildOptions::uninitialised())?;
+    Ok(io::weights::count_trainable(&vs))
 }
 
 /// The class count a named model is usually built with: Freiburg's 13 for HeatNet, MF's 9
@@ -249,14 +254,15 @@ pub fn model_infos() -> Result<Vec<ModelInfo>, ModelError> {
             Ok(info(name, count_parameters(&cfg)?))
         })
         .collect::<Result<Vec<_>, ModelError>>()?;
-    let critic = layers::with_zero_init(|| {
-        let vs = nn::VarStore::new(tch::Device::Cpu);
-        let cfg = heatnet::CriticConfig {
-            in_channels: rtf_core::ClassSet::freiburg().len() as i64,
-        };
-        heatnet::Critic::new(vs.root(), &cfg)?;
-        Ok::<_, ModelError>(weights::count_trainable(&vs))
-    })?;
+    let vs = nn::VarStore::new(tch::Device::Cpu);
+    let cfg = heatnet::CriticConfig {
+        in_channels: rtf_core::ClassSet::freiburg().len() as i64,
+    };
+    heatnet::Critic::new(
+        layers::Path::new(vs.root(), &BuildOptions::uninitialised()),
+        &cfg,
+    )?;
+    let critic = io::weights::count_trainable(&vs);
     infos.push(info("heatnet-critic".into(), critic));
     Ok(infos)
 }
@@ -364,7 +370,7 @@ mod tests {
             build(&vs.root(), &cfg).unwrap();
             assert_eq!(
                 count_parameters(&cfg).unwrap(),
-                weights::count_trainable(&vs),
+                io::weights::count_trainable(&vs),
                 "{name}"
             );
         }

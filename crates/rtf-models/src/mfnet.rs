@@ -6,10 +6,11 @@
 //! upsampling. Parameter paths are the reference state_dict names (`conv1_rgb.conv.weight`, …).
 
 use serde::{Deserialize, Serialize};
-use tch::nn::{self, ModuleT};
+use tch::nn::ModuleT;
 use tch::{Kind, Tensor};
 
 use crate::error::ModelError;
+use crate::layers::Path;
 use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder};
 use crate::Network;
 
@@ -292,14 +293,7 @@ impl Config {
 
 /// Conv k×k (bias, padding = dilation·(k−1)/2) → BatchNorm → LeakyReLU(0.2) (or ReLU);
 /// `ConvBnLeakyRelu2d`. [B, c_in, H, W] -> [B, c_out, H, W]
-fn conv_bn_act(
-    p: nn::Path,
-    c_in: i64,
-    c_out: i64,
-    kernel: i64,
-    dilation: i64,
-    act: Act,
-) -> ConvBnAct {
+fn conv_bn_act(p: Path, c_in: i64, c_out: i64, kernel: i64, dilation: i64, act: Act) -> ConvBnAct {
     let spec = ConvSpec::new(kernel).dilation(dilation).bias(true);
     ConvBnAct::new(&p / "conv", Some(&p / "bn"), c_in, c_out, spec, act)
 }
@@ -325,7 +319,7 @@ struct InceptionStage {
     blocks: Vec<StageBlock>,
 }
 
-fn inception_stage(p: nn::Path, c_in: i64, c_out: i64, cfg: &Config) -> InceptionStage {
+fn inception_stage(p: Path, c_in: i64, c_out: i64, cfg: &Config) -> InceptionStage {
     let act = cfg.act();
     let blocks = (1..=3)
         .map(|i| {
@@ -444,7 +438,7 @@ struct Encoded {
 
 impl Encoder {
     /// `suffix` is `rgb` or `inf`, as in the reference names (`conv2_1_rgb`, `conv4_inf`).
-    fn new(p: &nn::Path, suffix: &str, c_in: i64, c: [i64; 5], cfg: &Config) -> Self {
+    fn new(p: &Path, suffix: &str, c_in: i64, c: [i64; 5], cfg: &Config) -> Self {
         let path = |name: &str| p / format!("{name}_{suffix}");
         let act = cfg.act();
         Self {
@@ -572,7 +566,7 @@ pub struct MfNet {
 }
 
 impl MfNet {
-    pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
+    pub fn new(p: Path, cfg: &Config) -> Result<Self, ModelError> {
         cfg.validate()?;
         let (r, t) = (cfg.rgb_channels, cfg.thermal_channels);
         let fused = r[4] + t[4];
@@ -692,13 +686,13 @@ impl Network for MfNet {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::weights;
     use crate::test_util::{assert_matches_reference_keys, forward_shape};
-    use crate::weights;
-    use tch::{Device, Kind};
+    use tch::{nn, Device, Kind};
 
     fn build(cfg: &Config) -> (nn::VarStore, MfNet) {
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = MfNet::new(vs.root(), cfg).unwrap();
+        let net = MfNet::new(vs.root().into(), cfg).unwrap();
         (vs, net)
     }
 
@@ -760,7 +754,7 @@ mod tests {
             ..Config::reference(9)
         };
         let vs = nn::VarStore::new(Device::Cpu);
-        let err = MfNet::new(vs.root(), &cfg).unwrap_err().to_string();
+        let err = MfNet::new(vs.root().into(), &cfg).unwrap_err().to_string();
         assert!(err.contains("conv4 skip width"), "{err}");
     }
 

@@ -20,7 +20,7 @@ use std::collections::HashMap;
 
 use tch::Tensor;
 
-use crate::aten::tensor_holders;
+use rtf_kernels::aten::tensor_holders;
 
 /// The plain network's variables (weights, biases, BatchNorm statistics) and who held each one
 /// before folding: [`record`](Self::record) it before the fold, fold with a folder releasing

@@ -2,9 +2,10 @@
 //! encoders by RTFNet, HeatNet and the baselines. Parameter names follow torchvision
 //! (`conv1`, `bn1`, `layerN.i.conv1`, `layerN.i.downsample.0`, …) under a caller's prefix.
 
-use tch::nn::{self, ModuleT};
+use tch::nn::ModuleT;
 use tch::Tensor;
 
+use crate::layers::Path;
 use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder, InitScheme};
 
 /// Residual block type of a ResNet depth.
@@ -57,7 +58,7 @@ pub struct BlockGeometry {
 }
 
 fn conv_bn(
-    p: &nn::Path,
+    p: &Path,
     conv: &str,
     bn: &str,
     c_in: i64,
@@ -70,7 +71,7 @@ fn conv_bn(
 
 /// torchvision BasicBlock. [B, c_in, H, W] -> [B, planes, H/s, W/s]
 pub fn basic_block(
-    p: nn::Path,
+    p: Path,
     c_in: i64,
     planes: i64,
     g: BlockGeometry,
@@ -95,13 +96,7 @@ pub fn basic_block(
 
 /// torchvision Bottleneck (stride on the 3×3 conv, "ResNet v1.5").
 /// [B, c_in, H, W] -> [B, 4·planes, H/s, W/s]
-pub fn bottleneck(
-    p: nn::Path,
-    c_in: i64,
-    planes: i64,
-    g: BlockGeometry,
-    init: InitScheme,
-) -> ResBlock {
+pub fn bottleneck(p: Path, c_in: i64, planes: i64, g: BlockGeometry, init: InitScheme) -> ResBlock {
     let k1 = ConvSpec::new(1).scheme(init);
     let k3 = ConvSpec::new(3)
         .dilation(g.dilation)
@@ -117,13 +112,7 @@ pub fn bottleneck(
 }
 
 /// 1×1 conv (stride s) → BN when the block changes shape; `downsample.0`, `downsample.1`.
-fn downsample(
-    p: &nn::Path,
-    c_in: i64,
-    c_out: i64,
-    stride: i64,
-    init: InitScheme,
-) -> Option<ConvBnAct> {
+fn downsample(p: &Path, c_in: i64, c_out: i64, stride: i64, init: InitScheme) -> Option<ConvBnAct> {
     (stride != 1 || c_in != c_out).then(|| {
         let spec = ConvSpec::new(1).stride(stride).scheme(init);
         conv_bn(
@@ -188,13 +177,7 @@ pub struct LayerSpec {
 
 /// `layerN`: block 0 takes `c_in` and the stride, the rest keep the shape.
 /// [B, c_in, H, W] -> [B, planes·expansion, H/s, W/s]
-pub fn layer(
-    p: nn::Path,
-    kind: BlockKind,
-    c_in: i64,
-    spec: LayerSpec,
-    init: InitScheme,
-) -> ResLayer {
+pub fn layer(p: Path, kind: BlockKind, c_in: i64, spec: LayerSpec, init: InitScheme) -> ResLayer {
     let geometries: Vec<BlockGeometry> = (0..spec.blocks)
         .map(|i| {
             if i == 0 {
@@ -215,7 +198,7 @@ pub fn layer(
 
 /// A layer with an explicit stride/dilation per block (e.g. hybrid dilated convolution).
 pub fn layer_with(
-    p: nn::Path,
+    p: Path,
     kind: BlockKind,
     c_in: i64,
     planes: i64,
@@ -259,7 +242,7 @@ impl Fold for ResLayer {
 
 /// The stem convolution: 7×7 stride 2 pad 3 (no bias) → BN → ReLU, at `conv` / `bn`.
 /// [B, c_in, H, W] -> [B, 64, H/2, W/2]
-pub fn stem(conv: nn::Path, bn: nn::Path, c_in: i64, init: InitScheme) -> ConvBnAct {
+pub fn stem(conv: Path, bn: Path, c_in: i64, init: InitScheme) -> ConvBnAct {
     let spec = ConvSpec::new(7).stride(2).scheme(init);
     ConvBnAct::new(conv, Some(bn), c_in, 64, spec, Act::Relu)
 }
@@ -279,13 +262,7 @@ pub struct ResNetEncoder {
 }
 
 impl ResNetEncoder {
-    pub fn new(
-        p: &nn::Path,
-        prefix: &str,
-        c_in: i64,
-        depth: i64,
-        init: InitScheme,
-    ) -> Option<Self> {
+    pub fn new(p: &Path, prefix: &str, c_in: i64, depth: i64, init: InitScheme) -> Option<Self> {
         let (kind, blocks) = layout(depth)?;
         let stem = stem(
             p / format!("{prefix}conv1"),

@@ -7,10 +7,11 @@
 //! (C→C', ×2 by transposed convolutions). Logits are post-ReLU, as in the reference.
 
 use serde::{Deserialize, Serialize};
-use tch::nn::{self, ModuleT};
+use tch::nn::ModuleT;
 use tch::Tensor;
 
 use crate::error::ModelError;
+use crate::layers::Path;
 use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder, InitScheme, WeightInit};
 use crate::resnet::{self, ResNetEncoder};
 use crate::Network;
@@ -136,7 +137,7 @@ struct UpceptionA {
 }
 
 fn decoder_conv(
-    p: &nn::Path,
+    p: &Path,
     conv: &str,
     bn: &str,
     c_in: i64,
@@ -154,7 +155,7 @@ fn decoder_conv(
     )
 }
 
-fn upception_a(p: nn::Path, c: i64) -> UpceptionA {
+fn upception_a(p: Path, c: i64) -> UpceptionA {
     UpceptionA {
         conv1: decoder_conv(&p, "conv1", "bn1", c, c, ConvSpec::new(1), Act::Relu),
         conv2: decoder_conv(&p, "conv2", "bn2", c, c, ConvSpec::new(3), Act::Relu),
@@ -179,7 +180,7 @@ struct UpceptionB {
     upsample: ConvBnAct,
 }
 
-fn upception_b(p: nn::Path, c_in: i64, c_out: i64) -> UpceptionB {
+fn upception_b(p: Path, c_in: i64, c_out: i64) -> UpceptionB {
     let up = ConvSpec::new(2).stride(2).transposed();
     UpceptionB {
         conv1: decoder_conv(&p, "conv1", "bn1", c_in, c_out, ConvSpec::new(1), Act::Relu),
@@ -266,7 +267,7 @@ fn fuse_add(a: Tensor, b: &Tensor, train: bool) -> Tensor {
 }
 
 impl RtfNet {
-    pub fn new(p: nn::Path, cfg: &Config) -> Result<Self, ModelError> {
+    pub fn new(p: Path, cfg: &Config) -> Result<Self, ModelError> {
         cfg.validate()?;
         let init = InitScheme::TORCHVISION;
         let encoder = |prefix: &str, c_in: i64| {
@@ -392,9 +393,9 @@ impl Network for RtfNet {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::weights;
     use crate::test_util::{assert_matches_reference_keys, forward_shape};
-    use crate::weights;
-    use tch::{Device, Kind};
+    use tch::{nn, Device, Kind};
 
     /// Spec §4 parameter counts for 9 classes.
     fn reference_count(depth: i64) -> i64 {
@@ -412,7 +413,7 @@ mod tests {
     /// networks take a while to initialise).
     fn check_depth(depth: i64) {
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = RtfNet::new(vs.root(), &Config::new(depth, 9, Variant::Full)).unwrap();
+        let net = RtfNet::new(vs.root().into(), &Config::new(depth, 9, Variant::Full)).unwrap();
         assert_eq!(
             weights::count_trainable(&vs),
             reference_count(depth),
@@ -446,7 +447,7 @@ mod tests {
     #[test]
     fn output_rounds_up_to_multiples_of_32() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = RtfNet::new(vs.root(), &Config::new(18, 9, Variant::Full)).unwrap();
+        let net = RtfNet::new(vs.root().into(), &Config::new(18, 9, Variant::Full)).unwrap();
         // Spec §4: 360×500 -> 384×512; here the same rule on a small input.
         assert_eq!(forward_shape(&net, [1, 4, 40, 70]), vec![1, 9, 64, 96]);
         let logits = tch::no_grad(|| {
@@ -465,12 +466,12 @@ mod tests {
     fn ablations_build_run_and_differ_from_full() {
         let full = {
             let vs = nn::VarStore::new(Device::Cpu);
-            let _ = RtfNet::new(vs.root(), &Config::new(18, 9, Variant::Full)).unwrap();
+            let _ = RtfNet::new(vs.root().into(), &Config::new(18, 9, Variant::Full)).unwrap();
             weights::count_trainable(&vs)
         };
         for variant in Variant::ALL.into_iter().filter(|v| *v != Variant::Full) {
             let vs = nn::VarStore::new(Device::Cpu);
-            let net = RtfNet::new(vs.root(), &Config::new(18, 9, variant)).unwrap();
+            let net = RtfNet::new(vs.root().into(), &Config::new(18, 9, variant)).unwrap();
             assert_eq!(
                 forward_shape(&net, [2, 4, 64, 96]),
                 vec![2, 9, 64, 96],
@@ -503,7 +504,7 @@ mod tests {
         let file = dir.path().join("full.safetensors");
         tch::manual_seed(0);
         let vs_full = nn::VarStore::new(Device::Cpu);
-        let full = RtfNet::new(vs_full.root(), &Config::new(18, 9, Variant::Full)).unwrap();
+        let full = RtfNet::new(vs_full.root().into(), &Config::new(18, 9, Variant::Full)).unwrap();
         weights::save_safetensors(
             &vs_full,
             &crate::ModelConfig::Rtfnet(Config::new(18, 9, Variant::Full)),
@@ -512,7 +513,7 @@ mod tests {
         )
         .unwrap();
         let mut vs_olf = nn::VarStore::new(Device::Cpu);
-        let olf = RtfNet::new(vs_olf.root(), &Config::new(18, 9, Variant::Olf)).unwrap();
+        let olf = RtfNet::new(vs_olf.root().into(), &Config::new(18, 9, Variant::Olf)).unwrap();
         weights::load_safetensors(&mut vs_olf, &file).unwrap();
         let x = Tensor::rand([1, 4, 64, 64], (Kind::Float, Device::Cpu));
         let (a, b) = tch::no_grad(|| (full.forward_t(&x, false), olf.forward_t(&x, false)));
@@ -525,7 +526,7 @@ mod tests {
         tch::manual_seed(5);
         let vs = nn::VarStore::new(Device::Cpu);
         let net: Box<dyn Network> =
-            Box::new(RtfNet::new(vs.root(), &Config::new(18, 9, Variant::Full)).unwrap());
+            Box::new(RtfNet::new(vs.root().into(), &Config::new(18, 9, Variant::Full)).unwrap());
         for _ in 0..2 {
             let _ = net.forward_t(
                 &Tensor::rand([2, 4, 64, 64], (Kind::Float, Device::Cpu)),

@@ -4,13 +4,13 @@
 //! running statistics with them, so that N processes of batch b train like one process of
 //! batch N·b (the default, as in PyTorch DDP, is per-rank statistics).
 //!
-//! The networks need no change: every BatchNorm of rtf-models is a [`BatchNorm`], which asks
-//! the thread's [`StatsAllReduce`] (installed by the trainer with [`SyncBatchNorm::install`] for
-//! the length of a run) to sum its statistics over the ranks. The sum must be differentiable
-//! (its backward sums the gradients over the ranks too), which is how the gradient of one
-//! rank's samples reaches the others through the shared statistics.
+//! The networks need no change: every BatchNorm of rtf-models is a [`BatchNorm`], made by
+//! [`crate::layers::bn2d_with`] with the [`StatsAllReduce`] its build gives
+//! ([`crate::layers::UnitKernels::sync`]: the trainer's data-parallel group when the run asks
+//! for synchronised BatchNorm), which sums its statistics over the ranks. The sum must be
+//! differentiable (its backward sums the gradients over the ranks too), which is how the
+//! gradient of one rank's samples reaches the others through the shared statistics.
 
-use std::cell::RefCell;
 use std::sync::Arc;
 
 use tch::nn::{self, ModuleT};
@@ -26,50 +26,36 @@ pub trait StatsAllReduce: Send + Sync {
     fn all_reduce_sum(&self, t: &Tensor) -> Tensor;
 }
 
-thread_local! {
-    static SYNC: RefCell<Option<Arc<dyn StatsAllReduce>>> = const { RefCell::new(None) };
-}
-
-/// While alive, training-mode [`BatchNorm`] forwards on this thread use the statistics of the
-/// whole data-parallel batch. Dropping it restores the previous state.
-#[must_use = "synchronisation lasts as long as the guard"]
-pub struct SyncBatchNorm {
-    previous: Option<Arc<dyn StatsAllReduce>>,
-}
-
-impl SyncBatchNorm {
-    pub fn install(reduce: Arc<dyn StatsAllReduce>) -> Self {
-        let previous = SYNC.with(|s| s.borrow_mut().replace(reduce));
-        Self { previous }
-    }
-
-    fn current() -> Option<Arc<dyn StatsAllReduce>> {
-        SYNC.with(|s| s.borrow().clone())
-    }
-}
-
-impl Drop for SyncBatchNorm {
-    fn drop(&mut self) {
-        let previous = self.previous.take();
-        SYNC.with(|s| *s.borrow_mut() = previous);
-    }
-}
-
 /// BatchNorm (tch's, with its variables under the reference names, momentum
 /// [`BN_MOMENTUM`], eps [`crate::bn_defaults::BN_EPS`] unless a network sets its own) that
-/// synchronises its training-mode statistics under [`SyncBatchNorm`]. Made by
-/// [`crate::layers::bn2d`].
-#[derive(Debug)]
+/// synchronises its training-mode statistics over the ranks where built with a
+/// [`StatsAllReduce`]. Made by [`crate::layers::bn2d`].
 pub struct BatchNorm {
     inner: nn::BatchNorm,
     /// tch keeps its layer's eps private; folding and synchronising need it.
     eps: f64,
+    /// The sum over the ranks its training-mode statistics take (None: this process's own).
+    sync: Option<Arc<dyn StatsAllReduce>>,
+}
+
+impl std::fmt::Debug for BatchNorm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BatchNorm")
+            .field("inner", &self.inner)
+            .field("eps", &self.eps)
+            .field("synchronised", &self.sync.is_some())
+            .finish()
+    }
 }
 
 impl BatchNorm {
-    /// `inner`, made with `eps`.
-    pub(crate) fn new(inner: nn::BatchNorm, eps: f64) -> Self {
-        Self { inner, eps }
+    /// `inner`, made with `eps`, its training-mode statistics summed by `sync` if given.
+    pub(crate) fn new(
+        inner: nn::BatchNorm,
+        eps: f64,
+        sync: Option<Arc<dyn StatsAllReduce>>,
+    ) -> Self {
+        Self { inner, eps, sync }
     }
 
     /// The eps added to the variance.
@@ -97,8 +83,8 @@ impl std::ops::Deref for BatchNorm {
 
 impl ModuleT for BatchNorm {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
-        match SyncBatchNorm::current() {
-            Some(reduce) if train => synchronised(self, xs, &*reduce),
+        match &self.sync {
+            Some(reduce) if train => synchronised(self, xs, &**reduce),
             _ => self.inner.forward_t(xs, train),
         }
     }
@@ -167,9 +153,17 @@ mod tests {
         }
     }
 
-    fn layer(vs: &nn::VarStore) -> BatchNorm {
+    /// A BatchNorm of 3 channels, synchronised (over one rank) where `sync`.
+    fn layer(vs: &nn::VarStore, sync: bool) -> BatchNorm {
+        let options = crate::layers::BuildOptions {
+            kernels: crate::layers::UnitKernels {
+                sync: sync.then(|| Arc::new(Alone) as Arc<dyn StatsAllReduce>),
+                ..Default::default()
+            },
+            uninitialised: false,
+        };
         let bn = crate::layers::bn2d_init(
-            vs.root() / "bn",
+            crate::layers::Path::new(vs.root(), &options) / "bn",
             3,
             nn::Init::Randn {
                 mean: 1.0,
@@ -193,10 +187,9 @@ mod tests {
         let gamma = Tensor::from_slice(&[0.8f32, 1.1, 1.3]);
         let run = |sync: bool| {
             let vs = nn::VarStore::new(Device::Cpu);
-            let bn = layer(&vs);
+            let bn = layer(&vs, sync);
             tch::no_grad(|| bn.ws.as_ref().unwrap().shallow_clone().copy_(&gamma));
             let x = x.copy().set_requires_grad(true);
-            let _guard = sync.then(|| SyncBatchNorm::install(Arc::new(Alone)));
             let y = bn.forward_t(&x, true);
             (y.square() * x.ones_like().cumsum(3, Kind::Float))
                 .sum(Kind::Float)
@@ -228,20 +221,5 @@ mod tests {
             "running statistics {}",
             close(&a.3, &b.3)
         );
-    }
-
-    /// The guard restores what was installed before it, and synchronises only training mode.
-    #[test]
-    fn the_guard_nests_and_restores() {
-        assert!(SyncBatchNorm::current().is_none());
-        {
-            let _outer = SyncBatchNorm::install(Arc::new(Alone));
-            {
-                let _inner = SyncBatchNorm::install(Arc::new(Alone));
-                assert!(SyncBatchNorm::current().is_some());
-            }
-            assert!(SyncBatchNorm::current().is_some());
-        }
-        assert!(SyncBatchNorm::current().is_none());
     }
 }

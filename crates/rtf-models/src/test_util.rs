@@ -23,7 +23,8 @@ pub fn reference_keys(file: &str) -> Option<Vec<String>> {
     let mut lines: Vec<String> = text
         .lines()
         .filter(|l| {
-            !l.trim().is_empty() && !crate::weights::is_ignored_name(l.split('\t').next().unwrap())
+            !l.trim().is_empty()
+                && !crate::io::weights::is_ignored_name(l.split('\t').next().unwrap())
         })
         .map(|l| l.trim_end().to_string())
         .collect();

@@ -15,7 +15,8 @@ use std::process::Command;
 use std::time::Instant;
 
 use rtf_models::cmx::ColorOrder;
-use rtf_models::{build, weights, ModelConfig};
+use rtf_models::io::weights;
+use rtf_models::ModelConfig;
 use tch::{nn, Device};
 
 /// Largest |rtf − PyTorch| allowed on the logits.
@@ -92,7 +93,8 @@ fn check(size: &str, crop: Option<&str>) {
     let cfg = ModelConfig::from_name(&model, 9).unwrap();
     let mut vs = nn::VarStore::new(Device::Cpu);
     // Every variable is loaded: no need to draw fresh weights first.
-    let net = rtf_models::layers::with_zero_init(|| build(&vs.root(), &cfg)).unwrap();
+    let net = rtf_models::build_with(&vs.root(), &cfg, &rtf_models::BuildOptions::uninitialised())
+        .unwrap();
     weights::load_safetensors(&mut vs, &converted).unwrap();
     let loaded_s = start.elapsed().as_secs_f64();
     let io =
@@ -127,7 +129,9 @@ fn check(size: &str, crop: Option<&str>) {
         rgb_cfg.color_order = ColorOrder::Rgb;
         let cfg = ModelConfig::Cmx(rgb_cfg);
         let mut vs = nn::VarStore::new(Device::Cpu);
-        let net = rtf_models::layers::with_zero_init(|| build(&vs.root(), &cfg)).unwrap();
+        let net =
+            rtf_models::build_with(&vs.root(), &cfg, &rtf_models::BuildOptions::uninitialised())
+                .unwrap();
         weights::load_safetensors(&mut vs, &converted).unwrap();
         let logits = tch::no_grad(|| net.forward_t(&input, false));
         let diff = (&logits - &expected).abs().max().double_value(&[]);

@@ -7,7 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use rtf_models::fast::{argmax_agreement, max_relative_difference, InferenceNet, Precision};
-use rtf_models::{build, weights, ModelConfig};
+use rtf_models::io::weights;
+use rtf_models::{build, ModelConfig};
 use tch::{nn, Device, Kind};
 
 fn repo_root() -> PathBuf {

@@ -26,13 +26,13 @@ pub(crate) fn panic_message(payload: &Box<dyn std::any::Any + Send>) -> String {
         .unwrap_or_else(|| "panic without a message".into())
 }
 
-/// Keeps freed memory in the process for reuse (rtf_models::allocator: glibc serves no block
+/// Keeps freed memory in the process for reuse (rtf_kernels::allocator: glibc serves no block
 /// by `mmap` and trims no heap), as the `rtf` binary keeps it with mimalloc: a network that
 /// allocates the same activations every pass then does not page-fault them in again. Called by
 /// `import rtf` unless `RTF_RETAIN_FREED_MEMORY=0`. Process-wide; returns whether it applied.
 #[pyfunction]
 fn retain_freed_memory() -> bool {
-    rtf_models::allocator::retain_freed_memory()
+    rtf_kernels::allocator::retain_freed_memory()
 }
 
 #[pymodule]

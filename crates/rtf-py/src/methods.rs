@@ -231,7 +231,7 @@ impl PyNetwork {
         let built = &self.built;
         py.allow_threads(|| {
             let held = self.held.lock().unwrap_or_else(|e| e.into_inner());
-            rtf_models::weights::save_safetensors(&held.vs, &built.cfg, built.modality, &path)
+            rtf_models::io::weights::save_safetensors(&held.vs, &built.cfg, built.modality, &path)
         })
         .py()
     }

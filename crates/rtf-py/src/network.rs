@@ -87,7 +87,7 @@ fn inference_kernels(
 }
 
 /// The network `name` with random weights (libtorch's generator: `torch.manual_seed` seeds
-/// it), as `rtf_models::loaded::load_network` builds it, folded for `precision` (one this
+/// it), as `rtf_models::io::loaded::load_network` builds it, folded for `precision` (one this
 /// device runs: fp16 only on CUDA).
 fn random_network(
     cfg: &ModelConfig,
@@ -112,7 +112,7 @@ fn random_network(
 
 /// The class set and thermal rule a weights file records (`rtf predict`'s reading).
 fn trained_on(weights: &Path) -> PyResult<Option<TrainedOn>> {
-    let file = rtf_models::weights::read_weights_metadata(weights).py()?;
+    let file = rtf_models::io::weights::read_weights_metadata(weights).py()?;
     TrainedOn::from_metadata(&file.metadata, weights).py()
 }
 
@@ -150,7 +150,7 @@ pub fn load_network(
     let (held, inputs) = py
         .allow_threads(|| match &weights {
             Some(weights) => {
-                let request = rtf_models::loaded::NetworkRequest {
+                let request = rtf_models::io::loaded::NetworkRequest {
                     name,
                     num_classes: n,
                     weights,
@@ -160,7 +160,7 @@ pub fn load_network(
                     foreign_weights: false,
                     inputs: None,
                 };
-                rtf_models::loaded::load_network(&request).map(|loaded| {
+                rtf_models::io::loaded::load_network(&request).map(|loaded| {
                     for warning in &loaded.warnings {
                         eprintln!("warning: {warning}");
                     }

@@ -142,6 +142,6 @@ fn run_network(run: &Run, weights: &Path, device: tch::Device) -> Result<RunNetw
     })?;
     let mut vs = tch::nn::VarStore::new(device);
     let net = rtf_models::build(&vs.root(), &cfg.model)?;
-    rtf_models::weights::load_safetensors(&mut vs, weights)?;
+    rtf_models::io::weights::load_safetensors(&mut vs, weights)?;
     Ok((rtf_models::masked(net, cfg.inputs), cfg.resize))
 }

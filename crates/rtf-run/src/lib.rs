@@ -34,4 +34,4 @@ pub use files::{
 pub use folder::{RunFolder, Weights};
 pub use record::{EpochRecord, ValRecord};
 pub use view::{DatasetView, TrainingView};
-pub use write::RunLock;
+pub use write::{OwnedFolder, RunLock};

@@ -1,4 +1,5 @@
-//! A run folder written: the lock of the process training in it ([`RunLock`]), its
+//! A run folder written: opened for writing by the one process that owns it
+//! ([`OwnedFolder`]: created, locked with [`RunLock`], orphaned temp files removed), its
 //! `config.json` written atomically, and its `log.jsonl` appended to and restored on resume.
 //! rtf-train writes through here what [`crate::RunFolder`] reads back.
 
@@ -6,7 +7,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use crate::error::RunError;
-use crate::files::{LOCK_FILE, LOG_FILE};
+use crate::files::{holds_run, CONFIG_FILE, LOCK_FILE, LOG_FILE};
 use crate::log::line_epoch;
 use crate::record::EpochRecord;
 
@@ -87,6 +88,65 @@ impl RunLock {
 impl Drop for RunLock {
     fn drop(&mut self) {
         let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Refuses to start a new run in `dir` where it already holds one (a fresh start there would
+/// mix two runs); a resume continues it instead.
+pub fn refuse_existing_run(dir: &Path) -> Result<(), RunError> {
+    match holds_run(dir) {
+        true => Err(run_error(
+            dir,
+            "already holds a run; use --resume to continue it or choose another output folder",
+        )),
+        false => Ok(()),
+    }
+}
+
+/// A run folder opened for writing by the process that owns it, for as long as the value
+/// lives: the folder created if absent, its lock held ([`RunLock`]), temporary files of dead
+/// writers removed. The trainer writes a run's files through it; a multi-stage run's own
+/// folder (its `config.json` listing the stages) is owned so too.
+#[derive(Debug)]
+pub struct OwnedFolder {
+    dir: PathBuf,
+    _lock: RunLock,
+}
+
+impl OwnedFolder {
+    /// Creates `dir` if absent and takes its lock. Whether a run may start there is the
+    /// caller's check ([`refuse_existing_run`] for a new run).
+    pub fn open(dir: &Path) -> Result<Self, RunError> {
+        std::fs::create_dir_all(dir).map_err(|e| run_error(dir, format!("cannot create: {e}")))?;
+        let lock = RunLock::acquire(dir)?;
+        remove_orphan_temp_files(dir);
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            _lock: lock,
+        })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Writes the run's `config.json` atomically.
+    pub fn write_config<T: serde::Serialize>(&self, config: &T) -> Result<(), RunError> {
+        write_json_atomic(&self.dir.join(CONFIG_FILE), config)
+    }
+
+    /// Appends one epoch's record to `log.jsonl` ([`append_log`]).
+    pub fn append_log<T: serde::Serialize>(&self, record: &T) -> Result<(), RunError> {
+        append_log(&self.dir, record)
+    }
+
+    /// Restores `log.jsonl` on resume ([`restore_log`]).
+    pub fn restore_log(
+        &self,
+        epochs_done: usize,
+        carried: &[EpochRecord],
+    ) -> Result<Vec<usize>, RunError> {
+        restore_log(&self.dir, epochs_done, carried)
     }
 }
 
@@ -213,6 +273,27 @@ mod tests {
         )
         .unwrap();
         let _lock = RunLock::acquire(dir.path()).unwrap();
+    }
+
+    #[test]
+    fn an_owned_folder_is_created_locked_and_refuses_a_second_owner() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("run");
+        refuse_existing_run(&dir).unwrap();
+        let owned = OwnedFolder::open(&dir).unwrap();
+        assert!(dir.join(LOCK_FILE).exists());
+        let err = OwnedFolder::open(&dir).unwrap_err().to_string();
+        assert!(err.contains("another rtf process"), "{err}");
+        owned.write_config(&serde_json::json!({"seed": 1})).unwrap();
+        owned.append_log(&record(0)).unwrap();
+        let err = refuse_existing_run(&dir).unwrap_err().to_string();
+        assert!(
+            err.contains("already holds a run") && err.contains("run"),
+            "{err}"
+        );
+        drop(owned);
+        assert!(!dir.join(LOCK_FILE).exists());
+        assert_eq!(log_epochs(&dir), [0]);
     }
 
     #[test]

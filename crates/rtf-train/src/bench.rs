@@ -13,7 +13,7 @@ use tch::{Device, Kind, Tensor};
 use crate::config::{OptimizerConfig, Precision, TrainConfig};
 use crate::error::TrainError;
 use crate::procedure::Student;
-use rtf_models::aten::{count_ops, OpCounts};
+use rtf_kernels::aten::{count_ops, OpCounts};
 
 /// What to time.
 #[derive(Debug, Clone)]
@@ -38,10 +38,10 @@ pub struct TrainBenchOptions {
     pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
     /// The Winograd forms the training convolutions may take (`rtf bench train` passes the
     /// policy's, as `rtf train` records it).
-    pub winograd: rtf_models::winograd::Forms,
+    pub winograd: rtf_kernels::winograd::Forms,
 }
 
-/// The operators one step runs, part by part ([`rtf_models::aten::count_ops`]): the host's
+/// The operators one step runs, part by part ([`rtf_kernels::aten::count_ops`]): the host's
 /// share of a step, which on a GPU is one or more kernel launches each.
 /// `lab/bench/profile_train_torch.py --counts` counts PyTorch's step the same way.
 #[derive(Debug, Clone, Serialize)]
@@ -293,7 +293,7 @@ mod tests {
             count_ops: false,
             fp32_layout: None,
             bf16_convolutions: None,
-            winograd: rtf_models::winograd::Forms::All,
+            winograd: rtf_kernels::winograd::Forms::All,
         }
     }
 

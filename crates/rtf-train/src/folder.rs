@@ -84,7 +84,7 @@ pub fn export_labels(
     record: Option<rtf_data::TrainedOn>,
     weights: &Path,
     classes: i64,
-) -> rtf_models::export::Labels {
+) -> rtf_models::io::export::Labels {
     let thermal = record
         .as_ref()
         .and_then(|t| t.thermal.as_ref())
@@ -96,7 +96,7 @@ pub fn export_labels(
             None => (None, "unknown".to_string()),
         },
     };
-    rtf_models::export::Labels {
+    rtf_models::io::export::Labels {
         classes,
         from,
         thermal,

@@ -1,6 +1,6 @@
 //! Starting weights given to a run (`rtf train --init`): fine-tuning from published weights,
 //! and parity runs against a reference trainer that start both sides from one file
-//! (issue 27). The trainer loads them with the strict loader of `rtf_models::weights`; this
+//! (issue 27). The trainer loads them with the strict loader of `rtf_models::io::weights`; this
 //! module checks them before a run folder is written.
 
 use std::collections::BTreeSet;
@@ -54,12 +54,12 @@ pub fn load_init(
         }
     };
     let fresh = if network.init_reset_head {
-        rtf_models::weights::class_dependent_names(&network.model)?
+        rtf_models::io::weights::class_dependent_names(&network.model)?
     } else {
         BTreeSet::new()
     };
-    let tensors = rtf_models::weights::read_safetensors(path)?;
-    rtf_models::weights::load_named_except(vs, tensors, path, &fresh)?;
+    let tensors = rtf_models::io::weights::read_safetensors(path)?;
+    rtf_models::io::weights::load_named_except(vs, tensors, path, &fresh)?;
     Ok(Some(report(vs, path, &fresh)))
 }
 
@@ -88,8 +88,8 @@ pub fn check_init_weights(cfg: &TrainConfig) -> Result<Option<InitReport>, Train
         return Ok(None);
     }
     let mut vs = VarStore::new(tch::Device::Cpu);
-    let _net =
-        rtf_models::layers::with_zero_init(|| rtf_models::build(&vs.root(), &cfg.network.model))?;
+    let uninitialised = rtf_models::BuildOptions::uninitialised();
+    let _net = rtf_models::build_with(&vs.root(), &cfg.network.model, &uninitialised)?;
     load_init(&mut vs, &cfg.network)
 }
 
@@ -112,7 +112,7 @@ mod tests {
         let model = ModelConfig::from_name("mfnet", 9).unwrap();
         let vs = tch::nn::VarStore::new(tch::Device::Cpu);
         let _net = rtf_models::build(&vs.root(), &model).unwrap();
-        rtf_models::weights::save_safetensors(&vs, &model, Default::default(), &path).unwrap();
+        rtf_models::io::weights::save_safetensors(&vs, &model, Default::default(), &path).unwrap();
         check_init_weights(&mfnet_with_init(&path)).unwrap();
 
         let mut other = mfnet_with_init(&path);
@@ -138,14 +138,14 @@ mod tests {
         let path = dir.path().join("other.safetensors");
         let vs = tch::nn::VarStore::new(tch::Device::Cpu);
         let _net = rtf_models::build(&vs.root(), &ModelConfig::from_name("mfnet", 9).unwrap());
-        let named: Vec<_> = rtf_models::weights::state_dict(&vs)
+        let named: Vec<_> = rtf_models::io::weights::state_dict(&vs)
             .into_iter()
             .map(|(name, t)| match name.as_str() {
                 "conv1_rgb.conv.weight" => (name, tch::Tensor::zeros([1], tch::kind::FLOAT_CPU)),
                 _ => (name, t),
             })
             .collect();
-        rtf_models::weights::save_named(&named, &path).unwrap();
+        rtf_models::io::weights::save_named(&named, &path).unwrap();
         let mut cfg = mfnet_with_init(&path);
         cfg.network.model = ModelConfig::from_name("mfnet", 5).unwrap();
         cfg.network.init_reset_head = true;

@@ -104,7 +104,7 @@ pub fn settle_fp32_layout(cfg: &mut RunConfig, resume: bool, asked: Option<Fp32L
 /// Records the Winograd forms every stage's training convolutions may take: `asked` (the
 /// caller's choice: `RTF_WINOGRAD` for rtf's binaries, where set) where given, else what the
 /// stage recorded (all forms for a new run or one recorded before the choice was).
-pub fn settle_winograd(cfg: &mut RunConfig, asked: Option<rtf_models::winograd::Forms>) {
+pub fn settle_winograd(cfg: &mut RunConfig, asked: Option<rtf_kernels::winograd::Forms>) {
     if let Some(forms) = asked {
         for stage in cfg.stages_mut() {
             stage.compute.winograd = forms;
@@ -291,7 +291,7 @@ mod tests {
 
     #[test]
     fn the_winograd_forms_asked_are_recorded_and_a_record_stands_otherwise() {
-        use rtf_models::winograd::Forms;
+        use rtf_kernels::winograd::Forms;
         let forms = |cfg: &RunConfig| cfg.stages()[0].1.compute.winograd;
         let mut new = run(Precision::Fp32, "cpu");
         settle_winograd(&mut new, None);

@@ -82,9 +82,9 @@ impl Optimizer {
     /// Divides the gradients of `vs` by the loss scale and updates the scale; false when a
     /// gradient holds an inf or NaN (the step must be skipped). One fused check-and-unscale per
     /// gradient (PyTorch's GradScaler kernel) into one flag on the device, read once: a read
-    /// per gradient waited for the device each time (on an H100, RTFNet-50's fp16 optimiser
-    /// step took 51 ms against 5 ms in fp32, docs/src/gpu-2026-11-27.md; fused, 12 ms,
-    /// docs/src/gpu.md).
+    /// per gradient waited for the device each time, which made fp16's optimiser step on a GPU
+    /// many times fp32's (measured: docs/src/gpu-2026-11-27.md, section "Training, 480×640";
+    /// after the fusion: docs/src/gpu.md, section "Training, 480×640").
     fn unscale(&mut self, vs: &VarStore) -> bool {
         let scale = self.loss_scale();
         let device = vs.device();
@@ -241,10 +241,10 @@ impl Optimizer {
 
     /// Clears the gradients of every trainable variable (in place, as the papers' PyTorch
     /// code did: `zero_grad(set_to_none=False)`), all in one call
-    /// ([`rtf_models::aten::zero_grads`]).
+    /// ([`rtf_kernels::aten::zero_grads`]).
     pub fn zero_grad(&self, vs: &VarStore) {
         let params: Vec<Tensor> = trainable(vs).into_iter().map(|(_, p)| p).collect();
-        rtf_models::aten::zero_grads(&params);
+        rtf_kernels::aten::zero_grads(&params);
     }
 
     /// The per-parameter state (for checkpoints).
@@ -294,7 +294,7 @@ impl FusedSgd {
     fn run(self, momentum: f64, lr: f64) {
         for ((wd, first_step, _), [params, grads, buffers]) in self.groups {
             let wd = f64::from_bits(wd);
-            rtf_models::aten::fused_sgd_(&params, &grads, &buffers, wd, momentum, lr, first_step);
+            rtf_kernels::aten::fused_sgd_(&params, &grads, &buffers, wd, momentum, lr, first_step);
         }
     }
 }

@@ -12,6 +12,8 @@ use crate::config::{PipelineConfig, RunConfig, StageConfig, TeacherRef, TrainCon
 use crate::ddp::Ddp;
 use crate::error::TrainError;
 use crate::progress::{Epochs, InStage, Progress};
+use rtf_run::write::{refuse_existing_run, OwnedFolder};
+
 use crate::run::{self as rundir, run_error, BEST_FILE, CONFIG_FILE, FINAL_FILE};
 use crate::trainer::{self, EpochRecord, TrainOutcome};
 
@@ -137,21 +139,18 @@ fn barrier(ddp: Option<&Ddp>) -> Result<(), TrainError> {
     }
 }
 
-/// Checks the pipeline and the folder; rank 0 takes the folder's lock and writes the
+/// Checks the pipeline and the folder; rank 0 owns the folder (its lock) and writes the
 /// pipeline's `config.json`.
 fn open_run_folder(
     cfg: &PipelineConfig,
     run_dir: &Path,
     resume: bool,
     ddp: Option<&Ddp>,
-) -> Result<Option<rundir::RunLock>, TrainError> {
+) -> Result<Option<OwnedFolder>, TrainError> {
     let run = RunConfig::Pipeline(cfg.clone());
     run.validate()?;
-    if !resume && rundir::holds_run(run_dir) {
-        return Err(run_error(
-            run_dir,
-            "already holds a run; use --resume to continue it or choose another output folder",
-        ));
+    if !resume {
+        refuse_existing_run(run_dir)?;
     }
     for stage in &cfg.stages {
         let learning = &stage.config.learning;
@@ -165,11 +164,9 @@ fn open_run_folder(
     if !ddp.is_none_or(|d| d.is_root()) {
         return Ok(None);
     }
-    std::fs::create_dir_all(run_dir)
-        .map_err(|e| run_error(run_dir, format!("cannot create: {e}")))?;
-    let lock = rundir::RunLock::acquire(run_dir)?;
-    rundir::write_json_atomic(&run_dir.join(CONFIG_FILE), &run)?;
-    Ok(Some(lock))
+    let owned = OwnedFolder::open(run_dir)?;
+    owned.write_config(&run)?;
+    Ok(Some(owned))
 }
 
 /// A resumed run whose stage has no folder while a later stage has started is refused:

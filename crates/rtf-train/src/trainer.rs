@@ -8,7 +8,7 @@
 //! device found); each phase then takes the plan's parts it needs, so that what a phase
 //! depends on is visible in its signature:
 //!
-//! 1. **Open the run folder** (`RunFolder::open`): every check of the folder that can refuse
+//! 1. **Open the run folder** (`OpenedRun::open`): every check of the folder that can refuse
 //!    the run before it writes, then the lock. Takes `FolderChecks`: the recorded number of
 //!    processes (`compute.world_size`) and `schedule.epochs` (a resume must not end before
 //!    where it stands).
@@ -65,7 +65,7 @@ pub use crate::run::{BEST_FILE, CHECKPOINT_FILE, CONFIG_FILE, FINAL_FILE, LOG_FI
 
 use epoch::{progress_bar, EpochProgress};
 use restore_or_start::{cache_labels, networks, record_config, tensorboard_writer};
-use run_folder::{FolderChecks, RunFolder};
+use run_folder::{FolderChecks, OpenedRun};
 pub use streams::training_loader;
 use streams::{val_loader, Streams};
 pub use validation::{default_select_metric, val_record};
@@ -164,7 +164,7 @@ pub fn train_planned(
     stop: &AtomicBool,
     ddp: Option<Arc<Ddp>>,
 ) -> Result<TrainOutcome, TrainError> {
-    let folder = RunFolder::open(FolderChecks::of(&plan), run_dir, resume, ddp.as_deref())?;
+    let folder = OpenedRun::open(FolderChecks::of(&plan), run_dir, resume, ddp.as_deref())?;
     let epochs = plan.schedule.epochs;
     let (mut run, streams) = Run::restore_or_start(plan, folder, ddp)?;
     for epoch in run.state.epochs_done..epochs {
@@ -213,10 +213,9 @@ struct Run<'a> {
     first_epoch: usize,
     /// Data-parallel: the stop every rank agreed on at the last step.
     stop_agreed: bool,
-    _sync_batch_norm: Option<rtf_models::SyncBatchNorm>,
     _scratch: Option<crate::ddp::ScratchDir>,
     /// Last: the run folder's lock goes when everything else is done.
-    folder: RunFolder<'a>,
+    folder: OpenedRun<'a>,
 }
 
 impl<'a> Run<'a> {
@@ -224,11 +223,11 @@ impl<'a> Run<'a> {
     /// the checkpoint or initialised, data-parallel started, label caches and the streams.
     fn restore_or_start(
         plan: RunPlan<'a>,
-        folder: RunFolder<'a>,
+        folder: OpenedRun<'a>,
         ddp: Option<Arc<Ddp>>,
     ) -> Result<(Self, Streams), TrainError> {
         record_config(&plan, &folder)?;
-        let (procedure, state, sync_batch_norm) = networks(&plan, &folder, ddp.as_ref())?;
+        let (procedure, state) = networks(&plan, &folder, ddp.as_ref())?;
         let RunPlan {
             network,
             data,
@@ -279,7 +278,6 @@ impl<'a> Run<'a> {
             tb,
             first_epoch,
             stop_agreed: false,
-            _sync_batch_norm: sync_batch_norm,
             _scratch: scratch,
             folder,
         };
@@ -618,7 +616,9 @@ impl<'a> Run<'a> {
     /// prediction grid of validation frames.
     fn save(&mut self, epoch: usize, record: &EpochRecord) -> Result<(), TrainError> {
         self.save_checkpoint(epoch)?;
-        rundir::append_log(self.folder.dir, record)?;
+        if let Some(owned) = &self.folder.owned {
+            owned.append_log(record)?;
+        }
         let grid = match (&self.val, self.schedule.tb_images_every) {
             (Some(val), Some(every)) if every > 0 && (epoch + 1).is_multiple_of(every) => {
                 Some(prediction_grid_png(
@@ -661,7 +661,7 @@ impl<'a> Run<'a> {
 
     /// The student's weights with the network, its inputs and its classes in the metadata.
     fn save_student(&self, path: &Path) -> Result<(), TrainError> {
-        use rtf_models::weights::{model_metadata, save_named_with_metadata, state_dict};
+        use rtf_models::io::weights::{model_metadata, save_named_with_metadata, state_dict};
         let mut metadata = model_metadata(&self.network.model, self.network.inputs);
         metadata.extend([self.trained_on.metadata_entry()]);
         let vs = &self.procedure.student().trained.vs;

@@ -167,25 +167,30 @@ fn synchronised_batch_norm_makes_two_ranks_step_like_one_process() {
     let y = Tensor::randint(9, [4, 32, 48], (Kind::Int64, Device::Cpu));
     let schedule = OptimizerConfig::mfnet_paper();
     let model = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
-    let build = || {
+    // With `sync`, the network's BatchNorms sum their statistics over the ranks.
+    let build = |sync: bool| {
         tch::manual_seed(11);
-        let trained = Trained::new("student", Device::Cpu, &schedule);
-        let net = rtf_models::build(&trained.vs.root(), &model).unwrap();
+        let kernels = rtf_models::UnitKernels {
+            sync: sync.then(|| ddp.clone() as std::sync::Arc<dyn rtf_models::StatsAllReduce>),
+            ..Default::default()
+        };
+        let trained = Trained::new("student", Device::Cpu, &schedule).computing(kernels);
+        let net =
+            rtf_models::build_with(&trained.vs.root(), &model, &trained.build_options()).unwrap();
         (trained, net)
     };
     let ce = |logits: Tensor, y: &Tensor| {
         logits.cross_entropy_loss::<Tensor>(y, None, tch::Reduction::Mean, -100, 0.0)
     };
     // One process, the whole batch.
-    let (mut single, net1) = build();
+    let (mut single, net1) = build(false);
     single.minimise(&ce(net1.forward_t(&x, true), &y), StepAt::start_of(0));
     // Two ranks, each a half, with and without synchronised statistics.
     let share = 4 / world;
     let (xr, yr) = (x.narrow(0, r * share, share), y.narrow(0, r * share, share));
     let difference = |sync: bool| {
-        let (mut trained, net) = build();
+        let (mut trained, net) = build(sync);
         trained.ddp = Some(ddp.clone());
-        let _sync = sync.then(|| rtf_models::SyncBatchNorm::install(ddp.clone()));
         trained.minimise(&ce(net.forward_t(&xr, true), &yr), StepAt::start_of(0));
         ddp.check().unwrap();
         let (a, b) = (trained.vs.variables(), single.vs.variables());
@@ -465,7 +470,7 @@ fn two_rank_adversarial_run_keeps_both_networks_identical() {
         let vs = nn::VarStore::new(Device::Cpu);
         let model = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
         rtf_models::build(&vs.root(), &model).unwrap();
-        rtf_models::weights::save_safetensors(
+        rtf_models::io::weights::save_safetensors(
             &vs,
             &model,
             rtf_train::Modality::Rgb,

@@ -154,12 +154,12 @@ fn the_codes_alternation_resumes_exactly_and_the_critic_starts_from_its_init() {
     let mut cfg = adversarial(&data, 2, common::teacher(tmp.path(), 1));
     // A critic file: the critic a build makes, halved (not what a fresh build gives).
     let fresh = rtf_train::procedure::build_adversarial(&cfg, None, tch::Device::Cpu).unwrap();
-    let halved: Vec<(String, tch::Tensor)> = rtf_models::weights::state_dict(&fresh.critic.vs)
+    let halved: Vec<(String, tch::Tensor)> = rtf_models::io::weights::state_dict(&fresh.critic.vs)
         .into_iter()
         .map(|(n, t)| (n, t * 0.5))
         .collect();
     let critic_file = tmp.path().join("critic.safetensors");
-    rtf_models::weights::save_named(&halved, &critic_file).unwrap();
+    rtf_models::io::weights::save_named(&halved, &critic_file).unwrap();
     let Procedure::Adversarial { critic, .. } = &mut cfg.learning.procedure else {
         unreachable!()
     };
@@ -583,7 +583,7 @@ fn a_cmx_student_trains_by_every_procedure() {
         let model = ModelConfig::from_name("mfnet", 9).unwrap();
         rtf_models::build(&vs.root(), &model).unwrap();
         let path = tmp.path().join("rgbt_teacher.safetensors");
-        rtf_models::weights::save_safetensors(&vs, &model, Modality::RgbT, &path).unwrap();
+        rtf_models::io::weights::save_safetensors(&vs, &model, Modality::RgbT, &path).unwrap();
         TeacherRef::Weights {
             path,
             model,

@@ -4,7 +4,7 @@
 //! naming the file, never a panic.
 
 use rtf_data::fuzzing::check_reader;
-use rtf_models::weights::{load_checked, read_weights_file, read_weights_metadata};
+use rtf_models::io::weights::{load_checked, read_weights_file, read_weights_metadata};
 use rtf_models::{Modality, ModelConfig};
 use rtf_train::config::{RunConfig, TrainConfig};
 use tch::{nn::VarStore, Device, Kind, Tensor};
@@ -46,8 +46,8 @@ fn safetensors_weights_never_panic() {
         ),
         ("steps".to_string(), Tensor::from(7i64)),
     ];
-    let metadata = rtf_models::weights::model_metadata(&cfg, Modality::RgbT);
-    rtf_models::weights::save_named_with_metadata(&named, Some(metadata), &path).unwrap();
+    let metadata = rtf_models::io::weights::model_metadata(&cfg, Modality::RgbT);
+    rtf_models::io::weights::save_named_with_metadata(&named, Some(metadata), &path).unwrap();
     let small = std::fs::read(&path).unwrap();
     let outcome = check_reader("safetensors", &small, 12, 600, "w.safetensors", |b| {
         std::fs::write(&path, b).unwrap();
@@ -60,7 +60,7 @@ fn safetensors_weights_never_panic() {
     // A whole network's weights, loaded with the name, shape and value checks.
     let vs = VarStore::new(Device::Cpu);
     rtf_models::build(&vs.root(), &cfg).unwrap();
-    rtf_models::weights::save_safetensors(&vs, &cfg, Modality::RgbT, &path).unwrap();
+    rtf_models::io::weights::save_safetensors(&vs, &cfg, Modality::RgbT, &path).unwrap();
     let network = std::fs::read(&path).unwrap();
     let vs = std::cell::RefCell::new(vs);
     let outcome = check_reader("mfnet weights", &network, 13, 30, "w.safetensors", |b| {

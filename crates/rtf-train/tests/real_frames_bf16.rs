@@ -49,13 +49,20 @@ fn convolutions() -> rtf_amp::Bf16Convolutions {
 fn step(input: &Tensor, labels: Option<&Tensor>, bf16: bool) -> (Tensor, f64, Tensor) {
     let cfg = ModelConfig::from_name("mfnet", 9).unwrap();
     let mut vs = nn::VarStore::new(Device::Cpu);
-    let net = rtf_models::build(&vs.root(), &cfg).unwrap();
-    rtf_models::weights::load_safetensors(&mut vs, &samples().join("mfnet_final.safetensors"))
+    // The network computes its bf16 convolutions as asked (3×3 ones emulated or not).
+    let options = rtf_models::BuildOptions {
+        kernels: rtf_models::UnitKernels {
+            bf16_convolutions: convolutions(),
+            ..Default::default()
+        },
+        uninitialised: false,
+    };
+    let net = rtf_models::build_with(&vs.root(), &cfg, &options).unwrap();
+    rtf_models::io::weights::load_safetensors(&mut vs, &samples().join("mfnet_final.safetensors"))
         .unwrap();
     let kind = bf16.then_some(Kind::BFloat16);
-    let logits = rtf_amp::autocast_with(Device::Cpu, kind, convolutions(), || {
-        // The region computes with the choice asked for (3×3 convolutions emulated or not).
-        let emulated = rtf_amp::emulates_bf16_convolution(Device::Cpu, true);
+    let logits = rtf_amp::autocast(Device::Cpu, kind, || {
+        let emulated = rtf_amp::emulates_bf16_convolution(Device::Cpu, true, convolutions());
         assert_eq!(emulated, bf16 && convolutions().emulates(true));
         net.forward_t(input, true)
     })

@@ -54,7 +54,8 @@ pub struct Args {
     #[arg(long)]
     pub learning_rate: Option<f64>,
     /// libtorch CPU threads. The model's many small tensor operations run fastest on one
-    /// thread on a busy machine (measured 10x slower with 2 threads sharing 2 loaded cores).
+    /// thread on a busy machine: threads that share loaded cores wait for each other
+    /// (measured: docs/src/calibration.md, section "Method").
     #[arg(long, default_value_t = 1)]
     pub threads: i32,
     /// A known calibration (calib.yaml schema) to compare with: prints the mean RGB→thermal

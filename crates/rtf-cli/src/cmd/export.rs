@@ -1,13 +1,13 @@
 //! `rtf export`: a network with its weights as a deployment file (TorchScript or ONNX, with
-//! its input convention and classes as metadata; rtf_models::export). Parses its flags,
+//! its input convention and classes as metadata; rtf_models::io::export). Parses its flags,
 //! loads the network, exports it and prints what it wrote.
 
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use rtf_models::export::Export;
 use rtf_models::fast::Precision;
-use rtf_models::loaded::NetworkRequest;
+use rtf_models::io::export::Export;
+use rtf_models::io::loaded::NetworkRequest;
 use tch::Device;
 
 use super::load_network;
@@ -91,7 +91,7 @@ pub fn run(args: Args) -> Result<()> {
     refuse_overwriting_weights(&args)?;
     rtf_models::fast::check_precision_on(args.precision, Device::Cpu)?;
     let (classes, record) = class_count(&args)?;
-    let rtf_models::loaded::LoadedNetwork {
+    let rtf_models::io::loaded::LoadedNetwork {
         mut vs,
         net: network,
         inputs,
@@ -115,8 +115,8 @@ pub fn run(args: Args) -> Result<()> {
     }
     let labels = rtf_train::folder::export_labels(record, &args.weights, classes);
     let format = match args.format {
-        Format::Torchscript => rtf_models::export::Format::Torchscript,
-        Format::Onnx => rtf_models::export::Format::Onnx,
+        Format::Torchscript => rtf_models::io::export::Format::Torchscript,
+        Format::Onnx => rtf_models::io::export::Format::Onnx,
     };
     // The Python of the ONNX exporter: `$RTF_PYTHON`, else the library's search for `.venv`.
     let python = std::env::var_os("RTF_PYTHON").map(PathBuf::from);
@@ -129,7 +129,7 @@ pub fn run(args: Args) -> Result<()> {
         labels: &labels,
         python: python.as_deref(),
     };
-    rtf_models::export::export(network.as_ref(), &spec)?;
+    rtf_models::io::export::export(network.as_ref(), &spec)?;
     println!(
         "{} ({}x{}, {:?}) -> {} ({:?})",
         args.model,

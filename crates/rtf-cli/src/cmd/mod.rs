@@ -63,8 +63,8 @@ impl RunFlags {
         weights: &'a std::path::Path,
         num_classes: i64,
         device: tch::Device,
-    ) -> rtf_models::loaded::NetworkRequest<'a> {
-        rtf_models::loaded::NetworkRequest {
+    ) -> rtf_models::io::loaded::NetworkRequest<'a> {
+        rtf_models::io::loaded::NetworkRequest {
             name,
             num_classes,
             weights,
@@ -105,17 +105,17 @@ pub fn prepare_inference(
     Ok(kernels)
 }
 
-/// [`rtf_models::loaded::load_network`] for a command: the kernels chosen first
+/// [`rtf_models::io::loaded::load_network`] for a command: the kernels chosen first
 /// ([`prepare_inference`]), the loader's warnings printed on stderr.
 pub fn load_network(
-    request: &rtf_models::loaded::NetworkRequest,
-) -> anyhow::Result<rtf_models::loaded::LoadedNetwork> {
+    request: &rtf_models::io::loaded::NetworkRequest,
+) -> anyhow::Result<rtf_models::io::loaded::LoadedNetwork> {
     let kernels = prepare_inference(request.precision, request.device)?;
-    let request = rtf_models::loaded::NetworkRequest {
+    let request = rtf_models::io::loaded::NetworkRequest {
         kernels,
         ..*request
     };
-    let loaded = rtf_models::loaded::load_network(&request)?;
+    let loaded = rtf_models::io::loaded::load_network(&request)?;
     for warning in &loaded.warnings {
         eprintln!("warning: {warning}");
     }
@@ -127,7 +127,7 @@ pub fn load_network(
 pub fn weights_config(
     weights: &std::path::Path,
 ) -> anyhow::Result<Option<rtf_models::ModelConfig>> {
-    let file = rtf_models::weights::read_weights_metadata(weights)?;
+    let file = rtf_models::io::weights::read_weights_metadata(weights)?;
     Ok(file.saved_config(weights)?)
 }
 
@@ -135,7 +135,7 @@ pub fn weights_config(
 /// rtf_data::trained_on); None for weights without it (converted published weights, runs
 /// of older builds: MF's 9 classes unless told otherwise).
 pub fn trained_on(weights: &std::path::Path) -> anyhow::Result<Option<rtf_data::TrainedOn>> {
-    let file = rtf_models::weights::read_weights_metadata(weights)?;
+    let file = rtf_models::io::weights::read_weights_metadata(weights)?;
     Ok(rtf_data::TrainedOn::from_metadata(&file.metadata, weights)?)
 }
 

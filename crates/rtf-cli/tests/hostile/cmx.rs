@@ -27,9 +27,10 @@ fn cmx_b0(path: &Path, classes: i64, with_record: bool) -> PathBuf {
     let (vs, cfg) = cmx("cmx-mit-b0", classes);
     if with_record {
         let inputs = rtf_models::Modality::RgbT;
-        rtf_models::weights::save_safetensors(&vs, &cfg, inputs, path).unwrap();
+        rtf_models::io::weights::save_safetensors(&vs, &cfg, inputs, path).unwrap();
     } else {
-        rtf_models::weights::save_named(&rtf_models::weights::state_dict(&vs), path).unwrap();
+        rtf_models::io::weights::save_named(&rtf_models::io::weights::state_dict(&vs), path)
+            .unwrap();
     }
     path.to_path_buf()
 }
@@ -37,11 +38,11 @@ fn cmx_b0(path: &Path, classes: i64, with_record: bool) -> PathBuf {
 /// SegFormer's ImageNet `mit_b1` file (encoder names, the classifier head).
 fn segformer_b1(path: &Path) -> PathBuf {
     let (vs, _) = cmx("cmx-mit-b1", 9);
-    let mut named = rtf_models::mit_pretrained::segformer_state_dict(&vs);
+    let mut named = rtf_models::io::mit_pretrained::segformer_state_dict(&vs);
     let zeros = |shape: &[i64]| Tensor::zeros(shape, (Kind::Float, Device::Cpu));
     named.push(("head.weight".into(), zeros(&[1000, 512])));
     named.push(("head.bias".into(), zeros(&[1000])));
-    rtf_models::weights::save_named(&named, path).unwrap();
+    rtf_models::io::weights::save_named(&named, path).unwrap();
     path.to_path_buf()
 }
 

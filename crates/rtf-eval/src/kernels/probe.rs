@@ -1,5 +1,5 @@
-//! Kernel measurements, made once per machine and cached (project issue 41; a library since
-//! issue 61, so that the CLI and the Python package share them).
+//! Kernel measurements, made once per machine and cached (project issues 41 and 61; in the
+//! library, so that the CLI and the Python package share them).
 //!
 //! A measurement times two ways of the same bf16 work and is cached in a JSON file (rtf's
 //! binaries: `$RTF_CACHE_DIR/bf16-probe.json`, else `$XDG_CACHE_HOME/rtf/…`, else
@@ -152,7 +152,7 @@ impl Probe {
             cpu_identity(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default()),
             self.caps.join(" "),
             libtorch_identity(),
-            rtf_models::winograd::REVISION,
+            rtf_kernels::winograd::REVISION,
             tch::get_num_threads()
         )
     }
@@ -283,27 +283,26 @@ pub fn measured_inference(
 /// bias, ReLU, folded as inference folds it) over bf16 maps, in the Winograd form (`fp32_s`)
 /// and on oneDNN's bf16 kernels (`bf16_s`); median of 7 after 2. Its weights and input are
 /// fixed, not drawn, so the caller's random stream is untouched.
-pub fn measure_conv3x3(forms: rtf_models::winograd::Forms) -> Result<Measured, String> {
+pub fn measure_conv3x3(forms: rtf_kernels::winograd::Forms) -> Result<Measured, String> {
     let winograd = conv3x3_s(true, forms)?;
     Ok(Measured::now(winograd, conv3x3_s(false, forms)?))
 }
 
-fn conv3x3_s(winograd: bool, forms: rtf_models::winograd::Forms) -> Result<f64, String> {
+fn conv3x3_s(winograd: bool, forms: rtf_kernels::winograd::Forms) -> Result<f64, String> {
     use rtf_models::fast::{FoldOptions, InferenceKernels, Precision};
-    use rtf_models::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder};
+    use rtf_models::layers::{Act, BuildOptions, ConvBnAct, ConvSpec, Fold, Folder, Path};
     use tch::{Device, Kind, Tensor};
     let _guard = tch::no_grad_guard();
     let vs = tch::nn::VarStore::new(Device::Cpu);
-    let unit = rtf_models::layers::with_zero_init(|| {
-        ConvBnAct::new(
-            vs.root() / "conv",
-            None,
-            256,
-            256,
-            ConvSpec::new(3).bias(true),
-            Act::Relu,
-        )
-    });
+    let root = Path::new(vs.root(), &BuildOptions::uninitialised());
+    let unit = ConvBnAct::new(
+        &root / "conv",
+        None,
+        256,
+        256,
+        ConvSpec::new(3).bias(true),
+        Act::Relu,
+    );
     for (_, mut var) in vs.variables() {
         let _ = var.fill_(0.01);
     }
@@ -342,8 +341,8 @@ pub fn measure_conv3x3_training() -> Result<Measured, String> {
 }
 
 fn conv3x3_training_s(emulated: bool) -> Result<f64, String> {
+    use rtf_kernels::onednn::Geometry;
     use rtf_models::layers::{bf16_emulated_convolution, to_channels_last};
-    use rtf_models::onednn::Geometry;
     use tch::{Device, Kind, Tensor};
     let fixed = |shape: [i64; 4], scale: f64| -> Result<Tensor, String> {
         let n = shape.iter().product::<i64>();
@@ -426,7 +425,7 @@ mod tests {
         assert!(
             a.starts_with("conv3x3 | ")
                 && a.contains("caps [ONEDNN_MAX_CPU_ISA=AVX2]")
-                && a.contains(&format!("winograd r{}", rtf_models::winograd::REVISION)),
+                && a.contains(&format!("winograd r{}", rtf_kernels::winograd::REVISION)),
             "{a}"
         );
         assert!(!a.contains("libtorch ?"), "libtorch_cpu.so is mapped: {a}");
@@ -455,7 +454,7 @@ mod tests {
     #[test]
     fn the_conv3x3_measurement_times_both_ways() {
         let _memory = crate::memory_lock();
-        let m = measure_conv3x3(rtf_models::winograd::Forms::All).unwrap();
+        let m = measure_conv3x3(rtf_kernels::winograd::Forms::All).unwrap();
         assert!(m.fp32_s > 0.0 && m.bf16_s > 0.0, "{m:?}");
     }
 }

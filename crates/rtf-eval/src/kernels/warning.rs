@@ -1,32 +1,31 @@
-//! One line before bf16 work on a CPU where bf16 is slow (project issues 31 and 41; in the
-//! library since issue 61, so that `rtf eval/predict/bench model` and the Python package say
-//! the same): bf16 emulated, or native but measured slower than fp32.
+//! One line before bf16 work on a CPU where bf16 is slow (project issues 31, 41 and 61; kept in
+//! the library so that `rtf eval/predict/bench model` and the Python package say the same):
+//! bf16 emulated, or native but measured slower than fp32.
 //!
 //! Where the CPU has no bf16 instructions (no `avx512_bf16`, `amx_bf16` or Arm `bf16`, or
 //! oneDNN capped below `AVX512_CORE_BF16` by `ONEDNN_MAX_CPU_ISA`: [`Bf16Arithmetic`]) every
 //! bf16 product is computed by converting to fp32 and back. libtorch's and oneDNN's generic
-//! bf16 kernels do that slowly: an AVX2 EPYC, batch 1, 640×480, 2 threads, measured the fast
-//! path's bf16 MFNet at 1.16 s against 102 ms in fp32 (~11×) and RTFNet-50 at 75 s against
-//! 2.28 s (~33×) (issue 31). So rtf routes bf16 convolutions through fp32 kernels there
+//! bf16 kernels do that slowly, an order of magnitude or more behind fp32 (measured:
+//! docs/src/benchmarks.md, section "The warning where bf16 is emulated, and no `--precision
+//! auto`"). So rtf routes bf16 convolutions through fp32 kernels there
 //! ([`Bf16Convolutions::Emulated`]), which keeps a native kernel's numbers (bf16 operands,
-//! float sums, bf16 outputs) at fp32 kernels' speed plus the casts: in training (MFNet,
-//! 320×240, batch 2: 5.45 against 7.67 images/s with emulation forced on an AVX-512 EPYC,
-//! docs/src/benchmarks.md round 5) and, since issue 41, in inference (the fast path's folds:
-//! MFNet 97 against 88 ms, RTFNet-50 1.61 against 1.50 s in fp32, under AVX2 caps on an Intel
-//! Xeon). Slower than fp32 either way, saving only activation memory, hence the advice; with
-//! `RTF_BF16_CONVOLUTIONS=native` the generic kernels run and the warning gives their cost.
+//! float sums, bf16 outputs) at fp32 kernels' speed plus the casts, in training and in
+//! inference (the fast path's folds; measured: same page, same section, and section "bf16's
+//! wide 3×3 convolutions in fp32 Winograd, where that is faster"). Slower than fp32 either way,
+//! saving only activation memory, hence the advice; with `RTF_BF16_CONVOLUTIONS=native` the
+//! generic kernels run and the warning gives their cost.
 //!
 //! bf16 instructions do not make bf16 fast everywhere. On an Intel AVX-512 CPU without AMX
-//! (oneDNN's `avx512_core_bf16` / `avx10_1_512` kernels), measured on family 6 model 167 with
-//! AMX capped off by `ONEDNN_MAX_CPU_ISA`, rtf's bf16 inference ran at 0.72× (MFNet) and 0.54×
-//! (RTFNet-50) of its fp32 speed, and PyTorch's bf16 autocast was slower than its fp32 too: the
-//! bf16 dot-product instruction there has the throughput of the fp32 FMAs it replaces, so bf16
-//! saves memory traffic only and pays for conversions and reorders. With AMX on the same CPU
-//! bf16 ran 2.7× and 4.4× faster than fp32; on AMD Zen 4 with `avx512_bf16` 1.6–1.9×
-//! (docs/src/benchmarks.md). So where bf16 is native, a small fixed workload is timed once in
-//! each precision ([`Work::Inference`], [`Work::Training`]) and cached ([`super::probe`]); where
-//! bf16 measured slower, the warning gives the times. The caller makes the measurement (`rtf`
-//! in a child process, so its own memory peak is untouched; the Python package in its own).
+//! (oneDNN's `avx512_core_bf16` / `avx10_1_512` kernels) rtf's bf16 inference ran slower than
+//! its fp32, and PyTorch's bf16 autocast was slower than its fp32 too: the bf16 dot-product
+//! instruction there has the throughput of the fp32 FMAs it replaces, so bf16 saves memory
+//! traffic only and pays for conversions and reorders. With AMX on the same CPU, and on AMD
+//! Zen 4 with `avx512_bf16`, bf16 ran faster than fp32 (measured: docs/src/benchmarks.md,
+//! section "Native bf16 that is slower than fp32, and the probe that says so"). So where bf16
+//! is native, a small fixed workload is timed once in each precision ([`Work::Inference`],
+//! [`Work::Training`]) and cached ([`super::probe`]); where bf16 measured slower, the warning
+//! gives the times. The caller makes the measurement (`rtf` in a child process, so its own
+//! memory peak is untouched; the Python package in its own).
 //!
 //! No `--precision auto`: the precision stays what the user typed (default fp32), so the same
 //! command gives the same numbers and weights on every machine; docs/src/benchmarks.md says why.

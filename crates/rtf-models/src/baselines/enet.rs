@@ -3,6 +3,7 @@
 use tch::{nn, Tensor};
 
 use super::{bn, pool_with_indices, rect_conv, RectConv};
+use crate::layers::Path;
 use crate::layers::{Act, BatchNorm, ConvBnAct, ConvSpec};
 
 /// ENet's activations: PReLU (one slope) in the encoder, ReLU in the decoder.
@@ -12,7 +13,7 @@ enum EnetAct {
     Relu,
 }
 
-fn enet_act(p: &nn::Path, name: &str, prelu: bool) -> EnetAct {
+fn enet_act(p: &Path, name: &str, prelu: bool) -> EnetAct {
     if prelu {
         EnetAct::Prelu(crate::layers::new_var(
             &(p / name),
@@ -43,14 +44,7 @@ struct EnetConv {
     act: Option<EnetAct>,
 }
 
-fn enet_conv(
-    p: &nn::Path,
-    c_in: i64,
-    c_out: i64,
-    k: [i64; 2],
-    d: i64,
-    act: Option<bool>,
-) -> EnetConv {
+fn enet_conv(p: &Path, c_in: i64, c_out: i64, k: [i64; 2], d: i64, act: Option<bool>) -> EnetConv {
     let dilation = [if k[0] > 1 { d } else { 1 }, if k[1] > 1 { d } else { 1 }];
     EnetConv {
         conv: Some(rect_conv(p / "conv", c_in, c_out, k, dilation, false)),
@@ -105,14 +99,7 @@ enum EnetBlock {
 
 /// Regular bottleneck: 1×1 (c→c/4), 3×3 (dilation d) or 5×1 + 1×5 (asymmetric), 1×1 back,
 /// Dropout2d, + input. [B, c, H, W] -> [B, c, H, W]
-fn enet_regular(
-    p: nn::Path,
-    c: i64,
-    d: i64,
-    asymmetric: bool,
-    dropout: f64,
-    prelu: bool,
-) -> EnetBlock {
+fn enet_regular(p: Path, c: i64, d: i64, asymmetric: bool, dropout: f64, prelu: bool) -> EnetBlock {
     let i = c / 4;
     let mut ext = vec![enet_conv(&(&p / "ext_conv1"), c, i, [1, 1], 1, Some(prelu))];
     if asymmetric {
@@ -145,7 +132,7 @@ fn enet_regular(
 
 /// Downsampling bottleneck: max-pool (indices kept) with zero-padded channels ‖ 2×2 s2 conv,
 /// 3×3, 1×1. [B, c_in, H, W] -> [B, c_out, H/2, W/2]
-fn enet_down(p: nn::Path, c_in: i64, c_out: i64, dropout: f64) -> EnetBlock {
+fn enet_down(p: Path, c_in: i64, c_out: i64, dropout: f64) -> EnetBlock {
     let i = c_in / 4;
     let strided = ConvSpec::new(2).stride(2).padding(0);
     let first = EnetConv {
@@ -176,7 +163,7 @@ fn enet_down(p: nn::Path, c_in: i64, c_out: i64, dropout: f64) -> EnetBlock {
 
 /// Upsampling bottleneck: 1×1 conv + unpooling with the matching indices ‖ 1×1, 2×2 s2
 /// transposed conv, 1×1. [B, c_in, H, W] -> [B, c_out, 2H, 2W]
-fn enet_up(p: nn::Path, c_in: i64, c_out: i64, dropout: f64) -> EnetBlock {
+fn enet_up(p: Path, c_in: i64, c_out: i64, dropout: f64) -> EnetBlock {
     let i = c_in / 4;
     let cfg = nn::ConvTransposeConfig {
         stride: 2,
@@ -206,7 +193,7 @@ pub(super) struct Enet {
     fullconv: nn::ConvTranspose2D,
 }
 
-pub(super) fn enet(p: nn::Path, c_in: i64, num_classes: i64) -> Enet {
+pub(super) fn enet(p: Path, c_in: i64, num_classes: i64) -> Enet {
     let spec = ConvSpec::new(3).stride(2);
     let initial_conv = ConvBnAct::new(
         &p / "initial" / "conv",

@@ -1,8 +1,8 @@
 //! Tests of the baseline networks ([`super`]): shapes, parameter counts, names.
 
 use super::*;
+use crate::io::weights;
 use crate::test_util::forward_shape;
-use crate::weights;
 use tch::{Device, Kind};
 
 #[test]
@@ -11,7 +11,7 @@ fn every_baseline_builds_and_keeps_the_input_size() {
         for &c in arch.channel_options() {
             let cfg = Config::new(arch, c, 9);
             let vs = nn::VarStore::new(Device::Cpu);
-            let net = Baseline::new(vs.root(), &cfg).unwrap();
+            let net = Baseline::new(vs.root().into(), &cfg).unwrap();
             let shape = forward_shape(&net, [1, 4, 64, 96]);
             assert_eq!(shape, vec![1, 9, 64, 96], "{}", cfg.name());
             let names = vs.variables();
@@ -31,9 +31,8 @@ fn every_baseline_builds_and_keeps_the_input_size() {
 fn parameter_counts_are_those_of_the_original_architectures() {
     let count = |arch, c| {
         let vs = nn::VarStore::new(Device::Cpu);
-        crate::layers::with_zero_init(|| {
-            Baseline::new(vs.root(), &Config::new(arch, c, 9)).unwrap()
-        });
+        let root = crate::layers::Path::new(vs.root(), &crate::BuildOptions::uninitialised());
+        Baseline::new(root, &Config::new(arch, c, 9)).unwrap();
         weights::count_trainable(&vs)
     };
     // The sizes the papers state (MFNet paper Tab. IV: SegNet 29.42M, ENet 0.37M; ERFNet
@@ -59,7 +58,7 @@ fn fused_against_plain(arch: Arch, seed: i64) -> f64 {
     tch::manual_seed(seed);
     let vs = nn::VarStore::new(Device::Cpu);
     let net: Box<dyn Network> =
-        Box::new(Baseline::new(vs.root(), &Config::new(arch, 4, 9)).unwrap());
+        Box::new(Baseline::new(vs.root().into(), &Config::new(arch, 4, 9)).unwrap());
     let x = Tensor::rand([1, 4, 32, 64], (Kind::Float, Device::Cpu));
     let plain = tch::no_grad(|| net.forward_t(&x, false));
     let fast = InferenceNet::new(net, Precision::Fp32).unwrap();
@@ -100,7 +99,7 @@ fn unet_starts_from_its_papers_initialisation() {
     // answer on the quick budget's data.
     tch::manual_seed(3);
     let vs = nn::VarStore::new(Device::Cpu);
-    Baseline::new(vs.root(), &Config::new(Arch::Unet, 3, 9)).unwrap();
+    Baseline::new(vs.root().into(), &Config::new(Arch::Unet, 3, 9)).unwrap();
     let vars = vs.variables();
     for (name, fan_in) in [
         ("down.0.conv1.weight", 3.0 * 9.0),
@@ -120,7 +119,7 @@ fn unet_starts_from_its_papers_initialisation() {
 #[test]
 fn three_channel_variants_ignore_thermal() {
     let vs = nn::VarStore::new(Device::Cpu);
-    let net = Baseline::new(vs.root(), &Config::new(Arch::Erfnet, 3, 9)).unwrap();
+    let net = Baseline::new(vs.root().into(), &Config::new(Arch::Erfnet, 3, 9)).unwrap();
     let x = Tensor::rand([1, 4, 32, 32], (Kind::Float, Device::Cpu));
     let y = x.copy();
     let _ = y.narrow(1, 3, 1).fill_(0.0);

@@ -6,6 +6,7 @@ use super::{
     bilinear, feature_map, inference_copy, linear, tokens, Config, Layout, Linear, LinearInit,
     DECODER_DIM, DECODER_DROPOUT,
 };
+use crate::layers::Path;
 use crate::layers::{
     batch_norm_affine, bn2d_with, new_var, Act, BatchNorm, ConvBnAct, ConvSpec, Fold, Folder,
     WeightInit,
@@ -49,7 +50,7 @@ pub(super) struct FoldedDecoder {
     pred: ConvBnAct,
 }
 
-pub(super) fn decoder(p: nn::Path, layout: &Layout, cfg: &Config) -> Decoder {
+pub(super) fn decoder(p: Path, layout: &Layout, cfg: &Config) -> Decoder {
     let num_classes = cfg.num_classes;
     let proj = (0..4)
         .map(|i| {

@@ -1,13 +1,14 @@
 //! CMX's fusion modules: the Feature Rectify Module (`FRMs.i`) and the Feature Fusion Module
 //! (`FFMs.i`: cross-attention paths, then the channel embedding).
 
-use tch::nn::{self, ModuleT};
+use tch::nn::ModuleT;
 use tch::{Kind, Tensor};
 
 use super::{
     add_residual, depthwise3x3, encoder_conv, feature_map, layer_norm, linear, tokens, LayerNorm,
     Linear, LinearInit, LN_EPS, RECTIFY_LAMBDA,
 };
+use crate::layers::Path;
 use crate::layers::{batch_norm_affine, bn2d, Act, BatchNorm, ConvBnAct, ConvSpec, Fold, Folder};
 
 /// Feature Rectify Module (`FRMs.i`): channel weights from the average- and max-pooled
@@ -21,7 +22,7 @@ pub(super) struct Rectify {
     spatial2: ConvBnAct,
 }
 
-pub(super) fn rectify(p: nn::Path, dim: i64) -> Rectify {
+pub(super) fn rectify(p: Path, dim: i64) -> Rectify {
     let channel = &p / "channel_weights" / "mlp";
     let spatial = &p / "spatial_weights" / "mlp";
     let one = ConvSpec::new(1).bias(true);
@@ -101,7 +102,7 @@ pub(super) struct ChannelEmbed {
     pub(super) norm: Option<BatchNorm>,
 }
 
-fn channel_embed(p: nn::Path, c_in: i64, c: i64) -> ChannelEmbed {
+fn channel_embed(p: Path, c_in: i64, c: i64) -> ChannelEmbed {
     let e = &p / "channel_embed";
     let one = ConvSpec::new(1).bias(true);
     ChannelEmbed {
@@ -167,9 +168,9 @@ pub(super) struct Fusion {
     pub(super) embed: ChannelEmbed,
 }
 
-pub(super) fn fusion(p: nn::Path, dim: i64, heads: i64) -> Fusion {
+pub(super) fn fusion(p: Path, dim: i64, heads: i64) -> Fusion {
     let cross = &p / "cross";
-    let lin = |p: nn::Path, c_in, c_out, bias| linear(p, c_in, c_out, bias, LinearInit::Normal002);
+    let lin = |p: Path, c_in, c_out, bias| linear(p, c_in, c_out, bias, LinearInit::Normal002);
     Fusion {
         heads,
         channel_proj: [1, 2].map(|i| lin(&cross / format!("channel_proj{i}"), dim, 2 * dim, true)),

@@ -2,9 +2,9 @@
 
 use super::decoder::folded_sum;
 use super::*;
-use crate::layers::with_zero_init;
+use crate::io::weights;
+use crate::layers::{BuildOptions, Path};
 use crate::test_util::forward_shape;
-use crate::weights;
 use tch::Device;
 
 /// Trainable parameters of the official network for 9 classes, from
@@ -25,11 +25,10 @@ fn official_count(size: Size) -> i64 {
 #[test]
 fn parameter_counts_match_the_official_network() {
     for size in Size::ALL {
-        let count = with_zero_init(|| {
-            let vs = nn::VarStore::new(Device::Cpu);
-            Cmx::new(vs.root(), &Config::new(size, 9)).unwrap();
-            weights::count_trainable(&vs)
-        });
+        let vs = nn::VarStore::new(Device::Cpu);
+        let root = Path::new(vs.root(), &BuildOptions::uninitialised());
+        Cmx::new(root, &Config::new(size, 9)).unwrap();
+        let count = weights::count_trainable(&vs);
         assert_eq!(count, official_count(size), "{size:?}");
     }
 }
@@ -37,7 +36,7 @@ fn parameter_counts_match_the_official_network() {
 #[test]
 fn tensor_names_are_the_official_ones() {
     let vs = nn::VarStore::new(Device::Cpu);
-    Cmx::new(vs.root(), &Config::new(Size::B0, 9)).unwrap();
+    Cmx::new(vs.root().into(), &Config::new(Size::B0, 9)).unwrap();
     let vars = vs.variables();
     let shape = |name: &str| {
         vars.get(name)
@@ -90,7 +89,7 @@ fn b0_keeps_the_input_size_for_any_class_count() {
     tch::manual_seed(0);
     for (classes, shape) in [(9, [1, 4, 64, 64]), (5, [2, 4, 64, 96])] {
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = Cmx::new(vs.root(), &Config::new(Size::B0, classes)).unwrap();
+        let net = Cmx::new(vs.root().into(), &Config::new(Size::B0, classes)).unwrap();
         assert_eq!(
             forward_shape(&net, shape),
             vec![shape[0], classes, shape[2], shape[3]]
@@ -102,7 +101,7 @@ fn b0_keeps_the_input_size_for_any_class_count() {
 fn training_mode_reaches_every_parameter() {
     tch::manual_seed(1);
     let vs = nn::VarStore::new(Device::Cpu);
-    let net = Cmx::new(vs.root(), &Config::new(Size::B0, 3)).unwrap();
+    let net = Cmx::new(vs.root().into(), &Config::new(Size::B0, 3)).unwrap();
     let x = Tensor::rand([2, 4, 64, 64], (Kind::Float, Device::Cpu));
     let logits = net.forward_t(&x, true);
     assert_eq!(logits.size(), vec![2, 3, 64, 64]);
@@ -121,7 +120,7 @@ fn preprocessing_is_the_official_one() {
     let x = Tensor::from_slice(&[0.2f32, 0.4, 0.6, 0.8]).view([1, 4, 1, 1]);
     let value = |t: &Tensor, c: i64| t.double_value(&[0, c, 0, 0]);
     let near = |a: f64, b: f64| (a - b).abs() < 1e-5;
-    let (colour, thermal) = Cmx::new(vs.root(), &cfg).unwrap().normalise(&x);
+    let (colour, thermal) = Cmx::new(vs.root().into(), &cfg).unwrap().normalise(&x);
     // B, G, R planes, each normalised with the ImageNet statistics of its position.
     assert!(near(value(&colour, 0), (0.6 - 0.485) / 0.229));
     assert!(near(value(&colour, 2), (0.2 - 0.406) / 0.225));
@@ -131,7 +130,7 @@ fn preprocessing_is_the_official_one() {
     }
     cfg.color_order = ColorOrder::Rgb;
     let vs = nn::VarStore::new(Device::Cpu);
-    let (colour, _) = Cmx::new(vs.root(), &cfg).unwrap().normalise(&x);
+    let (colour, _) = Cmx::new(vs.root().into(), &cfg).unwrap().normalise(&x);
     assert!(near(value(&colour, 0), (0.2 - 0.485) / 0.229));
 }
 
@@ -170,7 +169,7 @@ fn the_decoder_batchnorm_takes_the_training_eps() {
     let build = |cfg: &Config| {
         let vs = nn::VarStore::new(tch::Device::Cpu);
         tch::manual_seed(3);
-        let net = Cmx::new(vs.root(), cfg).unwrap();
+        let net = Cmx::new(vs.root().into(), cfg).unwrap();
         (vs, net)
     };
     let ((_a, a), (_b, b)) = (build(&plain), build(&trained));
@@ -220,7 +219,7 @@ fn normalised_zero_is_what_the_preprocessing_maps_to_zero() {
             color_order: order,
             ..Config::new(Size::B0, 9)
         };
-        let net = Cmx::new(nn::VarStore::new(tch::Device::Cpu).root(), &cfg).unwrap();
+        let net = Cmx::new(nn::VarStore::new(tch::Device::Cpu).root().into(), &cfg).unwrap();
         let zero = cfg.normalised_zero();
         let x = Tensor::from_slice(&zero).view([1, 4, 1, 1]);
         let (colour, thermal) = net.normalise(&x);
@@ -243,7 +242,7 @@ fn normalised_zero_is_what_the_preprocessing_maps_to_zero() {
 /// BatchNorm affines, BatchNorm statistics), so folding them is tested for real.
 fn b0_with_random_norms(vs: &nn::VarStore, classes: i64) -> Cmx {
     tch::manual_seed(5);
-    let net = Cmx::new(vs.root(), &Config::new(Size::B0, classes)).unwrap();
+    let net = Cmx::new(vs.root().into(), &Config::new(Size::B0, classes)).unwrap();
     tch::no_grad(|| {
         for (name, mut var) in vs.variables() {
             let (lo, hi) = match name.rsplit('.').next() {
@@ -293,7 +292,7 @@ fn the_folded_decoder_sum_is_the_official_one() {
     tch::manual_seed(6);
     let vs = nn::VarStore::new(Device::Cpu);
     let layout = Size::B0.layout();
-    let dec = decoder(vs.root(), &layout, &Config::new(Size::B0, 9));
+    let dec = decoder(vs.root().into(), &layout, &Config::new(Size::B0, 9));
     let features: Vec<Tensor> = (0..4)
         .map(|i| {
             let (h, w) = (16 >> i, 24 >> i);
@@ -317,7 +316,7 @@ fn names_and_configs_round_trip() {
     let cfg: Config = serde_json::from_str(r#"{"size": "b2", "num_classes": 4}"#).unwrap();
     assert_eq!(cfg, Config::new(Size::B2, 4));
     let err = Cmx::new(
-        nn::VarStore::new(Device::Cpu).root(),
+        nn::VarStore::new(Device::Cpu).root().into(),
         &Config::new(Size::B0, 0),
     )
     .unwrap_err();

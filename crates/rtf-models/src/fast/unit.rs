@@ -8,17 +8,17 @@ use tch::{Kind, Tensor};
 
 use super::folder::Folder;
 use crate::layers::ops::{nearest_up2_conv3x3_as_phases, to_channels_last, Act};
-use crate::onednn::{conv_add_with_post_op, conv_with_post_op, Geometry};
+use rtf_kernels::onednn::{conv_add_with_post_op, conv_with_post_op, Geometry};
 
 /// A folded convolution weight in the form the inference path runs it in.
 #[derive(Debug)]
 enum FoldedWeight {
     /// Dense, in the fold's layout ([`Folder::channels_last`]).
     Dense(Tensor),
-    /// Packed once into oneDNN's blocked layout ([`crate::onednn::pack_weight`]); only oneDNN's
+    /// Packed once into oneDNN's blocked layout ([`rtf_kernels::onednn::pack_weight`]); only oneDNN's
     /// fused entry points take it, every other use goes through [`FoldedWeight::dense`].
     Packed(Tensor),
-    /// Winograd's transformed weight [16, c_in, c_out] ([`crate::winograd`]), in place of the
+    /// Winograd's transformed weight [16, c_in, c_out] ([`rtf_kernels::winograd`]), in place of the
     /// dense one.
     Winograd(Tensor),
 }
@@ -37,7 +37,7 @@ impl FoldedWeight {
     fn dense(&self) -> Tensor {
         match self {
             FoldedWeight::Dense(w) => w.shallow_clone(),
-            FoldedWeight::Packed(w) => crate::onednn::dense_weight(w),
+            FoldedWeight::Packed(w) => rtf_kernels::onednn::dense_weight(w),
             FoldedWeight::Winograd(_) => unreachable!("Winograd weights run through winograd.rs"),
         }
     }
@@ -176,7 +176,7 @@ impl FoldedConv {
                 self.act.apply_inference(ys)
             });
         // -> [B, c_out, 2H, 2W]
-        crate::kernels::interleave_phases(&phases)
+        rtf_kernels::phases::interleave_phases(&phases)
     }
 
     /// The convolution with the activation fused into it, where oneDNN can (or in the Winograd
@@ -200,7 +200,7 @@ impl FoldedConv {
         match &self.weight {
             FoldedWeight::Winograd(u) => {
                 let d = self.geometry.dilation;
-                crate::winograd::conv3x3_dilated(xs, u, self.bias.as_ref(), None, false, d)
+                rtf_kernels::winograd::conv3x3_dilated(xs, u, self.bias.as_ref(), None, false, d)
             }
             weight => {
                 let ys = plain_conv(
@@ -218,7 +218,8 @@ impl FoldedConv {
     fn winograd_conv(&self, xs: &Tensor, u: &Tensor, residual: Option<&Tensor>) -> Tensor {
         let relu = self.act == Act::Relu;
         let d = self.geometry.dilation;
-        let ys = crate::winograd::conv3x3_dilated(xs, u, self.bias.as_ref(), residual, relu, d);
+        let ys =
+            rtf_kernels::winograd::conv3x3_dilated(xs, u, self.bias.as_ref(), residual, relu, d);
         if relu {
             ys
         } else {
@@ -302,7 +303,7 @@ fn plain_conv(xs: &Tensor, weight: &Tensor, bias: Option<&Tensor>, g: Geometry) 
 }
 
 /// The folded float32 `weight` in the form inference runs it in: Winograd's where
-/// [`crate::winograd::form`] has one within the fold's forms, on the CPU, in fp32 and, where
+/// [`rtf_kernels::winograd::form`] has one within the fold's forms, on the CPU, in fp32 and, where
 /// the fold takes the bf16 Winograd forms, in bf16 (of the bf16-rounded weight, as bf16
 /// kernels would take it); else laid out by `lay_out` (in the fold's type) and packed for
 /// oneDNN where it can be.
@@ -321,17 +322,17 @@ fn inference_form(
     };
     let forms = folder.kernels().winograd;
     let winograd = (winograd_kind && weight.device() == tch::Device::Cpu)
-        .then(|| crate::winograd::form_within(forms, dims[2], geometry, dims[1], dims[0]))
+        .then(|| rtf_kernels::winograd::form(forms, dims[2], geometry, dims[1], dims[0]))
         .flatten();
     if let (Some(form), false) = (winograd, geometry.transposed) {
         let weight = match kind {
             Kind::BFloat16 => weight.to_kind(kind).to_kind(Kind::Float),
             _ => weight,
         };
-        return FoldedWeight::Winograd(crate::winograd::weight_transform(&weight, form));
+        return FoldedWeight::Winograd(rtf_kernels::winograd::weight_transform(&weight, form));
     }
     let dense = lay_out(weight);
-    match crate::onednn::pack_weight(&dense, geometry) {
+    match rtf_kernels::onednn::pack_weight(&dense, geometry) {
         Some(packed) => FoldedWeight::Packed(packed),
         None => FoldedWeight::Dense(dense),
     }

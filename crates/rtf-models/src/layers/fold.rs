@@ -87,7 +87,7 @@ impl ConvBnAct {
     }
 
     /// The trained variables; folding a folded unit again is a caller's bug.
-    fn plain(&self) -> &Plain {
+    pub(super) fn plain(&self) -> &Plain {
         match &self.form {
             Form::Plain(p) => p,
             Form::Folded(_) => panic!("a folded convolution cannot be folded again"),

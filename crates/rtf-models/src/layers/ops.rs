@@ -4,27 +4,8 @@
 
 use tch::{Kind, Tensor};
 
-use crate::aten::{ffi, shim_result};
-use crate::onednn::PostOp;
-
-/// ATen's `leaky_relu(x, slope)` (one pass forward, one backward; tch's binding fixes the
-/// slope at 0.01), through csrc/ops.cpp; differentiable. With `in_place` it overwrites `xs`,
-/// which autograd allows when nothing saved `xs` for its backward (BatchNorm's and a
-/// convolution's outputs: their backwards read their inputs).
-pub(crate) fn aten_leaky_relu(xs: &Tensor, slope: f64, in_place: bool) -> Tensor {
-    let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
-    // SAFETY: `as_ptr` is a live `at::Tensor*` for the call; the shim's result is taken as
-    // `shim_result` requires.
-    unsafe {
-        let error = ffi::rtf_leaky_relu(
-            xs.as_ptr() as *mut torch_sys::C_tensor,
-            slope,
-            in_place as std::ffi::c_int,
-            &mut out,
-        );
-        shim_result("leaky_relu", error, out)
-    }
-}
+use rtf_kernels::aten::aten_leaky_relu;
+use rtf_kernels::onednn::PostOp;
 
 /// LeakyReLU with a given slope (ATen's, differentiable).
 pub fn leaky_relu(xs: &Tensor, slope: f64) -> Tensor {
@@ -38,20 +19,7 @@ pub fn leaky_relu_inference(xs: Tensor, slope: f64) -> Tensor {
     xs.leaky_relu_backward_grad_input(&xs, &xs, slope, false)
 }
 
-/// Re-lays a 4-D tensor out channels-last (NHWC in memory, NCHW logical shape); libtorch's
-/// CPU convolutions, pools and pointwise ops keep that layout.
-pub fn to_channels_last(xs: &Tensor) -> Tensor {
-    if xs.dim() != 4 {
-        return xs.shallow_clone();
-    }
-    xs.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
-}
-
-/// Whether a 4-D tensor is laid out channels-last.
-pub fn is_channels_last(xs: &Tensor) -> bool {
-    let (size, stride) = (xs.size(), xs.stride());
-    size.len() == 4 && (size[1] == 1 || stride[1] == 1) && stride[0] == size[1] * size[2] * size[3]
-}
+pub use rtf_kernels::layout::{is_channels_last, to_channels_last};
 
 /// Activation after a unit.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -47,6 +47,11 @@ fn conv_and_gradients(
     [y.detach(), x.grad(), w.grad(), b.grad()]
 }
 
+/// The root of `vs` as a path of a build with the default options.
+fn root(vs: &nn::VarStore) -> Path<'_> {
+    Path::from(vs.root())
+}
+
 #[test]
 fn emulated_bf16_convolution_has_a_native_kernels_numbers() {
     tch::manual_seed(3);
@@ -141,7 +146,7 @@ fn folding_a_following_affine_equals_applying_it() {
     for act in [Act::Identity, Act::Gelu] {
         let vs = nn::VarStore::new(Device::Cpu);
         let spec = ConvSpec::new(3).bias(true);
-        let unit = ConvBnAct::new(vs.root() / "c", Some(vs.root() / "bn"), 4, 5, spec, act);
+        let unit = ConvBnAct::new(root(&vs) / "c", Some(root(&vs) / "bn"), 4, 5, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([2, 4, 10, 12], (Kind::Float, Device::Cpu));
         let scale = Tensor::rand([5], (Kind::Float, Device::Cpu)) + 0.5;
@@ -168,7 +173,7 @@ fn folding_matches_conv_bn_for_plain_and_transposed() {
         (ConvSpec::new(2).stride(2).transposed(), Act::Relu),
     ] {
         let vs = nn::VarStore::new(Device::Cpu);
-        let unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
+        let unit = ConvBnAct::new(root(&vs) / "conv", Some(root(&vs) / "bn"), 6, 5, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([2, 6, 12, 16], (Kind::Float, Device::Cpu));
         let plain = tch::no_grad(|| unit.forward_t(&x, false));
@@ -213,8 +218,8 @@ fn wide_units_fold_into_winograd_forms_with_the_same_values() {
         let vs = nn::VarStore::new(Device::Cpu);
         let spec = ConvSpec::new(3).dilation(dilation);
         let unit = ConvBnAct::new(
-            vs.root() / "conv",
-            Some(vs.root() / "bn"),
+            root(&vs) / "conv",
+            Some(root(&vs) / "bn"),
             c,
             c,
             spec,
@@ -258,10 +263,10 @@ fn bf16_wide_units_fold_into_winograd_forms_where_chosen() {
     let bf16 = |t: &Tensor| to_channels_last(&t.to_kind(Kind::BFloat16));
     for (c, h, w, positions) in [(128, 9, 11, 36), (1024, 3, 5, 16)] {
         let vs = nn::VarStore::new(Device::Cpu);
-        let conv = vs.root() / "conv";
+        let conv = root(&vs) / "conv";
         let unit = ConvBnAct::new(
             conv,
-            Some(vs.root() / "bn"),
+            Some(root(&vs) / "bn"),
             c,
             c,
             ConvSpec::new(3),
@@ -317,8 +322,8 @@ fn training_on_an_upsampled_input_takes_the_phase_form_with_the_same_values_and_
     let vs = nn::VarStore::new(Device::Cpu);
     let spec = ConvSpec::new(3).bias(true).nearest_upsampled_input();
     let unit = ConvBnAct::new(
-        vs.root() / "c",
-        Some(vs.root() / "bn"),
+        root(&vs) / "c",
+        Some(root(&vs) / "bn"),
         5,
         3,
         spec,
@@ -383,8 +388,8 @@ fn training_over_channels_last_maps_takes_the_winograd_form_with_the_same_gradie
     tch::manual_seed(10);
     let vs = nn::VarStore::new(Device::Cpu);
     let unit = ConvBnAct::new(
-        vs.root() / "c",
-        Some(vs.root() / "bn"),
+        root(&vs) / "c",
+        Some(root(&vs) / "bn"),
         128,
         128,
         ConvSpec::new(3),
@@ -393,7 +398,8 @@ fn training_over_channels_last_maps_takes_the_winograd_form_with_the_same_gradie
         Act::Identity,
     );
     let x = Tensor::randn([4, 128, 30, 38], (Kind::Float, Device::Cpu));
-    assert!(crate::winograd::trains_in_f43(
+    assert!(rtf_kernels::winograd::trains_in_f43(
+        rtf_kernels::winograd::Forms::All,
         3,
         unit.geometry(),
         128,
@@ -422,12 +428,46 @@ fn training_over_channels_last_maps_takes_the_winograd_form_with_the_same_gradie
     }
 }
 
+/// The Winograd forms a unit trains in are those of the build it belongs to: a unit built
+/// with the forms off trains by the direct convolution over the same channels-last maps, and
+/// the unit's kernels are its own (a unit of another build beside it keeps its forms).
+#[test]
+fn a_units_training_forms_are_those_it_was_built_with() {
+    use rtf_kernels::winograd::Forms;
+    let vs = nn::VarStore::new(Device::Cpu);
+    let unit_of = |forms: Forms, name: &str| {
+        let options = BuildOptions {
+            kernels: UnitKernels {
+                winograd: forms,
+                ..Default::default()
+            },
+            uninitialised: false,
+        };
+        let root = Path::new(vs.root(), &options);
+        ConvBnAct::new(
+            &root / name,
+            None,
+            128,
+            128,
+            ConvSpec::new(3),
+            Act::Identity,
+        )
+    };
+    let (all, off) = (unit_of(Forms::All, "all"), unit_of(Forms::Off, "off"));
+    let x = to_channels_last(&Tensor::randn([4, 128, 30, 38], (Kind::Float, Device::Cpu)));
+    assert!(all.trains_in_winograd(all.plain(), &x, true));
+    assert!(!off.trains_in_winograd(off.plain(), &x, true));
+    // Never in eval mode, nor over NCHW maps.
+    assert!(!all.trains_in_winograd(all.plain(), &x, false));
+    assert!(!all.trains_in_winograd(all.plain(), &x.contiguous(), true));
+}
+
 #[test]
 fn upsampled_input_folds_into_one_phase_convolution() {
     for (act, h, w) in [(Act::LeakyRelu(0.2), 6, 8), (Act::Relu, 5, 7)] {
         let vs = nn::VarStore::new(Device::Cpu);
         let spec = ConvSpec::new(3).bias(true).nearest_upsampled_input();
-        let unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
+        let unit = ConvBnAct::new(root(&vs) / "conv", Some(root(&vs) / "bn"), 6, 5, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([2, 6, h, w], (Kind::Float, Device::Cpu));
         let upsampled = x.upsample_nearest2d([2 * h, 2 * w], 2.0, 2.0);
@@ -480,7 +520,7 @@ fn emulated_bf16_folds_compute_in_float_over_bf16_maps() {
         (ConvSpec::new(2).stride(2).transposed(), Act::Relu),
     ] {
         let vs = nn::VarStore::new(Device::Cpu);
-        let unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 6, 5, spec, act);
+        let unit = ConvBnAct::new(root(&vs) / "conv", Some(root(&vs) / "bn"), 6, 5, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([2, 6, 12, 16], opts);
         let plain = tch::no_grad(|| unit.forward_t(&x, false));
@@ -508,13 +548,13 @@ fn emulated_bf16_folds_compute_in_float_over_bf16_maps() {
         assert!(close(&pool(&plain), &ys), "{spec:?} then max pool");
     }
     let vs = nn::VarStore::new(Device::Cpu);
-    let unit = ConvBnAct::new(vs.root() / "c", None, 6, 5, ConvSpec::new(1), Act::Relu);
+    let unit = ConvBnAct::new(root(&vs) / "c", None, 6, 5, ConvSpec::new(1), Act::Relu);
     assert!(!fold_as(&unit, bf16_emulated(false))
         .folded_unit()
         .float_arith());
     let vs = nn::VarStore::new(Device::Cpu);
     let spec = ConvSpec::new(3).bias(true).nearest_upsampled_input();
-    let unit = ConvBnAct::new(vs.root() / "conv", None, 6, 5, spec, Act::Relu);
+    let unit = ConvBnAct::new(root(&vs) / "conv", None, 6, 5, spec, Act::Relu);
     let x = Tensor::randn([1, 6, 5, 7], opts);
     let plain = tch::no_grad(|| unit.forward_upsampled(&x, false));
     let unit = fold_as(&unit, bf16_emulated(true));
@@ -534,7 +574,7 @@ fn pooling_before_the_activation_gives_the_same_values() {
     for act in [Act::LeakyRelu(0.2), Act::Relu] {
         let vs = nn::VarStore::new(Device::Cpu);
         let spec = ConvSpec::new(3).bias(true);
-        let unit = ConvBnAct::new(vs.root() / "conv", Some(vs.root() / "bn"), 4, 6, spec, act);
+        let unit = ConvBnAct::new(root(&vs) / "conv", Some(root(&vs) / "bn"), 4, 6, spec, act);
         randomise_bn(&vs);
         let x = Tensor::randn([1, 4, 10, 12], (Kind::Float, Device::Cpu));
         let pool = |t: &Tensor| t.max_pool2d_default(2);

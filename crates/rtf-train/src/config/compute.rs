@@ -31,7 +31,7 @@ pub struct ComputeConfig {
     /// (`RTF_WINOGRAD` for rtf's binaries, [`crate::kernels::settle_winograd`]), recorded so
     /// that a resume computes the same sums. Absent from runs recorded before it: all forms.
     #[serde(default)]
-    pub winograd: rtf_models::winograd::Forms,
+    pub winograd: rtf_kernels::winograd::Forms,
 }
 
 impl ComputeConfig {

@@ -97,7 +97,7 @@ impl From<LegacyFlatConfig> for TrainConfig {
                 world_size: f.world_size,
                 bf16_convolutions: None,
                 fp32_layout: None,
-                winograd: rtf_models::winograd::Forms::All,
+                winograd: rtf_kernels::winograd::Forms::All,
             },
         }
     }

@@ -760,7 +760,7 @@ impl TrainConfig {
                 world_size: None,
                 bf16_convolutions: None,
                 fp32_layout: None,
-                winograd: rtf_models::winograd::Forms::All,
+                winograd: rtf_kernels::winograd::Forms::All,
             },
         }
     }

@@ -68,7 +68,7 @@ pub fn training_key(probe: &Probe, convolutions: Bf16Convolutions) -> String {
 /// convolutions within the Winograd `forms`.
 pub fn measure_training(
     convolutions: Bf16Convolutions,
-    forms: rtf_models::winograd::Forms,
+    forms: rtf_kernels::winograd::Forms,
 ) -> Result<Measured, String> {
     let seconds = |precision| -> Result<f64, String> {
         let opts = crate::bench::TrainBenchOptions {
@@ -97,7 +97,7 @@ pub fn measure_training(
 /// none.
 pub fn measured_training(probe: &Probe, convolutions: Bf16Convolutions) -> Probed {
     probe.measured(&training_key(probe, convolutions), || {
-        measure_training(convolutions, rtf_models::winograd::Forms::All)
+        measure_training(convolutions, rtf_kernels::winograd::Forms::All)
     })
 }
 

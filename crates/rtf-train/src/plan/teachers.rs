@@ -123,7 +123,7 @@ impl CheckedTeacher {
         }
         // The file's own record of its network and inputs (absent in converted weights): a
         // teacher behind another mask than it was trained with labels garbage, silently.
-        let meta = rtf_models::weights::read_weights_metadata(weights)?;
+        let meta = rtf_models::io::weights::read_weights_metadata(weights)?;
         if let Some(saved) = meta.saved_config(weights)?.filter(|saved| saved != model) {
             return Err(bad(format!(
                 "the file holds a {} network, the teacher is declared as {}",

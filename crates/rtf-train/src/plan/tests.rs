@@ -26,7 +26,7 @@ fn teacher_student(dir: &Path) -> TrainConfig {
     let model = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
     rtf_models::build(&vs.root(), &model).unwrap();
     let path = dir.join("teacher.safetensors");
-    rtf_models::weights::save_safetensors(&vs, &model, Modality::Rgb, &path).unwrap();
+    rtf_models::io::weights::save_safetensors(&vs, &model, Modality::Rgb, &path).unwrap();
     TrainConfig::mfnet_paper(data).with(|c| {
         c.schedule.epochs = 1;
         c.schedule.batch_size = 2;

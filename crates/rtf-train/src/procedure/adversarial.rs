@@ -52,19 +52,18 @@ impl Adversarial {
     ) -> Result<Self, TrainError> {
         // The critic trains in the student's arithmetic.
         let critic = Trained::new(CRITIC, device, &options.optimizer)
-            .convolving(student.trained.bf16_convolutions)
-            .winograd_forms(student.trained.winograd)
+            .computing(student.trained.kernels.clone())
             .mixed(student.trained.precision)?;
         let mut critic = critic;
         let critic_net = Critic::new(
-            critic.vs.root(),
+            rtf_models::layers::Path::new(critic.vs.root(), &critic.build_options()),
             &CriticConfig {
                 in_channels: student.net.inner.num_classes(),
             },
         )?;
         if let Some(path) = &options.init {
-            let tensors = rtf_models::weights::read_safetensors(path)?;
-            rtf_models::weights::load_named_except(
+            let tensors = rtf_models::io::weights::read_safetensors(path)?;
+            rtf_models::io::weights::load_named_except(
                 &mut critic.vs,
                 tensors,
                 path,

@@ -10,7 +10,9 @@ use crate::config::{
 };
 use crate::error::TrainError;
 use crate::plan::{CheckedTeacher, Teachers};
-use rtf_models::ModelConfig;
+use std::sync::Arc;
+
+use rtf_models::{ModelConfig, StatsAllReduce, UnitKernels};
 
 /// What a procedure's networks are built from: the student's sections and the checked
 /// teachers.
@@ -19,6 +21,9 @@ pub struct Spec<'a> {
     pub learning: &'a LearningConfig,
     pub compute: &'a ComputeConfig,
     pub teachers: &'a Teachers,
+    /// Data-parallel with synchronised BatchNorm: the sum over the ranks the trained networks'
+    /// BatchNorms take their statistics with.
+    pub sync: Option<Arc<dyn StatsAllReduce>>,
 }
 
 impl<'a> Spec<'a> {
@@ -29,18 +34,21 @@ impl<'a> Spec<'a> {
             learning: &cfg.learning,
             compute: &cfg.compute,
             teachers,
+            sync: None,
         }
     }
 }
 
 impl Student {
-    /// The student `network` learning as `learning` says on `device` (its fp32 layout from
-    /// `compute`), built under the seed the caller set, as the supervised loop always did
+    /// The student `network` learning as `learning` says on `device` (its fp32 layout and
+    /// kernels from `compute`; its BatchNorms synchronised by `sync` in a data-parallel run that
+    /// asks for it), built under the seed the caller set, as the supervised loop always did
     /// (same initial weights).
     pub fn of(
         network: &NetworkConfig,
         learning: &LearningConfig,
         compute: &ComputeConfig,
+        sync: Option<Arc<dyn StatsAllReduce>>,
         device: Device,
     ) -> Result<Self, TrainError> {
         // Convolutional networks train channels-last in fp32 too; CMX (attention) was not
@@ -49,12 +57,17 @@ impl Student {
         let layout = compute
             .fp32_layout
             .unwrap_or_else(|| Fp32Layout::faster_on(device));
+        let kernels = UnitKernels {
+            winograd: compute.winograd,
+            bf16_convolutions: compute.bf16_convolutions_in_force(),
+            sync,
+        };
         let trained = super::Trained::new(super::STUDENT, device, &learning.optimizer)
             .fp32_layout(convolutional, layout)
-            .convolving(compute.bf16_convolutions_in_force())
-            .winograd_forms(compute.winograd)
+            .computing(kernels)
             .mixed(learning.precision)?;
-        let inner = rtf_models::build(&trained.vs.root(), &network.model)?;
+        let inner =
+            rtf_models::build_with(&trained.vs.root(), &network.model, &trained.build_options())?;
         trained.channels_last_weights();
         Ok(Self {
             trained,
@@ -73,7 +86,10 @@ pub fn build_from(
     ignore_id: Option<u8>,
     device: Device,
 ) -> Result<Box<dyn Procedure>, TrainError> {
-    let student = || Student::of(spec.network, spec.learning, spec.compute, device);
+    let student = || {
+        let sync = spec.sync.clone();
+        Student::of(spec.network, spec.learning, spec.compute, sync, device)
+    };
     Ok(match &spec.learning.procedure {
         ProcedureConfig::Supervised => Box::new(Supervised {
             student: student()?,
@@ -108,7 +124,8 @@ pub fn adversarial_from(
             "not an adversarial configuration".into(),
         ));
     };
-    let student = Student::of(spec.network, spec.learning, spec.compute, device)?;
+    let sync = spec.sync.clone();
+    let student = Student::of(spec.network, spec.learning, spec.compute, sync, device)?;
     let (day, night) = labellers(spec, ignore_id, device)?;
     Adversarial::new(student, day, night, targets.clone(), critic.clone(), device)
 }

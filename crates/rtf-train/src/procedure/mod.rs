@@ -11,7 +11,7 @@ mod teacher_student;
 use std::collections::BTreeMap;
 
 use rtf_data::Batch;
-use rtf_models::{Masked, Network};
+use rtf_models::{BuildOptions, Masked, Network, UnitKernels};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
 pub use crate::plan::teachers::check_teachers;
@@ -43,12 +43,12 @@ pub struct Trained {
     pub ddp: Option<std::sync::Arc<crate::ddp::Ddp>>,
     /// Whether fp32 training runs channels-last ([`fp32_channels_last`](Self::fp32_channels_last)).
     fp32_channels_last: bool,
-    /// bf16 on the CPU: how the convolutions of this network's autocast regions are computed
-    /// (the run's recorded choice, [`crate::config::ComputeConfig::bf16_convolutions_in_force`]).
-    pub bf16_convolutions: rtf_amp::Bf16Convolutions,
-    /// The Winograd forms this network's training convolutions may take (the run's recorded
-    /// [`crate::config::ComputeConfig::winograd`]).
-    pub winograd: rtf_models::winograd::Forms,
+    /// How this network's units compute, given to it when it is built ([`build_options`](
+    /// Self::build_options)): the run's recorded Winograd forms
+    /// ([`crate::config::ComputeConfig::winograd`]) and bf16 convolutions
+    /// ([`crate::config::ComputeConfig::bf16_convolutions_in_force`]), and in a data-parallel
+    /// run with synchronised BatchNorm, the group its BatchNorms sum their statistics over.
+    pub kernels: UnitKernels,
 }
 
 impl Trained {
@@ -62,22 +62,23 @@ impl Trained {
             precision: Precision::Fp32,
             ddp: None,
             fp32_channels_last: false,
-            bf16_convolutions: rtf_amp::Bf16Convolutions::Native,
-            winograd: rtf_models::winograd::Forms::All,
+            kernels: UnitKernels::default(),
         }
     }
 
-    /// The same network with its training convolutions limited to the Winograd `forms`.
-    pub fn winograd_forms(mut self, forms: rtf_models::winograd::Forms) -> Self {
-        self.winograd = forms;
+    /// The same network with its units computing as `kernels` say (set before it is built).
+    pub fn computing(mut self, kernels: UnitKernels) -> Self {
+        self.kernels = kernels;
         self
     }
 
-    /// The same network with its CPU bf16 regions' convolutions computed as `convolutions`
-    /// says ([`rtf_amp::AutocastGuard::enter_with`]).
-    pub fn convolving(mut self, convolutions: rtf_amp::Bf16Convolutions) -> Self {
-        self.bf16_convolutions = convolutions;
-        self
+    /// What this network is built with ([`rtf_models::build_with`]): its kernels, its
+    /// variables initialised.
+    pub fn build_options(&self) -> BuildOptions {
+        BuildOptions {
+            kernels: self.kernels.clone(),
+            uninitialised: false,
+        }
     }
 
     /// Lays this network out channels-last in fp32 too where `on` (convolutional networks,
@@ -115,7 +116,7 @@ impl Trained {
     pub fn channels_last(&self) -> bool {
         let emulated = self.precision == Precision::Bf16
             && self.vs.device() == Device::Cpu
-            && self.bf16_convolutions == rtf_amp::Bf16Convolutions::Emulated;
+            && self.kernels.bf16_convolutions == rtf_amp::Bf16Convolutions::Emulated;
         match self.precision {
             Precision::Fp32 => self.fp32_channels_last,
             _ => !emulated,
@@ -139,21 +140,13 @@ impl Trained {
     }
 
     /// `f` (forward passes) in this network's arithmetic: as is in fp32, else inside an
-    /// autocast region to bf16 / fp16 on the network's device (on the CPU, with this network's
-    /// [`bf16_convolutions`](Self::bf16_convolutions)).
+    /// autocast region to bf16 / fp16 on the network's device.
     pub fn autocast<T>(&self, f: impl FnOnce() -> T) -> T {
-        // The run's Winograd forms for the convolutions built inside (rtf-models `winograd`).
-        rtf_models::winograd::with_forms(self.winograd, || self.in_arithmetic(f))
-    }
-
-    fn in_arithmetic<T>(&self, f: impl FnOnce() -> T) -> T {
         match self.precision.autocast_kind() {
             None => f(),
             Some(kind) => {
-                let convolutions = self.bf16_convolutions;
-                let _region =
-                    rtf_amp::AutocastGuard::enter_with(self.vs.device(), kind, convolutions)
-                        .expect("autocast on this device was entered once in Trained::mixed");
+                let _region = rtf_amp::AutocastGuard::enter(self.vs.device(), kind)
+                    .expect("autocast on this device was entered once in Trained::mixed");
                 f()
             }
         }
@@ -185,9 +178,10 @@ pub struct Student {
 }
 
 impl Student {
-    /// Built under `seed` as the supervised loop always did (same initial weights).
+    /// Built under `seed` as the supervised loop always did (same initial weights), in one
+    /// process (its BatchNorms not synchronised).
     pub fn build(cfg: &TrainConfig, device: Device) -> Result<Self, TrainError> {
-        Self::of(&cfg.network, &cfg.learning, &cfg.compute, device)
+        Self::of(&cfg.network, &cfg.learning, &cfg.compute, None, device)
     }
 
     /// Training-mode logits for `input` [B, 4, H, W]; sizes that are not a multiple of the
@@ -238,7 +232,7 @@ impl Frozen {
     pub fn load(teacher: &CheckedTeacher, device: Device) -> Result<Self, TrainError> {
         let mut vs = VarStore::new(device);
         let inner = rtf_models::build(&vs.root(), &teacher.model)?;
-        rtf_models::weights::load_checked(&mut vs, &teacher.model, &teacher.path, false)?;
+        rtf_models::io::weights::load_checked(&mut vs, &teacher.model, &teacher.path, false)?;
         vs.freeze();
         Ok(Self {
             _vs: vs,
@@ -404,48 +398,26 @@ mod tests {
         Student::build(&cfg, Device::Cpu).unwrap()
     }
 
-    /// The run's recorded Winograd forms are those its training convolutions may take: inside
-    /// the network's forward region, not outside it.
+    /// The run's recorded Winograd forms and bf16 convolutions are the kernels its student is
+    /// built with (every unit keeps its build's: rtf-models' `layers::Path`).
     #[test]
-    fn the_recorded_winograd_forms_reach_the_steps_regions() {
-        use rtf_models::onednn::Geometry;
-        use rtf_models::winograd::{form, Form, Forms};
-        for (forms, expected) in [(Forms::All, Some(Form::F43)), (Forms::Off, None)] {
+    fn the_recorded_kernels_are_those_the_networks_are_built_with() {
+        use rtf_amp::Bf16Convolutions::*;
+        use rtf_kernels::winograd::Forms;
+        for (forms, choice) in [
+            (Forms::All, Native),
+            (Forms::Off, Emulated),
+            (Forms::F23, Mixed),
+        ] {
             let mut cfg = TrainConfig::mfnet_paper("unused".into());
+            cfg.learning.precision = Precision::Bf16;
+            cfg.compute.bf16_convolutions = Some(choice);
             cfg.compute.winograd = forms;
             let s = Student::build(&cfg, Device::Cpu).unwrap();
-            let inside = s.trained.autocast(|| form(3, Geometry::SAME_3X3, 512, 512));
-            assert_eq!(inside, expected, "{forms:?}");
-        }
-        assert_eq!(
-            form(3, Geometry::SAME_3X3, 512, 512),
-            Some(Form::F43),
-            "outside"
-        );
-    }
-
-    /// The run's recorded choice of bf16 convolutions is the one its autocast regions compute
-    /// with (rtf-models' convolutions ask [`rtf_amp::emulates_bf16_convolution`]), and the
-    /// critic of an adversarial run takes its student's.
-    #[test]
-    fn the_recorded_bf16_convolutions_reach_the_steps_regions() {
-        use rtf_amp::Bf16Convolutions::*;
-        for choice in [Native, Emulated, Mixed] {
-            let s = student_convolving(Precision::Bf16, Some(choice));
-            assert_eq!(s.trained.bf16_convolutions, choice);
-            let inside = s.trained.autocast(|| {
-                [true, false]
-                    .map(|spatial| rtf_amp::emulates_bf16_convolution(Device::Cpu, spatial))
-            });
-            assert_eq!(
-                inside,
-                [choice.emulates(true), choice.emulates(false)],
-                "{choice:?}"
-            );
-            assert!(
-                !rtf_amp::emulates_bf16_convolution(Device::Cpu, true),
-                "region closed"
-            );
+            let built = s.trained.build_options();
+            assert_eq!(built.kernels.winograd, forms);
+            assert_eq!(built.kernels.bf16_convolutions, choice);
+            assert!(built.kernels.sync.is_none() && !built.uninitialised);
             assert_eq!(s.trained.channels_last(), choice != Emulated);
         }
     }

@@ -5,28 +5,28 @@ use std::sync::Arc;
 
 use rtf_models::Network;
 
-use super::run_folder::RunFolder;
+use super::run_folder::OpenedRun;
 use crate::checkpoint::{self, TrainState};
 use crate::config::{NetworkConfig, Procedure as ProcedureConfig};
 use crate::ddp::Ddp;
 use crate::error::TrainError;
 use crate::plan::{RunPlan, Sources};
 use crate::procedure::{self, Procedure};
-use crate::run::{self as rundir, run_error, CONFIG_FILE, LOG_FILE};
+use crate::run::{run_error, LOG_FILE};
 
 /// Writes `config.json` (rank 0): the configuration the plan records, with the data's
 /// fingerprint (which data the run used: a resume on changed data says so) and the number of
 /// processes. Everything in it was resolved and checked by the plan.
-pub(super) fn record_config(plan: &RunPlan, folder: &RunFolder) -> Result<(), TrainError> {
-    if folder.is_root {
-        rundir::write_json_atomic(&folder.dir.join(CONFIG_FILE), &plan.record(folder.world))?;
+pub(super) fn record_config(plan: &RunPlan, folder: &OpenedRun) -> Result<(), TrainError> {
+    if let Some(owned) = &folder.owned {
+        owned.write_config(&plan.record(folder.world))?;
     }
     Ok(())
 }
 
 /// A resumed run's networks, optimisers and progress from its checkpoint; its log restored to
 /// the checkpoint's epochs (a line lost to a kill comes back from the record it carries).
-fn restore(folder: &RunFolder, procedure: &mut dyn Procedure) -> Result<TrainState, TrainError> {
+fn restore(folder: &OpenedRun, procedure: &mut dyn Procedure) -> Result<TrainState, TrainError> {
     let mut trained = procedure.trained_mut();
     let mut parts: Vec<(&str, &mut tch::nn::VarStore)> =
         trained.iter_mut().map(|t| (t.role, &mut t.vs)).collect();
@@ -36,8 +36,8 @@ fn restore(folder: &RunFolder, procedure: &mut dyn Procedure) -> Result<TrainSta
         t.optimizer
             .set_state(optimizers.remove(t.role).unwrap_or_default());
     }
-    if folder.is_root {
-        let lacking = rundir::restore_log(folder.dir, saved.epochs_done, &saved.records)?;
+    if let Some(owned) = &folder.owned {
+        let lacking = owned.restore_log(saved.epochs_done, &saved.records)?;
         if !lacking.is_empty() {
             eprintln!(
                 "warning: {} lacks the records of epochs {lacking:?} (edited or truncated?); \
@@ -52,7 +52,7 @@ fn restore(folder: &RunFolder, procedure: &mut dyn Procedure) -> Result<TrainSta
 /// A new run's student from its backbone or starting weights, and no log.
 fn start(
     network: &NetworkConfig,
-    folder: &RunFolder,
+    folder: &OpenedRun,
     procedure: &mut dyn Procedure,
 ) -> Result<TrainState, TrainError> {
     if folder.is_root {
@@ -84,7 +84,7 @@ fn start(
 /// own, removed when the run returns.
 pub(super) fn cache_labels(
     procedure_cfg: &ProcedureConfig,
-    folder: &RunFolder,
+    folder: &OpenedRun,
     procedure: &dyn Procedure,
     sources: &mut Sources,
     device: tch::Device,
@@ -128,7 +128,7 @@ pub(super) fn cache_labels(
 
 /// Rank 0's TensorBoard writer (RUN/tb); the other ranks write none.
 pub(super) fn tensorboard_writer(
-    folder: &RunFolder,
+    folder: &OpenedRun,
 ) -> Result<Option<crate::tensorboard::TbWriter>, TrainError> {
     if !folder.is_root {
         return Ok(None);
@@ -139,46 +139,43 @@ pub(super) fn tensorboard_writer(
 }
 
 /// DDP's start: rank 0's weights and BatchNorm statistics on every rank, and every trained
-/// network's gradients averaged from now on; with synchronised BatchNorm, the guard that makes
-/// this thread's training-mode forwards (every step runs here) use the whole data-parallel
-/// batch's statistics until the run returns.
+/// network's gradients averaged from now on.
 fn start_data_parallel(
-    sync_batch_norm: bool,
     ddp: Option<&Arc<Ddp>>,
     procedure: &mut dyn Procedure,
-) -> Result<Option<rtf_models::SyncBatchNorm>, TrainError> {
+) -> Result<(), TrainError> {
     let Some(d) = ddp else {
-        return Ok(None);
+        return Ok(());
     };
     for t in procedure.trained_mut() {
         d.broadcast_all(&t.vs)?;
         t.ddp = Some(d.clone());
     }
-    Ok(sync_batch_norm.then(|| rtf_models::SyncBatchNorm::install(d.clone())))
+    Ok(())
 }
 
-/// The procedure, its progress, and the synchronised-BatchNorm guard ([`networks`]).
-pub(super) type Networks = (
-    Box<dyn Procedure>,
-    TrainState,
-    Option<rtf_models::SyncBatchNorm>,
-);
+/// The procedure and its progress ([`networks`]).
+pub(super) type Networks = (Box<dyn Procedure>, TrainState);
 
 /// The procedure's networks and progress: built from the plan's `network`, `learning` and
-/// checked teachers (libtorch seeded with the run's seed first), restored from the checkpoint
-/// or started, and data-parallel started (with `network.sync_batch_norm`, the guard that keeps
-/// it).
+/// checked teachers (libtorch seeded with the run's seed first; data-parallel with
+/// `network.sync_batch_norm`, their BatchNorms built to sum their statistics over the group),
+/// restored from the checkpoint or started, and data-parallel started.
 pub(super) fn networks(
     plan: &RunPlan,
-    folder: &RunFolder,
+    folder: &OpenedRun,
     ddp: Option<&Arc<Ddp>>,
 ) -> Result<Networks, TrainError> {
     tch::manual_seed(plan.schedule.seed as i64);
+    let sync = ddp
+        .filter(|_| plan.network.sync_batch_norm)
+        .map(|d| Arc::clone(d) as Arc<dyn rtf_models::StatsAllReduce>);
     let spec = procedure::Spec {
         network: plan.network,
         learning: plan.learning,
         compute: plan.compute,
         teachers: &plan.teachers,
+        sync,
     };
     let mut procedure = procedure::build_from(&spec, plan.sources.ignore_id, plan.device)?;
     let state = match folder.resume {
@@ -186,7 +183,6 @@ pub(super) fn networks(
         false => start(plan.network, folder, procedure.as_mut())?,
     };
     procedure.resume_at(state.steps_done);
-    let sync_batch_norm =
-        start_data_parallel(plan.network.sync_batch_norm, ddp, procedure.as_mut())?;
-    Ok((procedure, state, sync_batch_norm))
+    start_data_parallel(ddp, procedure.as_mut())?;
+    Ok((procedure, state))
 }

@@ -1,12 +1,15 @@
 //! Phase 1, open the run folder: what it checks the configuration for ([`FolderChecks`]),
-//! every check that can refuse the run before it writes, and the lock ([`RunFolder`]).
+//! every check that can refuse the run before it writes, and, on rank 0, the folder owned
+//! for writing (rtf-run's [`OwnedFolder`]: created, locked) ([`OpenedRun`]).
 use std::path::{Path, PathBuf};
 
 use crate::checkpoint;
 use crate::ddp::Ddp;
 use crate::error::TrainError;
 use crate::plan::RunPlan;
-use crate::run::{self as rundir, run_error, CHECKPOINT_FILE};
+use rtf_run::write::{refuse_existing_run, OwnedFolder};
+
+use crate::run::CHECKPOINT_FILE;
 
 /// What opening the run folder checks the configuration for (phase 1): the number of
 /// processes the run was trained by, and its epochs (a resume must not end before where it
@@ -25,19 +28,20 @@ impl FolderChecks {
     }
 }
 
-/// The run folder, held for the run's life: rank 0 owns its lock; `resume` says whether the
-/// run continues its checkpoint.
-pub(super) struct RunFolder<'a> {
+/// The run folder, held for the run's life: rank 0 owns it for writing; `resume` says whether
+/// the run continues its checkpoint.
+pub(super) struct OpenedRun<'a> {
     pub(super) dir: &'a Path,
     pub(super) checkpoint: PathBuf,
     pub(super) resume: bool,
     pub(super) is_root: bool,
     /// Data-parallel: the number of processes.
     pub(super) world: Option<usize>,
-    pub(super) _lock: Option<rundir::RunLock>,
+    /// Rank 0's ownership of the folder (its lock); None on the other ranks.
+    pub(super) owned: Option<OwnedFolder>,
 }
 
-impl<'a> RunFolder<'a> {
+impl<'a> OpenedRun<'a> {
     /// Phase 1, open the run folder: every check that can refuse the run before it writes.
     pub(super) fn open(
         checks: FolderChecks,
@@ -57,20 +61,11 @@ impl<'a> RunFolder<'a> {
                 world.unwrap_or(1)
             )));
         }
-        if is_root && !resume && rundir::holds_run(dir) {
-            return Err(run_error(
-                dir,
-                "already holds a run; use --resume to continue it or choose another output folder",
-            ));
+        if is_root && !resume {
+            refuse_existing_run(dir)?;
         }
-        let lock = match is_root {
-            true => {
-                std::fs::create_dir_all(dir)
-                    .map_err(|e| run_error(dir, format!("cannot create: {e}")))?;
-                let lock = rundir::RunLock::acquire(dir)?;
-                rundir::remove_orphan_temp_files(dir);
-                Some(lock)
-            }
+        let owned = match is_root {
+            true => Some(OwnedFolder::open(dir)?),
             false => None,
         };
         // A resume of a run killed before its first checkpoint starts it over.
@@ -84,7 +79,7 @@ impl<'a> RunFolder<'a> {
             resume,
             is_root,
             world,
-            _lock: lock,
+            owned,
         })
     }
 }

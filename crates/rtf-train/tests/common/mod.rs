@@ -50,7 +50,8 @@ pub fn teacher(dir: &Path, seed: i64) -> rtf_train::config::TeacherRef {
     let model = rtf_models::ModelConfig::from_name("mfnet", 9).unwrap();
     rtf_models::build(&vs.root(), &model).unwrap();
     let path = dir.join(format!("teacher{seed}.safetensors"));
-    rtf_models::weights::save_safetensors(&vs, &model, rtf_train::Modality::Rgb, &path).unwrap();
+    rtf_models::io::weights::save_safetensors(&vs, &model, rtf_train::Modality::Rgb, &path)
+        .unwrap();
     rtf_train::config::TeacherRef::Weights {
         path,
         model,

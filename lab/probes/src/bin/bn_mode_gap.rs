@@ -23,7 +23,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut vs = tch::nn::VarStore::new(tch::Device::Cpu);
     let net = rtf_models::build(&vs.root(), &cfg)?;
     let loaded =
-        rtf_models::weights::load_checked(&mut vs, &cfg, std::path::Path::new(weights), false)?;
+        rtf_models::io::weights::load_checked(&mut vs, &cfg, std::path::Path::new(weights), false)?;
     let net = rtf_models::masked(net, loaded.inputs.unwrap_or(rtf_models::Modality::RgbT));
     let loader = Loader::new(
         source.clone(),

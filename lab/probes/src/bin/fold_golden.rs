@@ -9,8 +9,8 @@ use std::collections::BTreeMap;
 use std::hash::{Hash, Hasher};
 
 use rtf_amp::Bf16Convolutions;
+use rtf_kernels::winograd::Forms;
 use rtf_models::fast::{FoldOptions, InferenceKernels, InferenceNet, Layout, Precision};
-use rtf_models::winograd::Forms;
 use rtf_models::ModelConfig;
 use tch::{Device, Kind, Tensor};
 

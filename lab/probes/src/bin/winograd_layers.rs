@@ -11,7 +11,7 @@
 //! Results and the machine they came from: docs/src/speed-by-kind.md (issue 41).
 use std::time::Instant;
 
-use rtf_models::winograd::{self, Form};
+use rtf_kernels::winograd::{self, Form};
 use tch::{Device, Kind, Tensor};
 
 /// Best wall time of `reps` calls, in ms.

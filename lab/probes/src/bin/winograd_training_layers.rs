@@ -10,7 +10,7 @@
 //! threads). Results and the machine they came from: docs/src/speed-by-kind.md (issue 41).
 use std::time::Instant;
 
-use rtf_models::winograd;
+use rtf_kernels::winograd;
 use tch::{Device, Kind, Tensor};
 
 /// Best wall time of `reps` calls, in ms.

@@ -1,8 +1,10 @@
 //! ATen operators rtf needs that tch 0.26 does not bind as needed, through the C++ shim
-//! `csrc/ops.cpp` (the networks' ones — LeakyReLU with its slope, the emulated bf16
-//! convolution — are called from [`crate::layers`]).
+//! `csrc/ops.cpp`: LeakyReLU with its slope, the emulated bf16 convolution, the fused SGD
+//! step, gradient zeroing, tensor holder counts and the operator counter.
 
 use tch::Tensor;
+
+use crate::geometry::Geometry;
 
 pub(crate) mod ffi {
     use std::ffi::{c_char, c_int};
@@ -102,6 +104,64 @@ pub(crate) unsafe fn shim_result(
     unsafe {
         check(op, error);
         Tensor::from_ptr(out)
+    }
+}
+
+/// ATen's `leaky_relu(x, slope)` (one pass forward, one backward; tch's binding fixes the
+/// slope at 0.01), through csrc/ops.cpp; differentiable. With `in_place` it overwrites `xs`,
+/// which autograd allows when nothing saved `xs` for its backward (BatchNorm's and a
+/// convolution's outputs: their backwards read their inputs).
+pub fn aten_leaky_relu(xs: &Tensor, slope: f64, in_place: bool) -> Tensor {
+    let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
+    // SAFETY: `as_ptr` is a live `at::Tensor*` for the call; the shim's result is taken as
+    // `shim_result` requires.
+    unsafe {
+        let error = ffi::rtf_leaky_relu(
+            xs.as_ptr() as *mut torch_sys::C_tensor,
+            slope,
+            in_place as std::ffi::c_int,
+            &mut out,
+        );
+        shim_result("leaky_relu", error, out)
+    }
+}
+
+/// The bf16 convolution of `xs` with `weight` (+ `bias`), computed by fp32 kernels over
+/// bf16-rounded operands, its output and operand gradients rounded to bf16: a native bf16
+/// kernel's numbers at fp32 kernels' speed (csrc/ops.cpp `Bf16EmulatedConvolution`;
+/// [`rtf_amp::Bf16Convolutions::Emulated`]). Differentiable; output bf16, operand gradients in
+/// the operands' own types. Units call it inside a CPU bf16 autocast region where
+/// [`rtf_amp::emulates_bf16_convolution`] says so, and folded units where their fold says so.
+pub fn bf16_emulated_convolution(
+    xs: &Tensor,
+    weight: &Tensor,
+    bias: Option<&Tensor>,
+    geometry: Geometry,
+) -> Tensor {
+    let g = geometry;
+    let pair = |v: i64| [v, v];
+    let (stride, padding, dilation) = (pair(g.stride), pair(g.padding), pair(g.dilation));
+    let output_padding = [0i64, 0];
+    let mut out: *mut torch_sys::C_tensor = std::ptr::null_mut();
+    let bias_ptr = bias.map_or(std::ptr::null_mut(), |b| {
+        b.as_ptr() as *mut torch_sys::C_tensor
+    });
+    // SAFETY: the tensors' `as_ptr` are live `at::Tensor*` for the call (bias may be null, which
+    // the shim reads as no bias); the geometry arrays hold two values each, as the shim reads.
+    unsafe {
+        let error = ffi::rtf_bf16_emulated_convolution(
+            xs.as_ptr() as *mut torch_sys::C_tensor,
+            weight.as_ptr() as *mut torch_sys::C_tensor,
+            bias_ptr,
+            stride.as_ptr(),
+            padding.as_ptr(),
+            dilation.as_ptr(),
+            std::ffi::c_int::from(g.transposed),
+            output_padding.as_ptr(),
+            g.groups,
+            &mut out,
+        );
+        shim_result("bf16 emulated convolution", error, out)
     }
 }
 

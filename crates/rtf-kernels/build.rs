@@ -9,5 +9,5 @@ mod rpath {
 
 fn main() {
     rpath::embed();
-    libtorch_cpp("csrc/ops.cpp").compile("rtf_models_ops");
+    libtorch_cpp("csrc/ops.cpp").compile("rtf_kernels_ops");
 }

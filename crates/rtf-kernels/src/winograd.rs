@@ -21,7 +21,7 @@
 //! lab's `winograd_layers` measures it per shape; docs/src/speed-by-kind.md).
 //!
 //! bf16 inference can take the same forms over bf16 maps (where the fold's
-//! [`crate::fast::InferenceKernels::bf16_winograd`] says so): the maps are read
+//! rtf-models' `fast::InferenceKernels::bf16_winograd` says so): the maps are read
 //! and written in bf16 (F(4×4, 3×3) converts them inside its transforms), the weights are the
 //! bf16-rounded folded weights, and the arithmetic is float32. Where a CPU's bf16 kernels do no
 //! more multiply-adds per cycle than its fp32 ones (Intel AVX-512 without AMX, where oneDNN's
@@ -35,7 +35,7 @@
 
 use tch::{Kind, Tensor};
 
-use crate::onednn::Geometry;
+use crate::geometry::Geometry;
 
 /// Input and output channels from which [`form`] takes F(2×2, 3×3).
 pub const MIN_CHANNELS: i64 = 1024;
@@ -61,20 +61,9 @@ pub enum Form {
 /// The Winograd form of a convolution of this shape on the inference path, if any: 3×3,
 /// stride 1, padding equal to the dilation (the size kept: dilated ones run as
 /// [`conv3x3_dilated`]), no groups, not transposed; F(2×2, 3×3) from [`MIN_CHANNELS`] input
-/// and output channels, F(4×4, 3×3) from [`MIN_CHANNELS_F43`], as far as the [`Forms`] in
-/// force ([`with_forms`]) allow.
-pub fn form(kernel: i64, geometry: Geometry, c_in: i64, c_out: i64) -> Option<Form> {
-    form_within(FORMS.with(|c| c.get()), kernel, geometry, c_in, c_out)
-}
-
-/// [`form`] as far as `forms` allow (a fold's [`crate::fast::InferenceKernels::winograd`]).
-pub fn form_within(
-    forms: Forms,
-    kernel: i64,
-    geometry: Geometry,
-    c_in: i64,
-    c_out: i64,
-) -> Option<Form> {
+/// and output channels, F(4×4, 3×3) from [`MIN_CHANNELS_F43`], as far as `forms` allow (a
+/// fold's rtf-models' `fast::InferenceKernels::winograd`).
+pub fn form(forms: Forms, kernel: i64, geometry: Geometry, c_in: i64, c_out: i64) -> Option<Form> {
     let g = geometry;
     let plain =
         kernel == 3 && (g.stride, g.groups) == (1, 1) && g.dilation >= 1 && g.padding == g.dilation;
@@ -121,17 +110,6 @@ impl std::str::FromStr for Forms {
             other => Err(format!("{other:?}: expected on, f23 or off")),
         }
     }
-}
-
-thread_local! {
-    /// Set inside [`with_forms`] (training steps): the forms training convolutions may take.
-    /// Folds take theirs from [`crate::fast::InferenceKernels::winograd`] instead.
-    static FORMS: std::cell::Cell<Forms> = const { std::cell::Cell::new(Forms::All) };
-}
-
-/// Runs `f` (training steps) with the Winograd forms limited to `forms`.
-pub fn with_forms<T>(forms: Forms, f: impl FnOnce() -> T) -> T {
-    crate::scoped::with(&FORMS, forms, f)
 }
 
 /// Without a measurement, the bf16 forms only where the CPU has no bf16 arithmetic: there
@@ -340,16 +318,23 @@ pub const TRAIN_MIN_TILES: i64 = 256;
 /// [`conv3x3_f43_train`]: a 3×3 convolution that keeps the size, undilated, of
 /// [`TRAIN_MIN_CHANNELS`]–[`TRAIN_MAX_CHANNELS`] channels and at least [`TRAIN_MIN_TILES`]
 /// tiles. Measured per shape with the lab's `winograd_training_layers` (docs/src/speed-by-
-/// kind.md). [`Forms::Off`] or [`Forms::F23`] in force ([`with_forms`]) turns it off.
-pub fn trains_in_f43(kernel: i64, geometry: Geometry, c_out: i64, input: &[i64]) -> bool {
+/// kind.md). Only within `forms` (the training unit's: [`Forms::Off`] or [`Forms::F23`] turns
+/// it off).
+pub fn trains_in_f43(
+    forms: Forms,
+    kernel: i64,
+    geometry: Geometry,
+    c_out: i64,
+    input: &[i64],
+) -> bool {
     let [n, c_in, h, w] = input else {
         return false;
     };
     let channels = (*c_in).min(c_out)..=(*c_in).max(c_out);
     let tiles = n * ((h + 3) / 4) * ((w + 3) / 4);
     geometry.dilation == 1
-        && FORMS.with(|c| c.get()).enabled().1
-        && form(kernel, geometry, *c_in, c_out).is_some()
+        && forms.enabled().1
+        && form(forms, kernel, geometry, *c_in, c_out).is_some()
         && channels.start() >= &TRAIN_MIN_CHANNELS
         && channels.end() <= &TRAIN_MAX_CHANNELS
         && tiles >= TRAIN_MIN_TILES
@@ -544,7 +529,7 @@ mod tests {
     #[test]
     fn training_takes_the_form_by_channels_and_tiles() {
         let same = Geometry::SAME_3X3;
-        let takes = |c_out, input: [i64; 4]| trains_in_f43(3, same, c_out, &input);
+        let takes = |c_out, input: [i64; 4]| trains_in_f43(Forms::All, 3, same, c_out, &input);
         assert!(takes(512, [4, 512, 60, 80]));
         assert!(takes(128, [4, 128, 240, 320]));
         assert!(takes(1024, [4, 1024, 30, 40]));
@@ -559,9 +544,16 @@ mod tests {
             ..same
         };
         for geometry in [strided, dilated] {
-            assert!(!trains_in_f43(3, geometry, 256, &[4, 256, 120, 160]));
+            assert!(!trains_in_f43(
+                Forms::All,
+                3,
+                geometry,
+                256,
+                &[4, 256, 120, 160]
+            ));
         }
         assert!(!trains_in_f43(
+            Forms::All,
             1,
             Geometry { padding: 0, ..same },
             256,
@@ -651,28 +643,20 @@ mod tests {
     }
 
     #[test]
-    fn forms_in_force_limit_the_forms_taken() {
+    fn the_forms_given_limit_the_forms_taken() {
         let plain = geometry(1, 1, 1, false);
         let both = |forms| {
-            let within = (
-                form_within(forms, 3, plain, 1024, 2048),
-                form_within(forms, 3, plain, 512, 512),
-            );
-            let in_force = with_forms(forms, || {
-                (form(3, plain, 1024, 2048), form(3, plain, 512, 512))
-            });
-            assert_eq!(within, in_force, "{forms:?}");
-            within
+            (
+                form(forms, 3, plain, 1024, 2048),
+                form(forms, 3, plain, 512, 512),
+            )
         };
         assert_eq!(both(Forms::All), (Some(Form::F23), Some(Form::F43)));
         assert_eq!(both(Forms::F23), (Some(Form::F23), None));
         assert_eq!(both(Forms::Off), (None, None));
-        assert!(!with_forms(Forms::F23, || trains_in_f43(
-            3,
-            plain,
-            256,
-            &[4, 256, 120, 160]
-        )));
+        let training = |forms| trains_in_f43(forms, 3, plain, 256, &[4, 256, 120, 160]);
+        assert!(training(Forms::All));
+        assert!(!training(Forms::F23) && !training(Forms::Off));
         assert_eq!("on".parse(), Ok(Forms::All));
         assert_eq!(" f23".parse(), Ok(Forms::F23));
         assert!("maybe"
@@ -684,23 +668,41 @@ mod tests {
     #[test]
     fn forms_by_width_and_only_for_plain_3x3_convolutions() {
         let plain = geometry(1, 1, 1, false);
-        assert_eq!(form(3, plain, 1024, 2048), Some(Form::F23));
-        assert_eq!(form(3, plain, 512, 2048), Some(Form::F43));
-        assert_eq!(form(3, plain, 2048, 128), Some(Form::F43));
-        assert_eq!(form(3, plain, 64, 64), Some(Form::F43));
-        assert_eq!(form(3, plain, 32, 64), None);
-        assert_eq!(form(3, geometry(2, 1, 1, false), 2048, 2048), None);
+        assert_eq!(form(Forms::All, 3, plain, 1024, 2048), Some(Form::F23));
+        assert_eq!(form(Forms::All, 3, plain, 512, 2048), Some(Form::F43));
+        assert_eq!(form(Forms::All, 3, plain, 2048, 128), Some(Form::F43));
+        assert_eq!(form(Forms::All, 3, plain, 64, 64), Some(Form::F43));
+        assert_eq!(form(Forms::All, 3, plain, 32, 64), None);
+        assert_eq!(
+            form(Forms::All, 3, geometry(2, 1, 1, false), 2048, 2048),
+            None
+        );
         // Dilated with the size kept (padding = dilation): the phase form; else none.
         assert_eq!(
-            form(3, geometry(1, 2, 2, false), 2048, 2048),
+            form(Forms::All, 3, geometry(1, 2, 2, false), 2048, 2048),
             Some(Form::F23)
         );
-        assert_eq!(form(3, geometry(1, 4, 4, false), 512, 512), Some(Form::F43));
-        assert_eq!(form(3, geometry(1, 1, 2, false), 512, 512), None);
-        assert_eq!(form(3, geometry(2, 2, 2, false), 512, 512), None);
-        assert_eq!(form(1, geometry(1, 0, 1, false), 2048, 2048), None);
-        assert_eq!(form(3, geometry(1, 1, 1, true), 2048, 2048), None);
+        assert_eq!(
+            form(Forms::All, 3, geometry(1, 4, 4, false), 512, 512),
+            Some(Form::F43)
+        );
+        assert_eq!(
+            form(Forms::All, 3, geometry(1, 1, 2, false), 512, 512),
+            None
+        );
+        assert_eq!(
+            form(Forms::All, 3, geometry(2, 2, 2, false), 512, 512),
+            None
+        );
+        assert_eq!(
+            form(Forms::All, 1, geometry(1, 0, 1, false), 2048, 2048),
+            None
+        );
+        assert_eq!(
+            form(Forms::All, 3, geometry(1, 1, 1, true), 2048, 2048),
+            None
+        );
         let grouped = Geometry { groups: 2, ..plain };
-        assert_eq!(form(3, grouped, 2048, 2048), None);
+        assert_eq!(form(Forms::All, 3, grouped, 2048, 2048), None);
     }
 }

@@ -18,7 +18,7 @@ use tch::nn::VarStore;
 use tch::Tensor;
 
 use crate::error::{ModelError, ShapeMismatch};
-use crate::weights::{is_ignored_name, read_safetensors};
+use crate::io::weights::{is_ignored_name, read_safetensors};
 
 /// The network's names of a SegFormer tensor (`None`: not an encoder tensor).
 fn targets(name: &str) -> Option<[String; 2]> {
@@ -96,7 +96,7 @@ pub fn load_mit_weights(vs: &mut VarStore, path: &Path) -> Result<String, ModelE
 /// `normN.*`): what [`load_mit_weights`] reads, e.g. to hand a fine-tuned encoder to a
 /// SegFormer user or to write test fixtures.
 pub fn segformer_state_dict(vs: &VarStore) -> Vec<(String, Tensor)> {
-    crate::weights::state_dict(vs)
+    crate::io::weights::state_dict(vs)
         .into_iter()
         .filter(|(n, _)| is_encoder_var(n) && !n.starts_with("backbone.extra_"))
         .map(|(n, t)| (n["backbone.".len()..].to_string(), t))
@@ -106,7 +106,8 @@ pub fn segformer_state_dict(vs: &VarStore) -> Vec<(String, Tensor)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{build, weights, ModelConfig};
+    use crate::io::weights;
+    use crate::{build, ModelConfig};
     use tch::{nn, Device, Kind};
 
     /// A SegFormer-named `mit_b0` state_dict (with the ImageNet head) from a CMX network's RGB

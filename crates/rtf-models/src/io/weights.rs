@@ -420,15 +420,13 @@ pub fn load_named(
 /// initialising any weights, and comparing every variable's shape.
 pub fn class_dependent_names(cfg: &ModelConfig) -> Result<BTreeSet<String>, ModelError> {
     let shapes = |cfg: &ModelConfig| -> Result<BTreeMap<String, Vec<i64>>, ModelError> {
-        crate::layers::with_zero_init(|| {
-            let vs = VarStore::new(tch::Device::Cpu);
-            crate::build(&vs.root(), cfg)?;
-            Ok(vs
-                .variables()
-                .into_iter()
-                .map(|(name, t)| (name, t.size()))
-                .collect())
-        })
+        let vs = VarStore::new(tch::Device::Cpu);
+        crate::build_with(&vs.root(), cfg, &crate::BuildOptions::uninitialised())?;
+        Ok(vs
+            .variables()
+            .into_iter()
+            .map(|(name, t)| (name, t.size()))
+            .collect())
     };
     let own = shapes(cfg)?;
     let other = shapes(&cfg.with_num_classes(cfg.num_classes() + 1))?;

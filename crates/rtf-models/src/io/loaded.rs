@@ -1,6 +1,6 @@
 //! A network ready for inference from a weights file, as `rtf eval`, `rtf predict` and
 //! `rtf export` load one: built by name, loaded strictly under reference names and checked
-//! against the file's model metadata ([`crate::weights::load_checked`]), seeing the inputs it
+//! against the file's model metadata ([`crate::io::weights::load_checked`]), seeing the inputs it
 //! was trained on, optionally on the fast path ([`crate::fast::InferenceNet`]), behind its
 //! input mask ([`crate::masked`]). What a user should be told (weights without metadata) comes
 //! back as warnings for the caller to print.
@@ -56,9 +56,9 @@ pub fn load_network(request: &NetworkRequest) -> Result<LoadedNetwork, ModelErro
     let mut vs = VarStore::new(request.device);
     let net = crate::build(&vs.root(), &cfg)?;
     let loaded =
-        crate::weights::load_checked(&mut vs, &cfg, request.weights, request.foreign_weights)?;
+        crate::io::weights::load_checked(&mut vs, &cfg, request.weights, request.foreign_weights)?;
     let warnings: Vec<String> =
-        crate::weights::provenance_warning(request.weights, &loaded.provenance)
+        crate::io::weights::provenance_warning(request.weights, &loaded.provenance)
             .into_iter()
             .collect();
     let inputs = match (loaded.inputs, request.inputs) {
@@ -99,7 +99,7 @@ mod tests {
         let vs = VarStore::new(tch::Device::Cpu);
         crate::build(&vs.root(), &cfg).unwrap();
         let path = dir.join("rgb.safetensors");
-        crate::weights::save_safetensors(&vs, &cfg, Modality::Rgb, &path).unwrap();
+        crate::io::weights::save_safetensors(&vs, &cfg, Modality::Rgb, &path).unwrap();
         path
     }
 

@@ -152,27 +152,7 @@ impl PostOp {
     }
 }
 
-/// Geometry of a fused convolution (2-D, symmetric).
-#[derive(Debug, Clone, Copy)]
-pub struct Geometry {
-    pub stride: i64,
-    pub padding: i64,
-    pub dilation: i64,
-    pub groups: i64,
-    /// Transposed convolution: never fused (callers take the plain path).
-    pub transposed: bool,
-}
-
-impl Geometry {
-    /// A 3×3 convolution's that keeps the size: stride 1, padding 1, no dilation, one group.
-    pub const SAME_3X3: Geometry = Geometry {
-        stride: 1,
-        padding: 1,
-        dilation: 1,
-        groups: 1,
-        transposed: false,
-    };
-}
+pub use crate::geometry::Geometry;
 
 /// The arguments every fused call shares, as the C functions take them.
 struct Args {
@@ -378,7 +358,7 @@ pub fn conv_add_with_post_op(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::layers::to_channels_last;
+    use crate::layout::to_channels_last;
     use tch::Kind;
 
     fn geometry(stride: i64, padding: i64, dilation: i64, transposed: bool) -> Geometry {

@@ -3,7 +3,7 @@
 use tch::{Device, Kind, Tensor};
 
 /// Interleaves the four output phases of an upsampling convolution (see
-/// [`crate::layers::ConvBnAct::forward_upsampled`]) into the full-size map:
+/// rtf-models' `ConvBnAct::forward_upsampled`) into the full-size map:
 /// `out[n, c, 2i + a, 2j + b] = phases[n, (2a + b)·C + c, i + a, j + b]`.
 /// [B, 4C, H + 1, W + 1] (any float kind) -> float32 NCHW-contiguous [B, C, 2H, 2W].
 ///
@@ -94,7 +94,7 @@ fn interleave_nhwc<T: Copy>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::layers::to_channels_last;
+    use crate::layout::to_channels_last;
 
     /// The definition, element by element.
     fn reference(phases: &Tensor) -> Tensor {

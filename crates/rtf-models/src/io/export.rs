@@ -6,7 +6,7 @@
 //!   the eager network on a second input before anything is written: a network whose forward
 //!   is not a fixed graph for the traced size is refused.
 //! - ONNX: that TorchScript module through PyTorch's TorchScript-based ONNX exporter in the
-//!   project's `.venv` (`scripts/export_onnx.py`), checked with `onnx.checker` and onnxruntime.
+//!   project's `.venv` (`export_onnx.py`, beside this file), checked with `onnx.checker` and onnxruntime.
 //!
 //! Both carry the input convention as metadata: `extra/rtf.json` in the TorchScript archive
 //! (`torch.jit.load(path, _extra_files={"rtf.json": ""})`), `metadata_props` in the ONNX model.
@@ -305,7 +305,7 @@ pub fn export(network: &dyn Network, spec: &Export) -> Result<(), ExportError> {
 }
 
 /// Converts the TorchScript file `ts` to ONNX at `out` (written atomically) with PyTorch's
-/// exporter (`scripts/export_onnx.py` under `python`), traced at `size` (height, width).
+/// exporter (`export_onnx.py`, beside this file, under `python`), traced at `size` (height, width).
 fn torchscript_to_onnx(
     python: &Path,
     ts: &Path,
@@ -316,7 +316,7 @@ fn torchscript_to_onnx(
     rtf_core::write_atomic(out, |tmp| -> Result<(), ExportError> {
         let output = Command::new(python)
             .arg("-c")
-            .arg(include_str!("../../../scripts/export_onnx.py"))
+            .arg(include_str!("export_onnx.py"))
             .arg(ts)
             .arg(tmp)
             .arg(in_channels.to_string())
