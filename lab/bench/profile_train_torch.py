@@ -47,7 +47,7 @@ def step(net, opt, x, y, set_to_none=False):
 
 
 # RecordScope FUNCTION and BACKWARD_FUNCTION: ATen operators and autograd nodes, what rtf's
-# counter (rtf_models::aten::count_ops) sees. Other ranges (the parts', the optimiser's
+# counter (rtf_kernels::aten::count_ops) sees. Other ranges (the parts', the optimiser's
 # "Optimizer.step#SGD.step") are not counted and do not make what they enclose nested.
 COUNTED_SCOPES = (0, 1)
 
