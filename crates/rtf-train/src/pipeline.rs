@@ -8,12 +8,12 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
+use rtf_run::write::{refuse_existing_run, OwnedFolder};
+
 use crate::config::{PipelineConfig, RunConfig, StageConfig, TeacherRef, TrainConfig, WeightsRef};
 use crate::ddp::Ddp;
 use crate::error::TrainError;
 use crate::progress::{Epochs, InStage, Progress};
-use rtf_run::write::{refuse_existing_run, OwnedFolder};
-
 use crate::run::{self as rundir, run_error, BEST_FILE, CONFIG_FILE, FINAL_FILE};
 use crate::trainer::{self, EpochRecord, TrainOutcome};
 
