@@ -12,6 +12,17 @@ pub struct Geometry {
 }
 
 impl Geometry {
+    /// A convolution of one group.
+    pub const fn ungrouped(stride: i64, padding: i64, dilation: i64, transposed: bool) -> Self {
+        Geometry {
+            stride,
+            padding,
+            dilation,
+            groups: 1,
+            transposed,
+        }
+    }
+
     /// A 3×3 convolution's that keeps the size: stride 1, padding 1, no dilation, one group.
     pub const SAME_3X3: Geometry = Geometry {
         stride: 1,

@@ -361,16 +361,6 @@ mod tests {
     use crate::layout::to_channels_last;
     use tch::Kind;
 
-    fn geometry(stride: i64, padding: i64, dilation: i64, transposed: bool) -> Geometry {
-        Geometry {
-            stride,
-            padding,
-            dilation,
-            groups: 1,
-            transposed,
-        }
-    }
-
     #[test]
     fn fused_convolutions_equal_convolution_then_activation() {
         let opts = (Kind::Float, Device::Cpu);
@@ -402,15 +392,25 @@ mod tests {
                 (PostOp::Gelu, Box::new(|t: Tensor| t.gelu("none"))),
             ] {
                 let plain = act(x.conv2d(&w, Some(&b), [1], [2], [2], 1));
-                let fused =
-                    conv_with_post_op(&xl, &wl, Some(&b), geometry(1, 2, 2, false), post_op)
-                        .expect("this libtorch has the fused convolution");
+                let fused = conv_with_post_op(
+                    &xl,
+                    &wl,
+                    Some(&b),
+                    Geometry::ungrouped(1, 2, 2, false),
+                    post_op,
+                )
+                .expect("this libtorch has the fused convolution");
                 assert!(plain.allclose(&fused, 1e-4, 1e-4, false), "{post_op:?}");
 
                 // Transposed convolutions are left to the plain path.
-                assert!(
-                    conv_with_post_op(&xl, &wtl, None, geometry(2, 0, 1, true), post_op).is_none()
-                );
+                assert!(conv_with_post_op(
+                    &xl,
+                    &wtl,
+                    None,
+                    Geometry::ungrouped(2, 0, 1, true),
+                    post_op
+                )
+                .is_none());
 
                 let plain = act(x.conv2d(&w, Some(&b), [1], [1], [1], 1) + &residual);
                 let fused = conv_add_with_post_op(
@@ -418,7 +418,7 @@ mod tests {
                     &lay(&residual),
                     &wl,
                     Some(&b),
-                    geometry(1, 1, 1, false),
+                    Geometry::ungrouped(1, 1, 1, false),
                     post_op,
                 );
                 match (post_op, fused) {

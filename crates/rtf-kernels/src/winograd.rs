@@ -417,26 +417,13 @@ fn conv3x3_f23(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::layout::to_channels_last;
     use tch::Device;
-
-    fn to_channels_last(xs: &Tensor) -> Tensor {
-        xs.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
-    }
 
     /// Laid out [N, H, W, C] in memory, in libtorch's sense (a size-1 dimension's stride does
     /// not count: a cropped map of one frame keeps its uncropped batch stride).
     fn is_channels_last(xs: &Tensor) -> bool {
         xs.permute([0, 2, 3, 1]).is_contiguous()
-    }
-
-    fn geometry(stride: i64, padding: i64, dilation: i64, transposed: bool) -> Geometry {
-        Geometry {
-            stride,
-            padding,
-            dilation,
-            groups: 1,
-            transposed,
-        }
     }
 
     #[test]
@@ -644,7 +631,7 @@ mod tests {
 
     #[test]
     fn the_forms_given_limit_the_forms_taken() {
-        let plain = geometry(1, 1, 1, false);
+        let plain = Geometry::ungrouped(1, 1, 1, false);
         let both = |forms| {
             (
                 form(forms, 3, plain, 1024, 2048),
@@ -667,39 +654,63 @@ mod tests {
 
     #[test]
     fn forms_by_width_and_only_for_plain_3x3_convolutions() {
-        let plain = geometry(1, 1, 1, false);
+        let plain = Geometry::ungrouped(1, 1, 1, false);
         assert_eq!(form(Forms::All, 3, plain, 1024, 2048), Some(Form::F23));
         assert_eq!(form(Forms::All, 3, plain, 512, 2048), Some(Form::F43));
         assert_eq!(form(Forms::All, 3, plain, 2048, 128), Some(Form::F43));
         assert_eq!(form(Forms::All, 3, plain, 64, 64), Some(Form::F43));
         assert_eq!(form(Forms::All, 3, plain, 32, 64), None);
         assert_eq!(
-            form(Forms::All, 3, geometry(2, 1, 1, false), 2048, 2048),
+            form(
+                Forms::All,
+                3,
+                Geometry::ungrouped(2, 1, 1, false),
+                2048,
+                2048
+            ),
             None
         );
         // Dilated with the size kept (padding = dilation): the phase form; else none.
         assert_eq!(
-            form(Forms::All, 3, geometry(1, 2, 2, false), 2048, 2048),
+            form(
+                Forms::All,
+                3,
+                Geometry::ungrouped(1, 2, 2, false),
+                2048,
+                2048
+            ),
             Some(Form::F23)
         );
         assert_eq!(
-            form(Forms::All, 3, geometry(1, 4, 4, false), 512, 512),
+            form(Forms::All, 3, Geometry::ungrouped(1, 4, 4, false), 512, 512),
             Some(Form::F43)
         );
         assert_eq!(
-            form(Forms::All, 3, geometry(1, 1, 2, false), 512, 512),
+            form(Forms::All, 3, Geometry::ungrouped(1, 1, 2, false), 512, 512),
             None
         );
         assert_eq!(
-            form(Forms::All, 3, geometry(2, 2, 2, false), 512, 512),
+            form(Forms::All, 3, Geometry::ungrouped(2, 2, 2, false), 512, 512),
             None
         );
         assert_eq!(
-            form(Forms::All, 1, geometry(1, 0, 1, false), 2048, 2048),
+            form(
+                Forms::All,
+                1,
+                Geometry::ungrouped(1, 0, 1, false),
+                2048,
+                2048
+            ),
             None
         );
         assert_eq!(
-            form(Forms::All, 3, geometry(1, 1, 1, true), 2048, 2048),
+            form(
+                Forms::All,
+                3,
+                Geometry::ungrouped(1, 1, 1, true),
+                2048,
+                2048
+            ),
             None
         );
         let grouped = Geometry { groups: 2, ..plain };
