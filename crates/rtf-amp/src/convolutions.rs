@@ -12,56 +12,8 @@ use crate::AmpError;
 /// The environment variable by which rtf's binaries let the user choose [`Bf16Convolutions`].
 pub const BF16_CONVOLUTIONS_VAR: &str = "RTF_BF16_CONVOLUTIONS";
 
-/// How convolutions inside a CPU bf16 autocast region are computed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Bf16Convolutions {
-    /// libtorch's own bf16 kernels (oneDNN's where the CPU has bf16 arithmetic).
-    Native,
-    /// Operands rounded to bf16, multiply-accumulated by fp32 kernels, outputs and operand
-    /// gradients rounded to bf16: a native kernel's numbers (bf16 products are exact in fp32,
-    /// native kernels accumulate in fp32) at fp32 kernels' speed, on CPUs whose libtorch bf16
-    /// kernels are generic (no avx512_bf16 / AMX: many times slower than fp32; measured:
-    /// docs/src/benchmarks.md, section "What bf16 costs on a CPU without bf16 arithmetic"). rtf's
-    /// networks route their convolutions through it (rtf-models `layers`).
-    Emulated,
-    /// Spatial convolutions (3×3 and larger, not transposed) emulated, the others (1×1,
-    /// transposed) on libtorch's bf16 kernels: on Intel AVX-512 without AMX, oneDNN's bf16 3×3
-    /// kernels lose to its fp32 ones while its 1×1 kernels do not (issue 41; chosen there by
-    /// measurement, rtf-train `kernels`).
-    Mixed,
-}
-
-impl Bf16Convolutions {
-    pub fn name(self) -> &'static str {
-        match self {
-            Bf16Convolutions::Native => "native",
-            Bf16Convolutions::Emulated => "emulated",
-            Bf16Convolutions::Mixed => "mixed",
-        }
-    }
-
-    /// A choice as users name it (`native`, `emulated`, `mixed`); an error naming
-    /// [`BF16_CONVOLUTIONS_VAR`] and the value otherwise.
-    pub fn parse(text: &str) -> Result<Self, AmpError> {
-        match text.trim() {
-            "native" => Ok(Bf16Convolutions::Native),
-            "emulated" => Ok(Bf16Convolutions::Emulated),
-            "mixed" => Ok(Bf16Convolutions::Mixed),
-            other => Err(AmpError::BadConvolutionChoice(other.to_owned())),
-        }
-    }
-
-    /// Whether a convolution with a spatial kernel (`spatial`: larger than 1×1, not transposed)
-    /// or not is computed emulated under this choice.
-    pub fn emulates(self, spatial: bool) -> bool {
-        match self {
-            Bf16Convolutions::Native => false,
-            Bf16Convolutions::Emulated => true,
-            Bf16Convolutions::Mixed => spatial,
-        }
-    }
-}
+/// How convolutions inside a CPU bf16 autocast region are computed (the schema's, rtf-config).
+pub use rtf_config::Bf16Convolutions;
 
 /// What decides a process's [`Bf16Convolutions`]: the user's choice, if any, and the CPU's
 /// bf16 arithmetic. Resolved once at the edge (rtf's binaries, the Python package, a test) and
@@ -79,7 +31,10 @@ impl Bf16Policy {
     /// value is an error naming it) and oneDNN's cap ([`IsaCap::from_vars`]) over this CPU.
     pub fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Self, AmpError> {
         let asked = get(BF16_CONVOLUTIONS_VAR)
-            .map(|v| Bf16Convolutions::parse(&v))
+            .map(|v| {
+                Bf16Convolutions::from_name(&v)
+                    .ok_or_else(|| AmpError::BadConvolutionChoice(v.trim().to_owned()))
+            })
             .transpose()?;
         Ok(Self {
             asked,
@@ -158,9 +113,6 @@ mod tests {
         assert!(policy(None, Some(true)).open_to_measure());
         assert!(!policy(Some(Native), Some(true)).open_to_measure());
         assert!(!policy(None, Some(false)).open_to_measure());
-        // Mixed: spatial kernels emulated, 1×1 and transposed on the bf16 kernels.
-        assert!(Mixed.emulates(true) && !Mixed.emulates(false));
-        assert!(Emulated.emulates(false) && !Native.emulates(true));
     }
 
     #[test]
@@ -173,8 +125,6 @@ mod tests {
                     .map(|(_, v)| v.to_string())
             }
         };
-        assert_eq!(Bf16Convolutions::parse(" native").unwrap(), Native);
-        assert_eq!(Bf16Convolutions::parse("mixed").unwrap(), Mixed);
         let p = Bf16Policy::from_vars(vars(&[
             ("RTF_BF16_CONVOLUTIONS", "emulated"),
             ("ONEDNN_MAX_CPU_ISA", "AVX2"),
@@ -192,13 +142,5 @@ mod tests {
             err.to_string().contains("RTF_BF16_CONVOLUTIONS=`fast`"),
             "{err}"
         );
-    }
-
-    #[test]
-    fn the_choice_is_recorded_by_its_name() {
-        let text = serde_json::to_string(&Emulated).unwrap();
-        assert_eq!(text, "\"emulated\"");
-        let back: Bf16Convolutions = serde_json::from_str("\"native\"").unwrap();
-        assert_eq!(back, Native);
     }
 }

@@ -21,7 +21,7 @@ mod cpu;
 mod precision;
 pub use convolutions::{Bf16Convolutions, Bf16Policy, BF16_CONVOLUTIONS_VAR};
 pub use cpu::{Bf16Arithmetic, IsaCap, ONEDNN_ISA_VARS};
-pub use precision::Precision;
+pub use precision::{Precision, PrecisionOnDevice};
 
 use tch::{Device, Kind};
 

@@ -240,7 +240,7 @@ fn rtf_decayed(model: &str) -> Vec<String> {
     let scope = rtf_train::config::DecayScope::ConvAndLinearWeights;
     let mut names: Vec<String> = rtf_train::optim::trainable(&vs)
         .into_iter()
-        .filter(|(_, t)| scope.decays(t))
+        .filter(|(_, t)| scope.decays(t.dim()))
         .map(|(n, _)| n)
         .collect();
     names.sort();

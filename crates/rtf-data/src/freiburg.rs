@@ -781,6 +781,7 @@ mod tests {
         assert_eq!(days, [Daytime::Day, Daytime::Night]);
     }
 
+    #[cfg(feature = "tensors")]
     #[test]
     fn loader_batches_freiburg_with_window_and_ignore_for_unlabelled_nights() {
         use crate::{AugmentConfig, Loader, LoaderConfig};

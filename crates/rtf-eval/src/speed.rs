@@ -243,7 +243,7 @@ pub fn bench_model(opts: &BenchOptions) -> Result<BenchReport, SpeedError> {
     let classes = opts
         .num_classes
         .unwrap_or_else(|| rtf_models::default_num_classes(&opts.model));
-    let cfg = ModelConfig::from_name(&opts.model, classes)?;
+    let cfg = ModelConfig::from_name(&opts.model, classes).map_err(ModelError::from)?;
     let (vs, net) = seeded_network(opts, &cfg)?;
     let mut released_mb = None;
     let shape = [opts.batch, 4, opts.height, opts.width];

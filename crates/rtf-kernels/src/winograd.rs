@@ -78,39 +78,9 @@ pub fn form(forms: Forms, kernel: i64, geometry: Geometry, c_in: i64, c_out: i64
     }
 }
 
-/// Which Winograd forms rtf may take, a kernel choice passed in by the caller (issue 61; the
-/// CLI's `RTF_WINOGRAD`): both (the default), F(2×2, 3×3) only, or none (to compare speeds).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Forms {
-    #[default]
-    All,
-    F23,
-    Off,
-}
-
-impl Forms {
-    /// (F(2×2, 3×3), F(4×4, 3×3)) allowed.
-    pub fn enabled(self) -> (bool, bool) {
-        match self {
-            Forms::All => (true, true),
-            Forms::F23 => (true, false),
-            Forms::Off => (false, false),
-        }
-    }
-}
-
-impl std::str::FromStr for Forms {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s.trim() {
-            "on" | "all" => Ok(Forms::All),
-            "f23" => Ok(Forms::F23),
-            "off" => Ok(Forms::Off),
-            other => Err(format!("{other:?}: expected on, f23 or off")),
-        }
-    }
-}
+/// Which Winograd forms rtf may take, a kernel choice passed in by the caller (the schema's,
+/// rtf-config: a run records it).
+pub use rtf_config::compute::Forms;
 
 /// Without a measurement, the bf16 forms only where the CPU has no bf16 arithmetic: there
 /// oneDNN's bf16 kernels convert every product, and the fp32 Winograd form beats them. The

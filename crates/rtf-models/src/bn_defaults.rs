@@ -4,6 +4,6 @@
 //! them across ranks), so neither module has to import the other for them.
 
 /// BatchNorm epsilon of every reference network (PyTorch's default).
-pub const BN_EPS: f64 = 1e-5;
+pub const BN_EPS: f64 = rtf_config::network::BN_EPS;
 /// BatchNorm momentum of every reference network (PyTorch's default).
 pub const BN_MOMENTUM: f64 = 0.1;

@@ -127,3 +127,14 @@ pub(crate) fn check_names(
         mismatched,
     })
 }
+
+/// A network configuration's error (rtf-config) as the networks' own.
+impl From<rtf_config::network::NetworkConfigError> for ModelError {
+    fn from(e: rtf_config::network::NetworkConfigError) -> Self {
+        use rtf_config::network::NetworkConfigError as E;
+        match e {
+            E::Unknown { name, known } => ModelError::UnknownModel { name, known },
+            E::Invalid { network, reason } => ModelError::InvalidConfig { network, reason },
+        }
+    }
+}

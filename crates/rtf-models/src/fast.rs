@@ -8,6 +8,7 @@
 pub mod folder;
 pub mod unit;
 
+use rtf_amp::PrecisionOnDevice;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
 

@@ -17,63 +17,8 @@ use crate::layers::{Act, ConvBnAct, ConvSpec, Fold, Folder, InitScheme};
 use crate::resnet::{self, BlockKind, LayerSpec, ResLayer};
 use crate::Network;
 
-/// Which inputs the segmentation network takes.
-#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Inputs {
-    /// Separate RGB and IR stem + layer1 + layer2, concatenated into a shared layer3.
-    #[default]
-    Late,
-    /// One backbone on the 4-channel RGB-T image.
-    Early,
-    Rgb,
-    Ir,
-}
-
-impl Inputs {
-    pub const ALL: [Inputs; 4] = [Inputs::Late, Inputs::Early, Inputs::Rgb, Inputs::Ir];
-
-    pub fn suffix(self) -> &'static str {
-        match self {
-            Inputs::Late => "",
-            Inputs::Early => "-early",
-            Inputs::Rgb => "-rgb",
-            Inputs::Ir => "-ir",
-        }
-    }
-}
-
-/// The reference preprocessing: both modalities in [0, 1], then (x − 0.5) / 0.5.
-pub fn freiburg_input() -> rtf_core::InputConvention {
-    rtf_core::InputConvention::MeanStd {
-        mean: 0.5,
-        std: 0.5,
-    }
-}
-
-#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct Config {
-    pub num_classes: i64,
-    #[serde(default)]
-    pub inputs: Inputs,
-    #[serde(default = "freiburg_input")]
-    pub input: rtf_core::InputConvention,
-}
-
-impl Config {
-    pub fn new(inputs: Inputs, num_classes: i64) -> Self {
-        Self {
-            num_classes,
-            inputs,
-            input: freiburg_input(),
-        }
-    }
-
-    pub fn name(&self) -> String {
-        format!("heatnet{}", self.inputs.suffix())
-    }
-}
+/// HeatNet's options: the schema's (rtf-config), read without libtorch.
+pub use rtf_config::network::heatnet::{freiburg_input, Config, Inputs};
 
 /// Dropout probabilities of the reference head.
 const DROP_PSP: f64 = 0.3;

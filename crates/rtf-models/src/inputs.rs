@@ -6,69 +6,26 @@
 //! mask, so the mask travels with the weights (`rtf.inputs` in their metadata, see
 //! [`crate::io::weights`]).
 
-use serde::{Deserialize, Serialize};
 use tch::Tensor;
 
 use crate::Network;
 
-/// The modalities of the 4-channel input (R, G, B, T) a network sees.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Modality {
-    #[default]
-    RgbT,
-    Rgb,
-    Thermal,
-}
+/// The modalities of the 4-channel input (R, G, B, T) a network sees: the schema's
+/// (rtf-config).
+pub use rtf_config::network::Modality;
 
-impl Modality {
-    pub fn name(self) -> &'static str {
-        match self {
-            Modality::RgbT => "rgb_t",
-            Modality::Rgb => "rgb",
-            Modality::Thermal => "thermal",
-        }
-    }
-
-    pub fn parse(text: &str) -> Result<Self, String> {
-        match text {
-            "rgb_t" | "rgbt" | "rgb-t" => Ok(Modality::RgbT),
-            "rgb" => Ok(Modality::Rgb),
-            "thermal" | "ir" => Ok(Modality::Thermal),
-            other => Err(format!(
-                "unknown inputs `{other}` (expected rgb_t, rgb or thermal)"
-            )),
-        }
-    }
-
-    /// (first channel, channel count) of this modality in the network input.
-    pub fn channels(self) -> (usize, usize) {
-        match self {
-            Modality::RgbT => (0, 4),
-            Modality::Rgb => (0, 3),
-            Modality::Thermal => (3, 1),
-        }
-    }
-
-    /// `x` [B, 4, H, W] with the channels this modality does not see set to 0.
-    pub fn apply(self, x: &Tensor) -> Tensor {
-        let (keep_rgb, keep_t) = match self {
-            Modality::RgbT => return x.shallow_clone(),
-            Modality::Rgb => (1.0, 0.0),
-            Modality::Thermal => (0.0, 1.0),
-        };
-        let mask = Tensor::from_slice(&[keep_rgb, keep_rgb, keep_rgb, keep_t])
-            .to_kind(x.kind())
-            .to_device(x.device())
-            .view([1, 4, 1, 1]);
-        x * mask
-    }
-}
-
-impl std::fmt::Display for Modality {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
+/// `x` [B, 4, H, W] with the channels `inputs` does not see set to 0.
+pub fn mask(inputs: Modality, x: &Tensor) -> Tensor {
+    let (keep_rgb, keep_t) = match inputs {
+        Modality::RgbT => return x.shallow_clone(),
+        Modality::Rgb => (1.0, 0.0),
+        Modality::Thermal => (0.0, 1.0),
+    };
+    let mask = Tensor::from_slice(&[keep_rgb, keep_rgb, keep_rgb, keep_t])
+        .to_kind(x.kind())
+        .to_device(x.device())
+        .view([1, 4, 1, 1]);
+    x * mask
 }
 
 /// A network behind its input mask: it sees only the channels of `inputs`.
@@ -88,7 +45,7 @@ pub fn masked(net: Box<dyn Network>, inputs: Modality) -> Box<dyn Network> {
 
 impl tch::nn::ModuleT for Masked {
     fn forward_t(&self, xs: &Tensor, train: bool) -> Tensor {
-        self.inner.forward_t(&self.inputs.apply(xs), train)
+        self.inner.forward_t(&mask(self.inputs, xs), train)
     }
 }
 
@@ -122,20 +79,10 @@ mod tests {
     use super::*;
 
     #[test]
-    fn names_parse_back() {
-        for m in [Modality::RgbT, Modality::Rgb, Modality::Thermal] {
-            assert_eq!(Modality::parse(m.name()), Ok(m));
-        }
-        assert!(Modality::parse("depth").unwrap_err().contains("depth"));
-    }
-
-    #[test]
     fn the_mask_zeroes_exactly_the_unseen_channels() {
         let x = Tensor::ones([1, 4, 2, 2], (tch::Kind::Float, tch::Device::Cpu));
         let seen = |m: Modality| -> Vec<f64> {
-            let s = m
-                .apply(&x)
-                .sum_dim_intlist([0i64, 2, 3].as_slice(), false, None);
+            let s = mask(m, &x).sum_dim_intlist([0i64, 2, 3].as_slice(), false, None);
             Vec::<f64>::try_from(s).unwrap()
         };
         assert_eq!(seen(Modality::RgbT), vec![4.0; 4]);

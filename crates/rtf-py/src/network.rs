@@ -146,7 +146,9 @@ pub fn load_network(
     // The kernels carry how bf16 folds compute their convolutions, as `rtf`'s commands do.
     let (kernels, _policy) = inference_kernels(precision, device, &environ.unwrap_or_default())?;
     let n = classes.len() as i64;
-    let cfg = ModelConfig::from_name(name, n).py()?;
+    let cfg = ModelConfig::from_name(name, n)
+        .map_err(rtf_models::ModelError::from)
+        .py()?;
     let (held, inputs) = py
         .allow_threads(|| match &weights {
             Some(weights) => {

@@ -50,7 +50,7 @@ fn warn_if_slow(
     for (_, stage) in cfg.stages() {
         let device = rtf_train::config::available_device(&stage.compute.device)
             .map_err(|e| input(format!("device: {e}")))?;
-        let convolutions = stage.compute.bf16_convolutions_in_force();
+        let convolutions = rtf_train::config::bf16_convolutions_in_force(&stage.compute);
         let measured = || rtf_train::kernels::measured_training(probe, convolutions);
         let precision = stage.learning.precision;
         let warning =

@@ -9,10 +9,10 @@ use rtf_report::{build, write, ReportError, ReportOptions};
 use rtf_train::config::RunConfig;
 use rtf_train::TrainConfig;
 
-const FLAT_SINGLE: &str = include_str!("../../rtf-train/tests/fixtures/flat_single_config.json");
-const FLAT_RECIPE: &str = include_str!("../../rtf-train/tests/fixtures/flat_recipe_config.json");
+const FLAT_SINGLE: &str = include_str!("../../rtf-config/tests/fixtures/flat_single_config.json");
+const FLAT_RECIPE: &str = include_str!("../../rtf-config/tests/fixtures/flat_recipe_config.json");
 const FLAT_STAGE: &str =
-    include_str!("../../rtf-train/tests/fixtures/flat_recipe_stage_config.json");
+    include_str!("../../rtf-config/tests/fixtures/flat_recipe_stage_config.json");
 
 fn options(runs: &[&Path]) -> ReportOptions {
     ReportOptions {

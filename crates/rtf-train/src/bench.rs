@@ -5,6 +5,7 @@
 //! no data pipeline is timed (`rtf bench data` times that). `lab/bench/bench_torch_train.py`
 //! runs the same step in PyTorch.
 
+use rtf_amp::PrecisionOnDevice;
 use std::time::Instant;
 
 use serde::Serialize;
@@ -14,6 +15,7 @@ use crate::config::{OptimizerConfig, Precision, TrainConfig};
 use crate::error::TrainError;
 use crate::procedure::Student;
 use rtf_kernels::aten::{count_ops, OpCounts};
+use rtf_models::ModelError;
 
 /// What to time.
 #[derive(Debug, Clone)]
@@ -33,7 +35,7 @@ pub struct TrainBenchOptions {
     pub count_ops: bool,
     /// fp32: the layout of the feature maps (None: the faster on the device).
     pub fp32_layout: Option<crate::config::Fp32Layout>,
-    /// bf16 on the CPU: the convolutions (None: [`crate::config::ComputeConfig::bf16_convolutions_in_force`]'s
+    /// bf16 on the CPU: the convolutions (None: [`crate::config::bf16_convolutions_in_force`]'s
     /// default; `rtf bench train` passes the choice `rtf train` would make).
     pub bf16_convolutions: Option<rtf_amp::Bf16Convolutions>,
     /// The Winograd forms the training convolutions may take (`rtf bench train` passes the
@@ -108,7 +110,7 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
     tch::manual_seed(0);
     let mut bench = Bench {
         student: Student::build(&cfg, opts.device)?,
-        loss_fn: cfg.learning.loss.build(None),
+        loss_fn: crate::loss::build(&cfg.learning.loss, None),
         // The base rate: a schedule's first step may be 0 (a warm-up), and time does not care.
         lr: cfg.learning.optimizer.lr,
         device: opts.device,
@@ -135,9 +137,10 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
         batch: opts.batch,
         size: format!("{}x{}", opts.size.0, opts.size.1),
         precision: opts.precision.name().into(),
-        convolutions: opts
-            .precision
-            .convolutions_on(opts.device, cfg.compute.bf16_convolutions_in_force()),
+        convolutions: opts.precision.convolutions_on(
+            opts.device,
+            crate::config::bf16_convolutions_in_force(&cfg.compute),
+        ),
         device: cfg.compute.device.clone(),
         threads: tch::get_num_threads(),
         images_per_s: (opts.steps * opts.batch) as f64 / total,
@@ -192,7 +195,8 @@ fn bench_config(opts: &TrainBenchOptions) -> Result<TrainConfig, TrainError> {
         ));
     }
     let mut cfg = TrainConfig::mfnet_paper("unused".into());
-    cfg.network.model = rtf_models::ModelConfig::from_name(&opts.model, 9)?;
+    cfg.network.model =
+        rtf_models::ModelConfig::from_name(&opts.model, 9).map_err(ModelError::from)?;
     cfg.learning.optimizer = opts.optimizer.clone();
     cfg.learning.precision = opts.precision;
     cfg.schedule.batch_size = opts.batch;

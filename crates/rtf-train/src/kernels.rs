@@ -83,7 +83,7 @@ pub fn settle_for_run(
 
 /// Records the fp32 stages' layout: `asked` (the caller's choice: `RTF_TRAIN_LAYOUT` for rtf's
 /// binaries) where given, else the layout a stage recorded when it started, else for a new run
-/// the faster on its device ([`Fp32Layout::faster_on`]). A resume of a run from before the
+/// the faster on its device ([`crate::config::fp32_layout_faster_on`]). A resume of a run from before the
 /// record keeps none (the faster on the device, as it started).
 pub fn settle_fp32_layout(cfg: &mut RunConfig, resume: bool, asked: Option<Fp32Layout>) {
     for stage in cfg.stages_mut() {
@@ -96,7 +96,7 @@ pub fn settle_fp32_layout(cfg: &mut RunConfig, resume: bool, asked: Option<Fp32L
             (Some(asked), ..) => Some(asked),
             (None, Some(recorded), _) => Some(recorded),
             (None, None, true) => None,
-            (None, None, false) => Some(Fp32Layout::faster_on(device)),
+            (None, None, false) => Some(crate::config::fp32_layout_faster_on(device)),
         };
     }
 }
@@ -309,7 +309,10 @@ mod tests {
         let layout = |cfg: &RunConfig| cfg.stages()[0].1.compute.fp32_layout;
         let mut new = run(Precision::Fp32, "cpu");
         settle_fp32_layout(&mut new, false, None);
-        assert_eq!(layout(&new), Some(Fp32Layout::faster_on(Device::Cpu)));
+        assert_eq!(
+            layout(&new),
+            Some(crate::config::fp32_layout_faster_on(Device::Cpu))
+        );
         settle_fp32_layout(&mut new, true, Some(Fp32Layout::Nchw));
         assert_eq!(layout(&new), Some(Fp32Layout::Nchw), "asked");
         settle_fp32_layout(&mut new, true, None);

@@ -26,7 +26,8 @@ pub mod progress;
 pub mod recipe;
 pub mod resume;
 pub mod run;
-pub mod schedule;
+/// Learning-rate schedules: rtf-config's, with the optimiser settings they belong to.
+pub use rtf_config::train::schedule;
 pub mod setup;
 pub mod step_log;
 pub mod tensorboard;

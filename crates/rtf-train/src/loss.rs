@@ -31,19 +31,17 @@ impl Loss for CrossEntropy {
     }
 }
 
-impl LossConfig {
-    /// Instantiates the loss; `ignore_id` comes from the dataset's class set.
-    pub fn build(&self, ignore_id: Option<u8>) -> Box<dyn Loss> {
-        match self {
-            LossConfig::CrossEntropy { class_weights } => Box::new(CrossEntropy {
-                class_weights: class_weights
-                    .as_ref()
-                    .map(|w| Tensor::from_slice(w).to_kind(Kind::Float)),
-                // PyTorch's default -100: no label takes it, but the loader's padding of a set
-                // without an ignore id does (rtf_data::loader::NO_LABEL).
-                ignore_index: ignore_id.map_or(rtf_data::loader::NO_LABEL, i64::from),
-            }),
-        }
+/// Instantiates the loss `config` names; `ignore_id` comes from the dataset's class set.
+pub fn build(config: &LossConfig, ignore_id: Option<u8>) -> Box<dyn Loss> {
+    match config {
+        LossConfig::CrossEntropy { class_weights } => Box::new(CrossEntropy {
+            class_weights: class_weights
+                .as_ref()
+                .map(|w| Tensor::from_slice(w).to_kind(Kind::Float)),
+            // PyTorch's default -100: no label takes it, but the loader's padding of a set
+            // without an ignore id does (rtf_data::loader::NO_LABEL).
+            ignore_index: ignore_id.map_or(rtf_data::loader::NO_LABEL, i64::from),
+        }),
     }
 }
 
@@ -217,10 +215,12 @@ mod tests {
         // [1, 2, 1, 2] logits; pixel 0 class 0 (right), pixel 1 class 13 (ignored).
         let logits = Tensor::from_slice(&[10.0f32, 0.0, -10.0, 0.0]).view([1, 2, 1, 2]);
         let target = Tensor::from_slice(&[0i64, 13]).view([1, 1, 2]);
-        let loss = LossConfig::CrossEntropy {
-            class_weights: None,
-        }
-        .build(Some(13));
+        let loss = build(
+            &LossConfig::CrossEntropy {
+                class_weights: None,
+            },
+            Some(13),
+        );
         let value = f64::try_from(loss.compute(&logits, &target)).unwrap();
         assert!((0.0..1e-3).contains(&value), "{value}");
         let wrong = Tensor::from_slice(&[1i64, 13]).view([1, 1, 2]);

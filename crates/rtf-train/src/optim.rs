@@ -260,7 +260,7 @@ impl Optimizer {
 
 /// The weight decay of `param`: `weight_decay` where `scope` applies to it, else 0.
 fn decay_of(scope: DecayScope, param: &Tensor, weight_decay: f64) -> f64 {
-    match scope.decays(param) {
+    match scope.decays(param.dim()) {
         true => weight_decay,
         false => 0.0,
     }

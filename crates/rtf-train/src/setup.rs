@@ -41,6 +41,13 @@ pub enum SetupError {
     Io(#[from] std::io::Error),
 }
 
+/// An unknown or invalid network name, as the networks' error.
+impl From<rtf_models::NetworkConfigError> for SetupError {
+    fn from(e: rtf_models::NetworkConfigError) -> Self {
+        SetupError::Model(e.into())
+    }
+}
+
 /// A teacher given on the command line (`--teacher`, `--teacher-model`, `--teacher-inputs`).
 #[derive(Debug, Clone, Default)]
 pub struct TeacherArg {

@@ -470,8 +470,10 @@ fn a_run_folder_with_a_flat_config_json_from_before_the_sections_resumes_exactly
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     common::write_split_dataset(&data, 6, 12345, 4);
-    let mut flat: serde_json::Value =
-        serde_json::from_str(include_str!("fixtures/flat_single_config.json")).unwrap();
+    let mut flat: serde_json::Value = serde_json::from_str(include_str!(
+        "../../rtf-config/tests/fixtures/flat_single_config.json"
+    ))
+    .unwrap();
     flat["dataset"]["root"] = data.to_str().unwrap().into();
     flat["batch_size"] = 2.into();
     let flat = flat.to_string();

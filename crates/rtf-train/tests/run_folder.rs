@@ -11,9 +11,10 @@ use rtf_train::EpochRecord;
 
 mod common;
 
-const FLAT_SINGLE: &str = include_str!("fixtures/flat_single_config.json");
-const FLAT_RECIPE: &str = include_str!("fixtures/flat_recipe_config.json");
-const FLAT_STAGE: &str = include_str!("fixtures/flat_recipe_stage_config.json");
+const FLAT_SINGLE: &str = include_str!("../../rtf-config/tests/fixtures/flat_single_config.json");
+const FLAT_RECIPE: &str = include_str!("../../rtf-config/tests/fixtures/flat_recipe_config.json");
+const FLAT_STAGE: &str =
+    include_str!("../../rtf-config/tests/fixtures/flat_recipe_stage_config.json");
 
 /// A log line of the first builds (flat fields only) of `epoch`.
 fn first_schema_line(epoch: usize) -> String {

@@ -4,7 +4,7 @@
 
 use anyhow::Result;
 use rtf_train::bench::{bench_train, TrainBenchOptions};
-use rtf_train::config::{Fp32Layout, OptimizerKind, Precision};
+use rtf_train::config::{OptimizerKind, Precision};
 use rtf_train::OptimizerConfig;
 
 use super::parse_size;
@@ -79,7 +79,7 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("warning: {warning}");
     }
     let layout = super::train::layout_asked()?;
-    let in_force = layout.unwrap_or_else(|| Fp32Layout::faster_on(device));
+    let in_force = layout.unwrap_or_else(|| rtf_train::config::fp32_layout_faster_on(device));
     crate::allocator::set_purge_delay_for_training(args.precision, device, in_force);
     let report = bench_train(&TrainBenchOptions {
         model: args.model,

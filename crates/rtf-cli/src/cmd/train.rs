@@ -84,7 +84,7 @@ fn prepare_arithmetic(cfg: &RunConfig, policy: &rtf_amp::Bf16Policy, root: bool)
         let device = available_device(&stage.compute.device).map_err(anyhow::Error::msg)?;
         // Only the root process warns, so only it may run the bf16 probe (issue 41).
         if root {
-            let convolutions = stage.compute.bf16_convolutions_in_force();
+            let convolutions = rtf_train::config::bf16_convolutions_in_force(&stage.compute);
             let measured = || crate::bf16_probe::measured_training(convolutions);
             let precision = stage.learning.precision;
             slow = slow.or_else(|| {
@@ -99,7 +99,7 @@ fn prepare_arithmetic(cfg: &RunConfig, policy: &rtf_amp::Bf16Policy, root: bool)
         }
         if i == 0 {
             let layout = stage.compute.fp32_layout;
-            let layout = layout.unwrap_or_else(|| Fp32Layout::faster_on(device));
+            let layout = layout.unwrap_or_else(|| rtf_train::config::fp32_layout_faster_on(device));
             crate::allocator::set_purge_delay_for_training(
                 stage.learning.precision,
                 device,

@@ -2,6 +2,7 @@
 //! [`Folder`] says (precision, layout, kernels, and whether the plain weights are released as
 //! their units fold).
 
+use rtf_amp::PrecisionOnDevice;
 use std::collections::HashMap;
 
 use tch::{Device, Kind, Tensor};

@@ -13,6 +13,7 @@
 //! It lives beside the networks it traces; what a network was trained on (its class names)
 //! comes from the caller ([`Labels`]), since only a run folder knows it.
 
+use rtf_amp::PrecisionOnDevice;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;

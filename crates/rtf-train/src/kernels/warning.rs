@@ -4,6 +4,7 @@
 //! bf16 native but measured slower than fp32 ([`Work::Training`]; rtf_eval::kernels says why
 //! each is worth a warning).
 
+use rtf_amp::PrecisionOnDevice;
 use rtf_amp::{Bf16Arithmetic, Bf16Convolutions, Bf16Policy};
 use rtf_eval::kernels::probe::{Measured, Probe, Work};
 use rtf_eval::kernels::warning::{emulated_because, native_but_slower, Probed};

@@ -5,8 +5,7 @@ use tch::Device;
 
 use super::{Adversarial, Frozen, Labeller, Procedure, Student, Supervised, TeacherStudent};
 use crate::config::{
-    ComputeConfig, Fp32Layout, LearningConfig, NetworkConfig, Procedure as ProcedureConfig,
-    TrainConfig,
+    ComputeConfig, LearningConfig, NetworkConfig, Procedure as ProcedureConfig, TrainConfig,
 };
 use crate::error::TrainError;
 use crate::plan::{CheckedTeacher, Teachers};
@@ -56,10 +55,10 @@ impl Student {
         let convolutional = !matches!(network.model, ModelConfig::Cmx(_));
         let layout = compute
             .fp32_layout
-            .unwrap_or_else(|| Fp32Layout::faster_on(device));
+            .unwrap_or_else(|| crate::config::fp32_layout_faster_on(device));
         let kernels = UnitKernels {
             winograd: compute.winograd,
-            bf16_convolutions: compute.bf16_convolutions_in_force(),
+            bf16_convolutions: crate::config::bf16_convolutions_in_force(compute),
             sync,
         };
         let trained = super::Trained::new(super::STUDENT, device, &learning.optimizer)
@@ -93,7 +92,7 @@ pub fn build_from(
     Ok(match &spec.learning.procedure {
         ProcedureConfig::Supervised => Box::new(Supervised {
             student: student()?,
-            loss: spec.learning.loss.build(ignore_id),
+            loss: crate::loss::build(&spec.learning.loss, ignore_id),
         }),
         ProcedureConfig::TeacherStudent { targets, .. } => {
             let student = student()?;

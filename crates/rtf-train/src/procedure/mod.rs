@@ -8,6 +8,7 @@ mod build;
 mod supervised;
 mod teacher_student;
 
+use rtf_amp::PrecisionOnDevice;
 use std::collections::BTreeMap;
 
 use rtf_data::Batch;
@@ -46,7 +47,7 @@ pub struct Trained {
     /// How this network's units compute, given to it when it is built ([`build_options`](
     /// Self::build_options)): the run's recorded Winograd forms
     /// ([`crate::config::ComputeConfig::winograd`]) and bf16 convolutions
-    /// ([`crate::config::ComputeConfig::bf16_convolutions_in_force`]), and in a data-parallel
+    /// ([`crate::config::bf16_convolutions_in_force`]), and in a data-parallel
     /// run with synchronised BatchNorm, the group its BatchNorms sum their statistics over.
     pub kernels: UnitKernels,
 }
@@ -356,7 +357,7 @@ mod tests {
         tch::manual_seed(7);
         let x = Tensor::rand([2, 4, 64, 96], (Kind::Float, Device::Cpu));
         let y = Tensor::randint(9, [2, 64, 96], (Kind::Int64, Device::Cpu));
-        let loss_fn = cfg.learning.loss.build(None);
+        let loss_fn = crate::loss::build(&cfg.learning.loss, None);
         for student in [&mut nchw, &mut nhwc] {
             let loss = loss_fn.compute(&student.logits(&x), &y);
             let trained = &mut student.trained;

@@ -4,8 +4,8 @@
 
 use std::path::PathBuf;
 
+use crate::network::ModelConfig;
 use rtf_data::AugmentConfig;
-use rtf_models::ModelConfig;
 use serde::Deserialize;
 
 use super::{
@@ -97,7 +97,7 @@ impl From<LegacyFlatConfig> for TrainConfig {
                 world_size: f.world_size,
                 bf16_convolutions: None,
                 fp32_layout: None,
-                winograd: rtf_kernels::winograd::Forms::All,
+                winograd: crate::compute::Forms::All,
             },
         }
     }

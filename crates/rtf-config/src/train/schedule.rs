@@ -6,7 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
-/// How the learning rate moves over a run (in [`crate::config::OptimizerConfig`]).
+/// How the learning rate moves over a run (in [`super::OptimizerConfig`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LrSchedule {

@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{one, ConfigError, LrSchedule, StepAt};
 
-/// Which update rule [`crate::optim::Optimizer`] applies.
+/// Which update rule rtf-train's optimiser applies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum OptimizerKind {
@@ -51,11 +51,11 @@ impl DecayScope {
         *self == DecayScope::All
     }
 
-    /// Whether weight decay applies to `param`.
-    pub fn decays(self, param: &tch::Tensor) -> bool {
+    /// Whether weight decay applies to a parameter of `dims` dimensions.
+    pub fn decays(self, dims: usize) -> bool {
         match self {
             DecayScope::All => true,
-            DecayScope::ConvAndLinearWeights => param.dim() >= 2,
+            DecayScope::ConvAndLinearWeights => dims >= 2,
         }
     }
 }
@@ -175,7 +175,7 @@ impl OptimizerConfig {
             LrSchedule::WarmupPoly {
                 power,
                 warmup_epochs,
-            } => crate::schedule::warmup_poly(
+            } => super::schedule::warmup_poly(
                 self.lr,
                 power,
                 warmup_epochs * at.steps_per_epoch,
