@@ -2,17 +2,14 @@
 //! and checked to exist on this machine ([`available_device`]). Every command that runs a
 //! network finds its device here: training, evaluation, `rtf report`'s prediction grid.
 
-/// "cpu", "cuda" (first GPU) or "cuda:N".
+use rtf_config::compute::DeviceName;
+
+/// "cpu", "cuda" (first GPU) or "cuda:N" (rtf-config's [`DeviceName`], as libtorch's device).
 pub fn parse_device(name: &str) -> Result<tch::Device, String> {
-    match name {
-        "cpu" => Ok(tch::Device::Cpu),
-        "cuda" => Ok(tch::Device::Cuda(0)),
-        _ => name
-            .strip_prefix("cuda:")
-            .and_then(|i| i.parse().ok())
-            .map(tch::Device::Cuda)
-            .ok_or_else(|| format!("unknown device `{name}` (expected cpu, cuda or cuda:N)")),
-    }
+    Ok(match DeviceName::parse(name)? {
+        DeviceName::Cpu => tch::Device::Cpu,
+        DeviceName::Cuda(index) => tch::Device::Cuda(index),
+    })
 }
 
 /// [`parse_device`], then checks libtorch can use it here, so a missing GPU is a clear error

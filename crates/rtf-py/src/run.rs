@@ -16,10 +16,7 @@ use crate::errors::DataError;
 pub fn read_run(path: PathBuf) -> PyResult<String> {
     let error = |e: rtf_run::RunError| DataError::new_err(crate::errors::message(&e));
     let folder = RunFolder::open(&path).map_err(error)?;
-    let config: Option<serde_json::Value> = match folder.has_config() {
-        true => Some(folder.config().map_err(error)?),
-        false => None,
-    };
+    let config = folder.document();
     let epochs = match folder.has_log() {
         true => folder.epochs().map_err(error)?,
         false => Vec::new(),

@@ -1,10 +1,11 @@
-//! The runs a report shows, read through the one run-folder type (rtf-run's `RunFolder`, and
-//! its view of a training's configuration, [`rtf_run::TrainingView`]): a run folder, or each
-//! stage of a multi-stage run (`RUN/<stage>/`), with its epochs, what the page uses of its
-//! configuration and the settings it records.
+//! The runs a report shows, read through the one run-folder type (rtf-run's `RunFolder`, its
+//! configuration typed by rtf-config's schema): a run folder, or each stage of a multi-stage
+//! run (`RUN/<stage>/`), with its epochs, what the page uses of its configuration and the
+//! settings it records.
 
 use std::path::{Path, PathBuf};
 
+use rtf_config::train::DatasetConfig;
 use rtf_models::{Modality, ModelConfig};
 use rtf_run::{EpochRecord, RunFolder, Weights, LOG_FILE};
 
@@ -76,22 +77,22 @@ fn training(folder: &RunFolder, notes: &mut Vec<String>) -> Option<Training> {
     }
 }
 
-/// rtf-run's view of the configuration of `folder`, its network and inputs typed.
+/// What the page uses of the training configuration of `folder`.
 fn typed(folder: &RunFolder) -> Result<Training, String> {
-    let view = folder.training().map_err(|e| e.to_string())?;
-    let path = folder.config_path();
-    let field = |name: &str, e: serde_json::Error| format!("{}: `{name}`: {e}", path.display());
-    let model = serde_json::from_value(view.model.clone()).map_err(|e| field("model", e))?;
-    let inputs = match &view.inputs {
-        Some(inputs) => serde_json::from_value(inputs.clone()).map_err(|e| field("inputs", e))?,
-        None => Modality::default(),
+    let config = folder.training().map_err(|e| e.to_string())?;
+    let dataset = &config.data.dataset;
+    let val_split = match dataset {
+        DatasetConfig::Freiburg { .. } => None,
+        DatasetConfig::Mf { val_split, .. } | DatasetConfig::Described { val_split, .. } => {
+            val_split.clone()
+        }
     };
     Ok(Training {
-        model,
-        inputs,
-        resize: view.resize,
-        val_split: view.val_split().map(str::to_string),
-        dataset_root: view.dataset.root,
+        model: config.network.model,
+        inputs: config.network.inputs,
+        resize: config.data.resize,
+        dataset_root: dataset.root().to_path_buf(),
+        val_split,
     })
 }
 

@@ -3,7 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::de::DeserializeOwned;
+use rtf_config::train::{PipelineConfig, TrainConfig};
+use rtf_config::RunConfig;
 use serde::Deserialize;
 use serde_json::Value;
 
@@ -142,9 +143,34 @@ impl RunFolder {
         RunFolder::open(&self.dir.join(name))
     }
 
-    /// The configuration as `T` (rtf-train's configuration types: one training, or the
-    /// pipeline of a multi-stage run). Errors name `config.json`.
-    pub fn config<T: DeserializeOwned>(&self) -> Result<T, RunError> {
+    /// `config.json` as recorded (a JSON document); None when the folder has none (yet).
+    pub fn document(&self) -> Option<&Value> {
+        self.document.as_ref()
+    }
+
+    /// The configuration as recorded, typed (rtf-config's schema; not checked: see
+    /// [`crate::TrainedRun`]): a multi-stage run's stages, else one training (sectioned, or
+    /// the flat layout of older builds). Errors name `config.json`.
+    pub fn config(&self) -> Result<RunConfig, RunError> {
+        Ok(match self.stages.is_empty() {
+            true => RunConfig::Single(Box::new(self.parse::<TrainConfig>()?)),
+            false => RunConfig::Pipeline(self.parse::<PipelineConfig>()?),
+        })
+    }
+
+    /// One training's configuration as recorded (a stage's folder, or a run of one stage);
+    /// a multi-stage run's own folder is an error naming its `config.json`.
+    pub fn training(&self) -> Result<TrainConfig, RunError> {
+        match self.config()? {
+            RunConfig::Single(config) => Ok(*config),
+            RunConfig::Pipeline(_) => Err(RunError::Config {
+                path: self.config_path(),
+                message: "a multi-stage run: its stages' folders hold their trainings".into(),
+            }),
+        }
+    }
+
+    fn parse<T: serde::de::DeserializeOwned>(&self) -> Result<T, RunError> {
         let path = self.config_path();
         let document = self.document.as_ref().ok_or_else(|| RunError::Config {
             path: path.clone(),
@@ -153,20 +179,6 @@ impl RunFolder {
         T::deserialize(document).map_err(|e| RunError::Config {
             path,
             message: format!("not a training configuration rtf reads: {e}"),
-        })
-    }
-
-    /// The training's configuration as a reader sees it without its types (the network, the
-    /// dataset, the frame size: [`crate::TrainingView`]). Errors name `config.json`.
-    pub fn training(&self) -> Result<crate::TrainingView, RunError> {
-        let path = self.config_path();
-        let document = self.document.as_ref().ok_or_else(|| RunError::Config {
-            path: path.clone(),
-            message: "missing (written by `rtf train`)".into(),
-        })?;
-        crate::TrainingView::of(document).map_err(|message| RunError::Config {
-            path,
-            message: format!("not a training configuration rtf reads: {message}"),
         })
     }
 
@@ -268,7 +280,7 @@ mod tests {
         let empty = RunFolder::open(dir).unwrap();
         let err = empty.epochs().unwrap_err().to_string();
         assert!(err.contains("log.jsonl is missing"), "{err}");
-        let err = empty.config::<Value>().unwrap_err().to_string();
+        let err = empty.config().unwrap_err().to_string();
         assert!(err.contains("config.json: missing"), "{err}");
         assert!(empty.settings().is_empty());
         std::fs::write(dir.join(CONFIG_FILE), b"{\"model\": [").unwrap();
@@ -279,39 +291,46 @@ mod tests {
         assert!(err.contains("config.json: `stages`"), "{err}");
     }
 
-    /// The configuration reads as the caller's type, and its settings are what the file says.
+    /// The configuration reads typed, and its settings are what the file says; a renamed
+    /// field is an error naming the file and the field.
     #[test]
     fn the_configuration_reads_typed_and_as_recorded_settings() {
-        #[derive(Deserialize, Debug, PartialEq)]
-        #[serde(deny_unknown_fields)]
-        struct Schedule {
-            epochs: usize,
-        }
-        #[derive(Deserialize, Debug, PartialEq)]
-        #[serde(deny_unknown_fields)]
-        struct Config {
-            schedule: Schedule,
-        }
         let tmp = tempfile::tempdir().unwrap();
-        std::fs::write(
-            tmp.path().join(CONFIG_FILE),
-            r#"{"schedule": {"epochs": 80}}"#,
-        )
-        .unwrap();
+        let config = TrainConfig::mfnet_paper("/data/mf".into());
+        let text = serde_json::to_string(&config).unwrap();
+        std::fs::write(tmp.path().join(CONFIG_FILE), &text).unwrap();
         let run = RunFolder::open(tmp.path()).unwrap();
-        let config: Config = run.config().unwrap();
-        assert_eq!(config.schedule.epochs, 80);
-        assert_eq!(run.settings(), [("schedule.epochs".into(), "80".into())]);
-        std::fs::write(
-            tmp.path().join(CONFIG_FILE),
-            r#"{"schedule": {"epoch": 80}}"#,
-        )
-        .unwrap();
+        assert_eq!(run.training().unwrap(), config);
+        assert!(run
+            .settings()
+            .contains(&("schedule.epochs".into(), "80".into())));
+        let renamed = text.replace("\"epochs\"", "\"epoch\"");
+        std::fs::write(tmp.path().join(CONFIG_FILE), renamed).unwrap();
         let renamed = RunFolder::open(tmp.path()).unwrap();
-        let err = renamed.config::<Config>().unwrap_err().to_string();
+        let err = renamed.config().unwrap_err().to_string();
         assert!(
             err.contains("config.json") && err.contains("`epoch`"),
             "{err}"
         );
+    }
+
+    /// A multi-stage run's own folder holds no training of its own.
+    #[test]
+    fn a_multi_stage_configuration_reads_as_its_stages() {
+        let tmp = tempfile::tempdir().unwrap();
+        let stage = TrainConfig::mfnet_paper("/data/mf".into());
+        let pipeline = RunConfig::Pipeline(PipelineConfig {
+            recipe: None,
+            stages: vec![rtf_config::train::StageConfig {
+                name: "only".into(),
+                config: stage,
+            }],
+        });
+        let text = serde_json::to_string(&pipeline).unwrap();
+        std::fs::write(tmp.path().join(CONFIG_FILE), text).unwrap();
+        let run = RunFolder::open(tmp.path()).unwrap();
+        assert_eq!(run.config().unwrap(), pipeline);
+        let err = run.training().unwrap_err().to_string();
+        assert!(err.contains("multi-stage"), "{err}");
     }
 }

@@ -7,16 +7,15 @@
 //! distillation) keeps each stage in an ordinary run folder `RUN/<stage>/` and lists the stages
 //! in its own `config.json`.
 //!
-//! [`RunFolder::open`] reads a folder once: its configuration document (the flat layout of
-//! older builds and today's sections alike; the typed configuration is rtf-train's, parsed
-//! through [`RunFolder::config`]; what a reader needs of it without those types, through
-//! [`RunFolder::training`]), its stages, its epochs and its weights. Every reader of a
-//! run folder (`rtf report`, `export`, `train --resume`, `cargo xtask reproduce`) goes through
-//! it, so a renamed field is an error naming the file, not a silently empty chart.
+//! [`RunFolder::open`] reads a folder once: its configuration (the flat layout of older
+//! builds and today's sections alike, typed by rtf-config's schema: [`RunFolder::config`],
+//! one training's [`RunFolder::training`]; checked as a new run's is: [`TrainedRun`]), its
+//! stages, its epochs and its weights. Every reader of a run folder (`rtf report`, `export`,
+//! `train --resume`, `--teacher RUN`, `cargo xtask reproduce`, the Python package) goes
+//! through it, so a renamed field is an error naming the file, not a silently empty chart.
 //!
-//! No libtorch here: xtask, which builds before libtorch exists, reads run folders too. The
-//! typed configuration (`TrainConfig`, its networks and datasets) lives with the code that
-//! trains it (rtf-train), which builds on this crate.
+//! No libtorch here (nor in rtf-config's schema): xtask, which builds before libtorch exists,
+//! reads run folders too.
 
 mod error;
 pub mod files;
@@ -24,7 +23,7 @@ mod folder;
 pub mod log;
 pub mod record;
 mod settings;
-pub mod view;
+pub mod trained;
 pub mod write;
 
 pub use error::RunError;
@@ -33,5 +32,5 @@ pub use files::{
 };
 pub use folder::{RunFolder, Weights};
 pub use record::{EpochRecord, ValRecord};
-pub use view::{DatasetView, TrainingView};
+pub use trained::{read_config, TrainedRun};
 pub use write::{OwnedFolder, RunLock};

@@ -48,6 +48,13 @@ impl From<rtf_models::NetworkConfigError> for SetupError {
     }
 }
 
+/// A run folder that cannot be read (a resume's), as the trainer's error.
+impl From<rtf_run::RunError> for SetupError {
+    fn from(e: rtf_run::RunError) -> Self {
+        SetupError::Train(e.into())
+    }
+}
+
 /// A teacher given on the command line (`--teacher`, `--teacher-model`, `--teacher-inputs`).
 #[derive(Debug, Clone, Default)]
 pub struct TeacherArg {

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use rtf_train::config::{DatasetConfig, RunConfig};
-use rtf_train::folder::{run_config, RunFolder, TrainedRun};
+use rtf_train::folder::{RunFolder, TrainedRun};
 use rtf_train::EpochRecord;
 
 mod common;
@@ -136,7 +136,7 @@ fn a_multi_stage_recipe_folder_reads_the_same_in_both_layouts() {
             .iter()
             .map(|s| {
                 let stage = folder.stage(s).unwrap();
-                (run_config(&stage).unwrap(), epochs(&stage))
+                (stage.config().unwrap(), epochs(&stage))
             })
             .collect();
         assert_eq!(stages[1].1.len(), 2);
