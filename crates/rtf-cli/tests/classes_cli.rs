@@ -82,7 +82,7 @@ fn train(data: &Path, run: &Path) -> PathBuf {
 
 fn metadata(weights: &Path) -> rtf_data::TrainedOn {
     let file = rtf_models::io::weights::read_weights_metadata(weights).unwrap();
-    rtf_data::TrainedOn::from_metadata(&file.metadata, weights)
+    rtf_data::trained_on::from_metadata(&file.metadata, weights)
         .unwrap()
         .expect("rtf train records the class set in the weights")
 }

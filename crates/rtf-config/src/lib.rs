@@ -8,6 +8,7 @@
 //! rtf-data opens datasets, rtf-amp enters autocast, rtf-train trains) re-export them.
 
 pub mod compute;
+pub mod data;
 pub mod network;
 pub mod precision;
 pub mod train;

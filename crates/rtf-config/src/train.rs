@@ -4,8 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
-use rtf_data::dataset::{RecordedKind, TrainingChoice};
-use rtf_data::{AugmentConfig, FreiburgPreprocess};
+use crate::data::{AugmentConfig, FreiburgPreprocess};
+use crate::data::{RecordedKind, TrainingChoice};
 use serde::{Deserialize, Serialize};
 
 use crate::network::ModelConfig;
@@ -79,7 +79,7 @@ pub struct DataConfig {
     pub workers: usize,
     /// Content hash of the dataset (`rtf data fingerprint`), recorded when the run starts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fingerprint: Option<rtf_data::Fingerprint>,
+    pub fingerprint: Option<crate::data::Fingerprint>,
 }
 
 /// How a network learns.
@@ -418,7 +418,7 @@ pub enum DatasetConfig {
         #[serde(default = "yes")]
         validate: bool,
     },
-    /// A root read through a dataset description (rtf_data::layouts): `root/dataset.yaml`
+    /// A root read through a dataset description (rtf-data's `layouts`): `root/dataset.yaml`
     /// (the plain layout) or a recognised MSRS, PST900 or FMB root. Its class set decides the
     /// network's number of outputs.
     Described {
@@ -430,7 +430,7 @@ pub enum DatasetConfig {
         /// them; the weights carry them too): a resume refuses a root whose classes changed.
         /// None in configs written before it was recorded.
         #[serde(default, skip_serializing_if = "Option::is_none")]
-        trained_on: Option<rtf_data::TrainedOn>,
+        trained_on: Option<crate::data::TrainedOn>,
     },
 }
 
@@ -462,7 +462,7 @@ impl DatasetConfig {
         }
     }
 
-    /// The frames the run reads, for rtf-data to open ([`rtf_data::dataset::TrainingChoice`]):
+    /// The frames the run reads, for rtf-data to open ([`TrainingChoice`]):
     /// the recorded kind of root, the splits and Freiburg's preprocessing, field by field.
     pub fn choice(&self) -> TrainingChoice {
         let reference = || {
@@ -507,7 +507,7 @@ impl DatasetConfig {
     }
 
     /// The class set and thermal rule recorded when the run started (described roots).
-    pub fn recorded(&self) -> Option<&rtf_data::TrainedOn> {
+    pub fn recorded(&self) -> Option<&crate::data::TrainedOn> {
         match self {
             DatasetConfig::Described { trained_on, .. } => trained_on.as_ref(),
             _ => None,

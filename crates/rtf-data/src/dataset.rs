@@ -12,7 +12,6 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use rtf_core::ClassSet;
-use serde::Serialize;
 
 use crate::described::{DescribedDataset, DescribedSplit};
 use crate::description::{DatasetDescription, LayoutKind, DESCRIPTION_FILE};
@@ -21,49 +20,18 @@ use crate::mf::MfDataset;
 use crate::trained_on::TrainedOn;
 use crate::{DataError, FrameSource};
 
-/// The layouts rtf recognises by their roots.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum DatasetFormat {
-    Mf,
-    Freiburg,
-    /// BDD100K night as HeatNet reads it: `<list>.txt`, `images/<split>/`, `labels/<split>/`.
-    Bdd,
-    /// `ROOT/dataset.yaml` and the folders it names ([`crate::description`]).
-    Plain,
-    /// MSRS: `{train,test}/{vi,ir,Label}` ([`crate::layouts::msrs`]).
-    Msrs,
-    /// PST900: `{train,test}/{rgb,thermal,labels}` ([`crate::layouts::pst900`]).
-    Pst900,
-    /// FMB: `{train,test}/{Visible,Infrared,Label}` ([`crate::layouts::fmb`]).
-    Fmb,
-}
+/// The layouts rtf recognises by their roots: the schema's (rtf-config; a fingerprint records
+/// one).
+pub use rtf_config::data::DatasetFormat;
 
-impl DatasetFormat {
-    /// Whether frames of this layout are read through a [`DatasetDescription`].
-    pub fn is_described(self) -> bool {
-        self.described_kind().is_some()
-    }
-
-    /// The described layout this is, if it is one.
-    fn described_kind(self) -> Option<LayoutKind> {
-        match self {
-            Self::Plain => Some(LayoutKind::Plain),
-            Self::Msrs => Some(LayoutKind::Msrs),
-            Self::Pst900 => Some(LayoutKind::Pst900),
-            Self::Fmb => Some(LayoutKind::Fmb),
-            Self::Mf | Self::Freiburg | Self::Bdd => None,
-        }
-    }
-
-    /// The layout's name as `rtf data check` prints it.
-    pub fn name(self) -> &'static str {
-        match (self, self.described_kind()) {
-            (_, Some(kind)) => kind.name(),
-            (Self::Mf, _) => "MF",
-            (Self::Freiburg, _) => "Freiburg Thermal",
-            _ => "BDD100K night",
-        }
+/// The described layout `format` is, if it is one.
+fn described_kind(format: DatasetFormat) -> Option<LayoutKind> {
+    match format {
+        DatasetFormat::Plain => Some(LayoutKind::Plain),
+        DatasetFormat::Msrs => Some(LayoutKind::Msrs),
+        DatasetFormat::Pst900 => Some(LayoutKind::Pst900),
+        DatasetFormat::Fmb => Some(LayoutKind::Fmb),
+        DatasetFormat::Mf | DatasetFormat::Freiburg | DatasetFormat::Bdd => None,
     }
 }
 
@@ -160,27 +128,9 @@ pub enum Layout {
     Described(Box<DatasetDescription>),
 }
 
-/// The kind of root a training run records (the `format` of rtf-train's `DatasetConfig`):
-/// opening a root as its recorded kind reads it as the run started, without recognising it
-/// again.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RecordedKind {
-    Mf,
-    Freiburg,
-    /// dataset.yaml, MSRS, PST900 or FMB (recognised among these).
-    Described,
-}
-
-/// Which frames a training run reads (rtf-train's `DatasetConfig`, field by field).
-#[derive(Debug, Clone)]
-pub struct TrainingChoice {
-    pub kind: RecordedKind,
-    pub train_split: String,
-    /// A split, `holdout:N` (described layouts), or None: no validation.
-    pub val_split: Option<String>,
-    /// Freiburg Thermal: the preprocessing of the training and of the validation frames.
-    pub preprocess: (FreiburgPreprocess, FreiburgPreprocess),
-}
+/// The kind of root a training run records, and which frames it reads: the schema's
+/// (rtf-config).
+pub use rtf_config::data::{RecordedKind, TrainingChoice};
 
 /// A training run's frames: the training frames (labelled ones when the procedure reads
 /// labels) and the validation frames, if any.
@@ -234,7 +184,7 @@ fn not_a_dataset(root: &Path) -> DataError {
 impl Dataset {
     /// Opens `root` as the layout `format` ([`recognise`]'s answer).
     pub fn open_as(root: &Path, format: DatasetFormat) -> Result<Self, DataError> {
-        let layout = match (format, format.described_kind()) {
+        let layout = match (format, described_kind(format)) {
             (_, Some(kind)) => {
                 Layout::Described(Box::new(crate::layouts::describe_as(root, kind)?))
             }
@@ -309,7 +259,7 @@ impl Dataset {
         match &self.layout {
             Layout::Mf => TrainedOn::mf(),
             Layout::Freiburg | Layout::Bdd => TrainedOn::freiburg(),
-            Layout::Described(d) => TrainedOn::of(d),
+            Layout::Described(d) => crate::trained_on::of(d),
         }
     }
 

@@ -6,6 +6,7 @@
 //! loading a frame refuses partners of different sizes, label ids outside the class list,
 //! colours outside the palette and 16-bit thermal without a normalisation.
 
+use crate::thermal::Normalise;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

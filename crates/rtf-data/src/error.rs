@@ -104,7 +104,6 @@ pub enum DataError {
     Config(String),
     #[error("frame '{name}': {message}")]
     Frame { name: String, message: String },
-    #[cfg(feature = "tensors")]
     #[error("tensor: {0}")]
     Tensor(#[from] tch::TchError),
     #[error("{path}: cannot write: {message}")]

@@ -12,7 +12,6 @@ use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 pub use crate::hash::{hash_bytes, hash_file};
@@ -24,35 +23,8 @@ use crate::{
     MfDataset,
 };
 
-/// The hash algorithm named in every fingerprint.
-pub const ALGORITHM: &str = "sha256";
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SplitFingerprint {
-    pub name: String,
-    pub frames: usize,
-    /// Hex SHA-256 over the split's frames (module docs).
-    pub hash: String,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Fingerprint {
-    pub format: DatasetFormat,
-    pub algorithm: String,
-    /// Hex SHA-256 over every split's name and hash.
-    pub hash: String,
-    pub splits: Vec<SplitFingerprint>,
-    /// Distinct files hashed and their total size.
-    pub files: usize,
-    pub bytes: u64,
-}
-
-impl Fingerprint {
-    /// The split named `name`, if the dataset has it.
-    pub fn split(&self, name: &str) -> Option<&SplitFingerprint> {
-        self.splits.iter().find(|s| s.name == name)
-    }
-}
+/// A dataset's fingerprint as results record it: the schema's (rtf-config).
+pub use rtf_config::data::{Fingerprint, SplitFingerprint, ALGORITHM};
 
 pub fn hex(hash: &[u8]) -> String {
     hash.iter().map(|b| format!("{b:02x}")).collect()

@@ -15,48 +15,8 @@ use rtf_core::{ClassSet, Daytime};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// The reference preprocessing (HeatNet code), each step configurable.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FreiburgPreprocess {
-    /// Raw IR counts clipped to [lo, hi] and scaled to [0, 1]. Reference: (21800, 25000).
-    pub ir_clip: (u16, u16),
-    /// (width, height) both modalities are resized to (RGB/IR bilinear, labels nearest).
-    /// Reference: (960, 320).
-    pub resize: Option<(usize, usize)>,
-    /// Columns kept after resizing, [start, end). Reference: 150..850 for training (then a
-    /// random 320×640 window, see `AugmentConfig::window`), 148..852 for testing.
-    pub columns: Option<(usize, usize)>,
-}
-
-impl FreiburgPreprocess {
-    pub fn reference_train() -> Self {
-        Self {
-            ir_clip: (21800, 25000),
-            resize: Some((960, 320)),
-            columns: Some((150, 850)),
-        }
-    }
-    pub fn reference_test() -> Self {
-        Self {
-            columns: Some((148, 852)),
-            ..Self::reference_train()
-        }
-    }
-    /// Native size, only the IR clip.
-    pub fn native() -> Self {
-        Self {
-            ir_clip: (21800, 25000),
-            resize: None,
-            columns: None,
-        }
-    }
-}
-
-impl Default for FreiburgPreprocess {
-    fn default() -> Self {
-        Self::reference_test()
-    }
-}
+/// The reference preprocessing: the schema's (rtf-config).
+pub use rtf_config::data::FreiburgPreprocess;
 
 #[derive(Debug, Clone)]
 enum LabelFile {
@@ -781,7 +741,6 @@ mod tests {
         assert_eq!(days, [Daytime::Day, Daytime::Night]);
     }
 
-    #[cfg(feature = "tensors")]
     #[test]
     fn loader_batches_freiburg_with_window_and_ignore_for_unlabelled_nights() {
         use crate::{AugmentConfig, Loader, LoaderConfig};

@@ -21,7 +21,6 @@ pub mod hash;
 pub mod images;
 pub mod inspect;
 pub mod layouts;
-#[cfg(feature = "tensors")]
 pub mod loader;
 pub mod mf;
 pub mod npy;
@@ -29,7 +28,6 @@ pub mod pattern;
 pub mod planes;
 pub mod pngio;
 pub mod scale_crop;
-pub mod seed;
 pub mod split_list;
 pub mod synth;
 pub mod thermal;
@@ -45,7 +43,6 @@ pub use error::DataError;
 pub use fingerprint::{fingerprint, Fingerprint, SplitFingerprint};
 pub use frame::{Frame, FrameSource, MemorySource};
 pub use freiburg::{FreiburgPart, FreiburgPreprocess, FreiburgSplit};
-#[cfg(feature = "tensors")]
 pub use loader::{Batch, Loader, LoaderConfig};
 pub use mf::{MfDataset, MfSplit};
 pub use trained_on::TrainedOn;

@@ -542,7 +542,7 @@ fn draw_geometry(
         ));
     }
     let base = cfg.resize.unwrap_or(frame);
-    sc.draw(frame, base, rng).map(Geometry::ScaleCrop)
+    crate::scale_crop::draw(sc, frame, base, rng).map(Geometry::ScaleCrop)
 }
 
 impl Geometry {
@@ -713,7 +713,16 @@ impl Drop for EpochIter {
     }
 }
 
-pub use crate::seed::mix;
+/// SplitMix64-style mixing of three words into one seed.
+pub fn mix(a: u64, b: u64, c: u64) -> u64 {
+    let mut z = a ^ b.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ c.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    for _ in 0..2 {
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+    }
+    z
+}
 
 #[cfg(test)]
 mod tests;

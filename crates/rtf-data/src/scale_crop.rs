@@ -51,54 +51,47 @@ fn axis(scaled: usize, crop: usize, rng: &mut impl Rng) -> (usize, usize, usize)
     (start, content, (crop - content) / 2)
 }
 
-impl ScaleCrop {
-    /// (width, height) of the crop for a frame whose size before scaling is `base`.
-    pub fn crop_size(&self, base: (usize, usize)) -> (usize, usize) {
-        self.size.unwrap_or(base)
+/// Draws the scale of `sc`, then the crop's row and column, for a `frame` (width, height)
+/// seen at `base` size before scaling (a resize, or the frame's own size). Configuration
+/// errors name what is wrong: an empty scale set, a factor that is not positive, a scaled
+/// frame with no pixel.
+pub fn draw(
+    sc: &ScaleCrop,
+    frame: (usize, usize),
+    base: (usize, usize),
+    rng: &mut impl Rng,
+) -> Result<Placement, DataError> {
+    if sc.scales.is_empty() {
+        return Err(DataError::Config(
+            "augment.scale_crop.scales is empty".into(),
+        ));
     }
-
-    /// Draws the scale, then the crop's row and column, for a `frame` (width, height) seen at
-    /// `base` size before scaling (a resize, or the frame's own size). Configuration errors
-    /// name what is wrong: an empty scale set, a factor that is not positive, a scaled frame
-    /// with no pixel.
-    pub fn draw(
-        &self,
-        frame: (usize, usize),
-        base: (usize, usize),
-        rng: &mut impl Rng,
-    ) -> Result<Placement, DataError> {
-        if self.scales.is_empty() {
-            return Err(DataError::Config(
-                "augment.scale_crop.scales is empty".into(),
-            ));
-        }
-        let scale = self.scales[rng.random_range(0..self.scales.len())];
-        let scaled = |n: usize| (n as f64 * scale as f64) as usize;
-        let (sw, sh) = (scaled(base.0), scaled(base.1));
-        if !(scale.is_finite() && scale > 0.0) || sw == 0 || sh == 0 {
-            return Err(DataError::Config(format!(
-                "augment.scale_crop: scale {scale} leaves no pixel of a {}x{} frame",
-                base.0, base.1
-            )));
-        }
-        let (cw, ch) = self.crop_size(base);
-        let (y, kh, top) = axis(sh, ch, rng);
-        let (x, kw, left) = axis(sw, cw, rng);
-        let (fx, fy) = (frame.0 as f32 / sw as f32, frame.1 as f32 / sh as f32);
-        Ok(Placement {
-            scale,
-            window: Window {
-                x0: x as f32 * fx,
-                y0: y as f32 * fy,
-                x1: (x + kw) as f32 * fx,
-                y1: (y + kh) as f32 * fy,
-            },
-            scaled: (sw, sh),
-            origin: (x, y),
-            content: (kw, kh),
-            offset: (left, top),
-        })
+    let scale = sc.scales[rng.random_range(0..sc.scales.len())];
+    let scaled = |n: usize| (n as f64 * scale as f64) as usize;
+    let (sw, sh) = (scaled(base.0), scaled(base.1));
+    if !(scale.is_finite() && scale > 0.0) || sw == 0 || sh == 0 {
+        return Err(DataError::Config(format!(
+            "augment.scale_crop: scale {scale} leaves no pixel of a {}x{} frame",
+            base.0, base.1
+        )));
     }
+    let (cw, ch) = sc.crop_size(base);
+    let (y, kh, top) = axis(sh, ch, rng);
+    let (x, kw, left) = axis(sw, cw, rng);
+    let (fx, fy) = (frame.0 as f32 / sw as f32, frame.1 as f32 / sh as f32);
+    Ok(Placement {
+        scale,
+        window: Window {
+            x0: x as f32 * fx,
+            y0: y as f32 * fy,
+            x1: (x + kw) as f32 * fx,
+            y1: (y + kh) as f32 * fy,
+        },
+        scaled: (sw, sh),
+        origin: (x, y),
+        content: (kw, kh),
+        offset: (left, top),
+    })
 }
 
 /// Writes the crop of `image` (planar, in [0, 1]) and its `label` (`image`'s size) described
@@ -161,7 +154,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut seen = std::collections::BTreeSet::new();
         for _ in 0..600 {
-            let p = cmx().draw((64, 48), (64, 48), &mut rng).unwrap();
+            let p = draw(&cmx(), (64, 48), (64, 48), &mut rng).unwrap();
             seen.insert((p.scale * 100.0) as i32);
             let (sw, sh) = ((64.0 * p.scale) as usize, (48.0 * p.scale) as usize);
             let (kw, kh) = p.content;
@@ -192,7 +185,7 @@ mod tests {
             ..cmx()
         };
         let mut rng = ChaCha8Rng::seed_from_u64(2);
-        let p = one.draw((8, 6), (8, 6), &mut rng).unwrap();
+        let p = draw(&one, (8, 6), (8, 6), &mut rng).unwrap();
         assert_eq!((p.content, p.offset), ((8, 6), (0, 0)));
         let image = Planar {
             channels: 4,
@@ -214,7 +207,9 @@ mod tests {
         assert_eq!((dst, ids), (image.data, label));
         for scales in [vec![], vec![0.0], vec![0.01]] {
             let bad = ScaleCrop { scales, ..cmx() };
-            let err = bad.draw((8, 6), (8, 6), &mut rng).unwrap_err().to_string();
+            let err = draw(&bad, (8, 6), (8, 6), &mut rng)
+                .unwrap_err()
+                .to_string();
             assert!(err.contains("scale"), "{err}");
         }
     }
@@ -228,9 +223,7 @@ mod tests {
             scales: vec![0.5],
             ..cmx()
         };
-        let p = half
-            .draw((8, 4), (8, 4), &mut ChaCha8Rng::seed_from_u64(3))
-            .unwrap();
+        let p = draw(&half, (8, 4), (8, 4), &mut ChaCha8Rng::seed_from_u64(3)).unwrap();
         assert_eq!((p.content, p.offset), ((4, 2), (2, 1)));
         let image = Planar {
             channels: 1,
@@ -278,7 +271,7 @@ mod tests {
         };
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         for _ in 0..50 {
-            let p = double.draw((8, 6), (8, 6), &mut rng).unwrap();
+            let p = draw(&double, (8, 6), (8, 6), &mut rng).unwrap();
             let (mut dst, mut ids) = (vec![0.0; 48], vec![0u8; 48]);
             crop_into(
                 &image,

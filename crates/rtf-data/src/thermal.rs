@@ -13,67 +13,30 @@
 
 use std::path::Path;
 
-use serde::{Deserialize, Serialize};
-
 use crate::planes::ThermalSamples;
 use crate::DataError;
 
-/// A linear map from raw counts to a temperature: `t = scale * counts + offset`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TemperatureMap {
-    pub scale: f64,
-    pub offset: f64,
-    pub unit: TemperatureUnit,
-}
+/// How thermal samples become [0, 1]: the schema's (rtf-config; a run and its weights record
+/// it).
+pub use rtf_config::data::{TemperatureMap, TemperatureUnit, ThermalNormalisation};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum TemperatureUnit {
-    Celsius,
-    Kelvin,
-}
-
-/// How thermal samples become [0, 1].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ThermalNormalisation {
-    /// 8-bit only: byte / 255. 16-bit files under this rule are an error.
-    Byte,
-    /// `[lo, hi]` in counts, or in degrees of `map` when given; clipped.
-    Range {
-        lo: f64,
-        hi: f64,
-        map: Option<TemperatureMap>,
-    },
-    /// Each image's own minimum and maximum.
-    MinMax,
-    /// Each image's `lo`-th and `hi`-th percentiles (0..=100), clipped.
-    Percentile { lo: f64, hi: f64 },
-}
-
-impl ThermalNormalisation {
-    /// A short description for the first line of output ("16-bit, range [21800, 25000]").
-    pub fn describe(&self) -> String {
-        match self {
-            Self::Byte => "8-bit / 255".into(),
-            Self::Range { lo, hi, map: None } => format!("range [{lo}, {hi}] counts, clipped"),
-            Self::Range {
-                lo,
-                hi,
-                map: Some(m),
-            } => format!(
-                "counts x {} + {} -> {:?}, range [{lo}, {hi}], clipped",
-                m.scale, m.offset, m.unit
-            ),
-            Self::MinMax => "per-image min-max".into(),
-            Self::Percentile { lo, hi } => format!("per-image percentile clip [{lo}, {hi}]"),
-        }
-    }
-
+/// A [`ThermalNormalisation`] applied to an image's samples.
+pub trait Normalise {
     /// Normalises one image's samples (`bits` 8 or 16, already one channel) to [0, 1].
     /// `path` names the file in the error for 16-bit samples without a rule.
-    pub fn apply(&self, samples: &[u16], bits: u8, path: &Path) -> Result<Vec<f32>, DataError> {
+    fn apply(&self, samples: &[u16], bits: u8, path: &Path) -> Result<Vec<f32>, DataError>;
+
+    /// Normalises one thermal image as read ([`ThermalSamples`]): counts by [`Self::apply`];
+    /// temperatures (float TIFF or `.npy`) by a range in degrees, min–max or percentiles. A
+    /// float thermal under the 8-bit rule, or a range with a counts → degrees map (the file
+    /// holds degrees already), is an error naming the file.
+    fn apply_samples(&self, samples: &ThermalSamples, path: &Path) -> Result<Vec<f32>, DataError>;
+}
+
+impl Normalise for ThermalNormalisation {
+    /// Normalises one image's samples (`bits` 8 or 16, already one channel) to [0, 1].
+    /// `path` names the file in the error for 16-bit samples without a rule.
+    fn apply(&self, samples: &[u16], bits: u8, path: &Path) -> Result<Vec<f32>, DataError> {
         Ok(match self {
             Self::Byte if bits == 8 => samples.iter().map(|&v| v as f32 / 255.0).collect(),
             Self::Byte => {
@@ -100,18 +63,8 @@ impl ThermalNormalisation {
             }
         })
     }
-}
 
-impl ThermalNormalisation {
-    /// Normalises one thermal image as read ([`ThermalSamples`]): counts by [`Self::apply`];
-    /// temperatures (float TIFF or `.npy`) by a range in degrees, min–max or percentiles. A
-    /// float thermal under the 8-bit rule, or a range with a counts → degrees map (the file
-    /// holds degrees already), is an error naming the file.
-    pub fn apply_samples(
-        &self,
-        samples: &ThermalSamples,
-        path: &Path,
-    ) -> Result<Vec<f32>, DataError> {
+    fn apply_samples(&self, samples: &ThermalSamples, path: &Path) -> Result<Vec<f32>, DataError> {
         let values = match samples {
             ThermalSamples::Counts { bits, values } => return self.apply(values, *bits, path),
             ThermalSamples::Degrees(values) => values,

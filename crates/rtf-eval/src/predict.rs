@@ -9,6 +9,7 @@
 //! continues it. It sits above [`crate::evaluate`] and [`crate::figure`], whose forward and
 //! input it shares with evaluation.
 
+use rtf_data::thermal::Normalise;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
@@ -133,7 +134,7 @@ pub fn class_set(
     };
     if let (Some(t), Some(given)) = (trained, asked) {
         let hint = rtf_data::trained_on::WEIGHTS_HINT;
-        t.check_data(weights, Path::new(given), &classes, hint)?;
+        rtf_data::trained_on::check_data(t, weights, Path::new(given), &classes, hint)?;
     }
     Ok(classes)
 }

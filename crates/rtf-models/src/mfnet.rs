@@ -16,6 +16,7 @@ use crate::Network;
 /// LeakyReLU slope of every MFNet block.
 pub const NEGATIVE_SLOPE: f64 = 0.2;
 
+/// MFNet's options: the schema's (rtf-config), read without libtorch.
 pub use rtf_config::network::mfnet::{
     Activation, Config, Inception, Squeeze, Upsampling, VARIANT_LETTERS,
 };

@@ -44,7 +44,7 @@ fn options(
 fn check_classes(net: &PyNetwork, data: &PyDataset, split: &rtf_core::ClassSet) -> PyResult<()> {
     if let (Some(trained), Some(weights)) = (&net.trained, &net.weights) {
         let hint = rtf_data::trained_on::WEIGHTS_HINT;
-        trained.check_data(weights, &data.root, split, hint).py()?;
+        rtf_data::trained_on::check_data(trained, weights, &data.root, split, hint).py()?;
     }
     if split.len() != net.classes.len() {
         return Err(input(format!(

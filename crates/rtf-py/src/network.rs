@@ -113,7 +113,7 @@ fn random_network(
 /// The class set and thermal rule a weights file records (`rtf predict`'s reading).
 fn trained_on(weights: &Path) -> PyResult<Option<TrainedOn>> {
     let file = rtf_models::io::weights::read_weights_metadata(weights).py()?;
-    TrainedOn::from_metadata(&file.metadata, weights).py()
+    rtf_data::trained_on::from_metadata(&file.metadata, weights).py()
 }
 
 fn parse_device(name: &str) -> PyResult<tch::Device> {

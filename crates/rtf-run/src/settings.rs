@@ -1,5 +1,5 @@
 //! A configuration document as the settings it records: one `a.b.c = value` row per scalar
-//! leaf, for people to read and compare (the typed configuration is rtf-train's).
+//! leaf, for people to read and compare (the typed configuration: [`crate::RunFolder::config`]).
 
 use serde_json::Value;
 

@@ -1,13 +1,13 @@
 //! A run folder with its configuration checked ([`TrainedRun`]): what `--resume`,
 //! `--teacher RUN` and `rtf export` read. Its configuration is rtf-config's [`RunConfig`]
 //! (one training, or the stages of a multi-stage run; a flat `config.json` of the builds
-//! before the sections reads too), checked as a new run's is.
+//! before the sections reads too), checked as a new run's is. The class set it records or its
+//! dataset holds is rtf-train's `folder::class_set` (it opens the dataset).
 
 use std::path::Path;
 
 use rtf_config::train::TrainConfig;
 use rtf_config::RunConfig;
-use rtf_core::ClassSet;
 
 use crate::error::RunError;
 use crate::folder::RunFolder;
@@ -51,18 +51,5 @@ impl TrainedRun {
     /// The training the run ends with (a multi-stage run's last stage).
     pub fn last_training(&self) -> &TrainConfig {
         self.config.stages().last().expect("checked: a stage").1
-    }
-
-    /// The class set the run's final network was trained on: the one its configuration
-    /// records (a described dataset's, since it was recorded), else its dataset's as it reads
-    /// now; None when neither can be read.
-    pub fn class_set(&self) -> Option<ClassSet> {
-        let dataset = &self.last_training().data.dataset;
-        if let Some(recorded) = dataset.recorded() {
-            return Some(recorded.classes.clone());
-        }
-        rtf_data::Dataset::open_recorded(dataset.root(), dataset.choice().kind)
-            .ok()
-            .map(|d| d.class_set())
     }
 }

@@ -1,12 +1,25 @@
 //! Run folders as rtf-train reads them: rtf-run's reader ([`RunFolder`], [`TrainedRun`] with
-//! its configuration checked), and what an export records of the weights a run folder holds
-//! ([`export_labels`]).
+//! its configuration checked), the class set a run trained on ([`class_set`]), and what an
+//! export records of the weights a run folder holds ([`export_labels`]).
 
 use std::path::Path;
 
 use rtf_core::ClassSet;
 
 pub use rtf_run::{read_config, EpochRecord, RunFolder, TrainedRun, Weights};
+
+/// The class set `run`'s final network was trained on: the one its configuration records (a
+/// described dataset's, since it was recorded), else its dataset's as it reads now; None when
+/// neither can be read.
+pub fn class_set(run: &TrainedRun) -> Option<ClassSet> {
+    let dataset = &run.last_training().data.dataset;
+    if let Some(recorded) = dataset.recorded() {
+        return Some(recorded.classes.clone());
+    }
+    rtf_data::Dataset::open_recorded(dataset.root(), dataset.choice().kind)
+        .ok()
+        .map(|d| d.class_set())
+}
 
 /// What weights were trained on, for an export's metadata: the weights' `record` (class set
 /// and thermal rule), else the class set of the run folder they sit in, else MF's or
@@ -47,7 +60,7 @@ fn class_set_of_run(weights: &Path, classes: i64) -> Option<(ClassSet, String)> 
     };
     let run_classes = TrainedRun::open(folder)
         .ok()
-        .and_then(|run| run.class_set());
+        .and_then(|run| class_set(&run));
     if let Some(set) = run_classes.filter(|set| set.len() as i64 == classes) {
         let config_path = dir.join(rtf_run::CONFIG_FILE);
         return Some((

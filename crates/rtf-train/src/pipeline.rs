@@ -152,6 +152,9 @@ fn open_run_folder(
     if !resume {
         refuse_existing_run(run_dir)?;
     }
+    // Teachers given as files are checked before any stage trains, so a bad one is refused
+    // now, not after the stages before it; each stage's run plan checks its teachers again
+    // when it opens (a header read each), since a file may change while earlier stages train.
     for stage in &cfg.stages {
         let learning = &stage.config.learning;
         crate::procedure::check_teachers(&learning.procedure, &stage.config.network.model)?;

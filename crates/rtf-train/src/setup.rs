@@ -295,7 +295,7 @@ fn described_dataset(
         root,
         train_split,
         val_split,
-        trained_on: Some(rtf_data::TrainedOn::of(description)),
+        trained_on: Some(rtf_data::trained_on::of(description)),
     };
     Ok((dataset, classes))
 }

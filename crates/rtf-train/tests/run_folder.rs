@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use rtf_train::config::{DatasetConfig, RunConfig};
-use rtf_train::folder::{RunFolder, TrainedRun};
+use rtf_train::folder::{class_set, RunFolder, TrainedRun};
 use rtf_train::EpochRecord;
 
 mod common;
@@ -158,7 +158,7 @@ fn a_run_s_class_set_is_its_record_else_its_dataset_s() {
     let owned = |set: rtf_core::ClassSet| -> Vec<String> {
         set.names().iter().map(|n| n.to_string()).collect()
     };
-    let names = |dir: &Path| TrainedRun::open(dir).unwrap().class_set().map(owned);
+    let names = |dir: &Path| class_set(&TrainedRun::open(dir).unwrap()).map(owned);
     assert_eq!(names(&run), Some(owned(rtf_core::ClassSet::mf())));
     let mut recorded = rtf_data::TrainedOn::mf();
     recorded.classes.name = "recorded".into();
@@ -171,7 +171,7 @@ fn a_run_s_class_set_is_its_record_else_its_dataset_s() {
     };
     cfg.network.model = cfg.network.model.with_num_classes(3);
     write_run(&run, &serde_json::to_string(&cfg).unwrap(), &[]);
-    let set = TrainedRun::open(&run).unwrap().class_set().unwrap();
+    let set = class_set(&TrainedRun::open(&run).unwrap()).unwrap();
     assert_eq!((set.name.as_str(), set.len()), ("recorded", 3));
     // A described root of a config written before the record, gone since.
     cfg.data.dataset = DatasetConfig::Described {

@@ -136,7 +136,10 @@ pub fn weights_config(
 /// of older builds: MF's 9 classes unless told otherwise).
 pub fn trained_on(weights: &std::path::Path) -> anyhow::Result<Option<rtf_data::TrainedOn>> {
     let file = rtf_models::io::weights::read_weights_metadata(weights)?;
-    Ok(rtf_data::TrainedOn::from_metadata(&file.metadata, weights)?)
+    Ok(rtf_data::trained_on::from_metadata(
+        &file.metadata,
+        weights,
+    )?)
 }
 
 /// Refuses data whose class set is not the one `weights` were trained on (when they record
@@ -148,7 +151,13 @@ pub fn check_classes(
 ) -> anyhow::Result<Option<rtf_data::TrainedOn>> {
     let trained = trained_on(weights)?;
     if let Some(t) = &trained {
-        t.check_data(weights, data, classes, rtf_data::trained_on::WEIGHTS_HINT)?;
+        rtf_data::trained_on::check_data(
+            t,
+            weights,
+            data,
+            classes,
+            rtf_data::trained_on::WEIGHTS_HINT,
+        )?;
     }
     Ok(trained)
 }

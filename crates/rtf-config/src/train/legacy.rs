@@ -4,8 +4,8 @@
 
 use std::path::PathBuf;
 
+use crate::data::AugmentConfig;
 use crate::network::ModelConfig;
-use rtf_data::AugmentConfig;
 use serde::Deserialize;
 
 use super::{
@@ -53,7 +53,7 @@ pub(super) struct LegacyFlatConfig {
     #[serde(default)]
     sync_batch_norm: bool,
     #[serde(default)]
-    data_fingerprint: Option<rtf_data::Fingerprint>,
+    data_fingerprint: Option<crate::data::Fingerprint>,
     #[serde(default)]
     world_size: Option<usize>,
 }

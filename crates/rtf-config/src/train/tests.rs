@@ -209,9 +209,9 @@ fn a_described_dataset_round_trips_with_its_format_tag() {
         root: "data/pst900".into(),
         train_split: "train".into(),
         val_split: Some("holdout:10".into()),
-        trained_on: Some(rtf_data::TrainedOn {
+        trained_on: Some(crate::data::TrainedOn {
             classes: rtf_core::ClassSet::mf(),
-            thermal: Some(rtf_data::thermal::ThermalNormalisation::Byte),
+            thermal: Some(crate::data::ThermalNormalisation::Byte),
         }),
     };
     let json = serde_json::to_string(&cfg).unwrap();

@@ -12,8 +12,8 @@ mod plain;
 pub mod scene;
 
 use crate::augment::{gaussian, Planar};
+use crate::loader::mix;
 use crate::pngio::write_png_u8;
-use crate::seed::mix;
 use crate::DataError;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -71,7 +71,8 @@ fn open_dataset(
     if let Some(recorded) = dataset.recorded() {
         let hint = "the dataset's classes changed since the run started (its config.json \
                     records them): restore them, or start a new run";
-        recorded.check_data(
+        rtf_data::trained_on::check_data(
+            recorded,
             Path::new(rtf_run::CONFIG_FILE),
             opened.origin(),
             &trained_on.classes,
