@@ -388,6 +388,20 @@ mod tests {
     use crate::synth::{generate, SynthConfig, SynthFormat};
     use crate::testutil::{mf_dataset, write_rgbt_frame, RgbtFolders, ThermalFixture};
 
+    /// The schema's view of the layouts (described or not) is the readers': every described
+    /// format is a layout kind and back, and the others are none.
+    #[test]
+    fn described_formats_are_exactly_the_layout_kinds() {
+        use DatasetFormat::*;
+        for format in [Mf, Freiburg, Bdd, Plain, Msrs, Pst900, Fmb] {
+            let kind = described_kind(format);
+            assert_eq!(format.is_described(), kind.is_some(), "{format:?}");
+            if let Some(kind) = kind {
+                assert_eq!(DatasetFormat::from(kind), format);
+            }
+        }
+    }
+
     /// `{train,test}/<folders>/a.png` with ids below `classes`.
     fn built_in_root(root: &Path, folders: &RgbtFolders, classes: u8) {
         for split in ["train", "test"] {

@@ -47,13 +47,9 @@ pub enum LayoutKind {
 }
 
 impl LayoutKind {
+    /// The layout's name as `rtf data check` prints it (its [`crate::DatasetFormat`]'s).
     pub fn name(self) -> &'static str {
-        match self {
-            Self::Plain => "plain (dataset.yaml)",
-            Self::Msrs => "MSRS",
-            Self::Pst900 => "PST900",
-            Self::Fmb => "FMB",
-        }
+        crate::DatasetFormat::from(self).name()
     }
 }
 
