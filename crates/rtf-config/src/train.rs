@@ -19,7 +19,7 @@ pub use optimizer::{DecayScope, OptimizerConfig, OptimizerKind};
 
 /// One training: five sections, one per concern, each its own type (written nested to
 /// `config.json`; a flat `config.json` written before the sections existed still reads,
-/// see [`legacy`]).
+/// see the `legacy` module).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TrainConfig {
     /// The network trained and where its weights start.

@@ -1,4 +1,4 @@
-//! rtf-run: a run folder as `rtf train` writes it ([`write`]: its lock, `config.json`, the
+//! rtf-run: a run folder as `rtf train` writes it ([`mod@write`]: its lock, `config.json`, the
 //! log), read back in one place, typed.
 //!
 //! A run folder holds `config.json` (written before the first step), `log.jsonl` (one
