@@ -34,8 +34,6 @@ pub trait Normalise {
 }
 
 impl Normalise for ThermalNormalisation {
-    /// Normalises one image's samples (`bits` 8 or 16, already one channel) to [0, 1].
-    /// `path` names the file in the error for 16-bit samples without a rule.
     fn apply(&self, samples: &[u16], bits: u8, path: &Path) -> Result<Vec<f32>, DataError> {
         Ok(match self {
             Self::Byte if bits == 8 => samples.iter().map(|&v| v as f32 / 255.0).collect(),
