@@ -37,9 +37,6 @@ pub fn layout(depth: i64) -> Option<(BlockKind, [i64; 4])> {
     }
 }
 
-/// The depths [`layout`] knows.
-pub const DEPTHS: [i64; 5] = rtf_config::network::RESNET_DEPTHS;
-
 /// A residual block: conv1 → conv2 (→ conv3), plus the identity or a 1×1 downsample branch.
 #[derive(Debug)]
 pub struct ResBlock {
