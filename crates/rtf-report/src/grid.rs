@@ -70,7 +70,7 @@ fn grid_dataset(options: &ReportOptions, run: &Run) -> Result<(PathBuf, String),
     let training = run
         .config
         .as_ref()
-        .ok_or("no --data and the run's config names no dataset root")?;
+        .ok_or("no --data, and no dataset root read from the run's config (give --data)")?;
     let split = training
         .val_split
         .clone()
