@@ -32,3 +32,27 @@ pub fn available_device(name: &str) -> Result<tch::Device, String> {
     }
     Ok(device)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn devices_parse() {
+        assert_eq!(parse_device("cpu"), Ok(tch::Device::Cpu));
+        assert_eq!(parse_device("cuda:1"), Ok(tch::Device::Cuda(1)));
+        assert!(parse_device("tpu").is_err());
+    }
+
+    #[test]
+    fn unavailable_gpus_are_a_clear_error() {
+        assert_eq!(available_device("cpu"), Ok(tch::Device::Cpu));
+        let count = tch::Cuda::device_count();
+        let missing = format!("cuda:{count}");
+        let err = available_device(&missing).unwrap_err();
+        assert!(
+            err.contains(&missing) && err.contains("not available"),
+            "{err}"
+        );
+    }
+}
