@@ -3,6 +3,7 @@
 
 mod calib_check;
 mod convert;
+mod disk;
 mod hostile;
 mod reproduce;
 mod setup;
@@ -106,6 +107,7 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
     if std::env::var_os("RTF_TEST_ONNX").is_none() {
         std::env::set_var("RTF_TEST_ONNX", "1");
     }
+    disk::note(root, "the build and the tests", 0);
     run(root, "cargo", &args)?;
     // Skipped when the suite is filtered: the mixed-precision tests (synthetic and real
     // frames) once more with each CPU bf16 convolution choice (emulated where the CPU lacks
@@ -137,7 +139,9 @@ fn test(root: &Path, extra: &[String]) -> Result<()> {
             }
         }
         emulated_kind_passes(root)?;
+        disk::note(root, "the smoke reproduction", disk::SMOKE_PEAK);
         reproduce::smoke(root)?;
+        disk::note(root, "the Python package's tests", 0);
         wheel::pytest(root)?;
     }
     Ok(())

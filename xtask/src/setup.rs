@@ -150,7 +150,8 @@ fn ensure_protoc() -> Result<()> {
     Ok(())
 }
 
-/// `pip install --quiet <args>` with the venv's Python.
+/// `pip install --quiet <args>` with the venv's Python. No download cache: PyTorch's wheels
+/// would leave gigabytes beside the `.venv` that holds them.
 pub fn pip_install(python: &Path, args: &[&str]) -> Result<()> {
     let status = Command::new(python)
         .args([
@@ -159,6 +160,7 @@ pub fn pip_install(python: &Path, args: &[&str]) -> Result<()> {
             "install",
             "--quiet",
             "--disable-pip-version-check",
+            "--no-cache-dir",
         ])
         .args(args)
         .status()
