@@ -292,6 +292,12 @@ fn a_three_class_plain_root_with_16_bit_thermal_goes_end_to_end() {
         printed.contains("thermal: the weights' rule, range [21800, 25000]"),
         "{printed}"
     );
+    // Given as its dataset.yaml, the root is its folder: the run records the folder.
+    let by_file = tmp.path().join("run-by-file");
+    train(&data.join("dataset.yaml"), &by_file);
+    let root = |run: &Path| json_file(&run.join("config.json"))["data"]["dataset"]["root"].clone();
+    assert_eq!(root(&by_file), root(&tmp.path().join("run")));
+    assert_eq!(root(&by_file), s(&data));
 }
 
 /// PST900's 5 classes end to end; then the 5-class weights meet the 3-class root: eval and

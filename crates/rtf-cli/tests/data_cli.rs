@@ -236,6 +236,10 @@ fn check_and_stats_name_the_plain_layout_its_classes_and_thermal_rule() {
     );
     let fp = ok(&["data", "fingerprint", s(tmp.path())]);
     assert!(fp.contains("train") && fp.contains("test"), "{fp}");
+    // The dataset.yaml given as the file is its folder: the same report, the same hashes.
+    let yaml = tmp.path().join("dataset.yaml");
+    assert_eq!(ok(&["data", "check", s(&yaml)]), out);
+    assert_eq!(ok(&["data", "fingerprint", s(&yaml)]), fp);
 }
 
 #[test]

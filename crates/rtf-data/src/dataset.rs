@@ -49,6 +49,24 @@ impl From<LayoutKind> for DatasetFormat {
 /// What a root that is no dataset is told.
 pub const NOT_A_DATASET: &str = "not a dataset root: expected dataset.yaml (plain layout), images/ + labels/ (MF), fl_rgb/ or ImagesRGB/ folders (Freiburg Thermal), or {train,test}/ with vi+ir (MSRS), rgb+thermal (PST900) or Visible+Infrared (FMB)";
 
+/// The dataset root a user's path names: the folder itself, or the folder of a `dataset.yaml`
+/// given as the file (`--data sets/thermal/dataset.yaml`). Commands take it at the edge, so a
+/// run records, fingerprints and reopens the folder however it was named.
+pub fn root_of(path: &Path) -> PathBuf {
+    if path.is_file() && path.file_name().is_some_and(|n| n == DESCRIPTION_FILE) {
+        return match path.parent() {
+            Some(parent) if !parent.as_os_str().is_empty() => parent.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+    }
+    path.to_path_buf()
+}
+
+/// [`root_of`] as a command-line value parser (`--data`, `rtf data check DIR`).
+pub fn parse_root(arg: &str) -> Result<PathBuf, std::convert::Infallible> {
+    Ok(root_of(Path::new(arg)))
+}
+
 /// Recognises a dataset root by its layout. A dataset.yaml wins over every built-in layout.
 pub fn recognise(root: &Path) -> Option<DatasetFormat> {
     if root.join(DESCRIPTION_FILE).is_file() {
@@ -175,9 +193,16 @@ pub fn open_for(root: &Path, purpose: &str) -> Result<Dataset, DataError> {
 }
 
 fn not_a_dataset(root: &Path) -> DataError {
+    let message = if root.is_file() && root.file_name().is_some_and(|n| n == DESCRIPTION_FILE) {
+        format!("a file, not a folder: give the folder that holds {DESCRIPTION_FILE}")
+    } else if root.is_file() {
+        format!("a file, not a folder: {NOT_A_DATASET} (a plain layout's file must be named {DESCRIPTION_FILE})")
+    } else {
+        NOT_A_DATASET.into()
+    };
     DataError::Layout {
         root: root.to_path_buf(),
-        message: NOT_A_DATASET.into(),
+        message,
     }
 }
 
@@ -473,6 +498,37 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let err = open(dir.path()).unwrap_err().to_string();
         assert!(err.ends_with(NOT_A_DATASET), "{err}");
+    }
+
+    /// A dataset.yaml given as the file names its folder; any other path is kept, and a file
+    /// that is not one is refused as a file.
+    #[test]
+    fn a_dataset_yaml_file_names_its_folder() {
+        let plain = plain_root(EXAMPLE);
+        let yaml = plain.path().join(DESCRIPTION_FILE);
+        assert_eq!(root_of(&yaml), plain.path());
+        assert_eq!(root_of(plain.path()), plain.path());
+        assert_eq!(
+            open(&root_of(&yaml)).unwrap().format(),
+            DatasetFormat::Plain
+        );
+        let missing = plain.path().join("missing").join(DESCRIPTION_FILE);
+        assert_eq!(root_of(&missing), missing);
+
+        let other = plain.path().join("notes.yaml");
+        std::fs::write(&other, "x: 1").unwrap();
+        assert_eq!(root_of(&other), other);
+        let err = open(&other).unwrap_err().to_string();
+        assert!(
+            err.contains("a file, not a folder") && err.contains(NOT_A_DATASET),
+            "{err}"
+        );
+        // A library caller that skips root_of is told to give the folder.
+        let err = open(&yaml).unwrap_err().to_string();
+        assert!(
+            err.contains("give the folder that holds dataset.yaml"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -27,6 +27,7 @@ pub struct PyDataset {
 /// layout, classes and thermal rule announced on stderr).
 #[pyfunction]
 pub fn open_dataset(py: Python<'_>, root: PathBuf) -> PyResult<PyDataset> {
+    let root = rtf_data::dataset::root_of(&root);
     let dataset = py
         .allow_threads(|| rtf_data::dataset::open_for(&root, "a dataset"))
         .py()?;

@@ -46,3 +46,13 @@ def test_frames_loader_and_scores_of_another_layout(layout, run_rtf, tmp_path):
     assert scores.frames == cli["frames"] > 0
     assert scores.miou == cli["miou"] and scores.confusion == cli["confusion"]
     assert sum(map(sum, scores.confusion)) == scores.pixels > 0
+
+
+
+def test_a_dataset_yaml_given_as_the_file_is_its_folder(run_rtf, tmp_path):
+    root = tmp_path / "data"
+    run_rtf("synth", "--out", root, "--format", "plain", "--count", 6, "--seed", 1,
+            "--size", "64x48")
+    ds = rtf.open_dataset(root / "dataset.yaml")
+    assert str(ds.root) == str(root)
+    assert ds.splits == rtf.open_dataset(root).splits

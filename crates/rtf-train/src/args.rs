@@ -21,10 +21,11 @@ pub struct TrainArgs {
     /// every role (e.g. a light one on a CPU), the paper's networks otherwise.
     #[arg(long)]
     pub model: Option<String>,
-    /// Dataset root, MF or Freiburg Thermal layout (recognised by its folders). Freiburg:
-    /// trains on the training tree with the reference preprocessing and a random 640×320
-    /// window, validates on `<root>/val` if present (never on the test layout).
-    #[arg(long, required_unless_present_any = ["resume", "config"])]
+    /// Dataset root (dataset.yaml or the folder holding it, MF, Freiburg Thermal, MSRS,
+    /// PST900 or FMB; recognised by its folders). Freiburg: trains on the training tree with
+    /// the reference preprocessing and a random 640×320 window, validates on `<root>/val` if
+    /// present (never on the test layout).
+    #[arg(long, required_unless_present_any = ["resume", "config"], value_parser = rtf_data::dataset::parse_root)]
     pub data: Option<PathBuf>,
     /// Run folder: config.json, log.jsonl, checkpoints, final.safetensors (one sub-folder per
     /// stage for multi-stage recipes).

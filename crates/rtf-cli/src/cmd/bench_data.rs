@@ -11,8 +11,9 @@ use std::time::{Duration, Instant};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Dataset root: MF layout, or a described one (dataset.yaml, MSRS, PST900, FMB).
-    #[arg(long)]
+    /// Dataset root: MF layout, or a described one (dataset.yaml or its folder, MSRS, PST900,
+    /// FMB).
+    #[arg(long, value_parser = rtf_data::dataset::parse_root)]
     pub data: PathBuf,
     /// Split to read (default: MF's first split file, e.g. `test`; a described root's first
     /// split).

@@ -14,7 +14,8 @@ pub struct Args {
 pub enum DataCommand {
     /// Validate a dataset completely; lists every problem, exit code 1 if there is any.
     Check {
-        /// Dataset root (dataset.yaml, MF, Freiburg Thermal, BDD100K-night, MSRS, PST900 or FMB layout).
+        /// Dataset root (dataset.yaml or its folder, MF, Freiburg Thermal, BDD100K-night, MSRS, PST900 or FMB layout).
+        #[arg(value_parser = rtf_data::dataset::parse_root)]
         dir: PathBuf,
         /// Print the report as JSON.
         #[arg(long)]
@@ -22,7 +23,8 @@ pub enum DataCommand {
     },
     /// Frames per split and day/night, per-class pixel shares.
     Stats {
-        /// Dataset root (dataset.yaml, MF, Freiburg Thermal, BDD100K-night, MSRS, PST900 or FMB layout).
+        /// Dataset root (dataset.yaml or its folder, MF, Freiburg Thermal, BDD100K-night, MSRS, PST900 or FMB layout).
+        #[arg(value_parser = rtf_data::dataset::parse_root)]
         dir: PathBuf,
         /// Print JSON instead of a table.
         #[arg(long)]
@@ -31,7 +33,8 @@ pub enum DataCommand {
     /// SHA-256 of every file each split reads: one hash per split and one for the dataset
     /// (recorded by `rtf eval --json` and in a run's config.json).
     Fingerprint {
-        /// Dataset root (MF, Freiburg Thermal, dataset.yaml, MSRS, PST900 or FMB layout).
+        /// Dataset root (MF, Freiburg Thermal, dataset.yaml or its folder, MSRS, PST900 or FMB layout).
+        #[arg(value_parser = rtf_data::dataset::parse_root)]
         dir: PathBuf,
         /// Print JSON instead of a table.
         #[arg(long)]

@@ -18,9 +18,10 @@ pub struct Args {
     /// Weights (safetensors, reference names), e.g. RUN/final.safetensors.
     #[arg(long)]
     pub weights: PathBuf,
-    /// Dataset root: MF, Freiburg Thermal, MSRS, PST900, FMB, or a dataset.yaml (recognised
-    /// by its folders). Its class set must be the one the weights record, if they do.
-    #[arg(long)]
+    /// Dataset root: MF, Freiburg Thermal, MSRS, PST900, FMB (recognised by its folders), or
+    /// a dataset.yaml or the folder holding it. Its class set must be the one the weights
+    /// record, if they do.
+    #[arg(long, value_parser = rtf_data::dataset::parse_root)]
     pub data: PathBuf,
     /// Split to evaluate; its day and night frames are also scored separately. Freiburg:
     /// `test` (the test layout) or `train` (labelled frames of the training tree), both with

@@ -24,10 +24,10 @@ pub struct Args {
     /// with --data, <frame name>.png etc. (a folder per `/` of the name).
     #[arg(long)]
     pub out: PathBuf,
-    /// Predict every frame of a split of this dataset root (any layout rtf reads, dataset.yaml
-    /// included), each written under its frame's name. The class set defaults to the
-    /// dataset's; --out must be outside the dataset.
-    #[arg(long, conflicts_with_all = ["rgb", "images"])]
+    /// Predict every frame of a split of this dataset root (any layout rtf reads; a
+    /// dataset.yaml or the folder holding it), each written under its frame's name. The class
+    /// set defaults to the dataset's; --out must be outside the dataset.
+    #[arg(long, conflicts_with_all = ["rgb", "images"], value_parser = rtf_data::dataset::parse_root)]
     pub data: Option<PathBuf>,
     /// The split of --data to predict.
     #[arg(long, default_value = "test", requires = "data")]

@@ -18,7 +18,7 @@ pub struct Args {
     #[arg(long)]
     pub out: PathBuf,
     /// Dataset root for the prediction grid (default: the first run's dataset, if present).
-    #[arg(long)]
+    #[arg(long, value_parser = rtf_data::dataset::parse_root)]
     pub data: Option<PathBuf>,
     /// Split of --data for the prediction grid.
     #[arg(long, default_value = "test")]
