@@ -48,7 +48,6 @@ def test_frames_loader_and_scores_of_another_layout(layout, run_rtf, tmp_path):
     assert sum(map(sum, scores.confusion)) == scores.pixels > 0
 
 
-
 def test_a_dataset_yaml_given_as_the_file_is_its_folder(run_rtf, tmp_path):
     root = tmp_path / "data"
     run_rtf("synth", "--out", root, "--format", "plain", "--count", 6, "--seed", 1,
