@@ -3,7 +3,9 @@
 # then `rtf data check`, `data stats`, `data fingerprint`, `train` (MFNet, a few steps at a
 # small size), `train --resume --epochs 2`, `eval --json --figure`, `predict --data`,
 # `report` and `export --format torchscript` run on it, and each command's exit status and
-# the files it must write are checked. A line per layout and command goes to OUT/summary.txt;
+# the files it must write are checked. Last, the Python package (installed in PYTHON's
+# environment) opens the root, loads the run's weights and evaluates them: its scores must
+# equal `rtf eval --json`'s, and both must name the dataset's classes, one per network output. A line per layout and command goes to OUT/summary.txt;
 # the script exits 1 if any failed.
 #
 # The roots, from real imagery where the layout allows:
@@ -17,9 +19,10 @@
 #                       thermal included, have no real sample here).
 #
 # Usage: lab/reliability/every_layout.sh OUT
-# Environment (defaults): RTF (target/release/rtf), PYTHON (.venv/bin/python, with numpy and
-# Pillow), SAMPLES (../shared/data/msrs-samples), WEIGHTS (../shared/data/mf-samples/
-# mfnet_final.safetensors), SIZE (160x128), STEPS (4).
+# Environment (defaults): RTF (target/release/rtf), PYTHON (.venv/bin/python, with numpy,
+# Pillow and the rtf package: `cargo xtask wheel`, then pip install the wheel), SAMPLES
+# (../shared/data/msrs-samples), WEIGHTS (../shared/data/mf-samples/mfnet_final.safetensors),
+# SIZE (160x128), STEPS (4).
 set -uo pipefail
 
 OUT=${1:?usage: lab/reliability/every_layout.sh OUT}
@@ -125,6 +128,23 @@ for layout in msrs pst900 fmb mf freiburg plain; do
         --eval "$OUT/eval/$layout.json" --out "$OUT/report/$layout.html"
     step "$layout" export "$OUT/export/$layout.pt" "$RTF" export --model mfnet --weights "$w" \
         --format torchscript --size 128x160 --out "$OUT/export/$layout.pt"
+    step "$layout" python - "$PYTHON" - "$root" "$w" "$OUT/eval/$layout.json" "$SIZE" <<'EOF'
+import json, sys
+import rtf
+
+root, weights, cli_json, size = sys.argv[1:]
+cli = json.load(open(cli_json))
+ds = rtf.open_dataset(root)
+names = [c["name"] for c in ds.classes]
+net = rtf.load_network("mfnet", weights=weights)
+w, h = map(int, size.split("x"))
+scores = rtf.evaluate(net, ds, split=cli["split"], resize=(w, h))
+assert cli["class_names"] == names, (cli["class_names"], names)
+assert len(cli["confusion"]) == len(names) == len(cli["per_class"]), cli_json
+assert scores.frames == cli["frames"] > 0, (scores.frames, cli["frames"])
+assert scores.miou == cli["miou"] and scores.confusion == cli["confusion"], cli_json
+print(f"{len(names)} classes, {scores.frames} frames, mIoU {scores.miou:.4f} as rtf eval")
+EOF
 done
 echo "every_layout: summary in $SUMMARY"
 exit "$FAILED"

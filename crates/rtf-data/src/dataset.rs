@@ -53,13 +53,18 @@ pub const NOT_A_DATASET: &str = "not a dataset root: expected dataset.yaml (plai
 /// given as the file (`--data sets/thermal/dataset.yaml`). Commands take it at the edge, so a
 /// run records, fingerprints and reopens the folder however it was named.
 pub fn root_of(path: &Path) -> PathBuf {
-    if path.is_file() && path.file_name().is_some_and(|n| n == DESCRIPTION_FILE) {
+    if is_description_file(path) {
         return match path.parent() {
             Some(parent) if !parent.as_os_str().is_empty() => parent.to_path_buf(),
             _ => PathBuf::from("."),
         };
     }
     path.to_path_buf()
+}
+
+/// Whether `path` is a plain layout's `dataset.yaml`, given as the file.
+fn is_description_file(path: &Path) -> bool {
+    path.is_file() && path.file_name().is_some_and(|n| n == DESCRIPTION_FILE)
 }
 
 /// [`root_of`] as a command-line value parser (`--data`, `rtf data check DIR`).
@@ -178,6 +183,7 @@ pub fn open_for(root: &Path, purpose: &str) -> Result<Dataset, DataError> {
     let format = match recognise(root) {
         Some(format @ (DatasetFormat::Mf | DatasetFormat::Freiburg)) => format,
         Some(format) if format.is_described() => format,
+        None if root.is_file() => return Err(not_a_dataset(root)),
         other => {
             let found = other.map_or("no known layout".to_string(), |f| format!("{f:?} layout"));
             return Err(DataError::Layout {
@@ -193,7 +199,7 @@ pub fn open_for(root: &Path, purpose: &str) -> Result<Dataset, DataError> {
 }
 
 fn not_a_dataset(root: &Path) -> DataError {
-    let message = if root.is_file() && root.file_name().is_some_and(|n| n == DESCRIPTION_FILE) {
+    let message = if is_description_file(root) {
         format!("a file, not a folder: give the folder that holds {DESCRIPTION_FILE}")
     } else if root.is_file() {
         format!("a file, not a folder: {NOT_A_DATASET} (a plain layout's file must be named {DESCRIPTION_FILE})")
@@ -524,6 +530,11 @@ mod tests {
             "{err}"
         );
         // A library caller that skips root_of is told to give the folder.
+        let err = open_for(&yaml, "a training").unwrap_err().to_string();
+        assert!(
+            err.contains("give the folder that holds dataset.yaml"),
+            "{err}"
+        );
         let err = open(&yaml).unwrap_err().to_string();
         assert!(
             err.contains("give the folder that holds dataset.yaml"),
