@@ -9,7 +9,11 @@
 #      upsampling, an in-place flash-attention variant, an MPS attention signature; rtf uses
 #      none of them);
 #   3. builds `rtf` in a separate worktree and target folder, with torch-sys patched, and writes
-#      a stripped copy to OUT (default .gpu/rtf, git-ignored; carry `.gpu` to the machine).
+#      a stripped copy to OUT (default .gpu/rtf, git-ignored; carry `.gpu` to the machine);
+#   4. builds the Python package there too, for the machine's python3 (3.12) and torch 2.11,
+#      into OUT's folder /wheel (maturin from .venv, a Python 3.12 found here: PYTHON312, else
+#      pyenv's, else python3.12 on PATH). Its torch version check is set to 2.11.0 in the
+#      worktree only: a lab build for scripts/gpu_check.sh's `python` phase, never released.
 # There: LD_LIBRARY_PATH=<torch>/lib plus its nvidia/*/lib folders (see docs/src/
 # getting-started.md); `cargo xtask reproduce ... --no-build` after copying it to
 # target/release/rtf.
@@ -34,7 +38,8 @@ tree=$work/tree
 if [ ! -d "$tree" ]; then
     git -C "$repo" worktree add --detach "$tree" HEAD
 fi
-git -C "$tree" checkout -q --detach "$(git -C "$repo" rev-parse HEAD)"
+# -f: the last build's edits (Cargo.lock's patched torch-sys, the wheel's version check) go.
+git -C "$tree" checkout -q -f --detach "$(git -C "$repo" rev-parse HEAD)"
 ln -sfn "$work/torch" "$tree/.libtorch"
 
 build() {
@@ -66,3 +71,16 @@ done
 mkdir -p "$(dirname "$out")"
 strip -o "$out" "$tree/target/release/rtf"
 echo "wrote $out"
+
+python312=${PYTHON312:-$(ls -d ~/.pyenv/versions/3.12*/bin/python3.12 2>/dev/null | tail -1)}
+python312=${python312:-$(command -v python3.12)}
+"$python312" -c 'import sys; assert sys.version_info[:2] == (3, 12)' ||
+    { echo "no Python 3.12 to build the wheel for (set PYTHON312)"; exit 1; }
+wheels=$(dirname "$out")/wheel
+rm -rf "$wheels"
+sed -i "s/^TORCH_VERSION = .*/TORCH_VERSION = \"$version\"/" "$tree/crates/rtf-py/python/rtf/__init__.py"
+sed -i "s/\"torch==[0-9.]*\"/\"torch==$version\"/" "$tree/crates/rtf-py/pyproject.toml"
+(cd "$tree" && PYO3_PYTHON="$python312" CARGO_TARGET_DIR="$tree/target" "$repo/.venv/bin/python" -m maturin \
+    build --release --strip --auditwheel skip --compatibility linux -m crates/rtf-py/Cargo.toml \
+    -i "$python312" --out "$wheels" --config "patch.crates-io.torch-sys.path=\"$sys\"")
+echo "wrote $(ls "$wheels"/*.whl)"

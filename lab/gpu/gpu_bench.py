@@ -11,9 +11,13 @@ each in a process of its own, against PyTorch eager on the published networks of
 lab/bench/bench_torch.py: fp32 NCHW and channels_last; fp16 and bf16 as autocast and as a cast
 network (`.half()`, `.bfloat16()`), channels_last; `torch.compile` (default mode) where asked.
 Every pass is synchronised before the clock is read (as rtf does); median and p95 ms per frame.
-Training: full steps (forward, cross-entropy, backward, SGD momentum 0.9, weight decay 5e-4:
-`rtf bench train`'s recipe) in fp32, fp16 (autocast + GradScaler; rtf scales its loss the
-same way) and bf16 (autocast), NCHW and channels_last; images/s.
+Training: full steps (forward, cross-entropy, backward, optimiser: `rtf bench train`'s recipes,
+SGD momentum 0.9 and weight decay 5e-4, or for CMX its AdamW, fused on CUDA) in fp32, fp16
+(autocast + GradScaler; rtf scales its loss the same way) and bf16 (autocast), NCHW and
+channels_last, and with --compile also `torch.compile`d (channels_last); images/s. With
+--count-ops both sides count one more step's operators (the host's work; on a GPU each is one or
+more kernel launches), outermost and in all, as `rtf bench train --count-ops` and
+lab/bench/profile_train_torch.py --counts do.
 
 Both sides set cuDNN's autotuner (`cudnn.benchmark`; rtf turns it on for CUDA) and keep
 libtorch's default TF32 convolutions. Peak GPU memory is read the same way for both: NVML's
@@ -82,8 +86,9 @@ COMPILE_CONFIGS = [
     ("torch.compile fp32 channels_last", "fp32", True, "compile"),
     ("torch.compile fp16 .half() channels_last", "fp16", True, "compile"),
 ]
-TRAIN_CONFIGS = [(f"torch {p} {layout}", p, layout == "channels_last")
+TRAIN_CONFIGS = [(f"torch {p} {layout}", p, layout == "channels_last", "eager")
                  for p in ("fp32", "fp16", "bf16") for layout in ("NCHW", "channels_last")]
+TRAIN_COMPILE_CONFIGS = [(f"torch.compile {p} channels_last", p, True, "compile") for p in ("fp32", "fp16", "bf16")]
 DTYPES = {"fp32": "float32", "fp16": "float16", "bf16": "bfloat16"}
 
 
@@ -98,7 +103,7 @@ def infer_config(torch, args, cfg):
     sync = synchronizer(torch, device)
     torch.manual_seed(0)
     net = build(model).eval().to(device)
-    x = torch.rand(batch, 4, 480, 640, device=device)
+    x = torch.rand(batch, 4, args.height, args.width, device=device)
     dtype = getattr(torch, DTYPES[precision])
     if how in ("cast", "compile") and precision != "fp32":
         net, x = net.to(dtype), x.to(dtype)
@@ -119,37 +124,68 @@ def infer_config(torch, args, cfg):
     return {"samples_ms": times}
 
 
+def optimizer_of(model):
+    """The recipe `rtf bench train --optimizer` is given: CMX's AdamW for CMX, else SGD."""
+    return "adamw" if model.startswith("cmx-") else "sgd"
+
+
+def torch_optimizer(torch, net, model, device):
+    """rtf's recipes (rtf-config `OptimizerConfig::paper_default`): SGD momentum 0.9, weight
+    decay 5e-4 on every tensor; CMX's AdamW, lr 6e-5, weight decay 0.01 on the weights of two
+    or more dimensions only (CMX's `group_weight`), the fused kernel on CUDA (PyTorch's fastest)."""
+    if optimizer_of(model) == "sgd":
+        return torch.optim.SGD(net.parameters(), lr=0.01, momentum=0.9, weight_decay=5e-4)
+    params = [p for p in net.parameters() if p.requires_grad]
+    groups = [{"params": [p for p in params if p.dim() >= 2]},
+              {"params": [p for p in params if p.dim() < 2], "weight_decay": 0.0}]
+    return torch.optim.AdamW(groups, lr=6e-5, weight_decay=0.01, fused=device == "cuda")
+
+
 def train_config(torch, args, cfg):
     import torch.nn.functional as F
     from bench_torch import build
+    from profile_train_torch import PARTS, part_counts
+    from torch.profiler import ProfilerActivity, profile, record_function
     model, batch, device, steps = args.model, args.batch, args.device, args.iterations
-    label, precision, channels_last = cfg
+    label, precision, channels_last, how = cfg
     sync = synchronizer(torch, device)
     torch.manual_seed(0)
     net = build(model).train().to(device)
-    x = torch.rand(batch, 4, 480, 640, device=device)
-    y = torch.randint(0, 9, (batch, 480, 640), device=device)
+    x = torch.rand(batch, 4, args.height, args.width, device=device)
+    y = torch.randint(0, 9, (batch, args.height, args.width), device=device)
     if channels_last:
         net = net.to(memory_format=torch.channels_last)
         x = x.contiguous(memory_format=torch.channels_last)
-    opt = torch.optim.SGD(net.parameters(), lr=0.01, momentum=0.9, weight_decay=5e-4)
+    opt = torch_optimizer(torch, net, model, device)
+    forward = torch.compile(net) if how == "compile" else net
     scaler = torch.amp.GradScaler(device, enabled=precision == "fp16")
     dtype = getattr(torch, DTYPES[precision])
+
+    def step():  # the parts in profiler ranges, as profile_train_torch.py counts them
+        with record_function(PARTS[0]), torch.autocast(device, dtype=dtype, enabled=precision != "fp32"):
+            loss = F.cross_entropy(forward(x).float(), y)
+        with record_function(PARTS[1]):
+            opt.zero_grad(set_to_none=True)
+            scaler.scale(loss).backward()
+        with record_function(PARTS[2]):
+            scaler.step(opt)
+            scaler.update()
+        loss.item()
+
     step_s = []
     for i in range(args.warmup + steps):
         sync()
         start = time.perf_counter()
-        with torch.autocast(device, dtype=dtype, enabled=precision != "fp32"):
-            logits = net(x)
-        loss = F.cross_entropy(logits.float(), y)
-        opt.zero_grad(set_to_none=True)
-        scaler.scale(loss).backward()
-        scaler.step(opt)
-        scaler.update()
-        loss.item()
+        step()
         if i >= args.warmup:
             step_s.append(time.perf_counter() - start)
-    return {"images_per_s": steps * batch / sum(step_s), "step_s": statistics.median(step_s)}
+    row = {"images_per_s": steps * batch / sum(step_s), "step_s": statistics.median(step_s),
+           "optimizer": optimizer_of(model)}
+    if args.count_ops:
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            step()
+        row["op_counts"] = part_counts(prof)
+    return row
 
 
 def worker(args):
@@ -162,7 +198,7 @@ def worker(args):
         configs = INFER_CONFIGS + (COMPILE_CONFIGS if args.compile else [])
         run = lambda cfg: infer_config(torch, args, cfg)
     else:
-        configs = TRAIN_CONFIGS
+        configs = TRAIN_CONFIGS + (TRAIN_COMPILE_CONFIGS if args.compile else [])
         run = lambda cfg: train_config(torch, args, cfg)
     rows = []
     for cfg in configs:
@@ -191,7 +227,8 @@ def worker(args):
 def run_torch_worker(args, kind, model, batch, idle_mb, compile_):
     cmd = [sys.executable, os.path.abspath(__file__), "worker", "--kind", kind, "--model", model, "--batch",
            str(batch), "--warmup", str(args.warmup), "--iterations", str(args.iterations), "--precisions",
-           args.precisions, "--idle-mb", str(idle_mb), "--device", args.device] + (["--compile"] if compile_ else [])
+           args.precisions, "--idle-mb", str(idle_mb), "--device", args.device, "--size", args.size]
+    cmd += (["--compile"] if compile_ else []) + (["--count-ops"] if kind == "train" and args.count_ops else [])
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
         return [{"label": f"torch ({kind})", "error": done.stderr[-600:]}]
@@ -213,7 +250,7 @@ def harness(args):
     sampler = MemorySampler(args.device)
     idle_mb = sampler.used_mb()
     compiled = set(filter(None, args.compile.split(",")))
-    results = {"kind": args.kind, "idle_mb": idle_mb, "rows": []}
+    results = {"kind": args.kind, "size": args.size, "idle_mb": idle_mb, "rows": []}
     for spec in args.models.split(","):
         model, _, batches = spec.partition(":")
         for batch in [int(b) for b in (batches or args.batches).split("/")]:
@@ -222,21 +259,23 @@ def harness(args):
                 results["rows"].append({**key, **row})
             for precision in args.precisions.split(","):
                 for suffix, flags, env in rtf_variants(args, model, precision):
-                    if args.kind == "infer":
-                        cmd = [args.rtf, "bench", "model", "--model", model, "--batch", str(batch), "--precision",
-                               precision, "--device", args.device, "--warmup", str(args.warmup), "--iterations",
-                               str(args.iterations), "--no-agreement", "--json"]
-                    else:
-                        cmd = [args.rtf, "bench", "train", "--model", model, "--batch", str(batch), "--precision",
-                               precision, "--device", args.device, "--warmup", str(args.warmup), "--steps",
-                               str(args.iterations), "--json"]
-                    report = run_rtf(args, sampler, idle_mb, cmd + flags, env)
+                    report = run_rtf(args, sampler, idle_mb, rtf_command(args, model, batch, precision) + flags, env)
                     row = {**key, "label": f"rtf {precision}{suffix}", "precision": precision, **report}
                     row.pop("cpu", None)
                     results["rows"].append(row)
             print(summary_line(results["rows"], model, batch), flush=True)
             with open(args.json, "w") as f:  # after every network, so a cut-off run keeps its part
                 json.dump(results, f, indent=1)
+
+
+def rtf_command(args, model, batch, precision):
+    common = [args.rtf, "bench", "model" if args.kind == "infer" else "train", "--model", model, "--batch", str(batch),
+              "--precision", precision, "--device", args.device, "--size", args.size, "--warmup", str(args.warmup),
+              "--json"]
+    if args.kind == "infer":
+        return common + ["--iterations", str(args.iterations), "--no-agreement"]
+    return common + ["--steps", str(args.iterations), "--optimizer", optimizer_of(model)] + (
+        ["--count-ops"] if args.count_ops else [])
 
 
 def rtf_variants(args, model, precision):
@@ -271,13 +310,15 @@ def table(paths):
         for r in results["rows"]:
             groups.setdefault((r["model"], r["batch"]), []).append(r)
         for (model, batch), rows in groups.items():
-            print(f"\n**{model}, batch {batch}** ({'inference' if infer else 'training'}, 480×640)\n")
+            size = results.get("size", "640x480").split("x")
+            print(f"\n**{model}, batch {batch}** ({'inference' if infer else 'training'}, {size[1]}×{size[0]})\n")
             if infer:
                 print("| configuration | median ms/frame | p95 ms/frame | images/s | peak GPU MiB | PyTorch allocator MiB |")
                 print("| --- | ---: | ---: | ---: | ---: | ---: |")
             else:
-                print("| configuration | images/s | step ms (median) | peak GPU MiB | PyTorch allocator MiB |")
-                print("| --- | ---: | ---: | ---: | ---: |")
+                print("| configuration | images/s | step ms (median) | peak GPU MiB | PyTorch allocator MiB | "
+                      "operators a step (outermost / all) |")
+                print("| --- | ---: | ---: | ---: | ---: | ---: |")
             for r in rows:
                 if "error" in r:
                     print(f"| {r['label']} | failed: {r['error'].splitlines()[-1][:120]} |")
@@ -289,10 +330,19 @@ def table(paths):
                           f"{r['peak_gpu_mb']:.0f} | {alloc} |")
                 else:
                     print(f"| {r['label']} | {r['images_per_s']:.1f} | {1e3 * r['step_s']:.1f} | "
-                          f"{r['peak_gpu_mb']:.0f} | {alloc} |")
+                          f"{r['peak_gpu_mb']:.0f} | {alloc} | {op_totals(r.get('op_counts'))} |")
             print()
             for line in ratios(rows, infer):
                 print(f"- {line}")
+
+
+def op_totals(counts):
+    """'outermost / all' of {part: {name: [all, outermost]}} (`rtf bench train --count-ops`,
+    profile_train_torch.part_counts), or — when the operators were not counted."""
+    if not counts:
+        return "—"
+    every = [c for part in counts.values() for c in part.values()]
+    return f"{sum(c[1] for c in every)} / {sum(c[0] for c in every)}"
 
 
 def ratios(rows, infer):
@@ -319,6 +369,9 @@ def main():
         p.add_argument("--iterations", type=int, default=20, help="timed passes (inference) or steps (training)")
         p.add_argument("--precisions", default="fp32,fp16,bf16")
         p.add_argument("--device", default="cuda", help="cuda; cpu for a dry run of this script (no memory)")
+        p.add_argument("--size", default="640x480", help="WIDTHxHEIGHT (smaller for a dry run on the CPU)")
+        p.add_argument("--count-ops", action="store_true",
+                       help="training: count one more step's operators on both sides (rtf bench train --count-ops)")
         if name == "worker":
             p.add_argument("--kind", choices=("infer", "train"), required=True)
             p.add_argument("--model", required=True)
@@ -337,6 +390,8 @@ def main():
     p = sub.add_parser("table")
     p.add_argument("paths", nargs="+")
     args = ap.parse_args()
+    if args.cmd != "table":
+        args.width, args.height = (int(v) for v in args.size.lower().split("x"))
     if args.cmd == "table":
         table(args.paths)
     elif args.cmd == "worker":

@@ -553,6 +553,36 @@ char* rtf_fused_sgd(at::Tensor** params, at::Tensor** grads, at::Tensor** bufs, 
   }
 }
 
+// One AdamW step of each of the `n` `params` (PyTorch's `torch.optim.AdamW(fused=True)`, no
+// amsgrad) in ATen's fused kernel, all in one call (on CUDA a multi-tensor kernel): each step
+// count in `steps` (a one-element float tensor on the parameter's device) goes up by one, then
+// p *= 1 - lr·weight_decay; m = lerp(m, g, 1 - beta1); v = beta2·v + (1 - beta2)·g²;
+// p -= lr / (1 - beta1^t) · m / (sqrt(v) / sqrt(1 - beta2^t) + eps). `exp_avgs[i]` and
+// `exp_avg_sqs[i]` are shaped and laid out like `params[i]`. All on one device, of one type.
+char* rtf_fused_adamw(at::Tensor** params, at::Tensor** grads, at::Tensor** exp_avgs,
+                      at::Tensor** exp_avg_sqs, at::Tensor** steps, int64_t n, double lr,
+                      double beta1, double beta2, double weight_decay, double eps) {
+  try {
+    at::NoGradGuard no_grad;
+    std::vector<at::Tensor> param_list, grad_list, m_list, v_list, step_list;
+    for (int64_t i = 0; i < n; ++i) {
+      param_list.push_back(*params[i]);
+      grad_list.push_back(*grads[i]);
+      m_list.push_back(*exp_avgs[i]);
+      v_list.push_back(*exp_avg_sqs[i]);
+      step_list.push_back(*steps[i]);
+    }
+    at::_foreach_add_(step_list, 1);
+    at::_fused_adamw_(param_list, grad_list, m_list, v_list, /*max_exp_avg_sqs=*/{}, step_list, lr,
+                      beta1, beta2, weight_decay, eps, /*amsgrad=*/false, /*maximize=*/false);
+    return nullptr;
+  } catch (const std::exception& e) {
+    return strdup(e.what());
+  } catch (...) {
+    return strdup("unknown C++ exception in rtf_fused_adamw");
+  }
+}
+
 // Zeroes the gradients of the `n` `params`, as PyTorch's `Optimizer.zero_grad(set_to_none=False)`
 // does: a gradient with a history is detached, one without stops requiring grad, then one
 // `_foreach_zero_` per device and type (on CUDA a few launches for the lot, not one per tensor).

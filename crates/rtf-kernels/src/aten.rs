@@ -1,6 +1,6 @@
 //! ATen operators rtf needs that tch 0.26 does not bind as needed, through the C++ shim
 //! `csrc/ops.cpp`: LeakyReLU with its slope, the emulated bf16 convolution, the fused SGD
-//! step, gradient zeroing, tensor holder counts and the operator counter.
+//! and AdamW steps, gradient zeroing, tensor holder counts and the operator counter.
 
 use tch::Tensor;
 
@@ -36,6 +36,19 @@ pub(crate) mod ffi {
             momentum: f64,
             lr: f64,
             is_first_step: c_int,
+        ) -> *mut c_char;
+        pub fn rtf_fused_adamw(
+            params: *const *mut torch_sys::C_tensor,
+            grads: *const *mut torch_sys::C_tensor,
+            exp_avgs: *const *mut torch_sys::C_tensor,
+            exp_avg_sqs: *const *mut torch_sys::C_tensor,
+            steps: *const *mut torch_sys::C_tensor,
+            n: i64,
+            lr: f64,
+            beta1: f64,
+            beta2: f64,
+            weight_decay: f64,
+            eps: f64,
         ) -> *mut c_char;
         pub fn rtf_zero_grads(params: *const *mut torch_sys::C_tensor, n: i64) -> *mut c_char;
         pub fn rtf_pack_conv_weight(
@@ -204,6 +217,62 @@ pub fn fused_sgd_(
             std::ffi::c_int::from(first_step),
         );
         check("fused SGD", error);
+    }
+}
+
+/// The tensors of one fused AdamW call, index by index: each parameter, its gradient, its two
+/// moments (shaped and laid out like it) and its step count (one float element on its device).
+pub struct AdamwTensors<'a> {
+    pub params: &'a [Tensor],
+    pub grads: &'a [Tensor],
+    pub exp_avgs: &'a [Tensor],
+    pub exp_avg_sqs: &'a [Tensor],
+    pub steps: &'a [Tensor],
+}
+
+/// AdamW's hyper-parameters for [`fused_adamw_`].
+#[derive(Clone, Copy, Debug)]
+pub struct AdamwRule {
+    pub lr: f64,
+    pub betas: (f64, f64),
+    pub weight_decay: f64,
+    pub eps: f64,
+}
+
+/// One AdamW update of each parameter in place, as `torch.optim.AdamW(fused=True)` computes it
+/// (no amsgrad): the step counts go up by one, p ·= 1 − lr·wd, m = lerp(m, g, 1 − β1),
+/// v = β2·v + (1 − β2)·g², p −= lr / (1 − β1ᵗ) · m / (√v / √(1 − β2ᵗ) + ε). In one call for
+/// them all (on CUDA a few multi-tensor launches, not some fifteen per tensor). All on one
+/// device, of one type.
+pub fn fused_adamw_(t: &AdamwTensors<'_>, rule: AdamwRule) {
+    let n = t.params.len();
+    assert!([t.grads, t.exp_avgs, t.exp_avg_sqs, t.steps]
+        .iter()
+        .all(|list| list.len() == n));
+    let ptrs = |ts: &[Tensor]| -> Vec<*mut torch_sys::C_tensor> {
+        ts.iter()
+            .map(|t| t.as_ptr() as *mut torch_sys::C_tensor)
+            .collect()
+    };
+    let lists = [t.params, t.grads, t.exp_avgs, t.exp_avg_sqs, t.steps].map(ptrs);
+    // SAFETY: each pointer array holds `n` live `at::Tensor*` borrowed from the slices for the
+    // call; the shim updates their storage in place (no tensor is made) and returns null or a
+    // message, as `check` requires.
+    unsafe {
+        let error = ffi::rtf_fused_adamw(
+            lists[0].as_ptr(),
+            lists[1].as_ptr(),
+            lists[2].as_ptr(),
+            lists[3].as_ptr(),
+            lists[4].as_ptr(),
+            n as i64,
+            rule.lr,
+            rule.betas.0,
+            rule.betas.1,
+            rule.weight_decay,
+            rule.eps,
+        );
+        check("fused AdamW", error);
     }
 }
 

@@ -15,12 +15,17 @@ use std::collections::BTreeMap;
 
 use tch::{nn::VarStore, Kind, Tensor};
 
+use rtf_kernels::aten::{AdamwRule, AdamwTensors};
+
 use crate::config::{DecayScope, OptimizerConfig, OptimizerKind};
 
 /// State key of the loss scale (a one-element fp32 tensor).
 pub const SCALE_KEY: &str = "amp/loss_scale";
 /// State key of the count of clean steps since the scale last changed.
 pub const GROWTH_KEY: &str = "amp/growth_tracker";
+/// State key prefixes of AdamW's moments (PyTorch's names).
+const EXP_AVG: &str = "exp_avg";
+const EXP_AVG_SQ: &str = "exp_avg_sq";
 /// The first loss scale, 2¹⁶ (GradScaler's `init_scale`).
 pub const INITIAL_SCALE: f64 = 65536.0;
 /// Clean steps in a row before the scale doubles (GradScaler's `growth_interval`).
@@ -125,7 +130,8 @@ impl Optimizer {
             return;
         }
         let scope = self.config.decay_scope;
-        let mut fused = FusedSgd::default();
+        let mut sgd = FusedGroups::<3>::default();
+        let mut adamw = FusedGroups::<5>::default();
         tch::no_grad(|| {
             for (name, param) in trainable(vs) {
                 let grad = param.grad();
@@ -136,18 +142,46 @@ impl Optimizer {
                 match self.config.kind {
                     OptimizerKind::Sgd if fusable(&param, &grad) => {
                         let (buffer, first_step) = self.sgd_buffer(&name, &param, &grad);
-                        fused.add(wd, first_step, param, grad, buffer);
+                        sgd.add(wd, first_step, [param, grad, buffer]);
+                    }
+                    OptimizerKind::Adamw if fusable(&param, &grad) => {
+                        let [m, v] = [EXP_AVG, EXP_AVG_SQ]
+                            .map(|moment| self.laid_like(format!("{moment}/{name}"), &param).0);
+                        let step = self.step_count(&name, &param);
+                        adamw.add(wd, false, [param, grad, m, v, step]);
                     }
                     OptimizerKind::Adamw => self.adamw_step(&name, &param, &grad, lr, wd),
                     _ => self.step_written_out(&name, param, grad, lr, wd),
                 }
             }
-            fused.run(self.config.momentum, lr);
+            for (wd, first_step, [params, grads, buffers]) in sgd.groups() {
+                let momentum = self.config.momentum;
+                rtf_kernels::aten::fused_sgd_(
+                    &params, &grads, &buffers, wd, momentum, lr, first_step,
+                );
+            }
+            for (weight_decay, _, [params, grads, exp_avgs, exp_avg_sqs, steps]) in adamw.groups() {
+                let (betas, eps) = (self.config.betas, self.config.eps);
+                let rule = AdamwRule {
+                    lr,
+                    betas,
+                    weight_decay,
+                    eps,
+                };
+                let tensors = AdamwTensors {
+                    params: &params,
+                    grads: &grads,
+                    exp_avgs: &exp_avgs,
+                    exp_avg_sqs: &exp_avg_sqs,
+                    steps: &steps,
+                };
+                rtf_kernels::aten::fused_adamw_(&tensors, rule);
+            }
         });
     }
 
     /// PyTorch's AdamW (`torch.optim.AdamW`, single-tensor path, no amsgrad), state per
-    /// parameter: t += 1; p ·= 1 − lr·wd; m = lerp(m, g, 1 − β1); v = β2·v + (1 − β2)·g²;
+    /// parameter, for the tensors ATen's fused kernel does not take ([`fusable`]): t += 1; p ·= 1 − lr·wd; m = lerp(m, g, 1 − β1); v = β2·v + (1 − β2)·g²;
     /// p −= (lr / (1 − β1ᵗ)) · m / (√v / √(1 − β2ᵗ) + ε).
     fn adamw_step(&mut self, name: &str, param: &Tensor, grad: &Tensor, lr: f64, wd: f64) {
         let (b1, b2) = self.config.betas;
@@ -159,8 +193,8 @@ impl Optimizer {
         if wd != 0.0 {
             let _ = param.g_mul_scalar_(1.0 - lr * wd);
         }
-        let mut m = self.buffer(format!("exp_avg/{name}"), grad);
-        let mut v = self.buffer(format!("exp_avg_sq/{name}"), grad);
+        let mut m = self.buffer(format!("{EXP_AVG}/{name}"), grad);
+        let mut v = self.buffer(format!("{EXP_AVG_SQ}/{name}"), grad);
         let _ = m.lerp_(grad, 1.0 - b1);
         // PyTorch's `addcmul_(g, g, value)` and `addcdiv_(m, d, value)` multiply the value in
         // first: the same products here.
@@ -174,24 +208,46 @@ impl Optimizer {
     /// The momentum buffer of `param` for the fused SGD kernel, and whether this is its first
     /// step (the buffer then starts as the gradient; with momentum 0, the gradient itself).
     fn sgd_buffer(&mut self, name: &str, param: &Tensor, grad: &Tensor) -> (Tensor, bool) {
-        let key = format!("momentum/{name}");
+        match self.config.momentum {
+            0.0 => (grad.shallow_clone(), false),
+            _ => self.laid_like(format!("momentum/{name}"), param),
+        }
+    }
+
+    /// The state tensor `key` laid out like `param` on its device, as the fused kernels walk
+    /// them (zeros on first use, then true); one restored with another layout (a checkpoint is
+    /// laid out contiguous) is re-laid like the parameter, same values.
+    fn laid_like(&mut self, key: String, param: &Tensor) -> (Tensor, bool) {
         match self.state.get(&key) {
-            _ if self.config.momentum == 0.0 => (grad.shallow_clone(), false),
-            Some(buffer) if buffer.stride() == param.stride() => (buffer.shallow_clone(), false),
-            Some(_) => {
-                // A buffer restored with another layout (a checkpoint is laid out
-                // contiguous): re-laid like the parameter, same values.
-                let mut buffer = param.empty_like();
-                buffer.copy_(&self.state[&key]);
-                self.state.insert(key, buffer.shallow_clone());
-                (buffer, false)
+            Some(t) if t.stride() == param.stride() && t.device() == param.device() => {
+                (t.shallow_clone(), false)
+            }
+            Some(t) => {
+                let mut relaid = param.empty_like();
+                relaid.copy_(t);
+                self.state.insert(key, relaid.shallow_clone());
+                (relaid, false)
             }
             None => {
-                let buffer = param.zeros_like();
-                self.state.insert(key, buffer.shallow_clone());
-                (buffer, true)
+                let zeros = param.zeros_like();
+                self.state.insert(key, zeros.shallow_clone());
+                (zeros, true)
             }
         }
+    }
+
+    /// AdamW's step count of `name` for the fused kernel: one fp32 element on the parameter's
+    /// device (where the CUDA kernel reads it), 0 before the first step.
+    fn step_count(&mut self, name: &str, param: &Tensor) -> Tensor {
+        let key = format!("step/{name}");
+        let device = param.device();
+        let count = match self.state.get(&key) {
+            Some(t) if t.device() == device && t.kind() == Kind::Float => t.shallow_clone(),
+            Some(t) => t.to_kind(Kind::Float).to_device(device).reshape([1]),
+            None => Tensor::zeros([1], (Kind::Float, device)),
+        };
+        self.state.insert(key, count.shallow_clone());
+        count
     }
 
     /// The update rules written out (RMSprop; SGD where the fused kernel does not apply).
@@ -266,47 +322,61 @@ fn decay_of(scope: DecayScope, param: &Tensor, weight_decay: f64) -> f64 {
     }
 }
 
-/// The parameters a step updates in ATen's fused SGD kernel, grouped by what one call shares
-/// (weight decay, first step, device), so that each group is one call: on CUDA a few
-/// multi-tensor launches instead of one per parameter (docs/src/gpu.md, MFNet's host-bound
-/// step).
-#[derive(Default)]
-struct FusedSgd {
-    /// (weight decay's bits, first step, CUDA index or −1) → (params, grads, buffers).
-    groups: BTreeMap<(u64, bool, i64), [Vec<Tensor>; 3]>,
+/// The parameters a step updates in one of ATen's fused kernels, `N` tensors each (the
+/// parameter first), grouped by what one call shares (weight decay, first step, device), so
+/// that each group is one call: on CUDA a few multi-tensor launches instead of several per
+/// parameter (docs/src/gpu.md, MFNet's host-bound step).
+struct FusedGroups<const N: usize> {
+    /// (weight decay's bits, first step, CUDA index or −1) → the tensors, list by list.
+    groups: BTreeMap<(u64, bool, i64), [Vec<Tensor>; N]>,
 }
 
-impl FusedSgd {
-    fn add(&mut self, wd: f64, first_step: bool, param: Tensor, grad: Tensor, buffer: Tensor) {
-        let device = match param.device() {
-            tch::Device::Cuda(i) => i as i64,
-            _ => -1,
-        };
-        let [params, grads, buffers] = self
-            .groups
-            .entry((wd.to_bits(), first_step, device))
-            .or_default();
-        params.push(param);
-        grads.push(grad);
-        buffers.push(buffer);
-    }
-
-    fn run(self, momentum: f64, lr: f64) {
-        for ((wd, first_step, _), [params, grads, buffers]) in self.groups {
-            let wd = f64::from_bits(wd);
-            rtf_kernels::aten::fused_sgd_(&params, &grads, &buffers, wd, momentum, lr, first_step);
+impl<const N: usize> Default for FusedGroups<N> {
+    fn default() -> Self {
+        Self {
+            groups: BTreeMap::new(),
         }
     }
 }
 
-/// Whether ATen's fused SGD kernel may update `param` with `grad`: both on the CPU or CUDA,
-/// fp32, dense in the same layout (the kernel walks their memory in step).
+impl<const N: usize> FusedGroups<N> {
+    fn add(&mut self, wd: f64, first_step: bool, tensors: [Tensor; N]) {
+        let device = match tensors[0].device() {
+            tch::Device::Cuda(i) => i as i64,
+            _ => -1,
+        };
+        let lists = self
+            .groups
+            .entry((wd.to_bits(), first_step, device))
+            .or_insert_with(|| std::array::from_fn(|_| Vec::new()));
+        for (list, t) in lists.iter_mut().zip(tensors) {
+            list.push(t);
+        }
+    }
+
+    /// (weight decay, first step, the tensors) of each call.
+    fn groups(self) -> impl Iterator<Item = (f64, bool, [Vec<Tensor>; N])> {
+        self.groups
+            .into_iter()
+            .map(|((wd, first_step, _), lists)| (f64::from_bits(wd), first_step, lists))
+    }
+}
+
+/// Whether ATen's fused SGD and AdamW kernels may update `param` with `grad`: both on the CPU or CUDA,
+/// fp32, dense in the same layout (the kernel walks their memory in step). Strides of
+/// dimensions of size 1 do not place an element, and autograd leaves them as it likes (a
+/// depthwise kernel [C, 1, 3, 3] and its gradient differ there): they are not compared.
 fn fusable(param: &Tensor, grad: &Tensor) -> bool {
     let dense = param.is_contiguous() || rtf_models::layers::is_channels_last(param);
+    let placing = |t: &Tensor| -> Vec<(i64, i64)> {
+        let placed = t.size().into_iter().zip(t.stride());
+        placed.filter(|&(size, _)| size > 1).collect()
+    };
     matches!(param.device(), tch::Device::Cpu | tch::Device::Cuda(_))
         && param.kind() == tch::Kind::Float
         && grad.kind() == tch::Kind::Float
-        && param.stride() == grad.stride()
+        && param.size() == grad.size()
+        && placing(param) == placing(grad)
         && dense
 }
 
@@ -564,6 +634,74 @@ mod tests {
             "exp_avg, exp_avg_sq, step per parameter"
         );
         assert_eq!(optimizer.scalar("step/fc.bias"), Some(6.0));
+    }
+
+    /// AdamW in ATen's fused kernel: a channels-last 4-D weight and a depthwise kernel
+    /// [C, 1, 3, 3] (whose gradient autograd lays out with other strides on its size-1
+    /// dimension) that decay, and a bias that does not (CMX's scope); four steps with the state
+    /// handed back contiguous after two (a resume): the update rule, element for element, and
+    /// one `_fused_adamw_` call per decay group, not some fifteen operators per tensor.
+    #[test]
+    fn fused_adamw_follows_the_rule_in_any_layout_after_a_restore_in_one_call_per_group() {
+        let cfg = OptimizerConfig {
+            weight_decay: 0.2,
+            ..OptimizerConfig::cmx_code()
+        };
+        let ((b1, b2), eps, lr) = (cfg.betas, cfg.eps, 0.01);
+        let vs = VarStore::new(Device::Cpu);
+        let randn = |s: &[i64]| Tensor::randn(s, (Kind::Float, Device::Cpu));
+        let mut w = vs.root().var_copy("w", &randn(&[3, 4, 2, 5]));
+        tch::no_grad(|| w.set_data(&rtf_models::layers::to_channels_last(&w)));
+        let dw = vs.root().var_copy("dw", &randn(&[4, 1, 3, 3]));
+        let b = vs.root().var_copy("b", &randn(&[3]));
+        // A channels-last input, as CMX's blocks run: its depthwise gradient comes out so.
+        let x = rtf_models::layers::to_channels_last(&randn(&[1, 4, 6, 6]));
+        let target = randn(&[3, 4, 2, 5]);
+        let params = [&w, &dw, &b];
+        let mut expected = params.map(|p| p.copy());
+        let mut moments = params.map(|p| [p.zeros_like(), p.zeros_like()]);
+        let mut optimizer = Optimizer::new(&cfg);
+        for step in 1..=4 {
+            if step == 3 {
+                let restored = optimizer.state().iter();
+                let restored = restored.map(|(k, v)| (k.clone(), v.contiguous())).collect();
+                optimizer = Optimizer::new(&cfg);
+                optimizer.set_state(restored);
+            }
+            optimizer.zero_grad(&vs);
+            let depthwise = x.conv2d(&dw, None::<Tensor>, [1, 1], [0, 0], [1, 1], 4);
+            let loss = (&w - &target).square().sum(Kind::Float) + b.square().sum(Kind::Float);
+            (loss + depthwise.square().sum(Kind::Float)).backward();
+            assert_ne!(
+                dw.grad().stride(),
+                dw.stride(),
+                "the case of a size-1 dimension"
+            );
+            let grads = params.map(|p| p.grad().copy());
+            let ((), counts) = rtf_kernels::aten::count_ops(|| optimizer.step(&vs, lr));
+            let fused = counts.get("aten::_fused_adamw_").map(|c| c.1);
+            assert_eq!(fused, Some(2), "{counts:?}");
+            assert!(
+                !counts.contains_key("aten::lerp_"),
+                "none written out: {counts:?}"
+            );
+            for (i, g) in grads.iter().enumerate() {
+                let [m, v] = &mut moments[i];
+                *m = &*m * b1 + g * (1.0 - b1);
+                *v = &*v * b2 + g * g * (1.0 - b2);
+                let decay = if i < 2 {
+                    1.0 - lr * cfg.weight_decay
+                } else {
+                    1.0
+                };
+                let (c1, c2) = (1.0 - b1.powi(step), 1.0 - b2.powi(step));
+                let update = &*m * (lr / c1) / ((&*v / c2).sqrt() + eps);
+                expected[i] = &expected[i] * decay - update;
+                let close = params[i].allclose(&expected[i], 1e-5, 1e-6, false);
+                assert!(close, "parameter {i}, step {step}");
+            }
+        }
+        assert_eq!(optimizer.scalar("step/dw"), Some(4.0));
     }
 
     /// The dynamic loss scale: a clean step unscales the gradients (the update equals the
