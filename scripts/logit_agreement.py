@@ -23,3 +23,18 @@ def agreement(reference_dir, other_dir):
         same += int((a.argmax(0) == b.argmax(0)).sum())
         total += a[0].size
     return same, total, worst
+
+
+def relative_difference(reference_dir, other_dir):
+    """‖other − reference‖ / ‖reference‖ over all logits of the reference folder's files (the
+    same files as `agreement`): a measure that does not hang on arg-max ties, for networks
+    without trained weights."""
+    num = den = 0.0
+    for path in sorted(glob.glob(os.path.join(reference_dir, "*.npy"))):
+        a = np.load(path).astype(np.float64)
+        b = np.load(os.path.join(other_dir, os.path.basename(path))).astype(np.float64)
+        assert a.shape == b.shape, (path, a.shape, b.shape)
+        num += float(((b - a) ** 2).sum())
+        den += float((a ** 2).sum())
+    assert den > 0, f"no logits in {reference_dir}"
+    return (num / den) ** 0.5

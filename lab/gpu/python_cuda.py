@@ -16,6 +16,13 @@ For each network and precision (the fast path, as `rtf bench model` runs it):
    process just before, with the same warm-up and passes). cuDNN's autotuner is on in both
    (torch.backends.cudnn.benchmark here: the setting is the process's libtorch's, which `rtf`
    turns on for CUDA).
+4. **Where the memory goes** (reported, not bounded): rtf runs on the process's libtorch, so
+   its GPU memory comes from torch's caching allocator and torch's statistics count it. Per
+   network and precision: what the loaded network holds (`memory_allocated` after
+   `load_network`, less before: the folded weights, with the plain ones released), the
+   allocator's peak over the calls (`max_memory_allocated`, less before) and what it reserved
+   from the device (`memory_reserved`); the allocator view that `rtf bench model`'s NVML peak
+   (context and libraries included) cannot give (docs/src/gpu.md, "Peak GPU memory").
 
 Usage, on the GPU machine with the GPU build of the wheel installed (scripts/gpu_check.sh's
 `python` phase; docs/src/gpu.md):
@@ -63,6 +70,16 @@ def host_copies(net, x, device):
     return sorted({e.name for e in prof.events() if "HtoD" in e.name or "DtoH" in e.name})
 
 
+def allocator_reader(device):
+    """MiB of one of torch.cuda's allocator statistics (0 on the CPU); the peak reset first."""
+    if device != "cuda":
+        return lambda name: 0.0
+    torch.cuda.synchronize()
+    torch.cuda.empty_cache()
+    torch.cuda.reset_peak_memory_stats()
+    return lambda name: getattr(torch.cuda, name)() / 2**20
+
+
 def time_forward(net, x, warmup, iterations, device):
     sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
     times = []
@@ -88,7 +105,10 @@ def check_network(a, model, precision, real):
     """The three checks of one network and precision: (row, failures)."""
     failed = []
     weights = a.weights if model == "mfnet" else None
+    mib = allocator_reader(a.device)
+    before = mib("memory_allocated")
     net = rtf.load_network(model, weights=weights, device=a.device, precision=precision)
+    held = mib("memory_allocated") - before
     x = torch.rand(a.batch, 4, 480, 640, device=a.device)
     out = net(x)
     if out.device.type != a.device or tuple(out.shape) != (a.batch, len(net.classes), 480, 640):
@@ -106,7 +126,8 @@ def check_network(a, model, precision, real):
             failed.append(f"net(x) and net.logits differ by {worst:.3g} (bound {bound})")
     cli = bench_model(a, model, precision)
     ours = time_forward(net, x, a.warmup, a.iterations, a.device)
-    row.update({"net_call_ms": ours, "rtf_bench_model_ms": cli, "ratio": ours / cli})
+    row.update({"net_call_ms": ours, "rtf_bench_model_ms": cli, "ratio": ours / cli, "network_held_mib": held,
+                "peak_allocated_mib": mib("max_memory_allocated") - before, "reserved_mib": mib("memory_reserved")})
     if ours > 1.05 * cli:
         failed.append(f"net(x) {ours:.2f} ms against rtf bench model {cli:.2f} ms (over 5 %)")
     return row, failed

@@ -242,7 +242,7 @@ pub struct AdamwRule {
 /// One AdamW update of each parameter in place, as `torch.optim.AdamW(fused=True)` computes it
 /// (no amsgrad): the step counts go up by one, p ·= 1 − lr·wd, m = lerp(m, g, 1 − β1),
 /// v = β2·v + (1 − β2)·g², p −= lr / (1 − β1ᵗ) · m / (√v / √(1 − β2ᵗ) + ε). In one call for
-/// them all (on CUDA a few multi-tensor launches, not some fifteen per tensor). All on one
+/// them all (on CUDA a few multi-tensor launches, not fourteen per tensor). All on one
 /// device, of one type.
 pub fn fused_adamw_(t: &AdamwTensors<'_>, rule: AdamwRule) {
     let n = t.params.len();

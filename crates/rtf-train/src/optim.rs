@@ -640,7 +640,7 @@ mod tests {
     /// [C, 1, 3, 3] (whose gradient autograd lays out with other strides on its size-1
     /// dimension) that decay, and a bias that does not (CMX's scope); four steps with the state
     /// handed back contiguous after two (a resume): the update rule, element for element, and
-    /// one `_fused_adamw_` call per decay group, not some fifteen operators per tensor.
+    /// one `_fused_adamw_` call per decay group, not fourteen operators per tensor.
     #[test]
     fn fused_adamw_follows_the_rule_in_any_layout_after_a_restore_in_one_call_per_group() {
         let cfg = OptimizerConfig {
