@@ -181,7 +181,8 @@ impl Optimizer {
     }
 
     /// PyTorch's AdamW (`torch.optim.AdamW`, single-tensor path, no amsgrad), state per
-    /// parameter, for the tensors ATen's fused kernel does not take ([`fusable`]): t += 1; p ·= 1 − lr·wd; m = lerp(m, g, 1 − β1); v = β2·v + (1 − β2)·g²;
+    /// parameter, for the tensors ATen's fused kernel does not take ([`fusable`]): t += 1;
+    /// p ·= 1 − lr·wd; m = lerp(m, g, 1 − β1); v = β2·v + (1 − β2)·g²;
     /// p −= (lr / (1 − β1ᵗ)) · m / (√v / √(1 − β2ᵗ) + ε).
     fn adamw_step(&mut self, name: &str, param: &Tensor, grad: &Tensor, lr: f64, wd: f64) {
         let (b1, b2) = self.config.betas;
@@ -362,8 +363,8 @@ impl<const N: usize> FusedGroups<N> {
     }
 }
 
-/// Whether ATen's fused SGD and AdamW kernels may update `param` with `grad`: both on the CPU or CUDA,
-/// fp32, dense in the same layout (the kernel walks their memory in step). Strides of
+/// Whether ATen's fused SGD and AdamW kernels may update `param` with `grad`: both on the CPU
+/// or CUDA, fp32, dense in the same layout (the kernels walk their memory in step). Strides of
 /// dimensions of size 1 do not place an element, and autograd leaves them as it likes (a
 /// depthwise kernel [C, 1, 3, 3] and its gradient differ there): they are not compared.
 fn fusable(param: &Tensor, grad: &Tensor) -> bool {
