@@ -6,7 +6,9 @@ For each network and precision (the fast path, as `rtf bench model` runs it):
 1. **Stays on the device:** `net(x)` takes a torch tensor on the GPU and returns one there, and
    the forward pass copies nothing to the host: torch's profiler, over one call, records no
    device-to-host or host-to-device copy (the extension runs on the process's own libtorch, so
-   torch's profiler sees rtf's kernels and copies too).
+   torch's profiler sees rtf's kernels and copies too). The same for one training step
+   (`net.train()`, forward, cross-entropy, backward): a copy from pageable host memory waits
+   for the device's queue to drain, which a host-bound step cannot afford.
 2. **Same numbers:** on a real MF frame with the published MFNet weights (`--frames`,
    `--weights`), `net(x)` equals `net.logits(rgb, thermal)` (the NumPy path, which is
    `rtf predict --logits`'s) for MFNet, bit for bit in fp32 and within a tolerance in half
@@ -80,6 +82,26 @@ def allocator_reader(device):
     return lambda name: getattr(torch.cuda, name)() / 2**20
 
 
+def training_copies(a, model):
+    """Host-device copies of one training step of `model` from Python (after one untimed step,
+    which makes cuDNN's plans): forward in training mode, cross-entropy, backward."""
+    from torch.profiler import ProfilerActivity, profile
+    net = rtf.load_network(model, device=a.device).train()
+    x = torch.rand(2, 4, 256, 320, device=a.device)
+    y = torch.randint(0, len(net.classes), (2, 256, 320), device=a.device)
+
+    def step():
+        torch.nn.functional.cross_entropy(net(x), y).backward()
+
+    step()
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if a.device == "cuda" else [])
+    with profile(activities=activities) as prof:
+        step()
+        if a.device == "cuda":
+            torch.cuda.synchronize()
+    return sorted({e.name for e in prof.events() if "HtoD" in e.name or "DtoH" in e.name})
+
+
 def time_forward(net, x, warmup, iterations, device):
     sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
     times = []
@@ -138,7 +160,7 @@ def main():
     ap.add_argument("--rtf", required=True)
     ap.add_argument("--frames", required=True, help="folder of real MF frames (4-channel PNG)")
     ap.add_argument("--weights", required=True, help="the published MFNet weights (safetensors)")
-    ap.add_argument("--models", default="mfnet,rtfnet50")
+    ap.add_argument("--models", default="mfnet,rtfnet50,cmx-mit-b2")
     ap.add_argument("--precisions", default="fp32,fp16,bf16")
     ap.add_argument("--batch", type=int, default=1)
     ap.add_argument("--warmup", type=int, default=5)
@@ -150,6 +172,11 @@ def main():
     real = frame(sorted(glob.glob(os.path.join(a.frames, "*.png")))[0])
     rows, failures = [], []
     for model in a.models.split(","):
+        copies = training_copies(a, model)
+        rows.append({"model": model, "training_step_host_copies": copies})
+        if copies:
+            failures.append(f"{model}: one training step copied between host and device: {copies}")
+        print(("ok   " if not copies else "FAIL ") + json.dumps(rows[-1]), flush=True)
         for precision in a.precisions.split(","):
             row, failed = check_network(a, model, precision, real)
             rows.append(row)

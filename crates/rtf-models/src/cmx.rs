@@ -573,9 +573,10 @@ pub struct Cmx {
     config: Config,
     encoder: Encoder,
     decoder: Head,
-    /// ImageNet's mean and std as [1, 3, 1, 1], made once: a tensor filled from host memory
-    /// inside `forward` would reach a JIT trace as an uninitialised `aten::empty` (the copy
-    /// into it is not an op), so exports would read garbage.
+    /// ImageNet's mean and std as [1, 3, 1, 1], made once on the weights' device (and, folded,
+    /// in the folded type): a tensor filled from host memory inside `forward` would reach a JIT
+    /// trace as an uninitialised `aten::empty` (the copy into it is not an op), so exports
+    /// would read garbage, and on a GPU it would be a copy from host memory at every pass.
     mean: Tensor,
     std: Tensor,
 }
@@ -588,8 +589,12 @@ impl Cmx {
             config: cfg.clone(),
             encoder: encoder(&p / "backbone", &layout),
             decoder: Head::Plain(decoder(&p / "decode_head", &layout, cfg)),
-            mean: Tensor::from_slice(&IMAGENET_MEAN).view([1, 3, 1, 1]),
-            std: Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]),
+            mean: Tensor::from_slice(&IMAGENET_MEAN)
+                .view([1, 3, 1, 1])
+                .to_device(p.device()),
+            std: Tensor::from_slice(&IMAGENET_STD)
+                .view([1, 3, 1, 1])
+                .to_device(p.device()),
         })
     }
 
@@ -656,8 +661,8 @@ impl Network for Cmx {
             config: self.config.clone(),
             encoder: self.encoder.folded(folder),
             decoder: Head::Folded(decoder.folded_for_inference(folder)),
-            mean: self.mean.shallow_clone(),
-            std: self.std.shallow_clone(),
+            mean: self.mean.to_kind(folder.kind()),
+            std: self.std.to_kind(folder.kind()),
         }))
     }
 }

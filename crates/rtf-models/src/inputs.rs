@@ -14,18 +14,19 @@ use crate::Network;
 /// (rtf-config).
 pub use rtf_config::network::Modality;
 
-/// `x` [B, 4, H, W] with the channels `inputs` does not see set to 0.
+/// `x` [B, 4, H, W] with the channels `inputs` does not see set to 0: a copy with those
+/// channels zeroed on `x`'s device (no mask from host memory, which would be a copy to a GPU at
+/// every forward pass).
 pub fn mask(inputs: Modality, x: &Tensor) -> Tensor {
-    let (keep_rgb, keep_t) = match inputs {
+    let (start, len) = match inputs {
         Modality::RgbT => return x.shallow_clone(),
-        Modality::Rgb => (1.0, 0.0),
-        Modality::Thermal => (0.0, 1.0),
+        Modality::Rgb => (3, 1),
+        Modality::Thermal => (0, 3),
     };
-    let mask = Tensor::from_slice(&[keep_rgb, keep_rgb, keep_rgb, keep_t])
-        .to_kind(x.kind())
-        .to_device(x.device())
-        .view([1, 4, 1, 1]);
-    x * mask
+    let mut masked = x.empty_like();
+    masked.copy_(x);
+    let _ = masked.narrow(1, start, len).zero_();
+    masked
 }
 
 /// A network behind its input mask: it sees only the channels of `inputs`.

@@ -23,8 +23,8 @@ pub mod ops;
 mod path;
 pub use crate::fast::folder::{Fold, Folder};
 pub use fold::batch_norm_affine;
-use ops::nearest_up2_conv3x3_as_phases;
 pub use ops::{is_channels_last, leaky_relu, leaky_relu_inference, to_channels_last, Act};
+use ops::{nearest_up2_conv3x3_as_phases, phase_taps};
 pub use path::{BuildOptions, Path, UnitKernels};
 
 /// BatchNorm2d initialised as PyTorch's (weight 1, bias 0; tch's default weight is U(0, 1)).
@@ -297,6 +297,9 @@ struct Plain {
     winograd: Forms,
     /// How it convolves in bf16 inside a CPU bf16 autocast region (its build's kernels).
     bf16_convolutions: Bf16Convolutions,
+    /// The phase form's taps on the weight's device ([`phase_taps`]), for a unit built with
+    /// [`ConvSpec::nearest_upsampled_input`].
+    phase_taps: Option<Tensor>,
 }
 
 impl Plain {
@@ -336,12 +339,16 @@ impl ConvBnAct {
         });
         let bn = bn.map(|p| bn2d_with(p, c_out, spec.bn_weight_init, spec.bn_eps));
         let kernels = conv.kernels();
+        let phase_taps = spec
+            .nearest_upsampled_input
+            .then(|| phase_taps(weight.device()));
         let plain = Plain {
             weight,
             bias,
             bn,
             winograd: kernels.winograd,
             bf16_convolutions: kernels.bf16_convolutions,
+            phase_taps,
         };
         Self {
             spec,
@@ -388,8 +395,8 @@ impl ConvBnAct {
             Form::Folded(f) => return inference_only(f, train).forward_upsampled(xs),
             Form::Plain(p) => p,
         };
-        if train && self.spec.nearest_upsampled_input {
-            let weight = nearest_up2_conv3x3_as_phases(&p.weight);
+        if let (true, Some(taps)) = (train, &p.phase_taps) {
+            let weight = nearest_up2_conv3x3_as_phases(&p.weight, taps);
             let bias = p.bias.as_ref().map(|b| b.repeat([4]));
             // [B, c_in, H, W] -> [B, 4·c_out, H + 1, W + 1] -> [B, c_out, 2H, 2W]
             let phases = self.conv(p, xs, &weight, bias.as_ref());

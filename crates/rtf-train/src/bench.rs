@@ -110,7 +110,7 @@ pub fn bench_train(opts: &TrainBenchOptions) -> Result<TrainBenchReport, TrainEr
     tch::manual_seed(0);
     let mut bench = Bench {
         student: Student::build(&cfg, opts.device)?,
-        loss_fn: crate::loss::build(&cfg.learning.loss, None),
+        loss_fn: crate::loss::build(&cfg.learning.loss, None, opts.device),
         // The base rate: a schedule's first step may be 0 (a warm-up), and time does not care.
         lr: cfg.learning.optimizer.lr,
         device: opts.device,

@@ -1,6 +1,6 @@
 //! Losses: anything mapping (logits, target) to a scalar. The training loop takes any of them.
 
-use tch::{Kind, Reduction, Tensor};
+use tch::{Device, Kind, Reduction, Tensor};
 
 use crate::config::LossConfig;
 
@@ -31,13 +31,15 @@ impl Loss for CrossEntropy {
     }
 }
 
-/// Instantiates the loss `config` names; `ignore_id` comes from the dataset's class set.
-pub fn build(config: &LossConfig, ignore_id: Option<u8>) -> Box<dyn Loss> {
+/// Instantiates the loss `config` names, its tensors on `device` (made once: from host memory
+/// at every step they would be a copy to the GPU at every step); `ignore_id` comes from the
+/// dataset's class set.
+pub fn build(config: &LossConfig, ignore_id: Option<u8>, device: Device) -> Box<dyn Loss> {
     match config {
         LossConfig::CrossEntropy { class_weights } => Box::new(CrossEntropy {
             class_weights: class_weights
                 .as_ref()
-                .map(|w| Tensor::from_slice(w).to_kind(Kind::Float)),
+                .map(|w| Tensor::from_slice(w).to_kind(Kind::Float).to_device(device)),
             // PyTorch's default -100: no label takes it, but the loader's padding of a set
             // without an ignore id does (rtf_data::loader::NO_LABEL).
             ignore_index: ignore_id.map_or(rtf_data::loader::NO_LABEL, i64::from),
@@ -220,6 +222,7 @@ mod tests {
                 class_weights: None,
             },
             Some(13),
+            Device::Cpu,
         );
         let value = f64::try_from(loss.compute(&logits, &target)).unwrap();
         assert!((0.0..1e-3).contains(&value), "{value}");

@@ -95,7 +95,8 @@ impl Optimizer {
         let device = vs.device();
         let mut found_inf = Tensor::zeros([1], (Kind::Float, device));
         // The scale is a power of two: multiplying by its inverse is exact, as dividing is.
-        let inv_scale = Tensor::from_slice(&[(1.0 / scale) as f32]).to_device(device);
+        // Filled on the device: no copy from host memory (on a GPU one more wait a step).
+        let inv_scale = Tensor::full([1], 1.0 / scale, (Kind::Float, device));
         tch::no_grad(|| {
             for (_, param) in trainable(vs) {
                 let mut grad = param.grad();

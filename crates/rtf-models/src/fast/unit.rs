@@ -7,7 +7,7 @@
 use tch::{Kind, Tensor};
 
 use super::folder::Folder;
-use crate::layers::ops::{nearest_up2_conv3x3_as_phases, to_channels_last, Act};
+use crate::layers::ops::{nearest_up2_conv3x3_as_phases, phase_taps, to_channels_last, Act};
 use rtf_kernels::onednn::{conv_add_with_post_op, conv_with_post_op, Geometry};
 
 /// A folded convolution weight in the form the inference path runs it in.
@@ -93,7 +93,10 @@ impl FoldedConv {
             }
         };
         let upsampled = upsampled.then(|| PhaseConv {
-            weight: lay_out(nearest_up2_conv3x3_as_phases(&weight)),
+            weight: lay_out(nearest_up2_conv3x3_as_phases(
+                &weight,
+                &phase_taps(weight.device()),
+            )),
             bias: bias.as_ref().map(|b| b.repeat([4]).to_kind(stored_kind)),
         });
         let weight = inference_form(weight, geometry, folder, lay_out);

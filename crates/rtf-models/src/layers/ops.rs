@@ -2,7 +2,7 @@
 //! the folded inference units ([`crate::fast::unit`]): activations, channels-last layout, and
 //! the phase form of a 3×3 convolution of a nearest-upsampled map.
 
-use tch::{Kind, Tensor};
+use tch::{Device, Kind, Tensor};
 
 use rtf_kernels::aten::aten_leaky_relu;
 use rtf_kernels::onednn::PostOp;
@@ -85,25 +85,31 @@ impl Act {
     }
 }
 
-/// How a convolution's weight is initialised when no weights are loaded.
+/// The taps of [`nearest_up2_conv3x3_as_phases`], [2 phases, 2 taps, 3 kernel rows], on
+/// `device`. Per axis, output 2m + a reads upsampled rows 2m + a − 1 … 2m + a + 1, i.e. source
+/// rows m − 1, m, m (a = 0) or m, m, m + 1 (a = 1). A 2×2 convolution with padding 1 reads
+/// source rows r − 1 (tap 0) and r (tap 1) for its output r, so phase a takes output r = m + a
+/// and tap t = Σ_k TAPS[a][t][k]·w[k]. Made once by the unit that trains in the phase form: a
+/// tensor filled from host memory at every step would be a copy to the GPU at every step, and
+/// from pageable memory one that waits for the device's queue to drain (docs/src/gpu.md).
+pub(crate) fn phase_taps(device: Device) -> Tensor {
+    Tensor::from_slice(&[1f32, 0., 0., 0., 1., 1., 1., 1., 0., 0., 0., 1.])
+        .view([2, 2, 3])
+        .to_device(device)
+}
+
 /// A 3×3 convolution weight [c_out, c_in, 3, 3] (stride 1, padding 1, no dilation) applied
 /// after nearest ×2 upsampling, rewritten as one 2×2 convolution (padding 1) of the small map
 /// with the four output phases stacked along channels: [4·c_out, c_in, 2, 2]. The same output
 /// without building the upsampled map, with 16 instead of 36 multiply-adds per input-output
 /// channel pair and source pixel, and as a plain convolution (oneDNN's transposed ones are
-/// ~2× slower per multiply-add at MFNet's 9 output channels).
-pub(crate) fn nearest_up2_conv3x3_as_phases(weight: &Tensor) -> Tensor {
-    // Per axis, output 2m + a reads upsampled rows 2m + a − 1 … 2m + a + 1, i.e. source rows
-    // m − 1, m, m (a = 0) or m, m, m + 1 (a = 1). A 2×2 convolution with padding 1 reads source
-    // rows r − 1 (tap 0) and r (tap 1) for its output r, so phase a takes output r = m + a and
-    // tap t = Σ_k TAPS[a][t][k]·w[k].
-    let taps = Tensor::from_slice(&[1f32, 0., 0., 0., 1., 1., 1., 1., 0., 0., 0., 1.])
-        .view([2, 2, 3])
-        .to_device(weight.device());
+/// ~2× slower per multiply-add at MFNet's 9 output channels). `taps`: [`phase_taps`], on the
+/// weight's device.
+pub(crate) fn nearest_up2_conv3x3_as_phases(weight: &Tensor, taps: &Tensor) -> Tensor {
     let (c_out, c_in) = (weight.size()[0], weight.size()[1]);
     Tensor::einsum(
         "atk,oikl,bul->aboitu",
-        &[&taps, &weight.to_kind(Kind::Float), &taps],
+        &[taps, &weight.to_kind(Kind::Float), taps],
         None::<&[i64]>,
     )
     .reshape([4 * c_out, c_in, 2, 2])

@@ -92,7 +92,7 @@ pub fn build_from(
     Ok(match &spec.learning.procedure {
         ProcedureConfig::Supervised => Box::new(Supervised {
             student: student()?,
-            loss: crate::loss::build(&spec.learning.loss, ignore_id),
+            loss: crate::loss::build(&spec.learning.loss, ignore_id, device),
         }),
         ProcedureConfig::TeacherStudent { targets, .. } => {
             let student = student()?;

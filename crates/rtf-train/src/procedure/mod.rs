@@ -357,7 +357,7 @@ mod tests {
         tch::manual_seed(7);
         let x = Tensor::rand([2, 4, 64, 96], (Kind::Float, Device::Cpu));
         let y = Tensor::randint(9, [2, 64, 96], (Kind::Int64, Device::Cpu));
-        let loss_fn = crate::loss::build(&cfg.learning.loss, None);
+        let loss_fn = crate::loss::build(&cfg.learning.loss, None, Device::Cpu);
         for student in [&mut nchw, &mut nhwc] {
             let loss = loss_fn.compute(&student.logits(&x), &y);
             let trained = &mut student.trained;
