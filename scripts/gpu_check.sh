@@ -52,10 +52,21 @@ logits_of() {
         --out "$work/${prefix}_${run}_$precision" "$mf"/*.png >/dev/null
 }
 
+# One training step of MFNet from the published weights into WORK/NAME_RUN: RUN cpu, cuda or
+# cuda_fp32 (NVIDIA_TF32_OVERRIDE=0 keeps cuDNN and cuBLAS off TF32: plain fp32 products).
+one_step() {
+    local name=$1 run=$2
+    shift 2
+    env $([ "$run" = cuda_fp32 ] && echo NVIDIA_TF32_OVERRIDE=0) "$rtf" train --model mfnet \
+        --data "$work/step_data" --init "$mf/mfnet_final.safetensors" --epochs 1 --max-steps 1 \
+        --batch-size 4 --no-shuffle --no-augment --seed 0 --device "${run%_fp32}" "$@" \
+        --out "$work/${name}_$run" >"$work/${name}_$run.log" 2>&1 || { tail "$work/${name}_$run.log"; return 1; }
+}
+
 # The published MFNet on the two real MF frames: the GPU's labels against the CPU's (plain
 # path on the CPU; plain, fast fp32, fp16 and bf16 on the GPU). Then one SGD step of MFNet from
 # the published weights on the same batch, CPU against GPU (with TF32, libtorch's default, and
-# without): the weight updates compared. Then CMX-B2's logits, GPU against CPU, with the weights
+# without): the weight updates compared; one AdamW step likewise. Then CMX-B2's logits, GPU against CPU, with the weights
 # of one GPU training step (it has no published ones).
 phase_correct() {
     local variant
@@ -63,12 +74,12 @@ phase_correct() {
         logits_of mfnet "$mf/mfnet_final.safetensors" mf "$variant" || return 1
     done
     "$rtf" synth --out "$work/step_data" --count 8 --size 320x256 --seed 3 >/dev/null || return 1
-    # cuda_fp32: NVIDIA_TF32_OVERRIDE=0 keeps cuDNN and cuBLAS off TF32 (plain fp32 products).
     for run in cpu cuda cuda_fp32; do
-        env $([ "$run" = cuda_fp32 ] && echo NVIDIA_TF32_OVERRIDE=0) "$rtf" train --model mfnet \
-            --data "$work/step_data" --init "$mf/mfnet_final.safetensors" --epochs 1 --max-steps 1 \
-            --batch-size 4 --no-shuffle --no-augment --seed 0 --device "${run%_fp32}" \
-            --out "$work/step_$run" >"$work/step_$run.log" 2>&1 || { tail "$work/step_$run.log"; return 1; }
+        one_step step "$run" || return 1
+    done
+    # rtf's AdamW in ATen's fused kernel (since 2026-11-29), on the GPU and the CPU.
+    for run in cpu cuda_fp32; do
+        one_step adamw "$run" --optimizer adamw --warmup-epochs 0 || return 1
     done
     "$rtf" train --model cmx-mit-b2 --data "$work/step_data" --epochs 1 --max-steps 1 --batch-size 2 \
         --no-shuffle --no-augment --seed 0 --device cuda --out "$work/cmx_init" >"$work/cmx_init.log" 2>&1 ||
