@@ -182,9 +182,10 @@ def main():
             rows.append(row)
             failures += [f"{model} {precision}: {f}" for f in failed]
             print(("ok   " if not failed else "FAIL ") + json.dumps(row), flush=True)
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump({"torch": torch.__version__, "device": a.device, "rows": rows, "failures": failures}, f, indent=1)
+        if a.json:  # after every network, so a run cut off keeps its part
+            with open(a.json, "w") as f:
+                json.dump({"torch": torch.__version__, "device": a.device, "rows": rows, "failures": failures}, f,
+                          indent=1)
     for f in failures:
         print("FAIL " + f)
     sys.exit(1 if failures else 0)
