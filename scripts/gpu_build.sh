@@ -36,6 +36,7 @@ if [ ! -d "$sys" ]; then
 fi
 tree=$work/tree
 if [ ! -d "$tree" ]; then
+    git -C "$repo" worktree prune # a worktree of an earlier WORK that is gone since
     git -C "$repo" worktree add --detach "$tree" HEAD
 fi
 # -f: the last build's edits (Cargo.lock's patched torch-sys, the wheel's version check) go.
