@@ -61,12 +61,13 @@ def frame(path):
     return rgb, thermal, x
 
 
-def host_copies(net, x, device):
-    """Names of the memory copies between host and device that one `net(x)` makes."""
+def host_copies(run, device):
+    """Names of the memory copies between host and device that `run()` makes (torch's profiler
+    with its CUDA activity; none on the CPU)."""
     from torch.profiler import ProfilerActivity, profile
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device == "cuda" else [])
     with profile(activities=activities) as prof:
-        net(x)
+        run()
         if device == "cuda":
             torch.cuda.synchronize()
     return sorted({e.name for e in prof.events() if "HtoD" in e.name or "DtoH" in e.name})
@@ -85,7 +86,6 @@ def allocator_reader(device):
 def training_copies(a, model):
     """Host-device copies of one training step of `model` from Python (after one untimed step,
     which makes cuDNN's plans): forward in training mode, cross-entropy, backward."""
-    from torch.profiler import ProfilerActivity, profile
     net = rtf.load_network(model, device=a.device).train()
     x = torch.rand(2, 4, 256, 320, device=a.device)
     y = torch.randint(0, len(net.classes), (2, 256, 320), device=a.device)
@@ -94,12 +94,7 @@ def training_copies(a, model):
         torch.nn.functional.cross_entropy(net(x), y).backward()
 
     step()
-    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if a.device == "cuda" else [])
-    with profile(activities=activities) as prof:
-        step()
-        if a.device == "cuda":
-            torch.cuda.synchronize()
-    return sorted({e.name for e in prof.events() if "HtoD" in e.name or "DtoH" in e.name})
+    return host_copies(step, a.device)
 
 
 def time_forward(net, x, warmup, iterations, device):
@@ -135,7 +130,7 @@ def check_network(a, model, precision, real):
     out = net(x)
     if out.device.type != a.device or tuple(out.shape) != (a.batch, len(net.classes), 480, 640):
         failed.append(f"net(x) gave {tuple(out.shape)} on {out.device}")
-    copies = host_copies(net, x, a.device)
+    copies = host_copies(lambda: net(x), a.device)
     if copies:
         failed.append(f"net(x) copied between host and device: {copies}")
     row = {"model": model, "precision": precision, "batch": a.batch, "host_copies": copies}
